@@ -1,0 +1,1 @@
+"""The HTTP face of thermocomp: REST, WebSocket, dashboard; and the process entry point."""

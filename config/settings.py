@@ -1,0 +1,385 @@
+"""The settings tree of thermocomp: one pydantic model, loaded once in the entry point.
+
+A settings object is built by :func:`load_settings` from a TOML file and
+``THERMOCOMP_<SECTION>__<FIELD>`` environment variables (environment wins), and is then
+passed down explicitly. There is deliberately no module-level settings instance.
+
+Every section forbids unknown keys, so a typo in a TOML file is an error that names the
+key instead of a silently ignored setting.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from types import UnionType
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+ENV_PREFIX = "THERMOCOMP_"
+ENV_NESTING = "__"
+
+#: Baud rates the C500C's `siocfg` and the host serial ports both offer (C500C.md).
+SUPPORTED_BAUDRATES = (9600, 19200, 38400, 57600, 115200)
+
+PositiveFloat = Annotated[float, Field(gt=0)]
+NonNegativeFloat = Annotated[float, Field(ge=0)]
+
+
+class ConfigError(Exception):
+    """The configuration could not be loaded; ``str()`` is the message for the user."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_default=True, frozen=True)
+
+
+class BenchSettings(_Section):
+    """The simulated bench and the clock every component shares."""
+
+    enabled: bool = Field(True, description="Use the simulated bench instead of hardware.")
+    clock: Literal["real", "accelerated", "virtual"] = Field(
+        "virtual",
+        description="real: wall time; accelerated: wall time x time_factor; virtual: jump to "
+        "the next deadline (an hour in seconds).",
+    )
+    time_factor: PositiveFloat = Field(
+        100.0, description="Speed-up of the accelerated clock (bench seconds per wall second)."
+    )
+    seed: int = Field(1, description="Seed of every random part of the bench.")
+    heater_power_w: NonNegativeFloat = Field(
+        0.5, description="Power of each heater pad on the bench (W)."
+    )
+    heater_off_s: NonNegativeFloat | None = Field(
+        None, description="Bench time at which the heaters switch off (s); none: stay on."
+    )
+    truth_network: str = Field(
+        "thesis-two-link",
+        description="Network preset or file the bench's physical truth is built from.",
+    )
+    truth_heat_scale: PositiveFloat = Field(
+        1.0, description="Truth heat input / model heat input (1 = model is right)."
+    )
+    truth_convection_scale: PositiveFloat = Field(
+        1.0, description="Truth convection / model convection (1 = model is right)."
+    )
+    stand_drift_um: float = Field(
+        2.0, description="Camera-stand warm-up drift amplitude (um), thesis 4.8; 0 = off."
+    )
+    stand_drift_tau_s: PositiveFloat = Field(
+        600.0, description="Time constant of the camera-stand drift (s), thesis 4.8."
+    )
+    robot_noise_um: NonNegativeFloat = Field(
+        0.9,
+        description="1-sigma positioning error of the emulated robot (um); 0.9 reproduces the "
+        "thesis's absolute-command S_x (Table 6.1).",
+    )
+
+
+class CameraSettings(_Section):
+    """The camera that watches the laser spot (thesis 3.2.3)."""
+
+    driver: Literal["sim", "opencv", "replay"] = Field(
+        "sim", description="sim: the bench's camera; opencv: VideoCapture; replay: a folder."
+    )
+    device: int | str = Field(0, description="OpenCV device index, path or URL.")
+    replay_dir: Path | None = Field(None, description="Folder of frames for the replay driver.")
+    width_px: Annotated[int, Field(gt=0)] = Field(752, description="Frame width requested (px).")
+    height_px: Annotated[int, Field(gt=0)] = Field(582, description="Frame height requested (px).")
+    bit_depth: Literal[8, 12, 16] = Field(16, description="Bits per pixel of the frames.")
+    pixel_pitch_um: tuple[PositiveFloat, PositiveFloat] = Field(
+        (8.6, 8.3), description="Physical pixel pitch (x, y) of the chip (um)."
+    )
+    um_per_px: tuple[PositiveFloat, PositiveFloat] = Field(
+        (10.22, 9.72),
+        description="Calibrated micrometres per pixel (x, y); the thesis measured 10.22, 9.72.",
+    )
+    gain_e_per_count: PositiveFloat = Field(
+        1.0, description="Electrons per count, for the centroid's uncertainty estimate."
+    )
+    read_noise_e: NonNegativeFloat = Field(
+        5.0, description="Read noise (electrons RMS), for the centroid's uncertainty estimate."
+    )
+    centroid_method: Literal["robust", "thesis"] = Field(
+        "robust", description="robust: background-subtracted, re-centred; thesis: its replica."
+    )
+    max_age_s: PositiveFloat = Field(
+        2.0, description="A frame older than this (s) is stale and flagged, never used silently."
+    )
+
+
+class IrRegion(_Section):
+    """A rectangle of the thermal image whose mean/max temperature is reported."""
+
+    name: str
+    x: Annotated[int, Field(ge=0)]
+    y: Annotated[int, Field(ge=0)]
+    width: Annotated[int, Field(gt=0)]
+    height: Annotated[int, Field(gt=0)]
+    node: str | None = Field(None, description="Model node this region measures, if any.")
+
+
+class IrSettings(_Section):
+    """The infrared camera that reads the link temperatures."""
+
+    driver: Literal["sim", "opencv", "replay"] = Field(
+        "sim", description="sim: the bench's IR reader; opencv: radiometric Y16; replay: a folder."
+    )
+    device: int | str = Field(1, description="OpenCV device index, path or URL.")
+    replay_dir: Path | None = Field(None, description="Folder of thermal frames to replay.")
+    counts_to_celsius: tuple[float, float] = Field(
+        (0.01, -273.15),
+        description="Linear calibration (scale, offset): T = scale * counts + offset; the "
+        "default reads centi-kelvin counts (FLIR Lepton radiometric Y16).",
+    )
+    noise_c: NonNegativeFloat = Field(0.08, description="Sim: 1-sigma noise (degC).")
+    offset_c: float = Field(0.5, description="Sim: fixed offset within the +-2 degC accuracy.")
+    regions: tuple[IrRegion, ...] = Field(
+        (),
+        description="Regions of interest: [[ir.regions]] tables (name, x, y, width, height, node).",
+    )
+    max_age_s: PositiveFloat = Field(5.0, description="A reading older than this (s) is stale.")
+
+
+class RobotSettings(_Section):
+    """The CRS C500C controller's serial console (C500C.md)."""
+
+    driver: Literal["sim", "c500c"] = Field(
+        "sim", description="sim: the C500C emulator on a pseudo-terminal; c500c: a real port."
+    )
+    port: str = Field("/dev/ttyS0", description="Serial device of the controller's console.")
+    baudrate: int = Field(57600, description="Console baud rate (the C500C default is 57600).")
+    bytesize: Literal[7, 8] = Field(8, description="Data bits.")
+    parity: Literal["N", "E", "O"] = Field("N", description="Parity: none, even, odd.")
+    stopbits: Literal[1, 2] = Field(1, description="Stop bits.")
+    command_timeout_s: PositiveFloat = Field(5.0, description="Timeout of one console command.")
+    move_timeout_s: PositiveFloat = Field(60.0, description="Timeout of a move and its finish.")
+    online: bool = Field(True, description="Use straight-line moves (needs `online on`).")
+    application: str = Field("ash", description="Name of the ash application (prompt).")
+    reconnect_max_backoff_s: PositiveFloat = Field(
+        30.0, description="Longest wait between two reconnection attempts (s)."
+    )
+    emulator_paced: bool = Field(
+        False, description="Sim: pace the emulator at the baud rate (real link timings)."
+    )
+    emulator_move_ms: NonNegativeFloat = Field(5.0, description="Sim: time one move takes (ms).")
+
+    @field_validator("baudrate")
+    @classmethod
+    def _known_baudrate(cls, value: int) -> int:
+        if value not in SUPPORTED_BAUDRATES:
+            raise ValueError("must be one of " + ", ".join(map(str, SUPPORTED_BAUDRATES)))
+        return value
+
+
+class ModelSettings(_Section):
+    """The controller's thermal model (thesis 5.4)."""
+
+    network: str = Field(
+        "thesis-two-link", description="Preset name in config/networks or a TOML file path."
+    )
+    stepper: Literal["exact", "explicit", "implicit"] = Field(
+        "exact", description="exact: zero-order hold (any dt); explicit: Eq. 5.1; implicit: sparse."
+    )
+    ambient_c: float = Field(22.0, description="Ambient temperature (degC).")
+    heat_w: dict[str, NonNegativeFloat] = Field(
+        default_factory=lambda: {"2": 0.5, "9": 0.5},
+        description="Heat input per node (1-based thesis number or name) in W.",
+    )
+    reference_nodes: tuple[str, str] | None = Field(
+        None, description="Deformation between these nodes; none: the network's default."
+    )
+    direction: tuple[float, float, float] = Field(
+        (1.0, 0.0, 0.0), description="Unit vector of the link's axis in world coordinates."
+    )
+
+
+class CompensationSettings(_Section):
+    """How a predicted deformation becomes a robot move (thesis 6.3, 6.4.4)."""
+
+    mode: Literal["off", "absolute", "incremental"] = Field(
+        "absolute", description="absolute: goal + offset (6.4.4); incremental: thesis comparison."
+    )
+    deformation_scale: PositiveFloat = Field(
+        1.0, description="Scale factor on the deformation (thesis 6.3); checked against the chip."
+    )
+    time_scale: PositiveFloat = Field(1.0, description="Time scale of the procedure (thesis 6.3).")
+    max_step_change_mm: PositiveFloat = Field(
+        0.5, description="Largest change of the offset between two steps (mm)."
+    )
+    max_total_offset_mm: PositiveFloat = Field(
+        5.0, description="Largest offset from the operational goal (mm)."
+    )
+    latency_s: NonNegativeFloat = Field(
+        0.0, description="Predict this far ahead: when the move is expected to execute (s)."
+    )
+
+
+class SchedulerSettings(_Section):
+    """The fixed-step control loop (thesis chapter 6)."""
+
+    procedure: Literal["stationary", "moving", "repeatability"] = Field(
+        "stationary", description="What the robot does during the run (thesis 3.2.4, 2.2.2)."
+    )
+    step_s: Annotated[float, Field(ge=0.01, le=600)] = Field(
+        1.0, description="Step period (s), 10 ms to 10 min."
+    )
+    duration_s: PositiveFloat = Field(3600.0, description="Run length (s of run clock).")
+    warmup_wait_s: NonNegativeFloat = Field(
+        0.0, description="Camera warm-up wait before the first step (s)."
+    )
+
+
+class StorageSettings(_Section):
+    """Where runs are recorded (SQLite, WAL)."""
+
+    data_dir: Path = Field(Path("data"), description="Folder of the run database and frames.")
+    archive_every: Annotated[int, Field(ge=0)] = Field(
+        0, description="Archive every N-th frame as a 16-bit PNG; 0 = none."
+    )
+
+
+class ApiSettings(_Section):
+    """The REST/WebSocket server."""
+
+    host: str = Field("127.0.0.1", description="Address the API binds to.")
+    port: Annotated[int, Field(ge=0, le=65535)] = Field(8000, description="TCP port; 0: any.")
+    control_token: str | None = Field(None, description="Bearer token of the `control` scope.")
+    read_token: str | None = Field(None, description="Bearer token of the `read` scope.")
+    anonymous_read: bool | None = Field(
+        None, description="Allow reads without a token; none: only when bound to loopback."
+    )
+    allowed_origins: tuple[str, ...] = Field(
+        (), description="Origins allowed to open the WebSocket besides the server's own."
+    )
+
+
+class Settings(_Section):
+    """Everything thermocomp can be told, one section per part of the product."""
+
+    bench: BenchSettings = BenchSettings()
+    camera: CameraSettings = CameraSettings()
+    ir: IrSettings = IrSettings()
+    robot: RobotSettings = RobotSettings()
+    model: ModelSettings = ModelSettings()
+    compensation: CompensationSettings = CompensationSettings()
+    scheduler: SchedulerSettings = SchedulerSettings()
+    storage: StorageSettings = StorageSettings()
+    api: ApiSettings = ApiSettings()
+
+
+def _env_value(raw: str) -> Any:
+    """An environment value: JSON when it parses (numbers, lists, objects), else the string."""
+    try:
+        return json.loads(raw)
+    except ValueError:
+        return raw
+
+
+def _apply_environment(data: dict[str, Any], environ: Mapping[str, str]) -> dict[str, str]:
+    """Merge ``THERMOCOMP_SECTION__FIELD`` variables into ``data``; return the ones used."""
+    used: dict[str, str] = {}
+    for name, raw in sorted(environ.items()):
+        if not name.startswith(ENV_PREFIX) or ENV_NESTING not in name:
+            continue
+        path = name[len(ENV_PREFIX) :].lower().split(ENV_NESTING)
+        node = data
+        for key in path[:-1]:
+            child = node.setdefault(key, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"{name}: {'.'.join(path)}: {key} is not a section")
+            node = child
+        node[path[-1]] = _env_value(raw)
+        used[".".join(path)] = name
+    return used
+
+
+def _describe(error: ValidationError, source: str, env_used: dict[str, str]) -> str:
+    lines = []
+    for item in error.errors():
+        path = ".".join(str(part) for part in item["loc"])
+        reason = str(item["msg"]).removeprefix("Value error, ")
+        if item["type"] == "extra_forbidden":
+            reason = "unknown setting"
+        origin = f"{env_used[path]} (environment)" if path in env_used else source
+        lines.append(f"{origin}: {path}: {reason}")
+    return "\n".join(lines)
+
+
+def load_settings(path: Path | None = None, environ: Mapping[str, str] | None = None) -> Settings:
+    """Build the settings from an optional TOML file and the environment.
+
+    Raises :class:`ConfigError` with ``<file>: <field.path>: <reason>`` lines.
+    """
+    environ = os.environ if environ is None else environ
+    data: dict[str, Any] = {}
+    source = "defaults"
+    if path is not None:
+        source = str(path)
+        try:
+            with open(path, "rb") as handle:
+                data = tomllib.load(handle)
+        except FileNotFoundError as err:
+            raise ConfigError(f"{path}: no such file") from err
+        except tomllib.TOMLDecodeError as err:
+            raise ConfigError(f"{path}: not valid TOML: {err}") from err
+        except OSError as err:
+            raise ConfigError(f"{path}: cannot read: {err.strerror}") from err
+    env_used = _apply_environment(data, environ)
+    try:
+        return Settings.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(_describe(err, source, env_used)) from err
+
+
+def _type_name(annotation: Any) -> str:
+    """A reader's name for a field type: choices spelled out, Optional as "| none"."""
+    origin, args = get_origin(annotation), get_args(annotation)
+    if origin is Literal:
+        return " \\| ".join(json.dumps(arg) for arg in args)
+    if origin in (Union, UnionType):
+        return " \\| ".join("none" if arg is type(None) else _type_name(arg) for arg in args)
+    if origin is Annotated:
+        return _type_name(args[0])
+    if origin is not None:
+        inner = ", ".join("..." if arg is Ellipsis else _type_name(arg) for arg in args)
+        return f"{getattr(origin, '__name__', str(origin))}[{inner}]"
+    return getattr(annotation, "__name__", str(annotation))
+
+
+def settings_reference() -> list[tuple[str, str, str, str]]:
+    """(key, type, default, description) of every setting, for the README's reference."""
+    rows: list[tuple[str, str, str, str]] = []
+    for section_name, section_field in Settings.model_fields.items():
+        section_type = section_field.annotation
+        assert isinstance(section_type, type) and issubclass(section_type, BaseModel)
+        for name, field in section_type.model_fields.items():
+            annotation = _type_name(field.annotation)
+            default = field.get_default(call_default_factory=True)
+            default_text = json.dumps(default, default=str) if default is not None else "none"
+            rows.append(
+                (f"{section_name}.{name}", annotation, default_text, field.description or "")
+            )
+    return rows
+
+
+README_BEGIN = (
+    "<!-- settings-reference:begin (generated by `python -m config --readme README.md`) -->"
+)
+README_END = "<!-- settings-reference:end -->"
+
+
+def settings_reference_markdown() -> str:
+    """The configuration reference as a Markdown table (kept in README.md)."""
+    lines = [
+        "| key | type | default | meaning |",
+        "| --- | --- | --- | --- |",
+    ]
+    for key, type_name, default, description in settings_reference():
+        cells = (key, type_name, default.replace("|", "\\|"), description.replace("|", "\\|"))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)

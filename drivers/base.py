@@ -1,0 +1,150 @@
+"""What the daemon needs of each device: a Protocol per kind and the values they return.
+
+Every implementation (real, replay, simulated) is an async context manager: entering opens
+the device, leaving closes it whatever happened.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Protocol, Self
+
+import numpy as np
+from numpy.typing import NDArray
+
+Vector3 = tuple[float, float, float]
+
+
+class AsyncDevice(Protocol):
+    async def __aenter__(self) -> Self: ...
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None: ...
+
+
+# --- camera ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One camera image. Pixel (row r, column c) has its centre at (x = c, y = r)."""
+
+    image: NDArray[np.integer]  # 2-D, uint8 or uint16
+    bit_depth: int  # significant bits (8, 12, 16)
+    timestamp_s: float  # on the run clock (drivers.clock), when the exposure ended
+    sequence: int  # 0, 1, 2 ... per opened camera
+
+
+class Camera(AsyncDevice, Protocol):
+    async def grab(self) -> Frame:
+        """The next frame; raises a DeviceError subclass when none can be had."""
+        ...
+
+
+# --- infrared reader -------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class RegionTemperature:
+    name: str
+    mean_c: float
+    max_c: float
+    node: str | None  # the model node this region measures, if any
+
+
+@dataclass(frozen=True, slots=True)
+class IrReading:
+    regions: dict[str, RegionTemperature]
+    timestamp_s: float  # on the run clock
+    sequence: int
+    frame_c: NDArray[np.floating] | None = None  # the thermal image in degC, when available
+
+
+class IrReader(AsyncDevice, Protocol):
+    async def read(self) -> IrReading: ...
+
+
+# --- robot -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """A world pose as the C500C prints it: mm and degrees (WORLD row of `w2`)."""
+
+    x: float
+    y: float
+    z: float
+    z_rot: float = 0.0
+    y_rot: float = 0.0
+    x_rot: float = 0.0
+
+    @property
+    def position(self) -> Vector3:
+        return (self.x, self.y, self.z)
+
+
+@dataclass(frozen=True, slots=True)
+class MoveResult:
+    requested_mm: Vector3  # the offset (or increment) asked for
+    commanded_mm: Vector3  # what was sent: rounded to the console's 0.001 mm
+    actual: Pose  # read back after the move finished
+    bytes_sent: int = 0
+    bytes_received: int = 0
+
+    @property
+    def rounding_mm(self) -> Vector3:
+        c, r = self.commanded_mm, self.requested_mm
+        return (c[0] - r[0], c[1] - r[1], c[2] - r[2])
+
+
+class LinkState(enum.Enum):
+    DISCONNECTED = "disconnected"
+    CONNECTING = "connecting"
+    CONNECTED = "connected"
+    AWAITING_POINT_OF_CONTROL = "awaiting-point-of-control"  # operator must press PAUSE/CONTINUE
+    RECONNECTING = "reconnecting"
+    FAULT = "fault"
+
+
+@dataclass(frozen=True, slots=True)
+class RobotStatus:
+    link: LinkState
+    arm_power: bool | None = None
+    homed: bool | None = None
+    online: bool | None = None
+    point_of_control: bool | None = None
+    motion_held: bool = False  # after a fault: no motion until resume()
+    last_error: str | None = None
+    extra: dict[str, str] = field(default_factory=dict)
+
+
+class Robot(AsyncDevice, Protocol):
+    async def teach_goal(self) -> Pose:
+        """Remember the current pose as the operational goal (`here opgoal`)."""
+        ...
+
+    async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
+        """Move to goal + offset: the thesis's absolute location command (6.4.4)."""
+        ...
+
+    async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
+        """Move by delta from where the robot is (kept to reproduce the thesis)."""
+        ...
+
+    async def actual_pose(self) -> Pose: ...
+
+    async def stop(self) -> None:
+        """Hold the robot where it is now."""
+        ...
+
+    async def resume(self) -> None:
+        """Allow motion again after a fault (an explicit request, never automatic)."""
+        ...
+
+    def status(self) -> RobotStatus: ...

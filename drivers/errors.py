@@ -1,0 +1,51 @@
+"""One error hierarchy for every device. Drivers raise these, chained with ``from``."""
+
+from __future__ import annotations
+
+
+class DeviceError(Exception):
+    """A device failed. ``device`` names it ("robot", "camera", "ir")."""
+
+    kind = "device"
+
+    def __init__(self, device: str, message: str) -> None:
+        super().__init__(f"{device}: {message}")
+        self.device = device
+        self.message = message
+
+
+class NotConnectedError(DeviceError):
+    """The device's link is not open (never opened, closed, or lost)."""
+
+    kind = "not-connected"
+
+
+class DeviceTimeoutError(DeviceError, TimeoutError):
+    """The device did not answer within the allowed time."""
+
+    kind = "timeout"
+
+
+class ProtocolError(DeviceError):
+    """The device answered something that cannot be understood (garbled, truncated, unreadable
+    frame): an error, never a guess."""
+
+    kind = "protocol"
+
+
+class DeviceReportedError(DeviceError):
+    """The device itself reported an error, e.g. C500C motion error 043."""
+
+    kind = "device-reported"
+
+    def __init__(self, device: str, code: int | None, text: str) -> None:
+        label = f"error {code:03d}: {text}" if code is not None else text
+        super().__init__(device, label)
+        self.code = code
+        self.text = text
+
+
+class MotionHeldError(DeviceError):
+    """Motion is held after a fault until the caller explicitly resumes."""
+
+    kind = "motion-held"

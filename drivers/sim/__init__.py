@@ -1,0 +1,1 @@
+"""The simulated bench: the physical truth that the simulated drivers share."""
