@@ -16,16 +16,23 @@ from collections.abc import Callable, Sequence
 
 from api import serve
 from config import ConfigError
-from daemon import __version__
-
-EXIT_OK = 0
-EXIT_FAILURE = 1
-EXIT_USAGE = 2
+from config.cli import EXIT_FAILURE, EXIT_USAGE
+from daemon import __version__, reports, run_cli
+from daemon.model import cli as model_cli
+from daemon.vision import cli as vision_cli
+from drivers.sim import cli as emulate_cli
 
 Register = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], None]
 
 #: Every subcommand, in the order ``--help`` lists them.
-COMMANDS: tuple[Register, ...] = (serve.register,)
+COMMANDS: tuple[Register, ...] = (
+    serve.register,
+    run_cli.register,
+    reports.register,
+    model_cli.register,
+    vision_cli.register,
+    emulate_cli.register,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -58,8 +58,10 @@ class BenchSettings(_Section):
         None, description="Bench time at which the heaters switch off (s); none: stay on."
     )
     truth_network: str = Field(
-        "thesis-two-link",
-        description="Network preset or file the bench's physical truth is built from.",
+        "thesis-two-link-geometry",
+        description="The bench's physical truth: thesis-two-link-geometry (the thesis geometry "
+        "at truth_node_spacing_mm, finer than any preset), or a network preset name or file "
+        "(thesis-two-link: truth equal to the controller's Table 5.1 model).",
     )
     truth_heat_scale: PositiveFloat = Field(
         1.0, description="Truth heat input / model heat input (1 = model is right)."
@@ -78,6 +80,22 @@ class BenchSettings(_Section):
         description="1-sigma positioning error of the emulated robot (um); 0.9 reproduces the "
         "thesis's absolute-command S_x (Table 6.1).",
     )
+    truth_node_spacing_mm: PositiveFloat = Field(
+        2.0,
+        description="Node spacing of the bench's truth network built from the thesis geometry "
+        "(mm), finer than the controller's model.",
+    )
+    moving_convection_scale: PositiveFloat = Field(
+        2.0,
+        description="Moving case (scheduler.procedure = moving): convection on the wiping "
+        "link / at rest (thesis 3.2.4; assumed, the thesis gives no h).",
+    )
+    spot_sigma_px: PositiveFloat = Field(
+        3.0, description="1-sigma radius of the simulated laser spot on the chip (px)."
+    )
+    spot_peak_fraction: PositiveFloat = Field(
+        0.5, description="Peak of the simulated spot as a fraction of full scale (> 1 saturates)."
+    )
 
 
 class CameraSettings(_Section):
@@ -88,6 +106,12 @@ class CameraSettings(_Section):
     )
     device: int | str = Field(0, description="OpenCV device index, path or URL.")
     replay_dir: Path | None = Field(None, description="Folder of frames for the replay driver.")
+    replay_period_s: PositiveFloat | None = Field(
+        None,
+        description="Replay time base: frame i belongs to i x period on the run clock and grab() "
+        "returns the frame of now; none: each grab() returns the next frame.",
+    )
+    replay_loop: bool = Field(False, description="Replay: start again after the last frame.")
     width_px: Annotated[int, Field(gt=0)] = Field(752, description="Frame width requested (px).")
     height_px: Annotated[int, Field(gt=0)] = Field(582, description="Frame height requested (px).")
     bit_depth: Literal[8, 12, 16] = Field(16, description="Bits per pixel of the frames.")
@@ -95,8 +119,10 @@ class CameraSettings(_Section):
         (8.6, 8.3), description="Physical pixel pitch (x, y) of the chip (um)."
     )
     um_per_px: tuple[PositiveFloat, PositiveFloat] = Field(
-        (10.22, 9.72),
-        description="Calibrated micrometres per pixel (x, y); the thesis measured 10.22, 9.72.",
+        (8.6, 8.3),
+        description="Calibrated micrometres per pixel (x, y). The default is the bench's: its "
+        "spot falls on the bare chip, so calibration = pixel pitch. The thesis's optics "
+        "measured 10.22, 9.72 (lab.toml).",
     )
     gain_e_per_count: PositiveFloat = Field(
         1.0, description="Electrons per count, for the centroid's uncertainty estimate."
@@ -106,6 +132,22 @@ class CameraSettings(_Section):
     )
     centroid_method: Literal["robust", "thesis"] = Field(
         "robust", description="robust: background-subtracted, re-centred; thesis: its replica."
+    )
+    centroid_low: NonNegativeFloat = Field(
+        0.8,
+        description="Thesis method: low threshold, fraction of full scale (<= 1) or counts "
+        "(> 1); darker pixels count as 0 (A.1 used 80 %).",
+    )
+    centroid_high: NonNegativeFloat | None = Field(
+        None,
+        description="Thesis method: high threshold (fraction or counts); brighter pixels "
+        "count as white; none: off.",
+    )
+    centroid_box: Annotated[int, Field(gt=0)] = Field(
+        400, description="Thesis method: half-size (px) of the box around the brightest pixels."
+    )
+    centroid_binary: bool = Field(
+        False, description="Thesis method: pixels at or above the low threshold count as white."
     )
     max_age_s: PositiveFloat = Field(
         2.0, description="A frame older than this (s) is stale and flagged, never used silently."
@@ -131,6 +173,12 @@ class IrSettings(_Section):
     )
     device: int | str = Field(1, description="OpenCV device index, path or URL.")
     replay_dir: Path | None = Field(None, description="Folder of thermal frames to replay.")
+    replay_period_s: PositiveFloat | None = Field(
+        None,
+        description="Replay time base: frame i belongs to i x period on the run clock; none: "
+        "each read() returns the next frame.",
+    )
+    replay_loop: bool = Field(False, description="Replay: start again after the last frame.")
     counts_to_celsius: tuple[float, float] = Field(
         (0.01, -273.15),
         description="Linear calibration (scale, offset): T = scale * counts + offset; the "
@@ -217,6 +265,10 @@ class CompensationSettings(_Section):
     latency_s: NonNegativeFloat = Field(
         0.0, description="Predict this far ahead: when the move is expected to execute (s)."
     )
+    spot_size_um: NonNegativeFloat = Field(
+        200.0,
+        description="Laser spot size on the chip (um), for the admissible-scale check (6.3).",
+    )
 
 
 class SchedulerSettings(_Section):
@@ -232,6 +284,19 @@ class SchedulerSettings(_Section):
     warmup_wait_s: NonNegativeFloat = Field(
         0.0, description="Camera warm-up wait before the first step (s)."
     )
+    precise_wake_ms: Annotated[float, Field(ge=0, le=10)] = Field(
+        1.5,
+        description="Wall clocks: wake this long before a deadline and yield until it "
+        "(asyncio sleeps end up to 1 ms late); 0 = plain sleep.",
+    )
+    stop_grace_s: PositiveFloat = Field(
+        5.0,
+        description="On stop, wait this long for the step in progress, then abandon it (s).",
+    )
+    sensor_error_policy: Literal["continue", "pause"] = Field(
+        "continue",
+        description="On a camera, IR or centroid error: flag the step and go on, or pause.",
+    )
 
 
 class StorageSettings(_Section):
@@ -240,6 +305,10 @@ class StorageSettings(_Section):
     data_dir: Path = Field(Path("data"), description="Folder of the run database and frames.")
     archive_every: Annotated[int, Field(ge=0)] = Field(
         0, description="Archive every N-th frame as a 16-bit PNG; 0 = none."
+    )
+    report_at_end: bool = Field(
+        True,
+        description="Write the run's report (HTML + figures) under data_dir/reports at its end.",
     )
 
 
@@ -255,6 +324,27 @@ class ApiSettings(_Section):
     )
     allowed_origins: tuple[str, ...] = Field(
         (), description="Origins allowed to open the WebSocket besides the server's own."
+    )
+    control_rate_per_s: PositiveFloat = Field(
+        2.0, description="Average control requests per second per client (429 beyond)."
+    )
+    control_burst: Annotated[int, Field(ge=1)] = Field(
+        10, description="Control requests a client may make at once before the rate applies."
+    )
+    max_body_bytes: Annotated[int, Field(ge=1024)] = Field(
+        65536, description="Largest request body accepted (bytes; 413 beyond)."
+    )
+    ws_max_message_bytes: Annotated[int, Field(ge=64)] = Field(
+        4096, description="Largest WebSocket message accepted from a client (bytes)."
+    )
+    ws_queue_messages: Annotated[int, Field(ge=1)] = Field(
+        256, description="Messages queued per WebSocket client; a slow client loses the oldest."
+    )
+    ws_max_clients: Annotated[int, Field(ge=1)] = Field(
+        100, description="WebSocket clients served at once; more are refused."
+    )
+    ws_frame_interval_s: PositiveFloat = Field(
+        1.0, description="Shortest interval between two WebSocket frame thumbnails (s)."
     )
 
 

@@ -49,3 +49,13 @@ class MotionHeldError(DeviceError):
     """Motion is held after a fault until the caller explicitly resumes."""
 
     kind = "motion-held"
+
+
+class PointOfControlError(DeviceReportedError):
+    """The operator must press PAUSE/CONTINUE on the controller to give the point of control
+    (C500C.md); reported at once instead of waiting for the button."""
+
+    kind = "point-of-control"
+
+    def __init__(self, device: str, text: str) -> None:
+        super().__init__(device, None, text)

@@ -95,3 +95,10 @@ def test_readme_reference_matches_the_model() -> None:
     assert section == settings_reference_markdown(), (
         "README's configuration reference is stale: run `python -m config --readme README.md`"
     )
+
+
+def test_cli_exits_2_on_out_of_range_port_option() -> None:
+    result = run_cli(["serve", "--config", "config/sim.toml", "--port", "99999"])
+    assert result.returncode == 2
+    assert "--port: Input should be less than or equal to 65535" in result.stderr
+    assert "Traceback" not in result.stderr

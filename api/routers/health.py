@@ -1,10 +1,13 @@
-"""Liveness: is the daemon up, and which version is it."""
+"""Liveness: is the daemon up, which version, and the state of its device links."""
+
+from __future__ import annotations
 
 from typing import Literal
 
 from fastapi import APIRouter
-from pydantic import BaseModel
+from pydantic import BaseModel, Field
 
+from api.deps import ContextDep
 from daemon import __version__
 
 router = APIRouter(tags=["health"])
@@ -13,9 +16,24 @@ router = APIRouter(tags=["health"])
 class Health(BaseModel):
     status: Literal["ok"]
     version: str
+    daemon: Literal["running", "unavailable"] = Field(
+        description="Whether the daemon service is open (devices and recording)."
+    )
+    devices: dict[str, str] = Field(description="Link state per device, e.g. robot: connected.")
 
 
 @router.get("/health")
-async def health() -> Health:
-    """Answers as soon as the server listens."""
-    return Health(status="ok", version=__version__)
+async def health(context: ContextDep) -> Health:
+    """Answers as soon as the server listens, without a token (for health checks)."""
+    daemon = context.service
+    devices: dict[str, str] = {}
+    if daemon is not None:
+        robot = daemon.snapshot().get("robot")
+        if isinstance(robot, dict) and robot.get("link"):
+            devices["robot"] = str(robot["link"])
+    return Health(
+        status="ok",
+        version=__version__,
+        daemon="unavailable" if daemon is None else "running",
+        devices=devices,
+    )

@@ -1,0 +1,441 @@
+"""Runs: start one, list them, follow one, pause/resume/stop it, read its steps and report."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import logging
+import tempfile
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Body, Query, Response
+from fastapi import Path as PathParam
+from fastapi.responses import FileResponse, StreamingResponse
+from pydantic import BaseModel, Field, ValidationError, create_model
+
+from api.broadcast import json_safe
+from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
+from api.errors import ApiError, ErrorBody
+from daemon.model import available_presets
+from daemon.recorder import Recorder, RecorderError, RunRow, write_steps_csv
+from daemon.reports import ReportError, report_dir, write_run_report
+from daemon.runs import RunParameters, RunStateError
+from daemon.service import Daemon, RunConflictError
+from drivers.errors import DeviceError
+
+logger = logging.getLogger(__name__)
+
+read_router = APIRouter(tags=["runs"], dependencies=[ReadAccess])
+control_router = APIRouter(
+    tags=["runs"],
+    dependencies=[ControlAccess],
+    responses={
+        409: {"model": ErrorBody, "description": "the run's state does not allow it"},
+        429: {"model": ErrorBody, "description": "too many control requests"},
+    },
+)
+
+RunId = Annotated[int, PathParam(ge=1, le=2**62, description="Run id.")]
+
+
+def _optional_fields() -> dict[str, Any]:
+    """RunParameters' fields, each optional: what a request leaves out comes from the config."""
+    fields: dict[str, Any] = {}
+    for name, info in RunParameters.model_fields.items():
+        annotation: Any = info.annotation
+        if info.metadata:
+            annotation = Annotated[(annotation, *info.metadata)]
+        fields[name] = (annotation | None, Field(None, description=info.description))
+    return fields
+
+
+RunRequest: type[BaseModel] = create_model(
+    "RunRequest",
+    __config__={"extra": "forbid", "allow_inf_nan": False},
+    __doc__="Run parameters (issue 6); every field left out takes the configured default.",
+    **_optional_fields(),
+)
+
+
+class RunInfo(BaseModel):
+    id: int
+    state: str
+    reason: str | None
+    started_at: float = Field(description="Unix time (s).")
+    ended_at: float | None
+    parameters: dict[str, Any]
+    steps_recorded: int
+    progress_percent: float = Field(description="Run clock elapsed over the duration, in %.")
+    remaining_s: float = Field(description="Run-clock seconds left (0 once it has ended).")
+    eta_s: float | None = Field(
+        description="Estimated wall-clock seconds left, from the progress so far."
+    )
+    summary: dict[str, Any] | None = Field(description="Thesis Table 6.1 figures, at the end.")
+    links: dict[str, str]
+
+
+class RunPage(BaseModel):
+    runs: list[RunInfo] = Field(description="Newest first.")
+    limit: int
+    offset: int
+    next_offset: int | None
+
+
+def _links(run_id: int) -> dict[str, str]:
+    base = f"/api/v1/runs/{run_id}"
+    return {
+        "self": base,
+        "steps_json": f"{base}/steps?format=json",
+        "steps_csv": f"{base}/steps?format=csv",
+        "steps_parquet": f"{base}/steps?format=parquet",
+        "report": f"{base}/report",
+    }
+
+
+def run_info(row: RunRow, daemon: Daemon) -> RunInfo:
+    """A run as recorded, with the live progress when it is the daemon's current run."""
+    live = daemon.run if daemon.run is not None and daemon.run.id == row.id else None
+    parameters = row.parameters
+    duration = float(parameters.get("duration_s") or 1.0)
+    step_s = float(parameters.get("step_s") or 0.0)
+    state, reason, summary = row.state, row.reason, row.summary
+    remaining: float
+    if live is not None:
+        info = live.info(daemon.clock.now())
+        state, reason = str(info["state"]), info["reason"]
+        summary = info["summary"] if info["summary"] is not None else summary
+        progress = float(info["progress_percent"])
+        remaining = float(info["remaining_s"]) if live.state.is_active else 0.0
+    else:
+        # not running here: what it recorded is how far it got (a stopped run stays short)
+        progress = min(100.0, 100.0 * row.step_count * step_s / duration)
+        remaining = 0.0
+    eta: float | None = None
+    if live is not None and live.state.is_active and 0.0 < progress < 100.0:
+        elapsed_wall = time.time() - row.started_at
+        eta = elapsed_wall * (100.0 - progress) / progress
+    elif live is None or not live.state.is_active:
+        eta = 0.0  # ended
+    return RunInfo(
+        id=row.id,
+        state=state,
+        reason=reason,
+        started_at=row.started_at,
+        ended_at=row.ended_at,
+        parameters=json_safe(parameters),
+        steps_recorded=row.step_count,
+        progress_percent=progress,
+        remaining_s=remaining,
+        eta_s=eta,
+        summary=json_safe(summary),
+        links=_links(row.id),
+    )
+
+
+def _recorder(daemon: Daemon) -> Recorder:
+    if daemon.recorder is None:
+        raise ApiError(503, "unavailable", "the run database is not open")
+    return daemon.recorder
+
+
+async def _row(daemon: Daemon, run_id: int) -> RunRow:
+    try:
+        row = await asyncio.to_thread(_recorder(daemon).run, run_id)
+    except RecorderError as err:
+        raise ApiError(503, "storage", str(err)) from err
+    if row is None:
+        raise ApiError(404, "not-found", f"no run {run_id}")
+    return row
+
+
+def _validation_details(err: ValidationError) -> list[dict[str, str]]:
+    return [
+        {
+            "field": ".".join(["body", *(str(p) for p in item["loc"])]),
+            "message": str(item["msg"]).removeprefix("Value error, "),
+            "type": str(item["type"]),
+        }
+        for item in err.errors()
+    ]
+
+
+@control_router.post(
+    "/runs",
+    status_code=201,
+    responses={422: {"model": ErrorBody, "description": "parameters not admissible"}},
+)
+async def start_run(
+    daemon: DaemonDep,
+    settings: SettingsDep,
+    request: Annotated[RunRequest | None, Body()] = None,
+) -> RunInfo:
+    """Start a run; 409 while another one is active; 422 with field-level messages when the
+    parameters are invalid or not admissible (e.g. the scaled deformation leaves the chip)."""
+    given = {} if request is None else request.model_dump(exclude_none=True)
+    try:
+        parameters = RunParameters.from_settings(settings, **given)
+    except ValidationError as err:
+        details = _validation_details(err)
+        summary = "; ".join(f"{d['field']}: {d['message']}" for d in details[:5])
+        raise ApiError(422, "validation", f"invalid run parameters: {summary}", details) from err
+    if "network" in given and given["network"] not in {
+        *available_presets(),
+        settings.model.network,
+    }:
+        # over the API only presets: a path would let a client make the daemon read any file
+        message = f"unknown network preset; choose from {', '.join(available_presets())}"
+        details = [{"field": "body.network", "message": message, "type": "value_error"}]
+        raise ApiError(422, "validation", f"invalid run parameters: {message}", details)
+    try:
+        info = await daemon.start_run(parameters)
+    except RunConflictError as err:
+        raise ApiError(409, "conflict", str(err)) from err
+    except ValueError as err:  # RunParameterError, and model/network errors of the check
+        details = [{"field": "body", "message": str(err), "type": "not_admissible"}]
+        raise ApiError(422, "not-admissible", str(err), details) from err
+    except RecorderError as err:
+        raise ApiError(503, "storage", str(err)) from err
+    return run_info(await _row(daemon, int(info["id"])), daemon)
+
+
+@read_router.get("/runs")
+async def list_runs(
+    daemon: DaemonDep,
+    limit: Annotated[int, Query(ge=1, le=200)] = 20,
+    offset: Annotated[int, Query(ge=0, le=2**31)] = 0,
+) -> RunPage:
+    """Runs, newest first, ``limit`` per page."""
+    try:
+        rows = await asyncio.to_thread(_recorder(daemon).runs, limit, offset)
+    except RecorderError as err:
+        raise ApiError(503, "storage", str(err)) from err
+    return RunPage(
+        runs=[run_info(row, daemon) for row in rows],
+        limit=limit,
+        offset=offset,
+        next_offset=offset + limit if len(rows) == limit else None,
+    )
+
+
+@read_router.get("/runs/{run_id}", responses={404: {"model": ErrorBody}})
+async def get_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
+    """Parameters, state, progress in percent and estimated time left, summary when ended."""
+    return run_info(await _row(daemon, run_id), daemon)
+
+
+def _current(daemon: Daemon, run_id: int) -> None:
+    run = daemon.run
+    if run is None or run.id != run_id or not run.state.is_active:
+        raise ApiError(409, "conflict", f"run {run_id} is not the active run")
+
+
+@control_router.post("/runs/{run_id}/pause", responses={404: {"model": ErrorBody}})
+async def pause_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
+    """Pause the active run (the robot stays at its last compensated pose)."""
+    await _row(daemon, run_id)
+    _current(daemon, run_id)
+    try:
+        await daemon.pause()
+    except RunStateError as err:
+        raise ApiError(409, "conflict", str(err)) from err
+    return run_info(await _row(daemon, run_id), daemon)
+
+
+@control_router.post("/runs/{run_id}/resume", responses={404: {"model": ErrorBody}})
+async def resume_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
+    """Resume a paused or faulted run; the actual pose is read back first."""
+    await _row(daemon, run_id)
+    _current(daemon, run_id)
+    try:
+        await daemon.resume()
+    except RunStateError as err:
+        raise ApiError(409, "conflict", str(err)) from err
+    except DeviceError as err:
+        raise ApiError(503, "device", f"resume failed: {err}") from err
+    return run_info(await _row(daemon, run_id), daemon)
+
+
+@control_router.post("/runs/{run_id}/stop", responses={404: {"model": ErrorBody}})
+async def stop_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
+    """Stop the active run: the robot holds where it is, the recording is committed; answers
+    once the run has ended."""
+    await _row(daemon, run_id)
+    _current(daemon, run_id)
+    try:
+        await daemon.stop()
+    except RunStateError as err:
+        raise ApiError(409, "conflict", str(err)) from err
+    return run_info(await _row(daemon, run_id), daemon)
+
+
+StepFormat = Literal["json", "csv", "parquet"]
+#: Steps per JSON answer when no limit is given, and at most (``next_from`` continues).
+JSON_PAGE_STEPS = 10_000
+JSON_MAX_STEPS = 50_000
+#: Steps read and encoded per CSV chunk: the export streams, in a worker thread, so a long
+#: run's CSV neither fills the memory nor holds the event loop the control loop runs on.
+CSV_CHUNK_STEPS = 5_000
+
+
+@read_router.get(
+    "/runs/{run_id}/steps",
+    responses={
+        200: {"content": {"text/csv": {}, "application/vnd.apache.parquet": {}}},
+        404: {"model": ErrorBody},
+        501: {"model": ErrorBody, "description": "Parquet needs pyarrow"},
+    },
+)
+async def get_steps(
+    run_id: RunId,
+    daemon: DaemonDep,
+    format: StepFormat = "json",
+    start: Annotated[int, Query(alias="from", ge=0, le=2**62, description="First step.")] = 0,
+    limit: Annotated[int | None, Query(ge=1, le=10_000_000)] = None,
+) -> Response:
+    """The run's step records (CONTRACTS.md "Step record" columns) from step ``from``, at
+    most ``limit``: JSON ``{"run_id", "steps": [...], "next_from"}`` (at most 50,000 steps
+    per answer; ``next_from`` is the next page's ``from``, null at the end), CSV (streamed,
+    all steps unless ``limit``) or Parquet (the whole run)."""
+    await _row(daemon, run_id)
+    recorder = _recorder(daemon)
+    if format == "parquet":
+        return await _parquet(recorder, run_id)
+    filename = f"run-{run_id}-steps.{format}"
+    try:
+        if format == "csv":
+            first = await asyncio.to_thread(
+                _csv_chunk, recorder, run_id, start, _chunk(limit), header=True
+            )
+            return StreamingResponse(
+                _csv_stream(recorder, run_id, first, limit),
+                media_type="text/csv",
+                headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+            )
+        page = min(limit or JSON_PAGE_STEPS, JSON_MAX_STEPS)
+        body = await asyncio.to_thread(_json_page, recorder, run_id, start, page)
+    except RecorderError as err:
+        raise ApiError(503, "storage", str(err)) from err
+    return Response(body, media_type="application/json")
+
+
+def _json_page(recorder: Recorder, run_id: int, start: int, page: int) -> bytes:
+    records = recorder.steps(run_id, start, page)
+    next_from = records[-1].step + 1 if len(records) == page else None
+    return _dumps(
+        {"run_id": run_id, "steps": [r.as_dict() for r in records], "next_from": next_from}
+    )
+
+
+def _chunk(remaining: int | None) -> int:
+    return CSV_CHUNK_STEPS if remaining is None else min(CSV_CHUNK_STEPS, remaining)
+
+
+def _csv_chunk(
+    recorder: Recorder, run_id: int, start: int, count: int, *, header: bool
+) -> tuple[str, int, int | None]:
+    """(CSV text, steps in it, the next chunk's first step or None at the end)."""
+    records = recorder.steps(run_id, start, count)
+    buffer = io.StringIO()
+    write_steps_csv(records, buffer)
+    text = buffer.getvalue()
+    if not header:
+        text = text.split("\n", 1)[1]
+    next_start = records[-1].step + 1 if len(records) == count else None
+    return text, len(records), next_start
+
+
+async def _csv_stream(
+    recorder: Recorder, run_id: int, first: tuple[str, int, int | None], limit: int | None
+) -> AsyncIterator[str]:
+    text, count, next_start = first
+    remaining = None if limit is None else limit - count
+    yield text
+    while next_start is not None and remaining != 0:
+        try:
+            text, count, next_start = await asyncio.to_thread(
+                _csv_chunk, recorder, run_id, next_start, _chunk(remaining), header=False
+            )
+        except RecorderError:
+            logger.exception("run %d: CSV export cut short", run_id)
+            return
+        remaining = None if remaining is None else remaining - count
+        yield text
+
+
+async def _parquet(recorder: Recorder, run_id: int) -> Response:
+    def export() -> bytes:
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / "steps.parquet"
+            recorder.export_parquet(run_id, path)
+            return path.read_bytes()
+
+    try:
+        data = await asyncio.to_thread(export)
+    except RecorderError as err:
+        if "pyarrow" in str(err):
+            raise ApiError(501, "unsupported", str(err)) from err
+        raise ApiError(503, "storage", str(err)) from err
+    return Response(
+        data,
+        media_type="application/vnd.apache.parquet",
+        headers={"Content-Disposition": f'attachment; filename="run-{run_id}-steps.parquet"'},
+    )
+
+
+def _dumps(value: Any) -> bytes:
+    import json
+
+    return json.dumps(json_safe(value), separators=(",", ":")).encode()
+
+
+@read_router.get(
+    "/runs/{run_id}/report",
+    response_class=FileResponse,
+    responses={
+        200: {"content": {"text/html": {}}},
+        404: {"model": ErrorBody},
+        409: {"model": ErrorBody, "description": "the run has not ended yet"},
+    },
+)
+async def get_report(run_id: RunId, daemon: DaemonDep) -> FileResponse:
+    """The analysis report of an ended run (a self-contained HTML page), written on first
+    request beside the database (``thermocomp report`` writes the same) and kept."""
+    row = await _row(daemon, run_id)
+    if row.state not in ("finished", "aborted", "interrupted"):
+        raise ApiError(409, "conflict", f"run {run_id} is {row.state}: no report before it ends")
+    data_dir = _recorder(daemon).data_dir
+    html = report_dir(data_dir, run_id) / "report.html"
+    if not html.is_file():
+        try:
+            files = await asyncio.to_thread(write_run_report, data_dir, run_id)
+        except (ReportError, ValueError) as err:  # e.g. a run without a measured step
+            raise ApiError(404, "not-found", f"no report for run {run_id}: {err}") from err
+        html = files.html
+    return FileResponse(html, media_type="text/html")
+
+
+@read_router.get(
+    "/runs/{run_id}/frames/{step}",
+    response_class=FileResponse,
+    responses={200: {"content": {"image/png": {}}}, 404: {"model": ErrorBody}},
+)
+async def get_frame(
+    run_id: RunId,
+    step: Annotated[int, PathParam(ge=0, le=2**62)],
+    daemon: DaemonDep,
+) -> FileResponse:
+    """The archived 16-bit PNG of a step (storage.archive_every), when there is one."""
+    recorder = _recorder(daemon)
+    try:
+        records = await asyncio.to_thread(recorder.steps, run_id, step, 1)
+    except RecorderError as err:
+        raise ApiError(503, "storage", str(err)) from err
+    if not records or records[0].step != step or not records[0].frame_path:
+        raise ApiError(404, "not-found", f"no archived frame for run {run_id} step {step}")
+    path = (recorder.data_dir / records[0].frame_path).resolve()
+    if not path.is_relative_to(recorder.data_dir.resolve()) or not path.is_file():
+        raise ApiError(404, "not-found", f"archived frame of run {run_id} step {step} is missing")
+    return FileResponse(path, media_type="image/png")

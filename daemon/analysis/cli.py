@@ -1,0 +1,274 @@
+"""``thermocomp stats`` and ``thermocomp fit``: statistics and exponential fits of one column
+of a CSV file (an exported run, by default its error column) or of a plain list of numbers.
+
+Exit statuses follow api/cli.py: 0 success, 1 the data cannot be analysed, 2 bad usage (a
+missing file or column).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from daemon.analysis.fits import KINDS, FitError, Kind, direction_of, fit_exponential
+from daemon.analysis.statistics import ErrorStatistics, error_statistics
+from daemon.analysis.steps import RESIDUAL_COLUMN, number_or_nan
+
+logger = logging.getLogger(__name__)
+
+
+#: The column name a plain list of numbers gets.
+PLAIN_COLUMN = "value"
+
+#: Time columns of an exported run, in order of preference.
+TIME_COLUMNS = ("scheduled_s", "actual_s")
+
+
+class InputError(Exception):
+    """The input file or column cannot be used (exit status 2)."""
+
+
+def read_table(path: Path) -> list[dict[str, str]]:
+    """Rows of a CSV file with a header, or of a plain list of numbers (one column ``value``,
+    numbers separated by whitespace, commas or newlines). ``-`` reads standard input."""
+    try:
+        text = sys.stdin.read() if str(path) == "-" else path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"cannot read {path}: {err}") from err
+    tokens = text.replace(",", " ").split()
+    if not tokens:
+        raise InputError(f"{path} is empty")
+    try:
+        return [{PLAIN_COLUMN: str(float(token))} for token in tokens]
+    except ValueError:
+        pass  # not a plain list: a CSV with a header
+    reader = csv.DictReader(io.StringIO(text))
+    if not reader.fieldnames:
+        raise InputError(f"{path} has no CSV header")
+    rows = [dict(row) for row in reader]
+    if not rows:
+        raise InputError(f"{path} has a header but no rows")
+    return rows
+
+
+def column_values(rows: list[dict[str, str]], name: str, source: Path) -> NDArray[np.float64]:
+    if not rows or name not in rows[0]:
+        known = ", ".join(rows[0]) if rows else "none"
+        raise InputError(f"{source} has no column {name!r}; columns: {known}")
+    return np.array([number_or_nan(row.get(name)) for row in rows], dtype=float)
+
+
+def default_column(rows: list[dict[str, str]]) -> str:
+    """The error column of an exported run, or the only column of a plain list."""
+    return PLAIN_COLUMN if rows and PLAIN_COLUMN in rows[0] else RESIDUAL_COLUMN
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    stats = subparsers.add_parser(
+        "stats",
+        help="error statistics of a column (thesis 6.6: N, mean, S_x, chi-squared)",
+        description="N, mean, standard deviation S_x, standard deviation of the mean "
+        "S_x/sqrt(N), the histogram over K = 1.87 (N-1)^0.40 + 1 intervals and the "
+        "chi-squared test against the normal distribution with the sample's mean and S_x "
+        "(thesis 6.6). The p-value is the upper tail; the thesis's lower-tail reading is "
+        "shown beside it, labelled. Empty cells are skipped.",
+    )
+    stats.add_argument(
+        "file",
+        type=Path,
+        help="CSV with a header (e.g. an exported run), "
+        "a plain list of numbers, or - for standard input",
+    )
+    stats.add_argument(
+        "--column",
+        help=f"column to analyse (default {RESIDUAL_COLUMN}, the "
+        "measured error of an exported run)",
+    )
+    stats.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    stats.set_defaults(handler=run_stats)
+
+    fit = subparsers.add_parser(
+        "fit",
+        help="first-order exponential fit of a column: time constant and steady state",
+        description="Least-squares fit of y = y0 + A (1 - exp(-(t - t0)/tau)) (rising) or "
+        "y = y0 + A exp(-(t - t0)/tau) (decaying) with the parameters' standard errors, the "
+        "time constant tau and the steady-state time: the first time after which the data "
+        "stay within a band around their final level (default +-3 sigma of the last 20 %%, "
+        "thesis 3.5.1).",
+    )
+    fit.add_argument("file", type=Path, help="CSV with a header, a plain list, or -")
+    fit.add_argument("--column", required=True, help="column to fit")
+    fit.add_argument(
+        "--time-column",
+        help="time column in s (default scheduled_s or actual_s; "
+        "else the row index times --step-s)",
+    )
+    fit.add_argument(
+        "--step-s",
+        type=float,
+        default=1.0,
+        help="time between rows when there is no time column (default 1 s)",
+    )
+    fit.add_argument(
+        "--kind",
+        choices=("auto", *KINDS),
+        default="auto",
+        help="rising or decaying; auto: from the first and last values",
+    )
+    fit.add_argument(
+        "--band",
+        type=float,
+        help="steady-state half-band in the column's unit (default: --sigmas of the final segment)",
+    )
+    fit.add_argument(
+        "--sigmas",
+        type=float,
+        default=3.0,
+        help="band in standard deviations "
+        "of the final segment when --band is not given (default 3)",
+    )
+    fit.add_argument(
+        "--final-fraction",
+        type=float,
+        default=0.2,
+        help="final segment as a fraction of the data (default 0.2)",
+    )
+    fit.add_argument(
+        "--smoothing",
+        type=int,
+        default=9,
+        help="judge 'stays within the band' on a running mean of this many samples "
+        "(default 9; 1: raw samples)",
+    )
+    fit.add_argument("--json", action="store_true", help="print JSON instead of text")
+    fit.set_defaults(handler=run_fit)
+
+
+def _fail(command: str, message: str, status: int) -> int:
+    print(f"thermocomp {command}: {message}", file=sys.stderr)
+    return status
+
+
+def format_statistics(stats: ErrorStatistics, label: str) -> str:
+    lines = [
+        f"statistics of {label}",
+        f"  N                                {stats.n}",
+        f"  mean                             {stats.mean:.6g}",
+        f"  standard deviation S_x           {stats.std:.6g}",
+        f"  std of the mean S_x/sqrt(N)      {stats.std_of_mean:.6g}",
+        f"  minimum / maximum / max |x|      {stats.minimum:.6g} / {stats.maximum:.6g} / "
+        f"{stats.max_abs:.6g}",
+        f"  intervals K                      {stats.intervals}",
+    ]
+    test = stats.chi_squared
+    if test is None:
+        lines.append(f"no chi-squared test: {stats.note}")
+        return "\n".join(lines)
+    lines += [
+        "chi-squared test against the normal with the sample's mean and S_x (Eq. 6.2):",
+        "    j                   interval    n_j  n_j expected  (n-n')^2/n'",
+    ]
+    for j, (observed, expected, part) in enumerate(
+        zip(test.observed, test.expected, test.contributions, strict=True)
+    ):
+        low, high = test.edges[j], test.edges[j + 1]
+        lines.append(
+            f"  {j + 1:>3}  {low:>11.4f} .. {high:>10.4f}  {observed:>5}  {expected:>12.2f}  "
+            f"{part:>12.3f}"
+        )
+    lines += [
+        f"  chi-squared = {test.chi_squared:.4g}, nu = K - 2 = {test.degrees_of_freedom}",
+        f"  p-value (upper tail, goodness of fit)   = {test.p_value:.4g}",
+        f"  thesis's lower-tail reading P(chi2)      = {test.thesis_lower_tail_p:.4g}"
+        "   (what thesis 6.6 reported; not a goodness-of-fit p-value)",
+    ]
+    return "\n".join(lines)
+
+
+def run_stats(args: argparse.Namespace) -> int:
+    try:
+        rows = read_table(args.file)
+        column = args.column or default_column(rows)
+        values = column_values(rows, column, args.file)
+    except InputError as err:
+        return _fail("stats", str(err), EXIT_USAGE)
+    try:
+        stats = error_statistics(values)
+    except ValueError as err:
+        return _fail("stats", f"{column}: {err}", EXIT_FAILURE)
+    if args.json:
+        print(json.dumps({"file": str(args.file), "column": column, **stats.to_dict()}, indent=2))
+    else:
+        print(format_statistics(stats, f"{column} ({args.file})"))
+    return EXIT_OK
+
+
+def _times(rows: list[dict[str, str]], args: argparse.Namespace) -> NDArray[np.float64]:
+    if args.time_column:
+        return column_values(rows, args.time_column, args.file)
+    for name in TIME_COLUMNS:
+        if rows and name in rows[0]:
+            values = column_values(rows, name, args.file)
+            if np.isfinite(values).any():
+                return values
+    step_s = float(args.step_s)
+    return np.arange(len(rows), dtype=float) * step_s
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    try:
+        rows = read_table(args.file)
+        values = column_values(rows, args.column, args.file)
+        times = _times(rows, args)
+    except InputError as err:
+        return _fail("fit", str(err), EXIT_USAGE)
+    if not 0 < args.final_fraction <= 1:
+        return _fail("fit", "--final-fraction must be in (0, 1]", EXIT_USAGE)
+    if args.smoothing < 1:
+        return _fail("fit", "--smoothing must be at least 1", EXIT_USAGE)
+    finite = np.isfinite(values) & np.isfinite(times)
+    kind: Kind = direction_of(values[finite]) if args.kind == "auto" else args.kind
+    try:
+        fit = fit_exponential(
+            times,
+            values,
+            kind,
+            band=args.band,
+            sigmas=args.sigmas,
+            final_fraction=args.final_fraction,
+            smoothing=args.smoothing,
+        )
+    except (FitError, ValueError) as err:
+        return _fail("fit", f"{args.column}: {err}", EXIT_FAILURE)
+    result = {"file": str(args.file), "column": args.column, **fit.to_dict()}
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return EXIT_OK
+    curve = fit.curve
+    form = "(1 - exp(-(t - t0)/tau))" if kind == "rising" else "exp(-(t - t0)/tau)"
+    steady = f"{fit.steady_state_s:.6g} s" if fit.steady_state_s is not None else "not reached"
+    settling = f"{curve.settling_time_s(fit.steady_band):.6g} s" if fit.steady_band > 0 else "-"
+    print(
+        "\n".join(
+            [
+                f"{kind} exponential fit of {args.column} ({args.file}), {fit.n} points",
+                f"  y = y0 + A {form},  t0 = {curve.t0_s:.6g} s",
+                f"  y0   = {curve.y0:.6g} ± {fit.y0_stderr:.3g}",
+                f"  A    = {curve.amplitude:.6g} ± {fit.amplitude_stderr:.3g}",
+                f"  tau  = {curve.tau_s:.6g} ± {fit.tau_stderr_s:.3g} s   (time constant)",
+                f"  final value = {curve.final_value:.6g}; residual std = {fit.residual_std:.3g}",
+                f"  steady state (data within ±{fit.steady_band:.3g} of the final level): "
+                f"{steady}; fitted curve within that band from {settling}",
+            ]
+        )
+    )
+    return EXIT_OK

@@ -1,0 +1,309 @@
+"""The run report: PNG figures, ``summary.json`` and one HTML page showing them with tables.
+
+The page carries its own style and no scripts or external resources; it references the PNGs
+beside it by relative name (or embeds them, ``embed_images=True``, for a single-file copy).
+Writing is blocking (matplotlib, files): the daemon calls :func:`write_report` in a thread.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import logging
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from daemon.analysis.fits import FitError, direction_of, fit_exponential
+from daemon.analysis.plots import (
+    plot_compensated_vs_uncompensated,
+    plot_compensation,
+    plot_error_histogram,
+    plot_lateness,
+    plot_temperatures,
+)
+from daemon.analysis.statistics import ErrorStatistics, error_statistics
+from daemon.analysis.steps import SUMMARY_KEYS, FloatArray, RunSteps, steps_from_rows, summarize_run
+
+logger = logging.getLogger(__name__)
+
+SUMMARY_FILE = "summary.json"
+HTML_FILE = "report.html"
+DPI = 100
+
+#: Table 6.1's rows: summary key -> (label, symbol, unit).
+SUMMARY_LABELS: dict[str, tuple[str, str, str]] = {
+    "n": ("Sample size (steps with a measured error)", "N", ""),
+    "residual_max_um": ("Largest |error|", "max |x|", "µm"),
+    "residual_mean_um": ("Mean error", "x̄", "µm"),
+    "residual_std_um": ("Standard deviation", "S_x", "µm"),
+    "residual_std_mean_um": ("Standard deviation of the mean", "S_x̄ = S_x/√N", "µm"),
+    "uncompensated_max_um": ("Largest predicted (uncompensated) deformation", "", "µm"),
+    "reduction_percent": ("Reduction of the largest displacement", "", "%"),
+}
+
+
+@dataclass(frozen=True)
+class ReportFiles:
+    """Where a report was written."""
+
+    directory: Path
+    html: Path
+    summary: Path
+    plots: dict[str, Path]  # figure name -> PNG path
+
+
+@dataclass(frozen=True)
+class _Plot:
+    name: str
+    caption: str
+    draw: Callable[[RunSteps, ErrorStatistics | None, dict[str, float | int | None]], Figure]
+
+
+PLOTS: tuple[_Plot, ...] = (
+    _Plot(
+        "compensation",
+        "Deformation input (model prediction), commanded compensation and measured error over "
+        "time, as thesis Figures 6.5-6.7. A perfect compensation mirrors the deformation and "
+        "leaves zero error.",
+        lambda steps, stats, summary: plot_compensation(steps, stats),
+    ),
+    _Plot(
+        "compensated_vs_uncompensated",
+        "Where the tool would have moved without compensation against where it moved with it "
+        "(thesis Figure 6.9).",
+        lambda steps, stats, summary: plot_compensated_vs_uncompensated(steps, summary),
+    ),
+    _Plot(
+        "error_histogram",
+        "Histogram of the error over K = 1.87 (N-1)^0.40 + 1 intervals with the normal "
+        "distribution of the sample's mean and S_x (thesis Figure 6.8, section 6.6).",
+        lambda steps, stats, summary: plot_error_histogram(stats),
+    ),
+    _Plot(
+        "temperatures",
+        "Mean temperature of each infrared region (thick lines) and, when recorded, of "
+        "each model node (dashed, coloured by node number along the link).",
+        lambda steps, stats, summary: plot_temperatures(steps),
+    ),
+    _Plot(
+        "lateness",
+        "How long after its scheduled time each step started.",
+        lambda steps, stats, summary: plot_lateness(steps),
+    ),
+)
+
+
+def _json_safe(value: object) -> object:
+    """NaN and infinity are not JSON: they become null."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def _fit_summary(times: FloatArray, values: FloatArray) -> dict[str, object]:
+    finite = np.isfinite(times) & np.isfinite(values)
+    if finite.sum() < 4 or np.ptp(values[finite]) == 0:
+        return {"error": "not enough varying data to fit"}
+    try:
+        fit = fit_exponential(times, values, direction_of(values[finite]))
+    except FitError as err:
+        return {"error": str(err)}
+    if abs(fit.curve.amplitude) < 3 * fit.amplitude_stderr:
+        # A flat, noisy signal still "fits"; its time constant would mean nothing.
+        return {"error": "no significant change (|A| < 3 standard errors)"}
+    return fit.to_dict()
+
+
+def build_summary(steps: RunSteps) -> tuple[dict[str, object], ErrorStatistics | None]:
+    """Everything the report states in numbers: Table 6.1, the chi-squared test, the time
+    constants and steady-state times, and counts of flagged steps."""
+    run_summary = summarize_run(steps)
+    stats: ErrorStatistics | None = None
+    statistics: dict[str, object] | None = None
+    try:
+        stats = error_statistics(steps.residual_um)
+        statistics = stats.to_dict()
+    except ValueError as err:
+        statistics = {"error": str(err)}
+    times = steps.time_s
+    fits: dict[str, object] = {
+        "deformation_input_um": _fit_summary(times, steps.deformation_input_um)
+    }
+    for region, series in steps.ir_mean_c.items():
+        fits[f"ir_{region}_mean_c"] = _fit_summary(times, series)
+    flag_names = sorted({flag for flags in steps.flags for flag in flags})
+    summary: dict[str, object] = {
+        "run_id": steps.run_id,
+        "steps": steps.n_steps,
+        "run_summary": run_summary,
+        "statistics": statistics,
+        "fits": fits,
+        "flags": {flag: steps.flag_count(flag) for flag in flag_names},
+        "steps_with_error": sum(bool(e) for e in steps.errors),
+    }
+    return summary, stats
+
+
+def _format(value: object, digits: int = 3) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}" if math.isfinite(value) else "–"
+    return html.escape(str(value))
+
+
+def _table(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{_format(c)}</td>" for c in row) + "</tr>" for row in rows
+    )
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _html_page(
+    title: str,
+    summary: dict[str, object],
+    stats: ErrorStatistics | None,
+    images: Mapping[str, str],
+) -> str:
+    run_summary = summary["run_summary"]
+    flags = summary["flags"]
+    assert isinstance(run_summary, dict) and isinstance(flags, dict)
+    flag_text = ", ".join(f"{html.escape(name)}: {count}" for name, count in flags.items())
+    parts = [
+        f"<h1>{html.escape(title)}</h1>",
+        f"<p>Run <b>{_format(summary['run_id'])}</b>: {summary['steps']} steps, "
+        f"{summary['steps_with_error']} with an error; flagged steps: {flag_text or 'none'}.</p>",
+        "<h2>Statistical results (thesis Table 6.1)</h2>",
+        _table(
+            ("quantity", "symbol", "value", "unit"),
+            (
+                (label, symbol, run_summary.get(key), unit)
+                for key in SUMMARY_KEYS
+                for label, symbol, unit in (SUMMARY_LABELS[key],)
+            ),
+        ),
+    ]
+    if stats is not None and stats.chi_squared is not None:
+        test = stats.chi_squared
+        parts += [
+            "<h2>Chi-squared test for normality (thesis Table C.4)</h2>",
+            f"<p>χ² = {test.chi_squared:.3f} with ν = K − 2 = {test.degrees_of_freedom}. "
+            f"Goodness-of-fit p-value (upper tail): <b>{test.p_value:.3f}</b> "
+            f"({'no evidence against' if test.p_value >= 0.05 else 'evidence against'} "
+            f"a normal distribution at 5 %). The thesis read the lower tail, "
+            f"P(χ²) = {test.thesis_lower_tail_p:.3f}, which is not a goodness-of-fit "
+            "p-value (DESIGN.md).</p>",
+            _table(
+                ("j", "interval (µm)", "n_j", "n'_j", "(n_j − n'_j)²/n'_j"),
+                (
+                    (
+                        j + 1,
+                        f"{test.edges[j]:.3f} ≤ x < {test.edges[j + 1]:.3f}",
+                        test.observed[j],
+                        test.expected[j],
+                        test.contributions[j],
+                    )
+                    for j in range(len(test.observed))
+                ),
+            ),
+        ]
+    elif stats is not None:
+        parts.append(f"<p>No chi-squared test: {html.escape(stats.note)}.</p>")
+    fits = summary["fits"]
+    assert isinstance(fits, dict)
+    fit_rows = []
+    for name, fit in fits.items():
+        if "error" in fit:
+            fit_rows.append((name, "–", None, None, None, None, fit["error"]))
+        else:
+            fit_rows.append(
+                (
+                    name,
+                    fit["kind"],
+                    fit["final_value"],
+                    fit["tau_s"],
+                    fit["tau_stderr_s"],
+                    fit["steady_state_s"],
+                    f"band ±{fit['steady_band']:.3g}",
+                )
+            )
+    parts += [
+        "<h2>First-order exponential fits</h2>",
+        "<p>y = y0 + A (1 − e^(−(t − t0)/τ)) (or the decaying form). τ is the time constant "
+        "(63 % of the change); steady state is the first time after which the data (running "
+        "mean of 9 samples) stay within ±3σ of the mean of their final 20 % (thesis 3.5.1); "
+        "σ is that final segment's.</p>",
+        _table(
+            ("signal", "form", "final value", "τ (s)", "± (s)", "steady from (s)", "note"),
+            fit_rows,
+        ),
+        "<h2>Figures</h2>",
+    ]
+    for plot in PLOTS:
+        parts.append(
+            f'<figure><img src="{html.escape(images[plot.name])}" alt="{plot.name}">'
+            f"<figcaption>{html.escape(plot.caption)}</figcaption></figure>"
+        )
+    style = (
+        "body{font-family:system-ui,sans-serif;max-width:1040px;margin:2em auto;padding:0 1em;"
+        "color:#222}table{border-collapse:collapse;margin:1em 0}th,td{border:1px solid #ccc;"
+        "padding:4px 10px;text-align:right}th{background:#f0f0f0}td:first-child{text-align:left}"
+        "img{max-width:100%;border:1px solid #ddd}figure{margin:2em 0}"
+        "figcaption{color:#555;font-size:.95em}"
+    )
+    body = "\n".join(parts)
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f"<title>{html.escape(title)}</title><style>{style}</style></head>\n"
+        f"<body>\n{body}\n</body></html>\n"
+    )
+
+
+def write_report(
+    rows: Iterable[Mapping[str, object]] | RunSteps,
+    out_dir: Path,
+    *,
+    title: str = "thermocomp run",
+    embed_images: bool = False,
+) -> ReportFiles:
+    """Write the figures, ``summary.json`` and ``report.html`` of one run into ``out_dir``.
+
+    ``rows`` are the run's step records (CONTRACTS.md "Step record" columns). Blocking.
+    """
+    steps = rows if isinstance(rows, RunSteps) else steps_from_rows(rows)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    summary, stats = build_summary(steps)
+    run_summary = summary["run_summary"]
+    assert isinstance(run_summary, dict)
+    plots: dict[str, Path] = {}
+    images: dict[str, str] = {}
+    for plot in PLOTS:
+        figure = plot.draw(steps, stats, run_summary)
+        path = out_dir / f"{plot.name}.png"
+        figure.savefig(path, dpi=DPI)
+        plots[plot.name] = path
+        if embed_images:
+            encoded = base64.b64encode(path.read_bytes()).decode("ascii")
+            images[plot.name] = f"data:image/png;base64,{encoded}"
+        else:
+            images[plot.name] = path.name
+    summary["plots"] = {name: path.name for name, path in plots.items()}
+    summary_path = out_dir / SUMMARY_FILE
+    summary_path.write_text(
+        json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n", encoding="utf-8"
+    )
+    html_path = out_dir / HTML_FILE
+    html_path.write_text(_html_page(title, summary, stats, images), encoding="utf-8")
+    logger.info("wrote the report of run %s to %s", steps.run_id, out_dir)
+    return ReportFiles(directory=out_dir, html=html_path, summary=summary_path, plots=plots)

@@ -1,0 +1,268 @@
+"""A run's step records as numeric series, and the run summary of thesis Table 6.1.
+
+The rows are the "Step record" of notes/CONTRACTS.md: mappings keyed by column name, as the
+recorder's SQLite rows or an exported CSV give them (missing values empty or None). Nothing
+here reads files; callers hand rows in.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+logger = logging.getLogger(__name__)
+
+UM_PER_MM = 1000.0
+
+#: The numeric columns of an exported run (CONTRACTS.md "Step record"), units in the names.
+NUMERIC_COLUMNS: tuple[str, ...] = (
+    "step",
+    "scheduled_s",
+    "actual_s",
+    "lateness_s",
+    "model_time_s",
+    "predicted_x_um",
+    "predicted_y_um",
+    "predicted_z_um",
+    "offset_x_mm",
+    "offset_y_mm",
+    "offset_z_mm",
+    "pose_x_mm",
+    "pose_y_mm",
+    "pose_z_mm",
+    "centroid_x_px",
+    "centroid_y_px",
+    "centroid_x_um",
+    "centroid_y_um",
+    "drift_x_um",
+    "drift_y_um",
+    "residual_um",
+    "deformation_scale",
+)
+
+#: The measured compensation error along the link axis: what Table 6.1 summarises.
+RESIDUAL_COLUMN = "residual_um"
+
+#: Keys of the run summary, in Table 6.1's order (CONTRACTS.md).
+SUMMARY_KEYS: tuple[str, ...] = (
+    "n",
+    "residual_max_um",
+    "residual_mean_um",
+    "residual_std_um",
+    "residual_std_mean_um",
+    "uncompensated_max_um",
+    "reduction_percent",
+)
+
+FloatArray = NDArray[np.float64]
+
+
+def number_or_nan(value: object) -> float:
+    """A cell as a float; empty, None and text that is not a number are NaN (missing)."""
+    if value is None:
+        return math.nan
+    if isinstance(value, int | float):
+        return float(value)
+    text = str(value).strip()
+    if not text:
+        return math.nan
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan
+
+
+def _json_object(value: object) -> dict[str, object]:
+    if value is None or value == "":
+        return {}
+    if isinstance(value, Mapping):
+        return dict(value)
+    try:
+        parsed = json.loads(str(value))
+    except json.JSONDecodeError:
+        logger.warning("ignoring a step's unreadable JSON cell: %.60s", value)
+        return {}
+    return parsed if isinstance(parsed, dict) else {}
+
+
+@dataclass(frozen=True)
+class RunSteps:
+    """Every column of a run as an array over its steps (NaN where a value is missing)."""
+
+    run_id: str | None
+    numeric: dict[str, FloatArray]
+    ir_mean_c: dict[str, FloatArray] = field(default_factory=dict)  # region -> series
+    ir_max_c: dict[str, FloatArray] = field(default_factory=dict)
+    model_temperatures_c: dict[str, FloatArray] = field(default_factory=dict)  # node -> series
+    flags: tuple[tuple[str, ...], ...] = ()
+    errors: tuple[str, ...] = ()
+
+    @property
+    def n_steps(self) -> int:
+        return len(self.flags)
+
+    def column(self, name: str) -> FloatArray:
+        try:
+            return self.numeric[name]
+        except KeyError:
+            known = ", ".join(sorted(self.numeric))
+            raise KeyError(f"no numeric column {name!r}; columns: {known}") from None
+
+    @property
+    def time_s(self) -> FloatArray:
+        """Run time of each step: the scheduled time, else the actual time, else step index."""
+        for name in ("scheduled_s", "actual_s"):
+            values = self.numeric.get(name)
+            if values is not None and np.isfinite(values).any():
+                return values
+        return np.arange(self.n_steps, dtype=float)
+
+    def _vector(self, prefix: str, unit: str) -> FloatArray:
+        """x/y/z columns as rows of vectors; a step missing all three is NaN, a component
+        missing beside recorded ones is 0 (a 1-D run may record only x)."""
+        columns = [self.numeric.get(f"{prefix}_{a}_{unit}") for a in "xyz"]
+        vectors: FloatArray = np.full((self.n_steps, 3), np.nan)
+        for axis, column in enumerate(columns):
+            if column is not None:
+                vectors[:, axis] = column
+        missing = ~np.isfinite(vectors).any(axis=1)
+        vectors = np.nan_to_num(vectors, nan=0.0)
+        vectors[missing] = np.nan
+        return vectors
+
+    def _axis(self) -> FloatArray:
+        """Unit vector of the largest predicted deformation: the link axis (model.direction)."""
+        predicted = np.nan_to_num(self.predicted_vector_um, nan=0.0)
+        norms = np.linalg.norm(predicted, axis=1)
+        if norms.size == 0 or norms.max() == 0:
+            return np.array([1.0, 0.0, 0.0])
+        unit: FloatArray = predicted[int(np.argmax(norms))] / norms.max()
+        return unit
+
+    @property
+    def predicted_vector_um(self) -> FloatArray:
+        return self._vector("predicted", "um")
+
+    @property
+    def deformation_input_um(self) -> FloatArray:
+        """Predicted deformation along the link axis (thesis 6.5: plotted positive)."""
+        projected: FloatArray = self.predicted_vector_um @ self._axis()
+        return projected
+
+    @property
+    def compensation_um(self) -> FloatArray:
+        """Commanded compensation offset along the same axis, in um (negative: it opposes)."""
+        projected: FloatArray = (self._vector("offset", "mm") @ self._axis()) * UM_PER_MM
+        return projected
+
+    @property
+    def deformation_scale(self) -> FloatArray:
+        """The deformation scale of each step (thesis 6.3); 1 where none was recorded."""
+        scale = self.numeric.get("deformation_scale")
+        if scale is None:
+            return np.ones(self.n_steps)
+        return np.where(np.isfinite(scale), scale, 1.0)
+
+    @property
+    def residual_um(self) -> FloatArray:
+        return self.numeric.get(RESIDUAL_COLUMN, np.full(self.n_steps, np.nan))
+
+    def flag_count(self, flag: str) -> int:
+        return sum(flag in step_flags for step_flags in self.flags)
+
+
+def steps_from_rows(rows: Iterable[Mapping[str, object]]) -> RunSteps:
+    """Build the series of a run from its step rows (exported CSV or recorder rows)."""
+    materialised = list(rows)
+    n = len(materialised)
+    present = set().union(*(row.keys() for row in materialised)) if materialised else set()
+    numeric = {
+        name: np.array([number_or_nan(row.get(name)) for row in materialised], dtype=float)
+        for name in NUMERIC_COLUMNS
+        if name in present
+    }
+    ir_cells = [_json_object(row.get("ir_json")) for row in materialised]
+    model_cells = [_json_object(row.get("model_temperatures_json")) for row in materialised]
+    ir_mean: dict[str, FloatArray] = {}
+    ir_max: dict[str, FloatArray] = {}
+    for region in sorted({name for cell in ir_cells for name in cell}):
+        readings = [cell.get(region) for cell in ir_cells]
+        ir_mean[region] = np.array(
+            [
+                number_or_nan(r.get("mean_c")) if isinstance(r, Mapping) else math.nan
+                for r in readings
+            ]
+        )
+        ir_max[region] = np.array(
+            [
+                number_or_nan(r.get("max_c")) if isinstance(r, Mapping) else math.nan
+                for r in readings
+            ]
+        )
+    nodes = sorted({name for cell in model_cells for name in cell}, key=_node_order)
+    model_temperatures = {
+        node: np.array([number_or_nan(cell.get(node)) for cell in model_cells]) for node in nodes
+    }
+    flags = tuple(
+        tuple(f.strip() for f in str(row.get("flags") or "").split(",") if f.strip())
+        for row in materialised
+    )
+    errors = tuple(str(row.get("error") or "") for row in materialised)
+    run_ids = {str(row["run_id"]) for row in materialised if row.get("run_id") not in (None, "")}
+    if len(run_ids) > 1:
+        raise ValueError(f"the rows mix several runs: {sorted(run_ids)}")
+    logger.debug("read %d steps, columns %s", n, sorted(numeric))
+    return RunSteps(
+        run_id=run_ids.pop() if run_ids else None,
+        numeric=numeric,
+        ir_mean_c=ir_mean,
+        ir_max_c=ir_max,
+        model_temperatures_c=model_temperatures,
+        flags=flags,
+        errors=errors,
+    )
+
+
+def _node_order(name: str) -> tuple[int, str]:
+    """Thesis node numbers sort numerically ("2" before "10"), other names after them."""
+    return (int(name), "") if name.isdigit() else (1 << 30, name)
+
+
+def summarize_run(rows: Iterable[Mapping[str, object]] | RunSteps) -> dict[str, float | int | None]:
+    """The run summary of Table 6.1 (keys SUMMARY_KEYS, CONTRACTS.md).
+
+    n counts the steps with a measured residual; residual_max_um is the largest |residual|
+    (thesis 6.5 "maximum error"); the deviation is the sample one (N - 1) and its mean's
+    deviation S_x / sqrt(N) (Eq. 6.1). uncompensated_max_um is the largest predicted
+    deformation times the step's deformation scale (thesis 6.3): what the spot would have moved
+    on the chip without compensation, in the residual's own units; and
+    reduction_percent = 100 (1 - max error / max uncompensated) as thesis 6.7 reports (98 %).
+    Values that cannot be computed are None.
+    """
+    steps = rows if isinstance(rows, RunSteps) else steps_from_rows(rows)
+    residual = steps.residual_um[np.isfinite(steps.residual_um)]
+    n = int(residual.size)
+    summary: dict[str, float | int | None] = dict.fromkeys(SUMMARY_KEYS)
+    summary["n"] = n
+    if n >= 1:
+        summary["residual_max_um"] = float(np.abs(residual).max())
+        summary["residual_mean_um"] = float(residual.mean())
+    if n >= 2:
+        std = float(residual.std(ddof=1))
+        summary["residual_std_um"] = std
+        summary["residual_std_mean_um"] = std / math.sqrt(n)
+    predicted = np.linalg.norm(steps.predicted_vector_um, axis=1) * steps.deformation_scale
+    predicted = predicted[np.isfinite(predicted)]
+    if predicted.size:
+        uncompensated = float(predicted.max())
+        summary["uncompensated_max_um"] = uncompensated
+        residual_max = summary["residual_max_um"]
+        if uncompensated > 0 and residual_max is not None:
+            summary["reduction_percent"] = 100.0 * (1.0 - float(residual_max) / uncompensated)
+    return summary

@@ -1,0 +1,414 @@
+"""Crash-safe recording of runs and steps in SQLite (WAL, synchronous=FULL).
+
+Every step is committed in its own transaction before the next step begins, so a crash (even
+SIGKILL) loses at most the step in progress and never leaves a partial one: SQLite's WAL
+commit is atomic, and ``synchronous=FULL`` makes it durable. A run found in a live state when
+the recorder opens was left by a crash and is marked ``interrupted``; its steps are kept.
+
+The step columns are the contract with the analysis (CONTRACTS.md "Step record"); extra
+columns come after them (deformation_scale, model_temperatures_json, frame_path, stage_ms_json).
+All methods are synchronous and serialised by a lock: the daemon calls them from one worker
+thread so that the event loop never waits on an fsync.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import fcntl
+import io
+import json
+import logging
+import os
+import sqlite3
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+logger = logging.getLogger(__name__)
+
+DATABASE_NAME = "thermocomp.sqlite3"
+LOCK_NAME = "thermocomp.lock"
+
+#: Run states that mean "someone was still working on it": after a crash they become
+#: ``interrupted`` (see daemon.runs.RunState).
+LIVE_STATES = ("starting", "running", "paused", "stopping", "fault")
+INTERRUPTED = "interrupted"
+
+
+@dataclass(slots=True)
+class StepRecord:
+    """One step as recorded; field order is the column order of the steps table and CSV."""
+
+    run_id: int
+    step: int
+    scheduled_s: float
+    actual_s: float
+    lateness_s: float
+    model_time_s: float | None = None
+    predicted_x_um: float | None = None  # unscaled predicted deformation
+    predicted_y_um: float | None = None
+    predicted_z_um: float | None = None
+    offset_x_mm: float | None = None  # commanded compensation offset
+    offset_y_mm: float | None = None
+    offset_z_mm: float | None = None
+    pose_x_mm: float | None = None  # actual pose read back
+    pose_y_mm: float | None = None
+    pose_z_mm: float | None = None
+    centroid_x_px: float | None = None
+    centroid_y_px: float | None = None
+    centroid_x_um: float | None = None
+    centroid_y_um: float | None = None
+    drift_x_um: float | None = None  # centroid minus the reference (at the goal, before
+    drift_y_um: float | None = None  # the first move; else step 0's centroid)
+    residual_um: float | None = None  # drift projected on the link direction
+    ir_json: str | None = None  # {"region": {"mean_c": .., "max_c": ..}}
+    flags: str = ""  # comma-separated
+    error: str = ""
+    # --- extra columns (after the contract's) ---
+    deformation_scale: float | None = None  # the run's scale (residuals are scaled motion)
+    model_temperatures_json: str | None = None  # {"node": predicted degC} of the model
+    frame_path: str | None = None  # archived 16-bit PNG, relative to the data directory
+    stage_ms_json: str | None = None  # {"model": ms, "move": ms, ...} wall time per stage
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+STEP_COLUMNS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(StepRecord))
+_SQL_TYPES = {"int": "INTEGER", "float": "REAL", "str": "TEXT"}
+
+
+def _column_type(field: dataclasses.Field[Any]) -> str:
+    base = str(field.type).split("|")[0].strip()
+    return _SQL_TYPES[base]
+
+
+_STEPS_SCHEMA = (
+    "CREATE TABLE IF NOT EXISTS steps ("
+    + ", ".join(f"{f.name} {_column_type(f)}" for f in dataclasses.fields(StepRecord))
+    + ", PRIMARY KEY (run_id, step), FOREIGN KEY (run_id) REFERENCES runs(id))"
+)
+_RUNS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS runs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    state TEXT NOT NULL,
+    started_at REAL NOT NULL,          -- Unix time (s)
+    ended_at REAL,
+    parameters_json TEXT NOT NULL,     -- the run's parameters
+    config_json TEXT NOT NULL,         -- the full effective settings
+    network_json TEXT,                 -- the thermal network the controller used
+    software_version TEXT NOT NULL,
+    summary_json TEXT,                 -- Table 6.1 figures, at the end
+    reason TEXT                        -- why it paused/faulted/ended, if not normally
+)
+"""
+
+
+@dataclass(frozen=True, slots=True)
+class RunRow:
+    id: int
+    state: str
+    started_at: float
+    ended_at: float | None
+    parameters: dict[str, Any]
+    config: dict[str, Any]
+    network: dict[str, Any] | None
+    software_version: str
+    summary: dict[str, Any] | None
+    reason: str | None
+    step_count: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+class RecorderError(Exception):
+    """The recording could not be written or read (disk full, unwritable, corrupt)."""
+
+
+class Recorder:
+    """The run database under ``data_dir``. Use as a context manager or call close()."""
+
+    def __init__(self, data_dir: Path) -> None:
+        self.data_dir = Path(data_dir)
+        self.path = self.data_dir / DATABASE_NAME
+        self._lock = threading.Lock()
+        try:
+            self.data_dir.mkdir(parents=True, exist_ok=True)
+            self._owner = _claim(self.data_dir / LOCK_NAME)
+        except OSError as err:
+            raise RecorderError(f"cannot open the run database {self.path}: {err}") from err
+        try:
+            self._db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+            self._db.execute(_RUNS_SCHEMA)
+            self._db.execute(_STEPS_SCHEMA)
+            self._add_missing_step_columns()
+        except (sqlite3.Error, OSError) as err:
+            self._owner.close()
+            raise RecorderError(f"cannot open the run database {self.path}: {err}") from err
+        self.interrupted_runs = self._mark_interrupted()
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+            self._owner.close()  # releases the claim on the data directory
+
+    def _add_missing_step_columns(self) -> None:
+        """A database written by an older version lacks the newer (extra, nullable) columns:
+        add them, so old runs stay readable and new steps can be written."""
+        present = {row[1] for row in self._db.execute("PRAGMA table_info(steps)")}
+        for field in dataclasses.fields(StepRecord):
+            if field.name not in present:
+                self._db.execute(f"ALTER TABLE steps ADD COLUMN {field.name} {_column_type(field)}")
+                logger.info("run database: added the steps column %s", field.name)
+
+    # --- writing -----------------------------------------------------------------------
+
+    def _mark_interrupted(self) -> list[int]:
+        """Mark runs a crash left in a live state as ``interrupted`` (their steps are kept)."""
+        marks = ",".join("?" * len(LIVE_STATES))
+        with self._write() as db:
+            ids = [
+                int(row[0])
+                for row in db.execute(f"SELECT id FROM runs WHERE state IN ({marks})", LIVE_STATES)
+            ]
+            db.execute(
+                f"UPDATE runs SET state = ?, reason = COALESCE(reason, ?) WHERE state IN ({marks})",
+                (INTERRUPTED, "the daemon stopped without ending the run", *LIVE_STATES),
+            )
+        for run_id in ids:
+            logger.warning("run %d was left unfinished by a crash: marked interrupted", run_id)
+        return ids
+
+    def create_run(
+        self,
+        parameters: Mapping[str, Any],
+        config: Mapping[str, Any],
+        network: Mapping[str, Any] | None,
+        software_version: str,
+        state: str = "starting",
+    ) -> int:
+        with self._write() as db:
+            cursor = db.execute(
+                "INSERT INTO runs (state, started_at, parameters_json, config_json, network_json,"
+                " software_version) VALUES (?, ?, ?, ?, ?, ?)",
+                (
+                    state,
+                    time.time(),
+                    _dumps(parameters),
+                    _dumps(config),
+                    None if network is None else _dumps(network),
+                    software_version,
+                ),
+            )
+            run_id = cursor.lastrowid
+        assert run_id is not None
+        return run_id
+
+    def set_run_state(self, run_id: int, state: str, reason: str | None = None) -> None:
+        with self._write() as db:
+            db.execute(
+                "UPDATE runs SET state = ?, reason = ? WHERE id = ?", (state, reason, run_id)
+            )
+
+    def finish_run(
+        self, run_id: int, state: str, summary: Mapping[str, Any] | None, reason: str | None
+    ) -> None:
+        with self._write() as db:
+            db.execute(
+                "UPDATE runs SET state = ?, ended_at = ?, summary_json = ?, reason = ? "
+                "WHERE id = ?",
+                (state, time.time(), None if summary is None else _dumps(summary), reason, run_id),
+            )
+
+    def write_step(self, record: StepRecord) -> None:
+        """Insert one step and commit it (durably) before returning."""
+        values = dataclasses.astuple(record)
+        placeholders = ",".join("?" * len(values))
+        with self._write() as db:
+            db.execute(
+                f"INSERT INTO steps ({','.join(STEP_COLUMNS)}) VALUES ({placeholders})", values
+            )
+
+    def archive_frame(self, run_id: int, step: int, image: NDArray[np.integer]) -> str:
+        """Save a frame as a lossless 16-bit PNG beside the database; return its path relative
+        to the data directory (the step's ``frame_path``)."""
+        relative = Path("frames") / f"run-{run_id:05d}" / f"step-{step:07d}.png"
+        target = self.data_dir / relative
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            ok = cv2.imwrite(str(target), np.asarray(image, dtype=np.uint16))
+        except (OSError, cv2.error) as err:
+            raise RecorderError(f"cannot archive frame {target}: {err}") from err
+        if not ok:
+            raise RecorderError(f"cannot archive frame {target}")
+        return relative.as_posix()
+
+    # --- reading -----------------------------------------------------------------------
+
+    def runs(self, limit: int = 50, offset: int = 0) -> list[RunRow]:
+        """Runs, newest first."""
+        with self._read() as db:
+            rows = db.execute(
+                f"{_RUN_SELECT} ORDER BY r.id DESC LIMIT ? OFFSET ?", (limit, offset)
+            ).fetchall()
+        return [_run_row(row) for row in rows]
+
+    def run(self, run_id: int) -> RunRow | None:
+        with self._read() as db:
+            row = db.execute(f"{_RUN_SELECT} WHERE r.id = ?", (run_id,)).fetchone()
+        return None if row is None else _run_row(row)
+
+    def steps(self, run_id: int, start: int = 0, limit: int | None = None) -> list[StepRecord]:
+        """Steps of a run in order, from step number ``start``."""
+        with self._read() as db:
+            rows = db.execute(
+                f"SELECT {','.join(STEP_COLUMNS)} FROM steps WHERE run_id = ? AND step >= ? "
+                "ORDER BY step LIMIT ?",
+                (run_id, start, -1 if limit is None else limit),
+            ).fetchall()
+        return [StepRecord(*row) for row in rows]
+
+    def export_csv(self, run_id: int, path: Path | None = None) -> str:
+        """The run's steps as CSV (header = STEP_COLUMNS, empty cell = missing); written to
+        ``path`` when given. Returns the text."""
+        buffer = io.StringIO()
+        write_steps_csv(self.steps(run_id), buffer)
+        text = buffer.getvalue()
+        if path is not None:
+            Path(path).write_text(text, encoding="utf-8")
+        return text
+
+    def export_parquet(self, run_id: int, path: Path) -> None:
+        """The run's steps as Parquet; needs the optional ``pyarrow`` (extra ``parquet``)."""
+        try:
+            import pyarrow as pa  # type: ignore[import-not-found, unused-ignore]
+            import pyarrow.parquet as pq  # type: ignore[import-not-found, unused-ignore]
+        except ImportError as err:
+            raise RecorderError(
+                "Parquet export needs pyarrow: pip install 'thermocomp[parquet]'"
+            ) from err
+        records = self.steps(run_id)
+        columns = {name: [getattr(r, name) for r in records] for name in STEP_COLUMNS}
+        pq.write_table(pa.table(columns), str(path))
+
+    # --- internals -----------------------------------------------------------------------
+
+    def _write(self) -> _Transaction:
+        return _Transaction(self._db, self._lock, self.path)
+
+    def _read(self) -> _Transaction:
+        return _Transaction(self._db, self._lock, self.path)
+
+
+def write_steps_csv(records: Sequence[StepRecord], stream: io.TextIOBase | Any) -> None:
+    writer = csv.writer(stream, lineterminator="\n")
+    writer.writerow(STEP_COLUMNS)
+    for record in records:
+        writer.writerow("" if v is None else _csv_cell(v) for v in dataclasses.astuple(record))
+
+
+def _csv_cell(value: object) -> object:
+    return repr(value) if isinstance(value, float) else value
+
+
+def _claim(lock_path: Path) -> IO[str]:
+    """Claim the data directory for this process: two recorders on one database would mark
+    each other's live runs interrupted. The OS drops the claim when the process dies, even by
+    SIGKILL, so a crash never leaves the directory locked."""
+    handle = open(lock_path, "a+", encoding="utf-8")  # noqa: SIM115 -- held until close()
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        owner = handle.read().strip() or "unknown"
+        handle.close()
+        raise RecorderError(
+            f"{lock_path.parent} is in use by another thermocomp process (pid {owner})"
+        ) from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(str(os.getpid()))
+    handle.flush()
+    return handle
+
+
+class _Transaction:
+    """One serialised transaction: BEGIN IMMEDIATE ... COMMIT, rolled back on error; SQLite
+    and OS errors become RecorderError."""
+
+    def __init__(self, db: sqlite3.Connection, lock: threading.Lock, path: Path) -> None:
+        self._db, self._lock, self._path = db, lock, path
+
+    def __enter__(self) -> sqlite3.Connection:
+        self._lock.acquire()
+        try:
+            self._db.execute("BEGIN IMMEDIATE")
+        except sqlite3.Error as err:
+            self._lock.release()
+            raise RecorderError(f"{self._path}: {err}") from err
+        return self._db
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, _: object
+    ) -> None:
+        try:
+            if exc_type is None:
+                self._db.execute("COMMIT")
+            else:
+                self._db.execute("ROLLBACK")
+        except sqlite3.Error as err:
+            if exc_type is None:
+                try:
+                    self._db.execute("ROLLBACK")
+                except sqlite3.Error:
+                    logger.debug("rollback after a failed commit failed too", exc_info=True)
+                raise RecorderError(f"{self._path}: cannot commit: {err}") from err
+        finally:
+            self._lock.release()
+        if isinstance(exc, sqlite3.Error):
+            raise RecorderError(f"{self._path}: {exc}") from exc
+
+
+_RUN_SELECT = (
+    "SELECT r.id, r.state, r.started_at, r.ended_at, r.parameters_json, r.config_json, "
+    "r.network_json, r.software_version, r.summary_json, r.reason, "
+    "(SELECT COUNT(*) FROM steps s WHERE s.run_id = r.id) FROM runs r"
+)
+
+
+def _run_row(row: Sequence[Any]) -> RunRow:
+    return RunRow(
+        id=row[0],
+        state=row[1],
+        started_at=row[2],
+        ended_at=row[3],
+        parameters=json.loads(row[4]),
+        config=json.loads(row[5]),
+        network=None if row[6] is None else json.loads(row[6]),
+        software_version=row[7],
+        summary=None if row[8] is None else json.loads(row[8]),
+        reason=row[9],
+        step_count=row[10],
+    )
+
+
+def _dumps(value: Mapping[str, Any]) -> str:
+    return json.dumps(value, default=str, allow_nan=True)

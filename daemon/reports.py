@@ -1,0 +1,168 @@
+"""Run reports from the run database, and the ``thermocomp report`` command.
+
+daemon.analysis is pure and knows nothing of the recorder; this module is the glue: it reads a
+run's steps (and the summary the daemon recorded) from the SQLite database or an exported CSV
+and hands them to :func:`daemon.analysis.write_report`. It also registers ``stats`` and
+``fit`` (daemon.analysis.cli) so the entry point lists all analysis commands with one entry.
+
+The database is opened READ-ONLY here: opening a ``Recorder`` would mark the run the daemon
+is recording right now as interrupted (recorder.py marks live runs left by a crash).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sqlite3
+import sys
+from collections.abc import Mapping
+from contextlib import closing
+from pathlib import Path
+from typing import Any
+
+from config import load_settings
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from daemon.analysis import ReportFiles, summarize_run, write_report
+from daemon.analysis import cli as analysis_cli
+from daemon.recorder import DATABASE_NAME, STEP_COLUMNS
+
+logger = logging.getLogger(__name__)
+
+
+#: Relative tolerance when checking the report's numbers against the daemon's run summary.
+SUMMARY_TOLERANCE = 1e-9
+
+
+class ReportError(Exception):
+    """The run or file cannot be reported (unknown run, unreadable database)."""
+
+
+def report_dir(data_dir: Path, run_id: int) -> Path:
+    """Where the report of a run lives: beside the database, like the archived frames."""
+    return Path(data_dir) / "reports" / f"run-{run_id:05d}"
+
+
+def read_run(data_dir: Path, run_id: int) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+    """The steps of a run and the summary the daemon recorded for it (None while running)."""
+    path = Path(data_dir) / DATABASE_NAME
+    if not path.is_file():
+        raise ReportError(f"no run database at {path}")
+    try:
+        with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
+            run = db.execute("SELECT summary_json FROM runs WHERE id = ?", (run_id,)).fetchone()
+            if run is None:
+                raise ReportError(f"no run {run_id} in {path}")
+            cursor = db.execute(
+                f"SELECT {','.join(STEP_COLUMNS)} FROM steps WHERE run_id = ? ORDER BY step",
+                (run_id,),
+            )
+            rows = [dict(zip(STEP_COLUMNS, row, strict=True)) for row in cursor]
+    except sqlite3.Error as err:
+        raise ReportError(f"cannot read {path}: {err}") from err
+    summary = json.loads(run[0]) if run[0] else None
+    return rows, summary
+
+
+def disagreements(recorded: Mapping[str, Any], computed: Mapping[str, Any]) -> list[str]:
+    """Keys of the daemon's run summary whose value the report computes differently."""
+    differing = []
+    for key, value in computed.items():
+        if key not in recorded:
+            continue
+        other = recorded[key]
+        if value is None or other is None:
+            if value is not other:
+                differing.append(key)
+        elif not math.isclose(float(value), float(other), rel_tol=SUMMARY_TOLERANCE):
+            differing.append(key)
+    return differing
+
+
+def write_run_report(
+    data_dir: Path, run_id: int, out_dir: Path | None = None, *, embed_images: bool = False
+) -> ReportFiles:
+    """Write the report of a recorded run. Blocking.
+
+    Without ``out_dir`` it goes to :func:`report_dir`, the folder the API serves
+    ``GET /api/v1/runs/{id}/report`` from as a single page, so there the images are always
+    embedded (the PNG files are written beside it too)."""
+    rows, recorded = read_run(data_dir, run_id)
+    if recorded is not None:
+        differing = disagreements(recorded, summarize_run(rows))
+        if differing:
+            logger.warning(
+                "run %d: the report's %s differ from the daemon's recorded summary",
+                run_id,
+                ", ".join(differing),
+            )
+    if out_dir is None:
+        out_dir, embed_images = report_dir(data_dir, run_id), True
+    return write_report(rows, out_dir, title=f"thermocomp run {run_id}", embed_images=embed_images)
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Register ``stats``, ``fit`` and ``report``."""
+    analysis_cli.register(subparsers)
+    parser = subparsers.add_parser(
+        "report",
+        help="write a run's report: figures, summary.json and an HTML page",
+        description="Write the report of a run: PNG figures (deformation, compensation and "
+        "error over time; compensated vs uncompensated; error histogram with the normal "
+        "curve; temperatures; step lateness), summary.json (thesis Table 6.1, chi-squared "
+        "test, exponential fits) and report.html showing them. TARGET is an exported run "
+        "(CSV) or a run number in the run database of --config's storage.data_dir.",
+    )
+    parser.add_argument("target", metavar="RUN_ID|EXPORTED_FILE", help="run number or CSV file")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="output folder (default: <data_dir>/reports/run-NNNNN for a run, "
+        "<file>-report beside an exported file)",
+    )
+    parser.add_argument(
+        "--config",
+        type=Path,
+        help="TOML settings file naming storage.data_dir (default: built-in defaults)",
+    )
+    parser.add_argument(
+        "--embed-images",
+        action="store_true",
+        help="embed the PNGs in report.html so the page is a single file (always done for "
+        "a run's default folder, which the API serves)",
+    )
+    parser.set_defaults(handler=run_report)
+
+
+def run_report(args: argparse.Namespace) -> int:
+    target = Path(args.target)
+    try:
+        if target.is_file():
+            rows = analysis_cli.read_table(target)
+            out_dir = args.out or target.with_name(f"{target.stem}-report")
+            files = write_report(
+                rows,
+                out_dir,
+                title=f"thermocomp run ({target.name})",
+                embed_images=args.embed_images,
+            )
+        elif args.target.isdigit():
+            data_dir = load_settings(args.config).storage.data_dir
+            files = write_run_report(
+                data_dir, int(args.target), args.out, embed_images=args.embed_images
+            )
+        else:
+            print(
+                f"thermocomp report: {args.target!r} is neither a file nor a run number",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
+    except analysis_cli.InputError as err:
+        print(f"thermocomp report: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except (ReportError, ValueError, OSError) as err:
+        print(f"thermocomp report: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    print(files.html)
+    return EXIT_OK

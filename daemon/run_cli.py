@@ -1,0 +1,215 @@
+"""``thermocomp run``: one run to its end without the API, then its summary (thesis Table 6.1).
+
+For scripts and tests. SIGINT/SIGTERM stop the run cleanly (robot held, recording committed);
+a device fault ends the run (there is nobody to ask for a resume) with exit status 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import math
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from config import Settings, load_settings
+from daemon.runs import RunParameters, RunState, RunStateError
+from daemon.service import Daemon, RunParameterError
+
+logger = logging.getLogger(__name__)
+
+EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "run",
+        help="run one compensation run to its end and print its summary",
+        description="Run one run on the configured devices (the simulated bench with "
+        "config/sim.toml) without the API, record every step, and print the summary of "
+        "thesis Table 6.1. Options override the [scheduler] and [compensation] settings.",
+    )
+    parser.add_argument(  # as api/serve.py's, which this layer may not import
+        "--config",
+        type=Path,
+        help="TOML settings file (default: built-in defaults = the simulated bench); "
+        "THERMOCOMP_<SECTION>__<FIELD> environment variables override it",
+    )
+    parser.add_argument(
+        "--procedure",
+        choices=["stationary", "moving", "repeatability"],
+        help="what the robot does (thesis 6.2 stationary, 3.2.4 moving, 2.2.2 repeatability)",
+    )
+    parser.add_argument(
+        "--compensation",
+        choices=["off", "absolute", "incremental"],
+        help="absolute: goal + offset (thesis 6.4.4); incremental: the thesis's comparison",
+    )
+    parser.add_argument("--duration", type=float, metavar="S", help="run length (s)")
+    parser.add_argument("--step", type=float, metavar="S", help="step period (s), 0.01 to 600")
+    parser.add_argument("--scale", type=float, help="deformation scale (thesis 6.3)")
+    parser.add_argument("--time-scale", type=float, help="model s per run s (thesis 6.3)")
+    parser.add_argument("--network", help="network preset name or TOML file")
+    parser.add_argument(
+        "--data-dir", type=Path, help="folder of the run database (default: storage.data_dir)"
+    )
+    parser.add_argument("--csv", type=Path, help="also export the run's steps to this CSV file")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.set_defaults(handler=run_command)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    try:
+        settings = _settings(args)
+        parameters = RunParameters.from_settings(settings)
+    except ValidationError as err:
+        print(f"thermocomp run: invalid run parameters:\n{_describe(err)}", file=sys.stderr)
+        return EXIT_USAGE
+    return asyncio.run(_run(settings, parameters, args))
+
+
+def _settings(args: argparse.Namespace) -> Settings:
+    """The file's settings with the command line's options written into their sections, so
+    that the simulated bench (which reads e.g. the deformation scale and the procedure from
+    the settings) and the run agree."""
+    settings = load_settings(args.config)
+    overrides = {
+        "scheduler": {
+            "procedure": args.procedure,
+            "duration_s": args.duration,
+            "step_s": args.step,
+        },
+        "compensation": {
+            "mode": args.compensation,
+            "deformation_scale": args.scale,
+            "time_scale": args.time_scale,
+        },
+        "model": {"network": args.network},
+        "storage": {"data_dir": args.data_dir},
+    }
+    data = settings.model_dump()
+    for section, values in overrides.items():
+        data[section].update({k: v for k, v in values.items() if v is not None})
+    return Settings.model_validate(data)
+
+
+async def _run(settings: Settings, parameters: RunParameters, args: argparse.Namespace) -> int:
+    loop = asyncio.get_running_loop()
+    stop_requested = asyncio.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(signum, stop_requested.set)
+    try:
+        async with Daemon(settings) as daemon:
+            try:
+                info = await daemon.start_run(parameters)
+            except RunParameterError as err:
+                print(f"thermocomp run: {err}", file=sys.stderr)
+                return EXIT_USAGE
+            run_id = info["id"]
+            if not args.json:
+                print(f"run {run_id} started; recording to {daemon.recorder_path}", flush=True)
+            final = await _supervise(daemon, stop_requested)
+            if args.csv is not None:
+                assert daemon.recorder is not None
+                await asyncio.to_thread(daemon.recorder.export_csv, run_id, args.csv)
+    finally:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(signum)
+    _print_result(final, args.json)
+    return EXIT_OK if final["state"] == RunState.FINISHED.value else EXIT_FAILURE
+
+
+async def _supervise(daemon: Daemon, stop_requested: asyncio.Event) -> dict[str, Any]:
+    """Wait for the run to end; stop it on a signal or when it parks in fault/paused (nobody
+    is there to resume it)."""
+    stopper = asyncio.ensure_future(stop_requested.wait())
+    waiter = asyncio.ensure_future(
+        daemon.wait_state(RunState.FAULT, RunState.PAUSED, RunState.FINISHED)
+    )
+    try:
+        done, _ = await asyncio.wait({waiter, stopper}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in (stopper, waiter):
+            task.cancel()
+        await asyncio.gather(stopper, waiter, return_exceptions=True)
+    if stopper in done:
+        return await _stop(daemon, "stopped by a signal", RunState.ABORTED)
+    run = daemon.run
+    assert run is not None
+    if run.state in (RunState.FAULT, RunState.PAUSED):
+        reason = run.machine.reason or run.state.value
+        return await _stop(daemon, f"{run.state.value}: {reason}", RunState.ABORTED)
+    return await daemon.wait_run()
+
+
+async def _stop(daemon: Daemon, reason: str, final: RunState) -> dict[str, Any]:
+    try:
+        return await daemon.stop(reason=reason, final=final)
+    except RunStateError:  # it ended meanwhile
+        return await daemon.wait_run()
+
+
+def _print_result(final: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(final, indent=2, default=str, allow_nan=False, cls=_FiniteEncoder))
+        return
+    summary = final.get("summary") or {}
+    print(
+        f"run {final['id']} {final['state']}" + (f": {final['reason']}" if final["reason"] else "")
+    )
+    rows = [
+        ("steps with a residual (N)", summary.get("n"), ""),
+        ("residual max |x|", summary.get("residual_max_um"), "um"),
+        ("residual mean x-bar", summary.get("residual_mean_um"), "um"),
+        ("residual std S_x", summary.get("residual_std_um"), "um"),
+        ("std of the mean S_x-bar", summary.get("residual_std_mean_um"), "um"),
+        ("uncompensated max", summary.get("uncompensated_max_um"), "um"),
+        ("  measured (drift - moves)", summary.get("uncompensated_measured_max_um"), "um"),
+        ("reduction", summary.get("reduction_percent"), "%"),
+        ("overruns", summary.get("overruns"), ""),
+    ]
+    for label, value, unit in rows:
+        print(f"  {label:<28} {_format(value)} {unit}".rstrip())
+    lateness = (summary.get("timing") or {}).get("lateness_s") or {}
+    if lateness:
+        values = "/".join(_format(1e3 * v) for v in lateness.values() if isinstance(v, float))
+        print(f"  {'lateness p50/p99/max':<28} {values} ms")
+    if final.get("report"):
+        print(f"  {'report':<28} {final['report']}")
+
+
+def _format(value: object) -> str:
+    if isinstance(value, float):
+        return "-" if math.isnan(value) else f"{value:.3f}"
+    return "-" if value is None else str(value)
+
+
+class _FiniteEncoder(json.JSONEncoder):
+    """JSON without NaN/inf (not JSON): they become null."""
+
+    def iterencode(self, o: Any, _one_shot: bool = False) -> Any:
+        return super().iterencode(_finite(o), _one_shot)
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _describe(error: ValidationError) -> str:
+    return "\n".join(
+        f"{'.'.join(str(p) for p in item['loc']) or 'parameters'}: "
+        + str(item["msg"]).removeprefix("Value error, ")
+        for item in error.errors()
+    )

@@ -1,0 +1,197 @@
+"""Runs: their parameters, their state machine, and the procedures they follow.
+
+State machine (issue 6)::
+
+    idle -> starting -> running <-> paused -> stopping -> finished | aborted | fault
+                           \\-> fault -> (explicit resume) -> running
+
+``interrupted`` is only ever written by the recorder at start-up, for a run a crash left live.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from config import Settings
+from drivers.base import Vector3
+
+PositiveFloat = Annotated[float, Field(gt=0)]
+NonNegativeFloat = Annotated[float, Field(ge=0)]
+
+
+class RunState(enum.Enum):
+    IDLE = "idle"
+    STARTING = "starting"
+    RUNNING = "running"
+    PAUSED = "paused"
+    STOPPING = "stopping"
+    FINISHED = "finished"
+    ABORTED = "aborted"
+    FAULT = "fault"
+    INTERRUPTED = "interrupted"
+
+    @property
+    def is_terminal(self) -> bool:
+        return self in _TERMINAL
+
+    @property
+    def is_active(self) -> bool:
+        """A run in this state holds the daemon: no other run may start."""
+        return self not in _TERMINAL and self is not RunState.IDLE
+
+
+_TERMINAL = frozenset({RunState.FINISHED, RunState.ABORTED, RunState.INTERRUPTED})
+
+#: Allowed transitions. ``fault`` is where a device fault parks the run until an explicit
+#: resume (or stop); a run still in ``fault`` when the daemon shuts down ends there.
+TRANSITIONS: dict[RunState, frozenset[RunState]] = {
+    RunState.IDLE: frozenset({RunState.STARTING}),
+    RunState.STARTING: frozenset(
+        {RunState.RUNNING, RunState.STOPPING, RunState.ABORTED, RunState.FAULT}
+    ),
+    RunState.RUNNING: frozenset({RunState.PAUSED, RunState.STOPPING, RunState.FAULT}),
+    RunState.PAUSED: frozenset({RunState.RUNNING, RunState.STOPPING, RunState.FAULT}),
+    RunState.FAULT: frozenset({RunState.RUNNING, RunState.STOPPING}),
+    RunState.STOPPING: frozenset({RunState.FINISHED, RunState.ABORTED, RunState.FAULT}),
+    RunState.FINISHED: frozenset(),
+    RunState.ABORTED: frozenset(),
+    RunState.INTERRUPTED: frozenset(),
+}
+
+
+class RunStateError(Exception):
+    """A request that the run's current state does not allow (e.g. resume while running)."""
+
+
+class StateMachine:
+    """The current state and the reason of the last change; refuses illegal transitions."""
+
+    def __init__(self) -> None:
+        self.state = RunState.IDLE
+        self.reason: str | None = None
+
+    def can(self, target: RunState) -> bool:
+        return target in TRANSITIONS[self.state]
+
+    def go(self, target: RunState, reason: str | None = None) -> None:
+        if not self.can(target):
+            raise RunStateError(f"cannot go from {self.state.value} to {target.value}")
+        self.state = target
+        self.reason = reason
+
+
+Procedure = Literal["stationary", "moving", "repeatability"]
+CompensationMode = Literal["off", "absolute", "incremental"]
+
+
+class RunParameters(BaseModel):
+    """What a run is started with (issue 6 "Runs and procedures"). Defaults come from the
+    settings (:meth:`from_settings`); the API validates requests against this model."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    procedure: Procedure = "stationary"
+    compensation: CompensationMode = "absolute"
+    duration_s: PositiveFloat = 3600.0
+    step_s: Annotated[float, Field(ge=0.01, le=600)] = 1.0
+    deformation_scale: PositiveFloat = 1.0
+    time_scale: PositiveFloat = Field(
+        1.0, description="Model seconds per run-clock second (thesis 6.3: time may be scaled)."
+    )
+    network: str = "thesis-two-link"
+    warmup_wait_s: NonNegativeFloat = 0.0
+    heat_w: dict[str, NonNegativeFloat] = Field(
+        default_factory=lambda: {"2": 0.5, "9": 0.5},
+        description="Heater power per model node while the heaters are on (W).",
+    )
+    heater_off_s: NonNegativeFloat | None = Field(
+        None, description="Run time at which the heaters switch off; none: stay on."
+    )
+    # moving procedure (thesis 3.2.4): a wiper arc about the goal, back home to capture
+    arc_amplitude_deg: Annotated[float, Field(ge=0, le=90)] = 15.0
+    arc_radius_mm: NonNegativeFloat = 10.0
+    arc_period_s: PositiveFloat = 60.0
+    capture_every_s: PositiveFloat = 30.0
+    # repeatability procedure (thesis 2.2.2): offsets from the goal of the taught poses (mm)
+    poses_mm: tuple[Vector3, ...] = ((0.0, 0.0, 0.0), (0.2, 0.2, 0.0))
+
+    @model_validator(mode="after")
+    def _consistent(self) -> RunParameters:
+        if self.step_s > self.duration_s:
+            raise ValueError("step_s must not exceed duration_s")
+        if self.procedure == "repeatability" and len(self.poses_mm) < 2:
+            raise ValueError("the repeatability procedure needs at least two poses")
+        for pose in self.poses_mm:
+            if not all(math.isfinite(v) for v in pose):
+                raise ValueError("poses_mm must be finite")
+        return self
+
+    @classmethod
+    def from_settings(cls, settings: Settings, **overrides: Any) -> RunParameters:
+        """Parameters from the configuration, with ``overrides`` (None values ignored)."""
+        values: dict[str, Any] = {
+            "procedure": settings.scheduler.procedure,
+            "compensation": settings.compensation.mode,
+            "duration_s": settings.scheduler.duration_s,
+            "step_s": settings.scheduler.step_s,
+            "deformation_scale": settings.compensation.deformation_scale,
+            "time_scale": settings.compensation.time_scale,
+            "network": settings.model.network,
+            "warmup_wait_s": settings.scheduler.warmup_wait_s,
+            "heat_w": dict(settings.model.heat_w),
+            "heater_off_s": settings.bench.heater_off_s,
+        }
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        return cls.model_validate(values)
+
+    @property
+    def step_count(self) -> int:
+        """Steps in a run that misses no deadline: at 0, step, 2 step ... < duration."""
+        return math.ceil(self.duration_s / self.step_s - 1e-9)
+
+
+@dataclass(frozen=True, slots=True)
+class ProcedurePoint:
+    """What the procedure asks for at one step."""
+
+    pose_offset_mm: Vector3  # offset of the operational pose from the taught goal
+    capture: bool  # take a frame and measure at this step
+    pose_index: int  # which taught pose (repeatability), 0 otherwise
+
+
+def procedure_point(parameters: RunParameters, step: int, run_time_s: float) -> ProcedurePoint:
+    """The procedure's pose and whether to capture, at a step.
+
+    stationary: stay at the goal, capture every step (thesis 6.2). moving: a wiper arc of
+    ``arc_amplitude_deg`` about the goal on a circle of ``arc_radius_mm`` (thesis 3.2.4),
+    home for a capture every ``capture_every_s``. repeatability: cycle through the taught
+    poses and capture at each (thesis 2.2.2).
+    """
+    if parameters.procedure == "repeatability":
+        index = step % len(parameters.poses_mm)
+        return ProcedurePoint(parameters.poses_mm[index], True, index)
+    if parameters.procedure == "moving":
+        half_step = parameters.step_s / 2
+        phase = math.fmod(run_time_s + half_step, parameters.capture_every_s)
+        if phase < parameters.step_s:  # the step nearest each capture instant
+            return ProcedurePoint((0.0, 0.0, 0.0), True, 0)
+        angle = math.radians(parameters.arc_amplitude_deg) * math.sin(
+            2 * math.pi * run_time_s / parameters.arc_period_s
+        )
+        radius = parameters.arc_radius_mm
+        return ProcedurePoint(
+            (radius * math.sin(angle), radius * (1 - math.cos(angle)), 0.0), False, 0
+        )
+    return ProcedurePoint((0.0, 0.0, 0.0), True, 0)
+
+
+def heat_at(parameters: RunParameters, run_time_s: float) -> dict[str, float]:
+    """The heater inputs of the procedure at ``run_time_s`` (heaters on, then off)."""
+    if parameters.heater_off_s is not None and run_time_s >= parameters.heater_off_s:
+        return dict.fromkeys(parameters.heat_w, 0.0)
+    return dict(parameters.heat_w)

@@ -1,0 +1,776 @@
+"""Sub-pixel laser-spot centroid: the thesis's algorithm and a robust, near-optimal one.
+
+Coordinates: pixel (row r, column c) has its centre at (x = c, y = r), x to the right and y
+down (DESIGN.md "Centroid"); micrometres are ``px * um_per_px`` per axis (the thesis measured
+10.22 µm/px in x and 9.72 µm/px in y, A.1). Pure code: arrays in, results out, no I/O.
+
+``method="thesis"`` replicates ``extract_centroid.m`` (thesis appendix A.1, 3.2.3, 4.7.2).
+``method="robust"`` (default) is what the daemon measures with; see :func:`_robust`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any, Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from daemon.vision.synthetic import full_scale, pixel_gaussian
+
+if TYPE_CHECKING:
+    from config.settings import CameraSettings
+
+Method = Literal["robust", "thesis"]
+METHODS: tuple[Method, ...] = ("robust", "thesis")
+
+#: Histogram bins (thesis A.1: ten shades, [0, 0.1), ..., [0.9, 1.0) of full scale), written
+#: as the MATLAB script's literals so that the float comparisons are the same.
+_THESIS_BIN_EDGES = np.array([0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0])
+
+# Robust method tuning (see _robust for the reasoning behind each).
+_DETECTION_SIGMAS = 8.0  # spot must stand this far above the smoothed image's noise
+_THRESHOLD_SIGMAS = 3.0  # threshold over the local background, in noise sigmas
+# window half-size in second-moment widths: ISO 11146 integrates over 3 beam diameters (±6σ)
+# without a threshold; with 3 noise sigmas subtracted, nothing beyond ±4σ weighs any more
+_WINDOW_SIGMAS = 4.0
+_MIN_HALF_WIDTH = 3.0  # px
+_MIN_FRAME_PX = 16  # room for a window and its background ring
+_RING_PX = 3  # width of the band around the window that gives the local background
+_TOLERANCE_PX = 1e-5
+_MAX_ITERATIONS = 40
+_EDGE_SHIFT_PX = 1e-3  # a frame edge that would move the centroid more than this cuts the spot
+_LOW_SNR = 20.0
+_QUANTISATION_VARIANCE = 1.0 / 12.0  # counts², rounding to integers
+#: the 8 neighbours of a pixel (dilating with it gives their maximum)
+_NEIGHBOURS = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], dtype=np.uint8)
+_MIN_REDUCED_FRAME_PX = 64  # smaller frames are searched at full resolution
+_FILTER_DTYPES = tuple(np.dtype(t) for t in (np.uint8, np.uint16, np.float32))
+_OPENCV_DTYPES = tuple(
+    np.dtype(t) for t in (np.uint8, np.int8, np.uint16, np.int16, np.int32, np.float32, np.float64)
+)
+
+
+class CentroidError(ValueError):
+    """A frame gave no centroid. ``code`` names the problem for machines (``blank``,
+    ``no-spot``, ``edge``, ``threshold``, ``dimensions``, ``unreadable``); ``str()`` for people."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass(frozen=True, slots=True)
+class CentroidResult:
+    """One frame's measurement. Counts are raw pixel values; widths are 1-sigma (px)."""
+
+    method: Method
+    x_px: float
+    y_px: float
+    x_um: float
+    y_um: float
+    sigma_x_px: float  # estimated 1-sigma uncertainty of x_px (photon + read noise)
+    sigma_y_px: float
+    sigma_x_um: float
+    sigma_y_um: float
+    signal: float  # integrated signal the centroid weighs (counts)
+    peak: float  # brightest pixel (counts) of the measured area
+    peak_fraction: float  # peak / full scale (the thesis's "maximum intensity")
+    background: float  # local background level at the spot (counts)
+    noise: float  # RMS noise of the background (counts)
+    width_x_px: float  # second-moment width of the weighed spot
+    width_y_px: float
+    snr: float  # integrated signal / its noise
+    saturated_fraction: float  # share of the spot's pixels at full scale
+    histogram: tuple[int, ...]  # 10 bins of pixel value / full scale over the measured area
+    # "saturated", "saturation-fit-failed", "edge" (window clipped by the frame, spot whole),
+    # "low-snr" (snr < 20), "hot-pixels" (some replaced in the window)
+    flags: tuple[str, ...]
+    iterations: int
+
+    def as_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["histogram"] = list(self.histogram)
+        data["flags"] = list(self.flags)
+        return data
+
+
+def threshold_counts(value: float, bit_depth: int) -> int:
+    """A threshold in counts: values up to 1 are fractions of full scale, larger ones counts.
+
+    Fractions are rounded like MATLAB's ``round`` (half away from zero), as the thesis's
+    ``TRESHOLD = round(TRESHOLD/100*MAXIMUM)`` does.
+    """
+    if value < 0:
+        raise ValueError(f"a threshold cannot be negative, got {value}")
+    counts = value * full_scale(bit_depth) if value <= 1.0 else value
+    return math.floor(counts + 0.5)
+
+
+def _matlab_round(value: float) -> int:
+    return int(math.copysign(math.floor(abs(value) + 0.5), value))
+
+
+def _validated(
+    image: NDArray[Any], bit_depth: int, expected_shape: tuple[int, int] | None
+) -> NDArray[Any]:
+    if bit_depth not in (8, 12, 16):
+        raise ValueError(f"bit_depth must be 8, 12 or 16, got {bit_depth!r}")
+    if image.ndim != 2:
+        raise CentroidError(
+            "dimensions", f"wrong dimensions: expected a 2-D grey image, got shape {image.shape}"
+        )
+    if expected_shape is not None and image.shape != tuple(expected_shape):
+        raise CentroidError(
+            "dimensions",
+            f"wrong dimensions: expected {expected_shape[1]}x{expected_shape[0]} px, "
+            f"got {image.shape[1]}x{image.shape[0]}",
+        )
+    if not (np.issubdtype(image.dtype, np.integer) or np.issubdtype(image.dtype, np.floating)):
+        raise CentroidError("unreadable", f"not an image: pixel type {image.dtype}")
+    if image.dtype in _OPENCV_DTYPES:
+        lowest, highest, _, _ = cv2.minMaxLoc(image)  # one C pass, no copy
+    else:
+        lowest, highest = float(image.min()), float(image.max())
+    if not (math.isfinite(lowest) and math.isfinite(highest)):
+        raise CentroidError("unreadable", "not an image: pixel values are not finite")
+    if highest == lowest:
+        raise CentroidError("blank", f"blank frame: every pixel is {highest:g}")
+    return image
+
+
+def measure_centroid(
+    image: NDArray[Any],
+    bit_depth: int = 16,
+    method: Method = "robust",
+    um_per_px: tuple[float, float] = (10.22, 9.72),
+    *,
+    low: float = 0.8,
+    high: float | None = None,
+    box: int = 400,
+    binary: bool = False,
+    gain_e_per_count: float = 1.0,
+    read_noise_e: float = 5.0,
+    expected_shape: tuple[int, int] | None = None,
+) -> CentroidResult:
+    """Measure the laser spot of one frame; raise :class:`CentroidError` on a bad frame.
+
+    ``low``, ``high``, ``box`` and ``binary`` configure the thesis method only (thresholds as
+    fractions of full scale, or counts when above 1); ``gain_e_per_count`` and ``read_noise_e``
+    give the robust method's uncertainty estimate. ``expected_shape`` (rows, columns), when
+    given, rejects frames of other dimensions.
+    """
+    frame = _validated(image, bit_depth, expected_shape)
+    if method == "thesis":
+        return _thesis(frame, bit_depth, um_per_px, low=low, high=high, box=box, binary=binary)
+    if method == "robust":
+        return _robust(frame, bit_depth, um_per_px, gain_e_per_count, read_noise_e)
+    raise ValueError(f"unknown centroid method {method!r}; use one of {', '.join(METHODS)}")
+
+
+def measure_with_camera_settings(
+    image: NDArray[Any], camera: CameraSettings, *, check_dimensions: bool = False
+) -> CentroidResult:
+    """:func:`measure_centroid` configured from the ``[camera]`` settings section; with
+    ``check_dimensions`` a frame must be ``width_px`` x ``height_px``."""
+    return measure_centroid(
+        image,
+        bit_depth=camera.bit_depth,
+        method=camera.centroid_method,
+        um_per_px=camera.um_per_px,
+        low=camera.centroid_low,
+        high=camera.centroid_high,
+        box=camera.centroid_box,
+        binary=camera.centroid_binary,
+        gain_e_per_count=camera.gain_e_per_count,
+        read_noise_e=camera.read_noise_e,
+        expected_shape=(camera.height_px, camera.width_px) if check_dimensions else None,
+    )
+
+
+# --------------------------------------------------------------------------- thesis replica
+
+
+def thesis_histogram(pixels: NDArray[Any], bit_depth: int) -> tuple[int, ...]:
+    """``g_nbPixel`` of extract_centroid.m: pixels > 0 counted by value / MAXIMUM in ten bins
+    ``[k/10, (k+1)/10)``. Faithful to the script, a pixel at exactly full scale falls in no
+    bin (its test is ``< 1.0``)."""
+    if pixels.dtype in (np.uint8, np.uint16):
+        # count every value once, then add the counts up with the script's tests tabulated
+        per_value = np.bincount(pixels.ravel(), minlength=0x10000)
+        counts = np.bincount(_thesis_bin_of_count(bit_depth), weights=per_value, minlength=11)
+    else:
+        normalised = pixels[pixels > 0].astype(np.float64) / full_scale(bit_depth)
+        bins = np.searchsorted(_THESIS_BIN_EDGES, normalised, side="right") - 1
+        counts = np.bincount(bins[bins < 10], minlength=10)
+    return tuple(int(n) for n in counts[:10])
+
+
+@functools.cache
+def _thesis_bin_of_count(bit_depth: int) -> NDArray[np.intp]:
+    """Histogram bin of every count 0..65535 by the script's float tests; 10: no bin."""
+    counts = np.arange(0x10000, dtype=np.float64)
+    bins = np.searchsorted(_THESIS_BIN_EDGES, counts / full_scale(bit_depth), side="right") - 1
+    bins[counts == 0] = 10  # the script counts only pixels > 0
+    bins[bins > 10] = 10  # value / MAXIMUM >= 1.0 matches no test
+    return np.asarray(bins, dtype=np.intp)
+
+
+def _thesis(
+    image: NDArray[Any],
+    bit_depth: int,
+    um_per_px: tuple[float, float],
+    *,
+    low: float,
+    high: float | None,
+    box: int,
+    binary: bool,
+) -> CentroidResult:
+    """extract_centroid.m (thesis A.1), with its 1-based indices turned into ours.
+
+    1. every pixel equal to the image maximum; the middle of their extreme rows and columns;
+    2. a box of half-size ``box`` around it (MATLAB ``round``, clipped to the image);
+    3. histogram of the box (before thresholding) and the maximum intensity;
+    4. pixels below the low threshold set to 0; in binary mode (``isRoundPixel``) the others to
+       one constant (the script uses 1.0; any constant gives the same centroid); otherwise
+       pixels above the optional high threshold to white (the "highest intensity threshold"
+       of 4.7.2, not in the printed listing);
+    5. "area" (sum of the values) 0: the error "threshold too high";
+    6. intensity-weighted first moments. The script returns 1-based coordinates; ours are
+       0-based (pixel centre at x = c), i.e. the script's value minus one.
+    """
+    white = full_scale(bit_depth)
+    peak = float(image.max())
+    brightest = image == image.max()
+    rows = np.flatnonzero(brightest.any(axis=1))
+    columns = np.flatnonzero(brightest.any(axis=0))
+    # 1-based middle, as in the script, so that its round() sees the same numbers.
+    middle_row = (rows[0] + rows[-1]) / 2.0 + 1.0
+    middle_column = (columns[0] + columns[-1]) / 2.0 + 1.0
+    height, width = image.shape
+    row_first = max(1, _matlab_round(middle_row - box)) - 1
+    row_last = min(_matlab_round(middle_row + box), height)  # exclusive in 0-based slicing
+    column_first = max(1, _matlab_round(middle_column - box)) - 1
+    column_last = min(_matlab_round(middle_column + box), width)
+    area = image[row_first:row_last, column_first:column_last]
+    histogram = thesis_histogram(area, bit_depth)
+
+    low_counts = threshold_counts(low, bit_depth)
+    kept = area >= low_counts  # "if small_pic(i,j) < TRESHOLD: small_pic(i,j) = 0"
+    if binary:
+        weights = kept.astype(np.float64)
+    else:
+        weights = np.where(kept, area, 0).astype(np.float64)
+        if high is not None:
+            weights[kept & (area > threshold_counts(high, bit_depth))] = float(white)
+    total = float(weights.sum())
+    if total == 0.0:
+        raise CentroidError(
+            "threshold",
+            f"threshold too high: no pixel of the box reaches the low threshold "
+            f"({low_counts} counts; maximum {peak:g})",
+        )
+    x_px = float(weights.sum(axis=0) @ np.arange(column_first, column_last)) / total
+    y_px = float(weights.sum(axis=1) @ np.arange(row_first, row_last)) / total
+    used = weights > 0
+    saturated = int(np.count_nonzero(area[used] >= white))
+    flags = []
+    if saturated:
+        flags.append("saturated")
+    if (
+        (used[0].any() and row_first == 0)
+        or (used[-1].any() and row_last == height)
+        or (used[:, 0].any() and column_first == 0)
+        or (used[:, -1].any() and column_last == width)
+    ):
+        flags.append("edge")
+    return CentroidResult(
+        method="thesis",
+        x_px=x_px,
+        y_px=y_px,
+        x_um=x_px * um_per_px[0],
+        y_um=y_px * um_per_px[1],
+        sigma_x_px=math.nan,
+        sigma_y_px=math.nan,
+        sigma_x_um=math.nan,
+        sigma_y_um=math.nan,
+        signal=total,
+        peak=peak,
+        peak_fraction=peak / white,
+        background=0.0,
+        noise=math.nan,
+        width_x_px=math.nan,
+        width_y_px=math.nan,
+        snr=math.nan,
+        saturated_fraction=saturated / max(1, int(used.sum())),
+        histogram=histogram,
+        flags=tuple(flags),
+        iterations=1,
+    )
+
+
+# --------------------------------------------------------------------------- robust method
+
+
+def _locate(image: NDArray[Any]) -> tuple[float, float, float]:
+    """Coarse spot position (x, y) and 1-sigma width (px) on a reduced, smoothed copy.
+
+    2 x 2 means, a 3 x 3 median, a ``pyrDown`` (4x fewer pixels a side in all) and a 3 x 3 box
+    filter integrate a ~12 x 12 px neighbourhood: isolated hot pixels are removed and a noise
+    spike keeps ~1/144 of its value while the spot weighs its integrated signal, so they
+    cannot capture the search. Costs ~0.15 ms on a 752 x 582 frame instead of smoothing at
+    full resolution.
+    """
+    small = image if image.dtype in _FILTER_DTYPES else image.astype(np.float32)
+    scale, offset = 1, 0.0
+    if min(small.shape) >= _MIN_REDUCED_FRAME_PX:
+        # exact 2 x 2 means (bilinear at exactly half size), 3x cheaper than a pyrDown here
+        half_rows, half_columns = small.shape[0] // 2, small.shape[1] // 2
+        small = cv2.resize(
+            small[: 2 * half_rows, : 2 * half_columns],
+            (half_columns, half_rows),
+            interpolation=cv2.INTER_LINEAR,
+        )
+        # a hot pixel is now inside one pixel, at a quarter of its value: the 3 x 3 median
+        # removes it (and any pair); a spot wider than a pixel passes
+        small = cv2.medianBlur(small, 3)
+        small = cv2.pyrDown(small)
+        scale, offset = 4, 0.5  # reduced pixel k is centred on full-resolution 4k + 0.5
+    smooth = cv2.boxFilter(small, cv2.CV_32F, (3, 3), borderType=cv2.BORDER_REPLICATE)
+    # take off the background's tilt (a plane fitted to a sparse grid, where the spot is a
+    # few points among ~2,000), so that a brighter side of the frame cannot outshine a spot
+    fit, grid_x, grid_y = _tilt_fit(smooth.shape)
+    offset_level, slope_x, slope_y = fit @ smooth[1::3, 1::3].ravel()
+    smooth -= (offset_level + slope_x * grid_x[None, :] + slope_y * grid_y[:, None]).astype(
+        np.float32
+    )
+    sample = smooth[1::3, 1::3].ravel()  # a sparse sample: the spot is a small part of it
+    # one-sided spread (median minus the 15.9th percentile, 1 sigma for Gaussian noise): the
+    # spot and hot pixels only ever add to the upper side
+    lower_rank, middle_rank = int(0.1587 * (sample.size - 1)), sample.size // 2
+    ordered = np.partition(sample, (lower_rank, middle_rank))
+    level = float(ordered[middle_rank])
+    spread = level - float(ordered[lower_rank])
+    # the outermost reduced pixels are left out of the search: the filters' replicated borders
+    # multiply a hot pixel there, and a spot that close to the edge is cut anyway
+    _, top, _, (column, row) = cv2.minMaxLoc(smooth[1:-1, 1:-1])
+    column, row = column + 1, row + 1
+    if top - level <= _DETECTION_SIGMAS * max(spread, 0.5 / 9):
+        raise CentroidError(
+            "no-spot",
+            f"no spot above the noise: brightest smoothed level {top - level:.3g} counts "
+            f"over the background, noise {spread:.3g}",
+        )
+    # width from the area above half of the smoothed peak, around the peak only
+    reach = 12
+    patch = smooth[
+        max(0, row - reach) : row + reach + 1, max(0, column - reach) : column + reach + 1
+    ]
+    area = float(np.count_nonzero(patch > level + 0.5 * (top - level))) * scale * scale
+    width = math.sqrt(area / (2.0 * math.pi * math.log(2.0)))
+    return column * scale + offset, row * scale + offset, width
+
+
+@functools.cache
+def _tilt_fit(
+    shape: tuple[int, ...],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Least-squares operator giving (level, slope x, slope y) from the sparse grid
+    ``[1::3, 1::3]`` of an image of ``shape``, and the centred x and y of its pixels."""
+    grid_y = np.arange(shape[0], dtype=np.float64) - 0.5 * (shape[0] - 1)
+    grid_x = np.arange(shape[1], dtype=np.float64) - 0.5 * (shape[1] - 1)
+    sample_y, sample_x = np.meshgrid(grid_y[1::3], grid_x[1::3], indexing="ij")
+    design = np.column_stack([np.ones(sample_x.size), sample_x.ravel(), sample_y.ravel()])
+    return np.asarray(np.linalg.pinv(design), dtype=np.float64), grid_x, grid_y
+
+
+def _median(values: NDArray[Any]) -> float:
+    """Median by partial sort: ``np.median``'s generality costs more than this whole step."""
+    flat = values.ravel()
+    middle = flat.size // 2
+    if flat.size % 2:
+        return float(np.partition(flat, middle)[middle])
+    pair = np.partition(flat, (middle - 1, middle))
+    return 0.5 * float(pair[middle - 1] + pair[middle])
+
+
+def _window_weights(
+    pixel_starts: NDArray[np.float64], pixel_ends: NDArray[np.float64], middle: float, half: float
+) -> NDArray[np.float64]:
+    """Overlap of each pixel ``[start, end]`` (``c ± 0.5``) with the window ``[middle ± half]``.
+
+    A soft-edged window is exactly centred on the estimate whatever its sub-pixel position,
+    so what it truncates (and any residual background) is symmetric about the estimate and
+    cannot pull the converged centroid to the pixel grid.
+    """
+    overlap = np.minimum(pixel_ends, middle + half) - np.maximum(pixel_starts, middle - half)
+    np.maximum(overlap, 0.0, out=overlap)
+    np.minimum(overlap, 1.0, out=overlap)
+    return overlap
+
+
+def _support(window: NDArray[np.float64]) -> slice:
+    """The pixels a window covers (a contiguous run)."""
+    inside = np.flatnonzero(window > 0)
+    return slice(int(inside[0]), int(inside[-1]) + 1)
+
+
+def _local_background(region: NDArray[np.float64]) -> tuple[float, float, float, float]:
+    """(level at the region centre, slope x, slope y, noise sigma) from the region's border.
+
+    The medians of the four bands are robust to hot pixels and, for a linear gradient, equal
+    the plane at each band's middle, so a tilted background is removed exactly. The noise
+    comes from differences of neighbouring pixels along the bands (a gradient cancels out).
+    """
+    ring = _RING_PX
+    left, right = region[:, :ring], region[:, -ring:]
+    top, bottom = region[:ring, :], region[-ring:, :]
+    m_left, m_right = _median(left), _median(right)
+    m_top, m_bottom = _median(top), _median(bottom)
+    height, width = region.shape
+    level = 0.25 * (m_left + m_right + m_top + m_bottom)
+    slope_x = (m_right - m_left) / max(1, width - ring)
+    slope_y = (m_bottom - m_top) / max(1, height - ring)
+    steps = np.concatenate(
+        [
+            np.diff(left, axis=0).ravel(),
+            np.diff(right, axis=0).ravel(),
+            np.diff(top, axis=1).ravel(),
+            np.diff(bottom, axis=1).ravel(),
+        ]
+    )
+    noise = 1.4826 / math.sqrt(2.0) * _median(np.abs(steps))
+    return level, slope_x, slope_y, noise
+
+
+def _without_hot_pixels(
+    region: NDArray[np.float64], plane: NDArray[np.float64], noise: float
+) -> tuple[NDArray[np.float64], int]:
+    """``region`` with isolated hot pixels replaced by their 3 x 3 median, and their number.
+
+    A full-scale hot pixel 10 px from the centre of a mid-scale 3-px spot moves the centroid
+    by ~0.3 px, so the locator's immunity is not enough. A pixel is hot when it stands more
+    than 8 noise sigmas (at least one count) above the brightest of its 8 neighbours and more
+    than three times as far above the background: every pixel of a spot has a neighbour at
+    least that bright (the brightest pixel of a pixel-integrated Gaussian wider than
+    0.65 px has a neighbour above a third of it).
+    """
+    values = region.astype(np.float32)
+    brightest_neighbour = cv2.dilate(values, _NEIGHBOURS).astype(np.float64)
+    hot = (region - brightest_neighbour > max(8.0 * noise, 1.0)) & (
+        region - plane > 3.0 * (brightest_neighbour - plane)
+    )
+    count = int(np.count_nonzero(hot))
+    if count:
+        median = cv2.medianBlur(values, 3).astype(np.float64)
+        region = np.where(hot, median, region)
+    return region, count
+
+
+def _fit_saturated_flanks(
+    excess: NDArray[np.float64],
+    usable: NDArray[np.bool_],
+    columns: NDArray[np.float64],
+    rows: NDArray[np.float64],
+    start: tuple[float, float, float, float],
+    *,
+    noise: float,
+) -> tuple[float, float, float, float, float] | None:
+    """Least-squares fit of a pixel-integrated Gaussian (x, y, flux, σx, σy) to the
+    unsaturated pixels of a partly saturated spot; None if it does not converge.
+
+    Moments of a clipped spot are biased with its sub-pixel position (by ~0.006 px for a spot
+    saturated to 3x full scale): the pixel values jump where the spot crosses full scale and
+    the sampled moments alias that kink. The flanks are undistorted, and a model that knows
+    the pixel integration fits them without that bias (Gauss–Newton, Levenberg damping,
+    weights 1/variance).
+    """
+    x, y, sx, sy = start
+    data = excess[usable]
+    weights = 1.0 / (np.clip(data, 0.0, None) + noise * noise + _QUANTISATION_VARIANCE)
+    share_x, _, _ = pixel_gaussian(columns, x, sx)
+    share_y, _, _ = pixel_gaussian(rows, y, sy)
+    model_shape = np.outer(share_y, share_x)[usable]
+    flux = float((weights * model_shape) @ data) / float((weights * model_shape) @ model_shape)
+    damping = 1e-3
+    for _ in range(30):
+        share_x, dx_middle, dx_sigma = pixel_gaussian(columns, x, sx)
+        share_y, dy_middle, dy_sigma = pixel_gaussian(rows, y, sy)
+        jacobian = np.stack(
+            [
+                flux * np.outer(share_y, dx_middle)[usable],
+                flux * np.outer(dy_middle, share_x)[usable],
+                np.outer(share_y, share_x)[usable],
+                flux * np.outer(share_y, dx_sigma)[usable],
+                flux * np.outer(dy_sigma, share_x)[usable],
+            ],
+            axis=1,
+        )
+        residual = data - flux * jacobian[:, 2]
+        normal = jacobian.T @ (jacobian * weights[:, None])
+        gradient = jacobian.T @ (weights * residual)
+        normal[np.diag_indices(5)] *= 1.0 + damping
+        try:
+            step = np.linalg.solve(normal, gradient)
+        except np.linalg.LinAlgError:
+            return None
+        x += float(step[0])
+        y += float(step[1])
+        flux += float(step[2])
+        sx = max(0.3, sx + float(step[3]))
+        sy = max(0.3, sy + float(step[4]))
+        if abs(step[0]) < _TOLERANCE_PX and abs(step[1]) < _TOLERANCE_PX:
+            return x, y, flux, sx, sy
+    return None
+
+
+def _truncation_shift(
+    centres: NDArray[np.float64], weights: NDArray[np.float64], middle: float, edge: float
+) -> float:
+    """How far (px) the centroid is pulled away from a frame ``edge`` that cuts the window.
+
+    The spot is symmetric about ``middle``, so what lies beyond the edge mirrors what lies
+    beyond the edge's mirror image on the other side: its moment over the total is the shift
+    its absence causes.
+    """
+    mirror = 2.0 * middle - edge
+    beyond = centres > mirror if edge < middle else centres < mirror
+    total = float(weights.sum())
+    return abs(float(weights[beyond] @ (centres[beyond] - middle))) / total if total else math.inf
+
+
+def _robust(
+    image: NDArray[Any],
+    bit_depth: int,
+    um_per_px: tuple[float, float],
+    gain_e_per_count: float,
+    read_noise_e: float,
+) -> CentroidResult:
+    """Background-subtracted, threshold-subtracted, iteratively re-centred windowed moments.
+
+    1. :func:`_locate` finds the spot on a reduced, smoothed, de-tilted image (hot pixels,
+       noise and a brighter side of the frame cannot capture it) and guesses its width.
+    2. A region around it: the background plane and noise come from its border band
+       (:func:`_local_background`), so the background is measured, not assumed, and gradients
+       are removed.
+    3. Each pixel weighs ``max(I - background - T, 0)`` with ``T`` three noise sigmas: the
+       threshold is *subtracted*, so a pixel's weight rises continuously from 0 as it crosses
+       ``T``. (Only zeroing pixels below a threshold, as the thesis does, makes the weights
+       jump with the sub-pixel position and biases the centroid.)
+    4. ISO 11146-style iteration: first and second moments in a soft-edged window centred on
+       the current estimate, half-size 4 second-moment widths, until the estimate moves less
+       than 1e-5 px; the region is re-cut if the window outgrows it.
+    5. A partly saturated spot is then located by a fit of the pixel-integrated Gaussian to
+       its unsaturated flanks (:func:`_fit_saturated_flanks`), since clipped moments alias.
+       Where that model does not fit (a saturated flat-topped spot) the moments stand and the
+       frame is flagged ``saturation-fit-failed``: expect up to ~0.01 px of sub-pixel bias.
+    6. Isolated hot pixels in the region are replaced by their 3 x 3 median first
+       (:func:`_without_hot_pixels`), and a frame edge that cuts the window is tolerated only
+       while the part it hides cannot move the centroid by 0.001 px
+       (:func:`_truncation_shift`).
+    """
+    white = full_scale(bit_depth)
+    height, width = image.shape
+    if min(height, width) < _MIN_FRAME_PX:
+        raise CentroidError(
+            "dimensions", f"wrong dimensions: {width}x{height} px is too small to measure"
+        )
+    x, y, coarse_width = _locate(image)
+    half_x = half_y = max(_MIN_HALF_WIDTH, _WINDOW_SIGMAS * coarse_width)
+    iterations = 0
+    for _recut in range(6):
+        slack = 2.0 + 0.25 * max(half_x, half_y) + _RING_PX
+        c0 = max(0, math.floor(x - half_x - slack))
+        c1 = min(width, math.ceil(x + half_x + slack) + 1)
+        r0 = max(0, math.floor(y - half_y - slack))
+        r1 = min(height, math.ceil(y + half_y + slack) + 1)
+        region = image[r0:r1, c0:c1].astype(np.float64)
+        level, slope_x, slope_y, noise = _local_background(region)
+        columns = np.arange(c0, c1, dtype=np.float64)
+        rows = np.arange(r0, r1, dtype=np.float64)
+        centre_x, centre_y = 0.5 * (c0 + c1 - 1), 0.5 * (r0 + r1 - 1)
+        plane = (
+            level + slope_x * (columns - centre_x)[None, :] + slope_y * (rows - centre_y)[:, None]
+        )
+        threshold = _THRESHOLD_SIGMAS * noise
+        region, hot_pixels = _without_hot_pixels(region, plane, noise)
+        excess = region - plane
+        weights = np.maximum(excess - threshold, 0.0)
+        starts_x, ends_x = columns - 0.5, columns + 0.5
+        starts_y, ends_y = rows - 0.5, rows + 0.5
+        # moments about the region centre, all three from one product: [1, u, u²] @ weights
+        u, v = columns - centre_x, rows - centre_y
+        powers_x = np.stack([np.ones_like(u), u, u * u])
+        powers_y = np.stack([np.ones_like(v), v, v * v])
+        outgrown = False
+        for _ in range(_MAX_ITERATIONS):
+            iterations += 1
+            wx = _window_weights(starts_x, ends_x, x, half_x)
+            wy = _window_weights(starts_y, ends_y, y, half_y)
+            moments_x = powers_x @ ((wy @ weights) * wx)
+            moments_y = powers_y @ ((weights @ wx) * wy)
+            total = float(moments_x[0])
+            if total <= 0.0:
+                raise CentroidError("no-spot", "no spot above the noise in the window")
+            mean_x, mean_y = moments_x[1] / total, moments_y[1] / total
+            var_x = max(float(moments_x[2] / total - mean_x * mean_x), 1.0 / 12.0)
+            var_y = max(float(moments_y[2] / total - mean_y * mean_y), 1.0 / 12.0)
+            shift_x = centre_x + float(mean_x) - x
+            shift_y = centre_y + float(mean_y) - y
+            x += shift_x
+            y += shift_y
+            new_half_x = max(_MIN_HALF_WIDTH, _WINDOW_SIGMAS * math.sqrt(var_x) + 1.0)
+            new_half_y = max(_MIN_HALF_WIDTH, _WINDOW_SIGMAS * math.sqrt(var_y) + 1.0)
+            settled = (
+                abs(shift_x) < _TOLERANCE_PX
+                and abs(shift_y) < _TOLERANCE_PX
+                and abs(new_half_x - half_x) < 0.01
+                and abs(new_half_y - half_y) < 0.01
+            )
+            half_x, half_y = new_half_x, new_half_y
+            # the window must stay inside the background ring, except where the region
+            # already reaches the frame edge (re-cutting cannot help there)
+            outgrown = (
+                (c0 > 0 and x - half_x < c0 + _RING_PX - 0.5)
+                or (c1 < width and x + half_x > c1 - _RING_PX - 0.5)
+                or (r0 > 0 and y - half_y < r0 + _RING_PX - 0.5)
+                or (r1 < height and y + half_y > r1 - _RING_PX - 0.5)
+            )
+            if outgrown or settled:
+                break
+        if not outgrown:
+            break
+
+    wx = _window_weights(starts_x, ends_x, x, half_x)
+    wy = _window_weights(starts_y, ends_y, y, half_y)
+    in_x, in_y = _support(wx), _support(wy)
+    wx, wy = wx[in_x], wy[in_y]
+    window_columns, window_rows = columns[in_x], rows[in_y]
+    spot = weights[in_y, in_x]
+    raw = region[in_y, in_x]
+    flags: list[str] = []
+    edges = (
+        ("left", x - half_x < -0.5, window_columns, -0.5),
+        ("right", x + half_x > width - 0.5, window_columns, width - 0.5),
+        ("top", y - half_y < -0.5, window_rows, -0.5),
+        ("bottom", y + half_y > height - 0.5, window_rows, height - 0.5),
+    )
+    for side, clipped, centres, edge in edges:
+        if not clipped:
+            continue
+        profile = (wy @ spot) * wx if side in ("left", "right") else (spot @ wx) * wy
+        shift = _truncation_shift(centres, profile, x if side in ("left", "right") else y, edge)
+        if shift > _EDGE_SHIFT_PX:
+            raise CentroidError(
+                "edge",
+                f"spot cut by the frame edge ({side}): the part beyond it would move the "
+                f"centroid by about {shift:.2g} px",
+            )
+        if "edge" not in flags:
+            flags.append("edge")
+    above_all = excess[in_y, in_x]
+    above = np.where(above_all > threshold, above_all, 0.0)
+    spot_pixels = int(np.count_nonzero(above))
+    signal = float(wy @ above @ wx)
+    saturated = int(np.count_nonzero(raw >= white))
+    if saturated:
+        flags.insert(0, "saturated")
+        fit = _fit_saturated_flanks(
+            above_all,
+            raw < white,
+            window_columns,
+            window_rows,
+            (
+                x,
+                y,
+                math.sqrt(max(var_x - 1.0 / 12.0, 0.1)),
+                math.sqrt(max(var_y - 1.0 / 12.0, 0.1)),
+            ),
+            noise=noise,
+        )
+        if fit is not None and abs(fit[0] - x) < 1.0 and abs(fit[1] - y) < 1.0:
+            x, y, signal = fit[0], fit[1], fit[2]
+            var_x, var_y = fit[3] ** 2 + 1.0 / 12.0, fit[4] ** 2 + 1.0 / 12.0
+        else:
+            flags.append("saturation-fit-failed")
+    if hot_pixels:
+        flags.append("hot-pixels")
+    background = level + slope_x * (x - centre_x) + slope_y * (y - centre_y)
+    snr = signal / math.sqrt(signal / gain_e_per_count + spot_pixels * noise**2 + 1e-300)
+    if snr < _LOW_SNR:
+        flags.append("low-snr")
+    sigma_x, sigma_y = _uncertainty(
+        window_columns - x,
+        window_rows - y,
+        signal=signal,
+        var_x=max(var_x - 1.0 / 12.0, 0.25),
+        var_y=max(var_y - 1.0 / 12.0, 0.25),
+        background=max(background, 0.0),
+        white=white,
+        gain_e_per_count=gain_e_per_count,
+        read_noise_e=read_noise_e,
+    )
+    peak = float(raw.max())
+    scaled = np.clip(raw * (10.0 / white), 0, 9).astype(np.intp)
+    histogram = tuple(int(n) for n in np.bincount(scaled.ravel(), minlength=10))
+    return CentroidResult(
+        method="robust",
+        x_px=x,
+        y_px=y,
+        x_um=x * um_per_px[0],
+        y_um=y * um_per_px[1],
+        sigma_x_px=sigma_x,
+        sigma_y_px=sigma_y,
+        sigma_x_um=sigma_x * um_per_px[0],
+        sigma_y_um=sigma_y * um_per_px[1],
+        signal=signal,
+        peak=peak,
+        peak_fraction=peak / white,
+        background=background,
+        noise=noise,
+        width_x_px=math.sqrt(var_x),
+        width_y_px=math.sqrt(var_y),
+        snr=snr,
+        saturated_fraction=saturated / max(1, spot_pixels),
+        histogram=histogram,
+        flags=tuple(flags),
+        iterations=iterations,
+    )
+
+
+def _uncertainty(
+    dx: NDArray[np.float64],
+    dy: NDArray[np.float64],
+    *,
+    signal: float,
+    var_x: float,
+    var_y: float,
+    background: float,
+    white: int,
+    gain_e_per_count: float,
+    read_noise_e: float,
+) -> tuple[float, float]:
+    """Cramér–Rao-style 1-sigma (px) of x and y for the measured spot.
+
+    Models the spot as the pixel-integrated Gaussian with the measured signal and
+    second-moment widths, and takes the Fisher information of its position under photon
+    noise (variance ``mu / gain``), read noise ``(read_noise_e / gain)²`` and quantisation
+    (1/12 count²); saturated pixels carry none. For a symmetric spot the position decouples
+    from amplitude and background, so ``1 / sqrt(I_xx)`` is the bound.
+    """
+    sx, sy = math.sqrt(var_x), math.sqrt(var_y)
+    share_x, slope_x, _ = pixel_gaussian(dx, 0.0, sx)
+    share_y, slope_y, _ = pixel_gaussian(dy, 0.0, sy)
+    mean = signal * np.outer(share_y, share_x) + background
+    variance = mean / gain_e_per_count + (read_noise_e / gain_e_per_count) ** 2
+    variance += _QUANTISATION_VARIANCE
+    information = np.where(mean < white, signal**2 / variance, 0.0)
+    fisher_x = float(share_y**2 @ information @ slope_x**2)
+    fisher_y = float(slope_y**2 @ information @ share_x**2)
+    return (
+        1.0 / math.sqrt(fisher_x) if fisher_x > 0 else math.inf,
+        1.0 / math.sqrt(fisher_y) if fisher_y > 0 else math.inf,
+    )

@@ -1,0 +1,170 @@
+"""Cameras that watch the laser spot (thesis 3.2.2): OpenCV VideoCapture and folder replay.
+
+Both give 2-D grey frames (uint8 or uint16) stamped on the run clock. OpenCV calls block, so
+they run in a worker thread (``asyncio.to_thread``), one at a time per camera.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from types import TracebackType
+from typing import Any, Self
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from config.settings import CameraSettings
+from drivers.base import Frame
+from drivers.clock import Clock
+from drivers.errors import DeviceError, NotConnectedError, ProtocolError
+from drivers.replay import ReplayTimeBase, list_files
+
+logger = logging.getLogger(__name__)
+
+DEVICE = "camera"
+#: Image files the replay reads (16-bit PNG and TIFF keep their depth).
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".pgm", ".pnm", ".jpg", ".jpeg")
+
+
+def to_grey(image: NDArray[Any], device: str = DEVICE) -> NDArray[np.integer]:
+    """A 2-D uint8/uint16 frame from what OpenCV returns (grey, BGR or BGRA)."""
+    if image.dtype not in (np.uint8, np.uint16):
+        raise ProtocolError(device, f"unsupported pixel type {image.dtype}")
+    if image.ndim == 3 and image.shape[2] in (1, 2):
+        image = image[:, :, 0]  # grey, or the luma plane of raw YUYV (CONVERT_RGB off)
+    elif image.ndim == 3 and image.shape[2] in (3, 4):
+        code = cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        image = cv2.cvtColor(image, code)
+    if image.ndim != 2:
+        raise ProtocolError(device, f"unsupported frame shape {image.shape}")
+    return np.ascontiguousarray(image)
+
+
+def significant_bits(image: NDArray[np.integer], configured: int) -> int:
+    """8 for 8-bit frames; the configured depth (12 or 16) for 16-bit containers, 16 when the
+    settings say 8 but the device delivers 16-bit frames."""
+    if image.dtype == np.uint8:
+        return 8
+    return configured if configured > 8 else 16
+
+
+def open_video_capture(source: int | str, device: str) -> Any:
+    """An opened ``cv2.VideoCapture``: a device index, a device path, a URL, or an image
+    sequence pattern such as ``frames/img_%04d.png`` (read by OpenCV's image backend, which
+    keeps 16-bit frames; the default backend would choose FFmpeg and cut them to 8 bits)."""
+    if isinstance(source, str) and "%" in source:
+        capture = cv2.VideoCapture(source, cv2.CAP_IMAGES)
+    else:
+        capture = cv2.VideoCapture(source)
+    if not capture.isOpened():
+        capture.release()
+        raise NotConnectedError(device, f"cannot open video source {source!r}")
+    return capture
+
+
+class OpenCvCamera:
+    """A camera through OpenCV's VideoCapture: device index, device path, file or URL."""
+
+    def __init__(self, settings: CameraSettings, clock: Clock) -> None:
+        self.settings = settings
+        self.clock = clock
+        self._capture: Any = None
+        self._sequence = 0
+        self._lock = asyncio.Lock()
+
+    def _open(self) -> Any:
+        capture = open_video_capture(self.settings.device, DEVICE)
+        capture.set(cv2.CAP_PROP_FRAME_WIDTH, self.settings.width_px)
+        capture.set(cv2.CAP_PROP_FRAME_HEIGHT, self.settings.height_px)
+        if self.settings.bit_depth > 8:
+            # Ask for the raw (16-bit) stream; backends that cannot keep their 8-bit frames,
+            # and the frame's dtype then tells the truth.
+            capture.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+        return capture
+
+    async def __aenter__(self) -> Self:
+        self._capture = await asyncio.to_thread(self._open)
+        logger.info("camera %r opened", self.settings.device)
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        capture, self._capture = self._capture, None
+        if capture is not None:
+            await asyncio.to_thread(capture.release)
+
+    async def grab(self) -> Frame:
+        capture = self._capture
+        if capture is None:
+            raise NotConnectedError(DEVICE, "camera is not open")
+        async with self._lock:
+            ok, image = await asyncio.to_thread(capture.read)
+            if not ok or image is None:
+                raise DeviceError(DEVICE, f"no frame from {self.settings.device!r}")
+            grey = to_grey(image)
+            frame = Frame(
+                image=grey,
+                bit_depth=significant_bits(grey, self.settings.bit_depth),
+                timestamp_s=self.clock.now(),
+                sequence=self._sequence,
+            )
+            self._sequence += 1
+        return frame
+
+
+class ReplayCamera:
+    """Frames from a folder of images in natural order, on a time base (drivers/replay.py)."""
+
+    def __init__(self, settings: CameraSettings, clock: Clock) -> None:
+        if settings.replay_dir is None:
+            raise NotConnectedError(DEVICE, "camera.replay_dir is not set")
+        self.settings = settings
+        self.folder = settings.replay_dir
+        self.clock = clock
+        self._files: list[Any] = []
+        self._time_base: ReplayTimeBase | None = None
+        self._sequence = 0
+
+    async def __aenter__(self) -> Self:
+        self._files = await asyncio.to_thread(list_files, self.folder, IMAGE_SUFFIXES, DEVICE)
+        self._time_base = ReplayTimeBase(
+            len(self._files),
+            self.clock,
+            self.settings.replay_period_s,
+            self.settings.replay_loop,
+            DEVICE,
+        )
+        logger.info("replaying %d frames from %s", len(self._files), self.folder)
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self._time_base = None
+
+    async def grab(self) -> Frame:
+        if self._time_base is None:
+            raise NotConnectedError(DEVICE, "replay is not open")
+        index, stamp = self._time_base.next()
+        path = self._files[index]
+        image = await asyncio.to_thread(cv2.imread, str(path), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise ProtocolError(DEVICE, f"cannot read image {path}")
+        grey = to_grey(image)
+        frame = Frame(
+            image=grey,
+            bit_depth=significant_bits(grey, self.settings.bit_depth),
+            timestamp_s=stamp,
+            sequence=self._sequence,
+        )
+        self._sequence += 1
+        return frame

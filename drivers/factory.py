@@ -1,0 +1,109 @@
+"""Settings -> the three devices, real or simulated, opened together and closed together.
+
+``async with open_devices(settings, clock) as devices`` gives ``devices.camera``, ``.ir``,
+``.robot`` and, when any device is simulated, ``.bench`` (the physical truth, for tests and
+benchmarks) and ``.emulator``. The simulated robot is the real C500C driver talking to the
+in-process emulator over a real pseudo-terminal, so the daemon exercises the same code on the
+bench as in the lab.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+
+from config import ConfigError, Settings
+from drivers.base import Camera, IrReader, Robot
+from drivers.c500c import C500CRobot
+from drivers.camera import OpenCvCamera, ReplayCamera
+from drivers.clock import Clock
+from drivers.ir import OpenCvIrReader, ReplayIrReader
+from drivers.sim.bench import Bench
+from drivers.sim.devices import SimCamera, SimIrReader
+from drivers.sim.emulator import C500CEmulator, EmulatorConfig
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class Devices:
+    camera: Camera
+    ir: IrReader
+    robot: Robot
+    bench: Bench | None = None  # the simulated bench's truth; None on hardware
+    emulator: C500CEmulator | None = None  # the emulated controller behind the sim robot
+
+
+def _simulated(settings: Settings) -> list[str]:
+    return [
+        name
+        for name, driver in (
+            ("camera", settings.camera.driver),
+            ("ir", settings.ir.driver),
+            ("robot", settings.robot.driver),
+        )
+        if driver == "sim"
+    ]
+
+
+@contextlib.asynccontextmanager
+async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
+    """Open camera, IR reader and robot as the settings say; close them all on exit."""
+    simulated = _simulated(settings)
+    if simulated and not settings.bench.enabled:
+        raise ConfigError(
+            f"bench.enabled is false but {', '.join(f'{n}.driver' for n in simulated)} "
+            "is 'sim': choose real drivers or enable the bench"
+        )
+    async with contextlib.AsyncExitStack() as stack:
+        bench = Bench(settings, clock) if simulated else None
+        emulator: C500CEmulator | None = None
+        if settings.robot.driver == "sim":
+            assert bench is not None
+            robot_settings = settings.robot
+            emulator = C500CEmulator(
+                EmulatorConfig(
+                    application=robot_settings.application,
+                    seed=bench.robot_seed,
+                    noise_um=settings.bench.robot_noise_um,
+                    move_ms=robot_settings.emulator_move_ms,
+                    baudrate=robot_settings.baudrate,
+                    paced=robot_settings.emulator_paced,
+                )
+            )
+            await stack.enter_async_context(emulator)
+            bench.attach_robot(emulator.actual_pose)
+            robot = C500CRobot(robot_settings, port=emulator.device_path)
+        else:
+            robot = C500CRobot(settings.robot)
+
+        camera: Camera
+        if settings.camera.driver == "sim":
+            assert bench is not None
+            camera = SimCamera(settings.camera, bench, clock)
+        elif settings.camera.driver == "opencv":
+            camera = OpenCvCamera(settings.camera, clock)
+        else:
+            camera = ReplayCamera(settings.camera, clock)
+
+        ir: IrReader
+        if settings.ir.driver == "sim":
+            assert bench is not None
+            ir = SimIrReader(settings, bench, clock)
+        elif settings.ir.driver == "opencv":
+            ir = OpenCvIrReader(settings.ir, clock)
+        else:
+            ir = ReplayIrReader(settings.ir, clock)
+
+        await stack.enter_async_context(robot)
+        await stack.enter_async_context(camera)
+        await stack.enter_async_context(ir)
+        logger.info(
+            "devices open: camera=%s ir=%s robot=%s",
+            settings.camera.driver,
+            settings.ir.driver,
+            settings.robot.driver,
+        )
+        yield Devices(camera=camera, ir=ir, robot=robot, bench=bench, emulator=emulator)

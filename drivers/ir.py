@@ -1,0 +1,196 @@
+"""Infrared readers of the link temperatures (thesis 3.2.2): OpenCV radiometric Y16 and replay.
+
+A reading is the mean and max temperature of each configured region of interest (rectangles of
+the thermal image, each optionally tied to a model node) plus the thermal frame in degC.
+Radiometric cameras such as FLIR Lepton boards stream 16-bit counts; a linear calibration
+``T = scale * counts + offset`` turns them into degC (default: centi-kelvin).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Self
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from config.settings import IrRegion, IrSettings
+from drivers.base import IrReading, RegionTemperature
+from drivers.camera import open_video_capture
+from drivers.clock import Clock
+from drivers.errors import DeviceError, NotConnectedError, ProtocolError
+from drivers.replay import ReplayTimeBase, list_files
+
+logger = logging.getLogger(__name__)
+
+DEVICE = "ir"
+#: Thermal frames the replay reads: 16-bit radiometric images, or CSV matrices of degC.
+RADIOMETRIC_SUFFIXES = (".png", ".tif", ".tiff")
+CSV_SUFFIX = ".csv"
+
+
+def region_temperatures(
+    frame_c: NDArray[np.floating], regions: Sequence[IrRegion]
+) -> dict[str, RegionTemperature]:
+    """Mean and max temperature of each region; a region outside the frame is an error."""
+    height, width = frame_c.shape
+    result: dict[str, RegionTemperature] = {}
+    for region in regions:
+        if region.x + region.width > width or region.y + region.height > height:
+            raise DeviceError(
+                DEVICE,
+                f"region {region.name!r} ({region.x},{region.y} {region.width}x{region.height}) "
+                f"lies outside the {width}x{height} thermal frame",
+            )
+        patch = frame_c[region.y : region.y + region.height, region.x : region.x + region.width]
+        result[region.name] = RegionTemperature(
+            name=region.name,
+            mean_c=float(patch.mean()),
+            max_c=float(patch.max()),
+            node=region.node,
+        )
+    return result
+
+
+def counts_to_celsius(
+    counts: NDArray[Any], calibration: tuple[float, float]
+) -> NDArray[np.float64]:
+    """``T = scale * counts + offset`` (IrSettings.counts_to_celsius)."""
+    scale, offset = calibration
+    celsius: NDArray[np.float64] = counts.astype(np.float64) * scale + offset
+    return celsius
+
+
+def _radiometric(image: NDArray[Any] | None, source: str) -> NDArray[np.uint16]:
+    if image is None:
+        raise ProtocolError(DEVICE, f"no thermal frame from {source}")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.dtype != np.uint16 or image.ndim != 2:
+        raise ProtocolError(
+            DEVICE,
+            f"{source}: expected 16-bit single-channel radiometric counts, got "
+            f"{image.dtype} {image.shape}",
+        )
+    return np.ascontiguousarray(image)
+
+
+class OpenCvIrReader:
+    """A radiometric Y16 stream through OpenCV (e.g. a FLIR Lepton on a PureThermal board)."""
+
+    def __init__(self, settings: IrSettings, clock: Clock) -> None:
+        self.settings = settings
+        self.clock = clock
+        self._capture: Any = None
+        self._sequence = 0
+        self._lock = asyncio.Lock()
+
+    def _open(self) -> Any:
+        capture = open_video_capture(self.settings.device, DEVICE)
+        # Raw 16-bit counts, not a colour-mapped preview.
+        capture.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc("Y", "1", "6", " "))
+        capture.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+        return capture
+
+    async def __aenter__(self) -> Self:
+        self._capture = await asyncio.to_thread(self._open)
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        capture, self._capture = self._capture, None
+        if capture is not None:
+            await asyncio.to_thread(capture.release)
+
+    async def read(self) -> IrReading:
+        capture = self._capture
+        if capture is None:
+            raise NotConnectedError(DEVICE, "IR camera is not open")
+        async with self._lock:
+            ok, image = await asyncio.to_thread(capture.read)
+            if not ok:
+                raise DeviceError(DEVICE, f"no frame from {self.settings.device!r}")
+            counts = _radiometric(image, repr(self.settings.device))
+            frame_c = counts_to_celsius(counts, self.settings.counts_to_celsius)
+            reading = IrReading(
+                regions=region_temperatures(frame_c, self.settings.regions),
+                timestamp_s=self.clock.now(),
+                sequence=self._sequence,
+                frame_c=frame_c,
+            )
+            self._sequence += 1
+        return reading
+
+
+def load_thermal_frame(path: Path, calibration: tuple[float, float]) -> NDArray[np.float64]:
+    """A recorded thermal frame in degC: a CSV matrix of degC, or a 16-bit image of counts."""
+    if path.suffix.lower() == CSV_SUFFIX:
+        try:
+            frame = np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2)
+        except ValueError as err:
+            raise ProtocolError(DEVICE, f"{path}: not a CSV matrix of numbers: {err}") from err
+        if not np.all(np.isfinite(frame)):
+            raise ProtocolError(DEVICE, f"{path}: temperatures must be finite")
+        return frame
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return counts_to_celsius(_radiometric(image, str(path)), calibration)
+
+
+class ReplayIrReader:
+    """Thermal frames from a folder (16-bit PNG/TIFF counts or CSV degC), in natural order."""
+
+    def __init__(self, settings: IrSettings, clock: Clock) -> None:
+        if settings.replay_dir is None:
+            raise NotConnectedError(DEVICE, "ir.replay_dir is not set")
+        self.settings = settings
+        self.folder = settings.replay_dir
+        self.clock = clock
+        self._files: list[Path] = []
+        self._time_base: ReplayTimeBase | None = None
+        self._sequence = 0
+
+    async def __aenter__(self) -> Self:
+        self._files = await asyncio.to_thread(
+            list_files, self.folder, (*RADIOMETRIC_SUFFIXES, CSV_SUFFIX), DEVICE
+        )
+        self._time_base = ReplayTimeBase(
+            len(self._files),
+            self.clock,
+            self.settings.replay_period_s,
+            self.settings.replay_loop,
+            DEVICE,
+        )
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self._time_base = None
+
+    async def read(self) -> IrReading:
+        if self._time_base is None:
+            raise NotConnectedError(DEVICE, "replay is not open")
+        index, stamp = self._time_base.next()
+        frame_c = await asyncio.to_thread(
+            load_thermal_frame, self._files[index], self.settings.counts_to_celsius
+        )
+        reading = IrReading(
+            regions=region_temperatures(frame_c, self.settings.regions),
+            timestamp_s=stamp,
+            sequence=self._sequence,
+            frame_c=frame_c,
+        )
+        self._sequence += 1
+        return reading

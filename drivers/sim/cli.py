@@ -1,0 +1,99 @@
+"""``thermocomp emulate c500c``: serve the emulated C500C console until a signal stops it."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import sys
+from pathlib import Path
+
+from config.cli import non_negative_float
+from config.settings import SUPPORTED_BAUDRATES
+from drivers.sim.emulator import C500CEmulator, EmulatorConfig, Fault, parse_faults
+
+
+def _faults(text: str) -> tuple[Fault, ...]:
+    try:
+        return parse_faults(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "emulate",
+        help="serve an emulated device (the C500C robot console)",
+        description="Serve the emulated CRS C500C console on a pseudo-terminal (prints the "
+        "device path to open) or a TCP port (prints a socket:// URL pyserial opens). "
+        "SIGINT or SIGTERM stops it.",
+        epilog="Fault SPEC: comma-separated KIND[=SECONDS][@N|%%P] with KIND one of drop, "
+        "corrupt, delay, stall, close; @N strikes at the N-th command line, %%P with "
+        "probability P per command. Example: --faults 'drop@5,delay=2@9,corrupt%%0.01'.",
+    )
+    parser.add_argument("device", choices=["c500c"], help="the device to emulate")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal (default)")
+    where.add_argument("--tcp", type=int, metavar="PORT", help="serve on 127.0.0.1:PORT (0: any)")
+    parser.add_argument(
+        "--link", type=Path, help="path of the symlink to the pty (default: a temporary one)"
+    )
+    parser.add_argument("--seed", type=int, default=1, help="seed of the positioning noise")
+    parser.add_argument(
+        "--noise-um",
+        type=non_negative_float,
+        default=0.9,
+        help="1-sigma positioning error per axis in um (default 0.9: the thesis's S_x)",
+    )
+    parser.add_argument(
+        "--move-ms", type=non_negative_float, default=5.0, help="time one move takes (default 5 ms)"
+    )
+    parser.add_argument(
+        "--baud",
+        type=int,
+        default=57600,
+        choices=SUPPORTED_BAUDRATES,
+        help="baud rate the link is paced at (default 57600)",
+    )
+    parser.add_argument(
+        "--no-pacing", action="store_true", help="answer at once instead of at the baud rate"
+    )
+    parser.add_argument("--faults", type=_faults, default=(), metavar="SPEC", help="faults")
+    parser.add_argument(
+        "--shell", action="store_true", help="start at the system shell `$ ` prompt"
+    )
+    parser.set_defaults(handler=run)
+
+
+async def _serve(emulator: C500CEmulator) -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(signum, stop.set)
+    async with emulator:
+        print(emulator.device_path, flush=True)
+        await stop.wait()
+
+
+def run(args: argparse.Namespace) -> int:
+    config = EmulatorConfig(
+        seed=args.seed,
+        noise_um=args.noise_um,
+        move_ms=args.move_ms,
+        baudrate=args.baud,
+        paced=not args.no_pacing,
+        faults=args.faults,
+        start_in_shell=args.shell,
+    )
+    emulator = C500CEmulator(
+        config,
+        transport="tcp" if args.tcp is not None else "pty",
+        tcp_port=args.tcp or 0,
+        link_path=args.link,
+    )
+    try:
+        asyncio.run(_serve(emulator))
+    except OSError as err:
+        print(f"thermocomp emulate: {err}", file=sys.stderr)
+        return 1
+    return 0

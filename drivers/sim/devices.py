@@ -1,0 +1,154 @@
+"""The simulated camera and infrared reader: they look at the bench's physical truth.
+
+The camera renders the laser spot where the bench puts it with the generator of the centroid
+work (``daemon.vision.render_spot``: spot shape, photon and read noise, bit depth). The IR
+reader images the link's true temperature profile with 0.08 degC noise per pixel (the FLIR
+A40M's thermal sensitivity, thesis 3.2.2) and a fixed offset within its +-2 degC accuracy.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from types import TracebackType
+from typing import Self
+
+import numpy as np
+from numpy.typing import NDArray
+
+from config.settings import CameraSettings, IrRegion, IrSettings, Settings
+from daemon.model import load_network
+from daemon.vision import render_spot
+from drivers.base import Frame, IrReading
+from drivers.clock import Clock
+from drivers.ir import region_temperatures
+from drivers.sim.bench import Bench
+
+#: The simulated thermal image: 160 x 120 pixels (a FLIR Lepton's format), the link lying
+#: horizontally across it in rows LINK_ROWS, with IR_MARGIN_PX of background at each end.
+IR_SHAPE = (120, 160)
+LINK_ROWS = (56, 64)
+IR_MARGIN_PX = 5
+#: Width of the default region around a model node (px).
+DEFAULT_REGION_WIDTH_PX = 3
+
+
+class SimCamera:
+    """The bench's camera: one rendered frame per grab, at the clock's now."""
+
+    def __init__(self, settings: CameraSettings, bench: Bench, clock: Clock) -> None:
+        self.settings = settings
+        self.bench = bench
+        self.clock = clock
+        self._sequence = 0
+        self._lock = asyncio.Lock()  # one render at a time: the noise stream stays in order
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        return None
+
+    async def grab(self) -> Frame:
+        async with self._lock:
+            t_s = self.clock.now()
+            centre = self.bench.spot_centre_px(t_s)
+            camera, bench = self.settings, self.bench.settings.bench
+            image = await asyncio.to_thread(
+                render_spot,
+                shape=(camera.height_px, camera.width_px),
+                centre_xy=centre,
+                sigma_px=bench.spot_sigma_px,
+                peak_fraction=bench.spot_peak_fraction,
+                bit_depth=camera.bit_depth,
+                rng=self.bench.camera_rng,
+                read_noise_counts=camera.read_noise_e / camera.gain_e_per_count,
+                photon_noise=True,
+                gain_e_per_count=camera.gain_e_per_count,
+            )
+            frame = Frame(
+                image=image,  # type: ignore[arg-type]
+                bit_depth=camera.bit_depth,
+                timestamp_s=t_s,
+                sequence=self._sequence,
+            )
+            self._sequence += 1
+        return frame
+
+
+class SimIrReader:
+    """The bench's infrared camera: the truth's temperature profile as a thermal image."""
+
+    def __init__(self, settings: Settings, bench: Bench, clock: Clock) -> None:
+        self.settings: IrSettings = settings.ir
+        self.bench = bench
+        self.clock = clock
+        low, high = bench.network.bar_ends_mm or (0.0, 1.0)
+        self._origin_mm = low
+        self._mm_per_px = (high - low) / (IR_SHAPE[1] - 2 * IR_MARGIN_PX)
+        columns = np.arange(IR_SHAPE[1], dtype=np.float64)
+        self._column_mm = low + (columns - IR_MARGIN_PX + 0.5) * self._mm_per_px
+        self._on_link = (self._column_mm >= low) & (self._column_mm <= high)
+        self.regions = settings.ir.regions or self.default_regions(settings)
+        self._sequence = 0
+
+    def column_of(self, position_mm: float) -> int:
+        return int(IR_MARGIN_PX + (position_mm - self._origin_mm) / self._mm_per_px)
+
+    def default_regions(self, settings: Settings) -> tuple[IrRegion, ...]:
+        """Without configured regions: one per heater and reference node of the controller's
+        network, named ``node-<name>`` and tied to it."""
+        network = load_network(settings.model.network)
+        names = dict.fromkeys((*network.heater_nodes, *network.reference_nodes))
+        half = DEFAULT_REGION_WIDTH_PX // 2
+        regions = []
+        for name in names:
+            position = float(network.positions_mm[network.node_index(name)])
+            column = min(max(self.column_of(position) - half, 0), IR_SHAPE[1] - 1 - 2 * half)
+            regions.append(
+                IrRegion(
+                    name=f"node-{name}",
+                    x=column,
+                    y=LINK_ROWS[0],
+                    width=DEFAULT_REGION_WIDTH_PX,
+                    height=LINK_ROWS[1] - LINK_ROWS[0],
+                    node=name,
+                )
+            )
+        return tuple(regions)
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        return None
+
+    def frame_c(self, t_s: float) -> NDArray[np.float64]:
+        """The thermal image at ``t_s`` in degC, noise and offset included."""
+        frame = np.full(IR_SHAPE, self.bench.model.ambient_c, dtype=np.float64)
+        profile = self.bench.temperatures_at(self._column_mm[self._on_link], t_s)
+        frame[LINK_ROWS[0] : LINK_ROWS[1], self._on_link] = profile
+        noise = self.bench.ir_rng.normal(0.0, self.settings.noise_c, size=IR_SHAPE)
+        result: NDArray[np.float64] = frame + self.settings.offset_c + noise
+        return result
+
+    async def read(self) -> IrReading:
+        t_s = self.clock.now()
+        frame = self.frame_c(t_s)
+        reading = IrReading(
+            regions=region_temperatures(frame, self.regions),
+            timestamp_s=t_s,
+            sequence=self._sequence,
+            frame_c=frame,
+        )
+        self._sequence += 1
+        return reading

@@ -1,0 +1,771 @@
+"""An emulated CRS C500C console (`ash` shell) on a real pseudo-terminal or a TCP port.
+
+It serves the subset of C500C.md the driver uses: echo, prompts, CRLF replies, arm power /
+homed / online / point-of-control states, named locations, `here`, `set`, `wshift`, `move`,
+`moves` (error 043 when not online), `wx`/`wy`/`wz` (and their straight-line `s` forms),
+`finish`, `w0`/`w2`, `online`, `armpower`, `home`, `speed`, Ctrl-E, and the shell `$ ` prompt.
+The byte-level conventions it follows are those of :mod:`drivers.c500c_protocol`, whose
+``ASSUMED`` block is the one place where unconfirmed parts of the protocol are written down.
+
+Emulator-only simplifications (not protocol assumptions): there are no A465 kinematics (the
+PULSES and JOINTS rows are zeros), the reach check is a sphere of ``REACH_MM`` around the base,
+relative `w*` moves start from the actual (not the commanded) pose, so their positioning errors
+accumulate as the thesis's incremental commands did (6.4.4).
+
+Pacing: every byte costs 10 bit times (8N1 framing: start, 8 data, stop) at the configured baud
+rate in both directions, so timings measured against the emulator are those of the real link
+(57600 baud: 0.17 ms per byte). Pacing can be turned off for fast tests.
+
+Fault injection (for tests and robustness drills): drop the answer of a command, corrupt one of
+its bytes, delay it, stall the console, or close the link. See :func:`parse_faults`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import logging
+import math
+import os
+import pty
+import re
+import shutil
+import tempfile
+import tty
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Literal, Protocol, Self
+
+import numpy as np
+
+from drivers import c500c_protocol as proto
+
+logger = logging.getLogger(__name__)
+
+#: Bits on the wire per character with 8N1 framing (start bit, 8 data bits, stop bit).
+BITS_PER_CHARACTER = 10
+#: Emulator simplification: a location farther than this from the base is out of reach (mm).
+REACH_MM = 900.0
+#: Where the emulated arm starts: x, y, z (mm), z-rot, y-rot, x-rot (degrees).
+START_POSE: tuple[float, ...] = (457.200, 0.000, 254.000, 0.000, 90.000, 0.000)
+#: How long a `stall` fault lasts when the spec gives no duration (s).
+DEFAULT_STALL_S = 5.0
+#: How long a `delay` fault delays an answer when the spec gives no duration (s).
+DEFAULT_DELAY_S = 1.0
+
+FaultKind = Literal["drop", "corrupt", "delay", "stall", "close"]
+FAULT_KINDS: tuple[FaultKind, ...] = ("drop", "corrupt", "delay", "stall", "close")
+Location = tuple[float, float, float, float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    """One injected fault, applied to the answer of a command line.
+
+    drop: the command runs but its answer (lines and prompt) is lost; corrupt: one byte of the
+    answer is replaced by a byte the console never sends; delay: the answer comes ``seconds``
+    late; stall: the console ignores everything for ``seconds``; close: the link closes (a pty is
+    replaced by a fresh one behind the same path, a TCP client is disconnected).
+    ``at_command`` (1-based count of command lines since start) or ``probability`` (per command,
+    seeded) decide when it strikes; neither means the next command.
+    """
+
+    kind: FaultKind
+    seconds: float | None = None
+    at_command: int | None = None
+    probability: float | None = None
+
+
+_FAULT_ITEM = re.compile(
+    r"^(?P<kind>[a-z]+)(?:=(?P<seconds>[0-9.]+))?(?:@(?P<at>\d+)|%(?P<p>[0-9.]+))?$"
+)
+
+
+def parse_faults(spec: str) -> tuple[Fault, ...]:
+    """Parse ``KIND[=SECONDS][@N|%P],...``: e.g. ``drop@5,delay=2@7,corrupt%0.01,close@20``.
+
+    ``@N`` strikes at the N-th command line, ``%P`` at every command with probability P.
+    Raises ValueError with a message naming the bad item.
+    """
+    faults: list[Fault] = []
+    for item in filter(None, (part.strip() for part in spec.split(","))):
+        match = _FAULT_ITEM.match(item)
+        if match is None or match["kind"] not in FAULT_KINDS:
+            raise ValueError(
+                f"bad fault {item!r}: expected KIND[=SECONDS][@N|%P] with KIND one of "
+                + ", ".join(FAULT_KINDS)
+            )
+        probability = float(match["p"]) if match["p"] else None
+        if probability is not None and not 0.0 <= probability <= 1.0:
+            raise ValueError(f"bad fault {item!r}: probability must be within 0..1")
+        if match["at"] is None and probability is None:
+            raise ValueError(f"bad fault {item!r}: say when with @N or %P")
+        kind: FaultKind = match["kind"]
+        faults.append(
+            Fault(
+                kind=kind,
+                seconds=float(match["seconds"]) if match["seconds"] else None,
+                at_command=int(match["at"]) if match["at"] else None,
+                probability=probability,
+            )
+        )
+    return tuple(faults)
+
+
+def as_location(values: Sequence[float]) -> Location:
+    """Six numbers (x, y, z mm; z-rot, y-rot, x-rot degrees) as a location."""
+    if len(values) != 6:
+        raise ValueError(f"a location has six values, not {len(values)}")
+    x, y, z, z_rot, y_rot, x_rot = (float(v) for v in values)
+    return (x, y, z, z_rot, y_rot, x_rot)
+
+
+@dataclass(frozen=True, slots=True)
+class EmulatorConfig:
+    application: str = "ash"
+    seed: int = 1
+    noise_um: float = 0.9  # 1-sigma per axis; 0.9 reproduces the thesis's S_x (Table 6.1)
+    move_ms: float = 5.0
+    baudrate: int = 57600
+    paced: bool = True
+    arm_power: bool = True
+    homed: bool = True
+    online: bool = False  # as a real controller starts; the driver turns it on
+    point_of_control: bool = True
+    start_in_shell: bool = False  # start at the system shell `$ ` instead of the ash prompt
+    start_pose: tuple[float, ...] = START_POSE
+    faults: tuple[Fault, ...] = ()
+
+
+class ConsoleCommandError(Exception):
+    """A command failed; ``line`` is what the console prints."""
+
+    def __init__(self, line: str) -> None:
+        super().__init__(line)
+        self.line = line
+
+
+@dataclass
+class ConsoleState:
+    """What the emulated controller knows. Tests may read and change it."""
+
+    arm_power: bool
+    homed: bool
+    online: bool
+    point_of_control: bool
+    commanded: Location
+    actual: Location
+    previous_actual: Location
+    in_shell: bool = False
+    speed_percent: int = 10
+    motion_end_s: float = 0.0
+    locations: dict[str, Location] = field(default_factory=dict)
+    commands: list[str] = field(default_factory=list)  # every command line received, in order
+
+
+MOTION_WORDS = ("move", "moves", "wx", "wy", "wz", "wxs", "wys", "wzs")
+
+
+class Console:
+    """The `ash` command interpreter: one line in, answer lines out (no I/O)."""
+
+    def __init__(self, config: EmulatorConfig, rng: np.random.Generator) -> None:
+        start = as_location(config.start_pose)
+        self.config = config
+        self.rng = rng
+        self.state = ConsoleState(
+            arm_power=config.arm_power,
+            homed=config.homed,
+            online=config.online,
+            point_of_control=config.point_of_control,
+            commanded=start,
+            actual=start,
+            previous_actual=start,
+            in_shell=config.start_in_shell,
+        )
+
+    @property
+    def prompt(self) -> bytes:
+        return (
+            proto.SHELL_PROMPT if self.state.in_shell else proto.prompt_for(self.config.application)
+        )
+
+    def actual_pose(self, now_s: float) -> Location:
+        """Where the arm really is at loop time ``now_s`` (the start pose while moving)."""
+        state = self.state
+        return state.actual if now_s >= state.motion_end_s else state.previous_actual
+
+    async def execute(self, line: str) -> list[str]:
+        """Run one command line; return the answer lines (errors included)."""
+        self.state.commands.append(line)
+        words = line.strip()
+        if not words:
+            return []
+        if self.state.in_shell:
+            return self._shell(words)
+        name, _, rest = words.partition(" ")
+        try:
+            if name == "finish":
+                await self._finish()
+                return []
+            if name in MOTION_WORDS:
+                await self._finish()  # a new motion starts when the previous one has ended
+            handler = getattr(self, f"_cmd_{name}", None)
+            if handler is None:
+                raise ConsoleCommandError("Unrecognized command.")
+            answer: list[str] = handler(rest.strip())
+            return answer
+        except ConsoleCommandError as err:
+            return [err.line]
+
+    # --- the system shell ---
+
+    def _shell(self, words: str) -> list[str]:
+        parts = words.split()
+        if parts[0] != "ash" or len(parts) > 3:
+            return [f"{parts[0]}: not found"]
+        if len(parts) >= 2 and parts[1] != self.config.application:
+            return [f"{parts[1]}: application not found"]
+        self.state.in_shell = False
+        return []
+
+    # --- helpers ---
+
+    @staticmethod
+    def _arguments(rest: str, count: int) -> list[str]:
+        parts = [part.strip() for part in rest.split(",")] if rest else []
+        if len(parts) < count:
+            raise ConsoleCommandError("missing comma." if parts else "invalid argument.")
+        if len(parts) > count:
+            raise ConsoleCommandError("too many arguments.")
+        return parts
+
+    @staticmethod
+    def _number(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise ConsoleCommandError("missing number.") from None
+        if not math.isfinite(value):
+            raise ConsoleCommandError("invalid argument.")
+        return value
+
+    def _location(self, name: str) -> Location:
+        if name not in self.state.locations:
+            raise ConsoleCommandError("variable not found.")
+        return self.state.locations[name]
+
+    def _check_motion(self, straight: bool) -> list[str] | None:
+        state = self.state
+        if not state.arm_power:
+            raise ConsoleCommandError(proto.format_error(7))
+        if not state.homed:
+            raise ConsoleCommandError(proto.format_error(5))
+        if not state.point_of_control:
+            return [proto.POINT_OF_CONTROL_MESSAGE]  # ASSUMED 5: no motion, back to the prompt
+        if straight and not state.online:
+            raise ConsoleCommandError(proto.format_error(43))
+        return None
+
+    def _start_motion(self, target: Location) -> None:
+        if math.dist((0.0, 0.0, 0.0), target[:3]) > REACH_MM:
+            raise ConsoleCommandError(proto.format_error(3))
+        sigma_mm = self.config.noise_um / 1000.0
+        noise = self.rng.normal(0.0, sigma_mm, size=3) if sigma_mm > 0 else np.zeros(3)
+        state = self.state
+        state.previous_actual = state.actual
+        state.commanded = target
+        state.actual = as_location(
+            (target[0] + noise[0], target[1] + noise[1], target[2] + noise[2], *target[3:])
+        )
+        state.motion_end_s = asyncio.get_running_loop().time() + self.config.move_ms / 1000.0
+
+    async def _finish(self) -> None:
+        remaining = self.state.motion_end_s - asyncio.get_running_loop().time()
+        if remaining > 0:
+            await asyncio.sleep(remaining)
+
+    def _table(self, pose: Location) -> list[str]:
+        return proto.format_w_table(pose, (0.0,) * 6, (0.0,) * 6)
+
+    # --- commands (ash) ---
+
+    def _cmd_w0(self, rest: str) -> list[str]:
+        if rest:
+            raise ConsoleCommandError("too many arguments.")
+        return self._table(self.state.commanded)
+
+    def _cmd_w2(self, rest: str) -> list[str]:
+        if rest:
+            raise ConsoleCommandError("too many arguments.")
+        return self._table(self.actual_pose(asyncio.get_running_loop().time()))
+
+    def _cmd_here(self, rest: str) -> list[str]:
+        (name,) = self._arguments(rest, 1)
+        if not re.fullmatch(r"[A-Za-z_]\w*", name):
+            raise ConsoleCommandError("invalid argument.")
+        self.state.locations[name] = self.actual_pose(asyncio.get_running_loop().time())
+        return []
+
+    def _cmd_set(self, rest: str) -> list[str]:
+        name, equals, value = rest.partition("=")
+        name, value = name.strip(), value.strip()
+        if not equals or not re.fullmatch(r"[A-Za-z_]\w*", name) or not value:
+            raise ConsoleCommandError("invalid argument.")
+        if value.startswith("{"):
+            if not value.endswith("}"):
+                raise ConsoleCommandError("invalid argument.")
+            parts = self._arguments(value[1:-1], 6)
+            self.state.locations[name] = as_location([self._number(p) for p in parts])
+        else:
+            self.state.locations[name] = self._location(value)
+        return []
+
+    def _cmd_wshift(self, rest: str) -> list[str]:
+        parts = self._arguments(rest, 7)
+        base = self._location(parts[0])
+        dx, dy, dz, zr, yr, xr = (self._number(p) for p in parts[1:])
+        self.state.locations[parts[0]] = (
+            base[0] + dx,
+            base[1] + dy,
+            base[2] + dz,
+            base[3] + zr,
+            base[4] + yr,
+            base[5] + xr,
+        )
+        return []
+
+    def _move_to(self, rest: str, straight: bool) -> list[str]:
+        (name,) = self._arguments(rest, 1)
+        target = self._location(name)
+        held = self._check_motion(straight)
+        if held is not None:
+            return held
+        self._start_motion(target)
+        return []
+
+    def _cmd_move(self, rest: str) -> list[str]:
+        return self._move_to(rest, straight=False)
+
+    def _cmd_moves(self, rest: str) -> list[str]:
+        return self._move_to(rest, straight=True)
+
+    def _relative(self, rest: str, axis: int, straight: bool) -> list[str]:
+        (text,) = self._arguments(rest, 1)
+        distance = self._number(text)
+        held = self._check_motion(straight)
+        if held is not None:
+            return held
+        start = list(self.state.actual)  # emulator simplification: from the actual pose
+        start[axis] += distance
+        self._start_motion(as_location(start))
+        return []
+
+    def _cmd_wx(self, rest: str) -> list[str]:
+        return self._relative(rest, 0, straight=False)
+
+    def _cmd_wy(self, rest: str) -> list[str]:
+        return self._relative(rest, 1, straight=False)
+
+    def _cmd_wz(self, rest: str) -> list[str]:
+        return self._relative(rest, 2, straight=False)
+
+    def _cmd_wxs(self, rest: str) -> list[str]:
+        return self._relative(rest, 0, straight=True)
+
+    def _cmd_wys(self, rest: str) -> list[str]:
+        return self._relative(rest, 1, straight=True)
+
+    def _cmd_wzs(self, rest: str) -> list[str]:
+        return self._relative(rest, 2, straight=True)
+
+    def _on_off(self, rest: str) -> bool:
+        if rest not in ("on", "off"):
+            raise ConsoleCommandError("invalid argument.")
+        return rest == "on"
+
+    def _cmd_online(self, rest: str) -> list[str]:
+        self.state.online = self._on_off(rest)
+        return []
+
+    def _cmd_armpower(self, rest: str) -> list[str]:
+        self.state.arm_power = self._on_off(rest)
+        return []
+
+    def _cmd_home(self, rest: str) -> list[str]:
+        if rest:
+            raise ConsoleCommandError("too many arguments.")
+        if not self.state.arm_power:
+            raise ConsoleCommandError(proto.format_error(7))
+        self.state.homed = True
+        return []
+
+    def _cmd_speed(self, rest: str) -> list[str]:
+        if not rest:
+            return [f"speed = {self.state.speed_percent}%"]
+        value = self._number(rest)
+        if not 1 <= value <= 100 or value != int(value):
+            raise ConsoleCommandError(proto.format_error(15))
+        self.state.speed_percent = int(value)
+        return []
+
+
+class _Link(Protocol):
+    async def read(self) -> bytes: ...  # b"" at end of link
+
+    async def write(self, data: bytes) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def _set_once(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
+
+
+class _PtyLink:
+    """The master side of a pseudo-terminal, non-blocking, driven by the event loop."""
+
+    def __init__(self) -> None:
+        self.master_fd, self.slave_fd = pty.openpty()
+        # Raw mode: no echo or CR/LF translation by the line discipline; the console echoes.
+        tty.setraw(self.slave_fd)
+        os.set_blocking(self.master_fd, False)
+        self.slave_path = os.ttyname(self.slave_fd)
+        self.closed = False
+
+    async def read(self) -> bytes:
+        loop = asyncio.get_running_loop()
+        while not self.closed:
+            try:
+                return os.read(self.master_fd, 4096)
+            except BlockingIOError:
+                pass
+            except OSError as err:
+                if err.errno == errno.EIO:
+                    return b""
+                raise
+            ready: asyncio.Future[None] = loop.create_future()
+            loop.add_reader(self.master_fd, _set_once, ready)
+            try:
+                await ready
+            finally:
+                loop.remove_reader(self.master_fd)
+        return b""
+
+    async def write(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view and not self.closed:
+            try:
+                view = view[os.write(self.master_fd, view) :]
+            except BlockingIOError:
+                await asyncio.sleep(0.001)  # the pty buffer is full: the host is not reading
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            # The slave fd we hold keeps the pty alive between host reconnections; closing both
+            # ends is what an unplugged cable looks like to the host (EIO on its reads).
+            os.close(self.master_fd)
+            os.close(self.slave_fd)
+
+
+class _StreamLink:
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._reader, self._writer = reader, writer
+
+    async def read(self) -> bytes:
+        try:
+            return await self._reader.read(4096)
+        except ConnectionError:
+            return b""
+
+    async def write(self, data: bytes) -> None:
+        if self._writer.is_closing():
+            return
+        self._writer.write(data)
+        with contextlib.suppress(ConnectionError):
+            await self._writer.drain()
+
+    def close(self) -> None:
+        self._writer.close()
+
+
+class _Pacer:
+    """10 bit times per character at the baud rate (C500C.md: 0.17 ms per byte at 57600)."""
+
+    def __init__(self, baudrate: int, enabled: bool) -> None:
+        self.byte_s = BITS_PER_CHARACTER / baudrate
+        self.enabled = enabled
+        self._free_at = 0.0
+
+    async def take(self, byte_count: int) -> None:
+        """Wait until ``byte_count`` more bytes have crossed the line."""
+        if not self.enabled or byte_count == 0:
+            return
+        loop = asyncio.get_running_loop()
+        self._free_at = max(self._free_at, loop.time()) + byte_count * self.byte_s
+        await asyncio.sleep(max(self._free_at - loop.time(), 0.0))
+
+
+class _LinkClosed(Exception):
+    pass
+
+
+class C500CEmulator:
+    """The emulated controller behind a pseudo-terminal (default) or a TCP port.
+
+    Use it as an async context manager; ``device_path`` is what a host opens: a stable symlink
+    to the current pty (it survives a `close` fault) or ``socket://127.0.0.1:<port>`` (pyserial's
+    URL for TCP).
+    """
+
+    def __init__(
+        self,
+        config: EmulatorConfig | None = None,
+        *,
+        transport: Literal["pty", "tcp"] = "pty",
+        tcp_port: int = 0,
+        link_path: Path | None = None,
+    ) -> None:
+        self.config = config or EmulatorConfig()
+        if self.config.baudrate <= 0:
+            raise ValueError("baudrate must be positive")
+        seeds = np.random.SeedSequence(self.config.seed).spawn(2)
+        self.console = Console(self.config, np.random.default_rng(seeds[0]))
+        self._fault_rng = np.random.default_rng(seeds[1])
+        self._faults = list(self.config.faults)
+        self._pending: list[Fault] = []
+        self.transport = transport
+        self._tcp_port = tcp_port
+        self._requested_link_path = link_path
+        self._temp_dir: str | None = None
+        self._link_path: Path | None = None
+        self._server: asyncio.Server | None = None
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._pty: _PtyLink | None = None
+        self._stalled_until = 0.0
+        self.device_path = ""
+        self.faults_applied: list[tuple[int, FaultKind]] = []  # (command number, kind)
+
+    @property
+    def state(self) -> ConsoleState:
+        return self.console.state
+
+    # --- control from the test or the bench ---
+
+    def inject(self, kind: FaultKind, seconds: float | None = None) -> None:
+        """Apply ``kind`` to the next command line."""
+        self._pending.append(Fault(kind, seconds))
+
+    def press_pause_continue(self) -> None:
+        """The operator takes the point of control at the controller."""
+        self.state.point_of_control = True
+
+    def actual_pose(self) -> Location:
+        return self.console.actual_pose(asyncio.get_running_loop().time())
+
+    # --- lifecycle ---
+
+    async def __aenter__(self) -> Self:
+        if self.transport == "tcp":
+            self._server = await asyncio.start_server(
+                self._serve_tcp_client, "127.0.0.1", self._tcp_port
+            )
+            port = self._server.sockets[0].getsockname()[1]
+            self.device_path = f"socket://127.0.0.1:{port}"
+        else:
+            if self._requested_link_path is None:
+                self._temp_dir = tempfile.mkdtemp(prefix="c500c-")
+                self._link_path = Path(self._temp_dir) / "console"
+            else:
+                self._link_path = self._requested_link_path
+            self._open_pty()
+            self.device_path = str(self._link_path)
+        logger.info("C500C emulator listening on %s", self.device_path)
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        for task in list(self._tasks):
+            task.cancel()
+        if self._tasks:
+            await asyncio.gather(*self._tasks, return_exceptions=True)
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()
+            self._server = None
+        if self._pty is not None:
+            self._pty.close()
+            self._pty = None
+        if self._link_path is not None:
+            with contextlib.suppress(FileNotFoundError):
+                self._link_path.unlink()
+        if self._temp_dir is not None:
+            shutil.rmtree(self._temp_dir, ignore_errors=True)
+            self._temp_dir = None
+
+    def _spawn(self, coroutine: Coroutine[Any, Any, None]) -> None:
+        task = asyncio.get_running_loop().create_task(coroutine)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    def _open_pty(self) -> None:
+        assert self._link_path is not None
+        link = _PtyLink()
+        self._pty = link
+        staging = self._link_path.with_name(self._link_path.name + ".new")
+        with contextlib.suppress(FileNotFoundError):
+            staging.unlink()
+        os.symlink(link.slave_path, staging)
+        os.replace(staging, self._link_path)  # atomic: a host never sees a missing path
+        self._spawn(self._serve_pty(link))
+
+    async def _serve_pty(self, link: _PtyLink) -> None:
+        try:
+            await self._session(link)
+        finally:
+            link.close()
+        if self._pty is link:  # a `close` fault: the cable is plugged back in at once
+            self._open_pty()
+
+    async def _serve_tcp_client(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
+    ) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        self._tasks.add(task)
+        link = _StreamLink(reader, writer)
+        try:
+            await self._session(link)
+        finally:
+            link.close()
+            self._tasks.discard(task)
+
+    # --- one conversation ---
+
+    def _fault_for(self, number: int) -> Fault | None:
+        if self._pending:
+            return self._pending.pop(0)
+        for fault in self._faults:
+            if fault.at_command == number:
+                return fault
+            if fault.probability is not None and self._fault_rng.random() < fault.probability:
+                return fault
+        return None
+
+    async def _session(self, link: _Link) -> None:
+        pacer_in = _Pacer(self.config.baudrate, self.config.paced)
+        pacer_out = _Pacer(self.config.baudrate, self.config.paced)
+        line = bytearray()
+        last_was_cr = False
+        loop = asyncio.get_running_loop()
+
+        async def send(data: bytes) -> None:
+            await pacer_out.take(len(data))
+            await link.write(data)
+
+        if self.state.in_shell:
+            await send(proto.SHELL_PROMPT)
+        try:
+            while True:
+                chunk = await link.read()
+                if not chunk:
+                    return
+                await pacer_in.take(len(chunk))
+                if loop.time() < self._stalled_until:
+                    continue  # a stalled controller drops what it is sent
+                echo = bytearray()
+                for byte in chunk:
+                    if byte == proto.CTRL_E[0]:
+                        line.clear()
+                        echo += proto.REPLY_LINE_END + self.console.prompt  # ASSUMED 6
+                    elif byte in b"\r\n":
+                        if byte == ord("\n") and last_was_cr:
+                            last_was_cr = False
+                            continue  # the LF of a host's CRLF
+                        echo += proto.REPLY_LINE_END
+                        await send(bytes(echo))
+                        echo.clear()
+                        text = line.decode("ascii", errors="replace")
+                        line.clear()
+                        await self._answer(text, send, link)
+                        if loop.time() < self._stalled_until:
+                            break
+                    elif 0x20 <= byte < 0x7F:
+                        line.append(byte)
+                        echo.append(byte)
+                    last_was_cr = byte == ord("\r")
+                if echo:
+                    await send(bytes(echo))
+        except _LinkClosed:
+            return
+
+    async def _answer(
+        self, text: str, send: Callable[[bytes], Awaitable[None]], link: _Link
+    ) -> None:
+        number = len(self.state.commands) + 1
+        fault = self._fault_for(number)
+        if fault is not None:
+            self.faults_applied.append((number, fault.kind))
+            logger.info("injecting %s at command %d (%r)", fault.kind, number, text)
+        if fault is not None and fault.kind == "close":
+            self.state.commands.append(text)  # received, never executed
+            link.close()
+            raise _LinkClosed
+        if fault is not None and fault.kind == "stall":
+            self.state.commands.append(text)
+            seconds = fault.seconds if fault.seconds is not None else DEFAULT_STALL_S
+            self._stalled_until = asyncio.get_running_loop().time() + seconds
+            return
+        lines = await self.console.execute(text)
+        answer = b"".join(line.encode("ascii") + proto.REPLY_LINE_END for line in lines)
+        if fault is not None and fault.kind == "drop":
+            return
+        if fault is not None and fault.kind == "corrupt":
+            # A byte the console never sends (outside printable ASCII): detectable by design;
+            # a flip that stays printable could only be caught by plausibility checks.
+            garbage = int(self._fault_rng.integers(0x80, 0x100))
+            if answer:
+                position = int(self._fault_rng.integers(0, len(answer)))
+                answer = answer[:position] + bytes([garbage]) + answer[position + 1 :]
+            else:
+                answer = bytes([garbage])
+        if fault is not None and fault.kind == "delay":
+            await asyncio.sleep(fault.seconds if fault.seconds is not None else DEFAULT_DELAY_S)
+        await send(answer + self.console.prompt)
+
+
+def emulator_config(
+    *,
+    seed: int = 1,
+    noise_um: float = 0.9,
+    move_ms: float = 5.0,
+    baudrate: int = 57600,
+    paced: bool = True,
+    faults: str = "",
+    application: str = "ash",
+) -> EmulatorConfig:
+    """An :class:`EmulatorConfig` from the command line's or the settings' plain values."""
+    if noise_um < 0 or move_ms < 0:
+        raise ValueError("noise and move time must not be negative")
+    return replace(
+        EmulatorConfig(),
+        seed=seed,
+        noise_um=noise_um,
+        move_ms=move_ms,
+        baudrate=baudrate,
+        paced=paced,
+        faults=parse_faults(faults),
+        application=application,
+    )

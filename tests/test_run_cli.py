@@ -1,0 +1,151 @@
+"""`thermocomp run` on the real simulated bench (C500C driver over a pty to the emulator),
+including the crash test of issue 6: SIGKILL mid-run, restart, every committed step readable
+and the run marked interrupted."""
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import time
+from pathlib import Path
+
+from daemon.analysis import SUMMARY_KEYS
+from daemon.recorder import DATABASE_NAME, Recorder
+from tests.helpers import REPO_ROOT, cli_command, run_cli
+
+SIM = "config/sim.toml"
+
+
+def test_run_help_lists_the_run_options() -> None:
+    result = run_cli(["run", "--help"])
+    assert result.returncode == 0
+    for option in ("--config", "--procedure", "--compensation", "--duration", "--step", "--json"):
+        assert option in result.stdout
+
+
+def test_bad_run_parameters_are_usage_errors(tmp_path: Path) -> None:
+    result = run_cli(["run", "--config", SIM, "--data-dir", str(tmp_path), "--step", "0.001"])
+    assert result.returncode == 2
+    assert "step_s" in result.stderr and "Traceback" not in result.stderr
+    result = run_cli(["run", "--config", SIM, "--data-dir", str(tmp_path), "--scale", "1e6"])
+    assert result.returncode == 2
+    assert "largest admissible scale" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_short_compensated_bench_run_prints_its_summary(tmp_path: Path) -> None:
+    csv_path = tmp_path / "steps.csv"
+    options = ["--data-dir", str(tmp_path), "--duration", "20", "--json", "--csv", str(csv_path)]
+    result = run_cli(["run", "--config", SIM, *options])
+    assert result.returncode == 0, result.stderr
+    final = json.loads(result.stdout)
+    assert final["state"] == "finished"
+    summary = final["summary"]
+    assert set(SUMMARY_KEYS) <= set(summary)
+    assert summary["n"] == 20 and summary["overruns"] == 0
+    assert len(csv_path.read_text().splitlines()) == 21  # header + 20 steps
+    with Recorder(tmp_path) as recorder:
+        steps = recorder.steps(final["id"])
+    # the real C500C driver read the pose back at every step, at the 0.001 mm console grain
+    assert all(s.pose_x_mm is not None and s.centroid_x_px is not None for s in steps)
+
+
+def _committed_steps(database: Path) -> int:
+    if not database.exists():
+        return 0
+    db = sqlite3.connect(f"file:{database}?mode=ro", uri=True, timeout=5.0)
+    try:
+        return int(db.execute("SELECT COUNT(*) FROM steps").fetchone()[0])
+    except sqlite3.OperationalError:  # tables not created yet
+        return 0
+    finally:
+        db.close()
+
+
+def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
+    tmp_path: Path,
+) -> None:
+    database = tmp_path / DATABASE_NAME
+    process = subprocess.Popen(
+        cli_command(
+            "--log-level",
+            "WARNING",
+            "run",
+            "--config",
+            SIM,
+            "--data-dir",
+            str(tmp_path),
+            "--duration",
+            "36000",
+        ),
+        cwd=REPO_ROOT,
+        env=dict(os.environ),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 60.0
+        while _committed_steps(database) < 30:
+            assert process.poll() is None, "the run ended before it could be killed"
+            assert time.monotonic() < deadline, "no steps were committed in time"
+            time.sleep(0.05)
+        process.send_signal(signal.SIGKILL)
+        process.wait(timeout=10)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == -signal.SIGKILL
+    committed = _committed_steps(database)
+
+    with Recorder(tmp_path) as recorder:  # what the daemon does when it starts again
+        (run,) = recorder.runs()
+        assert recorder.interrupted_runs == [run.id]
+        assert run.state == "interrupted" and run.step_count == committed >= 30
+        steps = recorder.steps(run.id)
+    assert [s.step for s in steps] == list(range(committed))  # no gap, no partial step
+    assert all(s.scheduled_s == float(s.step) and s.residual_um is not None for s in steps)
+    check = sqlite3.connect(database)
+    assert check.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    check.close()
+
+
+def test_sigterm_stops_the_run_cleanly(tmp_path: Path) -> None:
+    database = tmp_path / DATABASE_NAME
+    process = subprocess.Popen(
+        cli_command(
+            "--log-level",
+            "WARNING",
+            "run",
+            "--config",
+            SIM,
+            "--data-dir",
+            str(tmp_path),
+            "--duration",
+            "36000",
+            "--json",
+        ),
+        cwd=REPO_ROOT,
+        env=dict(os.environ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 60.0
+        while _committed_steps(database) < 5:
+            assert process.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        process.send_signal(signal.SIGTERM)
+        output, _ = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 1  # the run did not finish: it was stopped
+    final = json.loads(output)
+    assert final["state"] == "aborted" and final["reason"] == "stopped by a signal"
+    with Recorder(tmp_path) as recorder:
+        assert recorder.interrupted_runs == []  # ended properly, nothing to mark
+        (run,) = recorder.runs()
+        assert run.state == "aborted" and run.step_count == final["step"] + 1
