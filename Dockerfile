@@ -23,7 +23,8 @@ RUN pip install --no-cache-dir --no-deps .
 FROM python:3.11-slim
 RUN useradd --system --uid 10001 --home-dir /data --create-home thermocomp
 COPY --from=build /opt/venv /opt/venv
-COPY config /etc/thermocomp
+# The example configurations (the networks are package data, inside the venv).
+COPY config/sim.toml config/lab.toml /etc/thermocomp/
 ENV PATH=/opt/venv/bin:$PATH \
     THERMOCOMP_STORAGE__DATA_DIR=/data \
     THERMOCOMP_API__HOST=0.0.0.0

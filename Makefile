@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 CONFIG ?= config/sim.toml
 SOURCES := daemon drivers api config
 
-.PHONY: run test lint bench clean
+.PHONY: run test lint bench soak clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -34,6 +34,11 @@ test: lint
 bench: $(VENV)/.installed-dev
 	@set -e; for script in benchmarks/bench_*.py; do \
 		echo "== $$script"; $(BIN)/python $$script; done
+
+# Long run at a 20 ms step with WebSocket clients and polling (issue 10); not part of `test`.
+SOAK_S ?= 3600
+soak: $(VENV)/.installed-dev
+	SOAK_S=$(SOAK_S) $(BIN)/python benchmarks/soak.py
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache

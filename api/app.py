@@ -9,7 +9,8 @@ from contextlib import AbstractAsyncContextManager, AsyncExitStack, asynccontext
 from pathlib import Path
 
 from fastapi import FastAPI
-from fastapi.responses import FileResponse
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 from api.broadcast import Hub
@@ -26,6 +27,7 @@ from daemon.service import Daemon
 
 API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).resolve().parent / "static"
+SWAGGER_UI = "/static/vendor/swagger-ui"
 
 #: Builds the daemon service from the settings; entered at startup, left at shutdown.
 ServiceFactory = Callable[[Settings], AbstractAsyncContextManager[Daemon]]
@@ -72,6 +74,8 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         "control needs the `control` scope: `Authorization: Bearer <token>`.",
         lifespan=lifespan,
         responses=COMMON_ERROR_RESPONSES,
+        docs_url=None,  # served from vendored files below: lab PCs are often offline
+        redoc_url=None,
     )
     app.state.context = context
     install_error_handlers(app)
@@ -99,3 +103,14 @@ def _mount_dashboard(app: FastAPI) -> None:
     @app.get("/", include_in_schema=False)
     async def dashboard() -> FileResponse:
         return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
+
+    @app.get("/docs", include_in_schema=False)
+    async def docs() -> HTMLResponse:
+        """Swagger UI from the vendored copy in static/vendor (no CDN)."""
+        return get_swagger_ui_html(
+            openapi_url=app.openapi_url or "/openapi.json",
+            title="thermocomp API",
+            swagger_js_url=f"{SWAGGER_UI}/swagger-ui-bundle.js",
+            swagger_css_url=f"{SWAGGER_UI}/swagger-ui.css",
+            swagger_favicon_url=f"{SWAGGER_UI}/favicon-32x32.png",
+        )

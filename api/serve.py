@@ -3,15 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import logging
+import signal
+from types import FrameType
 
 import uvicorn
+from fastapi import FastAPI
 from pydantic import ValidationError
 
 from api.app import create_app
+from api.deps import ApiContext
 from config import ConfigError, Settings, load_settings
 from config.cli import add_config_argument
 from daemon.service import Daemon
+from daemon.systemd import SystemdNotifier
 
 logger = logging.getLogger(__name__)
 
@@ -46,12 +52,16 @@ def with_address(settings: Settings, host: str | None, port: int | None) -> Sett
     return settings.model_copy(update={"api": api})
 
 
-def server_config(settings: Settings) -> uvicorn.Config:
+#: How often the supervisor looks at the server and the daemon (startup, shutdown, STATUS).
+SUPERVISOR_POLL_S = 0.1
+
+
+def server_config(settings: Settings, app: FastAPI | None = None) -> uvicorn.Config:
     """The uvicorn configuration of the daemon's server: the application's lifespan opens the
     daemon (devices, recording) at startup and closes it at shutdown (robot held, recording
     committed), so the server is "up" only with the daemon."""
     return uvicorn.Config(
-        create_app(settings, service_factory=Daemon),
+        create_app(settings, service_factory=Daemon) if app is None else app,
         host=settings.api.host,
         port=settings.api.port,
         log_config=None,  # logging is configured once, by the entry point
@@ -66,11 +76,103 @@ def server_config(settings: Settings) -> uvicorn.Config:
     )
 
 
+def daemon_status(daemon: Daemon) -> str:
+    """One line for ``systemctl status``: the run and its state (with its reason when paused
+    or faulted), or idle. No step number: it would send systemd a message per poll."""
+    run = daemon.run
+    if run is None or not run.state.is_active:
+        return "idle"
+    status = f"run {run.id} {run.state.value}"
+    reason = run.machine.reason
+    return f"{status}: {reason}" if reason and run.state.value in ("paused", "fault") else status
+
+
+async def supervise(
+    server: uvicorn.Server,
+    context: ApiContext,
+    notifier: SystemdNotifier,
+    device_allowance_s: float = 0.0,
+) -> None:
+    """Tell systemd what the service does (issue 10, deploy/thermocomp.service).
+
+    READY=1 only once uvicorn's lifespan has opened the daemon (devices, recording) AND the
+    socket listens (``server.started``); WATCHDOG=1 only while the control loop makes
+    progress (``Daemon.control_loop_alive``), so a hung loop -- or a blocked event loop, on
+    which this task runs too -- gets the service restarted after WatchdogSec; STOPPING=1 as
+    soon as a signal asks the server to exit, before the daemon holds the robot and commits.
+    ``device_allowance_s`` is how long one step may legitimately wait on a device before it
+    fails (a timed-out move is a fault the run reports, not a hung loop).
+    """
+    while not server.started:
+        if server.should_exit:
+            return
+        await asyncio.sleep(SUPERVISOR_POLL_S)
+    daemon = context.service
+    if daemon is None:  # cannot happen with a service factory; say so rather than lie
+        notifier.status("started without a daemon")
+        return
+    notifier.ready(f"serving; {daemon_status(daemon)}")
+    interval_s = notifier.watchdog_interval_s
+    loop = asyncio.get_running_loop()
+    next_keepalive = loop.time()
+    status = ""
+    while not server.should_exit:
+        now = loop.time()
+        if interval_s is not None and now >= next_keepalive:
+            # half of WatchdogSec without a step beyond the device timeouts (and one step
+            # period, added by control_loop_alive) is a hang: systemd restarts us WatchdogSec
+            # after the last keep-alive
+            if daemon.control_loop_alive(max_silence_s=interval_s + device_allowance_s):
+                notifier.watchdog()
+            else:
+                logger.error(
+                    "control loop silent for over %.1f s: no watchdog keep-alive",
+                    interval_s + device_allowance_s,
+                )
+            next_keepalive = now + interval_s
+        current = daemon_status(daemon)
+        if current != status:
+            notifier.status(current)
+            status = current
+        await asyncio.sleep(SUPERVISOR_POLL_S)
+    notifier.stopping()
+
+
+async def serve(settings: Settings, notifier: SystemdNotifier) -> bool:
+    """Run the server until a signal stops it; True when it had started."""
+    app = create_app(settings, service_factory=Daemon)
+    server = uvicorn.Server(server_config(settings, app))
+    context: ApiContext = app.state.context
+    # the longest a step waits on the robot before it fails: a move, then the pose read
+    allowance_s = settings.robot.move_timeout_s + settings.robot.command_timeout_s
+    supervisor = asyncio.create_task(
+        supervise(server, context, notifier, allowance_s), name="systemd"
+    )
+    try:
+        await server.serve()  # uvicorn handles SIGINT/SIGTERM and shuts down cleanly
+    finally:
+        server.should_exit = True  # lets the supervisor send STOPPING=1 if it has not yet
+        await supervisor
+    return server.started
+
+
+def _stopped_by_signal(signum: int, frame: FrameType | None) -> None:
+    """Replaces the default SIGTERM action while serving: uvicorn re-raises the signal that
+    stopped it once it has shut down, which would kill the process AFTER the clean shutdown
+    and turn systemd's ordinary stop into a failure (status -15 instead of 0)."""
+    logger.info("stopped by %s", signal.Signals(signum).name)
+
+
 def run(args: argparse.Namespace) -> int:
     settings = with_address(load_settings(args.config), args.host, args.port)
-    server = uvicorn.Server(server_config(settings))
+    notifier = SystemdNotifier()
     logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
-    server.run()  # uvicorn installs the SIGINT/SIGTERM handlers and shuts down cleanly
-    if not server.started:  # the daemon or the socket could not be opened (logged above)
+    previous = signal.signal(signal.SIGTERM, _stopped_by_signal)
+    try:
+        started = asyncio.run(serve(settings, notifier))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    if not started:  # the daemon or the socket could not be opened (logged above)
+        notifier.status("failed to start")
         return 1
     return 0

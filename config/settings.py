@@ -244,6 +244,11 @@ class ModelSettings(_Section):
     direction: tuple[float, float, float] = Field(
         (1.0, 0.0, 0.0), description="Unit vector of the link's axis in world coordinates."
     )
+    prediction: Literal["model", "model+ir"] = Field(
+        "model",
+        description="model: open loop (the thesis); model+ir: a Kalman filter corrects the "
+        "model each step from the IR regions tied to its nodes (issue 9).",
+    )
 
 
 class CompensationSettings(_Section):

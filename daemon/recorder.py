@@ -77,6 +77,8 @@ class StepRecord:
     model_temperatures_json: str | None = None  # {"node": predicted degC} of the model
     frame_path: str | None = None  # archived 16-bit PNG, relative to the data directory
     stage_ms_json: str | None = None  # {"model": ms, "move": ms, ...} wall time per stage
+    deformation_sigma_um: float | None = None  # 1-sigma of the prediction (model+ir)
+    innovation_nis: float | None = None  # normalised innovation squared of the IR update
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

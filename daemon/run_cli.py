@@ -19,12 +19,11 @@ from typing import Any
 from pydantic import ValidationError
 
 from config import Settings, load_settings
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument
 from daemon.runs import RunParameters, RunState, RunStateError
 from daemon.service import Daemon, RunParameterError
 
 logger = logging.getLogger(__name__)
-
-EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -35,12 +34,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "config/sim.toml) without the API, record every step, and print the summary of "
         "thesis Table 6.1. Options override the [scheduler] and [compensation] settings.",
     )
-    parser.add_argument(  # as api/serve.py's, which this layer may not import
-        "--config",
-        type=Path,
-        help="TOML settings file (default: built-in defaults = the simulated bench); "
-        "THERMOCOMP_<SECTION>__<FIELD> environment variables override it",
-    )
+    add_config_argument(parser)
     parser.add_argument(
         "--procedure",
         choices=["stationary", "moving", "repeatability"],
@@ -56,6 +50,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--scale", type=float, help="deformation scale (thesis 6.3)")
     parser.add_argument("--time-scale", type=float, help="model s per run s (thesis 6.3)")
     parser.add_argument("--network", help="network preset name or TOML file")
+    parser.add_argument(
+        "--prediction",
+        choices=["model", "model+ir"],
+        help="model: open loop (thesis); model+ir: corrected each step from the IR regions",
+    )
     parser.add_argument(
         "--data-dir", type=Path, help="folder of the run database (default: storage.data_dir)"
     )
@@ -90,7 +89,7 @@ def _settings(args: argparse.Namespace) -> Settings:
             "deformation_scale": args.scale,
             "time_scale": args.time_scale,
         },
-        "model": {"network": args.network},
+        "model": {"network": args.network, "prediction": args.prediction},
         "storage": {"data_dir": args.data_dir},
     }
     data = settings.model_dump()

@@ -87,6 +87,9 @@ class StateMachine:
 
 Procedure = Literal["stationary", "moving", "repeatability"]
 CompensationMode = Literal["off", "absolute", "incremental"]
+#: model: the thesis's open loop; model+ir: a Kalman filter fuses the IR regions into the
+#: model's node temperatures every step (issue 9), so the prediction follows the real link.
+PredictionMode = Literal["model", "model+ir"]
 
 
 class RunParameters(BaseModel):
@@ -104,6 +107,11 @@ class RunParameters(BaseModel):
         1.0, description="Model seconds per run-clock second (thesis 6.3: time may be scaled)."
     )
     network: str = "thesis-two-link"
+    prediction: PredictionMode = Field(
+        "model",
+        description="model: open loop (the thesis); model+ir: corrected each step from the "
+        "IR regions tied to model nodes (Kalman filter).",
+    )
     warmup_wait_s: NonNegativeFloat = 0.0
     heat_w: dict[str, NonNegativeFloat] = Field(
         default_factory=lambda: {"2": 0.5, "9": 0.5},
@@ -124,6 +132,8 @@ class RunParameters(BaseModel):
     def _consistent(self) -> RunParameters:
         if self.step_s > self.duration_s:
             raise ValueError("step_s must not exceed duration_s")
+        if self.prediction == "model+ir" and self.time_scale != 1.0:
+            raise ValueError("prediction model+ir needs time_scale 1: the IR sees real time")
         if self.procedure == "repeatability" and len(self.poses_mm) < 2:
             raise ValueError("the repeatability procedure needs at least two poses")
         for pose in self.poses_mm:
@@ -142,6 +152,7 @@ class RunParameters(BaseModel):
             "deformation_scale": settings.compensation.deformation_scale,
             "time_scale": settings.compensation.time_scale,
             "network": settings.model.network,
+            "prediction": settings.model.prediction,
             "warmup_wait_s": settings.scheduler.warmup_wait_s,
             "heat_w": dict(settings.model.heat_w),
             "heater_off_s": settings.bench.heater_off_s,

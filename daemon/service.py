@@ -43,6 +43,7 @@ from daemon.model.compensation import (
     compensation_offset_mm,
 )
 from daemon.model.model import EXACT_NODE_LIMIT
+from daemon.model.observer import IrObserver, regions_to_nodes
 from daemon.recorder import Recorder, RecorderError, StepRecord
 from daemon.reports import write_run_report
 from daemon.runs import (
@@ -201,6 +202,7 @@ class ActiveRun:
     finishing: bool = False  # holding the robot, writing the summary and the final state
     reference_source: str = "first step"  # where the drift's zero was measured
     report_path: Path | None = None  # the end-of-run report, once written
+    observer: IrObserver | None = None  # prediction "model+ir": the IR Kalman filter
 
     @property
     def state(self) -> RunState:
@@ -309,6 +311,7 @@ class Daemon:
             network, model = await asyncio.to_thread(self._build_model, parameters)
             direction = _unit(self.settings.model.direction)
             await asyncio.to_thread(self._check_scale, parameters, network, direction)
+            observer = self._build_observer(model) if parameters.prediction == "model+ir" else None
             recorder = self._recorder()
             run_id = await self._db(
                 recorder.create_run,
@@ -319,7 +322,7 @@ class Daemon:
             )
             machine = StateMachine()
             machine.go(RunState.STARTING)
-            run = ActiveRun(run_id, parameters, machine, model, direction)
+            run = ActiveRun(run_id, parameters, machine, model, direction, observer=observer)
             self.run = run
             self.timing = TimingStats()
             self._publish_state(run)
@@ -631,6 +634,8 @@ class Daemon:
                 )
             )
         )
+        if run.observer is not None:
+            record.deformation_sigma_um = run.observer.corrected_deformation_um()[1]
         stages["model"] = time.perf_counter() - started
 
         # 2. the compensation target, checked before anything reaches the robot
@@ -736,6 +741,8 @@ class Daemon:
                 await self._advance_to(run, switch_s)
         if target_model_s > model.time_s:
             await self._advance_to(run, target_model_s)
+        if run.observer is not None:
+            run.observer.predict(model.time_s)  # the covariance follows the model's mean
         return model.deformation_um()
 
     async def _advance_to(self, run: ActiveRun, model_s: float) -> None:
@@ -821,8 +828,17 @@ class Daemon:
             flags.append("ir-error")
             errors.append(str(err))
         else:
-            if self.clock.now() - reading.timestamp_s > self.settings.ir.max_age_s:
+            stale_ir = self.clock.now() - reading.timestamp_s > self.settings.ir.max_age_s
+            if stale_ir:
                 flags.append("stale-ir")
+            elif run.observer is not None:  # a stale reading is recorded, never fused
+                innovation = run.observer.update(
+                    {name: region.mean_c for name, region in reading.regions.items()}
+                )
+                if innovation is not None:
+                    record.innovation_nis = innovation.nis
+                if run.observer.drifting:
+                    flags.append("model-drifting")
             record.ir_json = json.dumps(
                 {
                     name: {"mean_c": region.mean_c, "max_c": region.max_c}
@@ -957,6 +973,17 @@ class Daemon:
         except ValueError as err:
             raise RunParameterError(f"network {parameters.network!r}: {err}") from err
         return network, model
+
+    def _build_observer(self, model: ThermalModel) -> IrObserver:
+        """The IR Kalman filter of a model+ir run (issue 9): the regions tied to model nodes
+        (configured, else the reader's own), each with the noise of its mean."""
+        ir_settings = self.settings.ir
+        regions = tuple(getattr(self.devices.ir, "regions", ()) or ir_settings.regions)
+        tied = [region for region in regions if region.node]
+        if not tied:
+            raise RunParameterError("prediction model+ir needs IR regions tied to model nodes")
+        noise = {r.name: ir_settings.noise_c / math.sqrt(r.width * r.height) for r in tied}
+        return IrObserver(model, regions_to_nodes(tied), noise)
 
     def _check_scale(
         self, parameters: RunParameters, network: ThermalNetwork, direction: NDArray[np.float64]

@@ -322,3 +322,9 @@ def _check_bench_report(data_dir: Path, run_id: int, capsys: pytest.CaptureFixtu
     assert summary["run_summary"]["n"] == run.summary["n"] == 20
     for key, value in summary["run_summary"].items():
         assert run.summary[key] == pytest.approx(value), key
+
+
+def test_the_prediction_uncertainty_of_model_plus_ir_runs_is_read() -> None:
+    steps = steps_from_rows([{"step": 0, "deformation_sigma_um": 0.4}, {"step": 1}])
+    sigma = steps.column("deformation_sigma_um")
+    assert sigma[0] == 0.4 and math.isnan(sigma[1])

@@ -362,3 +362,21 @@ def test_every_issue_route_is_in_the_openapi_description() -> None:
         "/metrics",
     ]:
         assert path in paths
+
+
+# --- API description --------------------------------------------------------------------
+
+
+async def test_docs_page_works_offline(client: httpx.AsyncClient) -> None:
+    """/docs must not depend on a CDN: every script and stylesheet is served by the daemon."""
+    page = await client.get("/docs")
+    assert page.status_code == 200
+    assert "http://" not in page.text and "https://" not in page.text
+    assets = [
+        "/static/vendor/swagger-ui/swagger-ui-bundle.js",
+        "/static/vendor/swagger-ui/swagger-ui.css",
+    ]
+    for asset in assets:
+        assert asset in page.text
+        assert (await client.get(asset)).status_code == 200
+    assert (await client.get("/openapi.json")).json()["info"]["title"] == "thermocomp"

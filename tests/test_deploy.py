@@ -67,3 +67,40 @@ def test_systemd_analyze_verify_is_clean(tmp_path: Path) -> None:
         line for line in (result.stdout + result.stderr).splitlines() if str(unit) in line
     ]
     assert result.returncode == 0 and not complaints, complaints
+
+
+DOCKERFILE = REPO_ROOT / "Dockerfile"
+
+
+def dockerfile_instructions() -> list[tuple[str, str]]:
+    """(INSTRUCTION, arguments) with continuation lines joined and comments dropped."""
+    text = DOCKERFILE.read_text().replace("\\\n", " ")
+    lines = [line.strip() for line in text.splitlines()]
+    return [
+        (line.split(None, 1)[0].upper(), line.split(None, 1)[1])
+        for line in lines
+        if line and not line.startswith("#")
+    ]
+
+
+def test_dockerfile_copies_files_that_exist_and_runs_the_sim_config() -> None:
+    """No docker engine here: check what a build would need (issue 10)."""
+    instructions = dockerfile_instructions()
+    ignored = (REPO_ROOT / ".dockerignore").read_text().split()
+    copied_to: dict[str, str] = {}
+    for name, arguments in instructions:
+        if name != "COPY" or arguments.startswith("--from"):
+            continue
+        *sources, destination = arguments.split()
+        for source in sources:
+            assert (REPO_ROOT / source).exists(), source
+            assert source.split("/")[0] not in ignored, f"{source} is not in the build context"
+            copied_to[source] = destination
+    # the default command runs the daemon on the simulated bench, with a config it copied
+    assert ("ENTRYPOINT", '["thermocomp"]') in instructions
+    (cmd,) = [arguments for name, arguments in instructions if name == "CMD"]
+    assert cmd == '["serve", "--config", "/etc/thermocomp/sim.toml"]'
+    assert copied_to["config/sim.toml"] == "/etc/thermocomp/"
+    (healthcheck,) = [arguments for name, arguments in instructions if name == "HEALTHCHECK"]
+    assert "http://127.0.0.1:8000/api/v1/health" in healthcheck
+    assert ("USER", "thermocomp") in instructions and ("VOLUME", '["/data"]') in instructions

@@ -4,6 +4,7 @@ and the run marked interrupted."""
 
 import json
 import os
+import random
 import signal
 import sqlite3
 import subprocess
@@ -15,6 +16,7 @@ from daemon.recorder import DATABASE_NAME, Recorder
 from tests.helpers import REPO_ROOT, cli_command, run_cli
 
 SIM = "config/sim.toml"
+KILLED_RUNS = 4
 
 
 def test_run_help_lists_the_run_options() -> None:
@@ -62,11 +64,9 @@ def _committed_steps(database: Path) -> int:
         db.close()
 
 
-def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
-    tmp_path: Path,
-) -> None:
-    database = tmp_path / DATABASE_NAME
-    process = subprocess.Popen(
+def _start_long_run(data_dir: Path) -> subprocess.Popen[bytes]:
+    """A ten-hour bench run (virtual clock: as fast as the pty allows) to be killed."""
+    return subprocess.Popen(
         cli_command(
             "--log-level",
             "WARNING",
@@ -74,7 +74,7 @@ def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
             "--config",
             SIM,
             "--data-dir",
-            str(tmp_path),
+            str(data_dir),
             "--duration",
             "36000",
         ),
@@ -83,6 +83,13 @@ def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
+
+
+def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
+    tmp_path: Path,
+) -> None:
+    database = tmp_path / DATABASE_NAME
+    process = _start_long_run(tmp_path)
     try:
         deadline = time.monotonic() + 60.0
         while _committed_steps(database) < 30:
@@ -149,3 +156,44 @@ def test_sigterm_stops_the_run_cleanly(tmp_path: Path) -> None:
         assert recorder.interrupted_runs == []  # ended properly, nothing to mark
         (run,) = recorder.runs()
         assert run.state == "aborted" and run.step_count == final["step"] + 1
+
+
+def test_sigkill_at_random_points_of_successive_runs_loses_no_committed_step(
+    tmp_path: Path,
+) -> None:
+    """Several runs in one data directory, each killed at a random point (after a random number
+    of committed steps plus a random fraction of a step, so some kills land mid-step); each
+    restart marks the previous run interrupted; nothing committed is lost or torn."""
+    database = tmp_path / DATABASE_NAME
+    rng = random.Random(10)  # seeded: a failure names its kill points
+    committed: list[int] = []
+    for _ in range(KILLED_RUNS):
+        at_least = rng.randint(1, 40)
+        before = sum(committed)
+        process = _start_long_run(tmp_path)
+        try:
+            deadline = time.monotonic() + 60.0
+            while _committed_steps(database) - before < at_least:
+                assert process.poll() is None, "the run ended before it could be killed"
+                assert time.monotonic() < deadline, "no steps were committed in time"
+                time.sleep(0.005)
+            time.sleep(rng.uniform(0.0, 0.03))
+            process.send_signal(signal.SIGKILL)
+            process.wait(timeout=10)
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+        committed.append(_committed_steps(database) - before)
+
+    with Recorder(tmp_path) as recorder:
+        runs = sorted(recorder.runs(), key=lambda run: run.id)
+        assert [run.state for run in runs] == ["interrupted"] * KILLED_RUNS
+        for run, count in zip(runs, committed, strict=True):
+            steps = recorder.steps(run.id)
+            assert run.step_count == count == len(steps) >= 1
+            assert [s.step for s in steps] == list(range(count))  # no gap, no partial step
+            assert all(s.residual_um is not None and s.pose_x_mm is not None for s in steps)
+    check = sqlite3.connect(database)
+    assert check.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    check.close()

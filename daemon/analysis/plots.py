@@ -115,6 +115,18 @@ def plot_compensation(steps: RunSteps, stats: ErrorStatistics | None) -> Figure:
     top.set_ylabel("displacement (µm)", fontsize=11)
     top.set_xlabel(time_label, fontsize=11)
 
+    sigma = steps.numeric.get("deformation_sigma_um")
+    if sigma is not None and np.isfinite(sigma).any():
+        # prediction "model+ir" (issue 9): the filter's 1-sigma of the predicted deformation
+        for sign, label in ((1.0, "prediction ±1σ (IR observer)"), (-1.0, None)):
+            bottom.plot(
+                times,
+                sign * sigma,
+                color=DEFORMATION_COLOUR,
+                linewidth=1.5,
+                linestyle="--",
+                label=label,
+            )
     bottom.plot(
         times,
         error,

@@ -44,6 +44,7 @@ NUMERIC_COLUMNS: tuple[str, ...] = (
     "drift_y_um",
     "residual_um",
     "deformation_scale",
+    "deformation_sigma_um",
 )
 
 #: The measured compensation error along the link axis: what Table 6.1 summarises.
@@ -257,7 +258,10 @@ def summarize_run(rows: Iterable[Mapping[str, object]] | RunSteps) -> dict[str, 
         std = float(residual.std(ddof=1))
         summary["residual_std_um"] = std
         summary["residual_std_mean_um"] = std / math.sqrt(n)
-    predicted = np.linalg.norm(steps.predicted_vector_um, axis=1) * steps.deformation_scale
+    # a step whose prediction was absurd (e.g. 1e308 um: refused by the safety check but still
+    # recorded) overflows to inf here and is dropped like a missing one, without a warning
+    with np.errstate(over="ignore", invalid="ignore"):
+        predicted = np.linalg.norm(steps.predicted_vector_um, axis=1) * steps.deformation_scale
     predicted = predicted[np.isfinite(predicted)]
     if predicted.size:
         uncompensated = float(predicted.max())

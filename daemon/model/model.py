@@ -115,7 +115,7 @@ class _BackwardEulerStep:
         return current
 
 
-class _Modes:
+class NetworkModes:
     """The network's modes, for exact steps of any length without a new exponential:
     ``C^-1/2 K C^-1/2 = V diag(lam) V^T`` (symmetric positive definite), so with
     ``z = V^T C^1/2 T`` each mode obeys ``dz/dt = -lam z + g``, ``g = V^T C^-1/2 b``, and the
@@ -133,10 +133,10 @@ class _Modes:
 
 
 class _ModalStep:
-    """One exact step of length ``tau`` through :class:`_Modes` (for advance_to's remainders:
+    """One exact step of length ``tau`` through :class:`NetworkModes` (for advance_to's remainders:
     two mat-vecs instead of a new exponential per remainder length)."""
 
-    def __init__(self, modes: _Modes, tau_s: float) -> None:
+    def __init__(self, modes: NetworkModes, tau_s: float) -> None:
         self._modes = modes
         self._decay = np.exp(-modes.rates * tau_s)
         self._gain = -np.expm1(-modes.rates * tau_s) / modes.rates
@@ -205,7 +205,7 @@ class ThermalModel:
         self._time_s = 0.0
         self._positivity_bound_s = positivity_bound_s(network)
         self._partial_steps: OrderedDict[float, _Discretisation] = OrderedDict()
-        self._modes: _Modes | None = None  # built on the first partial exact step
+        self._modes: NetworkModes | None = None  # built on the first partial exact step
         self._main_step = self._build(self.dt_s)  # fails now if the explicit bound refuses dt
         self._main_step.set_input(self._drive_w())
 
@@ -321,9 +321,9 @@ class ThermalModel:
             self._partial_steps.popitem(last=False)
         return built
 
-    def _ensure_modes(self) -> _Modes:
+    def _ensure_modes(self) -> NetworkModes:
         if self._modes is None:
-            self._modes = _Modes(self.network)
+            self._modes = NetworkModes(self.network)
             self._modes.set_input(self._drive_w())
         return self._modes
 

@@ -1,0 +1,284 @@
+"""Online correction of the thermal model from the IR camera: a Kalman filter (issue 9).
+
+The network is linear (thesis 5.4; DESIGN.md "Eq. 5.1"), so between two readings the node
+temperatures obey the model's exact zero-order hold ``T(k+1) = Ad T(k) + Bd b``. The mean is
+advanced by the :class:`ThermalModel` itself (so with no measurement the filter IS the open-loop
+model, bit for bit), and the covariance by the same ``Ad``:
+``P <- Ad P Ad^T + Q tau`` (process noise ``Q`` per node, degC^2/s, for what the model gets
+wrong: heat input, convection). An IR region measures the mean of the node(s) it covers plus
+its sensor offset: ``z = H T + o + v``, ``v ~ N(0, R)``, R from the IR noise. The offsets
+(the FLIR's +-2 degC accuracy, thesis 3.2.2) are part of the state, constant, and learnt from
+the readings: the run starts at a known ambient (P = 0 on the nodes), so the first readings
+teach the offsets and later ones the temperatures.
+
+Deformation is linear in T, ``d = w^T (T - T_ref)``, so its variance is ``w^T P_TT w``.
+The normalised innovation squared (NIS, chi-squared with one degree per region when the model
+is right) and a moving mean of each region's normalised innovation detect a persistent bias:
+"model drifting: consider identification".
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from daemon.model.identify import observation_matrix
+from daemon.model.model import ModelError, NetworkModes, ThermalModel
+from daemon.model.network import FloatArray
+
+logger = logging.getLogger(__name__)
+
+DRIFT_WARNING = "model drifting: consider identification"
+#: Default process noise (degC^2/s per node): a node may wander ~0.5 degC in 15 min from what
+#: the model predicts, the size of a 30 % heat-input error early in a warm-up.
+PROCESS_NOISE_C2_PER_S = 3e-4
+#: Prior standard deviation of an IR offset: the FLIR A40M's +-2 degC accuracy (thesis 3.2.2).
+OFFSET_SIGMA_C = 2.0
+#: Bias detector: window of normalised innovations per region, and the threshold on their
+#: mean in units of its own standard deviation 1/sqrt(window) under a right model.
+BIAS_WINDOW = 60
+BIAS_THRESHOLD_SIGMA = 5.0
+
+
+class IrRegionLike(Protocol):
+    """What the filter needs of config.settings.IrRegion (the pure core does not import it)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def node(self) -> str | None: ...
+
+
+def regions_to_nodes(regions: Sequence[IrRegionLike]) -> dict[str, tuple[str, ...]]:
+    """IR regions tied to a node (IrRegion.node), as ``{region: (node,)}``; others are left
+    out (they measure no model node)."""
+    return {region.name: (region.node,) for region in regions if region.node}
+
+
+@dataclass(frozen=True)
+class Innovation:
+    """One update: per-region innovation (degC), its variance, and the NIS of the reading."""
+
+    time_s: float
+    innovation_c: dict[str, float]
+    variance_c2: dict[str, float]
+    nis: float
+    degrees_of_freedom: int
+
+
+class IrObserver:
+    """A Kalman filter fusing IR region temperatures into a :class:`ThermalModel`.
+
+    ``regions`` ties each region to the node(s) it covers (:func:`regions_to_nodes`);
+    ``ir_noise_c`` is the 1-sigma noise of a region's mean (one value, or one per region;
+    ``inf`` ignores the region); ``offsets_c`` are the known IR offsets (e.g. identified) and
+    ``offset_sigma_c`` their prior uncertainty (0: trust them; the offsets are then fixed).
+    ``reference_nodes`` must be the model's (ThermalModel's argument; default the network's).
+    The model is corrected in place: after ``update`` its temperatures are the estimate.
+    """
+
+    def __init__(
+        self,
+        model: ThermalModel,
+        regions: Mapping[str, Sequence[str]],
+        ir_noise_c: float | Mapping[str, float] = 0.1,
+        *,
+        process_noise_c2_per_s: float | Sequence[float] = PROCESS_NOISE_C2_PER_S,
+        offsets_c: Mapping[str, float] | None = None,
+        offset_sigma_c: float = OFFSET_SIGMA_C,
+        initial_sigma_c: float = 0.0,
+        bias_window: int = BIAS_WINDOW,
+        bias_threshold_sigma: float = BIAS_THRESHOLD_SIGMA,
+        reference_nodes: Sequence[str] | None = None,
+    ) -> None:
+        network = model.network
+        self.model = model
+        self.regions = {name: tuple(nodes) for name, nodes in regions.items()}
+        self._region_names = tuple(self.regions)
+        rows = observation_matrix(network, self.regions)
+        count, measured = network.node_count, len(self._region_names)
+        self._nodes = count
+        # State: node temperatures, then one offset per region.
+        self._h = np.zeros((measured, count + measured))
+        for k, name in enumerate(self._region_names):
+            self._h[k, :count] = rows[name]
+            self._h[k, count + k] = 1.0
+        self._noise_c2 = np.array(
+            [_per_region(ir_noise_c, name) ** 2 for name in self._region_names]
+        )
+        if np.any(np.isnan(self._noise_c2)) or np.any(self._noise_c2 < 0):
+            raise ModelError("IR noise must be >= 0 (inf: ignore the region)")
+        self._offsets = np.array([(offsets_c or {}).get(n, 0.0) for n in self._region_names])
+        q = np.broadcast_to(np.asarray(process_noise_c2_per_s, dtype=np.float64), (count,))
+        if not np.all(np.isfinite(q)) or np.any(q < 0):
+            raise ModelError("process noise must be finite and >= 0")
+        self._q = q.copy()
+        self._p = np.zeros((count + measured, count + measured))
+        self._p[:count, :count] = np.eye(count) * initial_sigma_c**2
+        self._p[count:, count:] = np.eye(measured) * offset_sigma_c**2
+        self._modes = NetworkModes(network)
+        self._covariance_time_s = model.time_s
+        self._transitions: dict[float, FloatArray] = {}
+        # The model's own deformation weights (its reference nodes): d = w^T (T - T_ref).
+        self._weights = network.deformation_weights_um_per_c(reference_nodes)
+        self._window: dict[str, deque[float]] = {
+            name: deque(maxlen=bias_window) for name in self._region_names
+        }
+        self._bias_threshold = bias_threshold_sigma / math.sqrt(bias_window)
+        self.last_innovation: Innovation | None = None
+        self.drifting = False
+        self.biased_regions: tuple[str, ...] = ()
+        self.updates = 0
+
+    # -- state ----------------------------------------------------------------------------------
+
+    @property
+    def time_s(self) -> float:
+        return self.model.time_s
+
+    @property
+    def temperatures_c(self) -> FloatArray:
+        return self.model.temperatures_c
+
+    @property
+    def covariance_c2(self) -> FloatArray:
+        """Covariance of the node temperatures (degC^2)."""
+        covariance: FloatArray = self._p[: self._nodes, : self._nodes].copy()
+        return covariance
+
+    @property
+    def offsets_c(self) -> dict[str, float]:
+        """The current estimate of each region's IR offset (degC)."""
+        return {n: float(v) for n, v in zip(self._region_names, self._offsets, strict=True)}
+
+    def corrected_deformation_um(self) -> tuple[float, float]:
+        """The corrected deformation along the link (µm) and its 1-sigma, ``sqrt(w^T P w)``."""
+        block = self._p[: self._nodes, : self._nodes]
+        variance = float(self._weights @ block @ self._weights)
+        return self.model.deformation_um_scalar(), math.sqrt(max(variance, 0.0))
+
+    @property
+    def warning(self) -> str | None:
+        return DRIFT_WARNING if self.drifting else None
+
+    # -- the filter -----------------------------------------------------------------------------
+
+    def _transition(self, tau_s: float) -> FloatArray:
+        """``Ad = e^{A tau}`` from the network's modes: ``C^-1/2 V e^{-lam tau} V^T C^1/2``."""
+        cached = self._transitions.get(tau_s)
+        if cached is None:
+            modes = self._modes
+            left = modes.vectors / modes.root_c[:, None]
+            right = modes.vectors.T * modes.root_c
+            cached = (left * np.exp(-modes.rates * tau_s)) @ right
+            if len(self._transitions) > 8:
+                self._transitions.clear()
+            self._transitions[tau_s] = cached
+        return cached
+
+    def predict(self, t_s: float) -> None:
+        """Advance the estimate to ``t_s``: the model's own exact step for the mean, ``Ad`` for
+        the covariance (offsets are constant). The caller may also advance the model itself
+        (e.g. to switch a heater at its exact time): the covariance catches up here, from the
+        time it was last propagated to."""
+        self.model.advance_to(t_s)
+        tau = self.model.time_s - self._covariance_time_s
+        self._covariance_time_s = self.model.time_s
+        if tau <= 0.0:
+            return
+        n = self._nodes
+        transition = self._transition(tau)
+        p = self._p
+        p[:n, :n] = transition @ p[:n, :n] @ transition.T + np.diag(self._q * tau)
+        p[:n, n:] = transition @ p[:n, n:]
+        p[n:, :n] = p[:n, n:].T
+
+    def update(self, measurements_c: Mapping[str, float]) -> Innovation | None:
+        """Fuse one IR reading (region -> mean degC; unknown regions, NaN values and regions of
+        infinite noise are ignored). Returns the innovation statistics (None: nothing used)."""
+        used = [
+            k
+            for k, name in enumerate(self._region_names)
+            if name in measurements_c
+            and math.isfinite(measurements_c[name])
+            and math.isfinite(self._noise_c2[k])
+        ]
+        if not used:
+            return None
+        n = self._nodes
+        h = self._h[used]
+        state = np.concatenate([self.model.temperatures_c, self._offsets])
+        z = np.array([measurements_c[self._region_names[k]] for k in used])
+        innovation = z - h @ state
+        s = h @ self._p @ h.T + np.diag(self._noise_c2[used])
+        gain = np.linalg.solve(s, h @ self._p).T
+        state = state + gain @ innovation
+        # Joseph form: stays symmetric positive semi-definite whatever the rounding.
+        identity_minus = np.eye(state.size) - gain @ h
+        self._p = (
+            identity_minus @ self._p @ identity_minus.T
+            + gain @ np.diag(self._noise_c2[used]) @ gain.T
+        )
+        self.model.set_temperatures(state[:n])
+        self._offsets = state[n:]
+        nis = float(innovation @ np.linalg.solve(s, innovation))
+        variances = np.diag(s)
+        names = [self._region_names[k] for k in used]
+        for name, value, variance in zip(names, innovation, variances, strict=True):
+            self._window[name].append(float(value / math.sqrt(variance)))
+        self._check_bias()
+        self.updates += 1
+        self.last_innovation = Innovation(
+            time_s=self.model.time_s,
+            innovation_c={k: float(v) for k, v in zip(names, innovation, strict=True)},
+            variance_c2={k: float(v) for k, v in zip(names, variances, strict=True)},
+            nis=nis,
+            degrees_of_freedom=len(used),
+        )
+        return self.last_innovation
+
+    def _check_bias(self) -> None:
+        """A persistent bias: over a full window, the mean normalised innovation of a region
+        lies beyond the threshold (its standard deviation is 1/sqrt(window) when the model and
+        the noise levels are right). The flag latches (logged once): the run's model is
+        suspect from then on; ``biased_regions`` says where it is biased now."""
+        self.biased_regions = tuple(
+            name
+            for name, window in self._window.items()
+            if len(window) == window.maxlen and abs(float(np.mean(window))) > self._bias_threshold
+        )
+        if self.biased_regions and not self.drifting:
+            logger.warning(
+                "%s (IR innovations biased in %s)", DRIFT_WARNING, ", ".join(self.biased_regions)
+            )
+            self.drifting = True
+
+    def step(self, t_s: float, measurements_c: Mapping[str, float] | None) -> tuple[float, float]:
+        """One control step: predict to ``t_s``, fuse the reading if any, and return the
+        corrected deformation (µm) and its 1-sigma."""
+        self.predict(t_s)
+        if measurements_c:
+            self.update(measurements_c)
+        return self.corrected_deformation_um()
+
+
+def _per_region(value: float | Mapping[str, float], region: str) -> float:
+    if isinstance(value, Mapping):
+        return float(value.get(region, math.inf))
+    return float(value)
+
+
+__all__ = [
+    "DRIFT_WARNING",
+    "Innovation",
+    "IrObserver",
+    "IrRegionLike",
+    "regions_to_nodes",
+]
