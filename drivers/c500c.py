@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Self
@@ -409,8 +410,16 @@ class C500CRobot:
             bytes_received=self._bytes_received - received0,
         )
 
+    @staticmethod
+    def _require_finite(values_mm: Vector3) -> None:
+        """Last guard before the serial writer (issue 10): the daemon checks every target, but
+        a NaN or an infinity would otherwise be printed into a console command as "nan"."""
+        if not all(math.isfinite(v) for v in values_mm):
+            raise DeviceError(DEVICE, f"refused a non-finite motion target {values_mm}")
+
     async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
         """Goal + offset (thesis 6.4.4): `set cur = opgoal`, `wshift`, `moves`, `finish`, `w2`."""
+        self._require_finite(offset_mm)
         goal = self._goal
         if goal is None:
             raise DeviceError(DEVICE, "no operational goal: call teach_goal() first")
@@ -422,6 +431,7 @@ class C500CRobot:
 
     async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
         """Relative `wx`/`wy`/`wz` moves (only to reproduce the thesis's comparison)."""
+        self._require_finite(delta_mm)
         self._require_motion_allowed()
         commands, commanded = proto.incremental_move_commands(delta_mm)
         async with self._lock:

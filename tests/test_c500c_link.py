@@ -4,7 +4,8 @@ it is resumed."""
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator
+import math
+from collections.abc import AsyncIterator, Iterable
 
 import pytest
 
@@ -37,7 +38,7 @@ async def emulator() -> AsyncIterator[C500CEmulator]:
         yield emu
 
 
-def motion_commands(commands: list[str]) -> list[str]:
+def motion_commands(commands: Iterable[str]) -> list[str]:
     return [c for c in commands if c.split(" ")[0] in MOTION_WORDS]
 
 
@@ -56,7 +57,7 @@ async def test_absolute_moves_are_goal_plus_offset(emulator: C500CEmulator) -> N
         # Absolute commands do not accumulate error: each step is within a few sigma (0.9 um)
         # plus the console's 0.5 um rounding of the read-back.
         assert max(abs(e) for e in errors) < 0.005
-    assert emulator.state.commands[:2] == ["", "online on"]
+    assert list(emulator.state.commands)[:2] == ["", "online on"]
     assert "set cur = opgoal" in emulator.state.commands
 
 
@@ -151,6 +152,22 @@ async def test_fault_during_a_move_holds_motion(emulator: C500CEmulator) -> None
         with pytest.raises(MotionHeldError):
             await robot.move_absolute((0.003, 0.0, 0.0))
     assert motion_commands(emulator.state.commands) == []
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+async def test_non_finite_targets_never_reach_the_console(
+    emulator: C500CEmulator, bad: float
+) -> None:
+    async with C500CRobot(FAST, port=emulator.device_path) as robot:
+        await robot.teach_goal()
+        sent_before = list(emulator.state.commands)
+        with pytest.raises(DeviceError, match="non-finite"):
+            await robot.move_absolute((0.0, bad, 0.0))
+        with pytest.raises(DeviceError, match="non-finite"):
+            await robot.move_incremental((bad, 0.0, 0.0))
+        assert list(emulator.state.commands) == sent_before  # not a byte of it was written
+        await robot.move_absolute((0.001, 0.0, 0.0))  # the link is still fine
+    assert motion_commands(emulator.state.commands) == ["moves cur"]
 
 
 async def test_resume_needs_a_link(emulator: C500CEmulator) -> None:

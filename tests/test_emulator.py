@@ -18,6 +18,7 @@ from config.settings import RobotSettings
 from drivers import c500c_protocol as proto
 from drivers.c500c import C500CRobot
 from drivers.sim.emulator import (
+    COMMAND_LOG_LINES,
     START_POSE,
     C500CEmulator,
     Console,
@@ -47,6 +48,15 @@ async def test_location_commands_and_absolute_moves() -> None:
     assert await c.execute("set p = {100, 0, 300, 0, 90, 0}") == []
     await c.execute("move p")
     assert proto.parse_world_pose(await c.execute("w0")).position == (100.0, 0.0, 300.0)
+
+
+async def test_the_command_log_is_bounded_but_counts_every_line() -> None:
+    """A sim daemon sends ~250 lines a second for days: the log keeps only the latest."""
+    c = console()
+    for _ in range(COMMAND_LOG_LINES + 5):
+        await c.execute("speed")
+    assert len(c.state.commands) == COMMAND_LOG_LINES
+    assert c.state.received == COMMAND_LOG_LINES + 5
 
 
 @pytest.mark.parametrize(
@@ -166,7 +176,7 @@ async def test_exact_bytes_on_the_pty(
     writer.write(b"speed\r")
     assert await read_until(reader, PROMPT) == b"speed\r\nspeed = 10%\r\nash> "
     assert emulator.faults_applied == [(2, "drop")]
-    assert emulator.state.commands == ["ash", "speed", "speed"]
+    assert list(emulator.state.commands) == ["ash", "speed", "speed"]
 
 
 async def test_probabilistic_faults_are_seeded() -> None:

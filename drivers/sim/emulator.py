@@ -33,6 +33,7 @@ import re
 import shutil
 import tempfile
 import tty
+from collections import deque
 from collections.abc import Awaitable, Callable, Coroutine, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -53,6 +54,8 @@ REACH_MM = 900.0
 START_POSE: tuple[float, ...] = (457.200, 0.000, 254.000, 0.000, 90.000, 0.000)
 #: How long a `stall` fault lasts when the spec gives no duration (s).
 DEFAULT_STALL_S = 5.0
+#: Command lines the emulator keeps for inspection (tests, drills): the latest ones only.
+COMMAND_LOG_LINES = 10_000
 #: How long a `delay` fault delays an answer when the spec gives no duration (s).
 DEFAULT_DELAY_S = 1.0
 
@@ -163,7 +166,14 @@ class ConsoleState:
     speed_percent: int = 10
     motion_end_s: float = 0.0
     locations: dict[str, Location] = field(default_factory=dict)
-    commands: list[str] = field(default_factory=list)  # every command line received, in order
+    # The latest command lines received, in order (bounded: a sim daemon runs for days at
+    # ~250 lines a second), and how many were ever received (fault injection counts them).
+    commands: deque[str] = field(default_factory=lambda: deque(maxlen=COMMAND_LOG_LINES))
+    received: int = 0
+
+    def log_command(self, line: str) -> None:
+        self.commands.append(line)
+        self.received += 1
 
 
 MOTION_WORDS = ("move", "moves", "wx", "wy", "wz", "wxs", "wys", "wzs")
@@ -200,7 +210,7 @@ class Console:
 
     async def execute(self, line: str) -> list[str]:
         """Run one command line; return the answer lines (errors included)."""
-        self.state.commands.append(line)
+        self.state.log_command(line)
         words = line.strip()
         if not words:
             return []
@@ -714,17 +724,17 @@ class C500CEmulator:
     async def _answer(
         self, text: str, send: Callable[[bytes], Awaitable[None]], link: _Link
     ) -> None:
-        number = len(self.state.commands) + 1
+        number = self.state.received + 1
         fault = self._fault_for(number)
         if fault is not None:
             self.faults_applied.append((number, fault.kind))
             logger.info("injecting %s at command %d (%r)", fault.kind, number, text)
         if fault is not None and fault.kind == "close":
-            self.state.commands.append(text)  # received, never executed
+            self.state.log_command(text)  # received, never executed
             link.close()
             raise _LinkClosed
         if fault is not None and fault.kind == "stall":
-            self.state.commands.append(text)
+            self.state.log_command(text)
             seconds = fault.seconds if fault.seconds is not None else DEFAULT_STALL_S
             self._stalled_until = asyncio.get_running_loop().time() + seconds
             return
