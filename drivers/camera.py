@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Callable
 from types import TracebackType
 from typing import Any, Self
 
@@ -64,28 +65,61 @@ def open_video_capture(source: int | str, device: str) -> Any:
     return capture
 
 
+class VideoSource:
+    """An OpenCV VideoCapture whose blocking calls (open, read, release) run in a thread, so
+    the event loop never waits on a device; ``configure`` sets what the device needs once open.
+    Shared by the camera and the IR reader."""
+
+    def __init__(self, source: int | str, device: str, configure: Callable[[Any], None]) -> None:
+        self.source = source
+        self.device = device
+        self._configure = configure
+        self._capture: Any = None
+
+    def _open(self) -> Any:
+        capture = open_video_capture(self.source, self.device)
+        self._configure(capture)
+        return capture
+
+    async def open(self) -> None:
+        self._capture = await asyncio.to_thread(self._open)
+
+    async def close(self) -> None:
+        capture, self._capture = self._capture, None
+        if capture is not None:
+            await asyncio.to_thread(capture.release)
+
+    async def read(self) -> NDArray[Any]:
+        capture = self._capture
+        if capture is None:
+            raise NotConnectedError(self.device, f"{self.device} is not open")
+        ok, image = await asyncio.to_thread(capture.read)
+        if not ok or image is None:
+            raise DeviceError(self.device, f"no frame from {self.source!r}")
+        image_array: NDArray[Any] = image
+        return image_array
+
+
 class OpenCvCamera:
     """A camera through OpenCV's VideoCapture: device index, device path, file or URL."""
 
     def __init__(self, settings: CameraSettings, clock: Clock) -> None:
         self.settings = settings
         self.clock = clock
-        self._capture: Any = None
+        self._source = VideoSource(settings.device, DEVICE, self._configure)
         self._sequence = 0
-        self._lock = asyncio.Lock()
+        self._lock = asyncio.Lock()  # one grab at a time: sequence numbers follow the reads
 
-    def _open(self) -> Any:
-        capture = open_video_capture(self.settings.device, DEVICE)
+    def _configure(self, capture: Any) -> None:
         capture.set(cv2.CAP_PROP_FRAME_WIDTH, self.settings.width_px)
         capture.set(cv2.CAP_PROP_FRAME_HEIGHT, self.settings.height_px)
         if self.settings.bit_depth > 8:
             # Ask for the raw (16-bit) stream; backends that cannot keep their 8-bit frames,
             # and the frame's dtype then tells the truth.
             capture.set(cv2.CAP_PROP_CONVERT_RGB, 0)
-        return capture
 
     async def __aenter__(self) -> Self:
-        self._capture = await asyncio.to_thread(self._open)
+        await self._source.open()
         logger.info("camera %r opened", self.settings.device)
         return self
 
@@ -95,19 +129,11 @@ class OpenCvCamera:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        capture, self._capture = self._capture, None
-        if capture is not None:
-            await asyncio.to_thread(capture.release)
+        await self._source.close()
 
     async def grab(self) -> Frame:
-        capture = self._capture
-        if capture is None:
-            raise NotConnectedError(DEVICE, "camera is not open")
         async with self._lock:
-            ok, image = await asyncio.to_thread(capture.read)
-            if not ok or image is None:
-                raise DeviceError(DEVICE, f"no frame from {self.settings.device!r}")
-            grey = to_grey(image)
+            grey = to_grey(await self._source.read())
             frame = Frame(
                 image=grey,
                 bit_depth=significant_bits(grey, self.settings.bit_depth),

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from config.settings import IrRegion, IrSettings
 from drivers.base import IrReading, RegionTemperature
-from drivers.camera import open_video_capture
+from drivers.camera import VideoSource
 from drivers.clock import Clock
 from drivers.errors import DeviceError, NotConnectedError, ProtocolError
 from drivers.replay import ReplayTimeBase, list_files
@@ -86,19 +86,18 @@ class OpenCvIrReader:
     def __init__(self, settings: IrSettings, clock: Clock) -> None:
         self.settings = settings
         self.clock = clock
-        self._capture: Any = None
+        self._source = VideoSource(settings.device, DEVICE, self._configure)
         self._sequence = 0
-        self._lock = asyncio.Lock()
+        self._lock = asyncio.Lock()  # one read at a time: sequence numbers follow the reads
 
-    def _open(self) -> Any:
-        capture = open_video_capture(self.settings.device, DEVICE)
+    @staticmethod
+    def _configure(capture: Any) -> None:
         # Raw 16-bit counts, not a colour-mapped preview.
         capture.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc("Y", "1", "6", " "))
         capture.set(cv2.CAP_PROP_CONVERT_RGB, 0)
-        return capture
 
     async def __aenter__(self) -> Self:
-        self._capture = await asyncio.to_thread(self._open)
+        await self._source.open()
         return self
 
     async def __aexit__(
@@ -107,18 +106,11 @@ class OpenCvIrReader:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        capture, self._capture = self._capture, None
-        if capture is not None:
-            await asyncio.to_thread(capture.release)
+        await self._source.close()
 
     async def read(self) -> IrReading:
-        capture = self._capture
-        if capture is None:
-            raise NotConnectedError(DEVICE, "IR camera is not open")
         async with self._lock:
-            ok, image = await asyncio.to_thread(capture.read)
-            if not ok:
-                raise DeviceError(DEVICE, f"no frame from {self.settings.device!r}")
+            image = await self._source.read()
             counts = _radiometric(image, repr(self.settings.device))
             frame_c = counts_to_celsius(counts, self.settings.counts_to_celsius)
             reading = IrReading(
