@@ -29,6 +29,8 @@ lint: $(VENV)/.installed-dev
 	$(BIN)/mypy
 
 test: lint
+	@command -v chromium >/dev/null || { echo "make test: the dashboard test drives Debian's" \
+		"chromium: sudo apt-get install chromium (.ci/run installs it)"; exit 1; }
 	$(BIN)/python -m pytest
 
 bench: $(VENV)/.installed-dev
