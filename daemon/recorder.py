@@ -5,8 +5,8 @@ SIGKILL) loses at most the step in progress and never leaves a partial one: SQLi
 commit is atomic, and ``synchronous=FULL`` makes it durable. A run found in a live state when
 the recorder opens was left by a crash and is marked ``interrupted``; its steps are kept.
 
-The step columns are the contract with the analysis (CONTRACTS.md "Step record"); extra
-columns come after them (deformation_scale, model_temperatures_json, frame_path, stage_ms_json).
+The step columns (StepRecord's fields, in order) are the contract with daemon.analysis and
+every export; a database of an older schema gains the missing columns when it is opened.
 All methods are synchronous and serialised by a lock: the daemon calls them from one worker
 thread so that the event loop never waits on an fsync.
 """

@@ -2,8 +2,9 @@
 
 No I/O here: the driver (drivers/c500c.py) and the emulator (drivers/sim/emulator.py) both build
 on these functions, and tests replay exact byte exchanges through them. What public sources
-confirm is in /work/shared/C500C.md; everything this project had to assume is collected in the
-single block ``ASSUMED`` below, so that a session on the real controller corrects it in one place.
+confirm is in the project's shared notes (C500C.md, beside DESIGN.md); everything this project
+had to assume is collected in the single block ``ASSUMED`` below, so that a session on the real
+controller corrects it in one place.
 """
 
 from __future__ import annotations

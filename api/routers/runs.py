@@ -295,7 +295,7 @@ async def get_steps(
     start: Annotated[int, Query(alias="from", ge=0, le=2**62, description="First step.")] = 0,
     limit: Annotated[int | None, Query(ge=1, le=10_000_000)] = None,
 ) -> Response:
-    """The run's step records (CONTRACTS.md "Step record" columns) from step ``from``, at
+    """The run's step records (daemon/recorder.py's StepRecord columns) from step ``from``, at
     most ``limit``: JSON ``{"run_id", "steps": [...], "next_from"}`` (at most 50,000 steps
     per answer; ``next_from`` is the next page's ``from``, null at the end), CSV (streamed,
     all steps unless ``limit``) or Parquet (the whole run)."""

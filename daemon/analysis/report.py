@@ -279,7 +279,7 @@ def write_report(
 ) -> ReportFiles:
     """Write the figures, ``summary.json`` and ``report.html`` of one run into ``out_dir``.
 
-    ``rows`` are the run's step records (CONTRACTS.md "Step record" columns). Blocking.
+    ``rows`` are the run's step records (the columns of daemon/recorder.py's StepRecord). Blocking.
     """
     steps = rows if isinstance(rows, RunSteps) else steps_from_rows(rows)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,8 @@
 """A run's step records as numeric series, and the run summary of thesis Table 6.1.
 
-The rows are the "Step record" of notes/CONTRACTS.md: mappings keyed by column name, as the
-recorder's SQLite rows or an exported CSV give them (missing values empty or None). Nothing
-here reads files; callers hand rows in.
+The rows are step records (the columns of daemon/recorder.py's StepRecord): mappings keyed
+by column name, as the recorder's SQLite rows or an exported CSV give them (missing values
+empty or None). Nothing here reads files; callers hand rows in.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ logger = logging.getLogger(__name__)
 
 UM_PER_MM = 1000.0
 
-#: The numeric columns of an exported run (CONTRACTS.md "Step record"), units in the names.
+#: The numeric columns of an exported run (StepRecord), units in the names.
 NUMERIC_COLUMNS: tuple[str, ...] = (
     "step",
     "scheduled_s",
@@ -50,7 +50,7 @@ NUMERIC_COLUMNS: tuple[str, ...] = (
 #: The measured compensation error along the link axis: what Table 6.1 summarises.
 RESIDUAL_COLUMN = "residual_um"
 
-#: Keys of the run summary, in Table 6.1's order (CONTRACTS.md).
+#: Keys of the run summary, in Table 6.1's order.
 SUMMARY_KEYS: tuple[str, ...] = (
     "n",
     "residual_max_um",
@@ -236,7 +236,7 @@ def _node_order(name: str) -> tuple[int, str]:
 
 
 def summarize_run(rows: Iterable[Mapping[str, object]] | RunSteps) -> dict[str, float | int | None]:
-    """The run summary of Table 6.1 (keys SUMMARY_KEYS, CONTRACTS.md).
+    """The run summary of Table 6.1 (keys SUMMARY_KEYS).
 
     n counts the steps with a measured residual; residual_max_um is the largest |residual|
     (thesis 6.5 "maximum error"); the deviation is the sample one (N - 1) and its mean's
