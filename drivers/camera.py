@@ -20,7 +20,7 @@ from config.settings import CameraSettings
 from drivers.base import Frame
 from drivers.clock import Clock
 from drivers.errors import DeviceError, NotConnectedError, ProtocolError
-from drivers.replay import ReplayTimeBase, list_files
+from drivers.replay import ReplayFolder
 
 logger = logging.getLogger(__name__)
 
@@ -153,20 +153,19 @@ class ReplayCamera:
         self.settings = settings
         self.folder = settings.replay_dir
         self.clock = clock
-        self._files: list[Any] = []
-        self._time_base: ReplayTimeBase | None = None
+        self._replay = ReplayFolder(
+            settings.replay_dir,
+            IMAGE_SUFFIXES,
+            clock,
+            period_s=settings.replay_period_s,
+            loop=settings.replay_loop,
+            device=DEVICE,
+        )
         self._sequence = 0
 
     async def __aenter__(self) -> Self:
-        self._files = await asyncio.to_thread(list_files, self.folder, IMAGE_SUFFIXES, DEVICE)
-        self._time_base = ReplayTimeBase(
-            len(self._files),
-            self.clock,
-            self.settings.replay_period_s,
-            self.settings.replay_loop,
-            DEVICE,
-        )
-        logger.info("replaying %d frames from %s", len(self._files), self.folder)
+        await self._replay.open()
+        logger.info("replaying %d frames from %s", len(self._replay.files), self.folder)
         return self
 
     async def __aexit__(
@@ -175,13 +174,10 @@ class ReplayCamera:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        self._time_base = None
+        self._replay.close()
 
     async def grab(self) -> Frame:
-        if self._time_base is None:
-            raise NotConnectedError(DEVICE, "replay is not open")
-        index, stamp = self._time_base.next()
-        path = self._files[index]
+        path, stamp = self._replay.next()
         image = await asyncio.to_thread(cv2.imread, str(path), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise ProtocolError(DEVICE, f"cannot read image {path}")

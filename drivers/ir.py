@@ -24,7 +24,7 @@ from drivers.base import IrReading, RegionTemperature
 from drivers.camera import VideoSource
 from drivers.clock import Clock
 from drivers.errors import DeviceError, NotConnectedError, ProtocolError
-from drivers.replay import ReplayTimeBase, list_files
+from drivers.replay import ReplayFolder
 
 logger = logging.getLogger(__name__)
 
@@ -146,21 +146,18 @@ class ReplayIrReader:
         self.settings = settings
         self.folder = settings.replay_dir
         self.clock = clock
-        self._files: list[Path] = []
-        self._time_base: ReplayTimeBase | None = None
+        self._replay = ReplayFolder(
+            settings.replay_dir,
+            (*RADIOMETRIC_SUFFIXES, CSV_SUFFIX),
+            clock,
+            period_s=settings.replay_period_s,
+            loop=settings.replay_loop,
+            device=DEVICE,
+        )
         self._sequence = 0
 
     async def __aenter__(self) -> Self:
-        self._files = await asyncio.to_thread(
-            list_files, self.folder, (*RADIOMETRIC_SUFFIXES, CSV_SUFFIX), DEVICE
-        )
-        self._time_base = ReplayTimeBase(
-            len(self._files),
-            self.clock,
-            self.settings.replay_period_s,
-            self.settings.replay_loop,
-            DEVICE,
-        )
+        await self._replay.open()
         return self
 
     async def __aexit__(
@@ -169,15 +166,11 @@ class ReplayIrReader:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        self._time_base = None
+        self._replay.close()
 
     async def read(self) -> IrReading:
-        if self._time_base is None:
-            raise NotConnectedError(DEVICE, "replay is not open")
-        index, stamp = self._time_base.next()
-        frame_c = await asyncio.to_thread(
-            load_thermal_frame, self._files[index], self.settings.counts_to_celsius
-        )
+        path, stamp = self._replay.next()
+        frame_c = await asyncio.to_thread(load_thermal_frame, path, self.settings.counts_to_celsius)
         reading = IrReading(
             regions=region_temperatures(frame_c, self.settings.regions),
             timestamp_s=stamp,

@@ -6,6 +6,7 @@ frame grabber numbering its files without leading zeros means.
 
 from __future__ import annotations
 
+import asyncio
 import math
 import re
 from collections.abc import Iterable
@@ -74,3 +75,43 @@ class ReplayTimeBase:
         if position >= self.count and not self.loop:
             raise DeviceError(self.device, f"replay exhausted after {self.count} files")
         return position % self.count, stamp
+
+
+class ReplayFolder:
+    """A folder opened for replay: its files listed (off the event loop) and a time base.
+    The camera and IR replay drivers each only turn the file it gives into their reading."""
+
+    def __init__(
+        self,
+        folder: Path,
+        suffixes: Iterable[str],
+        clock: Clock,
+        *,
+        period_s: float | None,
+        loop: bool,
+        device: str,
+    ) -> None:
+        self.folder = folder
+        self.suffixes = tuple(suffixes)
+        self.clock = clock
+        self.period_s = period_s
+        self.loop = loop
+        self.device = device
+        self.files: list[Path] = []
+        self._time_base: ReplayTimeBase | None = None
+
+    async def open(self) -> None:
+        self.files = await asyncio.to_thread(list_files, self.folder, self.suffixes, self.device)
+        self._time_base = ReplayTimeBase(
+            len(self.files), self.clock, self.period_s, self.loop, self.device
+        )
+
+    def close(self) -> None:
+        self._time_base = None
+
+    def next(self) -> tuple[Path, float]:
+        """(the file due now, its timestamp on the run clock)."""
+        if self._time_base is None:
+            raise NotConnectedError(self.device, "replay is not open")
+        index, stamp = self._time_base.next()
+        return self.files[index], stamp
