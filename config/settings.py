@@ -405,6 +405,20 @@ def _describe(error: ValidationError, source: str, env_used: dict[str, str]) -> 
     return "\n".join(lines)
 
 
+def read_toml(path: Path, error: type[Exception]) -> dict[str, Any]:
+    """A TOML file's tables; any failure is ``error("<path>: <why>")`` (missing, not TOML,
+    unreadable), so settings and network files report bad files the same way."""
+    try:
+        with open(path, "rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError as err:
+        raise error(f"{path}: no such file") from err
+    except tomllib.TOMLDecodeError as err:
+        raise error(f"{path}: not valid TOML: {err}") from err
+    except OSError as err:
+        raise error(f"{path}: cannot read: {err.strerror}") from err
+
+
 def load_settings(path: Path | None = None, environ: Mapping[str, str] | None = None) -> Settings:
     """Build the settings from an optional TOML file and the environment.
 
@@ -415,15 +429,7 @@ def load_settings(path: Path | None = None, environ: Mapping[str, str] | None = 
     source = "defaults"
     if path is not None:
         source = str(path)
-        try:
-            with open(path, "rb") as handle:
-                data = tomllib.load(handle)
-        except FileNotFoundError as err:
-            raise ConfigError(f"{path}: no such file") from err
-        except tomllib.TOMLDecodeError as err:
-            raise ConfigError(f"{path}: not valid TOML: {err}") from err
-        except OSError as err:
-            raise ConfigError(f"{path}: cannot read: {err.strerror}") from err
+        data = read_toml(path, ConfigError)
     env_used = _apply_environment(data, environ)
     try:
         return Settings.model_validate(data)

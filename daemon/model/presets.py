@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import tomllib
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from config.settings import read_toml
 from daemon.model.geometry import Hole, Segment, build_geometry_network
 from daemon.model.materials import Material, material, rule_of_mixtures
 from daemon.model.network import NetworkError, Resistance, ThermalNetwork
@@ -104,15 +104,7 @@ def load_network(name_or_path: str | Path) -> ThermalNetwork:
                 f"no network preset {text!r} (presets: {', '.join(available_presets())}) "
                 "and no such file"
             )
-    try:
-        with open(path, "rb") as handle:
-            data = tomllib.load(handle)
-    except FileNotFoundError as err:
-        raise NetworkError(f"{path}: no such file") from err
-    except tomllib.TOMLDecodeError as err:
-        raise NetworkError(f"{path}: not valid TOML: {err}") from err
-    except OSError as err:
-        raise NetworkError(f"{path}: cannot read: {err.strerror}") from err
+    data = read_toml(path, NetworkError)
     try:
         return network_from_mapping(data, default_name=path.stem)
     except NetworkError as err:
