@@ -31,6 +31,8 @@ from benchmarks.common import print_table, write_results
 DEFAULT_DURATION_S = 3600.0
 STEP_S = 0.02
 ENDED = ("finished", "aborted", "fault", "interrupted")
+#: How long after the run's end the server's memory is sampled once more (s).
+AFTER_END_S = 60.0
 
 
 def rss_mib(pid: int) -> float:
@@ -105,6 +107,14 @@ async def soak(
                 samples.append(
                     (time.monotonic() - started, rss_mib(server.pid), open_files(server.pid))
                 )
+                # the end of a run reads it back for its summary and report: see whether that
+                # memory is given back or kept (glibc keeps freed heap for reuse)
+                await asyncio.sleep(AFTER_END_S)
+                after_end = (
+                    time.monotonic() - started,
+                    rss_mib(server.pid),
+                    open_files(server.pid),
+                )
                 poller.cancel()
                 for task in readers:
                     task.cancel()
@@ -131,6 +141,11 @@ async def soak(
         "messages_per_client_min": min(counts) if counts else 0,
         "state_errors": errors[:10],
         "samples": [{"t_s": t, "rss_mib": r, "open_files": f} for t, r, f in samples],
+        "after_end": {"t_s": after_end[0], "rss_mib": after_end[1], "open_files": after_end[2]},
+        "stages_ms": {
+            name: {k: 1e3 * v for k, v in values.items()}
+            for name, values in (timing.get("stages_s") or {}).items()
+        },
     }
 
 
@@ -165,6 +180,17 @@ def main() -> None:
             ["/state errors", len(results["state_errors"])],
             ["RSS start / end (MiB)", f"{first['rss_mib']:.1f} / {last['rss_mib']:.1f}"],
             ["open files start / end", f"{first['open_files']} / {last['open_files']}"],
+            [
+                f"RSS / open files {AFTER_END_S:.0f} s after the end",
+                f"{results['after_end']['rss_mib']:.1f} / {results['after_end']['open_files']}",
+            ],
+        ],
+    )
+    print_table(
+        ["stage (recent steps)", "p50 (ms)", "p99 (ms)", "max (ms)"],
+        [
+            [name, values["p50"], values["p99"], values["max"]]
+            for name, values in results["stages_ms"].items()
         ],
     )
     write_results("soak", results)

@@ -20,6 +20,8 @@ from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from config.faults import parse_sensor_faults
+
 ENV_PREFIX = "THERMOCOMP_"
 ENV_NESTING = "__"
 
@@ -96,6 +98,25 @@ class BenchSettings(_Section):
     spot_peak_fraction: PositiveFloat = Field(
         0.5, description="Peak of the simulated spot as a fraction of full scale (> 1 saturates)."
     )
+    camera_faults: str = Field(
+        "",
+        description="Sim camera faults, KIND[=SECONDS][@N|%P],... (as the emulator's): "
+        "no-frame (the grab never returns), late=S (delivered S after its exposure), "
+        "unreadable (a frame the driver refuses); @N: the N-th grab since the camera opened "
+        "(the run's reference frame is one), %P: per grab with probability P (seeded); "
+        "'': none.",
+    )
+    ir_faults: str = Field(
+        "",
+        description="Sim IR reader faults, as camera_faults: no-frame, late=S, unreadable "
+        "(a thermal frame that is not finite); @N: the N-th read since it opened.",
+    )
+
+    @field_validator("camera_faults", "ir_faults")
+    @classmethod
+    def _valid_fault_spec(cls, value: str) -> str:
+        parse_sensor_faults(value)  # ValueError names the bad item
+        return value
 
 
 class CameraSettings(_Section):
@@ -152,6 +173,12 @@ class CameraSettings(_Section):
     max_age_s: PositiveFloat = Field(
         2.0, description="A frame older than this (s) is stale and flagged, never used silently."
     )
+    grab_timeout_s: PositiveFloat = Field(
+        2.0,
+        description="Longest wait for one frame (s, wall time like robot.command_timeout_s): "
+        "then the step is flagged camera-error and the run goes on or pauses "
+        "(scheduler.sensor_error_policy).",
+    )
 
 
 class IrRegion(_Section):
@@ -190,7 +217,15 @@ class IrSettings(_Section):
         (),
         description="Regions of interest: [[ir.regions]] tables (name, x, y, width, height, node).",
     )
-    max_age_s: PositiveFloat = Field(5.0, description="A reading older than this (s) is stale.")
+    max_age_s: PositiveFloat = Field(
+        5.0, description="A reading older than this (s) is stale and flagged, never fused."
+    )
+    read_timeout_s: PositiveFloat = Field(
+        2.0,
+        description="Longest wait for one reading (s, wall time like robot.command_timeout_s): "
+        "then the step is flagged ir-error and the run goes on or pauses "
+        "(scheduler.sensor_error_policy).",
+    )
 
 
 class RobotSettings(_Section):
@@ -300,7 +335,9 @@ class SchedulerSettings(_Section):
     )
     sensor_error_policy: Literal["continue", "pause"] = Field(
         "continue",
-        description="On a camera, IR or centroid error: flag the step and go on, or pause.",
+        description="On a sensor error (flags camera-error, ir-error, centroid-error, and "
+        "stale-frame/stale-ir: a late measurement is a missing one): flag the step and go on, "
+        "or pause the run with the reason (the step's compensating move was already made).",
     )
 
 

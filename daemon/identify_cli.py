@@ -131,7 +131,7 @@ def load_run(target: str, settings: Settings, heater_off_s: float | None) -> Loa
     path = Path(target)
     if path.is_file():
         try:
-            rows: list[dict[str, Any]] = list(analysis_cli.read_table(path))
+            steps = steps_from_rows(analysis_cli.read_table(path))
         except analysis_cli.InputError as err:
             raise RunInputError(str(err)) from err
         heat = dict(settings.model.heat_w)
@@ -141,7 +141,7 @@ def load_run(target: str, settings: Settings, heater_off_s: float | None) -> Loa
     elif target.isdigit():
         data_dir = settings.storage.data_dir
         try:
-            rows, _ = read_run(data_dir, int(target))
+            steps, _ = read_run(data_dir, int(target))
         except ReportError as err:
             raise RunInputError(str(err)) from err
         parameters, config = _recorded_parameters(data_dir, int(target))
@@ -152,9 +152,8 @@ def load_run(target: str, settings: Settings, heater_off_s: float | None) -> Loa
         name, network = f"run {target}", parameters.get("network")
     else:
         raise RunInputError(f"{target!r} is neither a file nor a run number")
-    if not rows:
+    if steps.n_steps == 0:
         raise RunInputError(f"{name} has no steps")
-    steps = steps_from_rows(rows)
     data = run_data_from_steps(steps, heat_schedule(heat, off), ambient_c=ambient, name=name)
     return LoadedRun(data, _regions(configured, list(steps.ir_mean_c)), network)
 

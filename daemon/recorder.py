@@ -7,8 +7,9 @@ the recorder opens was left by a crash and is marked ``interrupted``; its steps 
 
 The step columns (StepRecord's fields, in order) are the contract with daemon.analysis and
 every export; a database of an older schema gains the missing columns when it is opened.
-All methods are synchronous and serialised by a lock: the daemon calls them from one worker
-thread so that the event loop never waits on an fsync.
+All methods are synchronous: the daemon calls the writing ones from one worker thread so that
+the event loop never waits on an fsync. Writes are serialised by a lock on one connection;
+reads use a second, query-only connection, so (WAL) no read ever delays a step's commit.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import os
 import sqlite3
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -31,6 +32,8 @@ from typing import IO, Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from daemon.analysis import RunSteps, steps_from_rows
 
 logger = logging.getLogger(__name__)
 
@@ -142,7 +145,8 @@ class Recorder:
     def __init__(self, data_dir: Path) -> None:
         self.data_dir = Path(data_dir)
         self.path = self.data_dir / DATABASE_NAME
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the writing connection
+        self._read_lock = threading.Lock()  # the reading one
         try:
             self.data_dir.mkdir(parents=True, exist_ok=True)
             self._owner = _claim(self.data_dir / LOCK_NAME)
@@ -150,13 +154,22 @@ class Recorder:
             raise RecorderError(f"cannot open the run database {self.path}: {err}") from err
         try:
             self._db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+        except sqlite3.Error as err:
+            self._owner.close()
+            raise RecorderError(f"cannot open the run database {self.path}: {err}") from err
+        try:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
             self._db.execute(_RUNS_SCHEMA)
             self._db.execute(_STEPS_SCHEMA)
             self._add_missing_step_columns()
+            # Reads (the API's, the end-of-run summary) get their own connection: in WAL mode
+            # a reader never blocks the writer, so a long read never delays a step's commit.
+            self._reader = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+            self._reader.execute("PRAGMA query_only=ON")
         except (sqlite3.Error, OSError) as err:
+            self._db.close()
             self._owner.close()
             raise RecorderError(f"cannot open the run database {self.path}: {err}") from err
         self.interrupted_runs = self._mark_interrupted()
@@ -168,6 +181,8 @@ class Recorder:
         self.close()
 
     def close(self) -> None:
+        with self._read_lock:
+            self._reader.close()
         with self._lock:
             self._db.close()
             self._owner.close()  # releases the claim on the data directory
@@ -288,6 +303,13 @@ class Recorder:
             ).fetchall()
         return [StepRecord(*row) for row in rows]
 
+    def run_steps(self, run_id: int, columns: Sequence[str] = STEP_COLUMNS) -> RunSteps:
+        """The run's steps as series (daemon.analysis.RunSteps), streamed from the database:
+        never the whole run as records in memory (an hour at a 20 ms step is 180,000 steps).
+        ``columns`` limits what is read (the JSON columns cost the most to parse)."""
+        with self._read() as db:
+            return steps_from_rows(step_rows(db, run_id, columns))
+
     def export_csv(self, run_id: int, path: Path | None = None) -> str:
         """The run's steps as CSV (header = STEP_COLUMNS, empty cell = missing); written to
         ``path`` when given. Returns the text."""
@@ -317,7 +339,21 @@ class Recorder:
         return _Transaction(self._db, self._lock, self.path)
 
     def _read(self) -> _Transaction:
-        return _Transaction(self._db, self._lock, self.path)
+        return _Transaction(self._reader, self._read_lock, self.path, begin="BEGIN")
+
+
+def step_rows(
+    db: sqlite3.Connection, run_id: int, columns: Sequence[str] = STEP_COLUMNS
+) -> Iterator[dict[str, Any]]:
+    """A run's steps in order as column -> value mappings, one row at a time (a cursor)."""
+    unknown = set(columns) - set(STEP_COLUMNS)
+    if unknown:  # the names go into the SQL text: only the schema's own
+        raise ValueError(f"not step columns: {sorted(unknown)}")
+    cursor = db.execute(
+        f"SELECT {','.join(columns)} FROM steps WHERE run_id = ? ORDER BY step", (run_id,)
+    )
+    for row in cursor:
+        yield dict(zip(columns, row, strict=True))
 
 
 def write_steps_csv(records: Sequence[StepRecord], stream: io.TextIOBase | Any) -> None:
@@ -353,16 +389,22 @@ def _claim(lock_path: Path) -> IO[str]:
 
 
 class _Transaction:
-    """One serialised transaction: BEGIN IMMEDIATE ... COMMIT, rolled back on error; SQLite
-    and OS errors become RecorderError."""
+    """One serialised transaction: BEGIN IMMEDIATE (a write) or BEGIN (a read snapshot) ...
+    COMMIT, rolled back on error; SQLite and OS errors become RecorderError."""
 
-    def __init__(self, db: sqlite3.Connection, lock: threading.Lock, path: Path) -> None:
-        self._db, self._lock, self._path = db, lock, path
+    def __init__(
+        self,
+        db: sqlite3.Connection,
+        lock: threading.Lock,
+        path: Path,
+        begin: str = "BEGIN IMMEDIATE",
+    ) -> None:
+        self._db, self._lock, self._path, self._begin = db, lock, path, begin
 
     def __enter__(self) -> sqlite3.Connection:
         self._lock.acquire()
         try:
-            self._db.execute("BEGIN IMMEDIATE")
+            self._db.execute(self._begin)
         except sqlite3.Error as err:
             self._lock.release()
             raise RecorderError(f"{self._path}: {err}") from err

@@ -24,9 +24,9 @@ from typing import Any
 
 from config import load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
-from daemon.analysis import ReportFiles, summarize_run, write_report
+from daemon.analysis import ReportFiles, RunSteps, steps_from_rows, summarize_run, write_report
 from daemon.analysis import cli as analysis_cli
-from daemon.recorder import DATABASE_NAME, STEP_COLUMNS
+from daemon.recorder import DATABASE_NAME, step_rows
 
 logger = logging.getLogger(__name__)
 
@@ -44,8 +44,9 @@ def report_dir(data_dir: Path, run_id: int) -> Path:
     return Path(data_dir) / "reports" / f"run-{run_id:05d}"
 
 
-def read_run(data_dir: Path, run_id: int) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
-    """The steps of a run and the summary the daemon recorded for it (None while running)."""
+def read_run(data_dir: Path, run_id: int) -> tuple[RunSteps, dict[str, Any] | None]:
+    """The steps of a run as series, and the summary the daemon recorded for it (None while
+    running). The rows are streamed from the database, never held all at once."""
     path = Path(data_dir) / DATABASE_NAME
     if not path.is_file():
         raise ReportError(f"no run database at {path}")
@@ -54,15 +55,11 @@ def read_run(data_dir: Path, run_id: int) -> tuple[list[dict[str, Any]], dict[st
             run = db.execute("SELECT summary_json FROM runs WHERE id = ?", (run_id,)).fetchone()
             if run is None:
                 raise ReportError(f"no run {run_id} in {path}")
-            cursor = db.execute(
-                f"SELECT {','.join(STEP_COLUMNS)} FROM steps WHERE run_id = ? ORDER BY step",
-                (run_id,),
-            )
-            rows = [dict(zip(STEP_COLUMNS, row, strict=True)) for row in cursor]
+            steps = steps_from_rows(step_rows(db, run_id))
     except sqlite3.Error as err:
         raise ReportError(f"cannot read {path}: {err}") from err
     summary = json.loads(run[0]) if run[0] else None
-    return rows, summary
+    return steps, summary
 
 
 def disagreements(recorded: Mapping[str, Any], computed: Mapping[str, Any]) -> list[str]:
@@ -88,9 +85,9 @@ def write_run_report(
     Without ``out_dir`` it goes to :func:`report_dir`, the folder the API serves
     ``GET /api/v1/runs/{id}/report`` from as a single page, so there the images are always
     embedded (the PNG files are written beside it too)."""
-    rows, recorded = read_run(data_dir, run_id)
+    steps, recorded = read_run(data_dir, run_id)
     if recorded is not None:
-        differing = disagreements(recorded, summarize_run(rows))
+        differing = disagreements(recorded, summarize_run(steps))
         if differing:
             logger.warning(
                 "run %d: the report's %s differ from the daemon's recorded summary",
@@ -99,7 +96,7 @@ def write_run_report(
             )
     if out_dir is None:
         out_dir, embed_images = report_dir(data_dir, run_id), True
-    return write_report(rows, out_dir, title=f"thermocomp run {run_id}", embed_images=embed_images)
+    return write_report(steps, out_dir, title=f"thermocomp run {run_id}", embed_images=embed_images)
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -20,7 +20,7 @@ import logging
 import math
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import AbstractAsyncContextManager
 from dataclasses import dataclass, field
@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from config import Settings
 from daemon import __version__
-from daemon.analysis import summarize_run
+from daemon.analysis import NUMERIC_COLUMNS, RunSteps, summarize_run
 from daemon.model import ThermalModel, ThermalNetwork, load_network
 from daemon.model.compensation import (
     CompensationLimits,
@@ -57,9 +57,9 @@ from daemon.runs import (
 )
 from daemon.scheduler import FixedStepTimer, TimingStats, percentiles
 from daemon.vision import CentroidError, measure_with_camera_settings
-from drivers.base import Camera, Frame, IrReader, MoveResult, Pose, Robot
+from drivers.base import Camera, Frame, IrReader, IrReading, MoveResult, Pose, Robot
 from drivers.clock import Clock, make_clock
-from drivers.errors import DeviceError
+from drivers.errors import DeviceError, DeviceTimeoutError
 
 logger = logging.getLogger(__name__)
 
@@ -72,8 +72,15 @@ EVENT_QUEUE_DEFAULT = 256
 ERROR_HISTORY = 200
 #: A step that begins more than this fraction of a period after its deadline is flagged late.
 LATE_FRACTION = 0.1
-#: Flags that the scheduler.sensor_error_policy acts on (issue 10: camera and IR faults).
-SENSOR_ERROR_FLAGS = frozenset({"camera-error", "ir-error", "centroid-error"})
+#: What the end-of-run summary reads of the steps: no JSON columns (temperatures, IR, stage
+#: timings), which cost most of the time to read back.
+SUMMARY_COLUMNS = (*NUMERIC_COLUMNS, "run_id", "flags", "error")
+#: Flags that the scheduler.sensor_error_policy acts on (issue 10: camera and IR faults). A
+#: stale frame or reading counts: it is recorded but never used, so the step has no
+#: measurement, as with no frame at all (a normal bench run on its virtual clock has none).
+SENSOR_ERROR_FLAGS = frozenset(
+    {"camera-error", "ir-error", "centroid-error", "stale-frame", "stale-ir"}
+)
 
 
 class RunConflictError(RunStateError):
@@ -544,7 +551,7 @@ class Daemon:
         offset every residual of the run. If no frame can be had, step 0's centroid is used.
         """
         try:
-            frame = await self.devices.camera.grab()
+            frame = await self._grab()
             result = await asyncio.to_thread(
                 measure_with_camera_settings, frame.image, self.settings.camera
             )
@@ -773,6 +780,20 @@ class Daemon:
             return result.actual
         return await robot.actual_pose()
 
+    async def _grab(self) -> Frame:
+        timeout_s = self.settings.camera.grab_timeout_s
+        return await _bounded(self.devices.camera.grab(), "camera", "frame", timeout_s)
+
+    async def _read_ir(self) -> IrReading:
+        timeout_s = self.settings.ir.read_timeout_s
+        return await _bounded(self.devices.ir.read(), "ir", "reading", timeout_s)
+
+    def _note_stale(self, device: str, what: str, age_s: float, errors: list[str]) -> None:
+        """A stale frame/reading is a sensor error (SENSOR_ERROR_FLAGS): say how old it was."""
+        err = DeviceError(device, f"stale {what}: {age_s:.3g} s old (limit {device}.max_age_s)")
+        self._note_error(err)
+        errors.append(str(err))
+
     async def _measure(
         self,
         run: ActiveRun,
@@ -787,7 +808,7 @@ class Daemon:
         started = time.perf_counter()
         frame: Frame | None = None
         try:
-            frame = await self.devices.camera.grab()
+            frame = await self._grab()
         except DeviceError as err:
             self._note_error(err)
             flags.append("camera-error")
@@ -795,9 +816,11 @@ class Daemon:
         stages["frame"] = time.perf_counter() - started
         started = time.perf_counter()
         if frame is not None:
-            stale = self.clock.now() - frame.timestamp_s > camera_settings.max_age_s
+            age_s = self.clock.now() - frame.timestamp_s
+            stale = age_s > camera_settings.max_age_s
             if stale:
                 flags.append("stale-frame")
+                self._note_stale("camera", "frame", age_s, errors)
             try:
                 result = await asyncio.to_thread(
                     measure_with_camera_settings, frame.image, camera_settings
@@ -822,15 +845,17 @@ class Daemon:
 
         started = time.perf_counter()
         try:
-            reading = await self.devices.ir.read()
+            reading = await self._read_ir()
         except DeviceError as err:
             self._note_error(err)
             flags.append("ir-error")
             errors.append(str(err))
         else:
-            stale_ir = self.clock.now() - reading.timestamp_s > self.settings.ir.max_age_s
+            age_s = self.clock.now() - reading.timestamp_s
+            stale_ir = age_s > self.settings.ir.max_age_s
             if stale_ir:
                 flags.append("stale-ir")
+                self._note_stale("ir", "reading", age_s, errors)
             elif run.observer is not None:  # a stale reading is recorded, never fused
                 innovation = run.observer.update(
                     {name: region.mean_c for name, region in reading.regions.items()}
@@ -890,13 +915,14 @@ class Daemon:
         logger.info("run %d: report %s", run.id, files.html)
 
     def _summary(self, run: ActiveRun) -> dict[str, Any]:
-        recorder = self._recorder()
-        records = recorder.steps(run.id)
-        summary = summarize_steps([r.as_dict() for r in records])
+        # the steps as series streamed from the database, never as one record object per
+        # step: an hour at a 20 ms step is 180,000 steps (benchmarks/bench_run_end.py)
+        steps = self._recorder().run_steps(run.id, SUMMARY_COLUMNS)
+        summary: dict[str, Any] = dict(summarize_run(steps))
         timer = run.timer
         summary.update(
             {
-                "steps": len(records),
+                "steps": steps.n_steps,
                 "deformation_scale": run.parameters.deformation_scale,
                 "compensation": run.parameters.compensation,
                 "step_s": run.parameters.step_s,
@@ -907,40 +933,29 @@ class Daemon:
                     "x_um": run.reference_um.get(0, (None, None))[0],
                     "y_um": run.reference_um.get(0, (None, None))[1],
                 },
-                "uncompensated_measured_max_um": self._measured_uncompensated_max_um(run, records),
+                "uncompensated_measured_max_um": self._measured_uncompensated_max_um(run, steps),
                 "timing": {
                     **self.timing.summary(fresh=True),
                     # over every step of the run, not only the recent window
-                    "lateness_s": percentiles(r.lateness_s for r in records),
+                    "lateness_s": percentiles(steps.numeric.get("lateness_s", ())),
                 },
             }
         )
         return summary
 
     @staticmethod
-    def _measured_uncompensated_max_um(run: ActiveRun, records: list[StepRecord]) -> float | None:
+    def _measured_uncompensated_max_um(run: ActiveRun, steps: RunSteps) -> float | None:
         """The largest drift the spot would have shown without the compensating moves: the
         measured residual less the robot's actual displacement from the goal along the link
         (issue 6 summary; stationary runs only, where the goal is the only pose)."""
         goal = run.goal
-        if goal is None or run.parameters.procedure != "stationary":
+        if goal is None or run.parameters.procedure != "stationary" or steps.n_steps == 0:
             return None
-        values = [
-            r.residual_um
-            - 1000.0
-            * float(
-                np.dot(
-                    np.subtract((r.pose_x_mm, r.pose_y_mm, r.pose_z_mm), goal.position),
-                    run.direction,
-                )
-            )
-            for r in records
-            if r.residual_um is not None
-            and r.pose_x_mm is not None
-            and r.pose_y_mm is not None
-            and r.pose_z_mm is not None
-        ]
-        return max((abs(v) for v in values), default=None)
+        poses_mm = np.column_stack([steps.column(f"pose_{axis}_mm") for axis in "xyz"])
+        displacement_um = 1000.0 * (poses_mm - np.asarray(goal.position)) @ run.direction
+        values = steps.residual_um - displacement_um
+        values = values[np.isfinite(values)]  # steps with no residual or no pose read back
+        return float(np.abs(values).max()) if values.size else None
 
     # --- helpers -----------------------------------------------------------------------
 
@@ -1071,10 +1086,6 @@ def largest_predicted_deformation_um(
     return largest
 
 
-def summarize_steps(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    return dict(summarize_run(rows))
-
-
 def _network_snapshot(network: ThermalNetwork) -> dict[str, Any]:
     return {
         "name": network.name,
@@ -1101,6 +1112,20 @@ def _unit(vector: tuple[float, float, float]) -> NDArray[np.float64]:
     if not math.isfinite(norm) or norm == 0:
         raise RunParameterError(f"model.direction must be a non-zero vector, not {vector}")
     return array / norm
+
+
+async def _bounded(operation: Awaitable[_T], device: str, what: str, timeout_s: float) -> _T:
+    """Await a sensor's grab/read for at most ``timeout_s`` of wall time, else
+    DeviceTimeoutError: the daemon never waits forever on a sensor (issue 10). Wall time, as the
+    robot's command timeout: a hung device or thread does not run on the bench's clock, and a
+    virtual clock would jump a run-clock timeout forward at once."""
+    try:
+        async with asyncio.timeout(timeout_s) as scope:
+            return await operation
+    except TimeoutError as err:
+        if not scope.expired():
+            raise  # the device's own timeout (a DeviceTimeoutError): as it is
+        raise DeviceTimeoutError(device, f"no {what} within {timeout_s:g} s") from err
 
 
 def _vector3(array: NDArray[np.float64]) -> tuple[float, float, float]:

@@ -68,13 +68,19 @@ def open_video_capture(source: int | str, device: str) -> Any:
 class VideoSource:
     """An OpenCV VideoCapture whose blocking calls (open, read, release) run in a thread, so
     the event loop never waits on a device; ``configure`` sets what the device needs once open.
-    Shared by the camera and the IR reader."""
+    Shared by the camera and the IR reader.
+
+    A read blocked in OpenCV cannot be cancelled: when the caller gives up (the daemon's
+    camera.grab_timeout_s), the thread goes on. Until it returns, ``read`` refuses to start a
+    second one (DeviceError), which would pile threads onto a hung device, and ``close``
+    leaves the capture to be released once the read has returned."""
 
     def __init__(self, source: int | str, device: str, configure: Callable[[Any], None]) -> None:
         self.source = source
         self.device = device
         self._configure = configure
         self._capture: Any = None
+        self._pending: asyncio.Future[tuple[bool, Any]] | None = None  # the read in its thread
 
     def _open(self) -> Any:
         capture = open_video_capture(self.source, self.device)
@@ -84,20 +90,51 @@ class VideoSource:
     async def open(self) -> None:
         self._capture = await asyncio.to_thread(self._open)
 
+    @property
+    def read_pending(self) -> bool:
+        """A read's thread has not returned yet (its caller may have given up)."""
+        return self._pending is not None and not self._pending.done()
+
     async def close(self) -> None:
         capture, self._capture = self._capture, None
-        if capture is not None:
-            await asyncio.to_thread(capture.release)
+        if capture is None:
+            return
+        if self._pending is not None and self.read_pending:
+            # releasing under a read in another thread is a use-after-free in OpenCV
+            logger.warning("%s: a read is still blocked: release once it returns", self.device)
+            self._pending.add_done_callback(lambda _: _release_later(capture))
+            return
+        await asyncio.to_thread(capture.release)
 
     async def read(self) -> NDArray[Any]:
         capture = self._capture
         if capture is None:
             raise NotConnectedError(self.device, f"{self.device} is not open")
-        ok, image = await asyncio.to_thread(capture.read)
+        if self.read_pending:
+            raise DeviceError(
+                self.device,
+                f"the previous read from {self.source!r} has not returned (it timed out and "
+                "cannot be cancelled): no second read is started",
+            )
+        pending = asyncio.get_running_loop().run_in_executor(None, capture.read)
+        pending.add_done_callback(_retrieve)  # an abandoned read's error is not an error
+        self._pending = pending
+        ok, image = await asyncio.shield(pending)  # a timeout abandons the read, not the thread
         if not ok or image is None:
             raise DeviceError(self.device, f"no frame from {self.source!r}")
         image_array: NDArray[Any] = image
         return image_array
+
+
+def _release_later(capture: Any) -> None:
+    """Release ``capture`` in a worker thread, from a callback on the event loop."""
+    asyncio.get_running_loop().run_in_executor(None, capture.release).add_done_callback(_retrieve)
+
+
+def _retrieve(future: asyncio.Future[Any]) -> None:
+    """Mark an abandoned read's outcome as seen (asyncio logs unretrieved exceptions)."""
+    if not future.cancelled():
+        future.exception()
 
 
 class OpenCvCamera:

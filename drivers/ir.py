@@ -66,6 +66,16 @@ def counts_to_celsius(
     return celsius
 
 
+def finite_thermal_frame(frame_c: NDArray[Any], source: str) -> NDArray[np.float64]:
+    """A thermal frame in degC that can be used: 2-D and finite everywhere; else the frame is
+    unreadable (ProtocolError), never averaged into a region's temperature."""
+    if frame_c.ndim != 2:
+        raise ProtocolError(DEVICE, f"{source}: thermal frame of shape {frame_c.shape}, not 2-D")
+    if not np.all(np.isfinite(frame_c)):
+        raise ProtocolError(DEVICE, f"{source}: temperatures must be finite")
+    return np.asarray(frame_c, dtype=np.float64)
+
+
 def _radiometric(image: NDArray[Any] | None, source: str) -> NDArray[np.uint16]:
     if image is None:
         raise ProtocolError(DEVICE, f"no thermal frame from {source}")
@@ -130,9 +140,7 @@ def load_thermal_frame(path: Path, calibration: tuple[float, float]) -> NDArray[
             frame = np.loadtxt(path, delimiter=",", dtype=np.float64, ndmin=2)
         except ValueError as err:
             raise ProtocolError(DEVICE, f"{path}: not a CSV matrix of numbers: {err}") from err
-        if not np.all(np.isfinite(frame)):
-            raise ProtocolError(DEVICE, f"{path}: temperatures must be finite")
-        return frame
+        return finite_thermal_frame(frame, str(path))
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     return counts_to_celsius(_radiometric(image, str(path)), calibration)
 

@@ -18,9 +18,9 @@ import pytest
 
 from api.cli import build_parser, main
 from daemon.analysis import steps_from_rows, summarize_run, write_report
+from daemon.analysis.plots import envelope
 from daemon.recorder import Recorder, StepRecord
 from daemon.reports import report_dir
-from daemon.service import summarize_steps
 from tests.helpers import run_cli
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -87,7 +87,7 @@ def recorded_run(tmp_path: Path) -> tuple[Path, int, list[dict[str, Any]]]:
         rows = synthetic_rows(run_id)
         for row in rows:
             recorder.write_step(StepRecord(**row))
-        recorder.finish_run(run_id, "completed", summarize_steps(rows), None)
+        recorder.finish_run(run_id, "completed", dict(summarize_run(rows)), None)
     return data_dir, run_id, rows
 
 
@@ -328,3 +328,83 @@ def test_the_prediction_uncertainty_of_model_plus_ir_runs_is_read() -> None:
     steps = steps_from_rows([{"step": 0, "deformation_sigma_um": 0.4}, {"step": 1}])
     sigma = steps.column("deformation_sigma_um")
     assert sigma[0] == 0.4 and math.isnan(sigma[1])
+
+
+def test_series_are_read_in_one_pass_and_padded_where_a_step_lacks_them() -> None:
+    """Rows are streamed (a one-shot iterator), and a region, node or column first seen at a
+    later step is NaN at the steps before it and wherever a step lacks it."""
+    rows = iter(
+        [
+            {
+                "run_id": 3,
+                "step": 0,
+                "residual_um": 1.0,
+                "ir_json": json.dumps({"a": {"mean_c": 20.0, "max_c": 21.0}}),
+                "flags": "late",
+            },
+            {
+                "run_id": 3,
+                "step": 1,
+                "model_temperatures_json": json.dumps({"10": 30.0, "2": 25.0}),
+                "ir_json": json.dumps({"b": {"mean_c": 22.0}, "a": {"mean_c": 20.5}}),
+                "flags": "late",
+            },
+            {"run_id": 3, "step": 2, "residual_um": "", "centroid_x_px": 5.0, "flags": "x, late"},
+        ]
+    )
+    steps = steps_from_rows(rows)
+    nan = np.nan
+    assert steps.run_id == "3" and steps.n_steps == 3
+    np.testing.assert_array_equal(steps.column("step"), [0, 1, 2])
+    np.testing.assert_array_equal(steps.residual_um, [1.0, nan, nan])
+    np.testing.assert_array_equal(steps.column("centroid_x_px"), [nan, nan, 5.0])
+    assert "pose_x_mm" not in steps.numeric  # no row has it: absent, not an all-NaN column
+    assert list(steps.ir_mean_c) == ["a", "b"]
+    np.testing.assert_array_equal(steps.ir_mean_c["a"], [20.0, 20.5, nan])
+    np.testing.assert_array_equal(steps.ir_max_c["a"], [21.0, nan, nan])
+    np.testing.assert_array_equal(steps.ir_mean_c["b"], [nan, 22.0, nan])
+    assert list(steps.model_temperatures_c) == ["2", "10"]  # thesis node order
+    np.testing.assert_array_equal(steps.model_temperatures_c["10"], [nan, 30.0, nan])
+    assert steps.flags == (("late",), ("late",), ("x", "late"))
+    assert steps.flag_count("late") == 3
+
+
+def test_the_recorders_streamed_series_equal_the_series_of_its_records(
+    recorded_run: tuple[Path, int, list[dict[str, Any]]],
+) -> None:
+    data_dir, run_id, rows = recorded_run
+    with Recorder(data_dir) as recorder:
+        streamed = recorder.run_steps(run_id)
+        from_records = steps_from_rows(r.as_dict() for r in recorder.steps(run_id))
+    assert streamed.n_steps == len(rows) > 0
+    assert streamed.numeric.keys() == from_records.numeric.keys()
+    for name, values in from_records.numeric.items():
+        np.testing.assert_array_equal(streamed.numeric[name], values)
+    for name, values in from_records.model_temperatures_c.items():
+        np.testing.assert_array_equal(streamed.model_temperatures_c[name], values)
+    assert streamed.ir_mean_c.keys() == from_records.ir_mean_c.keys()
+    assert streamed.flags == from_records.flags and streamed.errors == from_records.errors
+
+
+def test_long_series_are_drawn_as_their_min_max_envelope() -> None:
+    rng = np.random.default_rng(5)
+    n, buckets = 10_007, 100
+    times = np.arange(n, dtype=float) * 0.02
+    values = rng.normal(0.0, 1.0, n)
+    values[4321] = 50.0  # one spike (a late step) must survive
+    values[700:900] = np.nan  # two whole buckets without a value stay a gap
+    drawn_t, drawn_v = envelope(times, values, buckets)
+    size = -(-n // buckets)
+    assert drawn_v.size <= 2 * buckets
+    assert np.all(np.diff(drawn_t) >= 0)  # still in time order
+    assert 50.0 in drawn_v and np.nanmin(values) in drawn_v
+    for b, start in enumerate(range(0, n, size)):  # brute force, bucket by bucket
+        chunk = values[start : start + size]
+        pair = drawn_v[2 * b : 2 * b + 2]
+        if np.isfinite(chunk).any():
+            assert sorted(pair) == [np.nanmin(chunk), np.nanmax(chunk)]
+        else:
+            assert np.isnan(pair).all()
+    short_t, short_v = envelope(times[:200], values[:200], buckets)
+    assert np.array_equal(short_t, times[:200])
+    assert np.array_equal(short_v, values[:200], equal_nan=True)

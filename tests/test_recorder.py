@@ -7,12 +7,13 @@ import io
 import json
 import math
 import sqlite3
+import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from daemon.recorder import STEP_COLUMNS, Recorder, RecorderError, StepRecord
+from daemon.recorder import STEP_COLUMNS, Recorder, RecorderError, StepRecord, step_rows
 
 CONTRACT_COLUMNS = [
     "run_id",
@@ -84,6 +85,23 @@ def test_steps_round_trip_and_run_ends_with_summary(tmp_path: Path) -> None:
         assert row is not None
         assert (row.state, row.summary, row.step_count) == ("finished", {"n": 5}, 5)
         assert row.parameters == {"step_s": 1.0} and row.network == {"name": "n"}
+
+
+def test_a_long_read_never_holds_up_the_next_step(tmp_path: Path) -> None:
+    """Reads have their own connection (WAL): a step commits while a read is in progress (as
+    the API's or the end-of-run summary's may be), and the read sees its own snapshot."""
+    with Recorder(tmp_path) as recorder:
+        run_id = recorder.create_run({}, {}, None, "1.0")
+        recorder.write_step(_record(run_id, 0))
+        with recorder._read() as db:  # a read transaction left open
+            assert [row["step"] for row in step_rows(db, run_id)] == [0]  # its snapshot starts
+            writer = threading.Thread(target=recorder.write_step, args=(_record(run_id, 1),))
+            writer.start()
+            writer.join(timeout=30)  # a liveness bound, not a timing claim: it would deadlock
+            assert not writer.is_alive(), "the step's commit waited for the read"
+            assert [row["step"] for row in step_rows(db, run_id)] == [0]  # and holds
+        assert [s.step for s in recorder.steps(run_id)] == [0, 1]
+        assert recorder.run_steps(run_id).n_steps == 2
 
 
 def test_a_step_is_recorded_once(tmp_path: Path) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import io
 import logging
 import tempfile
@@ -14,7 +15,16 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Body, Query, Response
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse, StreamingResponse
-from pydantic import BaseModel, Field, ValidationError, create_model
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    Field,
+    GetJsonSchemaHandler,
+    ValidationError,
+    create_model,
+)
+from pydantic.json_schema import JsonSchemaValue
+from pydantic_core import CoreSchema
 
 from api.broadcast import json_safe
 from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
@@ -42,11 +52,16 @@ RunId = Annotated[int, PathParam(ge=1, le=2**62, description="Run id.")]
 
 
 def _optional_fields() -> dict[str, Any]:
-    """RunParameters' fields, each optional: what a request leaves out comes from the config."""
+    """RunParameters' fields, each optional: what a request leaves out comes from the config.
+
+    Over the API ``network`` is one of the installed presets, never a path (a path would let a
+    client make the daemon read any file), so the schema lists them."""
     fields: dict[str, Any] = {}
     for name, info in RunParameters.model_fields.items():
         annotation: Any = info.annotation
-        if info.metadata:
+        if name == "network":
+            annotation = Literal[tuple(available_presets())]
+        elif info.metadata:
             annotation = Annotated[(annotation, *info.metadata)]
         fields[name] = (annotation | None, Field(None, description=info.description))
     return fields
@@ -86,13 +101,15 @@ class RunPage(BaseModel):
 
 def _links(run_id: int) -> dict[str, str]:
     base = f"/api/v1/runs/{run_id}"
-    return {
+    links = {
         "self": base,
         "steps_json": f"{base}/steps?format=json",
         "steps_csv": f"{base}/steps?format=csv",
-        "steps_parquet": f"{base}/steps?format=parquet",
         "report": f"{base}/report",
     }
+    if parquet_available():
+        links["steps_parquet"] = f"{base}/steps?format=parquet"
+    return links
 
 
 def run_info(row: RunRow, daemon: Daemon) -> RunInfo:
@@ -165,7 +182,10 @@ def _validation_details(err: ValidationError) -> list[dict[str, str]]:
 @control_router.post(
     "/runs",
     status_code=201,
-    responses={422: {"model": ErrorBody, "description": "parameters not admissible"}},
+    responses={
+        400: {"model": ErrorBody, "description": "the body is not readable (e.g. not UTF-8)"},
+        422: {"model": ErrorBody, "description": "parameters not admissible"},
+    },
 )
 async def start_run(
     daemon: DaemonDep,
@@ -181,14 +201,6 @@ async def start_run(
         details = _validation_details(err)
         summary = "; ".join(f"{d['field']}: {d['message']}" for d in details[:5])
         raise ApiError(422, "validation", f"invalid run parameters: {summary}", details) from err
-    if "network" in given and given["network"] not in {
-        *available_presets(),
-        settings.model.network,
-    }:
-        # over the API only presets: a path would let a client make the daemon read any file
-        message = f"unknown network preset; choose from {', '.join(available_presets())}"
-        details = [{"field": "body.network", "message": message, "type": "value_error"}]
-        raise ApiError(422, "validation", f"invalid run parameters: {message}", details)
     try:
         info = await daemon.start_run(parameters)
     except RunConflictError as err:
@@ -271,7 +283,40 @@ async def stop_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
     return run_info(await _row(daemon, run_id), daemon)
 
 
-StepFormat = Literal["json", "csv", "parquet"]
+def parquet_available() -> bool:
+    """Whether the optional ``parquet`` extra (pyarrow) is installed: only then does this
+    server offer (OpenAPI enum, run links) and accept ``format=parquet``."""
+    return importlib.util.find_spec("pyarrow") is not None
+
+
+PARQUET_MISSING = (
+    "Parquet export needs the optional `parquet` extra (pyarrow), not installed on this "
+    "server: pip install 'thermocomp[parquet]'"
+)
+
+
+def _exportable(value: str) -> str:
+    if value == "parquet" and not parquet_available():
+        raise ValueError(PARQUET_MISSING)
+    return value
+
+
+class _OfferedFormats:
+    """The schema of ``format`` lists only the formats this installation can write, so a
+    client (or a fuzzer) reading the OpenAPI description never asks for one it cannot."""
+
+    def __get_pydantic_json_schema__(
+        self, core_schema: CoreSchema, handler: GetJsonSchemaHandler
+    ) -> JsonSchemaValue:
+        schema = handler(core_schema)
+        schema["enum"] = [f for f in schema["enum"] if f != "parquet" or parquet_available()]
+        return schema
+
+
+#: ``parquet`` is refused with a 422 naming the missing extra when pyarrow is not installed
+StepFormat = Annotated[
+    Literal["json", "csv", "parquet"], AfterValidator(_exportable), _OfferedFormats()
+]
 #: Steps per JSON answer when no limit is given, and at most (``next_from`` continues).
 JSON_PAGE_STEPS = 10_000
 JSON_MAX_STEPS = 50_000
@@ -285,7 +330,6 @@ CSV_CHUNK_STEPS = 5_000
     responses={
         200: {"content": {"text/csv": {}, "application/vnd.apache.parquet": {}}},
         404: {"model": ErrorBody},
-        501: {"model": ErrorBody, "description": "Parquet needs pyarrow"},
     },
 )
 async def get_steps(
@@ -298,7 +342,7 @@ async def get_steps(
     """The run's step records (daemon/recorder.py's StepRecord columns) from step ``from``, at
     most ``limit``: JSON ``{"run_id", "steps": [...], "next_from"}`` (at most 50,000 steps
     per answer; ``next_from`` is the next page's ``from``, null at the end), CSV (streamed,
-    all steps unless ``limit``) or Parquet (the whole run)."""
+    all steps unless ``limit``) or Parquet (the whole run; only with the ``parquet`` extra)."""
     await _row(daemon, run_id)
     recorder = _recorder(daemon)
     if format == "parquet":
@@ -375,8 +419,6 @@ async def _parquet(recorder: Recorder, run_id: int) -> Response:
     try:
         data = await asyncio.to_thread(export)
     except RecorderError as err:
-        if "pyarrow" in str(err):
-            raise ApiError(501, "unsupported", str(err)) from err
         raise ApiError(503, "storage", str(err)) from err
     return Response(
         data,

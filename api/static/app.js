@@ -280,6 +280,7 @@
     const links = document.createElement("td");
     for (const [label, href] of [["CSV", run.links.steps_csv],
       ["Parquet", run.links.steps_parquet], ["report", run.links.report]]) {
+      if (!href) continue; // no Parquet link when the server lacks the optional pyarrow
       const link = document.createElement("a");
       link.textContent = label;
       link.href = href;

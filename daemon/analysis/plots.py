@@ -10,6 +10,7 @@ steps run on time.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 from matplotlib import colormaps
@@ -30,6 +31,11 @@ COMPENSATION_COLOUR = "#0072b2"  # blue
 ERROR_COLOUR = "#000000"
 FIT_COLOUR = "#009e73"  # green
 FIGURE_SIZE = (10.0, 5.6)  # inches; 100 dpi gives 1000 x 560 px
+#: Above twice this many points a time series is drawn as its min/max envelope over this many
+#: equal runs of steps: a figure 1000 px wide shows no more, and the extremes (a late step, an
+#: error spike) stay visible. Drawing every point of 71,000 steps took 0.2 GiB and seconds
+#: per report (benchmarks/bench_run_end.py); an hour at a 20 ms step is 180,000.
+PLOT_BUCKETS = 2000
 
 
 def _figure(rows: int = 1, height: float = FIGURE_SIZE[1]) -> tuple[Figure, list[Axes]]:
@@ -49,6 +55,33 @@ def _time_axis(times_s: FloatArray) -> tuple[FloatArray, str]:
     if span > 1200:
         return times_s / 60.0, "time since start (min)"
     return times_s, "time since start (s)"
+
+
+def envelope(
+    times: FloatArray, values: FloatArray, buckets: int = PLOT_BUCKETS
+) -> tuple[FloatArray, FloatArray]:
+    """The points of a series worth drawing: all of them when there are at most
+    ``2 * buckets``, else each bucket's smallest and largest value in time order (a bucket
+    with no value gives NaN there, so a gap stays a gap)."""
+    n = values.size
+    if n <= 2 * buckets:
+        return times, values
+    size = -(-n // buckets)  # steps per bucket, rounded up
+    rows = -(-n // size)
+    padded = np.concatenate([values, np.full(rows * size - n, np.nan)]).reshape(rows, size)
+    finite = np.isfinite(padded)
+    # padding and NaN never win; a bucket with no value at all yields its first (NaN) step
+    low = np.where(finite, padded, np.inf).argmin(axis=1)
+    high = np.where(finite, padded, -np.inf).argmax(axis=1)
+    starts = np.arange(rows) * size
+    index = np.column_stack([starts + np.minimum(low, high), starts + np.maximum(low, high)])
+    chosen = index.ravel()
+    return times[chosen], values[chosen]
+
+
+def _line(ax: Axes, times: FloatArray, values: FloatArray, **style: Any) -> None:
+    """A time series on ``ax``: its :func:`envelope`, in the given line style."""
+    ax.plot(*envelope(times, values), **style)
 
 
 def _has_data(*series: FloatArray) -> bool:
@@ -89,21 +122,23 @@ def plot_compensation(steps: RunSteps, stats: ErrorStatistics | None) -> Figure:
         steps.compensation_um,
         steps.residual_um,
     )
-    top.plot(
+    _line(
+        top,
         times,
         deformation,
         color=DEFORMATION_COLOUR,
         linewidth=2,
         label="deformation input (model prediction)",
     )
-    top.plot(
+    _line(
+        top,
         times,
         compensation,
         color=COMPENSATION_COLOUR,
         linewidth=2,
         label="compensation (commanded offset)",
     )
-    top.plot(times, error, color=ERROR_COLOUR, linewidth=1, label="error (measured residual)")
+    _line(top, times, error, color=ERROR_COLOUR, linewidth=1, label="error (measured residual)")
     top.axhline(0.0, color="#888888", linewidth=0.8)
     if _has_data(deformation, compensation, error):
         # Between the rising deformation and the falling compensation the right is empty.
@@ -119,7 +154,8 @@ def plot_compensation(steps: RunSteps, stats: ErrorStatistics | None) -> Figure:
     if sigma is not None and np.isfinite(sigma).any():
         # prediction "model+ir" (issue 9): the filter's 1-sigma of the predicted deformation
         for sign, label in ((1.0, "prediction ±1σ (IR observer)"), (-1.0, None)):
-            bottom.plot(
+            _line(
+                bottom,
                 times,
                 sign * sigma,
                 color=DEFORMATION_COLOUR,
@@ -127,7 +163,8 @@ def plot_compensation(steps: RunSteps, stats: ErrorStatistics | None) -> Figure:
                 linestyle="--",
                 label=label,
             )
-    bottom.plot(
+    _line(
+        bottom,
         times,
         error,
         color=ERROR_COLOUR,
@@ -162,14 +199,16 @@ def plot_compensated_vs_uncompensated(
     """Figure 6.9: where the tool would have gone (uncompensated) against where it went."""
     figure, (ax,) = _figure()
     times, time_label = _time_axis(steps.time_s)
-    ax.plot(
+    _line(
+        ax,
         times,
         steps.deformation_input_um,
         color=DEFORMATION_COLOUR,
         linewidth=2,
         label="uncompensated (predicted deformation)",
     )
-    ax.plot(
+    _line(
+        ax,
         times,
         steps.residual_um,
         color=COMPENSATION_COLOUR,
@@ -283,13 +322,13 @@ def plot_temperatures(steps: RunSteps) -> Figure:
     region_colours = ("#000000", "#d55e00", "#0072b2", "#009e73", "#cc79a7", "#e69f00")
     for i, (region, series) in enumerate(regions.items()):
         colour = region_colours[i % len(region_colours)]
-        ax.plot(times, series, color=colour, linewidth=2.5, label=f"IR region {region} (mean)")
+        _line(ax, times, series, color=colour, linewidth=2.5, label=f"IR region {region} (mean)")
     if nodes:
         # Many nodes: a sequential colour map shows where along the link each one is.
         colour_map = colormaps["viridis"]
         norm = Normalize(vmin=1, vmax=max(len(nodes), 2))
         for i, series in enumerate(nodes.values(), start=1):
-            ax.plot(times, series, color=colour_map(norm(i)), linewidth=1, linestyle="--")
+            _line(ax, times, series, color=colour_map(norm(i)), linewidth=1, linestyle="--")
         bar = figure.colorbar(ScalarMappable(norm=norm, cmap=colour_map), ax=ax, pad=0.01)
         names = list(nodes)
         ticks = sorted({1, len(names), *range(1, len(names) + 1, max(1, len(names) // 8))})
@@ -320,7 +359,8 @@ def plot_lateness(steps: RunSteps) -> Figure:
     _time_limits([ax], times)
     lateness_ms = lateness * 1000.0
     late = np.array(["late" in flags for flags in steps.flags], dtype=bool)
-    ax.plot(
+    _line(
+        ax,
         times,
         lateness_ms,
         color=COMPENSATION_COLOUR,
@@ -330,7 +370,8 @@ def plot_lateness(steps: RunSteps) -> Figure:
         label="lateness",
     )
     if late.any():
-        ax.plot(
+        _line(
+            ax,
             times[late],
             lateness_ms[late],
             linestyle="none",

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from array import array
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
@@ -178,56 +179,87 @@ class RunSteps:
         return sum(flag in step_flags for step_flags in self.flags)
 
 
+#: A cell a row does not have at all (a CSV without the column), unlike an empty one.
+_ABSENT = object()
+
+
 def steps_from_rows(rows: Iterable[Mapping[str, object]]) -> RunSteps:
-    """Build the series of a run from its step rows (exported CSV or recorder rows)."""
-    materialised = list(rows)
-    n = len(materialised)
-    present = set().union(*(row.keys() for row in materialised)) if materialised else set()
-    numeric = {
-        name: np.array([number_or_nan(row.get(name)) for row in materialised], dtype=float)
-        for name in NUMERIC_COLUMNS
-        if name in present
-    }
-    ir_cells = [_json_object(row.get("ir_json")) for row in materialised]
-    model_cells = [_json_object(row.get("model_temperatures_json")) for row in materialised]
-    ir_mean: dict[str, FloatArray] = {}
-    ir_max: dict[str, FloatArray] = {}
-    for region in sorted({name for cell in ir_cells for name in cell}):
-        readings = [cell.get(region) for cell in ir_cells]
-        ir_mean[region] = np.array(
-            [
-                number_or_nan(r.get("mean_c")) if isinstance(r, Mapping) else math.nan
-                for r in readings
-            ]
-        )
-        ir_max[region] = np.array(
-            [
-                number_or_nan(r.get("max_c")) if isinstance(r, Mapping) else math.nan
-                for r in readings
-            ]
-        )
-    nodes = sorted({name for cell in model_cells for name in cell}, key=_node_order)
-    model_temperatures = {
-        node: np.array([number_or_nan(cell.get(node)) for cell in model_cells]) for node in nodes
-    }
-    flags = tuple(
-        tuple(f.strip() for f in str(row.get("flags") or "").split(",") if f.strip())
-        for row in materialised
-    )
-    errors = tuple(str(row.get("error") or "") for row in materialised)
-    run_ids = {str(row["run_id"]) for row in materialised if row.get("run_id") not in (None, "")}
+    """Build the series of a run from its step rows (exported CSV or recorder rows).
+
+    The rows are consumed one at a time into compact float columns, never held as a list:
+    an hour at a 20 ms step is 180,000 rows, and holding them as dicts cost ~0.6 GiB per
+    70,000 steps (benchmarks/bench_run_end.py)."""
+    numeric: dict[str, array[float]] = {}
+    ir_mean: dict[str, array[float]] = {}
+    ir_max: dict[str, array[float]] = {}
+    model_temperatures: dict[str, array[float]] = {}
+    flag_tuples: dict[str, tuple[str, ...]] = {}  # one shared tuple per distinct flags cell
+    flags: list[tuple[str, ...]] = []
+    errors: list[str] = []
+    run_ids: set[str] = set()
+    n = 0
+    for row in rows:
+        for name in NUMERIC_COLUMNS:
+            value = row.get(name, _ABSENT)
+            if value is _ABSENT and name not in numeric:
+                continue
+            _series(numeric, name, n).append(number_or_nan(None if value is _ABSENT else value))
+        ir_cell = _json_object(row.get("ir_json"))
+        for region in ir_cell:
+            _series(ir_mean, region, n)
+            _series(ir_max, region, n)
+        for region, means in ir_mean.items():
+            reading = ir_cell.get(region)
+            if isinstance(reading, Mapping):
+                means.append(number_or_nan(reading.get("mean_c")))
+                ir_max[region].append(number_or_nan(reading.get("max_c")))
+            else:
+                means.append(math.nan)
+                ir_max[region].append(math.nan)
+        model_cell = _json_object(row.get("model_temperatures_json"))
+        for node in model_cell:
+            _series(model_temperatures, node, n)
+        for node, series in model_temperatures.items():
+            series.append(number_or_nan(model_cell.get(node)))
+        flags_text = str(row.get("flags") or "")
+        step_flags = flag_tuples.get(flags_text)
+        if step_flags is None:
+            step_flags = tuple(f.strip() for f in flags_text.split(",") if f.strip())
+            flag_tuples[flags_text] = step_flags
+        flags.append(step_flags)
+        errors.append(str(row.get("error") or ""))
+        run_id = row.get("run_id")
+        if run_id not in (None, ""):
+            run_ids.add(str(run_id))
+        n += 1
     if len(run_ids) > 1:
         raise ValueError(f"the rows mix several runs: {sorted(run_ids)}")
     logger.debug("read %d steps, columns %s", n, sorted(numeric))
     return RunSteps(
         run_id=run_ids.pop() if run_ids else None,
-        numeric=numeric,
-        ir_mean_c=ir_mean,
-        ir_max_c=ir_max,
-        model_temperatures_c=model_temperatures,
-        flags=flags,
-        errors=errors,
+        numeric={name: _floats(numeric[name]) for name in NUMERIC_COLUMNS if name in numeric},
+        ir_mean_c={region: _floats(ir_mean[region]) for region in sorted(ir_mean)},
+        ir_max_c={region: _floats(ir_max[region]) for region in sorted(ir_max)},
+        model_temperatures_c={
+            node: _floats(model_temperatures[node])
+            for node in sorted(model_temperatures, key=_node_order)
+        },
+        flags=tuple(flags),
+        errors=tuple(errors),
     )
+
+
+def _series(columns: dict[str, array[float]], name: str, rows_so_far: int) -> array[float]:
+    """The column ``name``, created NaN-filled for the rows before its first value."""
+    series = columns.get(name)
+    if series is None:
+        series = columns[name] = array("d", [math.nan]) * rows_so_far
+    return series
+
+
+def _floats(series: array[float]) -> FloatArray:
+    # a view, not a copy: the array keeps the buffer alive and is never appended to again
+    return np.frombuffer(series, dtype=np.float64)
 
 
 def _node_order(name: str) -> tuple[int, str]:

@@ -9,11 +9,12 @@ import sys
 from pathlib import Path
 
 from config.cli import non_negative_float
+from config.faults import Fault
 from config.settings import SUPPORTED_BAUDRATES
-from drivers.sim.emulator import C500CEmulator, EmulatorConfig, Fault, parse_faults
+from drivers.sim.emulator import C500CEmulator, EmulatorConfig, FaultKind, parse_faults
 
 
-def _faults(text: str) -> tuple[Fault, ...]:
+def _faults(text: str) -> tuple[Fault[FaultKind], ...]:
     try:
         return parse_faults(text)
     except ValueError as err:

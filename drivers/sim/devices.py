@@ -9,11 +9,20 @@ each frame; the rest of the chip, where the frame holds only dark level and read
 of ``NOISE_BANK_SIZE`` fields drawn once from the same distribution and shifted at random. The IR
 reader images the link's true temperature profile with 0.08 degC noise per pixel (the FLIR
 A40M's thermal sensitivity, thesis 3.2.2) and a fixed offset within its +-2 degC accuracy.
+
+Both inject the sensor faults of ``bench.camera_faults`` / ``bench.ir_faults`` (issue 10; the
+spec and kinds in config/faults.py), counted per grab/read since the device opened:
+``no-frame`` never returns (until the caller's timeout cancels it: it does not sleep on the
+clock, which a virtual clock would jump forward by the wait), ``late=S`` returns S seconds of
+the run clock after the exposure it is stamped with, ``unreadable`` delivers data that the real
+drivers' own checks refuse (``drivers.camera.to_grey``, ``drivers.ir.finite_thermal_frame``),
+so the sim exercises those checks. ``faults_applied`` lists what struck: (count, kind).
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 from types import TracebackType
 from typing import Any, Self
@@ -21,13 +30,17 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import NDArray
 
+from config.faults import Fault, SensorFaultKind, parse_sensor_faults
 from config.settings import CameraSettings, IrRegion, IrSettings, Settings
 from daemon.model import load_network
 from daemon.vision import render_spot
 from drivers.base import Frame, IrReading
+from drivers.camera import to_grey
 from drivers.clock import Clock
-from drivers.ir import region_temperatures
+from drivers.ir import finite_thermal_frame, region_temperatures
 from drivers.sim.bench import Bench
+
+logger = logging.getLogger(__name__)
 
 #: The simulated thermal image: 160 x 120 pixels (a FLIR Lepton's format), the link lying
 #: horizontally across it in rows LINK_ROWS, with IR_MARGIN_PX of background at each end.
@@ -43,6 +56,42 @@ FRESH_WINDOW_SIGMAS = 16.0
 FRESH_WINDOW_MIN_PX = 48
 #: Pre-drawn dark-noise fields the rest of the chip is taken from.
 NOISE_BANK_SIZE = 4
+#: Fault draws (``%P``) have their own streams of ``bench.seed``, beside the bench's camera,
+#: IR and robot streams (its children 0-2), so configuring faults never changes the noise.
+CAMERA_FAULT_STREAM = 3
+IR_FAULT_STREAM = 4
+
+
+class SensorFaults:
+    """The faults configured for one simulated sensor, counted per grab/read (1-based)."""
+
+    def __init__(self, spec: str, seed: int, stream: int, device: str) -> None:
+        self.faults = parse_sensor_faults(spec)
+        self.device = device
+        self._rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(stream,)))
+        self.count = 0
+        self.applied: list[tuple[int, SensorFaultKind]] = []
+
+    def next(self) -> Fault[SensorFaultKind] | None:
+        """Count one more grab/read; the fault that strikes it, if any."""
+        self.count += 1
+        for fault in self.faults:
+            if fault.strikes(self.count, self._rng):
+                self.applied.append((self.count, fault.kind))
+                logger.info("%s: injecting %s at grab/read %d", self.device, fault.kind, self.count)
+                return fault
+        return None
+
+
+async def _never_delivered() -> None:
+    """A grab that never returns: waits until the caller gives up and cancels it."""
+    await asyncio.get_running_loop().create_future()
+
+
+async def _late(clock: Clock, exposed_s: float, fault: Fault[SensorFaultKind] | None) -> None:
+    """A late delivery: return ``fault.seconds`` of the run clock after the exposure."""
+    if fault is not None and fault.kind == "late" and fault.seconds is not None:
+        await clock.sleep_until(exposed_s + fault.seconds)
 
 
 class SimCamera:
@@ -55,6 +104,17 @@ class SimCamera:
         self._sequence = 0
         self._lock = asyncio.Lock()  # one render at a time: the noise stream stays in order
         self._noise_bank: list[NDArray[np.generic]] = []
+        self._faults = SensorFaults(
+            bench.settings.bench.camera_faults,
+            bench.settings.bench.seed,
+            CAMERA_FAULT_STREAM,
+            "camera",
+        )
+
+    @property
+    def faults_applied(self) -> list[tuple[int, SensorFaultKind]]:
+        """(grab number, kind) of every fault injected so far."""
+        return self._faults.applied
 
     def _render_kwargs(self) -> dict[str, Any]:
         camera, bench = self.settings, self.bench.settings.bench
@@ -106,10 +166,19 @@ class SimCamera:
 
     async def grab(self) -> Frame:
         async with self._lock:
+            fault = self._faults.next()
+            if fault is not None and fault.kind == "no-frame":
+                await _never_delivered()
             t_s = self.clock.now()
-            image = await asyncio.to_thread(self.render, self.bench.spot_centre_px(t_s))
+            image: NDArray[np.generic]
+            if fault is not None and fault.kind == "unreadable":
+                # a buffer that is no image (what an undecodable stream frame looks like)
+                image = np.zeros(self.settings.width_px * self.settings.height_px, np.uint8)
+            else:
+                image = await asyncio.to_thread(self.render, self.bench.spot_centre_px(t_s))
+            await _late(self.clock, t_s, fault)
             frame = Frame(
-                image=image,  # type: ignore[arg-type]
+                image=to_grey(image),  # the real driver's check
                 bit_depth=self.settings.bit_depth,
                 timestamp_s=t_s,
                 sequence=self._sequence,
@@ -133,6 +202,15 @@ class SimIrReader:
         self._on_link = (self._column_mm >= low) & (self._column_mm <= high)
         self.regions = settings.ir.regions or self.default_regions(settings)
         self._sequence = 0
+        self._lock = asyncio.Lock()  # one read at a time: sequence numbers follow the reads
+        self._faults = SensorFaults(
+            settings.bench.ir_faults, settings.bench.seed, IR_FAULT_STREAM, "ir"
+        )
+
+    @property
+    def faults_applied(self) -> list[tuple[int, SensorFaultKind]]:
+        """(read number, kind) of every fault injected so far."""
+        return self._faults.applied
 
     def column_of(self, position_mm: float) -> int:
         return int(IR_MARGIN_PX + (position_mm - self._origin_mm) / self._mm_per_px)
@@ -180,13 +258,21 @@ class SimIrReader:
         return result
 
     async def read(self) -> IrReading:
-        t_s = self.clock.now()
-        frame = self.frame_c(t_s)
-        reading = IrReading(
-            regions=region_temperatures(frame, self.regions),
-            timestamp_s=t_s,
-            sequence=self._sequence,
-            frame_c=frame,
-        )
-        self._sequence += 1
+        async with self._lock:
+            fault = self._faults.next()
+            if fault is not None and fault.kind == "no-frame":
+                await _never_delivered()
+            t_s = self.clock.now()
+            frame = self.frame_c(t_s)
+            if fault is not None and fault.kind == "unreadable":
+                frame[LINK_ROWS[0] : LINK_ROWS[1]] = np.nan  # rows lost in transfer
+            await _late(self.clock, t_s, fault)
+            frame = finite_thermal_frame(frame, "sim")  # the real driver's check
+            reading = IrReading(
+                regions=region_temperatures(frame, self.regions),
+                timestamp_s=t_s,
+                sequence=self._sequence,
+                frame_c=frame,
+            )
+            self._sequence += 1
         return reading

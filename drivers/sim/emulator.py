@@ -42,6 +42,8 @@ from typing import Any, Literal, Protocol, Self
 
 import numpy as np
 
+from config import faults as fault_specs
+from config.faults import Fault
 from drivers import c500c_protocol as proto
 
 logger = logging.getLogger(__name__)
@@ -64,58 +66,18 @@ FAULT_KINDS: tuple[FaultKind, ...] = ("drop", "corrupt", "delay", "stall", "clos
 Location = tuple[float, float, float, float, float, float]
 
 
-@dataclass(frozen=True, slots=True)
-class Fault:
-    """One injected fault, applied to the answer of a command line.
+def parse_faults(spec: str) -> tuple[Fault[FaultKind], ...]:
+    """Parse ``KIND[=SECONDS][@N|%P],...`` (the spec of config/faults.py): e.g.
+    ``drop@5,delay=2@7,corrupt%0.01,close@20``. ``@N`` strikes at the N-th command line, ``%P``
+    at every command with probability P. Raises ValueError with a message naming the bad item.
 
-    drop: the command runs but its answer (lines and prompt) is lost; corrupt: one byte of the
-    answer is replaced by a byte the console never sends; delay: the answer comes ``seconds``
-    late; stall: the console ignores everything for ``seconds``; close: the link closes (a pty is
-    replaced by a fresh one behind the same path, a TCP client is disconnected).
-    ``at_command`` (1-based count of command lines since start) or ``probability`` (per command,
-    seeded) decide when it strikes; neither means the next command.
+    Each fault applies to the answer of a command line. drop: the command runs but its answer
+    (lines and prompt) is lost; corrupt: one byte of the answer is replaced by a byte the
+    console never sends; delay: the answer comes ``seconds`` late; stall: the console ignores
+    everything for ``seconds``; close: the link closes (a pty is replaced by a fresh one behind
+    the same path, a TCP client is disconnected).
     """
-
-    kind: FaultKind
-    seconds: float | None = None
-    at_command: int | None = None
-    probability: float | None = None
-
-
-_FAULT_ITEM = re.compile(
-    r"^(?P<kind>[a-z]+)(?:=(?P<seconds>[0-9.]+))?(?:@(?P<at>\d+)|%(?P<p>[0-9.]+))?$"
-)
-
-
-def parse_faults(spec: str) -> tuple[Fault, ...]:
-    """Parse ``KIND[=SECONDS][@N|%P],...``: e.g. ``drop@5,delay=2@7,corrupt%0.01,close@20``.
-
-    ``@N`` strikes at the N-th command line, ``%P`` at every command with probability P.
-    Raises ValueError with a message naming the bad item.
-    """
-    faults: list[Fault] = []
-    for item in filter(None, (part.strip() for part in spec.split(","))):
-        match = _FAULT_ITEM.match(item)
-        if match is None or match["kind"] not in FAULT_KINDS:
-            raise ValueError(
-                f"bad fault {item!r}: expected KIND[=SECONDS][@N|%P] with KIND one of "
-                + ", ".join(FAULT_KINDS)
-            )
-        probability = float(match["p"]) if match["p"] else None
-        if probability is not None and not 0.0 <= probability <= 1.0:
-            raise ValueError(f"bad fault {item!r}: probability must be within 0..1")
-        if match["at"] is None and probability is None:
-            raise ValueError(f"bad fault {item!r}: say when with @N or %P")
-        kind: FaultKind = match["kind"]
-        faults.append(
-            Fault(
-                kind=kind,
-                seconds=float(match["seconds"]) if match["seconds"] else None,
-                at_command=int(match["at"]) if match["at"] else None,
-                probability=probability,
-            )
-        )
-    return tuple(faults)
+    return fault_specs.parse_faults(spec, FAULT_KINDS)
 
 
 def as_location(values: Sequence[float]) -> Location:
@@ -140,7 +102,7 @@ class EmulatorConfig:
     point_of_control: bool = True
     start_in_shell: bool = False  # start at the system shell `$ ` instead of the ash prompt
     start_pose: tuple[float, ...] = START_POSE
-    faults: tuple[Fault, ...] = ()
+    faults: tuple[Fault[FaultKind], ...] = ()
 
 
 class ConsoleCommandError(Exception):
@@ -548,7 +510,7 @@ class C500CEmulator:
         self.console = Console(self.config, np.random.default_rng(seeds[0]))
         self._fault_rng = np.random.default_rng(seeds[1])
         self._faults = list(self.config.faults)
-        self._pending: list[Fault] = []
+        self._pending: list[Fault[FaultKind]] = []
         self.transport = transport
         self._tcp_port = tcp_port
         self._requested_link_path = link_path
@@ -664,13 +626,11 @@ class C500CEmulator:
 
     # --- one conversation ---
 
-    def _fault_for(self, number: int) -> Fault | None:
+    def _fault_for(self, number: int) -> Fault[FaultKind] | None:
         if self._pending:
             return self._pending.pop(0)
         for fault in self._faults:
-            if fault.at_command == number:
-                return fault
-            if fault.probability is not None and self._fault_rng.random() < fault.probability:
+            if fault.strikes(number, self._fault_rng):
                 return fault
         return None
 
