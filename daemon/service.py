@@ -260,6 +260,9 @@ class Daemon:
         self._lock = asyncio.Lock()  # serialises start/pause/resume/stop requests
         #: monotonic time of the control loop's last sign of life (systemd watchdog, issue 10)
         self.last_progress_monotonic = time.monotonic()
+        #: how each sensor's last grab/read went (GET /health): "open" before the first,
+        #: then "ok", "stale" or "<error kind> error" (e.g. "timeout error")
+        self.sensor_states: dict[str, str] = {}
 
     # --- lifecycle ---------------------------------------------------------------------
 
@@ -273,6 +276,7 @@ class Daemon:
             self._devices = await self._exit_stack.enter_async_context(
                 opener(self.settings, self.clock)
             )
+            self.sensor_states = {"camera": "open", "ir": "open"}
         except BaseException:
             await self._exit_stack.aclose()
             raise
@@ -670,15 +674,19 @@ class Daemon:
 
         # 3. the move (absolute from the goal, incremental, or none), then the actual pose
         device_fault: str | None = None
+        round_trips_s: tuple[float, ...] = ()
         if unsafe is not None:
             flags.append("unsafe-target")
             errors.append(unsafe)
         else:
             try:
-                pose = await self._move(run, target)
+                moved = await self._move(run, target)
                 run.last_offset_mm = offset
                 run.last_target_mm = target
+                pose = moved.actual if isinstance(moved, MoveResult) else moved
                 record.pose_x_mm, record.pose_y_mm, record.pose_z_mm = pose.position
+                if isinstance(moved, MoveResult):
+                    round_trips_s = moved.round_trips_s
             except DeviceError as err:
                 self._note_error(err)
                 flags.append("robot-error")
@@ -709,7 +717,8 @@ class Daemon:
         run.step = step
         run.last_record = record
         self.timing.add(record.lateness_s, stages)
-        self._publish(Event("step", record.as_dict()))
+        # the step message is the record plus the serial timings (Prometheus histogram)
+        self._publish(Event("step", {**record.as_dict(), "serial_round_trips_s": round_trips_s}))
         if frame is not None:  # for live views (issue 7 thumbnails); a reference, no copy
             self.last_frame_event = Event(
                 "frame",
@@ -766,7 +775,8 @@ class Daemon:
         else:
             model.advance_to(model_s)
 
-    async def _move(self, run: ActiveRun, target_mm: NDArray[np.float64]) -> Pose:
+    async def _move(self, run: ActiveRun, target_mm: NDArray[np.float64]) -> MoveResult | Pose:
+        """The move of this step: its result, or only the actual pose when there is none."""
         robot = self.devices.robot
         mode = run.parameters.compensation
         moving_procedure = run.parameters.procedure != "stationary"
@@ -777,20 +787,33 @@ class Daemon:
             # thesis 6.4.3: each move is relative to where the previous one should have ended
             result = await robot.move_incremental(_vector3(target_mm - run.last_target_mm))
         if result is not None:
-            return result.actual
+            return result
         return await robot.actual_pose()
 
     async def _grab(self) -> Frame:
         timeout_s = self.settings.camera.grab_timeout_s
-        return await _bounded(self.devices.camera.grab(), "camera", "frame", timeout_s)
+        grab = _bounded(self.devices.camera.grab(), "camera", "frame", timeout_s)
+        return await self._watched("camera", grab)
 
     async def _read_ir(self) -> IrReading:
         timeout_s = self.settings.ir.read_timeout_s
-        return await _bounded(self.devices.ir.read(), "ir", "reading", timeout_s)
+        read = _bounded(self.devices.ir.read(), "ir", "reading", timeout_s)
+        return await self._watched("ir", read)
+
+    async def _watched(self, device: str, operation: Awaitable[_T]) -> _T:
+        """Await a sensor's grab/read and remember how it went (``sensor_states``)."""
+        try:
+            result = await operation
+        except DeviceError as err:
+            self.sensor_states[device] = f"{err.kind} error"
+            raise
+        self.sensor_states[device] = "ok"
+        return result
 
     def _note_stale(self, device: str, what: str, age_s: float, errors: list[str]) -> None:
         """A stale frame/reading is a sensor error (SENSOR_ERROR_FLAGS): say how old it was."""
         err = DeviceError(device, f"stale {what}: {age_s:.3g} s old (limit {device}.max_age_s)")
+        self.sensor_states[device] = "stale"
         self._note_error(err)
         errors.append(str(err))
 

@@ -96,6 +96,8 @@ class MoveResult:
     actual: Pose  # read back after the move finished
     bytes_sent: int = 0
     bytes_received: int = 0
+    #: each console command's time from being written to its prompt coming back (s)
+    round_trips_s: tuple[float, ...] = ()
 
     @property
     def rounding_mm(self) -> Vector3:

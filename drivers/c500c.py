@@ -20,6 +20,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import time
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Self
@@ -117,6 +118,7 @@ class C500CRobot:
         self._connected_event = asyncio.Event()
         self._bytes_sent = 0
         self._bytes_received = 0
+        self._last_round_trip_s = math.nan  # of the latest command answered
 
     # --- lifecycle ---
 
@@ -325,9 +327,11 @@ class C500CRobot:
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
         data = proto.encode_command(command)
         try:
+            written_at = time.perf_counter()
             connection.writer.write(data)
             self._bytes_sent += len(data)
             raw = await self._read_until_prompt(connection, timeout_s, command)
+            self._last_round_trip_s = time.perf_counter() - written_at
             lines = proto.split_reply(raw, command, self._prompt)
         except (DeviceTimeoutError, NotConnectedError, ProtocolError) as err:
             self._link_fault(err)
@@ -380,6 +384,7 @@ class C500CRobot:
     ) -> MoveResult:
         self._require_motion_allowed()
         sent0, received0 = self._bytes_sent, self._bytes_received
+        round_trips_s: list[float] = []
         async with self._lock:
             try:
                 for command in commands[:-1]:
@@ -389,7 +394,9 @@ class C500CRobot:
                         else self.settings.command_timeout_s
                     )
                     await self._command(command, timeout_s)
+                    round_trips_s.append(self._last_round_trip_s)
                 actual = await self._read_pose()
+                round_trips_s.append(self._last_round_trip_s)
             except DeviceError as err:
                 self._hold(str(err))
                 raise
@@ -408,6 +415,7 @@ class C500CRobot:
             actual=actual,
             bytes_sent=self._bytes_sent - sent0,
             bytes_received=self._bytes_received - received0,
+            round_trips_s=tuple(round_trips_s),
         )
 
     @staticmethod

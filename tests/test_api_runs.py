@@ -72,7 +72,8 @@ async def test_full_run_cycle(
     client, address = bench
     monkeypatch.setattr(runs_router, "CSV_CHUNK_STEPS", 4)  # the CSV streams in many chunks
     health = (await client.get("/api/v1/health")).json()
-    assert health["daemon"] == "running" and health["devices"]["robot"] == "connected"
+    assert health["daemon"] == "running"
+    assert health["devices"] == {"robot": "connected", "camera": "open", "ir": "open"}
 
     read = {"Authorization": f"Bearer {READ}"}
     async with (
@@ -125,6 +126,13 @@ async def test_full_run_cycle(
         streamed = [(await next_of_type(ws, "step"))["data"] for _ in range(8)]
         assert [s["run_id"] for s in streamed] == [run_id] * 8
         assert [s["step"] for s in streamed] == sorted(s["step"] for s in streamed)
+        # each absolute move's console commands, timed (the Prometheus histogram's input)
+        per_move = len(streamed[0]["serial_round_trips_s"])
+        assert per_move > 0
+        assert all(len(s["serial_round_trips_s"]) == per_move for s in streamed)
+        assert all(t > 0 for s in streamed for t in s["serial_round_trips_s"])
+        devices = (await client.get("/api/v1/health")).json()["devices"]
+        assert devices == {"robot": "connected", "camera": "ok", "ir": "ok"}
         # a thumbnail of the camera frame: the spot is in the block the centroid says
         frame = (await next_of_type(frames, "frame"))["data"]
         assert frame["run_id"] == run_id and frame["centroid_x_px"] is not None
@@ -198,6 +206,8 @@ async def test_full_run_cycle(
     }
     assert metrics["thermocomp_steps_total"] == steps_recorded
     assert metrics["thermocomp_step_lateness_seconds_count"] == steps_recorded
+    moved = sum(1 for r in rows if r["pose_x_mm"] != "")  # a move read its pose back
+    assert metrics["thermocomp_serial_round_trip_seconds_count"] == moved * per_move > 0
     assert (await client.get("/api/v1/errors")).status_code == 200
 
 

@@ -198,8 +198,16 @@ async def test_tcp_transport() -> None:
 
 
 async def test_paced_link_still_converses() -> None:
-    paced = C500CEmulator(EmulatorConfig(paced=True, baudrate=115200))
+    baud = 115200
+    paced = C500CEmulator(EmulatorConfig(paced=True, baudrate=baud))
     async with paced, C500CRobot(FAST, port=paced.device_path) as robot:
         await robot.teach_goal()
+        lines_before = paced.state.received
         result = await robot.move_absolute((0.001, 0.0, 0.0))
+        lines_of_the_move = paced.state.received - lines_before
     assert result.bytes_received > result.bytes_sent > 0
+    # one round trip per console command of the move, and together they took at least the
+    # time the answers' bytes need on the wire: 10 bit times each (8N1)
+    assert len(result.round_trips_s) == lines_of_the_move > 0
+    assert all(math.isfinite(t) and t > 0 for t in result.round_trips_s)
+    assert sum(result.round_trips_s) >= result.bytes_received * 10 / baud

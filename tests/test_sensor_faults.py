@@ -154,13 +154,17 @@ async def test_with_the_pause_policy_a_sensor_fault_pauses_the_run_until_resumed
     tmp_path: Path, device: str, kind: str
 ) -> None:
     settings = bench_settings(tmp_path, "pause", **{f"{device}_faults": fault_spec(device, kind)})
-    flag, _, text = EXPECTED[device][kind]
+    flag, error_kind, text = EXPECTED[device][kind]
     async with Daemon(settings) as daemon:
         emulator = getattr(daemon.devices, "emulator", None)
         assert isinstance(emulator, C500CEmulator)
+        assert daemon.sensor_states == {"camera": "open", "ir": "open"}  # no grab yet
         info = await daemon.start_run(RunParameters.from_settings(settings))
         async with asyncio.timeout(60.0):
             assert await daemon.wait_state(RunState.PAUSED) is RunState.PAUSED
+        # GET /health's view of the sensor: how its last grab/read went
+        expected_state = "stale" if kind == "late" else f"{error_kind} error"
+        assert daemon.sensor_states[device] == expected_state
         run = daemon.snapshot()["run"]
         assert run["step"] == FAULT_STEP
         assert run["reason"].startswith("sensor error: ") and text in run["reason"]
@@ -171,6 +175,7 @@ async def test_with_the_pause_policy_a_sensor_fault_pauses_the_run_until_resumed
         await daemon.resume()
         async with asyncio.timeout(60.0):
             final = await daemon.wait_run()
+        assert daemon.sensor_states == {"camera": "ok", "ir": "ok"}  # good again after resume
         assert daemon.recorder is not None
         steps = daemon.recorder.steps(info["id"])
         errors = daemon.recent_errors()

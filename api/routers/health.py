@@ -19,7 +19,11 @@ class Health(BaseModel):
     daemon: Literal["running", "unavailable"] = Field(
         description="Whether the daemon service is open (devices and recording)."
     )
-    devices: dict[str, str] = Field(description="Link state per device, e.g. robot: connected.")
+    devices: dict[str, str] = Field(
+        description="Per device: the robot's link state (e.g. connected, reconnecting); the "
+        "camera's and IR reader's last grab/read: open (none yet), ok, stale or "
+        "'<kind> error' (e.g. timeout error)."
+    )
 
 
 @router.get("/health")
@@ -31,6 +35,7 @@ async def health(context: ContextDep) -> Health:
         robot = daemon.snapshot().get("robot")
         if isinstance(robot, dict) and robot.get("link"):
             devices["robot"] = str(robot["link"])
+        devices.update(daemon.sensor_states)
     return Health(
         status="ok",
         version=__version__,
