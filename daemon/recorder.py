@@ -323,8 +323,8 @@ class Recorder:
     def export_parquet(self, run_id: int, path: Path) -> None:
         """The run's steps as Parquet; needs the optional ``pyarrow`` (extra ``parquet``)."""
         try:
-            import pyarrow as pa  # type: ignore[import-not-found, unused-ignore]
-            import pyarrow.parquet as pq  # type: ignore[import-not-found, unused-ignore]
+            import pyarrow as pa  # type: ignore[import-untyped, import-not-found, unused-ignore]
+            import pyarrow.parquet as pq  # type: ignore[import-untyped, import-not-found, unused-ignore]
         except ImportError as err:
             raise RecorderError(
                 "Parquet export needs pyarrow: pip install 'thermocomp[parquet]'"
