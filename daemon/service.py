@@ -680,13 +680,10 @@ class Daemon:
             errors.append(unsafe)
         else:
             try:
-                moved = await self._move(run, target)
+                pose, round_trips_s = await self._move(run, target)
                 run.last_offset_mm = offset
                 run.last_target_mm = target
-                pose = moved.actual if isinstance(moved, MoveResult) else moved
                 record.pose_x_mm, record.pose_y_mm, record.pose_z_mm = pose.position
-                if isinstance(moved, MoveResult):
-                    round_trips_s = moved.round_trips_s
             except DeviceError as err:
                 self._note_error(err)
                 flags.append("robot-error")
@@ -775,8 +772,11 @@ class Daemon:
         else:
             model.advance_to(model_s)
 
-    async def _move(self, run: ActiveRun, target_mm: NDArray[np.float64]) -> MoveResult | Pose:
-        """The move of this step: its result, or only the actual pose when there is none."""
+    async def _move(
+        self, run: ActiveRun, target_mm: NDArray[np.float64]
+    ) -> tuple[Pose, tuple[float, ...]]:
+        """The move of this step, if any: the actual pose after it, and the round trip of each
+        console command it took."""
         robot = self.devices.robot
         mode = run.parameters.compensation
         moving_procedure = run.parameters.procedure != "stationary"
@@ -787,23 +787,33 @@ class Daemon:
             # thesis 6.4.3: each move is relative to where the previous one should have ended
             result = await robot.move_incremental(_vector3(target_mm - run.last_target_mm))
         if result is not None:
-            return result
-        return await robot.actual_pose()
+            return result.actual, result.round_trips_s
+        return await robot.actual_pose(), ()
 
     async def _grab(self) -> Frame:
         timeout_s = self.settings.camera.grab_timeout_s
-        grab = _bounded(self.devices.camera.grab(), "camera", "frame", timeout_s)
-        return await self._watched("camera", grab)
+        return await self._sensor(self.devices.camera.grab(), "camera", "frame", timeout_s)
 
     async def _read_ir(self) -> IrReading:
         timeout_s = self.settings.ir.read_timeout_s
-        read = _bounded(self.devices.ir.read(), "ir", "reading", timeout_s)
-        return await self._watched("ir", read)
+        return await self._sensor(self.devices.ir.read(), "ir", "reading", timeout_s)
 
-    async def _watched(self, device: str, operation: Awaitable[_T]) -> _T:
-        """Await a sensor's grab/read and remember how it went (``sensor_states``)."""
+    async def _sensor(
+        self, operation: Awaitable[_T], device: str, what: str, timeout_s: float
+    ) -> _T:
+        """Await a sensor's grab/read for at most ``timeout_s`` of wall time, else
+        DeviceTimeoutError, and remember how it went (``sensor_states``): the daemon never
+        waits forever on a sensor (issue 10). Wall time, as the robot's command timeout: a hung
+        device or thread does not run on the bench's clock, and a virtual clock would jump a
+        run-clock timeout forward at once."""
         try:
-            result = await operation
+            try:
+                async with asyncio.timeout(timeout_s) as scope:
+                    result = await operation
+            except TimeoutError as err:
+                if not scope.expired():
+                    raise  # the device's own timeout (a DeviceTimeoutError): as it is
+                raise DeviceTimeoutError(device, f"no {what} within {timeout_s:g} s") from err
         except DeviceError as err:
             self.sensor_states[device] = f"{err.kind} error"
             raise
@@ -1135,20 +1145,6 @@ def _unit(vector: tuple[float, float, float]) -> NDArray[np.float64]:
     if not math.isfinite(norm) or norm == 0:
         raise RunParameterError(f"model.direction must be a non-zero vector, not {vector}")
     return array / norm
-
-
-async def _bounded(operation: Awaitable[_T], device: str, what: str, timeout_s: float) -> _T:
-    """Await a sensor's grab/read for at most ``timeout_s`` of wall time, else
-    DeviceTimeoutError: the daemon never waits forever on a sensor (issue 10). Wall time, as the
-    robot's command timeout: a hung device or thread does not run on the bench's clock, and a
-    virtual clock would jump a run-clock timeout forward at once."""
-    try:
-        async with asyncio.timeout(timeout_s) as scope:
-            return await operation
-    except TimeoutError as err:
-        if not scope.expired():
-            raise  # the device's own timeout (a DeviceTimeoutError): as it is
-        raise DeviceTimeoutError(device, f"no {what} within {timeout_s:g} s") from err
 
 
 def _vector3(array: NDArray[np.float64]) -> tuple[float, float, float]:
