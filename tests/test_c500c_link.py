@@ -5,7 +5,7 @@ it is resumed."""
 from __future__ import annotations
 
 import math
-from collections.abc import AsyncIterator, Iterable
+from collections.abc import AsyncIterator
 
 import pytest
 
@@ -21,7 +21,7 @@ from drivers.errors import (
     PointOfControlError,
     ProtocolError,
 )
-from drivers.sim.emulator import MOTION_WORDS, C500CEmulator, EmulatorConfig, FaultKind
+from drivers.sim.emulator import C500CEmulator, EmulatorConfig, FaultKind
 
 # Generous against a loaded CI machine: a fault must outlast the timeout by a wide margin, and
 # ordinary replies from the in-process emulator must never come near it.
@@ -36,10 +36,6 @@ FAST = RobotSettings(
 async def emulator() -> AsyncIterator[C500CEmulator]:
     async with C500CEmulator(EmulatorConfig(paced=False, noise_um=0.9, move_ms=1.0)) as emu:
         yield emu
-
-
-def motion_commands(commands: Iterable[str]) -> list[str]:
-    return [c for c in commands if c.split(" ")[0] in MOTION_WORDS]
 
 
 async def test_absolute_moves_are_goal_plus_offset(emulator: C500CEmulator) -> None:
@@ -86,10 +82,10 @@ async def test_point_of_control_is_a_status_not_a_hang(emulator: C500CEmulator) 
         with pytest.raises(PointOfControlError):
             await robot.move_absolute((0.001, 0.0, 0.0))
         assert robot.status().link is LinkState.AWAITING_POINT_OF_CONTROL
-        moves_before = len(motion_commands(emulator.state.commands))
+        moves_before = len(emulator.state.motion_commands())
         with pytest.raises(MotionHeldError):
             await robot.move_absolute((0.001, 0.0, 0.0))
-        assert len(motion_commands(emulator.state.commands)) == moves_before
+        assert len(emulator.state.motion_commands()) == moves_before
         emulator.press_pause_continue()
         await robot.resume()
         result = await robot.move_absolute((0.001, 0.0, 0.0))
@@ -121,10 +117,10 @@ async def test_each_fault_is_reported_recovered_and_holds_motion(
         assert status.link in (LinkState.RECONNECTING, LinkState.CONNECTED)
 
         await robot.wait_connected(5.0)
-        moves_before = len(motion_commands(emulator.state.commands))
+        moves_before = len(emulator.state.motion_commands())
         with pytest.raises(MotionHeldError):
             await robot.move_absolute((0.004, 0.0, 0.0))
-        assert len(motion_commands(emulator.state.commands)) == moves_before  # nothing sent
+        assert len(emulator.state.motion_commands()) == moves_before  # nothing sent
 
         await robot.resume()
         result = await robot.move_absolute((0.004, 0.0, 0.0))
@@ -151,7 +147,7 @@ async def test_fault_during_a_move_holds_motion(emulator: C500CEmulator) -> None
         await robot.wait_connected(5.0)
         with pytest.raises(MotionHeldError):
             await robot.move_absolute((0.003, 0.0, 0.0))
-    assert motion_commands(emulator.state.commands) == []
+    assert emulator.state.motion_commands() == []
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
@@ -167,7 +163,7 @@ async def test_non_finite_targets_never_reach_the_console(
             await robot.move_incremental((bad, 0.0, 0.0))
         assert list(emulator.state.commands) == sent_before  # not a byte of it was written
         await robot.move_absolute((0.001, 0.0, 0.0))  # the link is still fine
-    assert motion_commands(emulator.state.commands) == ["moves cur"]
+    assert emulator.state.motion_commands() == ["moves cur"]
 
 
 async def test_resume_needs_a_link(emulator: C500CEmulator) -> None:

@@ -21,7 +21,7 @@ from daemon.model import ThermalModel
 from daemon.runs import RunParameters, RunState
 from daemon.service import Daemon
 from drivers.c500c import C500CRobot
-from drivers.sim.emulator import FAULT_KINDS, MOTION_WORDS, C500CEmulator, FaultKind
+from drivers.sim.emulator import FAULT_KINDS, C500CEmulator, FaultKind
 
 # As in tests/test_c500c_link.py: a fault outlasts the command timeout by a wide margin, and
 # ordinary replies of the in-process emulator never come near it on a loaded machine.
@@ -50,10 +50,6 @@ def bench_settings(tmp_path: Path) -> Settings:
             "storage": {"data_dir": str(tmp_path), "report_at_end": False},
         }
     )
-
-
-def motions(emulator: C500CEmulator) -> int:
-    return sum(1 for c in emulator.state.commands if c.split(" ")[0] in MOTION_WORDS)
 
 
 async def wait_for_step(daemon: Daemon, step: int, timeout_s: float = 20.0) -> None:
@@ -87,16 +83,16 @@ async def test_a_serial_fault_mid_run_parks_it_until_resumed_with_absolute_targe
 
         # the link comes back on its own, the motion does not
         await robot.wait_connected(10.0)
-        parked_motions = motions(emulator)
+        parked_motions = len(emulator.state.motion_commands())
         await asyncio.sleep(0.3)  # many step periods of the virtual clock
-        assert motions(emulator) == parked_motions
+        assert len(emulator.state.motion_commands()) == parked_motions
         assert daemon.snapshot()["state"] == "fault"
         faulted_at = daemon.run.step if daemon.run is not None else -1
 
         await daemon.resume()
         await wait_for_step(daemon, faulted_at + STEPS_AFTER_RESUME)
         await daemon.stop()
-        assert motions(emulator) > parked_motions
+        assert len(emulator.state.motion_commands()) > parked_motions
         goal = robot.goal
         assert goal is not None
         steps = recorder.steps(info["id"])

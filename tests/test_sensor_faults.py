@@ -25,7 +25,7 @@ from drivers.clock import VirtualClock
 from drivers.errors import DeviceError, ProtocolError
 from drivers.sim.bench import Bench
 from drivers.sim.devices import SimCamera, SimIrReader
-from drivers.sim.emulator import MOTION_WORDS, C500CEmulator
+from drivers.sim.emulator import C500CEmulator
 
 FAULT_STEP = 3
 #: The camera's first grab is the run's reference frame (before step 0), so step k is grab k+2;
@@ -86,10 +86,6 @@ def bench_settings(tmp_path: Path, policy: str = "continue", **faults: str) -> S
     )
 
 
-def motions(emulator: C500CEmulator) -> int:
-    return sum(1 for c in emulator.state.commands if c.split(" ")[0] in MOTION_WORDS)
-
-
 def measured(device: str, step: StepRecord) -> list[Any]:
     if device == "camera":
         return [step.centroid_x_px, step.centroid_y_px, step.drift_x_um, step.residual_um]
@@ -137,7 +133,7 @@ async def test_a_sensor_fault_is_flagged_on_its_step_and_the_run_goes_on(
         assert daemon.recorder is not None
         steps = daemon.recorder.steps(info["id"])
         errors = daemon.recent_errors()
-        moved = motions(emulator)
+        moved = len(emulator.state.motion_commands())
 
     assert final["state"] == "finished"
     assert sensor.faults_applied == [(FIRST_GRAB_OF_STEP[device] + FAULT_STEP, kind)]
@@ -168,9 +164,10 @@ async def test_with_the_pause_policy_a_sensor_fault_pauses_the_run_until_resumed
         run = daemon.snapshot()["run"]
         assert run["step"] == FAULT_STEP
         assert run["reason"].startswith("sensor error: ") and text in run["reason"]
-        parked = motions(emulator)
+        parked = len(emulator.state.motion_commands())
         await asyncio.sleep(0.05)  # the loop would have run many virtual steps by now
-        assert motions(emulator) == parked and daemon.snapshot()["state"] == "paused"
+        assert len(emulator.state.motion_commands()) == parked
+        assert daemon.snapshot()["state"] == "paused"
 
         await daemon.resume()
         async with asyncio.timeout(60.0):
@@ -179,7 +176,7 @@ async def test_with_the_pause_policy_a_sensor_fault_pauses_the_run_until_resumed
         assert daemon.recorder is not None
         steps = daemon.recorder.steps(info["id"])
         errors = daemon.recent_errors()
-        moved = motions(emulator)
+        moved = len(emulator.state.motion_commands())
 
     assert final["state"] == "finished"
     check_faulted_run(device, kind, steps, FAULT_STEP, errors)

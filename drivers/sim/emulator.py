@@ -113,6 +113,10 @@ class ConsoleCommandError(Exception):
         self.line = line
 
 
+#: Console commands that start a motion.
+MOTION_WORDS = ("move", "moves", "wx", "wy", "wz", "wxs", "wys", "wzs")
+
+
 @dataclass
 class ConsoleState:
     """What the emulated controller knows. Tests may read and change it."""
@@ -137,8 +141,9 @@ class ConsoleState:
         self.commands.append(line)
         self.received += 1
 
-
-MOTION_WORDS = ("move", "moves", "wx", "wy", "wz", "wxs", "wys", "wzs")
+    def motion_commands(self) -> list[str]:
+        """The logged command lines that start a motion (what a held robot must never get)."""
+        return [c for c in self.commands if c.split(" ")[0] in MOTION_WORDS]
 
 
 class Console:
