@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from benchmarks.common import print_table, write_results
+from benchmarks.common import print_table, proc_status_mib, write_results
 from daemon.recorder import DATABASE_NAME, STEP_COLUMNS, Recorder
 
 DEFAULT_STEPS = (18_000, 180_000)  # 6 min and 1 h at a 20 ms step
@@ -108,16 +108,8 @@ def measure(case: str, data_dir: Path, run_id: int) -> dict[str, float]:
     else:
         write_run_report(data_dir, run_id)
     seconds = time.perf_counter() - started
-    return {"seconds": seconds, "peak_rss_mib": peak_rss_mib()}
-
-
-def peak_rss_mib() -> float:
-    """This process's peak resident memory (VmHWM: unlike ``ru_maxrss`` it starts afresh at
-    exec, so a child does not inherit its parent's peak)."""
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024
-    raise RuntimeError("no VmHWM in /proc/self/status")
+    # VmHWM, not ru_maxrss: a child would inherit its parent's ru_maxrss across exec
+    return {"seconds": seconds, "peak_rss_mib": proc_status_mib("VmHWM")}
 
 
 def main() -> None:

@@ -24,6 +24,15 @@ def machine() -> dict[str, Any]:
     }
 
 
+def proc_status_mib(field: str, pid: int | str = "self") -> float:
+    """A memory field of ``/proc/<pid>/status`` (Linux), e.g. VmRSS (resident now) or VmHWM
+    (peak resident: unlike ``ru_maxrss`` it starts afresh at exec), in MiB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(f"{field}:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError(f"no {field} in /proc/{pid}/status")
+
+
 def print_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
     def cell(value: Any) -> str:
         if isinstance(value, float):

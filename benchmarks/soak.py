@@ -26,7 +26,7 @@ from websockets.asyncio.client import connect
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.bench_api import HEADERS, free_port, start_server
-from benchmarks.common import print_table, write_results
+from benchmarks.common import print_table, proc_status_mib, write_results
 
 DEFAULT_DURATION_S = 3600.0
 STEP_S = 0.02
@@ -36,11 +36,8 @@ AFTER_END_S = 60.0
 
 
 def rss_mib(pid: int) -> float:
-    """Resident memory of a process (Linux /proc), MiB."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise RuntimeError(f"no VmRSS for process {pid}")
+    """Resident memory of a process, MiB."""
+    return proc_status_mib("VmRSS", pid)
 
 
 def open_files(pid: int) -> int:
