@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
 import httpx
+import pytest
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
@@ -40,6 +42,23 @@ def run_cli(
         timeout=timeout,
         check=False,
     )
+
+
+def run_in_process(
+    register: Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], None],
+    argv: Sequence[str],
+    capsys: pytest.CaptureFixture[str],
+) -> tuple[int, str, str]:
+    """The subcommands one ``register`` adds, parsed and run in-process: (status, out, err)."""
+    parser = argparse.ArgumentParser(prog="thermocomp")
+    register(parser.add_subparsers(dest="command", required=True))
+    try:
+        args = parser.parse_args(argv)
+        status = int(args.handler(args))
+    except SystemExit as exit_:
+        status = int(exit_.code or 0)
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err
 
 
 @contextmanager

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from pathlib import Path
@@ -13,7 +12,7 @@ import pytest
 from daemon import identify_cli
 from daemon.model import ThermalModel, load_network
 from daemon.model.identify import apply_parameters, parse_parameters
-from tests.helpers import run_cli
+from tests.helpers import run_cli, run_in_process
 
 REGIONS = {"node-2": ("2",), "node-9": ("9",), "node-16": ("16",)}
 SCALE = 20.0  # deformation scale of the run (thesis 6.3)
@@ -63,15 +62,7 @@ def write_run(
 
 
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    parser = argparse.ArgumentParser(prog="thermocomp")
-    identify_cli.register(parser.add_subparsers(dest="command", required=True))
-    try:
-        args = parser.parse_args(argv)
-        status = int(args.handler(args))
-    except SystemExit as exit_:
-        status = int(exit_.code or 0)
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err
+    return run_in_process(identify_cli.register, argv, capsys)
 
 
 def test_identifies_an_exported_run_validates_and_writes_a_network(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
 import math
@@ -12,21 +11,13 @@ import pytest
 
 from daemon.model import ThermalModel, load_network, network_facts
 from daemon.model import cli as model_cli
-from tests.helpers import run_cli
+from tests.helpers import run_cli, run_in_process
 
 
 def run(command: str | list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
     """The model command alone, in-process (the real entry point is tested once below)."""
     argv = command.split() if isinstance(command, str) else command
-    parser = argparse.ArgumentParser(prog="thermocomp")
-    model_cli.register(parser.add_subparsers(dest="command", required=True))
-    try:
-        args = parser.parse_args(argv)
-        status = int(args.handler(args))
-    except SystemExit as exit_:
-        status = int(exit_.code or 0)
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err
+    return run_in_process(model_cli.register, argv, capsys)
 
 
 def test_the_done_when_command_runs_through_the_real_entry_point() -> None:
