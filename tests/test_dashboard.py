@@ -61,8 +61,12 @@ def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Pa
     page.on("pageerror", lambda error: page_errors.append(str(error)))
     page.goto(server + "/")
     page.wait_for_selector("#stream-state.open")
-    assert page.text_content("#daemon-state") == "idle"
-    assert page.locator("#network-select option", has_text="thesis-two-link").count() == 1
+    # the state comes with the stream's hello and the network list from its own request:
+    # both arrive after the socket opens, so wait for them rather than read them at once
+    page.wait_for_function("document.querySelector('#daemon-state').textContent === 'idle'")
+    preset = page.locator("#network-select option", has_text="thesis-two-link")
+    preset.wait_for(state="attached")
+    assert preset.count() == 1
 
     # without a token, control is refused and the page says so
     page.fill("input[name=duration_s]", "3600")
