@@ -64,8 +64,9 @@ def _committed_steps(database: Path) -> int:
         db.close()
 
 
-def _start_long_run(data_dir: Path) -> subprocess.Popen[bytes]:
-    """A ten-hour bench run (virtual clock: as fast as the pty allows) to be killed."""
+def _start_long_run(data_dir: Path, *, json_summary: bool = False) -> subprocess.Popen[str]:
+    """A ten-hour bench run (virtual clock: as fast as the pty allows) to be stopped by a
+    signal; with ``json_summary`` it prints its final state as JSON on the piped stdout."""
     return subprocess.Popen(
         cli_command(
             "--log-level",
@@ -77,12 +78,25 @@ def _start_long_run(data_dir: Path) -> subprocess.Popen[bytes]:
             str(data_dir),
             "--duration",
             "36000",
+            *(["--json"] if json_summary else []),
         ),
         cwd=REPO_ROOT,
         env=dict(os.environ),
-        stdout=subprocess.DEVNULL,
+        stdout=subprocess.PIPE if json_summary else subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        text=True,
     )
+
+
+def _wait_for_steps(
+    process: subprocess.Popen[str], database: Path, count: int, poll_s: float = 0.05
+) -> None:
+    """Until ``database`` holds ``count`` committed steps, the run still going (60 s at most)."""
+    deadline = time.monotonic() + 60.0
+    while _committed_steps(database) < count:
+        assert process.poll() is None, "the run ended before it could be stopped"
+        assert time.monotonic() < deadline, "no steps were committed in time"
+        time.sleep(poll_s)
 
 
 def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
@@ -91,11 +105,7 @@ def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
     database = tmp_path / DATABASE_NAME
     process = _start_long_run(tmp_path)
     try:
-        deadline = time.monotonic() + 60.0
-        while _committed_steps(database) < 30:
-            assert process.poll() is None, "the run ended before it could be killed"
-            assert time.monotonic() < deadline, "no steps were committed in time"
-            time.sleep(0.05)
+        _wait_for_steps(process, database, 30)
         process.send_signal(signal.SIGKILL)
         process.wait(timeout=10)
     finally:
@@ -119,30 +129,9 @@ def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
 
 def test_sigterm_stops_the_run_cleanly(tmp_path: Path) -> None:
     database = tmp_path / DATABASE_NAME
-    process = subprocess.Popen(
-        cli_command(
-            "--log-level",
-            "WARNING",
-            "run",
-            "--config",
-            SIM,
-            "--data-dir",
-            str(tmp_path),
-            "--duration",
-            "36000",
-            "--json",
-        ),
-        cwd=REPO_ROOT,
-        env=dict(os.environ),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
+    process = _start_long_run(tmp_path, json_summary=True)
     try:
-        deadline = time.monotonic() + 60.0
-        while _committed_steps(database) < 5:
-            assert process.poll() is None and time.monotonic() < deadline
-            time.sleep(0.05)
+        _wait_for_steps(process, database, 5)
         process.send_signal(signal.SIGTERM)
         output, _ = process.communicate(timeout=30)
     finally:
@@ -172,11 +161,7 @@ def test_sigkill_at_random_points_of_successive_runs_loses_no_committed_step(
         before = sum(committed)
         process = _start_long_run(tmp_path)
         try:
-            deadline = time.monotonic() + 60.0
-            while _committed_steps(database) - before < at_least:
-                assert process.poll() is None, "the run ended before it could be killed"
-                assert time.monotonic() < deadline, "no steps were committed in time"
-                time.sleep(0.005)
+            _wait_for_steps(process, database, before + at_least, poll_s=0.005)
             time.sleep(rng.uniform(0.0, 0.03))
             process.send_signal(signal.SIGKILL)
             process.wait(timeout=10)
