@@ -59,3 +59,10 @@ class PointOfControlError(DeviceReportedError):
 
     def __init__(self, device: str, text: str) -> None:
         super().__init__(device, None, text)
+
+
+class GoalLostError(DeviceError):
+    """The controller no longer holds the taught operational goal (e.g. it restarted and lost
+    its variables): a run whose offsets are from that goal cannot continue (issue 15)."""
+
+    kind = "goal-lost"

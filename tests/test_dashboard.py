@@ -96,7 +96,7 @@ def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Pa
 
     page.click("#btn-stop")
     page.wait_for_function("document.querySelector('#daemon-state').textContent === 'idle'")
-    page.wait_for_selector("#run-history tr td:nth-child(2):text-is('finished')")
+    page.wait_for_selector("#run-history tr td:nth-child(2):text-is('stopped')")
     run = httpx.get(f"{server}/api/v1/runs/1", timeout=10).json()
-    assert run["state"] == "finished" and run["steps_recorded"] >= STEPS_SEEN
+    assert run["state"] == "stopped" and run["steps_recorded"] >= STEPS_SEEN
     assert page_errors == []

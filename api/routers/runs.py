@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import importlib.util
 import io
 import logging
@@ -14,7 +13,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Body, Query, Response
 from fastapi import Path as PathParam
-from fastapi.responses import FileResponse, StreamingResponse
+from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from pydantic import (
     AfterValidator,
     BaseModel,
@@ -31,8 +30,8 @@ from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
 from daemon.model import available_presets
 from daemon.recorder import Recorder, RecorderError, RunRow, write_steps_csv
-from daemon.reports import ReportError, report_dir, write_run_report
-from daemon.runs import RunParameters, RunStateError
+from daemon.report_queue import ReportStatus
+from daemon.runs import RunParameters, RunState, RunStateError
 from daemon.service import Daemon, RunConflictError
 from drivers.errors import DeviceError
 
@@ -113,28 +112,30 @@ def _links(run_id: int) -> dict[str, str]:
 
 
 def run_info(row: RunRow, daemon: Daemon) -> RunInfo:
-    """A run as recorded, with the live progress when it is the daemon's current run."""
-    live = daemon.run if daemon.run is not None and daemon.run.id == row.id else None
+    """A run as recorded, with the live progress when it is the daemon's current run (read
+    from its frozen view: what the daemon knows is newer than the database, e.g. the end of a
+    run that the disk could not record yet)."""
+    view = daemon.run
+    live = view if view is not None and view.id == row.id else None
     parameters = row.parameters
     duration = float(parameters.get("duration_s") or 1.0)
     step_s = float(parameters.get("step_s") or 0.0)
     state, reason, summary = row.state, row.reason, row.summary
     remaining: float
     if live is not None:
-        info = live.info(daemon.clock.now())
-        state, reason = str(info["state"]), info["reason"]
-        summary = info["summary"] if info["summary"] is not None else summary
-        progress = float(info["progress_percent"])
-        remaining = float(info["remaining_s"]) if live.state.is_active else 0.0
+        state, reason = live.state.value, live.reason
+        summary = live.summary if live.summary is not None else summary
+        progress, remaining = live.progress(daemon.clock.now())
+        remaining = remaining if live.is_active else 0.0
     else:
         # not running here: what it recorded is how far it got (a stopped run stays short)
         progress = min(100.0, 100.0 * row.step_count * step_s / duration)
         remaining = 0.0
     eta: float | None = None
-    if live is not None and live.state.is_active and 0.0 < progress < 100.0:
+    if live is not None and live.is_active and 0.0 < progress < 100.0:
         elapsed_wall = time.time() - row.started_at
         eta = elapsed_wall * (100.0 - progress) / progress
-    elif live is None or not live.state.is_active:
+    elif live is None or not live.is_active:
         eta = 0.0  # ended
     return RunInfo(
         id=row.id,
@@ -160,7 +161,7 @@ def _recorder(daemon: Daemon) -> Recorder:
 
 async def _row(daemon: Daemon, run_id: int) -> RunRow:
     try:
-        row = await asyncio.to_thread(_recorder(daemon).run, run_id)
+        row = await daemon.read(_recorder(daemon).run, run_id)
     except RecorderError as err:
         raise ApiError(503, "storage", str(err)) from err
     if row is None:
@@ -221,7 +222,7 @@ async def list_runs(
 ) -> RunPage:
     """Runs, newest first, ``limit`` per page."""
     try:
-        rows = await asyncio.to_thread(_recorder(daemon).runs, limit, offset)
+        rows = await daemon.read(_recorder(daemon).runs, limit, offset)
     except RecorderError as err:
         raise ApiError(503, "storage", str(err)) from err
     return RunPage(
@@ -240,7 +241,7 @@ async def get_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
 
 def _current(daemon: Daemon, run_id: int) -> None:
     run = daemon.run
-    if run is None or run.id != run_id or not run.state.is_active:
+    if run is None or run.id != run_id or not run.is_active:
         raise ApiError(409, "conflict", f"run {run_id} is not the active run")
 
 
@@ -346,20 +347,18 @@ async def get_steps(
     await _row(daemon, run_id)
     recorder = _recorder(daemon)
     if format == "parquet":
-        return await _parquet(recorder, run_id)
+        return await _parquet(daemon, recorder, run_id)
     filename = f"run-{run_id}-steps.{format}"
     try:
         if format == "csv":
-            first = await asyncio.to_thread(
-                _csv_chunk, recorder, run_id, start, _chunk(limit), header=True
-            )
+            first = await daemon.read(_csv_chunk, recorder, run_id, start, _chunk(limit), True)
             return StreamingResponse(
-                _csv_stream(recorder, run_id, first, limit),
+                _csv_stream(daemon, recorder, run_id, first, limit),
                 media_type="text/csv",
                 headers={"Content-Disposition": f'attachment; filename="{filename}"'},
             )
         page = min(limit or JSON_PAGE_STEPS, JSON_MAX_STEPS)
-        body = await asyncio.to_thread(_json_page, recorder, run_id, start, page)
+        body = await daemon.read(_json_page, recorder, run_id, start, page)
     except RecorderError as err:
         raise ApiError(503, "storage", str(err)) from err
     return Response(body, media_type="application/json")
@@ -378,7 +377,7 @@ def _chunk(remaining: int | None) -> int:
 
 
 def _csv_chunk(
-    recorder: Recorder, run_id: int, start: int, count: int, *, header: bool
+    recorder: Recorder, run_id: int, start: int, count: int, header: bool
 ) -> tuple[str, int, int | None]:
     """(CSV text, steps in it, the next chunk's first step or None at the end)."""
     records = recorder.steps(run_id, start, count)
@@ -392,15 +391,19 @@ def _csv_chunk(
 
 
 async def _csv_stream(
-    recorder: Recorder, run_id: int, first: tuple[str, int, int | None], limit: int | None
+    daemon: Daemon,
+    recorder: Recorder,
+    run_id: int,
+    first: tuple[str, int, int | None],
+    limit: int | None,
 ) -> AsyncIterator[str]:
     text, count, next_start = first
     remaining = None if limit is None else limit - count
     yield text
     while next_start is not None and remaining != 0:
         try:
-            text, count, next_start = await asyncio.to_thread(
-                _csv_chunk, recorder, run_id, next_start, _chunk(remaining), header=False
+            text, count, next_start = await daemon.read(
+                _csv_chunk, recorder, run_id, next_start, _chunk(remaining), False
             )
         except RecorderError:
             logger.exception("run %d: CSV export cut short", run_id)
@@ -409,7 +412,7 @@ async def _csv_stream(
         yield text
 
 
-async def _parquet(recorder: Recorder, run_id: int) -> Response:
+async def _parquet(daemon: Daemon, recorder: Recorder, run_id: int) -> Response:
     def export() -> bytes:
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / "steps.parquet"
@@ -417,7 +420,7 @@ async def _parquet(recorder: Recorder, run_id: int) -> Response:
             return path.read_bytes()
 
     try:
-        data = await asyncio.to_thread(export)
+        data = await daemon.read(export)
     except RecorderError as err:
         raise ApiError(503, "storage", str(err)) from err
     return Response(
@@ -433,29 +436,39 @@ def _dumps(value: Any) -> bytes:
     return json.dumps(json_safe(value), separators=(",", ":")).encode()
 
 
+#: When to ask again for a report still being written (s).
+REPORT_RETRY_AFTER_S = 2
+
+
 @read_router.get(
     "/runs/{run_id}/report",
     response_class=FileResponse,
     responses={
         200: {"content": {"text/html": {}}},
-        404: {"model": ErrorBody},
+        202: {"model": ErrorBody, "description": "the report is being written: ask again"},
+        404: {"model": ErrorBody, "description": "no report (none written, or no such run)"},
         409: {"model": ErrorBody, "description": "the run has not ended yet"},
     },
 )
-async def get_report(run_id: RunId, daemon: DaemonDep) -> FileResponse:
-    """The analysis report of an ended run (a self-contained HTML page), written on first
-    request beside the database (``thermocomp report`` writes the same) and kept."""
+async def get_report(run_id: RunId, daemon: DaemonDep) -> Response:
+    """The analysis report of an ended run (a self-contained HTML page). Only the daemon
+    writes reports (storage.report_at_end, or ``thermocomp report RUN``): 202 while it is
+    being written, 404 when there is none; a request never renders one."""
     row = await _row(daemon, run_id)
-    if row.state not in ("finished", "aborted", "interrupted"):
+    status = daemon.report_status(run_id)
+    if status in (ReportStatus.QUEUED, ReportStatus.WRITING):
+        message = f"the report of run {run_id} is being written; ask again shortly"
+        body = {"status": 202, "kind": "pending", "message": message, "details": None}
+        headers = {"Retry-After": str(REPORT_RETRY_AFTER_S)}
+        return JSONResponse(body, status_code=202, headers=headers)
+    if not RunState(row.state).is_terminal:
         raise ApiError(409, "conflict", f"run {run_id} is {row.state}: no report before it ends")
-    data_dir = _recorder(daemon).data_dir
-    html = report_dir(data_dir, run_id) / "report.html"
+    html = daemon.reports.html_path(run_id)
     if not html.is_file():
-        try:
-            files = await asyncio.to_thread(write_run_report, data_dir, run_id)
-        except (ReportError, ValueError) as err:  # e.g. a run without a measured step
-            raise ApiError(404, "not-found", f"no report for run {run_id}: {err}") from err
-        html = files.html
+        hint = f"`thermocomp report {run_id}` writes one"
+        if status is ReportStatus.FAILED:
+            hint = f"writing it failed (see the daemon's log); {hint}"
+        raise ApiError(404, "not-found", f"no report for run {run_id}: {hint}")
     return FileResponse(html, media_type="text/html")
 
 
@@ -472,7 +485,7 @@ async def get_frame(
     """The archived 16-bit PNG of a step (storage.archive_every), when there is one."""
     recorder = _recorder(daemon)
     try:
-        records = await asyncio.to_thread(recorder.steps, run_id, step, 1)
+        records = await daemon.read(recorder.steps, run_id, step, 1)
     except RecorderError as err:
         raise ApiError(503, "storage", str(err)) from err
     if not records or records[0].step != step or not records[0].frame_path:
