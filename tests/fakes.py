@@ -260,6 +260,11 @@ class Harness:
         assert self.devices is not None
         return self.devices.robot
 
+    @property
+    def camera(self) -> FakeCamera:
+        assert self.devices is not None
+        return self.devices.camera
+
 
 def params(settings: Settings, **overrides: Any) -> RunParameters:
     return RunParameters.from_settings(settings, **overrides)
