@@ -160,8 +160,9 @@ class RunSession:
         """End the run at the next opportunity (the step in progress may finish)."""
         if self.stop_requested:
             return
-        if self.state is RunState.FAULT:
-            final = RunState.ABORTED  # ended because of the fault, not by the request
+        if self.state is RunState.FAULT:  # it could not go on: the fault ended it
+            final = RunState.ABORTED
+            reason = f"fault: {self.machine.reason}; {reason}"
         self.stop_requested = True  # before any await: the loop must see it first
         self._stop_reason = reason
         self._final_on_stop = final

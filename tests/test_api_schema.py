@@ -34,6 +34,7 @@ from api.routers import runs as runs_router
 from config import Settings
 from daemon.model import available_presets
 from daemon.recorder import Recorder
+from daemon.reports import write_run_report
 from daemon.service import Daemon
 from tests.test_api_runs import wait_state
 from tests.test_api_server import CONTROL, READ, serve
@@ -112,6 +113,8 @@ async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
         steps = (await client.get(f"/api/v1/runs/{run_id}/steps")).json()["steps"]
         archived = [s["step"] for s in steps if s["frame_path"]]
         assert len(steps) == 6 and archived
+        # its report, as `thermocomp report RUN` writes it (the API only serves reports)
+        await asyncio.to_thread(write_run_report, tmp_path / "data", run_id)
         yield Bench(f"http://{address}", run_id, archived[0])
 
 
