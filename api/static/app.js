@@ -71,15 +71,21 @@
     const what = state.token ? "The token was refused" : "A token is needed";
     const why = `${error.status} ${error.kind || ""}: ${error.message}`.replace(/ +:/, ":");
     let next;
-    if (readWithToken && error.status === 401 && !state.tokenRefused) {
+    if (readWithToken && error.status === 401) {
       // an unknown token: read without it (the server may allow anonymous reading)
-      state.tokenRefused = true;
-      next = "Reading on without it where the server allows; the plots keep what they show.";
-      connect();
-    } else if (state.tokenRefused || !state.token) {
-      next = "The plots keep what they show; enter a valid token above to go on.";
+      if (!state.tokenRefused) {
+        state.tokenRefused = true;
+        connect();
+      }
+      next = "Reading on without it where the server allows: the plots keep what they show "
+        + "and go on. Enter a valid token above to control the run.";
+    } else if (state.tokenRefused && error.status === 401) {
+      next = "Reading needs a valid token here: the plots keep what they show until one is "
+        + "entered above.";
+    } else if (!state.token) {
+      next = "Enter a token above; the plots keep what they show.";
     } else {
-      next = "Enter a token with the needed scope above; the plots are not affected.";
+      next = "Enter a token with the needed scope above; the plots keep what they show.";
     }
     banner.replaceChildren();
     const strong = document.createElement("strong");
@@ -519,7 +525,7 @@
   // scale x scale block). A small spot on a dark frame is lost at that size, so the view
   // shows a crop around the centroid, enlarged and contrast-stretched over the crop alone;
   // a click switches to the whole frame (with the crop outlined) and back.
-  const CROP_PX = 32; // thumbnail pixels each side of the crop (32 x 4 = 128 frame pixels)
+  const CROP_PX = 16; // thumbnail pixels each side of the crop (16 x 4 = 64 frame pixels)
   const ZOOM_CANVAS_PX = 256;
   const frameView = { image: null, frame: null, full: false };
 
@@ -609,7 +615,7 @@
     context.imageSmoothingEnabled = false;
     context.drawImage(scratch, 0, 0, ZOOM_CANVAS_PX, ZOOM_CANVAS_PX);
     const zoom = ZOOM_CANVAS_PX / CROP_PX;
-    cross(context, (cx - sx) * zoom, (cy - sy) * zoom, 10, 40);
+    cross(context, (cx - sx) * zoom, (cy - sy) * zoom, 2 * zoom, 6 * zoom);
     canvas.dataset.view = "zoom";
     canvas.dataset.contrast = `${low}-${high}`;
     $("frame-detail").textContent = `zoom around the spot: ${CROP_PX * scale} x ${CROP_PX * scale}`
