@@ -230,12 +230,11 @@ def place_legends(figure: Figure, axes: list[Axes], fontsize: float = 10) -> Non
             )
     for _ in range(LEGEND_ROUNDS):
         figure.draw_without_rendering()  # lays the axes out; then a legend's box is known
-        moved = False
+        relaid = False  # only a legend put outside changes the layout (inside ones do not)
         for index, ax in enumerate(axes):
             legend = ax.get_legend()
             if legend is None or index in outside or not legend_overlaps(ax, legend):
                 continue
-            moved = True
             for corner, anchor in LEGEND_SPOTS:
                 legend.set_loc(corner)
                 legend.set_bbox_to_anchor(anchor, transform=ax.transAxes)
@@ -243,6 +242,7 @@ def place_legends(figure: Figure, axes: list[Axes], fontsize: float = 10) -> Non
                     break
             else:
                 outside.add(index)
+                relaid = True
                 handles, labels = ax.get_legend_handles_labels()
                 ax.legend(
                     handles=handles,
@@ -252,7 +252,7 @@ def place_legends(figure: Figure, axes: list[Axes], fontsize: float = 10) -> Non
                     borderaxespad=0.0,
                     fontsize=fontsize,
                 )
-        if not moved:
+        if not relaid:
             return
 
 
