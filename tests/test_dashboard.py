@@ -34,8 +34,9 @@ STEPS_SEEN = 15
 #: The thesis two-link network's nodes (17), all plotted.
 MODEL_NODES = 17
 #: Smallest CIELAB distance (Delta E 1976) between any two series' colours: ~2.3 is a just
-#: noticeable difference; 10 tells lines apart at a glance even thin ones.
-MIN_COLOUR_DISTANCE = 10.0
+#: noticeable difference, ~20 tells thin lines apart at a glance. The greedy palette gives
+#: 28.9 for the 20 series of the sim (17 nodes + 3 IR regions), 21 for 30.
+MIN_COLOUR_DISTANCE = 20.0
 FINAL_STATES = ("finished", "stopped", "aborted", "fault", "interrupted")
 
 
