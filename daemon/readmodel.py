@@ -19,6 +19,7 @@ class RunView:
     step: int  # last recorded step, -1 before the first
     parameters: RunParameters
     start_s: float = math.nan  # run clock at step 0
+    end_s: float = math.nan  # run clock when it ended (its progress stops there)
     summary: dict[str, Any] | None = None
     overruns: int = 0
     skipped: int = 0
@@ -30,7 +31,8 @@ class RunView:
 
     def progress(self, clock_now: float) -> tuple[float, float]:
         """Percent of the duration elapsed on the run clock, and run-clock seconds left."""
-        elapsed = 0.0 if math.isnan(self.start_s) else max(clock_now - self.start_s, 0.0)
+        now = clock_now if math.isnan(self.end_s) else min(clock_now, self.end_s)
+        elapsed = 0.0 if math.isnan(self.start_s) else max(now - self.start_s, 0.0)
         duration = self.parameters.duration_s
         return min(100.0, 100.0 * elapsed / duration), max(duration - elapsed, 0.0)
 

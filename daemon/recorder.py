@@ -300,12 +300,7 @@ class Recorder:
     def steps(self, run_id: int, start: int = 0, limit: int | None = None) -> list[StepRecord]:
         """Steps of a run in order, from step number ``start``."""
         with self._read() as db:
-            rows = db.execute(
-                f"SELECT {','.join(STEP_COLUMNS)} FROM steps WHERE run_id = ? AND step >= ? "
-                "ORDER BY step LIMIT ?",
-                (run_id, start, -1 if limit is None else limit),
-            ).fetchall()
-        return [StepRecord(*row) for row in rows]
+            return read_steps(db, run_id, start, limit)
 
     def run_steps(self, run_id: int, columns: Sequence[str] = STEP_COLUMNS) -> RunSteps:
         """The run's steps as series (daemon.analysis.RunSteps), streamed from the database:
@@ -361,6 +356,18 @@ class Recorder:
             reader = (db, threading.Lock())  # the lock only pairs with _Transaction's API
             self._readers.connection = reader
         return _Transaction(reader[0], reader[1], self.path, begin="BEGIN")
+
+
+def read_steps(
+    db: sqlite3.Connection, run_id: int, start: int = 0, limit: int | None = None
+) -> list[StepRecord]:
+    """Steps of a run in order, from step number ``start``, at most ``limit``."""
+    rows = db.execute(
+        f"SELECT {','.join(STEP_COLUMNS)} FROM steps WHERE run_id = ? AND step >= ? "
+        "ORDER BY step LIMIT ?",
+        (run_id, start, -1 if limit is None else limit),
+    ).fetchall()
+    return [StepRecord(*row) for row in rows]
 
 
 def step_rows(

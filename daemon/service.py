@@ -288,6 +288,11 @@ class Daemon:
         loop's workers (issue 15, point 6)."""
         return await self._workers_().read(function, *args)
 
+    async def export(self, function: Callable[..., _T], *args: Any) -> _T:
+        """Run an export's encoding (daemon/exports.py) in an export process: it never holds
+        this process's GIL, so it cannot delay a step (issue 15, point 6)."""
+        return await self._workers_().export(function, *args)
+
     def report_status(self, run_id: int) -> ReportStatus | None:
         return self.reports.status(run_id)
 

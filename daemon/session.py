@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -92,6 +93,7 @@ class RunSession:
         self.step = -1
         self.last_record: dict[str, Any] | None = None
         self.summary: dict[str, Any] | None = None
+        self.ended_s = math.nan  # run clock at the end
         self.stop_requested = False
         self._stop_reason: str | None = None
         self._final_on_stop = RunState.STOPPED
@@ -427,6 +429,7 @@ class RunSession:
             logger.exception("run %d: error while ending", self.id)
             services.errors.note(err, device="daemon")
         finally:
+            self.ended_s = services.clock.now()
             self.machine.state, self.machine.reason = final, reason
             services.bus.publish(self._state_event())
             self._publish_view()
@@ -478,6 +481,7 @@ class RunSession:
             step=self.step,
             parameters=self.work.parameters,
             start_s=self.work.start_s,
+            end_s=self.ended_s,
             summary=self.summary,
             overruns=0 if self.timer is None else self.timer.overruns,
             skipped=0 if self.timer is None else self.timer.skipped,

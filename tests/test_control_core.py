@@ -578,3 +578,15 @@ def test_a_signal_holds_and_ends_the_run_before_http_drains(
     with Recorder(tmp_path) as recorder:
         row = recorder.run(1)
     assert row is not None and (row.state, row.reason) == ("stopped", "daemon shut down")
+
+
+async def test_an_ended_run_stops_making_progress(tmp_path: Path) -> None:
+    settings = make_settings(tmp_path)
+    harness = Harness(settings)
+    async with harness.daemon as daemon:
+        await daemon.start_run(params(settings, duration_s=60.0))
+        await step_recorded(daemon, 5)
+        stopped = await daemon.stop()
+        await daemon.clock.sleep_until(daemon.clock.now() + 30.0)  # time goes on after it
+        later = daemon.snapshot()["run"]
+    assert later["progress_percent"] == stopped["progress_percent"] < 100.0
