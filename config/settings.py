@@ -239,10 +239,12 @@ class CameraSettings(_Section):
         "calibrate camera`): chip axes = robot x / -z turned by this angle.",
     )
     calibration_size_mm: PositiveFloat = Field(
-        0.1, description="`calibrate camera`: half-width of the square pattern of offsets (mm)."
+        0.5,
+        description="`calibrate camera`: half-width of the square pattern of offsets (mm); "
+        "its corners must lie within compensation.max_total_offset_mm.",
     )
     calibration_step_mm: PositiveFloat = Field(
-        0.05, description="`calibrate camera`: spacing of the pattern's offsets (mm)."
+        0.25, description="`calibrate camera`: spacing of the pattern's offsets (mm)."
     )
 
     @model_validator(mode="after")
