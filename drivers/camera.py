@@ -137,8 +137,10 @@ class VideoSource:
     async def read_stamped(self, clock: Clock) -> tuple[NDArray[Any], float, str]:
         """A frame and when it was taken on the run clock: from the backend's own stamp when
         it gives one (CAP_PROP_POS_MSEC; V4L2 reports the driver's buffer timestamp, taken
-        at the end of the frame's capture), mapped to the run clock by its offset at the
-        first frame; else the time the read returned ("host": late by the transfer)."""
+        at the end of the frame's capture), mapped to the run clock with the offset of the
+        quickest delivery seen so far (so the backend's frame spacing is kept and no stamp
+        lies after its receipt; the quickest delivery's own latency is unknown and taken as
+        0); else the time the read returned ("host": late by the transfer)."""
         image = await self.read()
         received_s = clock.now()
         stamp_ms = float(self._capture.get(cv2.CAP_PROP_POS_MSEC)) if self._capture else 0.0
