@@ -121,8 +121,9 @@ class BenchSettings(_Section):
 
     camera_rotation_deg: float = Field(
         0.0,
-        description="Sim camera: rotation of the chip's axes from the robot's world x / -z "
-        "(degrees, counter-clockwise seen on the image), for `calibrate camera`.",
+        description="Sim camera: rotation of the image from the robot's world x / -z axes "
+        "(degrees; positive turns world +x towards image +y, i.e. down the rows), for "
+        "`calibrate camera`.",
     )
     camera_scale: PositiveFloat = Field(
         1.0,
@@ -235,8 +236,8 @@ class CameraSettings(_Section):
     )
     rotation_deg: float = Field(
         0.0,
-        description="Camera rotation from the robot's axes (degrees, from `thermocomp "
-        "calibrate camera`): chip axes = robot x / -z turned by this angle.",
+        description="Rotation of the image from the robot's world x / -z axes (degrees; "
+        "positive turns world +x towards image +y), from `thermocomp calibrate camera`.",
     )
     calibration_size_mm: PositiveFloat = Field(
         0.5,
