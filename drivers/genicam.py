@@ -233,6 +233,20 @@ class GenICamTransport:
         )
 
     def _open_blocking(self) -> None:
+        """Open and configure the camera; every failure a DeviceError of one line."""
+        try:
+            self._open_camera()
+        except DeviceError:
+            raise
+        except Exception as err:  # pylon's own exceptions (enumeration, node access)
+            first_line = (str(err).splitlines() or [""])[0]
+            raise DeviceError(
+                self.device,
+                f"cannot open {self.description or 'the GenICam camera'}: "
+                f"{type(err).__name__}: {first_line}",
+            ) from err
+
+    def _open_camera(self) -> None:
         pylon = pylon_module()
         camera = pylon.InstantCamera(self._select(pylon))
         info = camera.GetDeviceInfo()
@@ -386,6 +400,7 @@ class GenICamTransport:
             await self._run(self._open_blocking)
         except DeviceError as err:
             self.link, self.last_error = LinkState.DISCONNECTED, str(err)
+            await self.close()  # no __aexit__ follows a failed __aenter__: end the thread
             raise
         self.link = LinkState.CONNECTED
         logger.info(
@@ -407,7 +422,7 @@ class GenICamTransport:
             return
         # queued behind a pending grab, which pylon ends within grab_timeout_s
         await asyncio.get_running_loop().run_in_executor(executor, self._close_blocking)
-        executor.shutdown(wait=False)
+        await asyncio.to_thread(executor.shutdown, wait=True)  # idle now: ends at once
 
     @property
     def grab_pending(self) -> bool:

@@ -4,6 +4,7 @@ camera` on the bench with a rotated, rescaled sim camera, its safety limits and 
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import itertools
 import json
 import math
@@ -31,7 +32,7 @@ from daemon.vision.calibration import (
 from drivers.base import MoveResult, Vector3
 from drivers.clock import VirtualClock
 from drivers.factory import open_devices
-from tests.helpers import run_in_process
+from tests.helpers import run_cli, run_in_process
 
 PITCH = (10.22, 9.72)  # the thesis's calibration (um per px)
 
@@ -235,3 +236,29 @@ async def test_a_spot_leaving_the_chip_stops_and_returns_to_the_goal() -> None:
         for a, b in zip([(0.0, 0.0, 0.0), *spy.offsets], spy.offsets, strict=False)
     )
     assert pose is not None
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("pypylon") is None,
+    reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",
+)
+def test_a_missing_camera_is_one_line_and_nothing_moves(tmp_path: Path) -> None:
+    config = tmp_path / "missing.toml"
+    config.write_text('[camera]\ndriver = "genicam"\nserial = "21999999"\n')
+    result = run_cli(["calibrate", "camera", "--config", str(config)], env={"PYLON_CAMEMU": "1"})
+    assert result.returncode == 1 and result.stdout == ""
+    errors = [line for line in result.stderr.splitlines() if "calibrate camera" in line]
+    assert errors == [
+        "thermocomp calibrate camera: camera: no GenICam camera with serial '21999999' "
+        "(found: Emulation 0815-0000)"
+    ]
+
+
+def test_an_unsupported_pixel_format_is_a_configuration_error(tmp_path: Path) -> None:
+    config = tmp_path / "format.toml"
+    config.write_text('[camera]\ndriver = "genicam"\npixel_format = "Mono12p"\n')
+    result = run_cli(["calibrate", "camera", "--config", str(config)])
+    assert result.returncode == 2 and result.stdout == ""
+    assert f"{config}: camera.pixel_format: Input should be 'Mono8', 'Mono12' or 'Mono16'" in (
+        result.stderr
+    )

@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import importlib.util
 import os
+import threading
 from typing import Any
 
 import numpy as np
@@ -77,6 +78,7 @@ async def test_grabs_frames_of_the_configured_format_roi_and_time() -> None:
         assert 0 < int(frame.image.max()) < 4096  # 12 significant bits in a 16-bit container
     assert frames[0].timestamp_s < frames[1].timestamp_s < frames[2].timestamp_s
     assert camera.link == LinkState.DISCONNECTED
+    assert not [t for t in threading.enumerate() if t.name.startswith("genicam-camera")]
 
 
 async def test_mono8_free_running_gives_the_newest_frame_stamped_on_receipt() -> None:
@@ -93,6 +95,8 @@ async def test_a_missing_camera_is_one_line_naming_what_was_found() -> None:
     message = str(caught.value)
     assert "\n" not in message
     assert "no GenICam camera with serial '9999-0000'" in message
+    # a failed open leaves no worker thread behind (no __aexit__ follows it)
+    assert not [t for t in threading.enumerate() if t.name.startswith("genicam-camera")]
     assert "0815-0000" in message and SECOND_CAMERA in message
 
 
