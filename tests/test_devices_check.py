@@ -138,3 +138,34 @@ async def test_preview_endpoint_while_idle_and_refused_during_a_run(tmp_path: Pa
             f"/api/v1/runs/{started.json()['id']}/stop", headers=CONTROL_HEADERS
         )
         assert stop.status_code in (200, 202), stop.text
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("pypylon") is None,
+    reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",
+)
+def test_check_through_emulated_genicam_camera_and_ir(tmp_path: Path) -> None:
+    config = tmp_path / "genicam.toml"
+    config.write_text(
+        '[camera]\ndriver = "genicam"\nserial = "0815-0000"\nbit_depth = 12\n'
+        'exposure_us = 1000.0\n[ir]\ndriver = "genicam-radiometric"\nserial = "0815-0001"\n'
+        'conversion = "linear"\nlinear_resolution_k = 0.01\n'
+    )
+    result = run_cli(["devices", "check", "--config", str(config)], env={"PYLON_CAMEMU": "2"})
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0] == (
+        "camera: 752x582 px, uint16, 12-bit, counts 0..4080, frame time from trigger"
+    )
+    assert lines[1].startswith("camera: no spot:")  # the emulation's test image has none
+    # the whole emulated sensor in Mono16, read as 0.01 K counts: 0 .. 65280 -> -273.15 .. 379.65
+    assert lines[2] == "ir: 1024x1040 px, -273.15..379.65 degC"
+    assert "ir: no regions configured ([[ir.regions]]): place them on the preview" in lines
+    # planck mode on the same emulated camera: it has no R, B, F, O
+    config.write_text(config.read_text().replace('"linear"', '"planck"'))
+    refused = run_cli(["devices", "check", "--config", str(config)], env={"PYLON_CAMEMU": "2"})
+    assert refused.returncode == 1 and refused.stdout == ""
+    assert (
+        "thermocomp devices check: cannot open the devices: ir: Emulation 0815-0001 has no "
+        "Planck registers (R, B, F, O missing)"
+    ) in refused.stderr
