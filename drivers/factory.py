@@ -19,7 +19,7 @@ from drivers.base import Camera, IrReader, Robot
 from drivers.c500c import C500CRobot
 from drivers.camera import OpenCvCamera, ReplayCamera
 from drivers.clock import Clock
-from drivers.genicam import GenICamCamera
+from drivers.genicam_camera import GenICamCamera
 from drivers.ir import OpenCvIrReader, ReplayIrReader
 from drivers.radiometric import GenICamRadiometricIrReader
 from drivers.sim.bench import Bench

@@ -24,11 +24,8 @@ from drivers.errors import (
     NotConnectedError,
     ProtocolError,
 )
-from drivers.genicam import (
-    CameraClockMap,
-    GenICamCamera,
-    choose_pixel_format,
-)
+from drivers.genicam import CameraClockMap, choose_pixel_format
+from drivers.genicam_camera import GenICamCamera
 
 pytestmark = pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,
