@@ -19,7 +19,7 @@ from api.errors import COMMON_ERROR_RESPONSES, install_error_handlers
 from api.limits import BodySizeLimit
 from api.metrics import ApiMetrics
 from api.relay import Relay
-from api.routers import configuration, health, metrics, networks, runs, state, ws
+from api.routers import configuration, devices, health, metrics, networks, runs, state, ws
 from api.security import Authenticator, RateLimiter
 from config import Settings
 from daemon import __version__
@@ -88,6 +88,7 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         runs.control_router,
         configuration.router,
         networks.router,
+        devices.router,
         ws.router,
     ):
         app.include_router(router, prefix=API_PREFIX)

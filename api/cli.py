@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from api import serve
 from config import ConfigError
 from config.cli import EXIT_FAILURE, EXIT_USAGE
-from daemon import __version__, identify_cli, reports, run_cli
+from daemon import __version__, calibrate_cli, devices_cli, identify_cli, reports, run_cli
 from daemon.model import cli as model_cli
 from daemon.vision import cli as vision_cli
 from drivers.sim import cli as emulate_cli
@@ -30,6 +30,8 @@ COMMANDS: tuple[Register, ...] = (
     run_cli.register,
     reports.register,
     identify_cli.register,
+    devices_cli.register,
+    calibrate_cli.register,
     model_cli.register,
     vision_cli.register,
     emulate_cli.register,

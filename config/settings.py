@@ -18,7 +18,14 @@ from pathlib import Path
 from types import UnionType
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from config.faults import parse_sensor_faults
 
@@ -112,6 +119,18 @@ class BenchSettings(_Section):
         "(a thermal frame that is not finite); @N: the N-th read since it opened.",
     )
 
+    camera_rotation_deg: float = Field(
+        0.0,
+        description="Sim camera: rotation of the image from the robot's world x / -z axes "
+        "(degrees; positive turns world +x towards image +y, i.e. down the rows), for "
+        "`calibrate camera`.",
+    )
+    camera_scale: PositiveFloat = Field(
+        1.0,
+        description="Sim camera: optical magnification (chip um per um at the spot): the true "
+        "calibration is pixel_pitch_um / camera_scale.",
+    )
+
     @field_validator("camera_faults", "ir_faults")
     @classmethod
     def _valid_fault_spec(cls, value: str) -> str:
@@ -122,10 +141,46 @@ class BenchSettings(_Section):
 class CameraSettings(_Section):
     """The camera that watches the laser spot (thesis 3.2.3)."""
 
-    driver: Literal["sim", "opencv", "replay"] = Field(
-        "sim", description="sim: the bench's camera; opencv: VideoCapture; replay: a folder."
+    driver: Literal["sim", "opencv", "genicam", "replay"] = Field(
+        "sim",
+        description="sim: the bench's camera; opencv: VideoCapture; genicam: a GigE Vision / "
+        "USB3 Vision camera through pypylon (the genicam extra); replay: a folder.",
     )
     device: int | str = Field(0, description="OpenCV device index, path or URL.")
+    serial: str | None = Field(
+        None, description="GenICam: serial number of the camera; none: any (see user_id)."
+    )
+    user_id: str | None = Field(
+        None, description="GenICam: the camera's DeviceUserID; none: any (the first found)."
+    )
+    pixel_format: Literal["Mono8", "Mono12", "Mono16"] | None = Field(
+        None, description="GenICam PixelFormat; none: Mono<bit_depth>. Must match bit_depth."
+    )
+    exposure_us: PositiveFloat | None = Field(
+        None,
+        description="Exposure time (us); none: leave the camera's. OpenCV sends it as "
+        "CAP_PROP_EXPOSURE in V4L2's unit of 100 us, with auto exposure off.",
+    )
+    gain: float | None = Field(
+        None,
+        description="Gain; none: leave the camera's. GenICam: Gain in dB (SFNC); OpenCV: "
+        "CAP_PROP_GAIN in the backend's own unit.",
+    )
+    offset_x_px: Annotated[int, Field(ge=0)] = Field(
+        0, description="GenICam: ROI's left column on the sensor (px); size is width_px."
+    )
+    offset_y_px: Annotated[int, Field(ge=0)] = Field(
+        0, description="GenICam: ROI's top row on the sensor (px); size is height_px."
+    )
+    trigger: Literal["software", "hardware", "off"] = Field(
+        "software",
+        description="GenICam: software: each grab triggers one exposure (fresh frame, known "
+        "exposure time); hardware: wait for trigger_source; off: free run, newest frame.",
+    )
+    trigger_source: str = Field("Line1", description="GenICam: TriggerSource of hardware.")
+    reconnect_max_backoff_s: PositiveFloat = Field(
+        30.0, description="GenICam: longest wait between two reconnection attempts (s)."
+    )
     replay_dir: Path | None = Field(None, description="Folder of frames for the replay driver.")
     replay_period_s: PositiveFloat | None = Field(
         None,
@@ -179,6 +234,28 @@ class CameraSettings(_Section):
         "then the step is flagged camera-error and the run goes on or pauses "
         "(scheduler.sensor_error_policy).",
     )
+    rotation_deg: float = Field(
+        0.0,
+        description="Rotation of the image from the robot's world x / -z axes (degrees; "
+        "positive turns world +x towards image +y), from `thermocomp calibrate camera`.",
+    )
+    calibration_size_mm: PositiveFloat = Field(
+        0.5,
+        description="`calibrate camera`: half-width of the square pattern of offsets (mm); "
+        "its corners must lie within compensation.max_total_offset_mm.",
+    )
+    calibration_step_mm: PositiveFloat = Field(
+        0.25, description="`calibrate camera`: spacing of the pattern's offsets (mm)."
+    )
+
+    @model_validator(mode="after")
+    def _format_matches_depth(self) -> CameraSettings:
+        if self.pixel_format is not None and self.pixel_format != f"Mono{self.bit_depth}":
+            raise ValueError(
+                f"pixel_format {self.pixel_format} delivers {self.pixel_format[4:]}-bit pixels "
+                f"but bit_depth is {self.bit_depth}"
+            )
+        return self
 
 
 class IrRegion(_Section):
@@ -195,10 +272,46 @@ class IrRegion(_Section):
 class IrSettings(_Section):
     """The infrared camera that reads the link temperatures."""
 
-    driver: Literal["sim", "opencv", "replay"] = Field(
-        "sim", description="sim: the bench's IR reader; opencv: radiometric Y16; replay: a folder."
+    driver: Literal["sim", "opencv", "genicam-radiometric", "replay"] = Field(
+        "sim",
+        description="sim: the bench's IR reader; opencv: radiometric Y16; genicam-radiometric: "
+        "a FLIR A-series / Ax5 over GigE Vision (pypylon, the genicam extra); replay: a folder.",
     )
     device: int | str = Field(1, description="OpenCV device index, path or URL.")
+    serial: str | None = Field(
+        None, description="GenICam: serial number of the IR camera; none: any (see user_id)."
+    )
+    user_id: str | None = Field(
+        None, description="GenICam: the IR camera's DeviceUserID; none: any (the first found)."
+    )
+    conversion: Literal["planck", "linear"] = Field(
+        "planck",
+        description="genicam-radiometric: planck: raw counts S to kelvin with the camera's "
+        "R, B, F, O (T = B / ln(R / (S - O) + F)); linear: the camera streams temperature "
+        "(TemperatureLinearMode), kelvin = counts x linear_resolution_k.",
+    )
+    linear_resolution_k: PositiveFloat = Field(
+        0.04,
+        description="Linear mode: kelvin per count (FLIR Ax5: 0.04 high / 0.4 low resolution; "
+        "A50/A70/A400: 0.01 / 0.1).",
+    )
+    emissivity: Annotated[float, Field(gt=0, le=1)] = Field(
+        1.0, description="Planck mode: emissivity of the link's surface."
+    )
+    reflected_temp_c: float = Field(
+        22.0, description="Planck mode: reflected apparent temperature (degC)."
+    )
+    atmospheric_transmission: Annotated[float, Field(gt=0, le=1)] = Field(
+        1.0, description="Planck mode: transmission of the air between link and camera."
+    )
+    atmospheric_temp_c: float = Field(22.0, description="Planck mode: air temperature (degC).")
+    window_transmission: Annotated[float, Field(gt=0, le=1)] = Field(
+        1.0, description="Planck mode: transmission of an IR window in front of the lens."
+    )
+    window_temp_c: float = Field(22.0, description="Planck mode: the window's temperature (degC).")
+    reconnect_max_backoff_s: PositiveFloat = Field(
+        30.0, description="GenICam: longest wait between two reconnection attempts (s)."
+    )
     replay_dir: Path | None = Field(None, description="Folder of thermal frames to replay.")
     replay_period_s: PositiveFloat | None = Field(
         None,

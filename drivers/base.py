@@ -39,6 +39,10 @@ class Frame:
     bit_depth: int  # significant bits (8, 12, 16)
     timestamp_s: float  # on the run clock (drivers.clock), when the exposure ended
     sequence: int  # 0, 1, 2 ... per opened camera
+    #: what timestamp_s is: "camera" (the camera's clock + exposure), "trigger" (run clock at the
+    #: software trigger + exposure), "backend" (the capture backend's stamp), "host" (when the
+    #: driver received the frame: late by readout and transfer; issue 18)
+    timestamp_source: str = "host"
 
 
 class Camera(AsyncDevice, Protocol):

@@ -19,7 +19,9 @@ from drivers.base import Camera, IrReader, Robot
 from drivers.c500c import C500CRobot
 from drivers.camera import OpenCvCamera, ReplayCamera
 from drivers.clock import Clock
+from drivers.genicam_camera import GenICamCamera
 from drivers.ir import OpenCvIrReader, ReplayIrReader
+from drivers.radiometric import GenICamRadiometricIrReader
 from drivers.sim.bench import Bench
 from drivers.sim.devices import SimCamera, SimIrReader
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
@@ -85,6 +87,8 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             camera = SimCamera(settings.camera, bench, clock)
         elif settings.camera.driver == "opencv":
             camera = OpenCvCamera(settings.camera, clock)
+        elif settings.camera.driver == "genicam":
+            camera = GenICamCamera(settings.camera, clock)
         else:
             camera = ReplayCamera(settings.camera, clock)
 
@@ -94,6 +98,8 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             ir = SimIrReader(settings, bench, clock)
         elif settings.ir.driver == "opencv":
             ir = OpenCvIrReader(settings.ir, clock)
+        elif settings.ir.driver == "genicam-radiometric":
+            ir = GenICamRadiometricIrReader(settings.ir, clock)
         else:
             ir = ReplayIrReader(settings.ir, clock)
 

@@ -51,6 +51,8 @@ NO_TOKEN_EXAMPLES = 3
 #: The harness's own run, kept active while the run-control and read operations are fuzzed:
 #: a 1 s step on the bench clock at 10x is one step per 100 ms of wall time.
 HARNESS_RUN = {"duration_s": 3600, "step_s": 1}
+#: Operations that do their work only while idle (409 during a run): fuzzed with no run active.
+IDLE_OPERATIONS = frozenset({"POST /api/v1/runs", "GET /api/v1/devices/preview"})
 
 #: Schemathesis' configuration (its TOML). Every built-in check is on; what differs from the
 #: defaults, and why:
@@ -140,7 +142,7 @@ class RunKeeper:
     def prepare(self, label: str) -> int | None:
         """Set the daemon up for a request of ``label``; the active run's id, if any."""
         active = self.active_run()
-        if label == "POST /api/v1/runs":
+        if label in IDLE_OPERATIONS:
             self.stop(active)
             return None
         if active is None:
