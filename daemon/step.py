@@ -33,6 +33,7 @@ from daemon.runs import ProcedurePoint, RunParameters, heat_at, procedure_point
 from daemon.scheduler import Tick
 from daemon.sensors import Sensors
 from daemon.vision import CentroidError, measure_with_camera_settings
+from daemon.vision.calibration import camera_to_robot
 from daemon.workers import Workers
 from drivers.base import Frame, MoveResult, Pose, Robot
 from drivers.errors import DeviceError
@@ -333,6 +334,8 @@ class StepPipeline:
         errors: list[str],
     ) -> None:
         camera_settings = self._settings.camera
+        if frame.timestamp_source == "host":  # issue 18: say when the time is not exposure's
+            flags.append("host-timestamp")
         age_s = self._now() - frame.timestamp_s
         stale = age_s > camera_settings.max_age_s
         if stale:
@@ -353,8 +356,12 @@ class StepPipeline:
         reference = work.reference_um.setdefault(point.pose_index, (result.x_um, result.y_um))
         record.drift_x_um = result.x_um - reference[0]
         record.drift_y_um = result.y_um - reference[1]
-        residual = record.drift_x_um * work.direction[0] + record.drift_y_um * work.direction[1]
-        record.residual_um = float(residual)
+        # the drift in world coordinates (the camera's calibrated rotation, issue 18), along
+        # the link: the residual of the compensation (thesis 6.2)
+        world_um = camera_to_robot(
+            (record.drift_x_um, record.drift_y_um), self._settings.camera.rotation_deg
+        )
+        record.residual_um = float(np.dot(world_um, work.direction))
 
     async def _infrared(
         self, work: RunWork, record: StepRecord, flags: list[str], errors: list[str]

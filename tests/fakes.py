@@ -196,7 +196,9 @@ class FakeCamera:
         centre = (80.0 + spot[0] / UM_PER_PX[0], 60.0 + spot[1] / UM_PER_PX[1])
         image = render_spot(shape=SHAPE, centre_xy=centre, sigma_px=3.0, bit_depth=16)
         self.sequence += 1
-        return Frame(image, 16, self.bench.clock.now() - self.age_s, self.sequence)
+        # stamped at its exposure, as the sim camera: the fake knows the time exactly
+        timestamp_s = self.bench.clock.now() - self.age_s
+        return Frame(image, 16, timestamp_s, self.sequence, timestamp_source="camera")
 
 
 class FakeIr:
