@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import logging
 import signal
+import sys
 from types import FrameType
 
 import uvicorn
@@ -13,7 +14,9 @@ from fastapi import FastAPI
 from pydantic import ValidationError
 
 from api.app import create_app
+from api.connections import guarded_protocol
 from api.deps import ApiContext
+from api.startup import StartupError, limit_repeated_logs, preflight
 from config import ConfigError, Settings, load_settings
 from config.cli import add_config_argument
 from daemon.service import Daemon
@@ -52,6 +55,10 @@ def with_address(settings: Settings, host: str | None, port: int | None) -> Sett
     return settings.model_copy(update={"api": api})
 
 
+#: An idle keep-alive connection is closed after this long (s): a browser polling /state
+#: every second keeps its connection, an abandoned one frees its descriptor.
+KEEP_ALIVE_S = 5
+
 #: How often the supervisor looks at the server and the daemon (startup, shutdown, STATUS).
 SUPERVISOR_POLL_S = 0.1
 
@@ -73,6 +80,12 @@ def server_config(settings: Settings, app: FastAPI | None = None) -> uvicorn.Con
         # than the lab network saves (50 clients: milliseconds per step)
         ws_per_message_deflate=False,
         timeout_graceful_shutdown=10,
+        # bounded connections (issue 16; api/connections.py says what uvicorn lacks): 503
+        # beyond max_connections, closed on accept a little beyond, a request must arrive
+        # whole within request_timeout_s, an idle keep-alive connection closes after 5 s
+        http=guarded_protocol(settings.api.max_connections, settings.api.request_timeout_s),
+        limit_concurrency=settings.api.max_connections,
+        timeout_keep_alive=KEEP_ALIVE_S,
     )
 
 
@@ -166,6 +179,13 @@ def _stopped_by_signal(signum: int, frame: FrameType | None) -> None:
 def run(args: argparse.Namespace) -> int:
     settings = with_address(load_settings(args.config), args.host, args.port)
     notifier = SystemdNotifier()
+    try:
+        preflight(settings)  # binding, descriptors, devices, port, database: one line each
+    except StartupError as err:
+        print(f"thermocomp serve: {err}", file=sys.stderr)
+        notifier.status(f"failed to start: {err}")
+        return err.status
+    limit_repeated_logs()
     logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
     previous = signal.signal(signal.SIGTERM, _stopped_by_signal)
     try:

@@ -347,7 +347,7 @@ async def test_an_unreadable_body_is_a_documented_400() -> None:
     start = app.openapi()["paths"]["/api/v1/runs"]["post"]["responses"]
     assert "400" in start
     transport = httpx.ASGITransport(app=app)
-    async with httpx.AsyncClient(transport=transport, base_url="http://t") as client:
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
         response = await client.post(
             "/api/v1/runs",
             content=b'{"duration_s": 1\xff}',

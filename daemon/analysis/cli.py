@@ -102,7 +102,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         description="Least-squares fit of y = y0 + A (1 - exp(-(t - t0)/tau)) (rising) or "
         "y = y0 + A exp(-(t - t0)/tau) (decaying) with the parameters' standard errors, the "
         "time constant tau and the steady-state time: the first time after which the data "
-        "stay within a band around their final level (default +-3 sigma of the last 20 %%, "
+        "stay within a band around their final level (default +-3 sigma of the last 20 %, "
         "thesis 3.5.1).",
     )
     fit.add_argument("file", type=Path, help="CSV with a header, a plain list, or -")

@@ -28,9 +28,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         description="Serve the emulated CRS C500C console on a pseudo-terminal (prints the "
         "device path to open) or a TCP port (prints a socket:// URL pyserial opens). "
         "SIGINT or SIGTERM stops it.",
-        epilog="Fault SPEC: comma-separated KIND[=SECONDS][@N|%%P] with KIND one of drop, "
-        "corrupt, delay, stall, close; @N strikes at the N-th command line, %%P with "
-        "probability P per command. Example: --faults 'drop@5,delay=2@9,corrupt%%0.01'.",
+        epilog="Fault SPEC: comma-separated KIND[=SECONDS][@N|%P] with KIND one of drop, "
+        "corrupt, delay, stall, close; @N strikes at the N-th command line, %P with "
+        "probability P per command. Example: --faults 'drop@5,delay=2@9,corrupt%0.01'.",
     )
     parser.add_argument("device", choices=["c500c"], help="the device to emulate")
     where = parser.add_mutually_exclusive_group()
