@@ -1,4 +1,5 @@
-"""``thermocomp serve``: run the daemon and its API under uvicorn until a signal stops it."""
+"""``thermocomp serve``: run the daemon and its API under uvicorn until a signal stops it
+(the command line is api/serve_cli.py, which imports this module only when it runs)."""
 
 from __future__ import annotations
 
@@ -18,24 +19,10 @@ from api.connections import guarded_protocol
 from api.deps import ApiContext
 from api.startup import StartupError, limit_repeated_logs, preflight
 from config import ConfigError, Settings, load_settings
-from config.cli import add_config_argument
 from daemon.service import Daemon
 from daemon.systemd import SystemdNotifier
 
 logger = logging.getLogger(__name__)
-
-
-def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = subparsers.add_parser(
-        "serve",
-        help="run the daemon with its REST/WebSocket API",
-        description="Run the daemon and serve the REST/WebSocket API and the dashboard. "
-        "SIGINT or SIGTERM stops it cleanly.",
-    )
-    add_config_argument(parser)
-    parser.add_argument("--host", help="address to bind (default: api.host of the config)")
-    parser.add_argument("--port", type=int, help="port to bind (default: api.port; 0 = any)")
-    parser.set_defaults(handler=run)
 
 
 def with_address(settings: Settings, host: str | None, port: int | None) -> Settings:

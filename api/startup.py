@@ -25,14 +25,10 @@ from pathlib import Path
 from api.connections import ACCEPT_MARGIN
 from api.security import is_loopback
 from config import Settings
-from config.cli import EXIT_USAGE
+from config.cli import EXIT_ADDRESS, EXIT_DEVICE, EXIT_STORAGE, EXIT_USAGE
 from daemon.recorder import Recorder, RecorderError
 
 logger = logging.getLogger(__name__)
-
-EXIT_DEVICE = 3
-EXIT_STORAGE = 4
-EXIT_ADDRESS = 5
 
 #: Descriptors besides the connections: database and WAL (two connections), lock file,
 #: serial port or pty pair, cameras, log, pipes, Python's own; generous.

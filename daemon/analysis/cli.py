@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, positive_float, positive_int
 from daemon.analysis.fits import KINDS, FitError, Kind, direction_of, fit_exponential
 from daemon.analysis.statistics import ErrorStatistics, error_statistics
 from daemon.analysis.steps import RESIDUAL_COLUMN, number_or_nan
@@ -114,7 +114,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     fit.add_argument(
         "--step-s",
-        type=float,
+        type=positive_float,
         default=1.0,
         help="time between rows when there is no time column (default 1 s)",
     )
@@ -126,25 +126,25 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     fit.add_argument(
         "--band",
-        type=float,
+        type=positive_float,
         help="steady-state half-band in the column's unit (default: --sigmas of the final segment)",
     )
     fit.add_argument(
         "--sigmas",
-        type=float,
+        type=positive_float,
         default=3.0,
         help="band in standard deviations "
         "of the final segment when --band is not given (default 3)",
     )
     fit.add_argument(
         "--final-fraction",
-        type=float,
+        type=float,  # range (and nan) checked by run_fit: 0 < x <= 1
         default=0.2,
         help="final segment as a fraction of the data (default 0.2)",
     )
     fit.add_argument(
         "--smoothing",
-        type=int,
+        type=positive_int,
         default=9,
         help="judge 'stays within the band' on a running mean of this many samples "
         "(default 9; 1: raw samples)",
