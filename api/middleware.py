@@ -9,7 +9,7 @@ from collections.abc import Iterable
 
 from starlette.datastructures import MutableHeaders
 from starlette.responses import Response
-from starlette.routing import BaseRoute, Match, Mount, Route
+from starlette.routing import BaseRoute, Match, Mount
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from api.errors import error_response
@@ -101,19 +101,26 @@ class SecurityHeaders:
         await self.app(scope, receive, send_with_headers)
 
 
+#: The methods probed for ``Allow`` (the API uses no others).
+_METHODS = ("GET", "POST", "PUT", "PATCH", "DELETE")
+
+
 def allowed_methods(routes: Iterable[BaseRoute], path: str) -> list[str]:
     """Every method some route serves at ``path`` (FastAPI answers a 405 or an OPTIONS with
-    the first matching route's methods only: /runs has a GET route and a POST route)."""
+    the first matching route's methods only: /runs has a GET route and a POST route). Each
+    method is probed through the routes' own matching, included routers too."""
     methods: set[str] = set()
     for route in routes:
-        if isinstance(route, Route):
-            match, _ = route.matches({"type": "http", "path": path, "method": "GET"})
-            if match is not Match.NONE and route.methods:
-                methods |= set(route.methods)
-        elif isinstance(route, Mount) and path.startswith(route.path + "/"):
-            methods |= {"GET", "HEAD"}
+        if isinstance(route, Mount):  # static files: they match any method, serve two
+            if path.startswith(route.path + "/"):
+                methods |= {"GET", "HEAD"}
+            continue
+        for method in _METHODS:
+            probe = {"type": "http", "path": path, "method": method, "root_path": ""}
+            if route.matches({**probe, "headers": [], "query_string": b""})[0] is Match.FULL:
+                methods.add(method)
     if methods:
-        methods |= {"OPTIONS"}
+        methods.add("OPTIONS")
         if "GET" in methods:
             methods.add("HEAD")
     return sorted(methods)

@@ -12,15 +12,18 @@ from typing import Any
 
 from fastapi import FastAPI
 from fastapi.openapi.utils import get_openapi
-from fastapi.routing import APIRoute
+from fastapi.routing import RouteContext, iter_route_contexts
 
 from api.deps import require_control, require_read
 
 SCHEME = "bearer"
 
 
-def _access(route: APIRoute) -> str | None:
-    calls = {dependency.call for dependency in route.dependant.dependencies}
+def _access(context: RouteContext) -> str | None:
+    dependant = getattr(context.route, "dependant", None)
+    if dependant is None:
+        return None
+    calls = {dependency.call for dependency in dependant.dependencies}
     if require_control in calls:
         return "control"
     if require_read in calls:
@@ -49,17 +52,15 @@ def install_openapi(app: FastAPI, anonymous_read: bool) -> None:
             }
         }
         paths: dict[str, dict[str, Any]] = schema.get("paths", {})
-        for route in app.routes:
-            if not isinstance(route, APIRoute) or route.path_format not in paths:
-                continue
-            access = _access(route)
-            if access is None:
+        for context in iter_route_contexts(app.routes):  # included routers too
+            access = _access(context)
+            if access is None or context.path_format not in paths:
                 continue
             requirement: list[dict[str, list[str]]] = [{SCHEME: []}]
             if access == "read" and anonymous_read:
                 requirement.append({})  # no credentials at all is accepted too
-            for method in route.methods or ():
-                operation = paths[route.path_format].get(method.lower())
+            for method in context.methods or ():
+                operation = paths[context.path_format].get(method.lower())
                 if operation is not None:
                     operation["security"] = requirement
         app.openapi_schema = schema
