@@ -47,7 +47,6 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         settings=settings,
         auth=Authenticator(api),
         control_limiter=RateLimiter(api.control_rate_per_s, api.control_burst),
-        failed_auth_limiter=RateLimiter(api.control_rate_per_s, api.control_burst),
         hosts=HostAllowList(api),
         hub=Hub(settings.api.ws_queue_messages, on_drop=api_metrics.websocket_dropped.inc),
         metrics=api_metrics,

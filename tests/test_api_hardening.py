@@ -72,8 +72,8 @@ def _read_until_closed(sock: socket.socket, limit_s: float) -> float:
 
 def test_a_token_less_flood_never_throttles_the_operators_hold() -> None:
     """The drill: 5 token-less POST /robot/stop per second from one address made the
-    operator's hold answer 429 six times out of ten. Now failures are charged to a bucket
-    of their own and the hold with the control token is never limited."""
+    operator's hold answer 429 six times out of ten. Now the token is checked before any
+    rate accounting, and the hold with the control token is never limited."""
     env = {
         "THERMOCOMP_API__CONTROL_TOKEN": CONTROL,
         "THERMOCOMP_API__CONTROL_RATE_PER_S": "1",
@@ -103,7 +103,7 @@ def test_a_token_less_flood_never_throttles_the_operators_hold() -> None:
             stop.set()
             flooder.join()
     assert statuses == [200] * 10
-    assert set(anonymous) <= {401, 429} and 429 in anonymous  # guessing stays limited
+    assert set(anonymous) == {401}
 
 
 # --- bounded connections ------------------------------------------------------------------
