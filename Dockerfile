@@ -1,24 +1,29 @@
-# thermocomp: the daemon on the simulated bench by default.
+# thermocomp: the daemon on the simulated bench by default. It listens on every interface of
+# the container, so it needs a control token (without one it refuses to start, exit 2):
 #   docker build -t thermocomp .
-#   docker run -p 8000:8000 -v thermocomp-data:/data thermocomp
+#   docker run -p 127.0.0.1:8000:8000 -e THERMOCOMP_API__CONTROL_TOKEN=change-me \
+#     -v thermocomp-data:/data thermocomp
+# (reads need the token too, or add -e THERMOCOMP_API__ANONYMOUS_READ=true). The dashboard
+# and API accept the names localhost and 127.0.0.1; to reach them by another name add
+# -e 'THERMOCOMP_API__ALLOWED_HOSTS=["lab-pc.example.org"]'.
 # Real hardware: pass the devices and a lab config, e.g.
 #   docker run --device /dev/ttyS0 --device /dev/video0 --device /dev/video1 \
-#     -v /etc/thermocomp:/config:ro -v thermocomp-data:/data thermocomp \
-#     serve --config /config/lab.toml --host 0.0.0.0
+#     -e THERMOCOMP_API__CONTROL_TOKEN=change-me -v /etc/thermocomp:/config:ro \
+#     -v thermocomp-data:/data thermocomp serve --config /config/lab.toml
 FROM python:3.11-slim AS build
 WORKDIR /src
 RUN python -m venv /opt/venv
 ENV PATH=/opt/venv/bin:$PATH
-# Dependencies in their own layer: rebuilt only when pyproject.toml changes.
+# Dependencies in their own layer, exactly the hashed set of the lock (as make run installs):
+# rebuilt only when the lock changes.
+COPY requirements.lock ./
+RUN pip install --no-cache-dir --require-hashes -r requirements.lock
 COPY pyproject.toml README.md ./
-RUN mkdir -p daemon drivers api config && touch daemon/__init__.py drivers/__init__.py \
-        api/__init__.py config/__init__.py \
-    && pip install --no-cache-dir . && pip uninstall -y thermocomp
 COPY daemon daemon
 COPY drivers drivers
 COPY api api
 COPY config config
-RUN pip install --no-cache-dir --no-deps .
+RUN pip install --no-cache-dir --no-deps --no-build-isolation .
 
 FROM python:3.11-slim
 RUN useradd --system --uid 10001 --home-dir /data --create-home thermocomp

@@ -5,20 +5,34 @@ BIN := $(VENV)/bin
 CONFIG ?= config/sim.toml
 SOURCES := daemon drivers api config
 
-.PHONY: run test lint bench soak clean
+.PHONY: run test lint bench soak clean lock
+
+# The exact, hashed dependency set (pip-compile --generate-hashes): every install uses it,
+# so a fresh clone, the Docker image and CI test and run the same versions. `make lock`
+# refreshes it from pyproject.toml's ranges.
+LOCK := requirements.lock
+DEV_LOCK := requirements-dev.lock
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# Stamps: reinstall only when the packaging changes.
-$(VENV)/.installed: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e .
+# Stamps: reinstall only when the lock or the packaging changes.
+$(VENV)/.installed: pyproject.toml $(LOCK) | $(BIN)/python
+	$(BIN)/python -m pip install --quiet --require-hashes -r $(LOCK)
+	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
 	touch $@
 
-$(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+$(VENV)/.installed-dev: pyproject.toml $(DEV_LOCK) | $(BIN)/python
+	$(BIN)/python -m pip install --quiet --require-hashes -r $(DEV_LOCK)
+	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
 	touch $(VENV)/.installed $@
+
+# Re-resolve every dependency to the newest versions pyproject.toml allows, with hashes.
+PIP_COMPILE := $(BIN)/pip-compile --quiet --generate-hashes --allow-unsafe --all-build-deps --strip-extras \
+	--no-emit-index-url --no-emit-find-links
+lock: $(VENV)/.installed-dev
+	$(PIP_COMPILE) --upgrade --extra dev --extra parquet -o $(DEV_LOCK) pyproject.toml
+	$(PIP_COMPILE) -c $(DEV_LOCK) -o $(LOCK) pyproject.toml
 
 run: $(VENV)/.installed
 	$(BIN)/thermocomp serve --config $(CONFIG)

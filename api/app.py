@@ -9,7 +9,6 @@ from contextlib import AbstractAsyncContextManager, AsyncExitStack, asynccontext
 from pathlib import Path
 
 from fastapi import FastAPI
-from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
@@ -18,9 +17,11 @@ from api.deps import ApiContext
 from api.errors import COMMON_ERROR_RESPONSES, install_error_handlers
 from api.limits import BodySizeLimit
 from api.metrics import ApiMetrics
+from api.middleware import HeadAsGet, HostCheck, MethodOptions, SecurityHeaders
+from api.openapi import install_openapi
 from api.relay import Relay
 from api.routers import configuration, devices, health, metrics, networks, runs, state, ws
-from api.security import Authenticator, RateLimiter
+from api.security import Authenticator, HostAllowList, RateLimiter
 from config import Settings
 from daemon import __version__
 from daemon.service import Daemon
@@ -41,10 +42,12 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
     that need no daemon) the routes that need it answer 503.
     """
     api_metrics = ApiMetrics()
+    api = settings.api
     context = ApiContext(
         settings=settings,
-        auth=Authenticator(settings.api),
-        control_limiter=RateLimiter(settings.api.control_rate_per_s, settings.api.control_burst),
+        auth=Authenticator(api),
+        control_limiter=RateLimiter(api.control_rate_per_s, api.control_burst),
+        hosts=HostAllowList(api),
         hub=Hub(settings.api.ws_queue_messages, on_drop=api_metrics.websocket_dropped.inc),
         metrics=api_metrics,
     )
@@ -70,8 +73,9 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         title="thermocomp",
         version=__version__,
         description="Thermal-deformation compensation daemon for robot links: runs, steps, "
-        "devices, errors. Reads need the `read` scope (or anonymous reads on loopback), "
-        "control needs the `control` scope: `Authorization: Bearer <token>`.",
+        "devices, errors. Reads need the `read` scope (or none where anonymous reads are on: "
+        "by default when bound to loopback), control needs the `control` scope: "
+        "`Authorization: Bearer <token>`. HEAD is answered wherever GET is.",
         lifespan=lifespan,
         responses=COMMON_ERROR_RESPONSES,
         docs_url=None,  # served from vendored files below: lab PCs are often offline
@@ -79,7 +83,12 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
     )
     app.state.context = context
     install_error_handlers(app)
+    # the last added runs first: the Host check, then the headers (on refusals too)
+    app.add_middleware(HeadAsGet)
     app.add_middleware(BodySizeLimit, max_bytes=settings.api.max_body_bytes)
+    app.add_middleware(MethodOptions, routes=app.router.routes)
+    app.add_middleware(SecurityHeaders, api_prefixes=(API_PREFIX, "/metrics", "/openapi.json"))
+    app.add_middleware(HostCheck, hosts=context.hosts)
     for router in (
         health.router,
         state.read_router,
@@ -94,6 +103,7 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         app.include_router(router, prefix=API_PREFIX)
     app.include_router(metrics.router)
     _mount_dashboard(app)
+    install_openapi(app, context.auth.anonymous_read)
     return app
 
 
@@ -107,11 +117,24 @@ def _mount_dashboard(app: FastAPI) -> None:
 
     @app.get("/docs", include_in_schema=False)
     async def docs() -> HTMLResponse:
-        """Swagger UI from the vendored copy in static/vendor (no CDN)."""
-        return get_swagger_ui_html(
-            openapi_url=app.openapi_url or "/openapi.json",
-            title="thermocomp API",
-            swagger_js_url=f"{SWAGGER_UI}/swagger-ui-bundle.js",
-            swagger_css_url=f"{SWAGGER_UI}/swagger-ui.css",
-            swagger_favicon_url=f"{SWAGGER_UI}/favicon-32x32.png",
-        )
+        """Swagger UI from the vendored copy in static/vendor (no CDN), started by a script
+        file rather than FastAPI's inline one (the CSP allows no inline script)."""
+        return HTMLResponse(DOCS_PAGE)
+
+
+DOCS_PAGE = f"""<!DOCTYPE html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1.0">
+<link type="text/css" rel="stylesheet" href="{SWAGGER_UI}/swagger-ui.css">
+<link rel="icon" href="{SWAGGER_UI}/favicon-32x32.png">
+<title>thermocomp API</title>
+</head>
+<body>
+<div id="swagger-ui"></div>
+<script src="{SWAGGER_UI}/swagger-ui-bundle.js"></script>
+<script src="/static/swagger-init.js"></script>
+</body>
+</html>
+"""

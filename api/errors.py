@@ -88,17 +88,64 @@ def field_errors(error: RequestValidationError) -> list[dict[str, str]]:
     return fields
 
 
-async def _api_error(_: Request, exc: Exception) -> JSONResponse:
+async def _api_error(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StarletteHTTPException)
     if isinstance(exc, ApiError):
         return error_response(exc.status_code, exc.kind, exc.message, exc.details, exc.headers)
     kind = _KIND_BY_STATUS.get(exc.status_code, "error")
-    return error_response(exc.status_code, kind, str(exc.detail), None, exc.headers)
+    headers = dict(exc.headers or {})
+    if exc.status_code == 405:  # every method of the path, not the first route's only
+        from api.middleware import allowed_methods
+
+        methods = allowed_methods(request.app.router.routes, request.url.path)
+        if methods:
+            headers["Allow"] = ", ".join(methods)
+    return error_response(exc.status_code, kind, str(exc.detail), None, headers)
 
 
-async def _validation_error(_: Request, exc: Exception) -> JSONResponse:
+def _position(document: object, offset: int) -> str:
+    """``line L, column C`` (1-based) of a character offset in the request body."""
+    text = (
+        document.decode("utf-8", "replace")
+        if isinstance(document, bytes | bytearray)
+        else str(document)
+    )
+    before = text[:offset]
+    line = before.count("\n") + 1
+    column = offset - (before.rfind("\n") + 1) + 1
+    return f"line {line}, column {column}"
+
+
+def _body_problem(request: Request, exc: RequestValidationError) -> str | None:
+    """The one thing wrong with the body as a whole, in a curl user's words: not JSON (where),
+    or not sent as JSON (the Content-Type to use). None when its fields are the problem."""
+    for item in exc.errors():
+        if item.get("type") == "json_invalid":
+            loc = item.get("loc", ())
+            offset = loc[1] if len(loc) > 1 and isinstance(loc[1], int) else 0
+            reason = item.get("ctx", {}).get("error", "invalid JSON")
+            return f"the body is not valid JSON: {reason} at {_position(exc.body, offset)}"
+    content_type = request.headers.get("content-type")
+    if request.method in ("POST", "PUT", "PATCH") and any(
+        tuple(item.get("loc", ()))[:1] == ("body",) for item in exc.errors()
+    ):
+        main = (content_type or "").split(";", 1)[0].strip().lower()
+        if main != "application/json" and not main.endswith("+json"):
+            got = f"got {content_type!r}" if content_type else "none was given"
+            return (
+                "expected a JSON body with Content-Type: application/json "
+                f"({got}; curl: -H 'Content-Type: application/json')"
+            )
+    return None
+
+
+async def _validation_error(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
     fields = field_errors(exc)
+    problem = _body_problem(request, exc)
+    if problem is not None:
+        details = [{"field": "body", "message": problem, "type": "body"}]
+        return error_response(422, "validation", problem, details)
     summary = "; ".join(f"{f['field']}: {f['message']}" for f in fields[:5])
     return error_response(422, "validation", f"invalid request: {summary}", fields)
 

@@ -12,9 +12,11 @@ from __future__ import annotations
 import hmac
 import ipaddress
 import math
+import socket
 import time
 from collections.abc import Callable
 from typing import Literal
+from urllib.parse import urlsplit
 
 from config.settings import ApiSettings
 
@@ -31,6 +33,20 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host.strip("[]")).is_loopback
     except ValueError:
         return False
+
+
+def parse_authorization(header: str | None) -> str | None:
+    """The token of ``Authorization: Bearer <token>``; None without the header.
+
+    Any other scheme (``Basic ...``), or a Bearer without a token, is an :class:`AuthError`
+    like a wrong token: a credential the server cannot check must not pass as "no
+    credentials" (which anonymous reads would accept)."""
+    if header is None:
+        return None
+    scheme, _, value = header.strip().partition(" ")
+    if scheme.lower() != "bearer" or not value.strip():
+        raise AuthError(401, "unauthorized", "the Authorization header must be `Bearer <token>`")
+    return value.strip()
 
 
 class AuthError(Exception):
@@ -65,17 +81,19 @@ class Authenticator:
                 granted = scopes
         return granted
 
-    def require(self, token: str | None, scope: Scope) -> None:
-        """Return when ``token`` (None: no credentials) grants ``scope``; else raise."""
+    def require(self, token: str | None, scope: Scope) -> frozenset[Scope]:
+        """The scopes of ``token`` (None: no credentials; anonymous reads get none) when it
+        grants ``scope``; else raise."""
         if token is None:
             if scope == "read" and self.anonymous_read:
-                return
+                return frozenset()
             raise AuthError(401, "unauthorized", f"a bearer token with the {scope} scope is needed")
         scopes = self.scopes_of(token)
         if scopes is None:
             raise AuthError(401, "unauthorized", "unknown token")
         if scope not in scopes:
             raise AuthError(403, "forbidden", f"this token does not have the {scope} scope")
+        return scopes
 
 
 class RateLimiter:
@@ -117,3 +135,70 @@ class RateLimiter:
 
 def retry_after_header(wait_s: float) -> dict[str, str]:
     return {"Retry-After": str(max(1, math.ceil(wait_s)))}
+
+
+#: Addresses a server bound to them listens on every interface of.
+_WILDCARD_ADDRESSES = frozenset({"0.0.0.0", "::", ""})
+
+
+def split_host(value: str) -> str:
+    """The host part of a Host header or URL netloc, lower-case, without port or brackets:
+    ``"[::1]:8000"`` -> ``"::1"``, ``"Lab-PC:8000"`` -> ``"lab-pc"``."""
+    value = value.strip().lower()
+    if value.startswith("["):
+        return value[1 : value.find("]")] if "]" in value else value[1:]
+    if value.count(":") == 1:
+        value = value.split(":", 1)[0]
+    return value.rstrip(".")
+
+
+def _is_ip_literal(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
+class HostAllowList:
+    """Which ``Host`` headers (and WebSocket ``Origin`` hosts) the API answers.
+
+    DNS rebinding makes a browser send a page's own name (``evil.example``) to an address the
+    attacker chose (127.0.0.1): checking the name is what stops it. Allowed: the loopback
+    names and addresses, the bound address, ``api.allowed_hosts``; when bound to every
+    interface (0.0.0.0, ::) also this machine's host names and any IP literal (a client that
+    typed an address resolved no name, so no rebinding happened).
+    """
+
+    def __init__(self, api: ApiSettings) -> None:
+        bound = split_host(api.host)
+        names = set(_LOOPBACK_NAMES) | {"127.0.0.1", "::1"}
+        names |= {split_host(host) for host in api.allowed_hosts}
+        self.any_host = "*" in names
+        self.any_ip = bound in _WILDCARD_ADDRESSES
+        if self.any_ip:
+            names |= {socket.gethostname().lower(), socket.getfqdn().lower()}
+        else:
+            names.add(bound)
+        self.names = frozenset(names)
+
+    def allows(self, host_header: str | None) -> bool:
+        if self.any_host:
+            return True
+        if not host_header:
+            return False
+        host = split_host(host_header)
+        if host in self.names:
+            return True
+        if _is_ip_literal(host):
+            return self.any_ip or is_loopback(host)
+        return False
+
+    def allows_origin(self, origin: str, allowed_origins: tuple[str, ...]) -> bool:
+        """A browser's ``Origin``: listed in ``api.allowed_origins``, or an http(s) origin of
+        an allowed host -- never compared with the client's own ``Host`` header, which the
+        same page controls."""
+        if origin.rstrip("/") in {a.rstrip("/") for a in allowed_origins}:
+            return True
+        parts = urlsplit(origin)
+        return parts.scheme in ("http", "https") and self.allows(parts.netloc)

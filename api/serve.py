@@ -1,4 +1,5 @@
-"""``thermocomp serve``: run the daemon and its API under uvicorn until a signal stops it."""
+"""``thermocomp serve``: run the daemon and its API under uvicorn until a signal stops it
+(the command line is api/serve_cli.py, which imports this module only when it runs)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import asyncio
 import logging
 import signal
 import socket
+import sys
 from types import FrameType
 
 import uvicorn
@@ -14,27 +16,15 @@ from fastapi import FastAPI
 from pydantic import ValidationError
 
 from api.app import create_app
+from api.connections import guarded_protocol
 from api.deps import ApiContext
+from api.startup import StartupError, limit_repeated_logs, preflight
 from config import ConfigError, Settings, load_settings
-from config.cli import add_config_argument
 from daemon.service import Daemon
 from daemon.systemd import SystemdNotifier
 from drivers.errors import DeviceError
 
 logger = logging.getLogger(__name__)
-
-
-def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = subparsers.add_parser(
-        "serve",
-        help="run the daemon with its REST/WebSocket API",
-        description="Run the daemon and serve the REST/WebSocket API and the dashboard. "
-        "SIGINT or SIGTERM stops it cleanly.",
-    )
-    add_config_argument(parser)
-    parser.add_argument("--host", help="address to bind (default: api.host of the config)")
-    parser.add_argument("--port", type=int, help="port to bind (default: api.port; 0 = any)")
-    parser.set_defaults(handler=run)
 
 
 def with_address(settings: Settings, host: str | None, port: int | None) -> Settings:
@@ -53,6 +43,10 @@ def with_address(settings: Settings, host: str | None, port: int | None) -> Sett
         raise ConfigError(f"command line: {reasons}") from err
     return settings.model_copy(update={"api": api})
 
+
+#: An idle keep-alive connection is closed after this long (s): a browser polling /state
+#: every second keeps its connection, an abandoned one frees its descriptor.
+KEEP_ALIVE_S = 5
 
 #: How often the supervisor looks at the server and the daemon (startup, shutdown, STATUS).
 SUPERVISOR_POLL_S = 0.1
@@ -75,6 +69,12 @@ def server_config(settings: Settings, app: FastAPI | None = None) -> uvicorn.Con
         # than the lab network saves (50 clients: milliseconds per step)
         ws_per_message_deflate=False,
         timeout_graceful_shutdown=10,
+        # bounded connections (issue 16; api/connections.py says what uvicorn lacks): 503
+        # beyond max_connections, closed on accept a little beyond, a request must arrive
+        # whole within request_timeout_s, an idle keep-alive connection closes after 5 s
+        http=guarded_protocol(settings.api.max_connections, settings.api.request_timeout_s),
+        limit_concurrency=settings.api.max_connections,
+        timeout_keep_alive=KEEP_ALIVE_S,
     )
 
 
@@ -221,6 +221,13 @@ def _stopped_by_signal(signum: int, frame: FrameType | None) -> None:
 def run(args: argparse.Namespace) -> int:
     settings = with_address(load_settings(args.config), args.host, args.port)
     notifier = SystemdNotifier()
+    try:
+        preflight(settings)  # binding, descriptors, devices, port, database: one line each
+    except StartupError as err:
+        print(f"thermocomp serve: {err}", file=sys.stderr)
+        notifier.status(f"failed to start: {err}")
+        return err.status
+    limit_repeated_logs()
     logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
     previous = signal.signal(signal.SIGTERM, _stopped_by_signal)
     try:

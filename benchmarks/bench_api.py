@@ -2,9 +2,13 @@
 clock, on loopback:
 
 1. ``GET /api/v1/state`` throughput with a run active (target: at least 1,000 requests/s),
-   from a minimal keep-alive HTTP/1.1 client so that the client is not what is measured.
+   from a minimal keep-alive HTTP/1.1 client so that the client is not what is measured,
+   against the ceiling of the same stack measured in the same run: a trivial FastAPI app
+   under uvicorn returning a body of the same size (issue 16 target: ratio >= 0.7),
+   alternated so that the machine's load hits both alike.
 2. Step lateness (p50/p99/max) at a 100 ms step with no WebSocket client and with 50 clients
-   subscribed to steps (target: p99 at most 1 ms worse with the clients).
+   subscribed to steps (target: p99 at most 1 ms worse with the clients), and with 8
+   connections polling /state back to back (issue 16 target: p99 at most 2 ms worse).
 
 Usage: ``.venv/bin/python benchmarks/bench_api.py [--quick]``.
 """
@@ -74,6 +78,35 @@ def start_server(data_dir: Path, port: int) -> subprocess.Popen[bytes]:
     raise SystemExit("the server did not start")
 
 
+#: The reference: the same stack (FastAPI on uvicorn, its default HTTP and loop
+#: implementations) with nothing but a route returning a fixed body of /state's size.
+TRIVIAL_APP = """
+import sys, uvicorn
+from fastapi import FastAPI, Response
+body = b'{"pad":"' + b"x" * (int(sys.argv[2]) - 10) + b'"}'
+app = FastAPI()
+@app.get("/api/v1/state")
+async def state() -> Response:
+    return Response(body, media_type="application/json")
+uvicorn.run(app, host="127.0.0.1", port=int(sys.argv[1]), log_level="warning",
+            access_log=False)
+"""
+
+
+def start_trivial_server(port: int, body_bytes: int) -> subprocess.Popen[bytes]:
+    command = [sys.executable, "-c", TRIVIAL_APP, str(port), str(body_bytes)]
+    process = subprocess.Popen(command, cwd=REPO)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            httpx.get(f"http://127.0.0.1:{port}/api/v1/state", timeout=1)
+            return process
+        except httpx.TransportError:
+            time.sleep(0.1)
+    process.kill()
+    raise SystemExit("the trivial server did not start")
+
+
 async def keep_alive_client(port: int, path: str, until: float) -> int:
     """One connection sending GETs back to back; returns the number of 200 answers."""
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
@@ -118,11 +151,18 @@ def cpu_seconds(pid: int) -> float:
 
 
 async def run_and_measure(
-    client: httpx.AsyncClient, port: int, server_pid: int, seconds: float, ws_clients: int
+    client: httpx.AsyncClient,
+    port: int,
+    server_pid: int,
+    seconds: float,
+    ws_clients: int,
+    *,
+    state_load: bool = False,
 ) -> dict[str, Any]:
     """A run at a 100 ms step while ``ws_clients`` clients read every step; its lateness and
     the CPU time the server and the clients spent per step."""
     received = [0] * ws_clients
+    pollers: list[asyncio.Task[dict[str, Any]]] = []
 
     async def reader(index: int) -> None:
         async with connect(f"ws://127.0.0.1:{port}/api/v1/ws?topics=steps") as ws:
@@ -139,6 +179,8 @@ async def run_and_measure(
     )
     response.raise_for_status()
     run_id = response.json()["id"]
+    if state_load:  # /state polled back to back for the whole run
+        pollers.append(asyncio.create_task(state_throughput(port, seconds, connections=8)))
     ended = ("finished", "aborted", "fault")
     while True:
         if (await client.get(f"/api/v1/runs/{run_id}")).json()["state"] in ended:
@@ -150,12 +192,15 @@ async def run_and_measure(
     for task in readers:
         task.cancel()
     await asyncio.gather(*readers, return_exceptions=True)
+    polled = await asyncio.gather(*pollers)
     steps = (await client.get(f"/api/v1/runs/{run_id}/steps")).json()["steps"]
     run = (await client.get(f"/api/v1/runs/{run_id}")).json()
     # step 0 is excluded: it also teaches the operational goal (a few serial round trips)
     lateness_ms = np.array([s["lateness_s"] for s in steps[1:]]) * 1e3
     return {
         "ws_clients": ws_clients,
+        "state_load": state_load,
+        "state_per_s": polled[0]["per_s"] if polled else None,
         "steps": len(steps),
         "lateness_ms": lateness_ms.tolist(),
         "server_cpu_ms_per_step": 1e3 * server_cpu / len(steps),
@@ -184,7 +229,24 @@ async def main_async(quick: bool) -> dict[str, Any]:
                 started.raise_for_status()
                 run_id = started.json()["id"]
                 await asyncio.sleep(1.0)
-                throughput = await state_throughput(port, throughput_s, connections=8)
+                body_bytes = len((await c.get("/api/v1/state")).content)
+                trivial_port = free_port()
+                trivial = start_trivial_server(trivial_port, body_bytes)
+                try:
+                    measured: dict[str, list[dict[str, Any]]] = {"state": [], "trivial": []}
+                    for _ in range(2):
+                        measured["state"].append(
+                            await state_throughput(port, throughput_s / 2, connections=8)
+                        )
+                        measured["trivial"].append(
+                            await state_throughput(trivial_port, throughput_s / 2, connections=8)
+                        )
+                finally:
+                    trivial.terminate()
+                    trivial.wait(timeout=30)
+                throughput = _pooled(measured["state"])
+                ceiling = _pooled(measured["trivial"])
+                throughput["body_bytes"] = body_bytes
                 await c.post(f"/api/v1/runs/{run_id}/stop", headers=HEADERS)
                 # 2. lateness without and with 50 WebSocket clients
                 # alternated, so slow changes of the machine's load hit both alike
@@ -193,14 +255,34 @@ async def main_async(quick: bool) -> dict[str, Any]:
                     for _ in range(2)
                     for clients in (0, 50)
                 ]
+                # 3. lateness with and without /state polled back to back, alternated
+                polled = [
+                    await run_and_measure(c, port, server.pid, run_s, ws_clients=0, state_load=load)
+                    for _ in range(2)
+                    for load in (False, True)
+                ]
         finally:
             server.terminate()
             server.wait(timeout=30)
     return {
         "state_throughput": throughput,
+        "same_stack_ceiling": ceiling,
+        "state_ratio": throughput["per_s"] / ceiling["per_s"],
         "lateness": runs,
+        "lateness_state_load": polled,
         "run_seconds": run_s,
         "load_average_1min": [load_before[0], os.getloadavg()[0]],
+    }
+
+
+def _pooled(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    requests = sum(part["requests"] for part in parts)
+    seconds = sum(part["seconds"] for part in parts)
+    return {
+        "requests": requests,
+        "seconds": seconds,
+        "per_s": requests / seconds,
+        "connections": parts[0]["connections"],
     }
 
 
@@ -210,19 +292,33 @@ def main() -> int:
     args = parser.parse_args()
     results = asyncio.run(main_async(args.quick))
     throughput = results["state_throughput"]
-    print("GET /api/v1/state with a run active (100 ms step), keep-alive, loopback")
+    ceiling = results["same_stack_ceiling"]
+    print(
+        "GET /api/v1/state with a run active (100 ms step), keep-alive, loopback, against a "
+        f"trivial FastAPI/uvicorn app returning {throughput['body_bytes']} bytes"
+    )
     print_table(
-        ["connections", "requests", "seconds", "requests/s", "target"],
+        ["server", "connections", "requests", "seconds", "requests/s", "target"],
         [
             [
+                "thermocomp /state",
                 throughput["connections"],
                 throughput["requests"],
                 throughput["seconds"],
                 throughput["per_s"],
                 ">= 1000",
-            ]
+            ],
+            [
+                "trivial app",
+                ceiling["connections"],
+                ceiling["requests"],
+                ceiling["seconds"],
+                ceiling["per_s"],
+                "",
+            ],
         ],
     )
+    print(f"ratio /state / same-stack ceiling: {results['state_ratio']:.2f} (target >= 0.7)")
     print(
         f"\nstep lateness at a 100 ms step, {results['run_seconds']:.0f} s runs (step 0 excluded)"
     )
@@ -275,6 +371,19 @@ def main() -> int:
     results["p99_pooled_ms"] = pooled
     results["p99_worse_ms"] = worse
     print(f"\np99 (pooled) with 50 clients minus without: {worse:+.3f} ms (target <= 1 ms)")
+    loaded = {}
+    for load in (False, True):
+        lateness = np.concatenate(
+            [r["lateness_ms"] for r in results["lateness_state_load"] if r["state_load"] is load]
+        )
+        loaded[load] = float(np.percentile(lateness, 99))
+    rate = [r["state_per_s"] for r in results["lateness_state_load"] if r["state_load"]]
+    results["p99_state_load_worse_ms"] = loaded[True] - loaded[False]
+    print(
+        f"p99 (pooled) with /state polled back to back ({np.mean(rate):.0f} requests/s) minus "
+        f"without: {loaded[True] - loaded[False]:+.3f} ms (target <= 2 ms; "
+        f"{loaded[False]:.3f} -> {loaded[True]:.3f} ms)"
+    )
     before, after = results["load_average_1min"]
     print(
         f"machine load average (1 min) before/after: {before:.2f} / {after:.2f} "

@@ -32,8 +32,22 @@ from config.faults import parse_sensor_faults
 ENV_PREFIX = "THERMOCOMP_"
 ENV_NESTING = "__"
 
+#: Largest settings or network file read (bytes): the biggest preset is a few KiB, so anything
+#: this large is the wrong file, refused before it is parsed.
+MAX_TOML_BYTES = 4 * 1024 * 1024
+
 #: Baud rates the C500C's `siocfg` and the host serial ports both offer (C500C.md).
 SUPPORTED_BAUDRATES = (9600, 19200, 38400, 57600, 115200)
+
+#: Upper bounds of settings that have no natural one: far beyond any real use, low enough that
+#: no product, allocation or timer built from them overflows.
+MAX_FRAME_PX = 16_384
+MAX_HEAT_W = 1_000.0
+MAX_TIMEOUT_S = 3_600.0
+MAX_DURATION_S = 366 * 86_400.0  # a year of run clock
+#: api.max_connections at most: the file-descriptor budget (deploy/thermocomp.service's
+#: LimitNOFILE) is sized from it.
+MAX_CONNECTIONS_LIMIT = 4_096
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 NonNegativeFloat = Annotated[float, Field(ge=0)]
@@ -44,7 +58,12 @@ class ConfigError(Exception):
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_default=True, frozen=True)
+    # allow_inf_nan=False: every float of every section is finite (TOML's inf/nan, 1e400 and
+    # an environment "Infinity" are refused naming the field), so no setting can carry an
+    # infinity into a timer, a model step or a division
+    model_config = ConfigDict(
+        extra="forbid", validate_default=True, frozen=True, allow_inf_nan=False
+    )
 
 
 class BenchSettings(_Section):
@@ -56,11 +75,13 @@ class BenchSettings(_Section):
         description="real: wall time; accelerated: wall time x time_factor; virtual: jump to "
         "the next deadline (an hour in seconds).",
     )
-    time_factor: PositiveFloat = Field(
+    time_factor: Annotated[float, Field(gt=0, le=1e6)] = Field(
         100.0, description="Speed-up of the accelerated clock (bench seconds per wall second)."
     )
-    seed: int = Field(1, description="Seed of every random part of the bench.")
-    heater_power_w: NonNegativeFloat = Field(
+    seed: Annotated[int, Field(ge=0, le=2**63 - 1)] = Field(
+        1, description="Seed of every random part of the bench."
+    )
+    heater_power_w: Annotated[float, Field(ge=0, le=MAX_HEAT_W)] = Field(
         0.5, description="Power of each heater pad on the bench (W)."
     )
     heater_off_s: NonNegativeFloat | None = Field(
@@ -78,7 +99,7 @@ class BenchSettings(_Section):
     truth_convection_scale: PositiveFloat = Field(
         1.0, description="Truth convection / model convection (1 = model is right)."
     )
-    stand_drift_um: float = Field(
+    stand_drift_um: Annotated[float, Field(ge=-1000, le=1000)] = Field(
         2.0, description="Camera-stand warm-up drift amplitude (um), thesis 4.8; 0 = off."
     )
     stand_drift_tau_s: PositiveFloat = Field(
@@ -188,8 +209,12 @@ class CameraSettings(_Section):
         "returns the frame of now; none: each grab() returns the next frame.",
     )
     replay_loop: bool = Field(False, description="Replay: start again after the last frame.")
-    width_px: Annotated[int, Field(gt=0)] = Field(752, description="Frame width requested (px).")
-    height_px: Annotated[int, Field(gt=0)] = Field(582, description="Frame height requested (px).")
+    width_px: Annotated[int, Field(gt=0, le=MAX_FRAME_PX)] = Field(
+        752, description="Frame width requested (px)."
+    )
+    height_px: Annotated[int, Field(gt=0, le=MAX_FRAME_PX)] = Field(
+        582, description="Frame height requested (px)."
+    )
     bit_depth: Literal[8, 12, 16] = Field(16, description="Bits per pixel of the frames.")
     pixel_pitch_um: tuple[PositiveFloat, PositiveFloat] = Field(
         (8.6, 8.3), description="Physical pixel pitch (x, y) of the chip (um)."
@@ -219,7 +244,7 @@ class CameraSettings(_Section):
         description="Thesis method: high threshold (fraction or counts); brighter pixels "
         "count as white; none: off.",
     )
-    centroid_box: Annotated[int, Field(gt=0)] = Field(
+    centroid_box: Annotated[int, Field(gt=0, le=MAX_FRAME_PX)] = Field(
         400, description="Thesis method: half-size (px) of the box around the brightest pixels."
     )
     centroid_binary: bool = Field(
@@ -262,10 +287,10 @@ class IrRegion(_Section):
     """A rectangle of the thermal image whose mean/max temperature is reported."""
 
     name: str
-    x: Annotated[int, Field(ge=0)]
-    y: Annotated[int, Field(ge=0)]
-    width: Annotated[int, Field(gt=0)]
-    height: Annotated[int, Field(gt=0)]
+    x: Annotated[int, Field(ge=0, le=MAX_FRAME_PX)]
+    y: Annotated[int, Field(ge=0, le=MAX_FRAME_PX)]
+    width: Annotated[int, Field(gt=0, le=MAX_FRAME_PX)]
+    height: Annotated[int, Field(gt=0, le=MAX_FRAME_PX)]
     node: str | None = Field(None, description="Model node this region measures, if any.")
 
 
@@ -325,7 +350,9 @@ class IrSettings(_Section):
         "default reads centi-kelvin counts (FLIR Lepton radiometric Y16).",
     )
     noise_c: NonNegativeFloat = Field(0.08, description="Sim: 1-sigma noise (degC).")
-    offset_c: float = Field(0.5, description="Sim: fixed offset within the +-2 degC accuracy.")
+    offset_c: Annotated[float, Field(ge=-50, le=50)] = Field(
+        0.5, description="Sim: fixed offset within the +-2 degC accuracy."
+    )
     regions: tuple[IrRegion, ...] = Field(
         (),
         description="Regions of interest: [[ir.regions]] tables (name, x, y, width, height, node).",
@@ -352,8 +379,12 @@ class RobotSettings(_Section):
     bytesize: Literal[7, 8] = Field(8, description="Data bits.")
     parity: Literal["N", "E", "O"] = Field("N", description="Parity: none, even, odd.")
     stopbits: Literal[1, 2] = Field(1, description="Stop bits.")
-    command_timeout_s: PositiveFloat = Field(5.0, description="Timeout of one console command.")
-    move_timeout_s: PositiveFloat = Field(60.0, description="Timeout of a move and its finish.")
+    command_timeout_s: Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S)] = Field(
+        5.0, description="Timeout of one console command."
+    )
+    move_timeout_s: Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S)] = Field(
+        60.0, description="Timeout of a move and its finish."
+    )
     online: bool = Field(True, description="Use straight-line moves (needs `online on`).")
     application: str = Field("ash", description="Name of the ash application (prompt).")
     reconnect_max_backoff_s: PositiveFloat = Field(
@@ -381,8 +412,10 @@ class ModelSettings(_Section):
     stepper: Literal["exact", "explicit", "implicit"] = Field(
         "exact", description="exact: zero-order hold (any dt); explicit: Eq. 5.1; implicit: sparse."
     )
-    ambient_c: float = Field(22.0, description="Ambient temperature (degC).")
-    heat_w: dict[str, NonNegativeFloat] = Field(
+    ambient_c: Annotated[float, Field(ge=-60, le=150)] = Field(
+        22.0, description="Ambient temperature (degC)."
+    )
+    heat_w: dict[str, Annotated[float, Field(ge=0, le=MAX_HEAT_W)]] = Field(
         default_factory=lambda: {"2": 0.5, "9": 0.5},
         description="Heat input per node (1-based thesis number or name) in W.",
     )
@@ -433,8 +466,10 @@ class SchedulerSettings(_Section):
     step_s: Annotated[float, Field(ge=0.01, le=600)] = Field(
         1.0, description="Step period (s), 10 ms to 10 min."
     )
-    duration_s: PositiveFloat = Field(3600.0, description="Run length (s of run clock).")
-    warmup_wait_s: NonNegativeFloat = Field(
+    duration_s: Annotated[float, Field(gt=0, le=MAX_DURATION_S)] = Field(
+        3600.0, description="Run length (s of run clock)."
+    )
+    warmup_wait_s: Annotated[float, Field(ge=0, le=MAX_TIMEOUT_S)] = Field(
         0.0, description="Camera warm-up wait before the first step (s)."
     )
     precise_wake_ms: Annotated[float, Field(ge=0, le=10)] = Field(
@@ -442,7 +477,7 @@ class SchedulerSettings(_Section):
         description="Wall clocks: wake this long before a deadline and yield until it "
         "(asyncio sleeps end up to 1 ms late); 0 = plain sleep.",
     )
-    stop_grace_s: PositiveFloat = Field(
+    stop_grace_s: Annotated[float, Field(gt=0, le=60)] = Field(
         5.0,
         description="On stop, wait this long for the step in progress, then abandon it (s).",
     )
@@ -458,7 +493,7 @@ class StorageSettings(_Section):
     """Where runs are recorded (SQLite, WAL)."""
 
     data_dir: Path = Field(Path("data"), description="Folder of the run database and frames.")
-    archive_every: Annotated[int, Field(ge=0)] = Field(
+    archive_every: Annotated[int, Field(ge=0, le=2**31)] = Field(
         0, description="Archive every N-th frame as a 16-bit PNG; 0 = none."
     )
     report_at_end: bool = Field(
@@ -477,30 +512,57 @@ class ApiSettings(_Section):
     anonymous_read: bool | None = Field(
         None, description="Allow reads without a token; none: only when bound to loopback."
     )
+    allowed_hosts: tuple[str, ...] = Field(
+        (),
+        description="Host names (or addresses) clients may use to reach the API, besides the "
+        "loopback names and the bound address: any other Host header is refused with 400 "
+        '(DNS rebinding). E.g. ["lab-pc.example.org"].',
+    )
     allowed_origins: tuple[str, ...] = Field(
-        (), description="Origins allowed to open the WebSocket besides the server's own."
+        (),
+        description="Origins allowed to open the WebSocket besides those of the allowed hosts "
+        '(e.g. "http://lab-pc:8000").',
+    )
+    max_connections: Annotated[int, Field(ge=8, le=MAX_CONNECTIONS_LIMIT)] = Field(
+        256,
+        description="Connections served at once (HTTP and WebSocket): requests beyond get 503, "
+        "connections beyond this plus a small margin are closed on accept.",
+    )
+    request_timeout_s: Annotated[float, Field(gt=0, le=300)] = Field(
+        5.0,
+        description="Longest time a client may take to send a whole request (headers and body) "
+        "from connecting or from its first byte; then the connection is dropped (slowloris).",
     )
     control_rate_per_s: PositiveFloat = Field(
         2.0, description="Average control requests per second per client (429 beyond)."
     )
-    control_burst: Annotated[int, Field(ge=1)] = Field(
+    control_burst: Annotated[int, Field(ge=1, le=10_000)] = Field(
         10, description="Control requests a client may make at once before the rate applies."
     )
-    max_body_bytes: Annotated[int, Field(ge=1024)] = Field(
+    max_body_bytes: Annotated[int, Field(ge=1024, le=64 * 2**20)] = Field(
         65536, description="Largest request body accepted (bytes; 413 beyond)."
     )
-    ws_max_message_bytes: Annotated[int, Field(ge=64)] = Field(
+    ws_max_message_bytes: Annotated[int, Field(ge=64, le=2**20)] = Field(
         4096, description="Largest WebSocket message accepted from a client (bytes)."
     )
-    ws_queue_messages: Annotated[int, Field(ge=1)] = Field(
+    ws_queue_messages: Annotated[int, Field(ge=1, le=100_000)] = Field(
         256, description="Messages queued per WebSocket client; a slow client loses the oldest."
     )
-    ws_max_clients: Annotated[int, Field(ge=1)] = Field(
+    ws_max_clients: Annotated[int, Field(ge=1, le=MAX_CONNECTIONS_LIMIT)] = Field(
         100, description="WebSocket clients served at once; more are refused."
     )
     ws_frame_interval_s: PositiveFloat = Field(
         1.0, description="Shortest interval between two WebSocket frame thumbnails (s)."
     )
+
+    @model_validator(mode="after")
+    def _room_beside_websockets(self) -> ApiSettings:
+        if self.ws_max_clients >= self.max_connections:
+            raise ValueError(
+                f"ws_max_clients ({self.ws_max_clients}) must be below max_connections "
+                f"({self.max_connections}): requests, the robot hold among them, need room"
+            )
+        return self
 
 
 class Settings(_Section):
@@ -515,6 +577,31 @@ class Settings(_Section):
     scheduler: SchedulerSettings = SchedulerSettings()
     storage: StorageSettings = StorageSettings()
     api: ApiSettings = ApiSettings()
+
+
+#: Setting names whose value is a secret: never stored (run rows) nor served (GET /config),
+#: only whether they are set.
+SECRET_SUFFIXES = ("token", "password", "secret")
+REDACTED = "<redacted>"
+
+
+def redact_secrets(value: Any) -> Any:
+    """``value`` (a settings dump, or any JSON-like tree) with every secret's value replaced
+    by ``"<redacted>"``; an unset secret stays null."""
+    if isinstance(value, dict):
+        return {
+            key: (
+                REDACTED
+                if isinstance(key, str)
+                and key.lower().endswith(SECRET_SUFFIXES)
+                and item is not None
+                else redact_secrets(item)
+            )
+            for key, item in value.items()
+        }
+    if isinstance(value, list | tuple):
+        return [redact_secrets(item) for item in value]
+    return value
 
 
 def _env_value(raw: str) -> Any:
@@ -560,13 +647,25 @@ def read_toml(path: Path, error: type[Exception]) -> dict[str, Any]:
     unreadable), so settings and network files report bad files the same way."""
     try:
         with open(path, "rb") as handle:
-            return tomllib.load(handle)
+            raw = handle.read(MAX_TOML_BYTES + 1)
     except FileNotFoundError as err:
         raise error(f"{path}: no such file") from err
-    except tomllib.TOMLDecodeError as err:
-        raise error(f"{path}: not valid TOML: {err}") from err
+    except IsADirectoryError as err:
+        raise error(f"{path}: is a folder, not a TOML file") from err
     except OSError as err:
         raise error(f"{path}: cannot read: {err.strerror}") from err
+    if len(raw) > MAX_TOML_BYTES:
+        raise error(f"{path}: over {MAX_TOML_BYTES // 1024} KiB: not a settings or network file")
+    if b"\0" in raw:
+        raise error(f"{path}: a binary file, not TOML text")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise error(f"{path}: not UTF-8 text (byte {err.start}): save it as UTF-8") from err
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise error(f"{path}: not valid TOML: {err}") from err
 
 
 def load_settings(path: Path | None = None, environ: Mapping[str, str] | None = None) -> Settings:

@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from config import redact_secrets
 from daemon.analysis import RunSteps, steps_from_rows
 
 logger = logging.getLogger(__name__)
@@ -46,6 +47,8 @@ LOCK_NAME = "thermocomp.lock"
 #: ``interrupted`` (see daemon.runs.RunState).
 LIVE_STATES = ("starting", "running", "paused", "stopping", "fault")
 INTERRUPTED = "interrupted"
+#: Steps per batch of a Parquet export (one row group each).
+EXPORT_BATCH_STEPS = 10_000
 
 
 @dataclass(slots=True)
@@ -169,6 +172,7 @@ class Recorder:
             self._db.execute(_RUNS_SCHEMA)
             self._db.execute(_STEPS_SCHEMA)
             self._add_missing_step_columns()
+            self._redact_stored_configs()
         except (sqlite3.Error, OSError) as err:
             self._db.close()
             self._owner.close()
@@ -199,6 +203,25 @@ class Recorder:
             if field.name not in present:
                 self._db.execute(f"ALTER TABLE steps ADD COLUMN {field.name} {_column_type(field)}")
                 logger.info("run database: added the steps column %s", field.name)
+
+    def _redact_stored_configs(self) -> None:
+        """Migration (issue 16): a database written before run rows were redacted holds the
+        API tokens in clear in ``config_json``: redact them in place, once (a redacted row
+        no longer matches the filter)."""
+        rows = self._db.execute(
+            "SELECT id, config_json FROM runs WHERE config_json LIKE '%token\"%'"
+        ).fetchall()
+        changed = []
+        for run_id, text in rows:
+            stored = json.loads(text)
+            redacted = redact_secrets(stored)
+            if redacted != stored:
+                changed.append((_dumps(redacted), run_id))
+        if changed:
+            self._db.execute("BEGIN IMMEDIATE")
+            self._db.executemany("UPDATE runs SET config_json = ? WHERE id = ?", changed)
+            self._db.execute("COMMIT")
+            logger.warning("run database: redacted the secrets stored in %d run(s)", len(changed))
 
     # --- writing -----------------------------------------------------------------------
 
@@ -234,7 +257,7 @@ class Recorder:
                     state,
                     time.time(),
                     _dumps(parameters),
-                    _dumps(config),
+                    _dumps(redact_secrets(config)),  # tokens are never stored
                     None if network is None else _dumps(network),
                     software_version,
                 ),
@@ -328,9 +351,20 @@ class Recorder:
             raise RecorderError(
                 "Parquet export needs pyarrow: pip install 'thermocomp[parquet]'"
             ) from err
-        records = self.steps(run_id)
-        columns = {name: [getattr(r, name) for r in records] for name in STEP_COLUMNS}
-        pq.write_table(pa.table(columns), str(path))
+        # batch by batch, with the schema of the table's column types (a column that is all
+        # null in one batch keeps its type): memory is one batch whatever the run's length
+        arrow_types = {"INTEGER": pa.int64(), "REAL": pa.float64(), "TEXT": pa.string()}
+        schema = pa.schema(
+            [(f.name, arrow_types[_column_type(f)]) for f in dataclasses.fields(StepRecord)]
+        )
+        with self._read() as db, pq.ParquetWriter(str(path), schema) as writer:
+            cursor = db.execute(
+                f"SELECT {','.join(STEP_COLUMNS)} FROM steps WHERE run_id = ? ORDER BY step",
+                (run_id,),
+            )
+            while batch := cursor.fetchmany(EXPORT_BATCH_STEPS):
+                columns = [list(column) for column in zip(*batch, strict=True)]
+                writer.write_table(pa.table(columns, schema=schema))
 
     # --- internals -----------------------------------------------------------------------
 
@@ -407,7 +441,9 @@ def _claim(lock_path: Path) -> IO[str]:
         owner = handle.read().strip() or "unknown"
         handle.close()
         raise RecorderError(
-            f"{lock_path.parent} is in use by another thermocomp process (pid {owner})"
+            f"{lock_path.parent} is in use by another thermocomp process (pid {owner}): "
+            "while it runs, start and follow runs through its API (POST /api/v1/runs), or "
+            "use another folder (--data-dir, storage.data_dir)"
         ) from None
     handle.seek(0)
     handle.truncate()

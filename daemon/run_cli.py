@@ -19,7 +19,15 @@ from typing import Any
 from pydantic import ValidationError
 
 from config import Settings, load_settings
-from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument
+from config.cli import (
+    EXIT_FAILURE,
+    EXIT_OK,
+    EXIT_STORAGE,
+    EXIT_USAGE,
+    add_config_argument,
+    positive_float,
+)
+from daemon.recorder import RecorderError
 from daemon.report_queue import ReportStatus
 from daemon.runs import RunParameters, RunState, RunStateError
 from daemon.service import Daemon, RunParameterError
@@ -46,10 +54,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         choices=["off", "absolute", "incremental"],
         help="absolute: goal + offset (thesis 6.4.4); incremental: the thesis's comparison",
     )
-    parser.add_argument("--duration", type=float, metavar="S", help="run length (s)")
-    parser.add_argument("--step", type=float, metavar="S", help="step period (s), 0.01 to 600")
-    parser.add_argument("--scale", type=float, help="deformation scale (thesis 6.3)")
-    parser.add_argument("--time-scale", type=float, help="model s per run s (thesis 6.3)")
+    parser.add_argument("--duration", type=positive_float, metavar="S", help="run length (s)")
+    parser.add_argument(
+        "--step", type=positive_float, metavar="S", help="step period (s), 0.01 to 600"
+    )
+    parser.add_argument("--scale", type=positive_float, help="deformation scale (thesis 6.3)")
+    parser.add_argument("--time-scale", type=positive_float, help="model s per run s (thesis 6.3)")
     parser.add_argument("--network", help="network preset name or TOML file")
     parser.add_argument(
         "--prediction",
@@ -71,7 +81,11 @@ def run_command(args: argparse.Namespace) -> int:
     except ValidationError as err:
         print(f"thermocomp run: invalid run parameters:\n{_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
-    return asyncio.run(_run(settings, parameters, args))
+    try:
+        return asyncio.run(_run(settings, parameters, args))
+    except RecorderError as err:  # e.g. the data directory is another process's: one line
+        print(f"thermocomp run: {err}", file=sys.stderr)
+        return EXIT_STORAGE
 
 
 def _settings(args: argparse.Namespace) -> Settings:

@@ -37,7 +37,7 @@ def bearer(token: str) -> dict[str, str]:
 async def client() -> AsyncIterator[httpx.AsyncClient]:
     app = create_app(settings())
     transport = httpx.ASGITransport(app=app, raise_app_exceptions=False)
-    async with httpx.AsyncClient(transport=transport, base_url="http://testserver") as c:
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
         yield c
 
 
@@ -66,7 +66,7 @@ async def test_unexpected_exception_is_a_bare_500_without_trace() -> None:
         raise RuntimeError("secret internal detail /etc/passwd")
 
     transport = httpx.ASGITransport(app=app, raise_app_exceptions=False)
-    async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
         response = await c.get("/boom")
     body = assert_error_shape(response, 500, "internal")
     assert "secret internal detail" not in response.text
@@ -81,7 +81,7 @@ async def test_validation_errors_are_422_with_field_messages() -> None:
         return count
 
     transport = httpx.ASGITransport(app=app)
-    async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
         response = await c.get("/echo", params={"count": "many"})
     body = assert_error_shape(response, 422, "validation")
     assert body["details"][0]["field"] == "query.count"
@@ -142,7 +142,9 @@ def test_no_control_token_configured_means_no_control() -> None:
 
 async def test_reads_need_a_token_off_loopback() -> None:
     app = create_app(settings(host="0.0.0.0"))
-    async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t") as c:
+    async with httpx.AsyncClient(
+        transport=httpx.ASGITransport(app=app), base_url="http://127.0.0.1"
+    ) as c:
         assert_error_shape(await c.get("/api/v1/config"), 401, "unauthorized")
         assert_error_shape(
             await c.get("/api/v1/config", headers=bearer("nope")), 401, "unauthorized"
@@ -182,16 +184,51 @@ def test_rate_limiter_is_a_token_bucket() -> None:
 
 
 async def test_control_requests_beyond_the_limit_get_429() -> None:
+    """Authenticated control is limited per token; the hold never is."""
     app = create_app(settings(control_rate_per_s=0.001, control_burst=3))
-    async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t") as c:
-        statuses = [(await c.post("/api/v1/robot/stop")).status_code for _ in range(3)]
-        assert statuses == [401] * 3  # counted before authorisation: guessing is limited too
-        response = await c.post("/api/v1/robot/stop", headers=bearer(CONTROL))
+    transport = httpx.ASGITransport(app=app)
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
+        pause = "/api/v1/runs/1/pause"
+        statuses = [(await c.post(pause, headers=bearer(CONTROL))).status_code for _ in range(3)]
+        assert statuses == [503] * 3  # past the limiter: no daemon in this app
+        response = await c.post(pause, headers=bearer(CONTROL))
         body = assert_error_shape(response, 429, "rate-limited")
         assert int(response.headers["Retry-After"]) >= 1
         assert body["details"]["retry_after_s"] > 0
+        # the hold is never throttled, however many control requests came before
+        for _ in range(5):
+            hold = await c.post("/api/v1/robot/stop", headers=bearer(CONTROL))
+            assert hold.status_code == 503, hold.text  # reached the route: no daemon here
         # reads are not limited
         assert all([(await c.get("/api/v1/health")).status_code == 200 for _ in range(20)])
+
+
+async def test_failed_authentications_never_spend_the_tokens_allowance() -> None:
+    """Issue 16: token-less requests used to charge the per-address bucket the operator's hold
+    shared. The token is checked first; failures charge nothing."""
+    app = create_app(settings(control_rate_per_s=0.001, control_burst=3))
+    transport = httpx.ASGITransport(app=app)
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
+        anonymous = [(await c.post("/api/v1/robot/stop")).status_code for _ in range(6)]
+        assert anonymous == [401] * 6
+        wrong = await c.post("/api/v1/runs/1/pause", headers=bearer("guess"))
+        assert_error_shape(wrong, 401, "unauthorized")
+        hold = await c.post("/api/v1/robot/stop", headers=bearer(CONTROL))
+        assert hold.status_code == 503, hold.text  # authenticated, not limited
+        pause = await c.post("/api/v1/runs/1/pause", headers=bearer(CONTROL))
+        assert pause.status_code == 503, pause.text  # the token's own bucket is untouched
+
+
+@pytest.mark.parametrize("header", ["Basic dXNlcjpwYXNz", "Bearer", "Token abc", "bearer"])
+async def test_a_non_bearer_authorization_is_refused_like_a_wrong_token(header: str) -> None:
+    """Anonymous reads are on (loopback), yet a credential that cannot be checked is a 401."""
+    app = create_app(settings())
+    transport = httpx.ASGITransport(app=app)
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
+        assert (await c.get("/api/v1/config")).status_code == 200  # anonymous
+        response = await c.get("/api/v1/config", headers={"Authorization": header})
+        assert_error_shape(response, 401, "unauthorized")
+        assert response.headers["WWW-Authenticate"] == "Bearer"
 
 
 # --- body size --------------------------------------------------------------------------
@@ -227,7 +264,9 @@ async def test_config_redacts_secrets(client: httpx.AsyncClient) -> None:
     assert api["control_token"] == "<redacted>" and api["read_token"] == "<redacted>"
     assert response.json()["robot"]["baudrate"] == 57600
     app = create_app(Settings())
-    async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t") as c:
+    async with httpx.AsyncClient(
+        transport=httpx.ASGITransport(app=app), base_url="http://127.0.0.1"
+    ) as c:
         assert (await c.get("/api/v1/config")).json()["api"]["control_token"] is None
 
 
@@ -265,7 +304,7 @@ async def test_metrics_use_a_registry_per_app() -> None:
     texts = []
     for app in (first, second):
         async with httpx.AsyncClient(
-            transport=httpx.ASGITransport(app=app), base_url="http://t"
+            transport=httpx.ASGITransport(app=app), base_url="http://127.0.0.1"
         ) as c:
             response = await c.get("/metrics")
             assert response.headers["content-type"].startswith("text/plain")

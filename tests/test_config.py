@@ -100,5 +100,5 @@ def test_readme_reference_matches_the_model() -> None:
 def test_cli_exits_2_on_out_of_range_port_option() -> None:
     result = run_cli(["serve", "--config", "config/sim.toml", "--port", "99999"])
     assert result.returncode == 2
-    assert "--port: Input should be less than or equal to 65535" in result.stderr
+    assert "argument --port: must be a TCP port, 0 to 65535, got 99999" in result.stderr
     assert "Traceback" not in result.stderr

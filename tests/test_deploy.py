@@ -46,6 +46,33 @@ def test_unit_asks_for_notify_watchdog_and_hardening() -> None:
     assert service["ExecStart"][0].split()[1:3] == ["serve", "--config"]
 
 
+def test_unit_restarts_on_what_a_restart_can_fix_only() -> None:
+    """Issue 16: no restart loop on a configuration error (exit 2), a back-off for absent
+    devices, descriptors above the connection cap, an explicit stop timeout."""
+    from api.connections import ACCEPT_MARGIN
+    from api.startup import RESERVED_FILES
+    from config.settings import MAX_CONNECTIONS_LIMIT
+
+    service = unit_directives()
+    assert service["RestartPreventExitStatus"] == ["2"]
+    assert int(service["RestartSec"][0].removesuffix("s")) >= 10
+    assert int(service["LimitNOFILE"][0]) >= MAX_CONNECTIONS_LIMIT + ACCEPT_MARGIN + RESERVED_FILES
+    assert service["TimeoutStopSec"] == ["30s"]
+
+
+def test_unit_documentation_link_exists_after_pip_install() -> None:
+    """Issue 21: the link pointed at a README pip does not install; the daemon's /docs is
+    always there while the service runs."""
+    (link,) = [
+        line.split("=", 1)[1]
+        for line in UNIT.read_text().splitlines()
+        if line.startswith("Documentation=")
+    ]
+    assert link == "http://127.0.0.1:8000/docs"
+    lab = (REPO_ROOT / "config" / "lab.toml").read_text()
+    assert "port = 8000" in lab  # the port the link names
+
+
 def test_unit_is_valid_ini() -> None:
     parser = configparser.ConfigParser(strict=False, interpolation=None)
     parser.read_string(UNIT.read_text())

@@ -204,3 +204,66 @@ def test_a_database_of_an_older_version_gains_the_new_columns(tmp_path: Path) ->
     with Recorder(tmp_path) as reopened:
         reopened.write_step(_record(run_id, 1))
         assert [s.step for s in reopened.steps(run_id)] == [0, 1]
+
+
+def test_parquet_export_is_written_batch_by_batch_with_stable_types(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Batches smaller than the run, the first all-null in a column a later one fills: the
+    file has every step, each column with its table type."""
+    pq = pytest.importorskip("pyarrow.parquet")
+    import daemon.recorder as recorder_module
+
+    monkeypatch.setattr(recorder_module, "EXPORT_BATCH_STEPS", 3)
+    with Recorder(tmp_path) as recorder:
+        run_id = recorder.create_run({}, {}, None, "1.0")
+        for step in range(8):
+            record = _record(run_id, step)
+            if step < 3:
+                record.residual_um = None
+            recorder.write_step(record)
+        recorder.export_parquet(run_id, tmp_path / "steps.parquet")
+    file = pq.ParquetFile(tmp_path / "steps.parquet")
+    assert file.metadata.num_row_groups == 3
+    table = file.read()
+    assert table.column_names == list(STEP_COLUMNS)
+    assert table.column("step").to_pylist() == list(range(8))
+    residual = table.column("residual_um").to_pylist()
+    assert residual[:3] == [None] * 3 and residual[7] == pytest.approx(0.7)
+    assert str(table.schema.field("residual_um").type) == "double"
+
+
+SECRET_CONFIG = {
+    "api": {"control_token": "clear-control-secret", "read_token": "clear-read-secret"},
+    "robot": {"port": "/dev/ttyUSB0"},
+}
+
+
+def test_run_rows_never_store_the_tokens(tmp_path: Path) -> None:
+    with Recorder(tmp_path) as recorder:
+        run_id = recorder.create_run({}, SECRET_CONFIG, None, "1.0")
+        row = recorder.run(run_id)
+    assert row is not None
+    assert row.config["api"] == {"control_token": "<redacted>", "read_token": "<redacted>"}
+    assert row.config["robot"]["port"] == "/dev/ttyUSB0"
+    assert b"clear-" not in (tmp_path / "thermocomp.sqlite3").read_bytes()
+
+
+def test_a_database_with_clear_tokens_is_redacted_when_opened(tmp_path: Path) -> None:
+    """Migration: a database written by an older version, tokens in clear in config_json."""
+    with Recorder(tmp_path) as recorder:
+        old = recorder.create_run({}, {}, None, "0.1.0")
+        unset = recorder.create_run({}, {"api": {"control_token": None}}, None, "0.1.0")
+    with sqlite3.connect(tmp_path / "thermocomp.sqlite3") as db:  # as the old version wrote
+        db.execute("UPDATE runs SET config_json = ? WHERE id = ?", (json.dumps(SECRET_CONFIG), old))
+        (clear,) = db.execute("SELECT config_json FROM runs WHERE id = ?", (old,)).fetchone()
+    assert "clear-control-secret" in clear
+    with Recorder(tmp_path) as recorder:
+        row, other = recorder.run(old), recorder.run(unset)
+    assert row is not None and other is not None
+    assert row.config["api"]["control_token"] == "<redacted>"
+    assert row.config["api"]["read_token"] == "<redacted>"
+    assert other.config["api"]["control_token"] is None  # unset stays unset
+    with sqlite3.connect(tmp_path / "thermocomp.sqlite3") as db:
+        stored = [text for (text,) in db.execute("SELECT config_json FROM runs")]
+    assert not any("clear-" in text for text in stored)

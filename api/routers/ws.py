@@ -1,8 +1,9 @@
 """``/api/v1/ws``: the daemon's events as JSON messages, to a subset a client subscribes to.
 
-Before the handshake is accepted: the Origin (when a browser sends one) must be the server's
-own or in ``api.allowed_origins``; the token must grant ``read``; the client count must be below
-``api.ws_max_clients``. A refusal is an HTTP 401/403 with the usual error body.
+Before the handshake is accepted: the Host must be allowed (api/middleware.py), the Origin
+(when a browser sends one) must be of an allowed host or in ``api.allowed_origins``; the token
+must grant ``read``; the client count must be below ``api.ws_max_clients``. A refusal is an
+HTTP 400/401/403 with the usual error body.
 
 The token comes in ``Authorization: Bearer <token>`` or, from a browser (which cannot set that
 header on a WebSocket), as the subprotocols ``thermocomp.v1, bearer.<base64url(token)>``;
@@ -23,7 +24,6 @@ import contextlib
 import json
 import logging
 from typing import Any
-from urllib.parse import urlsplit
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from starlette.websockets import WebSocketState
@@ -31,7 +31,7 @@ from starlette.websockets import WebSocketState
 from api.broadcast import TOPICS, ClientQueue, Topic, encode
 from api.deps import ApiContext, context_of
 from api.errors import ErrorBody
-from api.security import AuthError
+from api.security import AuthError, parse_authorization
 
 logger = logging.getLogger(__name__)
 
@@ -64,14 +64,14 @@ def parse_topics(raw: object) -> tuple[Topic, ...] | None:
     return tuple(topics)
 
 
-def origin_allowed(websocket: WebSocket, allowed: tuple[str, ...]) -> bool:
-    """No Origin (not a browser) passes; a browser's must be ours or allow-listed."""
+def origin_allowed(websocket: WebSocket, context: ApiContext) -> bool:
+    """No Origin (not a browser) passes; a browser's must be of an allowed host or listed in
+    ``api.allowed_origins``. Never compared with the request's own Host: a rebinding page
+    sets both (Host = Origin = evil.example)."""
     origin = websocket.headers.get("origin")
     if origin is None:
         return True
-    if origin.rstrip("/") in {a.rstrip("/") for a in allowed}:
-        return True
-    return urlsplit(origin).netloc.lower() == websocket.headers.get("host", "").lower()
+    return context.hosts.allows_origin(origin, context.settings.api.allowed_origins)
 
 
 async def _refuse(websocket: WebSocket, status: int, kind: str, message: str) -> None:
@@ -88,10 +88,10 @@ async def _refuse(websocket: WebSocket, status: int, kind: str, message: str) ->
 
 
 def _token(websocket: WebSocket) -> str | None:
-    header = websocket.headers.get("authorization", "")
-    scheme, _, value = header.partition(" ")
-    if scheme.lower() == "bearer" and value.strip():
-        return value.strip()
+    """The presented token; None without any; AuthError for a non-Bearer Authorization."""
+    header = websocket.headers.get("authorization")
+    if header is not None:
+        return parse_authorization(header)
     for protocol in websocket.scope.get("subprotocols", []):
         if protocol.startswith(BEARER_PROTOCOL_PREFIX):
             encoded = protocol.removeprefix(BEARER_PROTOCOL_PREFIX)
@@ -106,7 +106,7 @@ def _token(websocket: WebSocket) -> str | None:
 async def stream(websocket: WebSocket) -> None:
     context = context_of(websocket)
     api = context.settings.api
-    if not origin_allowed(websocket, api.allowed_origins):
+    if not origin_allowed(websocket, context):
         await _refuse(websocket, 403, "forbidden-origin", "this Origin may not open the stream")
         return
     try:

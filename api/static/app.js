@@ -411,12 +411,19 @@
 
   async function backfill(runId) {
     try {
-      const page = await api("GET", `/runs/${runId}/steps?format=json&from=0&limit=${MAX_POINTS}`);
-      if (state.runId !== runId) return;
+      // JSON pages are capped (5,000 steps): follow next_from up to the plot's capacity
+      const steps = [];
+      let from = 0;
+      while (from !== null && steps.length < MAX_POINTS) {
+        const page = await api("GET", `/runs/${runId}/steps?format=json&from=${from}&limit=5000`);
+        if (state.runId !== runId) return;
+        steps.push(...page.steps);
+        from = page.next_from;
+      }
       const seen = state.lastStep;
       resetPlots();
       state.runId = runId;
-      for (const step of page.steps) addStep(step);
+      for (const step of steps) addStep(step);
       if (seen > state.lastStep) state.lastStep = seen;
     } catch (error) {
       if (![401, 403, 404].includes(error.status)) fail(error, "loading the run's steps");

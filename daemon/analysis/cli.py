@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, positive_float, positive_int
 from daemon.analysis.fits import KINDS, FitError, Kind, direction_of, fit_exponential
 from daemon.analysis.statistics import ErrorStatistics, error_statistics
 from daemon.analysis.steps import RESIDUAL_COLUMN, natural_key, number_or_nan
@@ -153,7 +153,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         description="Least-squares fit of y = y0 + A (1 - exp(-(t - t0)/tau)) (rising) or "
         "y = y0 + A exp(-(t - t0)/tau) (decaying) with the parameters' standard errors, the "
         "time constant tau and the steady-state time: the first time after which the data "
-        "stay within a band around their final level (default +-3 sigma of the last 20 %%, "
+        "stay within a band around their final level (default +-3 sigma of the last 20 %, "
         "thesis 3.5.1).",
     )
     fit.add_argument("file", type=Path, help="CSV with a header, a plain list, or -")
@@ -170,7 +170,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     fit.add_argument(
         "--step-s",
-        type=float,
+        type=positive_float,
         default=1.0,
         help="time between rows when there is no time column (default 1 s)",
     )
@@ -182,25 +182,25 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     fit.add_argument(
         "--band",
-        type=float,
+        type=positive_float,
         help="steady-state half-band in the column's unit (default: --sigmas of the final segment)",
     )
     fit.add_argument(
         "--sigmas",
-        type=float,
+        type=positive_float,
         default=3.0,
         help="band in standard deviations "
         "of the final segment when --band is not given (default 3)",
     )
     fit.add_argument(
         "--final-fraction",
-        type=float,
+        type=float,  # range (and nan) checked by run_fit: 0 < x <= 1
         default=0.2,
         help="final segment as a fraction of the data (default 0.2)",
     )
     fit.add_argument(
         "--smoothing",
-        type=int,
+        type=positive_int,
         default=9,
         help="judge 'stays within the band' on a running mean of this many samples "
         "(default 9; 1: raw samples)",

@@ -8,7 +8,7 @@ import signal
 import sys
 from pathlib import Path
 
-from config.cli import non_negative_float
+from config.cli import non_negative_float, non_negative_int, port_number
 from config.faults import Fault
 from config.settings import SUPPORTED_BAUDRATES
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig, FaultKind, parse_faults
@@ -28,18 +28,22 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         description="Serve the emulated CRS C500C console on a pseudo-terminal (prints the "
         "device path to open) or a TCP port (prints a socket:// URL pyserial opens). "
         "SIGINT or SIGTERM stops it.",
-        epilog="Fault SPEC: comma-separated KIND[=SECONDS][@N|%%P] with KIND one of drop, "
-        "corrupt, delay, stall, close; @N strikes at the N-th command line, %%P with "
-        "probability P per command. Example: --faults 'drop@5,delay=2@9,corrupt%%0.01'.",
+        epilog="Fault SPEC: comma-separated KIND[=SECONDS][@N|%P] with KIND one of drop, "
+        "corrupt, delay, stall, close; @N strikes at the N-th command line, %P with "
+        "probability P per command. Example: --faults 'drop@5,delay=2@9,corrupt%0.01'.",
     )
     parser.add_argument("device", choices=["c500c"], help="the device to emulate")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal (default)")
-    where.add_argument("--tcp", type=int, metavar="PORT", help="serve on 127.0.0.1:PORT (0: any)")
+    where.add_argument(
+        "--tcp", type=port_number, metavar="PORT", help="serve on 127.0.0.1:PORT (0: any)"
+    )
     parser.add_argument(
         "--link", type=Path, help="path of the symlink to the pty (default: a temporary one)"
     )
-    parser.add_argument("--seed", type=int, default=1, help="seed of the positioning noise")
+    parser.add_argument(
+        "--seed", type=non_negative_int, default=1, help="seed of the positioning noise"
+    )
     parser.add_argument(
         "--noise-um",
         type=non_negative_float,

@@ -1,0 +1,29 @@
+"""``thermocomp serve``'s command line: importing it costs nothing (the server, FastAPI and
+the daemon are imported when the command runs, from api/serve.py)."""
+
+from __future__ import annotations
+
+import argparse
+
+from config.cli import add_config_argument, port_number
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "serve",
+        help="run the daemon with its REST/WebSocket API",
+        description="Run the daemon and serve the REST/WebSocket API and the dashboard. "
+        "SIGINT or SIGTERM stops it cleanly.",
+    )
+    add_config_argument(parser)
+    parser.add_argument("--host", help="address to bind (default: api.host of the config)")
+    parser.add_argument(
+        "--port", type=port_number, help="port to bind (default: api.port; 0 = any)"
+    )
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from api import serve
+
+    return serve.run(args)
