@@ -56,7 +56,7 @@ async def hold_latency(holds: int) -> dict[str, Any]:
                 "storage": {"data_dir": folder, "report_at_end": False},
                 "api": {
                     "control_token": TOKEN,
-                    "control_burst": 100_000,
+                    "control_burst": 10_000,
                     "control_rate_per_s": 1e4,
                 },
             }

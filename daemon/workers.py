@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import multiprocessing
+import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, TypeVar
@@ -27,6 +28,9 @@ _T = TypeVar("_T")
 STEP_THREADS = 2
 READ_THREADS = 2
 EXPORT_PROCESSES = 2
+#: Export processes run this much nicer than the daemon: on a 2-core lab PC the kernel then
+#: gives the control loop the CPU first whenever both want it.
+EXPORT_NICENESS = 10
 
 
 class Workers:
@@ -50,7 +54,12 @@ class Workers:
         a fork of a process with threads and an event loop is not safe)."""
         if self._exports is None:
             context = multiprocessing.get_context("spawn")
-            self._exports = ProcessPoolExecutor(EXPORT_PROCESSES, mp_context=context)
+            self._exports = ProcessPoolExecutor(
+                EXPORT_PROCESSES,
+                mp_context=context,
+                initializer=os.nice,
+                initargs=(EXPORT_NICENESS,),
+            )
         return asyncio.get_running_loop().run_in_executor(self._exports, function, *args)
 
     def shutdown(self) -> None:

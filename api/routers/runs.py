@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import importlib.util
-import io
 import logging
+import sqlite3
 import tempfile
 import time
 from collections.abc import AsyncIterator
@@ -28,8 +28,9 @@ from pydantic_core import CoreSchema
 from api.broadcast import json_safe
 from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
+from daemon.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
 from daemon.model import available_presets
-from daemon.recorder import Recorder, RecorderError, RunRow, write_steps_csv
+from daemon.recorder import Recorder, RecorderError, RunRow
 from daemon.report_queue import ReportStatus
 from daemon.runs import RunParameters, RunState, RunStateError
 from daemon.service import Daemon, RunConflictError
@@ -318,14 +319,13 @@ class _OfferedFormats:
 StepFormat = Annotated[
     Literal["json", "csv", "parquet"], AfterValidator(_exportable), _OfferedFormats()
 ]
-#: Steps per JSON answer when no limit is given, and at most (``next_from`` continues): a
-#: JSON page is built in memory, ~0.9 kB a step, so 5,000 steps is ~4.5 MB and a fraction of
-#: a second of a worker thread (50,000 were 44 MB and 5 s, issue 16). CSV and Parquet stream.
+#: Steps per JSON answer when no limit is given, and at most (``next_from`` continues): ~0.9 kB
+#: a step, so 5,000 steps is ~4.5 MB (50,000 were 44 MB and 5 s, issue 16). Both JSON and CSV
+#: stream chunk by chunk (daemon/exports.py's CHUNK_STEPS), encoded in export processes.
 JSON_PAGE_STEPS = 1_000
 JSON_MAX_STEPS = 5_000
-#: Steps read and encoded per CSV chunk: the export streams, in a worker thread, so a long
-#: run's CSV neither fills the memory nor holds the event loop the control loop runs on.
-CSV_CHUNK_STEPS = 5_000
+#: Steps read and encoded per CSV chunk: a long run's CSV never fills the memory.
+CSV_CHUNK_STEPS = CHUNK_STEPS
 
 
 @read_router.get(
@@ -351,27 +351,28 @@ async def get_steps(
     recorder = _recorder(daemon)
     if format == "parquet":
         return await _parquet(daemon, recorder, run_id)
-    filename = f"run-{run_id}-steps.{format}"
+    # every chunk is read and encoded in an export process (daemon/exports.py): never by this
+    # process, whose control loop would wait for the GIL meanwhile (issue 15, point 6)
+    database = recorder.path
+    count = _chunk(limit) if format == "csv" else min(limit or JSON_PAGE_STEPS, JSON_MAX_STEPS)
     try:
         if format == "csv":
-            first = await daemon.read(_csv_chunk, recorder, run_id, start, _chunk(limit), True)
-            return StreamingResponse(
-                _csv_stream(daemon, recorder, run_id, first, limit),
-                media_type="text/csv",
-                headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+            first = await daemon.export(csv_chunk, database, run_id, start, count, True)
+        else:
+            first = await daemon.export(
+                json_chunk, database, run_id, start, min(CHUNK_STEPS, count)
             )
-        page = min(limit or JSON_PAGE_STEPS, JSON_MAX_STEPS)
-        body = await daemon.read(_json_page, recorder, run_id, start, page)
-    except RecorderError as err:
-        raise ApiError(503, "storage", str(err)) from err
-    return Response(body, media_type="application/json")
-
-
-def _json_page(recorder: Recorder, run_id: int, start: int, page: int) -> bytes:
-    records = recorder.steps(run_id, start, page)
-    next_from = records[-1].step + 1 if len(records) == page else None
-    return _dumps(
-        {"run_id": run_id, "steps": [r.as_dict() for r in records], "next_from": next_from}
+    except (sqlite3.Error, OSError) as err:
+        raise ApiError(503, "storage", f"cannot read run {run_id}: {err}") from err
+    if format == "csv":
+        filename = f"run-{run_id}-steps.csv"
+        return StreamingResponse(
+            _csv_stream(daemon, database, run_id, first, limit),
+            media_type="text/csv",
+            headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+        )
+    return StreamingResponse(
+        _json_stream(daemon, database, run_id, first, count), media_type="application/json"
     )
 
 
@@ -379,40 +380,45 @@ def _chunk(remaining: int | None) -> int:
     return CSV_CHUNK_STEPS if remaining is None else min(CSV_CHUNK_STEPS, remaining)
 
 
-def _csv_chunk(
-    recorder: Recorder, run_id: int, start: int, count: int, header: bool
-) -> tuple[str, int, int | None]:
-    """(CSV text, steps in it, the next chunk's first step or None at the end)."""
-    records = recorder.steps(run_id, start, count)
-    buffer = io.StringIO()
-    write_steps_csv(records, buffer)
-    text = buffer.getvalue()
-    if not header:
-        text = text.split("\n", 1)[1]
-    next_start = records[-1].step + 1 if len(records) == count else None
-    return text, len(records), next_start
+async def _json_stream(
+    daemon: Daemon, database: Path, run_id: int, first: Chunk, page: int
+) -> AsyncIterator[bytes]:
+    """``{"run_id", "steps": [...], "next_from"}``, the steps chunk by chunk."""
+    yield b'{"run_id":%d,"steps":[' % run_id
+    chunk, sent = first, 0
+    while True:
+        if chunk.data:
+            yield (b"," if sent else b"") + chunk.data
+        sent += chunk.count
+        if chunk.next_start is None or sent >= page:
+            break
+        try:
+            chunk = await daemon.export(
+                json_chunk, database, run_id, chunk.next_start, min(CHUNK_STEPS, page - sent)
+            )
+        except (sqlite3.Error, OSError):
+            logger.exception("run %d: JSON page cut short", run_id)
+            return  # the client sees JSON that does not parse: never a silent short page
+    next_from = "null" if chunk.next_start is None else str(chunk.next_start)
+    yield f'],"next_from":{next_from}}}'.encode()
 
 
 async def _csv_stream(
-    daemon: Daemon,
-    recorder: Recorder,
-    run_id: int,
-    first: tuple[str, int, int | None],
-    limit: int | None,
-) -> AsyncIterator[str]:
-    text, count, next_start = first
-    remaining = None if limit is None else limit - count
-    yield text
-    while next_start is not None and remaining != 0:
+    daemon: Daemon, database: Path, run_id: int, first: Chunk, limit: int | None
+) -> AsyncIterator[bytes]:
+    chunk = first
+    remaining = None if limit is None else limit - chunk.count
+    yield chunk.data
+    while chunk.next_start is not None and remaining != 0:
         try:
-            text, count, next_start = await daemon.read(
-                _csv_chunk, recorder, run_id, next_start, _chunk(remaining), False
+            chunk = await daemon.export(
+                csv_chunk, database, run_id, chunk.next_start, _chunk(remaining), False
             )
-        except RecorderError:
+        except (sqlite3.Error, OSError):
             logger.exception("run %d: CSV export cut short", run_id)
             return
-        remaining = None if remaining is None else remaining - count
-        yield text
+        remaining = None if remaining is None else remaining - chunk.count
+        yield chunk.data
 
 
 async def _parquet(daemon: Daemon, recorder: Recorder, run_id: int) -> Response:
@@ -431,12 +437,6 @@ async def _parquet(daemon: Daemon, recorder: Recorder, run_id: int) -> Response:
         media_type="application/vnd.apache.parquet",
         headers={"Content-Disposition": f'attachment; filename="run-{run_id}-steps.parquet"'},
     )
-
-
-def _dumps(value: Any) -> bytes:
-    import json
-
-    return json.dumps(json_safe(value), separators=(",", ":")).encode()
 
 
 #: When to ask again for a report still being written (s).
