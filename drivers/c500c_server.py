@@ -1,0 +1,593 @@
+"""The fast path: the robot driver for controller/thermocomp_server.r3, the RAPL-3 program that
+serves the binary protocol of controller/PROTOCOL.md on the controller's second serial port.
+
+One step is one MOVE_GOAL frame out and one reply in (~68 bytes, ~6 ms of line at 115200) instead
+of the console's five commands and its `w2` table (C500C.md "The fast path").
+
+Requests are sequence-numbered and several may be outstanding: a reader task matches every reply
+to its request by sequence number. So a HOLD is written while a move still awaits its reply
+(the program polls the port during the move and halt()s it; the move is then answered with
+catalogue 044), heartbeats go out on a timer whatever else is in flight, and a cancelled request
+never desynchronises the link (its late reply is recognised and dropped). Frames are written
+whole under a write lock; the hold contract (drivers/base.py) is checked under that lock
+immediately before a motion frame is written.
+
+Any reply that cannot be trusted — bad CRC, garbage, an impossible length, a sequence number
+never used, a timeout, a lost port — is a link fault: every outstanding request fails with it,
+motion is held until :meth:`resume`, and the link reconnects in the background with a capped
+exponential back-off (the state machine of drivers/c500c.py, TRANSITIONS).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import math
+import time
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any, Self
+
+import serial
+import serial_asyncio
+
+from config.settings import RobotSettings
+from drivers import c500c_protocol as console_proto
+from drivers import c500c_server_protocol as proto
+from drivers.base import LinkState, MoveResult, Pose, RobotStatus, Vector3
+from drivers.c500c import READBACK_TOLERANCE_MM, TRANSITIONS
+from drivers.errors import (
+    DeviceError,
+    DeviceReportedError,
+    DeviceTimeoutError,
+    MotionHeldError,
+    NotConnectedError,
+    PointOfControlError,
+    ProtocolError,
+)
+
+logger = logging.getLogger(__name__)
+
+DEVICE = proto.DEVICE
+#: First wait before a reconnection attempt (s); doubles per failed attempt up to the
+#: configured cap (robot.reconnect_max_backoff_s), as the console driver.
+RECONNECT_FIRST_BACKOFF_S = 0.5
+RECONNECT_BACKOFF_FACTOR = 2.0
+#: Cancelled requests whose replies may still arrive are remembered this many at most.
+ABANDONED_LIMIT = 1024
+#: Catalogue 044 (C500C.md); the console's table of texts may not carry it.
+HALT_TEXT = "Halt() command invoked"
+
+_MOTION = (proto.RequestType.MOVE_GOAL, proto.RequestType.MOVE_RELATIVE)
+
+
+def status_text(code: int) -> str:
+    if code == proto.Status.HALTED:
+        return HALT_TEXT
+    if code in proto.STATUS_TEXTS:
+        return proto.STATUS_TEXTS[code]
+    return console_proto.MOTION_ERRORS.get(code, "controller error")
+
+
+def _pose(values: proto.Pose6) -> Pose:
+    return Pose(*values)
+
+
+class _LinkFault(Exception):
+    """Internal: the reader found the link unusable; carries the DeviceError to report."""
+
+    def __init__(self, error: DeviceError) -> None:
+        super().__init__(str(error))
+        self.error = error
+
+
+@dataclass
+class _Connection:
+    reader: asyncio.StreamReader
+    writer: asyncio.StreamWriter
+    task: asyncio.Task[None] | None = None  # the reply reader
+
+    def close(self) -> None:
+        transport = self.writer.transport
+        if not transport.is_closing():
+            transport.abort()
+
+
+class C500CServerRobot:
+    """The robot (drivers.base.Robot) through the thermocomp server program on the C500C."""
+
+    def __init__(
+        self,
+        settings: RobotSettings,
+        *,
+        port: str | None = None,
+        first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
+    ) -> None:
+        self.settings = settings
+        self.port = port if port is not None else settings.server_port
+        self.first_backoff_s = first_backoff_s
+        self._connection: _Connection | None = None
+        self._write_lock = asyncio.Lock()  # one whole frame at a time
+        self._motion_lock = asyncio.Lock()  # one motion at a time (the program refuses two)
+        # sequence -> (request type, its reply to come)
+        self._pending: dict[int, tuple[proto.RequestType, asyncio.Future[proto.Reply]]] = {}
+        self._abandoned: dict[int, None] = {}  # insertion-ordered set, oldest dropped first
+        self._sequence = itertools.count()
+        self._link = LinkState.DISCONNECTED
+        self.link_history: list[LinkState] = [self._link]
+        self._motion_held = False
+        self._last_error: str | None = None
+        self._goal: Pose | None = None
+        self._flags: proto.Flag | None = None  # of the latest reply
+        self._arm_power: bool | None = None
+        self._homed: bool | None = None
+        self._reconnect_task: asyncio.Task[None] | None = None
+        self._heartbeat_task: asyncio.Task[None] | None = None
+        self._reconnect_attempts = 0
+        self._connected_event = asyncio.Event()
+        self._last_write = 0.0  # loop time of the latest frame written
+        self._bytes_sent = 0
+        self._bytes_received = 0
+        self.heartbeats = 0
+        self.stray_replies = 0  # late replies of cancelled requests, dropped
+
+    # --- lifecycle ---
+
+    def _enter(self, state: LinkState) -> None:
+        if state is self._link:
+            return
+        if state not in TRANSITIONS[self._link]:
+            raise RuntimeError(
+                f"C500C server link: no transition {self._link.value} -> {state.value}"
+            )
+        logger.debug("C500C server link: %s -> %s", self._link.value, state.value)
+        self._link = state
+        self.link_history.append(state)
+
+    async def __aenter__(self) -> Self:
+        self._enter(LinkState.CONNECTING)
+        try:
+            await self._connect()
+        except BaseException:
+            await self._close()
+            raise
+        self._heartbeat_task = asyncio.get_running_loop().create_task(
+            self._heartbeats(), name="c500c-server-heartbeat"
+        )
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        await self._close()
+
+    async def _close(self) -> None:
+        for name in ("_heartbeat_task", "_reconnect_task"):
+            task = getattr(self, name)
+            setattr(self, name, None)
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+        self._drop_connection(NotConnectedError(DEVICE, "closed"))
+        if self._link is not LinkState.DISCONNECTED:
+            self._enter(LinkState.DISCONNECTED)
+        self._connected_event.clear()
+
+    async def _open_port(self) -> _Connection:
+        settings = self.settings
+
+        def open_blocking() -> Any:
+            # Opening a port can block (USB adapters, termios): never on the event loop.
+            return serial.serial_for_url(
+                self.port,
+                baudrate=settings.server_baudrate,
+                bytesize=8,
+                parity="N",
+                stopbits=1,
+                rtscts=False,  # the program turns flow control off (controller/PROTOCOL.md)
+                xonxoff=False,  # binary frames: 0x11/0x13 are data
+                timeout=0,
+            )
+
+        try:
+            instance = await asyncio.to_thread(open_blocking)
+        except (serial.SerialException, OSError, ValueError) as err:
+            raise NotConnectedError(DEVICE, f"cannot open {self.port}: {err}") from err
+        loop = asyncio.get_running_loop()
+        reader = asyncio.StreamReader()
+        protocol = asyncio.StreamReaderProtocol(reader)
+        transport, _ = await serial_asyncio.connection_for_serial(loop, lambda: protocol, instance)
+        return _Connection(reader, asyncio.StreamWriter(transport, protocol, reader, loop))
+
+    async def _connect(self) -> None:
+        """Open the port and exchange one heartbeat: the program answers with its state."""
+        connection = await self._open_port()
+        connection.task = asyncio.get_running_loop().create_task(
+            self._read_replies(connection), name="c500c-server-reader"
+        )
+        self._connection = connection
+        self._abandoned.clear()
+        try:
+            reply = await self._request(
+                proto.RequestType.HEARTBEAT,
+                timeout_s=self.settings.command_timeout_s,
+                handshake=True,
+            )
+        except BaseException:
+            self._drop_connection(NotConnectedError(DEVICE, "handshake failed"))
+            raise
+        self._enter(LinkState.CONNECTED)
+        self._connected_event.set()
+        logger.info(
+            "connected to the C500C server program on %s (flags %s)", self.port, reply.flags
+        )
+
+    def _drop_connection(self, error: DeviceError) -> None:
+        connection, self._connection = self._connection, None
+        if connection is not None:
+            connection.close()
+            if connection.task is not None and connection.task is not asyncio.current_task():
+                connection.task.cancel()
+        pending, self._pending = self._pending, {}
+        for _, future in pending.values():
+            if not future.done():
+                future.set_exception(error)
+
+    # --- the reader: every reply to its request ---
+
+    async def _read_replies(self, connection: _Connection) -> None:
+        decoder = proto.FrameDecoder()
+        try:
+            while True:
+                try:
+                    chunk = await connection.reader.read(4096)
+                except (OSError, serial.SerialException) as err:
+                    raise _LinkFault(
+                        NotConnectedError(DEVICE, f"link lost on {self.port}: {err}")
+                    ) from err
+                if not chunk:
+                    raise _LinkFault(NotConnectedError(DEVICE, f"link closed on {self.port}"))
+                self._bytes_received += len(chunk)
+                for event in decoder.feed(chunk):
+                    self._dispatch(event)
+        except _LinkFault as fault:
+            if self._connection is connection:
+                self._link_fault(fault.error)
+
+    def _dispatch(self, event: proto.Frame | proto.Discarded) -> None:
+        if isinstance(event, proto.Discarded):
+            # The line carries only frames: dropped bytes are a garbled reply, never a guess.
+            raise _LinkFault(
+                ProtocolError(DEVICE, f"{event.byte_count} bytes dropped ({event.reason})")
+            )
+        try:
+            reply = proto.parse_reply(event)
+        except ProtocolError as err:
+            raise _LinkFault(err) from err
+        outstanding = self._pending.pop(reply.sequence, None)
+        if outstanding is None:
+            if reply.sequence in self._abandoned:
+                del self._abandoned[reply.sequence]
+                self.stray_replies += 1
+                return
+            raise _LinkFault(
+                ProtocolError(DEVICE, f"reply out of sequence: {reply.sequence} never asked")
+            )
+        request_type, future = outstanding
+        if reply.request != request_type:
+            raise _LinkFault(
+                ProtocolError(
+                    DEVICE,
+                    f"reply {reply.sequence} is 0x{reply.request:02x}, not {request_type.name}",
+                )
+            )
+        self._note_flags(reply.flags)
+        if not future.done():
+            future.set_result(reply)
+
+    def _note_flags(self, flags: proto.Flag) -> None:
+        self._flags = flags
+        if flags & proto.Flag.HELD and not self._motion_held:
+            reason = "host silent" if flags & proto.Flag.SILENCE_HALTED else "hold"
+            self._hold(f"the controller program is holding motion ({reason})")
+
+    # --- faults and reconnection ---
+
+    def _hold(self, reason: str) -> None:
+        if not self._motion_held:
+            logger.warning("robot motion held until resume(): %s", reason)
+        self._motion_held = True
+        self._last_error = reason
+
+    def _link_fault(self, error: DeviceError) -> None:
+        """The link cannot be trusted: fail what is outstanding, hold motion, reconnect."""
+        self._hold(str(error))
+        self._drop_connection(error)
+        self._connected_event.clear()
+        if self._link is not LinkState.CONNECTED:
+            return  # connecting: the handshake fails with the error; closed: nothing to do
+        self._enter(LinkState.RECONNECTING)
+        if self._reconnect_task is None or self._reconnect_task.done():
+            self._reconnect_task = asyncio.get_running_loop().create_task(
+                self._reconnect(), name="c500c-server-reconnect"
+            )
+
+    async def _reconnect(self) -> None:
+        backoff_s = self.first_backoff_s
+        while True:
+            self._reconnect_attempts += 1
+            try:
+                await self._connect()
+            except DeviceError as err:
+                logger.warning(
+                    "reconnection attempt %d failed (%s); next in %.2f s",
+                    self._reconnect_attempts,
+                    err,
+                    backoff_s,
+                )
+                if self._link is not LinkState.RECONNECTING:
+                    self._enter(LinkState.RECONNECTING)
+                await asyncio.sleep(backoff_s)
+                backoff_s = min(
+                    backoff_s * RECONNECT_BACKOFF_FACTOR, self.settings.reconnect_max_backoff_s
+                )
+                continue
+            logger.info("reconnected; motion stays held until resume()")
+            return
+
+    async def wait_connected(self, timeout_s: float) -> None:
+        """Wait until the link is up (after a reconnection); DeviceTimeoutError otherwise."""
+        try:
+            await asyncio.wait_for(self._connected_event.wait(), timeout_s)
+        except TimeoutError as err:
+            raise DeviceTimeoutError(DEVICE, f"not reconnected within {timeout_s:g} s") from err
+
+    # --- one request ---
+
+    def _next_sequence(self) -> int:
+        while True:
+            sequence = next(self._sequence) % proto.SEQUENCE_MODULO
+            if sequence not in self._pending and sequence not in self._abandoned:
+                return sequence
+
+    async def _request(
+        self,
+        request_type: proto.RequestType,
+        offset: proto.Pose6 | None = None,
+        *,
+        timeout_s: float,
+        handshake: bool = False,
+    ) -> proto.Reply:
+        """Write one request and await its reply (other requests may be outstanding). A timeout
+        or a garbled link is a link fault (the handshake's failure is its caller's). A cancelled
+        request's sequence number is remembered so its late reply is dropped, not a fault."""
+        connection = self._connection
+        ready = self._link is LinkState.CONNECTED or (handshake and connection is not None)
+        if connection is None or not ready:
+            raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
+        sequence = self._next_sequence()
+        data = proto.encode_request(sequence, request_type, offset, straight=self.settings.online)
+        future: asyncio.Future[proto.Reply] = asyncio.get_running_loop().create_future()
+        written = False
+        try:
+            async with self._write_lock:
+                if request_type in _MOTION:
+                    # The hold contract: checked under the lock, immediately before the write.
+                    self._require_motion_allowed()
+                if self._connection is not connection:
+                    raise NotConnectedError(DEVICE, f"link lost on {self.port}")
+                self._pending[sequence] = (request_type, future)
+                connection.writer.write(data)
+                written = True
+                self._last_write = asyncio.get_running_loop().time()
+                self._bytes_sent += len(data)
+            try:
+                async with asyncio.timeout(timeout_s):
+                    return await future
+            except TimeoutError as err:
+                error = DeviceTimeoutError(
+                    DEVICE, f"no reply {timeout_s:g} s after {request_type.name} #{sequence}"
+                )
+                if not handshake:
+                    self._link_fault(error)
+                raise error from err
+        except asyncio.CancelledError:
+            if written and self._pending.pop(sequence, None) is not None:
+                self._abandoned[sequence] = None
+                while len(self._abandoned) > ABANDONED_LIMIT:
+                    del self._abandoned[next(iter(self._abandoned))]
+            raise
+        finally:
+            self._pending.pop(sequence, None)
+
+    def _check(self, reply: proto.Reply, *, motion: bool) -> proto.Reply:
+        """Raise the controller's error, if any (catalogue numbers passed through)."""
+        if reply.ok:
+            if motion:
+                self._arm_power, self._homed = True, True
+            return reply
+        code = reply.status
+        if code == 7:
+            self._arm_power = False
+        elif code == 5:
+            self._homed = False
+        text = status_text(code)
+        if code == proto.Status.HELD:
+            self._hold("the controller program refused motion: held")
+            raise MotionHeldError(DEVICE, f"the controller program holds motion: {text}")
+        if code == proto.Status.NO_CONTROL:
+            raise PointOfControlError(
+                DEVICE, console_proto.POINT_OF_CONTROL_MESSAGE + " (restart the program)"
+            )
+        raise DeviceReportedError(DEVICE, code if code < proto.Status.NO_GOAL else None, text)
+
+    # --- the Robot protocol ---
+
+    def _require_motion_allowed(self) -> None:
+        if self._motion_held:
+            raise MotionHeldError(
+                DEVICE, f"motion is held after a fault until resume(): {self._last_error}"
+            )
+        if self._link is not LinkState.CONNECTED:
+            raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
+
+    async def teach_goal(self) -> Pose:
+        reply = await self._request(
+            proto.RequestType.TEACH_GOAL, timeout_s=self.settings.command_timeout_s
+        )
+        self._goal = _pose(self._check(reply, motion=False).pose)
+        logger.info("operational goal taught at %s", self._goal)
+        return self._goal
+
+    async def _move(
+        self,
+        request_type: proto.RequestType,
+        offset: Vector3,
+        expected_from: Pose,
+        sent0: int,
+        received0: int,
+    ) -> MoveResult:
+        if not all(math.isfinite(v) for v in offset):
+            raise DeviceError(DEVICE, f"refused a non-finite motion target {offset}")
+        self._require_motion_allowed()
+        offset6 = proto.quantise((*offset, 0.0, 0.0, 0.0))
+        commanded = (offset6[0], offset6[1], offset6[2])
+        async with self._motion_lock:
+            started = time.perf_counter()
+            try:
+                reply = self._check(
+                    await self._request(
+                        request_type, offset6, timeout_s=self.settings.move_timeout_s
+                    ),
+                    motion=True,
+                )
+            except DeviceError as err:
+                self._hold(str(err))
+                raise
+            round_trip_s = time.perf_counter() - started
+        actual = _pose(reply.pose)
+        expected = tuple(e + c for e, c in zip(expected_from.position, commanded, strict=True))
+        worst = max(abs(a - e) for a, e in zip(actual.position, expected, strict=True))
+        if worst > READBACK_TOLERANCE_MM:
+            error = ProtocolError(
+                DEVICE, f"pose {actual.position} is {worst:.4f} mm from {expected}"
+            )
+            self._link_fault(error)
+            raise error
+        return MoveResult(
+            requested_mm=offset,
+            commanded_mm=commanded,
+            actual=actual,
+            bytes_sent=self._bytes_sent - sent0,
+            bytes_received=self._bytes_received - received0,
+            round_trips_s=(round_trip_s,),
+        )
+
+    async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
+        """Goal + offset in one frame (thesis 6.4.4): the program shifts `opgoal`, moves,
+        waits for the end of the motion and answers the actual pose."""
+        goal = self._goal
+        if goal is None:
+            raise DeviceError(DEVICE, "no operational goal: call teach_goal() first")
+        sent0, received0 = self._bytes_sent, self._bytes_received
+        return await self._move(proto.RequestType.MOVE_GOAL, offset_mm, goal, sent0, received0)
+
+    async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
+        """The actual pose + delta (only to reproduce the thesis's comparison)."""
+        self._require_motion_allowed()
+        sent0, received0 = self._bytes_sent, self._bytes_received
+        start = await self.actual_pose()
+        return await self._move(proto.RequestType.MOVE_RELATIVE, delta_mm, start, sent0, received0)
+
+    async def actual_pose(self) -> Pose:
+        reply = await self._request(
+            proto.RequestType.READ_POSE, timeout_s=self.settings.command_timeout_s
+        )
+        return _pose(self._check(reply, motion=False).pose)
+
+    async def stop(self) -> None:
+        """Hold now (synchronously, before any await: no motion frame can be written from here
+        on), then send HOLD — not queued behind a move awaiting its reply — so the program
+        halt()s a motion in progress. A link that is down cannot carry it: the program's silence
+        timeout halts the arm instead."""
+        self._hold("stopped by request")
+        try:
+            self._check(
+                await self._request(
+                    proto.RequestType.HOLD, timeout_s=self.settings.command_timeout_s
+                ),
+                motion=False,
+            )
+        except DeviceError as err:
+            logger.warning("HOLD not acknowledged (%s); the program's silence timeout halts", err)
+
+    async def resume(self) -> None:
+        """Allow motion again: the link must be up and the program must still hold the goal
+        taught (it forgets it when restarted); then RELEASE."""
+        if self._link is not LinkState.CONNECTED:
+            raise NotConnectedError(DEVICE, f"cannot resume while {self._link.value}")
+        reply = self._check(
+            await self._request(
+                proto.RequestType.READ_POSE, timeout_s=self.settings.command_timeout_s
+            ),
+            motion=False,
+        )
+        if self._goal is not None and not reply.flags & proto.Flag.GOAL_TAUGHT:
+            raise DeviceError(DEVICE, "the controller lost the taught goal (program restarted?)")
+        self._check(
+            await self._request(
+                proto.RequestType.RELEASE, timeout_s=self.settings.command_timeout_s
+            ),
+            motion=False,
+        )
+        self._motion_held = False
+        logger.info("robot motion resumed")
+
+    async def _heartbeats(self) -> None:
+        """A HEARTBEAT whenever nothing was written for heartbeat_s, so the program's silence
+        timeout only strikes when the host is really gone (PROTOCOL.md "Silence")."""
+        loop = asyncio.get_running_loop()
+        period_s = self.settings.heartbeat_s
+        while True:
+            idle_s = loop.time() - self._last_write
+            if idle_s < period_s:
+                await asyncio.sleep(period_s - idle_s)
+                continue
+            if self._link is not LinkState.CONNECTED:
+                await asyncio.sleep(period_s)
+                continue
+            with contextlib.suppress(DeviceError):
+                await self._request(
+                    proto.RequestType.HEARTBEAT, timeout_s=self.settings.command_timeout_s
+                )
+                self.heartbeats += 1
+
+    def status(self) -> RobotStatus:
+        flags = self._flags
+        return RobotStatus(
+            link=self._link,
+            arm_power=self._arm_power,
+            homed=self._homed,
+            online=self.settings.online,
+            point_of_control=None if flags is None else bool(flags & proto.Flag.POINT_OF_CONTROL),
+            motion_held=self._motion_held,
+            last_error=self._last_error,
+            extra={
+                "port": self.port,
+                "program": "thermocomp_server",
+                "reconnect_attempts": str(self._reconnect_attempts),
+                "bytes_sent": str(self._bytes_sent),
+                "bytes_received": str(self._bytes_received),
+                "controller_flags": "" if flags is None else str(int(flags)),
+            },
+        )
+
+    @property
+    def goal(self) -> Pose | None:
+        return self._goal
