@@ -131,7 +131,8 @@ class C500CServerRobot:
         self._bytes_sent = 0
         self._bytes_received = 0
         self.heartbeats = 0
-        self.stray_replies = 0  # late replies of cancelled requests, dropped
+        self.stray_replies = 0  # late replies of cancelled requests or an old link, dropped
+        self._synchronised = False
 
     # --- lifecycle ---
 
@@ -243,6 +244,7 @@ class C500CServerRobot:
 
     async def _read_replies(self, connection: _Connection) -> None:
         decoder = proto.FrameDecoder()
+        self._synchronised = False  # until the handshake's reply: see _dispatch
         try:
             while True:
                 try:
@@ -261,6 +263,17 @@ class C500CServerRobot:
                 self._link_fault(fault.error)
 
     def _dispatch(self, event: proto.Frame | proto.Discarded) -> None:
+        if not self._synchronised:
+            # Before the handshake's reply, bytes still in flight from an earlier connection
+            # (a reply to a request of the link that failed) are dropped: resynchronising.
+            reply = None
+            if isinstance(event, proto.Frame):
+                with contextlib.suppress(ProtocolError):
+                    reply = proto.parse_reply(event)
+            if reply is None or reply.sequence not in self._pending:
+                self.stray_replies += reply is not None
+                return
+            self._synchronised = True
         if isinstance(event, proto.Discarded):
             # The line carries only frames: dropped bytes are a garbled reply, never a guess.
             raise _LinkFault(
@@ -450,9 +463,10 @@ class C500CServerRobot:
         request_type: proto.RequestType,
         offset: Vector3,
         expected_from: Pose,
-        sent0: int,
-        received0: int,
+        exchanges_before: int = 0,
     ) -> MoveResult:
+        """One motion frame and its reply; ``exchanges_before``: plain requests this step
+        made first (counted in the step's bytes: other traffic such as heartbeats is not)."""
         if not all(math.isfinite(v) for v in offset):
             raise DeviceError(DEVICE, f"refused a non-finite motion target {offset}")
         self._require_motion_allowed()
@@ -484,8 +498,8 @@ class C500CServerRobot:
             requested_mm=offset,
             commanded_mm=commanded,
             actual=actual,
-            bytes_sent=self._bytes_sent - sent0,
-            bytes_received=self._bytes_received - received0,
+            bytes_sent=proto.MOVE_REQUEST_BYTES + exchanges_before * proto.REQUEST_BYTES,
+            bytes_received=(1 + exchanges_before) * proto.REPLY_BYTES,
             round_trips_s=(round_trip_s,),
         )
 
@@ -495,15 +509,13 @@ class C500CServerRobot:
         goal = self._goal
         if goal is None:
             raise DeviceError(DEVICE, "no operational goal: call teach_goal() first")
-        sent0, received0 = self._bytes_sent, self._bytes_received
-        return await self._move(proto.RequestType.MOVE_GOAL, offset_mm, goal, sent0, received0)
+        return await self._move(proto.RequestType.MOVE_GOAL, offset_mm, goal)
 
     async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
         """The actual pose + delta (only to reproduce the thesis's comparison)."""
         self._require_motion_allowed()
-        sent0, received0 = self._bytes_sent, self._bytes_received
         start = await self.actual_pose()
-        return await self._move(proto.RequestType.MOVE_RELATIVE, delta_mm, start, sent0, received0)
+        return await self._move(proto.RequestType.MOVE_RELATIVE, delta_mm, start, 1)
 
     async def actual_pose(self) -> Pose:
         reply = await self._request(

@@ -115,6 +115,8 @@ class C500CServerEmulator(C500CEmulator):
         self._counted_requests = 0
         self._move_task: asyncio.Task[None] | None = None
         self._halt = asyncio.Event()
+        #: Set when a move has started (tests wait for it instead of sleeping).
+        self.motion_started = asyncio.Event()
         self._last_heard: float | None = None
         self._silent_until = 0.0
         self._watchdog: asyncio.Task[None] | None = None
@@ -301,6 +303,7 @@ class C500CServerEmulator(C500CEmulator):
                 await answer(self._reply(seq, request_type, refusal))
                 return
             self._halt.clear()
+            self.motion_started.clear()
             self._move_task = asyncio.get_running_loop().create_task(self._move(request, answer))
 
     def _motion_refusal(self, request: proto.Request) -> int | None:
@@ -330,6 +333,7 @@ class C500CServerEmulator(C500CEmulator):
         if lines:
             status = _catalogue_code(lines)
         else:
+            self.motion_started.set()
             loop = asyncio.get_running_loop()
             remaining = state.motion_end_s - loop.time()
             if remaining > 0:
