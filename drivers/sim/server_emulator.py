@@ -28,6 +28,7 @@ import logging
 from collections import deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Literal, Self
 
 from config import faults as fault_specs
@@ -98,12 +99,13 @@ class C500CServerEmulator(C500CEmulator):
         *,
         transport: Literal["pty", "tcp"] = "pty",
         tcp_port: int = 0,
+        link_path: Path | None = None,
     ) -> None:
         self.server_config = config or ServerEmulatorConfig()
         # The program turns online mode on at start (as robot_control_server.r3 does): straight
         # moves never fail with 043 unless a test turns it off again.
         console = replace(self.server_config.console, online=True, faults=())
-        super().__init__(console, transport=transport, tcp_port=tcp_port)
+        super().__init__(console, transport=transport, tcp_port=tcp_port, link_path=link_path)
         self.held = False
         self.silence_halted = False
         self.halts = 0  # moves halted (HOLD or silence)
