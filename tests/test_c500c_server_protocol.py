@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import re
 import struct
 
 import pytest
 
+from config.settings import RobotSettings
 from drivers import c500c_server_protocol as proto
 from drivers.errors import ProtocolError
+from tests.helpers import REPO_ROOT
 
 POSE = (457.2, -12.3456, 254.0001, 0.5, 90.0, -179.9999)
 
@@ -171,3 +174,55 @@ def test_decoder_holds_a_short_frame_until_the_rest_comes() -> None:
     decoder.feed(frame[:4])
     decoder.clear()
     assert decoder.pending == 0
+
+
+def test_the_worked_examples_of_the_specification_are_what_the_code_sends() -> None:
+    spec = (REPO_ROOT / "controller" / "PROTOCOL.md").read_text()
+    example = spec[spec.index("## Worked example") :]
+    lines = re.findall(r"((?:[0-9a-f]{2} ){7,}[0-9a-f]{2})", example)
+    assert [bytes.fromhex(line) for line in lines] == [
+        proto.encode_request(1, proto.RequestType.HEARTBEAT),
+        proto.encode_request(2, proto.RequestType.MOVE_GOAL, (0.0123, 0, 0, 0, 0, 0)),
+    ]
+    assert "0x29B1" in spec and "CRC-16/CCITT-FALSE" in spec  # the check value quoted above
+
+
+def test_the_controller_program_uses_the_same_numbers() -> None:
+    """The RAPL-3 program cannot be compiled here; its constants are checked against the
+    Python implementation of the same specification instead."""
+    program = (REPO_ROOT / "controller" / "thermocomp_server.r3").read_text()
+    consts = {
+        name: int(value, 0)
+        for name, value in re.findall(r"^const (\w+) = (0x[0-9A-Fa-f]+|\d+)", program, re.M)
+    }
+    types = {
+        "T_HEARTBEAT": proto.RequestType.HEARTBEAT,
+        "T_TEACH": proto.RequestType.TEACH_GOAL,
+        "T_MOVE_GOAL": proto.RequestType.MOVE_GOAL,
+        "T_MOVE_REL": proto.RequestType.MOVE_RELATIVE,
+        "T_READ": proto.RequestType.READ_POSE,
+        "T_HOLD": proto.RequestType.HOLD,
+        "T_RELEASE": proto.RequestType.RELEASE,
+        "S_OK": proto.Status.OK,
+        "S_HALTED": proto.Status.HALTED,
+        "S_NO_GOAL": proto.Status.NO_GOAL,
+        "S_HELD": proto.Status.HELD,
+        "S_BAD": proto.Status.BAD_REQUEST,
+        "S_NO_CONTROL": proto.Status.NO_CONTROL,
+        "S_BUSY": proto.Status.BUSY,
+        "F_GOAL": proto.Flag.GOAL_TAUGHT,
+        "F_HELD": proto.Flag.HELD,
+        "F_MOVING": proto.Flag.MOVING,
+        "F_CONTROL": proto.Flag.POINT_OF_CONTROL,
+        "F_SILENCE": proto.Flag.SILENCE_HALTED,
+        "MAX_BODY": proto.MAX_BODY_BYTES,
+        "SILENCE_MS": round(RobotSettings().server_silence_s * 1000),
+    }
+    assert {name: consts.get(name) for name in types} == {k: int(v) for k, v in types.items()}
+    # Frame sizes and fields as the program writes and reads them.
+    assert f"str_len_set(g_tx, {proto.REPLY_BYTES})" in program
+    assert f"str_chr_set(g_tx, 2, {proto.REPLY_BODY.size})" in program
+    assert f"if len != {proto.MOVE_BODY.size} then" in program
+    assert "0x1021" in program and "0xFFFF" in program  # CRC-16/CCITT-FALSE
+    assert "0xA5" in program and "0x5A" in program
+    assert f"* {proto.COUNTS_PER_MM}.0" in program  # 0.1 um counts
