@@ -37,6 +37,7 @@ from drivers import c500c_protocol as console_proto
 from drivers import c500c_server_protocol as proto
 from drivers.errors import ProtocolError
 from drivers.sim.emulator import (
+    BITS_PER_CHARACTER,
     C500CEmulator,
     EmulatorConfig,
     Location,
@@ -59,6 +60,10 @@ GOAL_LOCATION = "opgoal"
 TARGET_LOCATION = "cur"
 #: Requests the emulator keeps for inspection (tests): the latest ones only.
 REQUEST_LOG = 10_000
+
+#: How a request is answered: the reply's bytes, and the loop time before which its first byte
+#: cannot go out (None: now).
+_Answer = Callable[[bytes, float | None], Awaitable[None]]
 
 ServerFaultKind = Literal["crc", "short", "sequence", "silence", "close"]
 SERVER_FAULT_KINDS: tuple[ServerFaultKind, ...] = ("crc", "short", "sequence", "silence", "close")
@@ -119,6 +124,8 @@ class C500CServerEmulator(C500CEmulator):
         self._halt = asyncio.Event()
         #: Set when a move has started (tests wait for it instead of sleeping).
         self.motion_started = asyncio.Event()
+        #: Set when a move has been halted (cleared when the next move starts).
+        self.motion_halted = asyncio.Event()
         self._last_heard: float | None = None
         self._silent_until = 0.0
         self._watchdog: asyncio.Task[None] | None = None
@@ -207,34 +214,43 @@ class C500CServerEmulator(C500CEmulator):
 
     async def _session(self, link: _Link) -> None:
         pacer_in = _Pacer(self.config.baudrate, self.config.paced)
-        pacer_out = _Pacer(self.config.baudrate, self.config.paced)
+        byte_s = BITS_PER_CHARACTER / self.config.baudrate if self.config.paced else 0.0
+        line_free_at = 0.0  # when the last byte written so far has left (loop time)
         decoder = proto.FrameDecoder()
         write_lock = asyncio.Lock()
         loop = asyncio.get_running_loop()
 
-        async def send(data: bytes) -> None:
+        async def send(data: bytes, not_before: float | None) -> None:
+            """Write ``data`` once its last byte would have crossed the line: it starts when
+            the line is free, and not before ``not_before`` (a move's reply is framed when the
+            motion ends, so its line time may already have passed: no second timer)."""
+            nonlocal line_free_at
             async with write_lock:  # one frame at a time on the wire, never interleaved
-                await pacer_out.take(len(data))
+                start = max(line_free_at, loop.time() if not_before is None else not_before)
+                line_free_at = start + len(data) * byte_s
+                delay_s = line_free_at - loop.time()
+                if delay_s > 0:
+                    await asyncio.sleep(delay_s)
                 await link.write(data)
 
-        async def answer(data: bytes, fault: Fault[ServerFaultKind] | None) -> None:
+        async def answer(
+            data: bytes, fault: Fault[ServerFaultKind] | None, not_before: float | None
+        ) -> None:
             if fault is None:
-                await send(data)
+                await send(data, not_before)
             elif fault.kind == "crc":
-                await send(data[:-1] + bytes([data[-1] ^ 0xFF]))
+                await send(data[:-1] + bytes([data[-1] ^ 0xFF]), not_before)
             elif fault.kind == "short":
-                await send(data[: len(data) // 2])
+                await send(data[: len(data) // 2], not_before)
             elif fault.kind == "sequence":
                 frame = proto.decode_frame(data)
                 stray = (frame.sequence + proto.SEQUENCE_MODULO // 2) % proto.SEQUENCE_MODULO
-                await send(proto.encode_frame(stray, frame.type, frame.body))
+                await send(proto.encode_frame(stray, frame.type, frame.body), not_before)
             # silence: the reply is never sent (the link was already marked silent)
 
-        def replier(
-            fault: Fault[ServerFaultKind] | None,
-        ) -> Callable[[bytes], Awaitable[None]]:
-            async def reply(data: bytes) -> None:
-                await answer(data, fault)
+        def replier(fault: Fault[ServerFaultKind] | None) -> _Answer:
+            async def reply(data: bytes, not_before: float | None = None) -> None:
+                await answer(data, fault, not_before)
 
             return reply
 
@@ -268,7 +284,7 @@ class C500CServerEmulator(C500CEmulator):
                             self._silent_until = loop.time() + seconds
                     if request is None:
                         reply = self._reply(event.sequence, event.type, proto.Status.BAD_REQUEST)
-                        await answer(reply, fault)
+                        await answer(reply, fault, None)
                         continue
                     self.requests.append(request)
                     await self._serve(request, replier(fault))
@@ -280,32 +296,33 @@ class C500CServerEmulator(C500CEmulator):
     async def _serve(
         self,
         request: proto.Request,
-        answer: Callable[[bytes], Awaitable[None]],
+        answer: _Answer,
     ) -> None:
         kind = proto.RequestType
         seq, request_type = request.sequence, request.type
         if request_type is kind.HEARTBEAT or request_type is kind.READ_POSE:
-            await answer(self._reply(seq, request_type, proto.Status.OK))
+            await answer(self._reply(seq, request_type, proto.Status.OK), None)
         elif request_type is kind.TEACH_GOAL:
             # here(opgoal): the goal is where the arm is now (a move in progress is refused).
             status = proto.Status.BUSY if self.moving else proto.Status.OK
             if status == proto.Status.OK:
                 self.state.locations[GOAL_LOCATION] = self.actual_pose()
-            await answer(self._reply(seq, request_type, status))
+            await answer(self._reply(seq, request_type, status), None)
         elif request_type is kind.HOLD:
             self._enter_hold(silence=False)
-            await answer(self._reply(seq, request_type, proto.Status.OK))
+            await answer(self._reply(seq, request_type, proto.Status.OK), None)
         elif request_type is kind.RELEASE:
             self.held = False
             self.silence_halted = False
-            await answer(self._reply(seq, request_type, proto.Status.OK))
+            await answer(self._reply(seq, request_type, proto.Status.OK), None)
         else:
             refusal = self._motion_refusal(request)
             if refusal is not None:
-                await answer(self._reply(seq, request_type, refusal))
+                await answer(self._reply(seq, request_type, refusal), None)
                 return
             self._halt.clear()
             self.motion_started.clear()
+            self.motion_halted.clear()
             self._move_task = asyncio.get_running_loop().create_task(self._move(request, answer))
 
     def _motion_refusal(self, request: proto.Request) -> int | None:
@@ -319,9 +336,7 @@ class C500CServerEmulator(C500CEmulator):
             return proto.Status.NO_CONTROL
         return None
 
-    async def _move(
-        self, request: proto.Request, answer: Callable[[bytes], Awaitable[None]]
-    ) -> None:
+    async def _move(self, request: proto.Request, answer: _Answer) -> None:
         assert request.offset is not None
         state = self.state
         base = self.goal if request.type is proto.RequestType.MOVE_GOAL else self.actual_pose()
@@ -332,23 +347,28 @@ class C500CServerEmulator(C500CEmulator):
         )
         lines = await self.console.execute(f"{'moves' if request.straight else 'move'} cur")
         status: int = proto.Status.OK
+        ended: float | None = None
         if lines:
             status = _catalogue_code(lines)
         else:
             self.motion_started.set()
             loop = asyncio.get_running_loop()
-            remaining = state.motion_end_s - loop.time()
-            if remaining > 0:
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._halt.wait(), remaining)
-            if self._halt.is_set():
+            ended = state.motion_end_s
+            # One timer to the end of the reply's line time (the reply is framed when the
+            # motion ends); a halt before the motion's end wakes it early.
+            reply_s = proto.REPLY_BYTES * BITS_PER_CHARACTER / self.config.baudrate
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout_at(ended + (reply_s if self.config.paced else 0.0)):
+                    await self._halt.wait()
+            if self._halt.is_set() and loop.time() < ended:
                 # halt(): the arm stops where it is (emulator: where the move started).
                 state.actual = state.commanded = state.previous_actual
-                state.motion_end_s = loop.time()
+                state.motion_end_s = ended = loop.time()
                 self.halts += 1
+                self.motion_halted.set()
                 status = proto.Status.HALTED
         self._move_task = None  # answered below: MOVING is clear in this reply's flags
-        await answer(self._reply(request.sequence, request.type, status))
+        await answer(self._reply(request.sequence, request.type, status), ended)
 
 
 def server_emulator_config(
