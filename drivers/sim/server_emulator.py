@@ -26,10 +26,10 @@ import asyncio
 import contextlib
 import logging
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal, Self
+from typing import Literal, Protocol, Self
 
 from config import faults as fault_specs
 from config.faults import Fault
@@ -43,7 +43,6 @@ from drivers.sim.emulator import (
     Location,
     _Link,
     _LinkClosed,
-    _Pacer,
     as_location,
 )
 
@@ -61,9 +60,13 @@ TARGET_LOCATION = "cur"
 #: Requests the emulator keeps for inspection (tests): the latest ones only.
 REQUEST_LOG = 10_000
 
-#: How a request is answered: the reply's bytes, and the loop time before which its first byte
-#: cannot go out (None: now).
-_Answer = Callable[[bytes, float | None], Awaitable[None]]
+
+class _Answer(Protocol):
+    """How a request is answered: the reply's bytes, and the loop time before which its first
+    byte cannot go out (None: once the request has arrived)."""
+
+    def __call__(self, data: bytes, not_before: float | None = None) -> Awaitable[None]: ...
+
 
 ServerFaultKind = Literal["crc", "short", "sequence", "silence", "close"]
 SERVER_FAULT_KINDS: tuple[ServerFaultKind, ...] = ("crc", "short", "sequence", "silence", "close")
@@ -213,9 +216,13 @@ class C500CServerEmulator(C500CEmulator):
         return None
 
     async def _session(self, link: _Link) -> None:
-        pacer_in = _Pacer(self.config.baudrate, self.config.paced)
+        # Pacing is bookkeeping plus one timer per reply: a request is read at once but counts
+        # as arrived when its last byte would have (``arrived``); its reply goes out when its
+        # own last byte would have left. A timer per direction would add the event loop's
+        # timer granularity (epoll: 1 ms) twice per exchange, which no real line has.
         byte_s = BITS_PER_CHARACTER / self.config.baudrate if self.config.paced else 0.0
         line_free_at = 0.0  # when the last byte written so far has left (loop time)
+        in_free_at = 0.0  # when the last byte read so far has arrived (loop time)
         decoder = proto.FrameDecoder()
         write_lock = asyncio.Lock()
         loop = asyncio.get_running_loop()
@@ -248,9 +255,9 @@ class C500CServerEmulator(C500CEmulator):
                 await send(proto.encode_frame(stray, frame.type, frame.body), not_before)
             # silence: the reply is never sent (the link was already marked silent)
 
-        def replier(fault: Fault[ServerFaultKind] | None) -> _Answer:
+        def replier(fault: Fault[ServerFaultKind] | None, arrived: float) -> _Answer:
             async def reply(data: bytes, not_before: float | None = None) -> None:
-                await answer(data, fault, not_before)
+                await answer(data, fault, arrived if not_before is None else not_before)
 
             return reply
 
@@ -259,7 +266,8 @@ class C500CServerEmulator(C500CEmulator):
                 chunk = await link.read()
                 if not chunk:
                     return
-                await pacer_in.take(len(chunk))
+                in_free_at = max(in_free_at, loop.time()) + len(chunk) * byte_s
+                arrived = in_free_at
                 if loop.time() < self._silent_until:
                     continue  # a silent controller drops what it is sent
                 self._last_heard = loop.time()
@@ -284,10 +292,10 @@ class C500CServerEmulator(C500CEmulator):
                             self._silent_until = loop.time() + seconds
                     if request is None:
                         reply = self._reply(event.sequence, event.type, proto.Status.BAD_REQUEST)
-                        await answer(reply, fault, None)
+                        await answer(reply, fault, arrived)
                         continue
                     self.requests.append(request)
-                    await self._serve(request, replier(fault))
+                    await self._serve(request, replier(fault, arrived), arrived)
                     if loop.time() < self._silent_until:
                         break
         except _LinkClosed:
@@ -297,33 +305,40 @@ class C500CServerEmulator(C500CEmulator):
         self,
         request: proto.Request,
         answer: _Answer,
+        arrived: float,
     ) -> None:
+        """Serve one request; ``arrived``: when its last byte arrived (paced loop time)."""
         kind = proto.RequestType
         seq, request_type = request.sequence, request.type
         if request_type is kind.HEARTBEAT or request_type is kind.READ_POSE:
-            await answer(self._reply(seq, request_type, proto.Status.OK), None)
+            await answer(self._reply(seq, request_type, proto.Status.OK))
         elif request_type is kind.TEACH_GOAL:
             # here(opgoal): the goal is where the arm is now (a move in progress is refused).
             status = proto.Status.BUSY if self.moving else proto.Status.OK
             if status == proto.Status.OK:
                 self.state.locations[GOAL_LOCATION] = self.actual_pose()
-            await answer(self._reply(seq, request_type, status), None)
+            await answer(self._reply(seq, request_type, status))
         elif request_type is kind.HOLD:
+            early_s = arrived - asyncio.get_running_loop().time()
+            if early_s > 0:
+                await asyncio.sleep(early_s)  # a halt never precedes its frame's last byte
             self._enter_hold(silence=False)
-            await answer(self._reply(seq, request_type, proto.Status.OK), None)
+            await answer(self._reply(seq, request_type, proto.Status.OK))
         elif request_type is kind.RELEASE:
             self.held = False
             self.silence_halted = False
-            await answer(self._reply(seq, request_type, proto.Status.OK), None)
+            await answer(self._reply(seq, request_type, proto.Status.OK))
         else:
             refusal = self._motion_refusal(request)
             if refusal is not None:
-                await answer(self._reply(seq, request_type, refusal), None)
+                await answer(self._reply(seq, request_type, refusal))
                 return
             self._halt.clear()
             self.motion_started.clear()
             self.motion_halted.clear()
-            self._move_task = asyncio.get_running_loop().create_task(self._move(request, answer))
+            self._move_task = asyncio.get_running_loop().create_task(
+                self._move(request, answer, arrived)
+            )
 
     def _motion_refusal(self, request: proto.Request) -> int | None:
         if self.held:
@@ -336,7 +351,7 @@ class C500CServerEmulator(C500CEmulator):
             return proto.Status.NO_CONTROL
         return None
 
-    async def _move(self, request: proto.Request, answer: _Answer) -> None:
+    async def _move(self, request: proto.Request, answer: _Answer, arrived: float) -> None:
         assert request.offset is not None
         state = self.state
         base = self.goal if request.type is proto.RequestType.MOVE_GOAL else self.actual_pose()
@@ -353,6 +368,8 @@ class C500CServerEmulator(C500CEmulator):
         else:
             self.motion_started.set()
             loop = asyncio.get_running_loop()
+            # The motion starts once the request has arrived (the console model starts it now).
+            state.motion_end_s += max(arrived - loop.time(), 0.0)
             ended = state.motion_end_s
             # One timer to the end of the reply's line time (the reply is framed when the
             # motion ends); a halt before the motion's end wakes it early.
