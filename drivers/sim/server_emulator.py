@@ -366,10 +366,10 @@ class C500CServerEmulator(C500CEmulator):
         if lines:
             status = _catalogue_code(lines)
         else:
-            self.motion_started.set()
             loop = asyncio.get_running_loop()
             # The motion starts once the request has arrived (the console model starts it now).
             state.motion_end_s += max(arrived - loop.time(), 0.0)
+            loop.call_at(arrived, self.motion_started.set)
             ended = state.motion_end_s
             # One timer to the end of the reply's line time (the reply is framed when the
             # motion ends); a halt before the motion's end wakes it early.
