@@ -209,6 +209,7 @@ class C500CServerRobot:
     async def _connect(self) -> None:
         """Open the port and exchange one heartbeat: the program answers with its state."""
         connection = await self._open_port()
+        self._synchronised = False  # until the handshake's reply: see _dispatch
         connection.task = asyncio.get_running_loop().create_task(
             self._read_replies(connection), name="c500c-server-reader"
         )
@@ -244,7 +245,6 @@ class C500CServerRobot:
 
     async def _read_replies(self, connection: _Connection) -> None:
         decoder = proto.FrameDecoder()
-        self._synchronised = False  # until the handshake's reply: see _dispatch
         try:
             while True:
                 try:
