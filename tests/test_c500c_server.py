@@ -187,13 +187,15 @@ async def test_hold_contract_refuses_motion_from_the_call_of_stop(
 
 
 async def test_heartbeats_keep_a_long_move_alive() -> None:
-    # The move lasts three silence periods; the host's heartbeats overlap it.
-    async with _emulator(move_ms=1500.0, silence_s=0.5) as emulator:
-        settings = FAST.model_copy(update={"server_silence_s": 0.5, "heartbeat_s": 0.1})
-        async with C500CServerRobot(settings, port=emulator.device_path) as robot:
-            await robot.teach_goal()
-            result = await robot.move_absolute((0.002, 0.0, 0.0))
-            assert robot.heartbeats >= 5
+    # The move lasts two and a half silence periods; the host's heartbeats overlap it.
+    settings = FAST.model_copy(update={"server_silence_s": 1.0, "heartbeat_s": 0.1})
+    async with (
+        _emulator(move_ms=2500.0, silence_s=1.0) as emulator,
+        C500CServerRobot(settings, port=emulator.device_path) as robot,
+    ):
+        await robot.teach_goal()
+        result = await robot.move_absolute((0.002, 0.0, 0.0))
+        assert robot.heartbeats >= 10
     assert emulator.halts == 0 and not emulator.held
     assert result.actual.x == pytest.approx(emulator.state.actual[0])
 
