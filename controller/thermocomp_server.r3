@@ -24,7 +24,8 @@
 const SILENCE_MS = 1000        ;; PROTOCOL.md "Silence": halt and hold after this long unheard
 const POLL_MS = 1              ;; msleep between polls; the CROS tick is 5 ms (doc/Notes.rst)
 const MAX_BODY = 32
-const RX_SIZE = 512            ;; receive fifo, as rosserial.r3's 512-byte fifo [ros]
+;; Receive fifo size: a preprocessor define, as rosserial.r3 sizes its 512-byte fifo [ros].
+.define RX_SIZE 512
 
 const T_HEARTBEAT = 1
 const T_TEACH = 2
