@@ -204,25 +204,34 @@ async def _raw(path: str) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
     return await serial_asyncio.open_serial_connection(url=path, baudrate=115200)
 
 
+class _Replies(proto.FrameDecoder):
+    """A raw client's decoder that keeps the frames one read brought beyond the first."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.waiting: list[proto.Frame] = []
+
+
 async def _exchange(
     reader: asyncio.StreamReader,
     writer: asyncio.StreamWriter,
-    decoder: proto.FrameDecoder,
+    decoder: _Replies,
     data: bytes | None,
 ) -> proto.Reply:
     if data is not None:
         writer.write(data)
-    while True:
+    while not decoder.waiting:
         for event in decoder.feed(await asyncio.wait_for(reader.read(256), 10.0)):
             assert isinstance(event, proto.Frame), event
-            return proto.parse_reply(event)
+            decoder.waiting.append(event)
+    return proto.parse_reply(decoder.waiting.pop(0))
 
 
 async def test_heartbeat_loss_halts_the_emulated_controller() -> None:
     """A host that falls silent mid-move: the program halts (044) and holds until RELEASE."""
     async with _emulator(move_ms=LONG_MOVE_MS, silence_s=0.3) as emulator:
         reader, writer = await _raw(emulator.device_path)
-        decoder = proto.FrameDecoder()
+        decoder = _Replies()
         try:
             teach = proto.encode_request(1, proto.RequestType.TEACH_GOAL)
             assert (await _exchange(reader, writer, decoder, teach)).ok
@@ -351,3 +360,40 @@ async def test_no_controller_fails_the_connect_cleanly(tmp_path: object) -> None
     with pytest.raises(NotConnectedError):
         async with C500CServerRobot(FAST, port="/nonexistent/tty"):
             pass
+
+
+async def test_the_emulated_program_refuses_what_the_specification_refuses() -> None:
+    async with _emulator(move_ms=LONG_MOVE_MS) as emulator:
+        reader, writer = await _raw(emulator.device_path)
+        decoder = _Replies()
+        offset = (0.001, 0, 0, 0, 0, 0)
+        try:
+            unknown = await _exchange(reader, writer, decoder, proto.encode_frame(1, 0x42))
+            assert (unknown.request, unknown.status) == (0x42, proto.Status.BAD_REQUEST)
+            short_body = proto.encode_frame(2, proto.RequestType.MOVE_GOAL, b"\x00" * 5)
+            bad = await _exchange(reader, writer, decoder, short_body)
+            assert bad.status == proto.Status.BAD_REQUEST
+            early = proto.encode_request(3, proto.RequestType.MOVE_GOAL, offset)
+            assert (await _exchange(reader, writer, decoder, early)).status == 1001
+            teach = proto.encode_request(4, proto.RequestType.TEACH_GOAL)
+            taught = await _exchange(reader, writer, decoder, teach)
+            assert taught.ok and taught.flags & proto.Flag.GOAL_TAUGHT
+            writer.write(proto.encode_request(5, proto.RequestType.MOVE_GOAL, offset))
+            await asyncio.wait_for(emulator.motion_started.wait(), 5.0)
+            second = proto.encode_request(6, proto.RequestType.MOVE_RELATIVE, offset)
+            busy = await _exchange(reader, writer, decoder, second)
+            assert (busy.sequence, busy.status) == (6, proto.Status.BUSY)
+            assert busy.flags & proto.Flag.MOVING
+            reteach = proto.encode_request(7, proto.RequestType.TEACH_GOAL)
+            assert (await _exchange(reader, writer, decoder, reteach)).status == proto.Status.BUSY
+            hold = await _exchange(
+                reader, writer, decoder, proto.encode_request(8, proto.RequestType.HOLD)
+            )
+            assert hold.sequence == 8 and hold.ok and hold.flags & proto.Flag.HELD
+            halted = await _exchange(reader, writer, decoder, None)
+            assert (halted.sequence, halted.status) == (5, proto.Status.HALTED)
+            assert not halted.flags & proto.Flag.SILENCE_HALTED
+        finally:
+            writer.close()
+    # Garbage between frames was skipped, never answered.
+    assert emulator.discarded == []
