@@ -15,7 +15,7 @@ immediately before a motion frame is written.
 Any reply that cannot be trusted — bad CRC, garbage, an impossible length, a sequence number
 never used, a timeout, a lost port — is a link fault: every outstanding request fails with it,
 motion is held until :meth:`resume`, and the link reconnects in the background with a capped
-exponential back-off (the state machine of drivers/c500c.py, TRANSITIONS).
+exponential back-off (TRANSITIONS below, as the console driver's).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from config.settings import RobotSettings
 from drivers import c500c_protocol as console_proto
 from drivers import c500c_server_protocol as proto
 from drivers.base import LinkState, MoveResult, Pose, RobotStatus, Vector3
-from drivers.c500c import READBACK_TOLERANCE_MM, TRANSITIONS
+from drivers.c500c import READBACK_TOLERANCE_MM
 from drivers.errors import (
     DeviceError,
     DeviceReportedError,
@@ -61,6 +61,15 @@ ABANDONED_LIMIT = 1024
 HALT_TEXT = "Halt() command invoked"
 
 _MOTION = (proto.RequestType.MOVE_GOAL, proto.RequestType.MOVE_RELATIVE)
+
+#: The link's state machine (drivers.base.LinkState), the console driver's without its
+#: point-of-control state: the program takes the point of control once, at its start.
+TRANSITIONS: dict[LinkState, frozenset[LinkState]] = {
+    LinkState.DISCONNECTED: frozenset({LinkState.CONNECTING}),
+    LinkState.CONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
+    LinkState.CONNECTED: frozenset({LinkState.RECONNECTING, LinkState.DISCONNECTED}),
+    LinkState.RECONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
+}
 
 
 def status_text(code: int) -> str:

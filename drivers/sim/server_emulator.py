@@ -40,10 +40,8 @@ from drivers.sim.emulator import (
     BITS_PER_CHARACTER,
     C500CEmulator,
     EmulatorConfig,
-    Location,
     _Link,
     _LinkClosed,
-    as_location,
 )
 
 logger = logging.getLogger(__name__)
@@ -87,6 +85,11 @@ class ServerEmulatorConfig:
     )
     silence_timeout_s: float = DEFAULT_SILENCE_TIMEOUT_S
     faults: tuple[Fault[ServerFaultKind], ...] = ()
+
+
+def _shifted(base: proto.Pose6, offset: proto.Pose6) -> proto.Pose6:
+    x, y, z, zr, yr, xr = (b + o for b, o in zip(base, offset, strict=True))
+    return (x, y, z, zr, yr, xr)
 
 
 def _catalogue_code(lines: list[str]) -> int:
@@ -144,7 +147,7 @@ class C500CServerEmulator(C500CEmulator):
         return self._move_task is not None and not self._move_task.done()
 
     @property
-    def goal(self) -> Location | None:
+    def goal(self) -> proto.Pose6 | None:
         return self.state.locations.get(GOAL_LOCATION)
 
     # --- lifecycle ---
@@ -357,9 +360,7 @@ class C500CServerEmulator(C500CEmulator):
         base = self.goal if request.type is proto.RequestType.MOVE_GOAL else self.actual_pose()
         assert base is not None
         # shift_w(cur, offset): world-frame shift of every coordinate (C500C.md `wshift`).
-        state.locations[TARGET_LOCATION] = as_location(
-            [b + o for b, o in zip(base, request.offset, strict=True)]
-        )
+        state.locations[TARGET_LOCATION] = _shifted(base, request.offset)
         lines = await self.console.execute(f"{'moves' if request.straight else 'move'} cur")
         status: int = proto.Status.OK
         ended: float | None = None
