@@ -504,9 +504,9 @@ class C500CServerRobot:
             self._link_fault(error)
             raise error
         return MoveResult(
-            requested_mm=offset,
-            commanded_mm=commanded,
-            actual=actual,
+            offset,
+            commanded,
+            actual,  # every reply carries the pose: the fast path reads back every step
             bytes_sent=proto.MOVE_REQUEST_BYTES + exchanges_before * proto.REQUEST_BYTES,
             bytes_received=(1 + exchanges_before) * proto.REPLY_BYTES,
             round_trips_s=(round_trip_s,),
