@@ -397,3 +397,18 @@ async def test_the_emulated_program_refuses_what_the_specification_refuses() -> 
             writer.close()
     # Garbage between frames was skipped, never answered.
     assert emulator.discarded == []
+
+
+async def test_stop_with_the_link_down_still_holds_and_returns(
+    emulator: C500CServerEmulator,
+) -> None:
+    async with C500CServerRobot(FAST, port=emulator.device_path, first_backoff_s=5.0) as robot:
+        await robot.teach_goal()
+        emulator.inject_server_fault("close")
+        with pytest.raises(NotConnectedError):
+            await robot.actual_pose()
+        assert robot.status().link is LinkState.RECONNECTING
+        await robot.stop()  # nothing can carry HOLD now: the program's silence timeout will
+        assert robot.status().motion_held
+        with pytest.raises(MotionHeldError):
+            await robot.move_absolute((0.001, 0.0, 0.0))
