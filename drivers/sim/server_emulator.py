@@ -25,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import re
 from collections import deque
 from collections.abc import Awaitable
 from dataclasses import dataclass, field, replace
@@ -96,7 +97,7 @@ def _catalogue_code(lines: list[str]) -> int:
     """The catalogue number of the console's error line (the program passes it through)."""
     text = " ".join(lines)
     for code, message in console_proto.MOTION_ERRORS.items():
-        if message.replace("$1", "").strip() in text:
+        if re.search(re.escape(message).replace(r"\$1", r"\d+"), text):
             return code
     return proto.Status.BAD_REQUEST
 
