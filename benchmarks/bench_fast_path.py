@@ -119,6 +119,7 @@ async def fixed_step(duration_s: float) -> dict[str, Any]:
     async with emulator, C500CServerRobot(SETTINGS, port=emulator.device_path) as robot:
         await robot.teach_goal()
         steps = round(duration_s / STEP_S)
+        cpu0 = time.process_time()  # host driver and emulator share this process
         start = loop.time() + STEP_S
         for step in range(steps):
             deadline = start + step * STEP_S
@@ -130,6 +131,7 @@ async def fixed_step(duration_s: float) -> dict[str, Any]:
             durations.append(ended - began)
             overruns += ended > deadline + STEP_S
         heartbeats = robot.heartbeats
+        cpu_ms = (time.process_time() - cpu0) / steps * 1000.0
     return {
         "step_ms": STEP_S * 1000.0,
         "duration_s": duration_s,
@@ -142,6 +144,9 @@ async def fixed_step(duration_s: float) -> dict[str, Any]:
         "step_max_ms": max(durations) * 1000.0,
         "heartbeats": heartbeats,
         "halts": emulator.halts,
+        # CPU per step (driver + emulator): far below the step, so overruns are waits for a
+        # core, not work (compare load_1min with cpus).
+        "cpu_ms_per_step": cpu_ms,
         # Overruns on a loaded machine are the machine's: the target is for an idle one.
         "load_1min": max(load_before, os.getloadavg()[0]),
         "cpus": os.cpu_count(),
