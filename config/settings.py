@@ -262,7 +262,7 @@ class RobotSettings(_Section):
     emulator_move_ms: NonNegativeFloat = Field(5.0, description="Sim: time one move takes (ms).")
     server_port: str = Field(
         "/dev/ttyS1",
-        description="c500c-server: serial device wired to the controller's second port (sio1)."
+        description="c500c-server: serial device wired to the controller's second port (sio1).",
     )
     server_baudrate: int = Field(
         115200, description="c500c-server: baud rate of the program's port (the program's 115200)."
