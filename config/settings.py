@@ -16,7 +16,7 @@ import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from types import UnionType
-from typing import Annotated, Any, Literal, Union, get_args, get_origin
+from typing import Annotated, Any, Literal, Self, Union, get_args, get_origin
 
 from pydantic import (
     BaseModel,
@@ -371,8 +371,11 @@ class IrSettings(_Section):
 class RobotSettings(_Section):
     """The CRS C500C controller's serial console (C500C.md)."""
 
-    driver: Literal["sim", "c500c"] = Field(
-        "sim", description="sim: the C500C emulator on a pseudo-terminal; c500c: a real port."
+    driver: Literal["sim", "c500c", "c500c-server"] = Field(
+        "sim",
+        description="sim: the C500C emulator on a pseudo-terminal; c500c: a real port; "
+        "c500c-server: the fast path, controller/thermocomp_server.r3 on the controller's second "
+        "port (robot.server_port; on the simulated bench, bench.enabled, its emulator on a pty).",
     )
     port: str = Field("/dev/ttyS0", description="Serial device of the controller's console.")
     baudrate: int = Field(57600, description="Console baud rate (the C500C default is 57600).")
@@ -394,13 +397,37 @@ class RobotSettings(_Section):
         False, description="Sim: pace the emulator at the baud rate (real link timings)."
     )
     emulator_move_ms: NonNegativeFloat = Field(5.0, description="Sim: time one move takes (ms).")
+    server_port: str = Field(
+        "/dev/ttyS1",
+        description="c500c-server: serial device wired to the controller's second port (sio1).",
+    )
+    server_baudrate: int = Field(
+        115200, description="c500c-server: baud rate of the program's port (the program's 115200)."
+    )
+    heartbeat_s: PositiveFloat = Field(
+        0.25,
+        description="c500c-server: a heartbeat is sent when nothing was sent for this long (s); "
+        "at most half of server_silence_s.",
+    )
+    server_silence_s: PositiveFloat = Field(
+        1.0,
+        description="c500c-server: the program halts and holds after this long without a frame "
+        "(s); the emulator uses it, on the controller it is SILENCE_MS in the program.",
+    )
 
-    @field_validator("baudrate")
+    @field_validator("baudrate", "server_baudrate")
     @classmethod
     def _known_baudrate(cls, value: int) -> int:
         if value not in SUPPORTED_BAUDRATES:
             raise ValueError("must be one of " + ", ".join(map(str, SUPPORTED_BAUDRATES)))
         return value
+
+    @model_validator(mode="after")
+    def _heartbeat_within_silence(self) -> Self:
+        # Two heartbeats per silence period: one late heartbeat must not halt the robot.
+        if self.heartbeat_s * 2 > self.server_silence_s:
+            raise ValueError("heartbeat_s must be at most half of server_silence_s")
+        return self
 
 
 class ModelSettings(_Section):

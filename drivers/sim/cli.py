@@ -12,6 +12,11 @@ from config.cli import non_negative_float, non_negative_int, port_number
 from config.faults import Fault
 from config.settings import SUPPORTED_BAUDRATES
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig, FaultKind, parse_faults
+from drivers.sim.server_emulator import (
+    SERVER_BAUDRATE,
+    C500CServerEmulator,
+    server_emulator_config,
+)
 
 
 def _faults(text: str) -> tuple[Fault[FaultKind], ...]:
@@ -56,9 +61,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument(
         "--baud",
         type=int,
-        default=57600,
+        default=None,
         choices=SUPPORTED_BAUDRATES,
-        help="baud rate the link is paced at (default 57600)",
+        help="baud rate the link is paced at (default 57600; 115200 with --server)",
     )
     parser.add_argument(
         "--no-pacing", action="store_true", help="answer at once instead of at the baud rate"
@@ -66,6 +71,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--faults", type=_faults, default=(), metavar="SPEC", help="faults")
     parser.add_argument(
         "--shell", action="store_true", help="start at the system shell `$ ` prompt"
+    )
+    parser.add_argument(
+        "--server",
+        action="store_true",
+        help="serve the fast path's program (controller/PROTOCOL.md) instead of the console",
     )
     parser.set_defaults(handler=run)
 
@@ -81,16 +91,43 @@ async def _serve(emulator: C500CEmulator) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.server:
+        return _run_server(args)
     config = EmulatorConfig(
         seed=args.seed,
         noise_um=args.noise_um,
         move_ms=args.move_ms,
-        baudrate=args.baud,
+        baudrate=args.baud or 57600,
         paced=not args.no_pacing,
         faults=args.faults,
         start_in_shell=args.shell,
     )
     emulator = C500CEmulator(
+        config,
+        transport="tcp" if args.tcp is not None else "pty",
+        tcp_port=args.tcp or 0,
+        link_path=args.link,
+    )
+    try:
+        asyncio.run(_serve(emulator))
+    except OSError as err:
+        print(f"thermocomp emulate: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _run_server(args: argparse.Namespace) -> int:
+    if args.faults or args.shell:
+        print("thermocomp emulate: --faults and --shell are the console's", file=sys.stderr)
+        return 2
+    config = server_emulator_config(
+        seed=args.seed,
+        noise_um=args.noise_um,
+        move_ms=args.move_ms,
+        baudrate=args.baud or SERVER_BAUDRATE,
+        paced=not args.no_pacing,
+    )
+    emulator = C500CServerEmulator(
         config,
         transport="tcp" if args.tcp is not None else "pty",
         tcp_port=args.tcp or 0,
