@@ -1,9 +1,14 @@
 """An emulated CRS C500C console (`ash` shell) on a real pseudo-terminal or a TCP port.
 
 It serves the subset of C500C.md the driver uses: echo, prompts, CRLF replies, arm power /
-homed / online / point-of-control states, named locations, `here`, `set`, `wshift`, `move`,
-`moves` (error 043 when not online), `wx`/`wy`/`wz` (and their straight-line `s` forms),
-`finish`, `w0`/`w2`, `online`, `armpower`, `home`, `speed`, Ctrl-E, and the shell `$ ` prompt.
+homed / online / point-of-control states, named locations, `new`, `here`, `set`, `wshift`,
+`move`, `moves` (error 043 when not online), `wx`/`wy`/`wz` (and their straight-line `s`
+forms), `finish`, `w0`/`w2` in the firmware's layout, `online`, `armpower`, `home`, `speed`,
+Ctrl-E, the shell `$ ` prompt and `ash [application]`. It asks the firmware's questions when
+the host triggers them (`here`/`set` to a variable that does not exist: "-- create it?"; `ash`
+without an application: "Application name > "), and a motion command without the point of
+control prints the PAUSE/CONTINUE request and blocks until the button is pressed
+(:meth:`C500CEmulator.press_pause_continue`, or SIGUSR1 to ``thermocomp emulate``).
 The byte-level conventions it follows are those of :mod:`drivers.c500c_protocol`, whose
 ``ASSUMED`` block is the one place where unconfirmed parts of the protocol are written down.
 
@@ -17,7 +22,8 @@ rate in both directions, so timings measured against the emulator are those of t
 (57600 baud: 0.17 ms per byte). Pacing can be turned off for fast tests.
 
 Fault injection (for tests and robustness drills): drop the answer of a command, corrupt one of
-its bytes, delay it, stall the console, or close the link. See :func:`parse_faults`.
+its bytes, delay it, stall the console, close the link, or restart the controller (it forgets
+its variables). See :func:`parse_faults`.
 """
 
 from __future__ import annotations
@@ -61,8 +67,11 @@ COMMAND_LOG_LINES = 10_000
 #: How long a `delay` fault delays an answer when the spec gives no duration (s).
 DEFAULT_DELAY_S = 1.0
 
-FaultKind = Literal["drop", "corrupt", "delay", "stall", "close"]
+FaultKind = Literal["drop", "corrupt", "delay", "stall", "close", "restart"]
+#: The link's faults: each is over once the driver has reconnected.
 FAULT_KINDS: tuple[FaultKind, ...] = ("drop", "corrupt", "delay", "stall", "close")
+#: Faults of the controller itself: a restart forgets every variable (the taught goal too).
+CONTROLLER_FAULT_KINDS: tuple[FaultKind, ...] = ("restart",)
 Location = tuple[float, float, float, float, float, float]
 
 
@@ -75,9 +84,11 @@ def parse_faults(spec: str) -> tuple[Fault[FaultKind], ...]:
     (lines and prompt) is lost; corrupt: one byte of the answer is replaced by a byte the
     console never sends; delay: the answer comes ``seconds`` late; stall: the console ignores
     everything for ``seconds``; close: the link closes (a pty is replaced by a fresh one behind
-    the same path, a TCP client is disconnected).
+    the same path, a TCP client is disconnected); restart: the command is not executed, the
+    controller restarts (every variable forgotten, online off) and its console is back at the
+    system shell `$ `.
     """
-    return fault_specs.parse_faults(spec, FAULT_KINDS)
+    return fault_specs.parse_faults(spec, FAULT_KINDS + CONTROLLER_FAULT_KINDS)
 
 
 def as_location(values: Sequence[float]) -> Location:
@@ -102,6 +113,9 @@ class EmulatorConfig:
     point_of_control: bool = True
     start_in_shell: bool = False  # start at the system shell `$ ` instead of the ash prompt
     start_pose: tuple[float, ...] = START_POSE
+    #: how `w0`/`w2` print: the firmware's layout (C500C.md); "single-line" is this project's
+    #: older layout, kept only for the driver's compatibility test
+    layout: proto.Layout = "firmware"
     faults: tuple[Fault[FaultKind], ...] = ()
 
 
@@ -113,8 +127,18 @@ class ConsoleCommandError(Exception):
         self.line = line
 
 
-#: Console commands that start a motion.
+#: Console commands that start a motion (the ones the emulator knows).
 MOTION_WORDS = ("move", "moves", "wx", "wy", "wz", "wxs", "wys", "wzs")
+#: How the controller's console comes back after a restart: the boot ends at the system shell.
+RESTART_BANNER = "CROS restarted"
+
+
+@dataclass(frozen=True, slots=True)
+class _Question:
+    """A question the console printed instead of a prompt; the next line answers it."""
+
+    text: str
+    on_answer: Callable[[str], list[str]]
 
 
 @dataclass
@@ -129,6 +153,8 @@ class ConsoleState:
     actual: Location
     previous_actual: Location
     in_shell: bool = False
+    awaiting_button: bool = False  # a motion waits for PAUSE/CONTINUE
+    restarts: int = 0
     speed_percent: int = 10
     motion_end_s: float = 0.0
     locations: dict[str, Location] = field(default_factory=dict)
@@ -143,7 +169,12 @@ class ConsoleState:
 
     def motion_commands(self) -> list[str]:
         """The logged command lines that start a motion (what a held robot must never get)."""
-        return [c for c in self.commands if c.split(" ")[0] in MOTION_WORDS]
+        return [c for c in self.commands if proto.is_motion_command(c)]
+
+
+def _shell_error(text: str) -> str:
+    """A shell error as the firmware prints it: `error: ` and the text (C500C.md "Errors")."""
+    return proto.format_error(None, text)
 
 
 class Console:
@@ -163,12 +194,66 @@ class Console:
             previous_actual=start,
             in_shell=config.start_in_shell,
         )
+        self.question: _Question | None = None
+        self._after_button: str | None = None  # the motion command waiting for the button
+        self._button: asyncio.Event | None = None
 
     @property
     def prompt(self) -> bytes:
+        if self.question is not None:
+            return self.question.text.encode("ascii")
         return (
             proto.SHELL_PROMPT if self.state.in_shell else proto.prompt_for(self.config.application)
         )
+
+    def _ask(self, text: str, on_answer: Callable[[str], list[str]]) -> list[str]:
+        self.question = _Question(text, on_answer)
+        return []
+
+    def _create_it(self, name: str, then: Callable[[], list[str]]) -> list[str]:
+        """`here`/`set` to a variable that does not exist [firmware]: "Variable '<name>' not
+        found." and "  -- create it? "; "yes" creates it and carries on, "no" does nothing,
+        anything else asks "Please answer 'yes' or 'no': "."""
+
+        def answer(text: str) -> list[str]:
+            if text in ("yes", "y"):
+                self.state.locations[name] = self.state.actual
+                return then()
+            if text in ("no", "n"):
+                return []
+            return self._ask("Please answer 'yes' or 'no': ", answer)
+
+        self._ask("  -- create it? ", answer)
+        return [f"Variable '{name}' not found."]
+
+    def press_pause_continue(self) -> None:
+        """The operator takes the point of control at the controller."""
+        self.state.point_of_control = True
+        if self._button is not None:
+            self._button.set()
+
+    async def wait_for_button(self) -> list[str]:
+        """Block until PAUSE/CONTINUE is pressed, then run the motion command that waited."""
+        if self._button is None:
+            self._button = asyncio.Event()
+        while not self.state.point_of_control:
+            self._button.clear()
+            await self._button.wait()
+        line, self._after_button = self._after_button, None
+        self.state.awaiting_button = False
+        return [] if line is None else await self._execute(line)
+
+    def restart(self) -> None:
+        """The controller restarts: every variable is forgotten, online is off, any question or
+        waiting motion is gone, and the console is at the system shell."""
+        state = self.state
+        state.locations.clear()
+        state.online = False
+        state.in_shell = True
+        state.awaiting_button = False
+        state.restarts += 1
+        self.question = None
+        self._after_button = None
 
     def actual_pose(self, now_s: float) -> Location:
         """Where the arm really is at loop time ``now_s`` (the start pose while moving)."""
@@ -176,8 +261,17 @@ class Console:
         return state.actual if now_s >= state.motion_end_s else state.previous_actual
 
     async def execute(self, line: str) -> list[str]:
-        """Run one command line; return the answer lines (errors included)."""
+        """Run one command line; return the answer lines (errors included). A motion command
+        without the point of control answers the PAUSE/CONTINUE request and waits: the caller
+        then awaits :meth:`wait_for_button` for the rest of the answer."""
         self.state.log_command(line)
+        question = self.question
+        if question is not None:
+            self.question = None
+            return question.on_answer(line.strip())
+        return await self._execute(line)
+
+    async def _execute(self, line: str) -> list[str]:
         words = line.strip()
         if not words:
             return []
@@ -192,7 +286,12 @@ class Console:
                 await self._finish()  # a new motion starts when the previous one has ended
             handler = getattr(self, f"_cmd_{name}", None)
             if handler is None:
-                raise ConsoleCommandError("Unrecognized command.")
+                raise ConsoleCommandError(proto.format_error(None, "Unrecognized command."))
+            if name in MOTION_WORDS and not self.state.point_of_control:
+                # C500C.md "Point of control": the request, then the wait for the button
+                self.state.awaiting_button = True
+                self._after_button = line
+                return [proto.POINT_OF_CONTROL_MESSAGE]
             answer: list[str] = handler(rest.strip())
             return answer
         except ConsoleCommandError as err:
@@ -202,10 +301,16 @@ class Console:
 
     def _shell(self, words: str) -> list[str]:
         parts = words.split()
-        if parts[0] != "ash" or len(parts) > 3:
+        if parts[0] != "ash" or len(parts) > 2:
             return [f"{parts[0]}: not found"]
-        if len(parts) >= 2 and parts[1] != self.config.application:
-            return [f"{parts[1]}: application not found"]
+        if len(parts) == 1:  # [firmware]: ash without an argument asks for the application
+            self._ask("Application name > ", lambda name: self._start_ash(name.strip()))
+            return []
+        return self._start_ash(parts[1])
+
+    def _start_ash(self, application: str) -> list[str]:
+        if application != self.config.application:
+            return [f"{application}: application not found"]
         self.state.in_shell = False
         return []
 
@@ -215,9 +320,11 @@ class Console:
     def _arguments(rest: str, count: int) -> list[str]:
         parts = [part.strip() for part in rest.split(",")] if rest else []
         if len(parts) < count:
-            raise ConsoleCommandError("missing comma." if parts else "invalid argument.")
+            raise ConsoleCommandError(
+                _shell_error("missing comma." if parts else "invalid argument.")
+            )
         if len(parts) > count:
-            raise ConsoleCommandError("too many arguments.")
+            raise ConsoleCommandError(_shell_error("too many arguments."))
         return parts
 
     @staticmethod
@@ -225,15 +332,21 @@ class Console:
         try:
             value = float(text)
         except ValueError:
-            raise ConsoleCommandError("missing number.") from None
+            raise ConsoleCommandError(_shell_error("missing number.")) from None
         if not math.isfinite(value):
-            raise ConsoleCommandError("invalid argument.")
+            raise ConsoleCommandError(_shell_error("invalid argument."))
         return value
 
     def _location(self, name: str) -> Location:
         if name not in self.state.locations:
-            raise ConsoleCommandError("variable not found.")
+            raise ConsoleCommandError(_shell_error("variable not found."))
         return self.state.locations[name]
+
+    @staticmethod
+    def _variable_name(name: str) -> str:
+        if not re.fullmatch(r"[A-Za-z_]\w*", name):
+            raise ConsoleCommandError(_shell_error("invalid argument."))
+        return name
 
     def _check_motion(self, straight: bool) -> list[str] | None:
         state = self.state
@@ -241,8 +354,6 @@ class Console:
             raise ConsoleCommandError(proto.format_error(7))
         if not state.homed:
             raise ConsoleCommandError(proto.format_error(5))
-        if not state.point_of_control:
-            return [proto.POINT_OF_CONTROL_MESSAGE]  # ASSUMED 5: no motion, back to the prompt
         if straight and not state.online:
             raise ConsoleCommandError(proto.format_error(43))
         return None
@@ -265,41 +376,62 @@ class Console:
         if remaining > 0:
             await asyncio.sleep(remaining)
 
-    def _table(self, pose: Location) -> list[str]:
-        return proto.format_w_table(pose, (0.0,) * 6, (0.0,) * 6)
+    def _table(self, pose: Location, title: str) -> list[str]:
+        # emulator simplification: no kinematics, so PULSES and JOINTS are zeros
+        return proto.format_w_table(
+            pose, (0.0,) * 6, (0,) * 6, title=title, layout=self.config.layout
+        )
 
     # --- commands (ash) ---
 
     def _cmd_w0(self, rest: str) -> list[str]:
         if rest:
-            raise ConsoleCommandError("too many arguments.")
-        return self._table(self.state.commanded)
+            raise ConsoleCommandError(_shell_error("too many arguments."))
+        return self._table(self.state.commanded, proto.COMMANDED_TITLE)
 
     def _cmd_w2(self, rest: str) -> list[str]:
         if rest:
-            raise ConsoleCommandError("too many arguments.")
-        return self._table(self.actual_pose(asyncio.get_running_loop().time()))
+            raise ConsoleCommandError(_shell_error("too many arguments."))
+        return self._table(self.actual_pose(asyncio.get_running_loop().time()), proto.ACTUAL_TITLE)
+
+    def _cmd_new(self, rest: str) -> list[str]:
+        """`new <name>` makes a location (C500C.md: `help new`); ASSUMED 7: silent, and an
+        error line when the name exists already (its value is kept)."""
+        (name,) = self._arguments(rest, 1)
+        if self._variable_name(name) in self.state.locations:
+            raise ConsoleCommandError(_shell_error("variable already exists."))
+        self.state.locations[name] = self.state.actual
+        return []
 
     def _cmd_here(self, rest: str) -> list[str]:
         (name,) = self._arguments(rest, 1)
-        if not re.fullmatch(r"[A-Za-z_]\w*", name):
-            raise ConsoleCommandError("invalid argument.")
-        self.state.locations[name] = self.actual_pose(asyncio.get_running_loop().time())
-        return []
+        self._variable_name(name)
+
+        def teach() -> list[str]:
+            self.state.locations[name] = self.actual_pose(asyncio.get_running_loop().time())
+            return []
+
+        return teach() if name in self.state.locations else self._create_it(name, teach)
 
     def _cmd_set(self, rest: str) -> list[str]:
         name, equals, value = rest.partition("=")
         name, value = name.strip(), value.strip()
-        if not equals or not re.fullmatch(r"[A-Za-z_]\w*", name) or not value:
-            raise ConsoleCommandError("invalid argument.")
+        if not equals or not value:
+            raise ConsoleCommandError(_shell_error("invalid argument."))
+        self._variable_name(name)
         if value.startswith("{"):
             if not value.endswith("}"):
-                raise ConsoleCommandError("invalid argument.")
+                raise ConsoleCommandError(_shell_error("invalid argument."))
             parts = self._arguments(value[1:-1], 6)
-            self.state.locations[name] = as_location([self._number(p) for p in parts])
+            location = as_location([self._number(p) for p in parts])
         else:
-            self.state.locations[name] = self._location(value)
-        return []
+            location = self._location(value)
+
+        def assign() -> list[str]:
+            self.state.locations[name] = location
+            return []
+
+        return assign() if name in self.state.locations else self._create_it(name, assign)
 
     def _cmd_wshift(self, rest: str) -> list[str]:
         parts = self._arguments(rest, 7)
@@ -361,7 +493,7 @@ class Console:
 
     def _on_off(self, rest: str) -> bool:
         if rest not in ("on", "off"):
-            raise ConsoleCommandError("invalid argument.")
+            raise ConsoleCommandError(_shell_error("invalid argument."))
         return rest == "on"
 
     def _cmd_online(self, rest: str) -> list[str]:
@@ -374,7 +506,7 @@ class Console:
 
     def _cmd_home(self, rest: str) -> list[str]:
         if rest:
-            raise ConsoleCommandError("too many arguments.")
+            raise ConsoleCommandError(_shell_error("too many arguments."))
         if not self.state.arm_power:
             raise ConsoleCommandError(proto.format_error(7))
         self.state.homed = True
@@ -527,6 +659,11 @@ class C500CEmulator:
         self._stalled_until = 0.0
         self.device_path = ""
         self.faults_applied: list[tuple[int, FaultKind]] = []  # (command number, kind)
+        # answer gate (tests): hold the answer of a matching command until released
+        self._gate_open = asyncio.Event()
+        self._gate_open.set()
+        self._gate_command: str | None = None
+        self.answer_held = asyncio.Event()  # set while an answer waits at the gate
 
     @property
     def state(self) -> ConsoleState:
@@ -539,8 +676,26 @@ class C500CEmulator:
         self._pending.append(Fault(kind, seconds))
 
     def press_pause_continue(self) -> None:
-        """The operator takes the point of control at the controller."""
-        self.state.point_of_control = True
+        """The operator presses PAUSE/CONTINUE: the controller has the point of control, and a
+        motion command waiting for it carries on."""
+        self.console.press_pause_continue()
+
+    def hold_answers(self, command: str | None = None) -> None:
+        """Tests: the answer of the next command line (or of the next one equal to ``command``)
+        waits until :meth:`release_answers`; ``answer_held`` is set once one waits. The command
+        itself has run when its answer is held."""
+        self._gate_command = command
+        self._gate_open.clear()
+        self.answer_held.clear()
+
+    def release_answers(self) -> None:
+        self._gate_open.set()
+
+    def restart_controller(self) -> None:
+        """The controller restarts now: it forgets every variable (the taught goal too) and its
+        console is at the system shell (C500C.md); the link itself stays."""
+        logger.info("emulated controller restarts")
+        self.console.restart()
 
     def actual_pose(self) -> Location:
         return self.console.actual_pose(asyncio.get_running_loop().time())
@@ -664,6 +819,7 @@ class C500CEmulator:
                 for byte in chunk:
                     if byte == proto.CTRL_E[0]:
                         line.clear()
+                        self.console.question = None  # emulator choice: Ctrl-E drops a question
                         echo += proto.REPLY_LINE_END + self.console.prompt  # ASSUMED 6
                     elif byte in b"\r\n":
                         if byte == ord("\n") and last_was_cr:
@@ -698,12 +854,30 @@ class C500CEmulator:
             self.state.log_command(text)  # received, never executed
             link.close()
             raise _LinkClosed
+        if fault is not None and fault.kind == "restart":
+            self.state.log_command(text)  # received, never executed
+            self.console.restart()
+            await send(
+                proto.REPLY_LINE_END
+                + RESTART_BANNER.encode("ascii")
+                + proto.REPLY_LINE_END
+                + proto.SHELL_PROMPT
+            )
+            return
         if fault is not None and fault.kind == "stall":
             self.state.log_command(text)
             seconds = fault.seconds if fault.seconds is not None else DEFAULT_STALL_S
             self._stalled_until = asyncio.get_running_loop().time() + seconds
             return
         lines = await self.console.execute(text)
+        if not self._gate_open.is_set() and self._gate_command in (None, text):
+            self.answer_held.set()
+            await self._gate_open.wait()
+            self.answer_held.clear()
+        if self.state.awaiting_button:
+            # the PAUSE/CONTINUE request goes out now; the rest once the button is pressed
+            await send(b"".join(line.encode("ascii") + proto.REPLY_LINE_END for line in lines))
+            lines = await self.console.wait_for_button()
         answer = b"".join(line.encode("ascii") + proto.REPLY_LINE_END for line in lines)
         if fault is not None and fault.kind == "drop":
             return
@@ -730,6 +904,7 @@ def emulator_config(
     paced: bool = True,
     faults: str = "",
     application: str = "ash",
+    layout: proto.Layout = "firmware",
 ) -> EmulatorConfig:
     """An :class:`EmulatorConfig` from the command line's or the settings' plain values."""
     if noise_um < 0 or move_ms < 0:
@@ -743,4 +918,5 @@ def emulator_config(
         paced=paced,
         faults=parse_faults(faults),
         application=application,
+        layout=layout,
     )
