@@ -20,6 +20,7 @@ from config.cli import EXIT_FAILURE, EXIT_USAGE
 from daemon import __version__, identify_cli, reports, run_cli
 from daemon.model import cli as model_cli
 from daemon.vision import cli as vision_cli
+from drivers import robot_check
 from drivers.sim import cli as emulate_cli
 
 Register = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], None]
@@ -33,6 +34,7 @@ COMMANDS: tuple[Register, ...] = (
     model_cli.register,
     vision_cli.register,
     emulate_cli.register,
+    robot_check.register,
 )
 
 

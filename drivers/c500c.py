@@ -70,10 +70,17 @@ class C500CRobot(ConsoleLink):
         port: str | None = None,
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
         transcript: Transcript | None = None,
+        prepare: bool = True,
     ) -> None:
         super().__init__(
-            settings, port=port, first_backoff_s=first_backoff_s, transcript=transcript
+            settings,
+            port=port,
+            first_backoff_s=first_backoff_s,
+            transcript=transcript,
+            prepare=prepare,
         )
+        if not prepare:  # a check: nothing may move (silently: nothing went wrong)
+            self._motion_held, self._hold_reason = True, "connected to check only"
         self._goal: Pose | None = None
         self._moves = 0  # moves since the goal was taught (robot.readback_every counts them)
 
@@ -198,6 +205,11 @@ class C500CRobot(ConsoleLink):
                 start = await self._read_pose()
                 expected = (start.x + commanded[0], start.y + commanded[1], start.z + commanded[2])
             return await self._run_motion(writes, delta_mm, commanded, expected)
+
+    async def read_position_lines(self) -> list[str]:
+        """The raw lines of one `w2` read-out (``thermocomp robot check`` prints them)."""
+        async with self._lock:
+            return await self._command("w2", self.settings.command_timeout_s)
 
     async def actual_pose(self) -> Pose:
         async with self._lock:

@@ -122,8 +122,12 @@ class ConsoleLink:
         port: str | None = None,
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
         transcript: Transcript | None = None,
+        prepare: bool = True,
     ) -> None:
         self.settings = settings
+        #: create the per-step target and go online at connect; without it (a check that must
+        #: change nothing on the controller) motion is held from the start
+        self.prepare = prepare
         self.port = port if port is not None else settings.port
         self.first_backoff_s = first_backoff_s
         self.transcript = transcript
@@ -239,10 +243,11 @@ class ConsoleLink:
             # C500C.md "Questions": a new name in `set` may ask "-- create it?"; the target is
             # created once per connection so it never does. The goal is not created here: it
             # exists only once taught, so a controller that lost it says "variable not found."
-            await self._create_variable(TARGET_LOCATION)
-            if self.settings.online:
-                await self._command("online on", self.settings.command_timeout_s)
-                self._online = True
+            if self.prepare:
+                await self._create_variable(TARGET_LOCATION)
+                if self.settings.online:
+                    await self._command("online on", self.settings.command_timeout_s)
+                    self._online = True
         except BaseException:
             self._drop_connection()
             self._connected_event.clear()

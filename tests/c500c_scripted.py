@@ -56,9 +56,9 @@ class _ScriptedTransport(asyncio.Transport):
 
 
 class ScriptedRobot(C500CRobot):
-    def __init__(self, script: Script, **settings: Any) -> None:
+    def __init__(self, script: Script, *, prepare: bool = True, **settings: Any) -> None:
         values = {"command_timeout_s": 0.5, **settings}
-        super().__init__(RobotSettings(**values), port="scripted")
+        super().__init__(RobotSettings(**values), port="scripted", prepare=prepare)
         self.script = script
         self.transport: _ScriptedTransport | None = None
 
