@@ -376,6 +376,8 @@ class ConsoleLink:
         if self._dirty is None:
             logger.warning("C500C link must be resynchronised: %s", reason)
         self._dirty = reason
+        if self._link not in LINK_UP:  # closed or reconnecting: the next connect synchronises
+            return
         if self._link in (LinkState.CONNECTED, LinkState.RESYNCHRONISING):
             self._enter(LinkState.RESYNCHRONISING)
         if self._resync_task is None or self._resync_task.done():
@@ -411,11 +413,14 @@ class ConsoleLink:
         logger.info("C500C link resynchronised")
 
     def _link_fault(self, error: DeviceError) -> None:
-        """The link cannot be trusted any more: hold motion, reconnect in the background."""
+        """The link cannot be trusted any more: hold motion, reconnect in the background (not
+        once the link was closed: a command cut by the close ends here)."""
         self._hold(str(error))
         self._drop_connection()
         self._dirty = None
         self._connected_event.clear()
+        if self._link in (LinkState.DISCONNECTED, LinkState.CONNECTING):
+            return
         self._enter(LinkState.RECONNECTING)
         if self._reconnect_task is None or self._reconnect_task.done():
             self._reconnect_task = asyncio.get_running_loop().create_task(

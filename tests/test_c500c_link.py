@@ -14,6 +14,7 @@ import pytest
 from config.settings import RobotSettings
 from drivers.base import LinkState
 from drivers.c500c import C500CRobot
+from drivers.c500c_console import Transcript
 from drivers.errors import (
     DeviceError,
     DeviceReportedError,
@@ -24,7 +25,7 @@ from drivers.errors import (
     PointOfControlError,
     ProtocolError,
 )
-from drivers.sim.emulator import C500CEmulator, EmulatorConfig, FaultKind
+from drivers.sim.emulator import C500CEmulator, EmulatorConfig, FaultKind, parse_faults
 
 # Generous against a loaded CI machine: a fault must outlast the timeout by a wide margin, and
 # ordinary replies from the in-process emulator must never come near it.
@@ -364,3 +365,51 @@ async def test_paced_link_still_converses() -> None:
     assert len(result.round_trips_s) == lines_of_the_move - 1 > 0
     assert all(math.isfinite(t) and t > 0 for t in result.round_trips_s)
     assert sum(result.round_trips_s) >= result.bytes_received * 10 / baud
+
+
+async def test_connect_synchronises_after_stale_and_late_answers() -> None:
+    """Issue 17: connect never relies on the line going quiet. Each connection's probe line
+    finds the late `w2` table of the previous connection (cut while it was on its way) arriving
+    first, and 30 % of the console's answers come late: every connect synchronises on its probe
+    line all the same."""
+    config = EmulatorConfig(paced=False, move_ms=0.0, seed=2, faults=parse_faults("delay=0.05%0.3"))
+    connects = 30
+    stale_first = 0
+    async with C500CEmulator(config) as emulator:
+        for attempt in range(connects):
+            transcript = Transcript()
+            robot = C500CRobot(FAST, port=emulator.device_path, transcript=transcript)
+            entering = asyncio.create_task(robot.__aenter__())
+            if attempt > 0:  # the previous table goes out once this probe line was written
+                await until(lambda t=transcript: bool(t.sent()))  # type: ignore[misc]
+                emulator.release_answers()
+            await entering
+            try:
+                await robot.teach_goal()
+                emulator.hold_answers("w2")
+                reading = asyncio.create_task(robot.actual_pose())
+                await emulator.answer_held.wait()
+            finally:
+                await robot.__aexit__(None, None, None)
+            with pytest.raises(DeviceError):
+                await reading  # its connection closed under it
+            received = transcript.received()
+            stale_first += 0 <= received.find(b"Actual Position") < received.find(b"tcsync")
+        emulator.release_answers()
+        async with C500CRobot(FAST, port=emulator.device_path) as robot:
+            goal = await robot.teach_goal()
+            result = await robot.move_absolute((0.002, 0.0, 0.0))
+        assert any(kind == "delay" for _, kind in emulator.faults_applied)
+    assert stale_first == connects - 1
+    assert result.actual.x == pytest.approx(goal.x + 0.002, abs=0.005)
+
+
+async def test_connect_retries_a_probe_answered_too_late() -> None:
+    config = EmulatorConfig(paced=False, faults=parse_faults("delay=0.7@1"))
+    async with C500CEmulator(config) as emulator:
+        settings = FAST.model_copy(update={"command_timeout_s": 0.5})
+        async with C500CRobot(settings, port=emulator.device_path) as robot:
+            assert robot.status().link is LinkState.CONNECTED
+            await robot.actual_pose()
+    # the first probe's answer came after its wait: a second probe, whose answer is awaited
+    assert list(emulator.state.commands)[:3] == ["tcsync1", "tcsync2", "new cur"]
