@@ -413,3 +413,12 @@ async def test_connect_retries_a_probe_answered_too_late() -> None:
             await robot.actual_pose()
     # the first probe's answer came after its wait: a second probe, whose answer is awaited
     assert list(emulator.state.commands)[:3] == ["tcsync1", "tcsync2", "new cur"]
+
+
+async def test_rts_cts_flow_control_is_a_setting(emulator: C500CEmulator) -> None:
+    settings = FAST.model_copy(update={"flow_control": "rtscts"})
+    async with C500CRobot(settings, port=emulator.device_path) as robot:
+        await robot.teach_goal()
+        assert (await robot.move_absolute((0.001, 0.0, 0.0))).read_back
+    with pytest.raises(ValueError, match="flow_control"):
+        RobotSettings.model_validate({"flow_control": "xonxoff"})

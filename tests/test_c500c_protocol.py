@@ -521,3 +521,27 @@ async def test_readback_every_n_moves() -> None:
         third = await robot.move_absolute((0.001, 0.0, 0.0))
         assert third.read_back and third.actual.x == 457.201
     robot.assert_all_used()
+
+
+@pytest.mark.parametrize("question", proto.KNOWN_QUESTIONS, ids=lambda q: q.kind)
+async def test_each_known_question_ends_the_command_deliberately(
+    question: proto.Question,
+) -> None:
+    """C500C.md "Questions": a question the driver knows an answer for gets it (and the prompt
+    is awaited); one it must not answer (save, exit, which application) gets Ctrl-E and a
+    resynchronisation. Either way the command fails clearly and the next one works."""
+    asked = (b"w2\r", b"w2\r\nSomething happened.\r\n" + question.text.encode())
+    if question.answer is not None:
+        answer = question.answer.encode()
+        after = [(answer + b"\r", answer + b"\r\n" + PROMPT)]
+        expected = f"answered {question.answer!r}"
+    else:
+        after = [(b"\x05", b"\r\n" + PROMPT), _probe(2, before=b"")]
+        expected = "does not answer"
+    script = [*CONNECT_OFFLINE, asked, *after, _w2(1.0, 2.0, 3.0)]
+    robot = ScriptedRobot(script, online=False)
+    async with robot:
+        with pytest.raises(ConsoleQuestionError, match=expected):
+            await robot.actual_pose()
+        assert (await robot.actual_pose()).position == (1.0, 2.0, 3.0)
+    robot.assert_all_used()
