@@ -233,7 +233,10 @@ class C500CRobot(ConsoleLink):
         A lost goal is not re-created from the recorded pose: the console's read-out has only
         0.001 mm and no arm configuration (stance) for it, and after a restart the calibration
         it was taught in may be gone, so a goal rebuilt that way could differ from the taught
-        one without anything showing it (C500C.md); teaching it again is the operator's call."""
+        one without anything showing it (C500C.md); teaching it again is the operator's call.
+
+        A hold requested while this runs wins: the hold stays and MotionHeldError is raised."""
+        holds_before = self._holds
         async with self._lock:
             if self._link not in LINK_UP:
                 raise NotConnectedError(DEVICE, f"cannot resume while {self._link.value}")
@@ -246,11 +249,16 @@ class C500CRobot(ConsoleLink):
                     self._last_error = str(err)
                     raise
             await self._read_pose()
+            if self._holds != holds_before:
+                raise MotionHeldError(
+                    DEVICE, f"held again while resuming, stays held: {self._hold_reason}"
+                )
             if self._link is LinkState.AWAITING_POINT_OF_CONTROL:
                 self._enter(LinkState.CONNECTED)
             self._point_of_control = None  # unknown until the next motion command
             self._motion_held = False
             self._hold_reason = None
+            self._moves = 0  # the first move after a resume reads the pose back
         logger.info("robot motion resumed")
 
     def status(self) -> RobotStatus:

@@ -141,6 +141,7 @@ class ConsoleLink:
         self._link_changed = asyncio.Event()  # set (and replaced) at every transition
         self._motion_held = False
         self._hold_reason: str | None = None
+        self._holds = 0  # every hold ever requested: a resume releases none that came after it
         self._dirty: str | None = None  # why the link must be resynchronised, if it must
         self._last_error: str | None = None
         self._arm_power: bool | None = None
@@ -274,13 +275,16 @@ class ConsoleLink:
     async def _synchronise(self, connection: Connection, timeout_s: float) -> bool:
         """Bring the console to a clean prompt: Ctrl-E and a probe line; the reply is complete
         at the prompt after the probe's echo (ASSUMED 6). Bounded: SYNC_ATTEMPTS probes, each
-        waiting ``timeout_s``. Returns whether the console is at the system shell."""
+        waiting ``timeout_s`` (the first after Ctrl-E, the others alone). Returns whether the
+        console is at the system shell."""
         prompts = self._prompt_or_shell
         last: DeviceError | None = None
-        for _attempt in range(SYNC_ATTEMPTS):
+        for attempt in range(SYNC_ATTEMPTS):
             self._sync_counter += 1
             probe = proto.sync_probe(self._sync_counter)
-            connection.write(proto.CTRL_E + proto.encode_command(probe))
+            # Ctrl-E first ends a continuous display; a retry goes alone (ASSUMED 6)
+            interrupt = proto.CTRL_E if attempt == 0 else b""
+            connection.write(interrupt + proto.encode_command(probe))
             try:
                 end = await read_until(
                     connection,
@@ -368,6 +372,7 @@ class ConsoleLink:
             logger.warning("robot motion held until resume(): %s", reason)
             self._hold_reason = reason
         self._motion_held = True
+        self._holds += 1
         if error:
             self._last_error = reason
 

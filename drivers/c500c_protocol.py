@@ -90,8 +90,10 @@ WORLD_VALUES_INDENT = 8
 # 5. Without the point of control, a motion command prints POINT_OF_CONTROL_MESSAGE on its own
 #    line and then waits for the button; after the press it carries on (prompt when started).
 # 6. Ctrl-E on an idle console prints CR LF and a fresh prompt; a line typed after it is read
-#    as a new command. Nothing else about Ctrl-E is relied upon: the driver synchronises on the
-#    echo of a probe line (SYNC_PROBE) and the prompt after it, never on silence.
+#    as a new command. Little else about Ctrl-E is relied upon: the driver synchronises on the
+#    echo of a probe line (SYNC_PROBE) and the prompt after it, never on silence; its first
+#    probe follows Ctrl-E in the same write, later ones go alone (in case Ctrl-E made the
+#    console drop what was typed right after it).
 # 7. A question is printed without a line end and waits for one answer line; `new <name>`
 #    creates a location variable (C500C.md: `help new`) and prints nothing, or an error line
 #    when the name exists already (either is accepted).
@@ -201,8 +203,8 @@ def find_probe_answer(buffer: bytes, probe: str, prompt: Prompt) -> int | None:
     echo line; ``None`` until both have arrived. Anything before the echo (a cut command's late
     answer, Ctrl-E's prompt) is what synchronisation discards."""
     echo = probe.encode("ascii") + REPLY_LINE_END
-    at = buffer.rfind(echo)
-    if at < 0 or (at > 0 and not buffer[:at].endswith((b"\n", b" ", CTRL_E))):
+    at = buffer.rfind(echo)  # whatever precedes it (a prompt, `^E`...) is discarded
+    if at < 0:
         return None
     after = at + len(echo)
     end = find_prompt(buffer[after:], prompt)

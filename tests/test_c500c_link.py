@@ -422,3 +422,22 @@ async def test_rts_cts_flow_control_is_a_setting(emulator: C500CEmulator) -> Non
         assert (await robot.move_absolute((0.001, 0.0, 0.0))).read_back
     with pytest.raises(ValueError, match="flow_control"):
         RobotSettings.model_validate({"flow_control": "xonxoff"})
+
+
+async def test_a_hold_during_resume_is_not_released_by_it(emulator: C500CEmulator) -> None:
+    async with C500CRobot(FAST, port=emulator.device_path) as robot:
+        await robot.teach_goal()
+        await robot.stop()
+        emulator.hold_answers("w2")
+        resuming = asyncio.create_task(robot.resume())
+        await emulator.answer_held.wait()  # resume() is checking the console
+        await robot.stop()  # a new hold while it does
+        emulator.release_answers()
+        with pytest.raises(MotionHeldError, match="while resuming"):
+            await resuming
+        assert robot.status().motion_held
+        with pytest.raises(MotionHeldError):
+            await robot.move_absolute((0.001, 0.0, 0.0))
+        await robot.resume()  # an explicit resume after the hold releases it
+        await robot.move_absolute((0.001, 0.0, 0.0))
+    assert emulator.state.motion_commands() == ["moves cur"]

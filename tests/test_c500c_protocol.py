@@ -334,7 +334,7 @@ async def test_the_second_prompt_form_is_a_prompt() -> None:
 async def test_connect_discards_what_came_before_the_probe() -> None:
     """A late answer of a previous session and Ctrl-E's own prompt come before the probe's
     echo: all of it is discarded, never read as a reply."""
-    late = b"w2\r\nActual Position :\r\n\r\n  garbage of a cut table\r\nash> \r\nash> "
+    late = b"w2\r\nActual Position :\r\n\r\n  garbage of a cut table\r\nash> ^E\r\nash> "
     robot = ScriptedRobot([_probe(1, before=late), _ok(b"new cur")], online=False)
     async with robot:
         assert robot.status().link is LinkState.CONNECTED
@@ -342,9 +342,12 @@ async def test_connect_discards_what_came_before_the_probe() -> None:
 
 
 async def test_connect_retries_the_probe() -> None:
-    """The first probe's answer never comes (a console still busy): a second probe, bounded."""
+    """The first probe's answer never comes (a console still busy, or one that dropped what
+    followed Ctrl-E): a second probe line, alone, bounded."""
     first = (b"\x05tcsync1\r", b"")
-    robot = ScriptedRobot([first, _probe(2), _ok(b"new cur")], online=False, command_timeout_s=0.1)
+    second = _probe(2)
+    second = (second[0].removeprefix(b"\x05"), second[1].removeprefix(b"\r\n" + PROMPT))
+    robot = ScriptedRobot([first, second, _ok(b"new cur")], online=False, command_timeout_s=0.1)
     async with robot:
         assert robot.status().link is LinkState.CONNECTED
     robot.assert_all_used()
