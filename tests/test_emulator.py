@@ -297,8 +297,8 @@ def test_cli_serves_a_pty_until_terminated() -> None:
         signalled = time.monotonic()
         process.terminate()
         assert process.stdout.readline().strip() == "thermocomp emulate: stopped"
-        stopped_s = time.monotonic() - signalled
         process.wait(timeout=10)
+        exited_s = time.monotonic() - signalled
     finally:
         if process.poll() is None:
             process.kill()
@@ -307,7 +307,7 @@ def test_cli_serves_a_pty_until_terminated() -> None:
             if stream:
                 stream.close()
     assert process.returncode == 0
-    assert stopped_s < 0.5
+    assert exited_s < 0.5  # ~0.05 s on the development machine
 
 
 def test_cli_rejects_bad_faults(capsys: pytest.CaptureFixture[str]) -> None:
