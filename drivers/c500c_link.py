@@ -299,8 +299,15 @@ class ConsoleLink:
             raw = connection.take(end)
             self._note_prompt(raw)
             return proto.find_shell_prompt(raw[raw.rfind(b"\n") + 1 :]) is not None
+        tail = proto.pending_line(bytes(connection.pending))
+        hint = (
+            f"; the console's prompt is {tail!r}, not {self.settings.application!r}: "
+            "check robot.application"
+            if tail.endswith("> ")
+            else ""
+        )
         raise DeviceTimeoutError(
-            DEVICE, f"console not synchronised after {SYNC_ATTEMPTS} probe lines: {last}"
+            DEVICE, f"console not synchronised after {SYNC_ATTEMPTS} probe lines{hint}: {last}"
         )
 
     def _note_prompt(self, raw: bytes) -> None:

@@ -18,6 +18,7 @@ from drivers.errors import (
     ConsoleQuestionError,
     DeviceError,
     DeviceReportedError,
+    DeviceTimeoutError,
     GoalLostError,
     MotionHeldError,
     PointOfControlError,
@@ -547,4 +548,19 @@ async def test_each_known_question_ends_the_command_deliberately(
         with pytest.raises(ConsoleQuestionError, match=expected):
             await robot.actual_pose()
         assert (await robot.actual_pose()).position == (1.0, 2.0, 3.0)
+    robot.assert_all_used()
+
+
+async def test_another_applications_prompt_is_named() -> None:
+    """The first thing a lab user may get wrong: robot.application. Three probe lines, each
+    answered at another application's prompt, then a clear error instead of a bare timeout."""
+    other = b"cell> "
+    script = [_probe(1, other, b"\r\n" + other)]
+    for n in (2, 3):
+        probe = _probe(n, other, b"")
+        script.append((probe[0].removeprefix(b"\x05"), probe[1]))
+    robot = ScriptedRobot(script, command_timeout_s=0.05)
+    with pytest.raises(DeviceTimeoutError, match=r"prompt is 'cell> '.*robot\.application"):
+        async with robot:
+            pass
     robot.assert_all_used()
