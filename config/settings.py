@@ -382,6 +382,11 @@ class RobotSettings(_Section):
     bytesize: Literal[7, 8] = Field(8, description="Data bits.")
     parity: Literal["N", "E", "O"] = Field("N", description="Parity: none, even, odd.")
     stopbits: Literal[1, 2] = Field(1, description="Stop bits.")
+    flow_control: Literal["none", "rtscts"] = Field(
+        "none",
+        description="Hardware flow control of the console port (C500C.md: RTS/CTS may not work "
+        "on the console; the controller's own 115200-baud programs use it).",
+    )
     command_timeout_s: Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S)] = Field(
         5.0, description="Timeout of one console command."
     )
@@ -392,6 +397,18 @@ class RobotSettings(_Section):
     application: str = Field("ash", description="Name of the ash application (prompt).")
     reconnect_max_backoff_s: PositiveFloat = Field(
         30.0, description="Longest wait between two reconnection attempts (s)."
+    )
+    point_of_control_timeout_s: PositiveFloat = Field(
+        120.0,
+        description="How long a motion command may wait for the operator to press PAUSE/CONTINUE "
+        "on the controller (s); then the move fails and motion is held.",
+    )
+    readback_every: int = Field(
+        1,
+        ge=1,
+        le=1000,
+        description="Read the actual pose back (`w2`, ~60 % of a console step's bytes) every N-th "
+        "move; a move without read-back records no pose.",
     )
     emulator_paced: bool = Field(
         False, description="Sim: pace the emulator at the baud rate (real link timings)."

@@ -224,6 +224,10 @@ class RunSession:
         services = self._services
         robot, parameters = services.robot, self.work.parameters
         try:
+            # 6.4.3: every offset is from the goal taught here. Taught first, while still held:
+            # a resume checks the goal the controller holds, and after a controller restart the
+            # previous run's goal is gone (C500C.md), which must not refuse a new run.
+            self.work.goal = await robot.teach_goal()
             if robot.status().motion_held:
                 # the previous run ended with the robot held; starting is an explicit request to
                 # move again -- unless a hold came after that request (it wins)
@@ -232,7 +236,6 @@ class RunSession:
                 await robot.resume()
             if self._hold_since_start():
                 return False
-            self.work.goal = await robot.teach_goal()  # 6.4.3: every offset is from it
         except DeviceError as err:
             services.errors.note(err)
             await self._fault(f"cannot teach the operational goal: {err}")

@@ -152,7 +152,10 @@ class StepPipeline:
                 pose, round_trips_s = await self._move(work, target)
                 work.last_offset_mm = offset
                 work.last_target_mm = target
-                record.pose_x_mm, record.pose_y_mm, record.pose_z_mm = pose.position
+                if pose is None:  # robot.readback_every > 1: this move was not read back
+                    flags.append("no-readback")
+                else:
+                    record.pose_x_mm, record.pose_y_mm, record.pose_z_mm = pose.position
             except DeviceError as err:
                 self._errors.note(err)
                 flags.append("robot-error")
@@ -276,9 +279,9 @@ class StepPipeline:
 
     async def _move(
         self, work: RunWork, target_mm: NDArray[np.float64]
-    ) -> tuple[Pose, tuple[float, ...]]:
-        """The move of this step, if any: the actual pose after it, and the round trip of each
-        console command it took."""
+    ) -> tuple[Pose | None, tuple[float, ...]]:
+        """The move of this step, if any: the actual pose after it (None when the driver did
+        not read it back), and the round trip of each console command it took."""
         mode = work.parameters.compensation
         moving_procedure = work.parameters.procedure != "stationary"
         result: MoveResult | None = None
@@ -288,7 +291,7 @@ class StepPipeline:
             # thesis 6.4.3: each move is relative to where the previous one should have ended
             result = await self._robot.move_incremental(_vector3(target_mm - work.last_target_mm))
         if result is not None:
-            return result.actual, result.round_trips_s
+            return result.pose, result.round_trips_s
         return await self._robot.actual_pose(), ()
 
     # --- 4. measure ----------------------------------------------------------------------

@@ -189,7 +189,7 @@ class C500CServerRobot(ServerLink):
             motion=False,
         )
         if self._goal is not None and not reply.flags & proto.Flag.GOAL_TAUGHT:
-            raise GoalLostError(DEVICE, "the controller lost the taught goal (program restarted?)")
+            raise GoalLostError(DEVICE, "program restarted?")
         self._check(
             await self._request(
                 proto.RequestType.RELEASE, timeout_s=self.settings.command_timeout_s
