@@ -310,9 +310,9 @@ class RunSession:
             await self._sleep_until(timer.next_wake_s)
             if self.stop_requested or self.state is not RunState.RUNNING:
                 continue  # woken by a request: handled at the top
+            # a request that lands during the last yield before the deadline finds this step
+            # under way (it completes): skipping it would leave a gap in the step numbers
             tick = await timer.wait()
-            if self.stop_requested or self.state is not RunState.RUNNING:
-                continue  # a request during the last yield before the deadline
             outcome = await self._services.pipeline.run(self.work, tick)
             self._recorded(outcome)
             await self._judge(tick.step, outcome.verdict)
