@@ -119,7 +119,10 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
         check.errors["camera"] = str(err) or "no frame within camera.grab_timeout_s"
     if check.frame is not None:
         try:
-            result = measure_with_camera_settings(check.frame.image, settings.camera)
+            # off the event loop: a full-frame centroid is tens of milliseconds of CPU
+            result = await asyncio.to_thread(
+                measure_with_camera_settings, check.frame.image, settings.camera
+            )
             check.centroid = {
                 "x_px": result.x_px,
                 "y_px": result.y_px,

@@ -28,6 +28,7 @@ from typing import Any, Protocol, TypeVar
 
 from config import Settings
 from daemon import __version__
+from daemon.devices_check import DeviceCheck, check_devices
 from daemon.events import (
     ERROR_HISTORY,
     EVENT_QUEUE_DEFAULT,
@@ -283,6 +284,18 @@ class Daemon:
                     return session.state
                 await subscription.get()
 
+    async def check_devices(self) -> DeviceCheck:
+        """The bring-up check of the daemon's own devices (issue 18: one frame, one IR image,
+        the pose) while no run is active: RunConflictError during a run, and a start waits
+        until the check is done (the same request lock), so the two never share a device."""
+        async with self._requests:
+            session = self._session
+            if session is not None and session.state.is_active:
+                raise RunConflictError(
+                    f"run {session.id} is {session.state.value}: the devices are the run's"
+                )
+            return await check_devices(self.devices, self.settings)
+
     async def read(self, function: Callable[..., _T], *args: Any) -> _T:
         """Run an API read (database, files) on the bounded read pool, never on the control
         loop's workers (issue 15, point 6)."""
@@ -344,6 +357,7 @@ class Daemon:
             else {
                 "link": robot_status.link.value,
                 "motion_held": robot_status.motion_held,
+                "hold_reason": robot_status.hold_reason,
                 "last_error": robot_status.last_error,
             },
             "timing": {

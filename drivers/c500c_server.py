@@ -166,7 +166,7 @@ class C500CServerRobot(ServerLink):
         on), then send HOLD — not queued behind a move awaiting its reply — so the program
         halt()s a motion in progress. A link that is down cannot carry it: the program's silence
         timeout halts the arm instead."""
-        self._hold("stopped by request")
+        self._hold("stopped by request", error=False)
         try:
             self._check(
                 await self._request(
@@ -197,6 +197,7 @@ class C500CServerRobot(ServerLink):
             motion=False,
         )
         self._motion_held = False
+        self._hold_reason = None
         logger.info("robot motion resumed")
 
     def status(self) -> RobotStatus:
@@ -209,6 +210,7 @@ class C500CServerRobot(ServerLink):
             point_of_control=None if flags is None else bool(flags & proto.Flag.POINT_OF_CONTROL),
             motion_held=self._motion_held,
             last_error=self._last_error,
+            hold_reason=self._hold_reason if self._motion_held else None,
             extra={
                 "port": self.port,
                 "program": "thermocomp_server",

@@ -111,6 +111,7 @@ class ServerLink:
         self._last_write = 0.0  # loop time of the latest frame written
         self._bytes_sent = 0
         self._bytes_received = 0
+        self._hold_reason: str | None = None  # why motion is held (a request is no error)
         self.heartbeats = 0
         self.stray_replies = 0  # late replies of cancelled requests or an old link, dropped
         self._synchronised = False
@@ -293,11 +294,16 @@ class ServerLink:
 
     # --- faults and reconnection ---
 
-    def _hold(self, reason: str) -> None:
+    def _hold(self, reason: str, *, error: bool = True) -> None:
+        """Refuse motion from now on until resume() (synchronous). A requested hold (every
+        run's end) is routine: logged at INFO, and not an error in ``last_error``."""
         if not self._motion_held:
-            logger.warning("robot motion held until resume(): %s", reason)
+            log = logger.warning if error else logger.info
+            log("robot motion held until resume(): %s", reason)
+            self._hold_reason = reason
         self._motion_held = True
-        self._last_error = reason
+        if error:
+            self._last_error = reason
 
     def _link_fault(self, error: DeviceError) -> None:
         """The link cannot be trusted: fail what is outstanding, hold motion, reconnect."""

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from config import Settings, load_settings
-from config.cli import EXIT_FAILURE, EXIT_OK, add_config_argument
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument
 from drivers import c500c_protocol as proto
 from drivers.c500c import C500CRobot
 from drivers.c500c_console import Transcript
@@ -139,7 +139,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="check the robot controller's console (moves nothing)",
         description="thermocomp robot check: connect to the C500C console as configured, "
         "report the prompt, application, arm power, homing, online mode and point of control, "
-        "read w2 and print what was parsed. Nothing moves, nothing on the controller changes.",
+        "read w2 and print what was parsed. Nothing moves, nothing on the controller changes. "
+        "With robot.driver = c500c-server: connect to the program on the controller (the fast "
+        "path), read the pose and report its state flags.",
     )
     commands = parser.add_subparsers(dest="robot_command", metavar="COMMAND", required=True)
     check_parser = commands.add_parser(
@@ -158,6 +160,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.config)
+    if settings.robot.driver == "c500c-server":
+        return _run_server(settings, args)
     transcript = Transcript() if args.transcript is not None else None
     status = EXIT_OK
     try:
@@ -171,3 +175,23 @@ def run(args: argparse.Namespace) -> int:
         transcript.write(args.transcript)
         print(f"transcript: {args.transcript} ({len(transcript.entries)} chunks)", file=sys.stderr)
     return status
+
+
+def _run_server(settings: Settings, args: argparse.Namespace) -> int:
+    """The fast path: the program on the controller (drivers/server_check.py)."""
+    from drivers.server_check import run_server_check
+
+    if args.transcript is not None:
+        print(
+            "thermocomp robot check: --transcript records the console's text; the fast path "
+            "speaks binary frames (robot.driver = c500c-server)",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    try:
+        report = asyncio.run(run_server_check(settings, port=args.port))
+    except DeviceError as err:
+        print(f"thermocomp robot check: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    print(report.json() if args.json else report.text())
+    return EXIT_OK

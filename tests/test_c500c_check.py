@@ -11,8 +11,11 @@ import pytest
 from config import Settings
 from drivers import robot_check
 from drivers.c500c_console import Transcript
+from drivers.c500c_server_protocol import RequestType
 from drivers.robot_check import check, run_check
+from drivers.server_check import run_server_check
 from drivers.sim.emulator import START_POSE, C500CEmulator, EmulatorConfig
+from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
 from tests.c500c_scripted import ScriptedRobot
 from tests.helpers import run_in_process
 
@@ -94,3 +97,37 @@ async def test_a_real_looking_transcript_with_the_second_prompt_form() -> None:
 def test_a_broken_transcript_names_the_line() -> None:
     with pytest.raises(ValueError, match="transcript line 2"):
         Transcript.from_lines(['{"t": 0, "dir": "host", "data": "w2\\r"}', '{"dir": "x"}'])
+
+
+def test_check_of_the_fast_path_on_the_bench_moves_nothing(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("THERMOCOMP_ROBOT__DRIVER", "c500c-server")
+    status, out, err = run_in_process(robot_check.register, ["robot", "check", "--json"], capsys)
+    assert status == 0, err
+    report = json.loads(out)
+    assert report["link"] == "connected" and report["program"] == "thermocomp_server"
+    assert report["world"] == pytest.approx(START_POSE)
+    assert not report["goal_taught"] and not report["moving"] and report["point_of_control"]
+    assert report["bytes_sent"] > 0 and report["bytes_received"] > 0
+
+
+async def test_fast_path_check_sends_only_reads() -> None:
+    emulator = C500CServerEmulator(server_emulator_config(paced=False))
+    async with emulator:
+        report = await run_server_check(Settings(), port=emulator.device_path)
+        kinds = {request.type for request in emulator.requests}
+    assert kinds <= {RequestType.HEARTBEAT, RequestType.READ_POSE}, kinds
+    assert RequestType.READ_POSE in kinds and "moved            nothing" in report.text()
+
+
+def test_a_transcript_of_the_fast_path_is_refused_with_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("THERMOCOMP_ROBOT__DRIVER", "c500c-server")
+    status, _, err = run_in_process(
+        robot_check.register,
+        ["robot", "check", "--transcript", str(tmp_path / "t.jsonl")],
+        capsys,
+    )
+    assert status == 2 and len(err.strip().splitlines()) == 1 and "binary frames" in err

@@ -352,9 +352,9 @@ def test_run_states_and_robot_badges_in_the_apis_words(browser: Browser, server:
 
 
 def test_the_dashboard_runs_under_its_own_csp(browser: Browser, server: str) -> None:
-    """With the Content-Security-Policy enforced (no eval here: selectors only), the page loads
-    its scripts and styles, opens the stream and shows the daemon's state, and the browser
-    reports no violation."""
+    """With the Content-Security-Policy enforced (no eval-based waits here: selectors only),
+    the page loads its scripts and styles, opens the stream, shows the daemon's state and the
+    device preview, and the browser reports no violation."""
     page = browser.new_page(viewport={"width": 1400, "height": 1000})
     violations: list[str] = []
     page.on(
@@ -367,5 +367,10 @@ def test_the_dashboard_runs_under_its_own_csp(browser: Browser, server: str) -> 
     page.wait_for_selector("#stream-state.open")
     page.wait_for_selector("#daemon-state:text-is('idle')")
     page.wait_for_selector("#plot-residual canvas, #plot-residual svg, #plot-residual .u-wrap")
+    # the bring-up preview while idle (issue 18): the daemon's own devices, as a picture
+    page.click("#btn-preview")
+    page.wait_for_selector("#preview-image:not([hidden])")
+    page.wait_for_selector("#preview-caption:has-text('spot at')")
+    assert page.locator("#preview-image").evaluate("image => image.naturalWidth") > 0
     assert violations == []
     page.close()

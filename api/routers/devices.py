@@ -11,16 +11,13 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from api.deps import DaemonDep, ReadAccess, SettingsDep
+from api.deps import DaemonDep, ReadAccess
 from api.errors import ApiError, ErrorBody
-from daemon.devices_check import check_devices, preview_png
+from daemon.devices_check import preview_png
+from daemon.service import RunConflictError
 from drivers.errors import DeviceError
 
 router = APIRouter(tags=["devices"], dependencies=[ReadAccess])
-
-#: The daemon's state in which the devices are free for a preview.
-IDLE = "idle"
-
 
 @router.get(
     "/devices/preview",
@@ -31,15 +28,15 @@ IDLE = "idle"
         503: {"model": ErrorBody, "description": "no device gave an image"},
     },
 )
-async def devices_preview(daemon: DaemonDep, settings: SettingsDep) -> Response:
+async def devices_preview(daemon: DaemonDep) -> Response:
     """The camera frame with the spot marked beside the thermal image with the IR regions;
     the devices' findings in ``X-Thermocomp-*`` headers (spot position, failures)."""
-    state = daemon.snapshot()["state"]
-    if state != IDLE:
-        raise ApiError(409, "conflict", f"a run is {state}: the preview is available while idle")
-    check = await check_devices(daemon.devices, settings)
     try:
-        png = preview_png(check)
+        check = await daemon.check_devices()
+    except RunConflictError as err:
+        raise ApiError(409, "conflict", f"{err}: the preview is available while idle") from err
+    try:
+        png = await daemon.read(preview_png, check)
     except DeviceError as err:
         raise ApiError(503, "device", "; ".join(check.errors.values()) or str(err)) from err
     headers = {}

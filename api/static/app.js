@@ -747,6 +747,32 @@
       ? `hold acknowledged: no motion can be sent (daemon ${hold.state})`
       : `the robot is not held (daemon ${hold.state})`)));
 
+  // the bring-up preview (issue 18): a PNG, fetched with the token like every read
+  $("btn-preview").addEventListener("click", async () => {
+    const headers = {};
+    if (state.token && !state.tokenRefused) headers.Authorization = `Bearer ${state.token}`;
+    try {
+      const response = await fetch(`${API}/devices/preview`, { headers });
+      if (!response.ok) {
+        const text = await response.text();
+        let data = null;
+        try { data = JSON.parse(text); } catch { data = { message: text }; }
+        throw apiError(response, data);
+      }
+      const image = $("preview-image");
+      if (image.src) URL.revokeObjectURL(image.src);
+      image.src = URL.createObjectURL(await response.blob());
+      image.hidden = false;
+      const spot = response.headers.get("X-Thermocomp-Spot-Px");
+      const errors = response.headers.get("X-Thermocomp-Device-Errors");
+      $("preview-caption").textContent = (spot ? `spot at (${spot}) px` : "no spot found")
+        + (errors ? `; device errors: ${errors}` : "");
+      say("preview: one frame, one IR image and the robot pose");
+    } catch (error) {
+      fail(error, "preview refused");
+    }
+  });
+
   $("run-history").addEventListener("click", explainState);
   $("run-state").addEventListener("click", explainState);
 
