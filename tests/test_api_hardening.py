@@ -278,3 +278,20 @@ def test_422_messages_a_curl_user_understands() -> None:
         assert "expected a JSON body with Content-Type: application/json" in message
         assert "application/x-www-form-urlencoded" in message
         assert "-H 'Content-Type: application/json'" in message
+
+
+async def test_polled_state_route_keeps_the_read_checks() -> None:
+    """/state is served by a plain route ahead of FastAPI's (api/app.py): the same checks."""
+    remote = create_app(hardened_settings(host="0.0.0.0"))
+    transport = httpx.ASGITransport(app=remote)
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
+        anonymous = await client.get("/api/v1/state")
+        assert anonymous.status_code == 401 and anonymous.headers["WWW-Authenticate"] == "Bearer"
+        assert anonymous.json()["kind"] == "unauthorized"
+        basic = await client.get("/api/v1/state", headers={"Authorization": "Basic eDp5"})
+        assert basic.status_code == 401
+        read = await client.get("/api/v1/state", headers={"Authorization": f"Bearer {READ}"})
+        assert read.status_code == 503 and read.json()["kind"] == "unavailable"  # no daemon
+        assert read.headers["cache-control"] == "no-store"
+        head = await client.head("/api/v1/state", headers={"Authorization": f"Bearer {READ}"})
+        assert head.status_code == 503 and head.content == b""
