@@ -20,6 +20,7 @@ import os
 import resource
 import socket
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from api.connections import ACCEPT_MARGIN
@@ -224,14 +225,17 @@ class RepeatFilter(logging.Filter):
     it held back: a storm of identical errors (accept() failures, 503s beyond the concurrency
     limit) costs the journal one line per interval, not megabytes."""
 
-    def __init__(self, interval_s: float = 10.0) -> None:
+    def __init__(
+        self, interval_s: float = 10.0, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         super().__init__()
         self.interval_s = interval_s
+        self._clock = clock
         self._seen: dict[str, tuple[float, int]] = {}
 
     def filter(self, record: logging.LogRecord) -> bool:
         key = str(record.msg)
-        now = time.monotonic()
+        now = self._clock()
         last, held = self._seen.get(key, (-self.interval_s, 0))
         if now - last < self.interval_s:
             self._seen[key] = (last, held + 1)
