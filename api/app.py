@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections.abc import AsyncIterator, Callable
 from contextlib import AbstractAsyncContextManager, AsyncExitStack, asynccontextmanager
 from pathlib import Path
@@ -22,13 +23,23 @@ from api.openapi import install_openapi
 from api.relay import Relay
 from api.routers import configuration, health, metrics, networks, runs, state, ws
 from api.security import Authenticator, HostAllowList, RateLimiter
-from config import Settings
+from config import ConfigError, Settings
 from daemon import __version__
+from daemon.recorder import RecorderError
 from daemon.service import Daemon
+from drivers.errors import DeviceError
 
 API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 SWAGGER_UI = "/static/vendor/swagger-ui"
+
+logger = logging.getLogger(__name__)
+
+
+class DaemonStartFailed(Exception):
+    """The daemon could not open its devices or recording; already logged in one line (the
+    traceback uvicorn would log is dropped by api.startup's log filter)."""
+
 
 #: Builds the daemon service from the settings; entered at startup, left at shutdown.
 ServiceFactory = Callable[[Settings], AbstractAsyncContextManager[Daemon]]
@@ -57,7 +68,15 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         async with AsyncExitStack() as stack:
             relay: asyncio.Task[None] | None = None
             if service_factory is not None:
-                daemon = await stack.enter_async_context(service_factory(settings))
+                try:
+                    daemon = await stack.enter_async_context(service_factory(settings))
+                except (DeviceError, RecorderError, ConfigError, OSError) as err:
+                    # a device that is there but does not answer (the start-up checks,
+                    # api/startup.py, found it present): one line, not a traceback; uvicorn
+                    # exits with 3, the status of a device failure
+                    logger.error("cannot start the daemon: %s", err)
+                    raise DaemonStartFailed(str(err)) from None
+                logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
                 context.service = daemon
                 relay = asyncio.create_task(Relay(daemon, context).run(), name="api-relay")
             try:

@@ -7,6 +7,7 @@ never on 2):
 - 2 (``EXIT_USAGE``): invalid configuration, including an API reachable from the network
   without a control token;
 - 3 (``EXIT_DEVICE``): a device is absent or cannot be opened (it may be plugged in later);
+  uvicorn exits with 3 too when the daemon cannot open a device that is there (api/app.py);
 - 4 (``EXIT_STORAGE``): the data directory or the run database cannot be used (unwritable,
   read-only, in use by another process);
 - 5 (``EXIT_ADDRESS``): the address and port cannot be bound (in use, not on this machine).
@@ -248,7 +249,17 @@ class RepeatFilter(logging.Filter):
         return True
 
 
+class ReportedStartFailure(logging.Filter):
+    """Drops uvicorn's traceback of a daemon start failure api/app.py already logged in one
+    line (uvicorn logs the lifespan's traceback text whatever the application does)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "DaemonStartFailed" not in record.getMessage()
+
+
 def limit_repeated_logs() -> None:
-    """Install :class:`RepeatFilter` on the loggers a connection storm writes to."""
+    """Install :class:`RepeatFilter` on the loggers a connection storm writes to, and
+    :class:`ReportedStartFailure` on uvicorn's."""
     for name in ("asyncio", "uvicorn.error", "api.connections"):
         logging.getLogger(name).addFilter(RepeatFilter())
+    logging.getLogger("uvicorn.error").addFilter(ReportedStartFailure())
