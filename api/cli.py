@@ -49,12 +49,19 @@ COMMANDS: tuple[Command, ...] = (
     Command(
         "identify", "daemon.identify_cli", "fit a thermal network's parameters to a recorded run"
     ),
+    Command("devices", "daemon.devices_cli", "bring-up: check that the configured devices answer"),
+    Command(
+        "calibrate",
+        "daemon.calibrate_cli",
+        "calibrate a device with the robot (camera: um per pixel and rotation)",
+    ),
     Command("model", "daemon.model.cli", "simulate a thermal network or report its facts"),
     Command(
         "centroid",
         "daemon.vision.cli",
         "measure the laser spot's sub-pixel centroid in image files",
     ),
+    Command("robot", "drivers.robot_check", "check the robot controller's console (moves nothing)"),
     Command("emulate", "drivers.sim.cli", "serve an emulated device (the C500C robot console)"),
 )
 

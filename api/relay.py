@@ -98,12 +98,12 @@ class Relay:
 
     def _new_overruns(self) -> int:
         run = self._daemon.run
-        if run is None or run.timer is None:
+        if run is None:
             return 0
         last_run, last_count = self._overruns_seen
         previous = last_count if last_run == run.id else 0
-        self._overruns_seen = (run.id, run.timer.overruns)
-        return max(run.timer.overruns - previous, 0)
+        self._overruns_seen = (run.id, run.overruns)
+        return max(run.overruns - previous, 0)
 
     def _frame(self, data: dict[str, Any]) -> None:
         """A frame event of the daemon: the image is the daemon's array (never modified)."""
@@ -122,7 +122,7 @@ class Relay:
 
     async def _publish_thumbnail(self, image: NDArray[np.integer], meta: dict[str, Any]) -> None:
         try:
-            picture = await asyncio.to_thread(thumbnail, image)
+            picture = await self._daemon.read(thumbnail, image)
         except (ValueError, cv2.error):
             logger.warning("cannot make a thumbnail of a frame", exc_info=True)
             return

@@ -7,6 +7,7 @@ import argparse
 import asyncio
 import logging
 import signal
+import socket
 import sys
 from types import FrameType
 
@@ -21,6 +22,7 @@ from api.startup import StartupError, limit_repeated_logs, preflight
 from config import ConfigError, Settings, load_settings
 from daemon.service import Daemon
 from daemon.systemd import SystemdNotifier
+from drivers.errors import DeviceError
 
 logger = logging.getLogger(__name__)
 
@@ -80,10 +82,10 @@ def daemon_status(daemon: Daemon) -> str:
     """One line for ``systemctl status``: the run and its state (with its reason when paused
     or faulted), or idle. No step number: it would send systemd a message per poll."""
     run = daemon.run
-    if run is None or not run.state.is_active:
+    if run is None or not run.is_active:
         return "idle"
     status = f"run {run.id} {run.state.value}"
-    reason = run.machine.reason
+    reason = run.reason
     return f"{status}: {reason}" if reason and run.state.value in ("paused", "fault") else status
 
 
@@ -138,11 +140,64 @@ async def supervise(
     notifier.stopping()
 
 
+class DaemonServer(uvicorn.Server):
+    """uvicorn's server with the shutdown order of a machine that moves (issue 15, point 3).
+
+    uvicorn alone would keep the daemon driving the robot while HTTP connections drain (up to
+    ``timeout_graceful_shutdown``) and stop it only in the application's lifespan shutdown,
+    which a second Ctrl-C (a forced exit) skips. Here every signal holds the robot at once,
+    the first also ends the run (``stopped``, "daemon shut down", committed), and the
+    connections drain only after that; on a forced exit the lifespan shutdown (devices and
+    database closed) still runs. Signals stay uvicorn's: this only adds to its handler.
+    """
+
+    def __init__(self, config: uvicorn.Config, context: ApiContext) -> None:
+        super().__init__(config)
+        self._context = context
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._daemon_stopping: asyncio.Task[None] | None = None
+
+    async def serve(self, sockets: list[socket.socket] | None = None) -> None:
+        self._loop = asyncio.get_running_loop()
+        await super().serve(sockets)
+
+    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+        super().handle_exit(sig, frame)
+        if self._loop is not None:  # a signal handler may only schedule, thread-safely
+            self._loop.call_soon_threadsafe(self._stop_daemon)
+
+    def _stop_daemon(self) -> None:
+        daemon = self._context.service
+        if daemon is None or self._loop is None:
+            return
+        self._loop.create_task(_hold(daemon), name="hold-on-signal")
+        if self._daemon_stopping is None:
+            self._daemon_stopping = self._loop.create_task(daemon.shutdown(), name="daemon-stop")
+
+    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+        self._stop_daemon()  # also when the exit was not a signal
+        if self._daemon_stopping is not None:
+            try:
+                await self._daemon_stopping
+            except Exception:  # the lifespan shutdown below still closes everything
+                logger.exception("stopping the daemon failed")
+        await super().shutdown(sockets)
+        if self.force_exit:  # uvicorn skips the lifespan shutdown on a forced exit
+            await self.lifespan.shutdown()
+
+
+async def _hold(daemon: Daemon) -> None:
+    try:
+        await daemon.hold_robot("daemon shutting down", pause=False)
+    except DeviceError as err:  # e.g. the link is down: nothing can be sent anyway
+        logger.warning("could not hold the robot on the signal: %s", err)
+
+
 async def serve(settings: Settings, notifier: SystemdNotifier) -> bool:
     """Run the server until a signal stops it; True when it had started."""
     app = create_app(settings, service_factory=Daemon)
-    server = uvicorn.Server(server_config(settings, app))
     context: ApiContext = app.state.context
+    server = DaemonServer(server_config(settings, app), context)
     # the longest a step waits on the robot before it fails: a move, then the pose read
     allowance_s = settings.robot.move_timeout_s + settings.robot.command_timeout_s
     supervisor = asyncio.create_task(

@@ -9,7 +9,9 @@ The step columns (StepRecord's fields, in order) are the contract with daemon.an
 every export; a database of an older schema gains the missing columns when it is opened.
 All methods are synchronous: the daemon calls the writing ones from one worker thread so that
 the event loop never waits on an fsync. Writes are serialised by a lock on one connection;
-reads use a second, query-only connection, so (WAL) no read ever delays a step's commit.
+each reading thread has its own query-only connection, so (WAL) no read ever delays a step's
+commit and no reader waits for another (issue 15: the API's exports and the end-of-run summary
+never share a lock).
 """
 
 from __future__ import annotations
@@ -148,7 +150,10 @@ class Recorder:
         self.data_dir = Path(data_dir)
         self.path = self.data_dir / DATABASE_NAME
         self._lock = threading.Lock()  # the writing connection
-        self._read_lock = threading.Lock()  # the reading one
+        self._readers = threading.local()  # one reading connection per thread
+        self._reader_list: list[sqlite3.Connection] = []  # all of them, to close
+        self._readers_lock = threading.Lock()  # guards _reader_list and closing
+        self._closed = False
         try:
             self.data_dir.mkdir(parents=True, exist_ok=True)
             self._owner = _claim(self.data_dir / LOCK_NAME)
@@ -167,10 +172,6 @@ class Recorder:
             self._db.execute(_STEPS_SCHEMA)
             self._add_missing_step_columns()
             self._redact_stored_configs()
-            # Reads (the API's, the end-of-run summary) get their own connection: in WAL mode
-            # a reader never blocks the writer, so a long read never delays a step's commit.
-            self._reader = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
-            self._reader.execute("PRAGMA query_only=ON")
         except (sqlite3.Error, OSError) as err:
             self._db.close()
             self._owner.close()
@@ -184,8 +185,11 @@ class Recorder:
         self.close()
 
     def close(self) -> None:
-        with self._read_lock:
-            self._reader.close()
+        with self._readers_lock:
+            self._closed = True
+            for reader in self._reader_list:
+                reader.close()
+            self._reader_list.clear()
         with self._lock:
             self._db.close()
             self._owner.close()  # releases the claim on the data directory
@@ -320,12 +324,7 @@ class Recorder:
     def steps(self, run_id: int, start: int = 0, limit: int | None = None) -> list[StepRecord]:
         """Steps of a run in order, from step number ``start``."""
         with self._read() as db:
-            rows = db.execute(
-                f"SELECT {','.join(STEP_COLUMNS)} FROM steps WHERE run_id = ? AND step >= ? "
-                "ORDER BY step LIMIT ?",
-                (run_id, start, -1 if limit is None else limit),
-            ).fetchall()
-        return [StepRecord(*row) for row in rows]
+            return read_steps(db, run_id, start, limit)
 
     def run_steps(self, run_id: int, columns: Sequence[str] = STEP_COLUMNS) -> RunSteps:
         """The run's steps as series (daemon.analysis.RunSteps), streamed from the database:
@@ -374,7 +373,36 @@ class Recorder:
         return _Transaction(self._db, self._lock, self.path)
 
     def _read(self) -> _Transaction:
-        return _Transaction(self._reader, self._read_lock, self.path, begin="BEGIN")
+        """A read snapshot on this thread's own query-only connection: in WAL mode a reader
+        never blocks the writer nor another reader."""
+        reader: tuple[sqlite3.Connection, threading.Lock] | None = getattr(
+            self._readers, "connection", None
+        )
+        if reader is None:
+            with self._readers_lock:
+                if self._closed:
+                    raise RecorderError(f"{self.path}: the run database is closed")
+                try:
+                    db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+                    db.execute("PRAGMA query_only=ON")
+                except sqlite3.Error as err:
+                    raise RecorderError(f"cannot read the run database {self.path}: {err}") from err
+                self._reader_list.append(db)
+            reader = (db, threading.Lock())  # the lock only pairs with _Transaction's API
+            self._readers.connection = reader
+        return _Transaction(reader[0], reader[1], self.path, begin="BEGIN")
+
+
+def read_steps(
+    db: sqlite3.Connection, run_id: int, start: int = 0, limit: int | None = None
+) -> list[StepRecord]:
+    """Steps of a run in order, from step number ``start``, at most ``limit``."""
+    rows = db.execute(
+        f"SELECT {','.join(STEP_COLUMNS)} FROM steps WHERE run_id = ? AND step >= ? "
+        "ORDER BY step LIMIT ?",
+        (run_id, start, -1 if limit is None else limit),
+    ).fetchall()
+    return [StepRecord(*row) for row in rows]
 
 
 def step_rows(

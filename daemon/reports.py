@@ -20,11 +20,14 @@ import sys
 from collections.abc import Mapping
 from contextlib import closing
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from config import load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
-from daemon.analysis import ReportFiles, RunSteps, steps_from_rows, summarize_run, write_report
+from daemon.analysis import RunSteps, steps_from_rows, summarize_run
+
+if TYPE_CHECKING:
+    from daemon.analysis import ReportFiles
 from daemon.analysis import cli as analysis_cli
 from daemon.recorder import DATABASE_NAME, step_rows
 
@@ -62,6 +65,24 @@ def read_run(data_dir: Path, run_id: int) -> tuple[RunSteps, dict[str, Any] | No
     return steps, summary
 
 
+def run_clock(data_dir: Path, run_id: int) -> str | None:
+    """The run's ``bench.clock`` setting, from the settings the daemon recorded with it (None
+    when the database does not say): the report drops the lateness figure on a virtual clock."""
+    path = Path(data_dir) / DATABASE_NAME
+    try:
+        with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
+            row = db.execute("SELECT config_json FROM runs WHERE id = ?", (run_id,)).fetchone()
+    except sqlite3.Error as err:
+        raise ReportError(f"cannot read {path}: {err}") from err
+    try:
+        config = json.loads(row[0]) if row and row[0] else {}
+    except json.JSONDecodeError:
+        return None
+    bench = config.get("bench") if isinstance(config, dict) else None
+    clock = bench.get("clock") if isinstance(bench, dict) else None
+    return clock if isinstance(clock, str) else None
+
+
 def disagreements(recorded: Mapping[str, Any], computed: Mapping[str, Any]) -> list[str]:
     """Keys of the daemon's run summary whose value the report computes differently."""
     differing = []
@@ -96,7 +117,15 @@ def write_run_report(
             )
     if out_dir is None:
         out_dir, embed_images = report_dir(data_dir, run_id), True
-    return write_report(steps, out_dir, title=f"thermocomp run {run_id}", embed_images=embed_images)
+    from daemon.analysis import write_report  # Matplotlib: loaded to write, not to import
+
+    return write_report(
+        steps,
+        out_dir,
+        title=f"thermocomp run {run_id}",
+        embed_images=embed_images,
+        clock=run_clock(data_dir, run_id),
+    )
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -133,6 +162,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def run_report(args: argparse.Namespace) -> int:
+    from daemon.analysis import write_report
+
     target = Path(args.target)
     try:
         if target.is_file():

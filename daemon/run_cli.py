@@ -28,6 +28,7 @@ from config.cli import (
     positive_float,
 )
 from daemon.recorder import RecorderError
+from daemon.report_queue import ReportStatus
 from daemon.runs import RunParameters, RunState, RunStateError
 
 if TYPE_CHECKING:  # the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not
@@ -157,13 +158,18 @@ async def _supervise(daemon: Daemon, stop_requested: asyncio.Event) -> dict[str,
             task.cancel()
         await asyncio.gather(stopper, waiter, return_exceptions=True)
     if stopper in done:
-        return await _stop(daemon, "stopped by a signal", RunState.ABORTED)
+        return await _stop(daemon, "stopped by a signal", RunState.STOPPED)
     run = daemon.run
     assert run is not None
     if run.state in (RunState.FAULT, RunState.PAUSED):
-        reason = run.machine.reason or run.state.value
+        reason = run.reason or run.state.value
         return await _stop(daemon, f"{run.state.value}: {reason}", RunState.ABORTED)
-    return await daemon.wait_run()
+    final = await daemon.wait_run()
+    if daemon.settings.storage.report_at_end:  # a run that ran to its end: with its report
+        written = await daemon.reports.wait(final["id"])
+        if written is ReportStatus.WRITTEN:
+            final["report"] = str(daemon.reports.html_path(final["id"]))
+    return final
 
 
 async def _stop(daemon: Daemon, reason: str, final: RunState) -> dict[str, Any]:

@@ -1,11 +1,14 @@
 """Runs: their parameters, their state machine, and the procedures they follow.
 
-State machine (issue 6)::
+State machine (issue 6, issue 15)::
 
-    idle -> starting -> running <-> paused -> stopping -> finished | aborted | fault
+    idle -> starting -> running <-> paused -> stopping -> finished | stopped | aborted
                            \\-> fault -> (explicit resume) -> running
 
-``interrupted`` is only ever written by the recorder at start-up, for a run a crash left live.
+Final states say what happened: ``finished`` (ran to its end), ``stopped`` (by request: the
+reason says who asked and why), ``aborted`` (an error), ``fault`` (a device fault the run was
+parked in when it ended), ``interrupted`` (only ever written by the recorder at start-up, for
+a run a crash left live). Only :class:`daemon.session.RunSession` changes a run's state.
 """
 
 from __future__ import annotations
@@ -20,8 +23,25 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from config import Settings
 from drivers.base import Vector3
 
-PositiveFloat = Annotated[float, Field(gt=0)]
-NonNegativeFloat = Annotated[float, Field(ge=0)]
+#: Upper bounds of the run parameters (issue 15: every parameter has a finite, documented range,
+#: so nothing a request sends can reach the run clock as an infinity or a NaN). A week of run
+#: and a day of camera warm-up are far beyond any warm-up study (the thesis ran 4,800 s, 6.5).
+MAX_DURATION_S = 7 * 24 * 3600.0
+MAX_WARMUP_WAIT_S = 24 * 3600.0
+#: Procedure periods (moving arc, capture interval): an hour at most.
+MAX_PROCEDURE_PERIOD_S = 3600.0
+#: Deformation and time scales (thesis 6.3 used x28 for the deformation).
+MAX_SCALE = 1000.0
+MAX_HEAT_W = 1000.0  # per node (the bench's pads are 0.5 W)
+MAX_HEAT_INPUTS = 256
+MAX_OFFSET_MM = 1000.0  # procedure offsets from the goal (arc radius, repeatability poses)
+MAX_POSES = 100
+
+Duration = Annotated[float, Field(gt=0, le=MAX_DURATION_S, allow_inf_nan=False)]
+ProcedurePeriod = Annotated[float, Field(gt=0, le=MAX_PROCEDURE_PERIOD_S, allow_inf_nan=False)]
+Scale = Annotated[float, Field(gt=0, le=MAX_SCALE, allow_inf_nan=False)]
+HeatW = Annotated[float, Field(ge=0, le=MAX_HEAT_W, allow_inf_nan=False)]
+OffsetMm = Annotated[float, Field(ge=-MAX_OFFSET_MM, le=MAX_OFFSET_MM, allow_inf_nan=False)]
 
 
 class RunState(enum.Enum):
@@ -31,6 +51,7 @@ class RunState(enum.Enum):
     PAUSED = "paused"
     STOPPING = "stopping"
     FINISHED = "finished"
+    STOPPED = "stopped"
     ABORTED = "aborted"
     FAULT = "fault"
     INTERRUPTED = "interrupted"
@@ -45,7 +66,7 @@ class RunState(enum.Enum):
         return self not in _TERMINAL and self is not RunState.IDLE
 
 
-_TERMINAL = frozenset({RunState.FINISHED, RunState.ABORTED, RunState.INTERRUPTED})
+_TERMINAL = frozenset({RunState.FINISHED, RunState.STOPPED, RunState.ABORTED, RunState.INTERRUPTED})
 
 #: Allowed transitions. ``fault`` is where a device fault parks the run until an explicit
 #: resume (or stop); a run still in ``fault`` when the daemon shuts down ends there.
@@ -57,8 +78,11 @@ TRANSITIONS: dict[RunState, frozenset[RunState]] = {
     RunState.RUNNING: frozenset({RunState.PAUSED, RunState.STOPPING, RunState.FAULT}),
     RunState.PAUSED: frozenset({RunState.RUNNING, RunState.STOPPING, RunState.FAULT}),
     RunState.FAULT: frozenset({RunState.RUNNING, RunState.STOPPING}),
-    RunState.STOPPING: frozenset({RunState.FINISHED, RunState.ABORTED, RunState.FAULT}),
+    RunState.STOPPING: frozenset(
+        {RunState.FINISHED, RunState.STOPPED, RunState.ABORTED, RunState.FAULT}
+    ),
     RunState.FINISHED: frozenset(),
+    RunState.STOPPED: frozenset(),
     RunState.ABORTED: frozenset(),
     RunState.INTERRUPTED: frozenset(),
 }
@@ -96,37 +120,41 @@ class RunParameters(BaseModel):
     """What a run is started with (issue 6 "Runs and procedures"). Defaults come from the
     settings (:meth:`from_settings`); the API validates requests against this model."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     procedure: Procedure = "stationary"
     compensation: CompensationMode = "absolute"
-    duration_s: PositiveFloat = 3600.0
-    step_s: Annotated[float, Field(ge=0.01, le=600)] = 1.0
-    deformation_scale: PositiveFloat = 1.0
-    time_scale: PositiveFloat = Field(
+    duration_s: Duration = Field(3600.0, description="Run length (s), at most a week.")
+    step_s: Annotated[float, Field(ge=0.01, le=600, allow_inf_nan=False)] = 1.0
+    deformation_scale: Scale = 1.0
+    time_scale: Scale = Field(
         1.0, description="Model seconds per run-clock second (thesis 6.3: time may be scaled)."
     )
-    network: str = "thesis-two-link"
+    network: Annotated[str, Field(min_length=1, max_length=4096)] = "thesis-two-link"
     prediction: PredictionMode = Field(
         "model",
         description="model: open loop (the thesis); model+ir: corrected each step from the "
         "IR regions tied to model nodes (Kalman filter).",
     )
-    warmup_wait_s: NonNegativeFloat = 0.0
-    heat_w: dict[str, NonNegativeFloat] = Field(
-        default_factory=lambda: {"2": 0.5, "9": 0.5},
-        description="Heater power per model node while the heaters are on (W).",
+    warmup_wait_s: Annotated[float, Field(ge=0, le=MAX_WARMUP_WAIT_S, allow_inf_nan=False)] = Field(
+        0.0, description="Camera warm-up wait before the first step (s), at most a day."
     )
-    heater_off_s: NonNegativeFloat | None = Field(
-        None, description="Run time at which the heaters switch off; none: stay on."
+    heat_w: Annotated[dict[str, HeatW], Field(max_length=MAX_HEAT_INPUTS)] = Field(
+        default_factory=lambda: {"2": 0.5, "9": 0.5},
+        description="Heater power per model node while the heaters are on (W, 0 to 1000).",
+    )
+    heater_off_s: Annotated[float, Field(ge=0, le=MAX_DURATION_S, allow_inf_nan=False)] | None = (
+        Field(None, description="Run time at which the heaters switch off; none: stay on.")
     )
     # moving procedure (thesis 3.2.4): a wiper arc about the goal, back home to capture
-    arc_amplitude_deg: Annotated[float, Field(ge=0, le=90)] = 15.0
-    arc_radius_mm: NonNegativeFloat = 10.0
-    arc_period_s: PositiveFloat = 60.0
-    capture_every_s: PositiveFloat = 30.0
+    arc_amplitude_deg: Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)] = 15.0
+    arc_radius_mm: Annotated[float, Field(ge=0, le=MAX_OFFSET_MM, allow_inf_nan=False)] = 10.0
+    arc_period_s: ProcedurePeriod = 60.0
+    capture_every_s: ProcedurePeriod = 30.0
     # repeatability procedure (thesis 2.2.2): offsets from the goal of the taught poses (mm)
-    poses_mm: tuple[Vector3, ...] = ((0.0, 0.0, 0.0), (0.2, 0.2, 0.0))
+    poses_mm: Annotated[
+        tuple[tuple[OffsetMm, OffsetMm, OffsetMm], ...], Field(max_length=MAX_POSES)
+    ] = ((0.0, 0.0, 0.0), (0.2, 0.2, 0.0))
 
     @model_validator(mode="after")
     def _consistent(self) -> RunParameters:
@@ -136,9 +164,6 @@ class RunParameters(BaseModel):
             raise ValueError("prediction model+ir needs time_scale 1: the IR sees real time")
         if self.procedure == "repeatability" and len(self.poses_mm) < 2:
             raise ValueError("the repeatability procedure needs at least two poses")
-        for pose in self.poses_mm:
-            if not all(math.isfinite(v) for v in pose):
-                raise ValueError("poses_mm must be finite")
         return self
 
     @classmethod

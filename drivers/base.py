@@ -14,6 +14,8 @@ from typing import Protocol, Self
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.errors import DeviceError
+
 Vector3 = tuple[float, float, float]
 
 
@@ -39,6 +41,10 @@ class Frame:
     bit_depth: int  # significant bits (8, 12, 16)
     timestamp_s: float  # on the run clock (drivers.clock), when the exposure ended
     sequence: int  # 0, 1, 2 ... per opened camera
+    #: what timestamp_s is: "camera" (the camera's clock + exposure), "trigger" (run clock at the
+    #: software trigger + exposure), "backend" (the capture backend's stamp), "host" (when the
+    #: driver received the frame: late by readout and transfer; issue 18)
+    timestamp_source: str = "host"
 
 
 class Camera(AsyncDevice, Protocol):
@@ -93,11 +99,25 @@ class Pose:
 class MoveResult:
     requested_mm: Vector3  # the offset (or increment) asked for
     commanded_mm: Vector3  # what was sent: rounded to the console's 0.001 mm
-    actual: Pose  # read back after the move finished
+    #: read back after the move finished; None when this move had no read-back (the console
+    #: driver reads back every robot.readback_every-th move): then no pose may be recorded
+    pose: Pose | None
     bytes_sent: int = 0
     bytes_received: int = 0
     #: each console command's time from being written to its prompt coming back (s)
     round_trips_s: tuple[float, ...] = ()
+
+    @property
+    def read_back(self) -> bool:
+        """Whether the pose was read back after this move."""
+        return self.pose is not None
+
+    @property
+    def actual(self) -> Pose:
+        """The read-back pose; a move without read-back raises instead of guessing one."""
+        if self.pose is None:
+            raise DeviceError("robot", "this move had no read-back (robot.readback_every)")
+        return self.pose
 
     @property
     def rounding_mm(self) -> Vector3:
@@ -110,6 +130,9 @@ class LinkState(enum.Enum):
     CONNECTING = "connecting"
     CONNECTED = "connected"
     AWAITING_POINT_OF_CONTROL = "awaiting-point-of-control"  # operator must press PAUSE/CONTINUE
+    #: a command was cut (cancelled, timed out): the console is brought back to a clean prompt
+    #: before the next command (Ctrl-E, then a probe line and its prompt)
+    RESYNCHRONISING = "resynchronising"
     RECONNECTING = "reconnecting"
     FAULT = "fault"
 
@@ -121,8 +144,10 @@ class RobotStatus:
     homed: bool | None = None
     online: bool | None = None
     point_of_control: bool | None = None
-    motion_held: bool = False  # after a fault: no motion until resume()
+    motion_held: bool = False  # after a fault or a stop(): no motion until resume()
     last_error: str | None = None
+    #: why motion is held ("stopped by request", the fault...); None when not held
+    hold_reason: str | None = None
     extra: dict[str, str] = field(default_factory=dict)
 
 
@@ -142,11 +167,18 @@ class Robot(AsyncDevice, Protocol):
     async def actual_pose(self) -> Pose: ...
 
     async def stop(self) -> None:
-        """Hold the robot where it is now."""
+        """Hold: from the moment this is called (before its first await) every motion command
+        is refused (MotionHeldError), checked under the driver's lock right before its bytes
+        are written; it returns once no motion command can be written any more. What it does to
+        a motion already under way depends on the link (see the driver). Only resume()
+        releases a hold."""
         ...
 
     async def resume(self) -> None:
-        """Allow motion again after a fault (an explicit request, never automatic)."""
+        """Allow motion again after a hold or a fault (an explicit request, never automatic).
+        Raises GoalLostError when the controller no longer holds the taught goal: teach a new
+        goal (teach_goal(), which moves nothing and is allowed while held) before resuming a
+        new run."""
         ...
 
     def status(self) -> RobotStatus: ...

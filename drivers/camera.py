@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from collections.abc import Callable
+from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 
@@ -25,6 +27,10 @@ from drivers.replay import ReplayFolder
 logger = logging.getLogger(__name__)
 
 DEVICE = "camera"
+#: V4L2's manual exposure mode and exposure unit, as OpenCV's V4L2 backend passes them on.
+V4L2_EXPOSURE_MANUAL = 1
+V4L2_EXPOSURE_UNIT_US = 100.0
+MS_PER_S = 1000.0
 #: Image files the replay reads (16-bit PNG and TIFF keep their depth).
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp", ".pgm", ".pnm", ".jpg", ".jpeg")
 
@@ -81,6 +87,9 @@ class VideoSource:
         self._configure = configure
         self._capture: Any = None
         self._pending: asyncio.Future[tuple[bool, Any]] | None = None  # the read in its thread
+        self._backend_offset_s: float | None = None  # run clock - backend stamp
+        # a file or image sequence's POS_MSEC is its position in the file, not a capture time
+        self._is_file = isinstance(source, str) and ("%" in source or Path(source).is_file())
 
     def _open(self) -> Any:
         capture = open_video_capture(self.source, self.device)
@@ -125,6 +134,24 @@ class VideoSource:
         image_array: NDArray[Any] = image
         return image_array
 
+    async def read_stamped(self, clock: Clock) -> tuple[NDArray[Any], float, str]:
+        """A frame and when it was taken on the run clock: from the backend's own stamp when
+        it gives one (CAP_PROP_POS_MSEC; V4L2 reports the driver's buffer timestamp, taken
+        at the end of the frame's capture), mapped to the run clock with the offset of the
+        quickest delivery seen so far (so the backend's frame spacing is kept and no stamp
+        lies after its receipt; the quickest delivery's own latency is unknown and taken as
+        0); else the time the read returned ("host": late by the transfer)."""
+        image = await self.read()
+        received_s = clock.now()
+        stamp_ms = float(self._capture.get(cv2.CAP_PROP_POS_MSEC)) if self._capture else 0.0
+        if not (math.isfinite(stamp_ms) and stamp_ms > 0) or self._is_file:
+            return image, received_s, "host"
+        backend_s = stamp_ms / MS_PER_S
+        if self._backend_offset_s is None or backend_s + self._backend_offset_s > received_s:
+            # a backend stamp cannot lie after its own receipt: re-anchor when it would
+            self._backend_offset_s = received_s - backend_s
+        return image, backend_s + self._backend_offset_s, "backend"
+
 
 def _release_later(capture: Any) -> None:
     """Release ``capture`` in a worker thread, from a callback on the event loop."""
@@ -154,6 +181,17 @@ class OpenCvCamera:
             # Ask for the raw (16-bit) stream; backends that cannot keep their 8-bit frames,
             # and the frame's dtype then tells the truth.
             capture.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+        if self.settings.exposure_us is not None:
+            # V4L2 through OpenCV: manual exposure is auto-exposure mode 1 (V4L2_EXPOSURE_MANUAL)
+            # and exposure_absolute counts 100 us; a backend that ignores either says so here.
+            capture.set(cv2.CAP_PROP_AUTO_EXPOSURE, V4L2_EXPOSURE_MANUAL)
+            units = self.settings.exposure_us / V4L2_EXPOSURE_UNIT_US
+            if not capture.set(cv2.CAP_PROP_EXPOSURE, units):
+                logger.warning("camera: the backend refused exposure %g us", units * 100)
+        if self.settings.gain is not None and not capture.set(
+            cv2.CAP_PROP_GAIN, self.settings.gain
+        ):
+            logger.warning("camera: the backend refused gain %g", self.settings.gain)
 
     async def __aenter__(self) -> Self:
         await self._source.open()
@@ -170,12 +208,14 @@ class OpenCvCamera:
 
     async def grab(self) -> Frame:
         async with self._lock:
-            grey = to_grey(await self._source.read())
+            image, stamp_s, source = await self._source.read_stamped(self.clock)
+            grey = to_grey(image)
             frame = Frame(
                 image=grey,
                 bit_depth=significant_bits(grey, self.settings.bit_depth),
-                timestamp_s=self.clock.now(),
+                timestamp_s=stamp_s,
                 sequence=self._sequence,
+                timestamp_source=source,
             )
             self._sequence += 1
         return frame

@@ -8,6 +8,7 @@ computed; an accelerated clock runs ``factor`` times faster than the wall clock.
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from typing import Protocol
 
@@ -51,6 +52,9 @@ class VirtualClock:
         return self._now
 
     async def sleep_until(self, deadline_s: float) -> None:
+        if not math.isfinite(deadline_s):
+            # a jump to infinity would leave every later deadline NaN (issue 15, point 7)
+            raise ValueError(f"virtual clock: deadline {deadline_s} is not finite")
         self._now = max(self._now, deadline_s)
         await asyncio.sleep(0)  # still a scheduling point, as a real sleep would be
 

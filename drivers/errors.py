@@ -52,10 +52,29 @@ class MotionHeldError(DeviceError):
 
 
 class PointOfControlError(DeviceReportedError):
-    """The operator must press PAUSE/CONTINUE on the controller to give the point of control
-    (C500C.md); reported at once instead of waiting for the button."""
+    """The controller waited for the operator to press PAUSE/CONTINUE (C500C.md "Point of
+    control") longer than the configured timeout (robot.point_of_control_timeout_s)."""
 
     kind = "point-of-control"
 
     def __init__(self, device: str, text: str) -> None:
         super().__init__(device, None, text)
+
+
+class GoalLostError(DeviceError):
+    """The controller no longer holds the taught operational goal (it restarted, or its
+    variables were cleared): the run cannot go on from it. The message starts with "the
+    controller lost the taught goal"."""
+
+    kind = "goal-lost"
+
+    def __init__(self, device: str, detail: str) -> None:
+        super().__init__(device, f"the controller lost the taught goal ({detail})")
+        self.detail = detail
+
+
+class ConsoleQuestionError(DeviceError):
+    """The console asked a question (C500C.md "Questions") or printed a message after which it
+    will not do what was asked; the command ended with this error instead of waiting."""
+
+    kind = "console-question"

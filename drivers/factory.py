@@ -4,7 +4,8 @@
 ``.robot`` and, when any device is simulated, ``.bench`` (the physical truth, for tests and
 benchmarks) and ``.emulator``. The simulated robot is the real C500C driver talking to the
 in-process emulator over a real pseudo-terminal, so the daemon exercises the same code on the
-bench as in the lab.
+bench as in the lab. ``robot.driver = "c500c-server"`` (the fast path) is likewise the real
+server driver talking to the emulated server program on a pty when the bench is enabled.
 """
 
 from __future__ import annotations
@@ -17,12 +18,16 @@ from dataclasses import dataclass
 from config import ConfigError, Settings
 from drivers.base import Camera, IrReader, Robot
 from drivers.c500c import C500CRobot
+from drivers.c500c_server import C500CServerRobot
 from drivers.camera import OpenCvCamera, ReplayCamera
 from drivers.clock import Clock
+from drivers.genicam_camera import GenICamCamera
 from drivers.ir import OpenCvIrReader, ReplayIrReader
+from drivers.radiometric import GenICamRadiometricIrReader
 from drivers.sim.bench import Bench
 from drivers.sim.devices import SimCamera, SimIrReader
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
+from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
 
 logger = logging.getLogger(__name__)
 
@@ -48,6 +53,11 @@ def _simulated(settings: Settings) -> list[str]:
     ]
 
 
+def _emulated_server(settings: Settings) -> bool:
+    """The fast path on the bench: its program is emulated (on hardware: the real port)."""
+    return settings.robot.driver == "c500c-server" and settings.bench.enabled
+
+
 @contextlib.asynccontextmanager
 async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
     """Open camera, IR reader and robot as the settings say; close them all on exit."""
@@ -58,9 +68,28 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             "is 'sim': choose real drivers or enable the bench"
         )
     async with contextlib.AsyncExitStack() as stack:
-        bench = Bench(settings, clock) if simulated else None
+        bench = Bench(settings, clock) if simulated or _emulated_server(settings) else None
         emulator: C500CEmulator | None = None
-        if settings.robot.driver == "sim":
+        robot: Robot
+        if _emulated_server(settings):
+            assert bench is not None
+            robot_settings = settings.robot
+            emulator = C500CServerEmulator(
+                server_emulator_config(
+                    seed=bench.robot_seed,
+                    noise_um=settings.bench.robot_noise_um,
+                    move_ms=robot_settings.emulator_move_ms,
+                    baudrate=robot_settings.server_baudrate,
+                    paced=robot_settings.emulator_paced,
+                    silence_timeout_s=robot_settings.server_silence_s,
+                )
+            )
+            await stack.enter_async_context(emulator)
+            bench.attach_robot(emulator.actual_pose)
+            robot = C500CServerRobot(robot_settings, port=emulator.device_path)
+        elif settings.robot.driver == "c500c-server":
+            robot = C500CServerRobot(settings.robot)
+        elif settings.robot.driver == "sim":
             assert bench is not None
             robot_settings = settings.robot
             emulator = C500CEmulator(
@@ -85,6 +114,8 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             camera = SimCamera(settings.camera, bench, clock)
         elif settings.camera.driver == "opencv":
             camera = OpenCvCamera(settings.camera, clock)
+        elif settings.camera.driver == "genicam":
+            camera = GenICamCamera(settings.camera, clock)
         else:
             camera = ReplayCamera(settings.camera, clock)
 
@@ -94,6 +125,8 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             ir = SimIrReader(settings, bench, clock)
         elif settings.ir.driver == "opencv":
             ir = OpenCvIrReader(settings.ir, clock)
+        elif settings.ir.driver == "genicam-radiometric":
+            ir = GenICamRadiometricIrReader(settings.ir, clock)
         else:
             ir = ReplayIrReader(settings.ir, clock)
 

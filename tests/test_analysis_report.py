@@ -311,9 +311,12 @@ def _check_bench_report(data_dir: Path, run_id: int, capsys: pytest.CaptureFixtu
     assert html_path.parent == report_dir(data_dir, run_id)
     # The run's default folder is what the API serves as one page: images embedded.
     page = html_path.read_text(encoding="utf-8")
-    assert page.count('<img src="data:image/png;base64,') == 5
+    # a virtual clock: four figures, and a line instead of an empty lateness figure
+    assert page.count('<img src="data:image/png;base64,') == 4
+    assert "used a virtual clock" in page
     summary = json.loads((html_path.parent / "summary.json").read_text(encoding="utf-8"))
-    assert len(summary["plots"]) == 5 and summary["steps"] == 20
+    assert len(summary["plots"]) == 4 and summary["steps"] == 20
+    assert "lateness" not in summary["plots"] and "virtual clock" in summary["notes"]["lateness"]
     for name in summary["plots"].values():
         assert (html_path.parent / name).read_bytes().startswith(PNG_MAGIC)
     with Recorder(data_dir) as recorder:

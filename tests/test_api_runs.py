@@ -9,6 +9,7 @@ import csv
 import io
 import json
 import socket
+import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -165,7 +166,7 @@ async def test_full_run_cycle(
         held = await client.post("/api/v1/robot/stop", headers=CONTROL_HEADERS)
         assert held.status_code == 200 and held.json() == {"held": True, "state": "paused"}
         stopped = await client.post(f"/api/v1/runs/{run_id}/stop", headers=CONTROL_HEADERS)
-        assert stopped.status_code == 200 and stopped.json()["state"] == "finished"
+        assert stopped.status_code == 200 and stopped.json()["state"] == "stopped"
         assert 0 < stopped.json()["summary"]["n"] <= stopped.json()["steps_recorded"]
         late = await client.post(f"/api/v1/runs/{run_id}/stop", headers=CONTROL_HEADERS)
         assert late.status_code == 409
@@ -195,7 +196,13 @@ async def test_full_run_cycle(
     assert image.dtype == np.uint16 and image.ndim == 2
     assert (await client.get(f"/api/v1/runs/{run_id}/frames/6")).status_code == 404
 
+    # the daemon writes the report after the run's end: 202 (ask again) until it is there
     report = await client.get(f"/api/v1/runs/{run_id}/report")
+    deadline = time.monotonic() + 60
+    while report.status_code == 202 and time.monotonic() < deadline:
+        assert report.json()["kind"] == "pending" and report.headers["retry-after"] == "2"
+        await asyncio.sleep(0.2)
+        report = await client.get(f"/api/v1/runs/{run_id}/report")
     assert report.status_code == 200 and report.headers["content-type"].startswith("text/html")
     assert (await client.get("/api/v1/runs/999/report")).status_code == 404
 

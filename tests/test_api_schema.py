@@ -35,6 +35,7 @@ from api.routers import runs as runs_router
 from config import Settings
 from daemon.model import available_presets
 from daemon.recorder import Recorder
+from daemon.reports import write_run_report
 from daemon.service import Daemon
 from tests.test_api_runs import wait_state
 from tests.test_api_server import CONTROL, READ, serve
@@ -51,6 +52,8 @@ NO_TOKEN_EXAMPLES = 3
 #: The harness's own run, kept active while the run-control and read operations are fuzzed:
 #: a 1 s step on the bench clock at 10x is one step per 100 ms of wall time.
 HARNESS_RUN = {"duration_s": 3600, "step_s": 1}
+#: Operations that do their work only while idle (409 during a run): fuzzed with no run active.
+IDLE_OPERATIONS = frozenset({"POST /api/v1/runs", "GET /api/v1/devices/preview"})
 #: The control rate limit the fuzzing runs under (api.control_rate_per_s, control_burst).
 RATE_PER_S = 20.0
 BURST = 20
@@ -135,6 +138,8 @@ async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
         steps = (await client.get(f"/api/v1/runs/{run_id}/steps")).json()["steps"]
         archived = [s["step"] for s in steps if s["frame_path"]]
         assert len(steps) == 6 and archived
+        # its report, as `thermocomp report RUN` writes it (the API only serves reports)
+        await asyncio.to_thread(write_run_report, tmp_path / "data", run_id)
         yield Bench(f"http://{address}", run_id, archived[0])
 
 
@@ -161,7 +166,7 @@ class RunKeeper:
     def prepare(self, label: str) -> int | None:
         """Set the daemon up for a request of ``label``; the active run's id, if any."""
         active = self.active_run()
-        if label == "POST /api/v1/runs":
+        if label in IDLE_OPERATIONS:
             self.stop(active)
             return None
         if active is None:

@@ -74,6 +74,9 @@ def imported_modules(*args: str) -> set[str]:
         (["serve", "--help"], HEAVY_MODULES | SERVER_MODULES),
         (["run", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
         (["emulate", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
+        (["stats", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
+        (["fit", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
+        (["report", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
     ],
 )
 def test_help_imports_nothing_heavy(args: list[str], forbidden: frozenset[str]) -> None:
@@ -106,8 +109,15 @@ def test_no_help_text_shows_a_doubled_percent_sign() -> None:
             if isinstance(action, argparse._SubParsersAction):
                 texts.extend(sub.format_help() for sub in action.choices.values())
     assert all("%%" not in text for text in texts)
-    emulate = subparsers.choices["emulate"].format_help()
+    emulate = " ".join(subparsers.choices["emulate"].format_help().split())
     assert "--faults 'drop@5,delay=2@9,corrupt%0.01'" in emulate
+
+
+def test_fit_kinds_of_the_command_line_are_the_fits_own() -> None:
+    from daemon.analysis.cli import FIT_KINDS
+    from daemon.analysis.fits import KINDS
+
+    assert FIT_KINDS == KINDS
 
 
 def test_repeated_log_lines_are_folded() -> None:

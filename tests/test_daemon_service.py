@@ -1,8 +1,7 @@
 """The daemon's run cycle against small fake devices (test doubles of drivers/base.py).
 
-The fake bench's physical truth is a second ThermalModel of the same network with the same
-heat, so with a noise-free robot the compensated spot must stay put (the analytic oracle):
-drift = truth deformation + robot displacement = d - scale * d / scale ... = 0.
+With a noise-free fake robot the compensated spot must stay put (the analytic oracle of
+tests/fakes.py): drift = truth deformation + robot displacement = d - scale * d / scale = 0.
 """
 
 from __future__ import annotations
@@ -10,210 +9,17 @@ from __future__ import annotations
 import asyncio
 import math
 from pathlib import Path
-from types import TracebackType
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 import pytest
 
-from config import Settings
 from daemon.model import ThermalModel, load_network
 from daemon.recorder import Recorder, RecorderError
-from daemon.runs import RunParameters, RunState, RunStateError
-from daemon.service import Daemon, RunConflictError, RunParameterError
-from daemon.vision import render_spot
-from drivers.base import (
-    Frame,
-    IrReading,
-    LinkState,
-    MoveResult,
-    Pose,
-    RegionTemperature,
-    RobotStatus,
-    Vector3,
-)
-from drivers.clock import Clock, make_clock
-from drivers.errors import DeviceTimeoutError, MotionHeldError
-
-HEAT_W = {"2": 5.0, "9": 5.0}  # ~35 um in the first minute: big enough to see
-UM_PER_PX = (10.22, 9.72)
-SHAPE = (120, 160)  # small frames keep the suite fast
-GOAL = Pose(500.0, 0.0, 300.0)
-SLOW_MOVE_S = 0.07  # 3.5 periods of the 20 ms step of the overrun test
-
-
-class FakeBench:
-    """The truth: the same network and heat as the controller's model."""
-
-    def __init__(self, clock: Clock, heat_w: dict[str, float]) -> None:
-        self.clock = clock
-        self.truth = ThermalModel(load_network("thesis-two-link"), "exact", 1.0, 22.0)
-        self.truth.set_heat(heat_w)
-        self.robot_offset_mm = np.zeros(3)
-
-    def spot_um(self) -> np.ndarray:
-        self.truth.advance_to(max(self.clock.now(), self.truth.time_s))
-        return self.truth.deformation_um() + 1000.0 * self.robot_offset_mm
-
-
-class FakeRobot:
-    def __init__(self, bench: FakeBench) -> None:
-        self.bench = bench
-        self.commands: list[tuple[str, Vector3]] = []
-        self.fail_moves: set[int] = set()  # move numbers (0-based) that time out
-        self.slow_moves: set[int] = set()  # move numbers that take SLOW_MOVE_S of real time
-        self.hung_moves: set[int] = set()  # move numbers that never finish
-        self.hanging = asyncio.Event()
-        self.position_errors_um: dict[int, float] = {}  # move number -> x error of that move
-        self.held = False
-        self.resumes = 0
-        self.pose_reads = 0
-        self.moves = 0
-
-    async def __aenter__(self) -> Self:
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        return None
-
-    async def teach_goal(self) -> Pose:
-        self.bench.robot_offset_mm = np.zeros(3)
-        return GOAL
-
-    def _check(self) -> None:
-        move = self.moves
-        self.moves += 1
-        if self.held:
-            raise MotionHeldError("robot", "motion held")
-        if move in self.fail_moves:
-            self.held = True
-            raise DeviceTimeoutError("robot", f"no answer to move {move}")
-
-    def _result(self, requested: Vector3) -> MoveResult:
-        return MoveResult(requested, requested, self._pose())
-
-    def _pose(self) -> Pose:
-        offset = self.bench.robot_offset_mm
-        return Pose(GOAL.x + offset[0], GOAL.y + offset[1], GOAL.z + offset[2])
-
-    async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
-        assert all(math.isfinite(v) for v in offset_mm)
-        if self.moves in self.slow_moves:
-            await asyncio.sleep(SLOW_MOVE_S)
-        if self.moves in self.hung_moves:
-            self.hanging.set()
-            await asyncio.Event().wait()  # a controller that never answers
-        self._check()
-        self.commands.append(("absolute", offset_mm))
-        error_mm = self.position_errors_um.get(self.moves - 1, 0.0) / 1000.0
-        self.bench.robot_offset_mm = np.asarray(offset_mm) + np.array([error_mm, 0.0, 0.0])
-        return self._result(offset_mm)
-
-    async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
-        self._check()
-        self.commands.append(("incremental", delta_mm))
-        self.bench.robot_offset_mm = self.bench.robot_offset_mm + np.asarray(delta_mm)
-        return self._result(delta_mm)
-
-    async def actual_pose(self) -> Pose:
-        self.pose_reads += 1
-        return self._pose()
-
-    async def stop(self) -> None:
-        self.held = True
-
-    async def resume(self) -> None:
-        self.resumes += 1
-        self.held = False
-
-    def status(self) -> RobotStatus:
-        return RobotStatus(LinkState.CONNECTED, motion_held=self.held)
-
-
-class FakeCamera:
-    def __init__(self, bench: FakeBench) -> None:
-        self.bench = bench
-        self.sequence = 0
-        self.age_s = 0.0
-
-    async def __aenter__(self) -> Self:
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        return None
-
-    async def grab(self) -> Frame:
-        spot = self.bench.spot_um()
-        centre = (80.0 + spot[0] / UM_PER_PX[0], 60.0 + spot[1] / UM_PER_PX[1])
-        image = render_spot(shape=SHAPE, centre_xy=centre, sigma_px=3.0, bit_depth=16)
-        self.sequence += 1
-        return Frame(image, 16, self.bench.clock.now() - self.age_s, self.sequence)
-
-
-class FakeIr:
-    def __init__(self, clock: Clock) -> None:
-        self.clock = clock
-
-    async def __aenter__(self) -> Self:
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        return None
-
-    async def read(self) -> IrReading:
-        region = RegionTemperature("shaft", 25.0, 26.5, "9")
-        return IrReading({"shaft": region}, self.clock.now(), 0)
-
-
-class FakeDevices:
-    def __init__(self, clock: Clock, heat_w: dict[str, float]) -> None:
-        self.truth = FakeBench(clock, heat_w)  # not `bench`: that is the real sim's hook
-        self.robot = FakeRobot(self.truth)
-        self.camera = FakeCamera(self.truth)
-        self.ir = FakeIr(clock)
-
-    async def __aenter__(self) -> Self:
-        return self
-
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        return None
-
-
-def make_settings(tmp_path: Path, **sections: dict[str, Any]) -> Settings:
-    data: dict[str, Any] = {
-        "storage": {"data_dir": str(tmp_path), "report_at_end": False},
-        "camera": {"width_px": SHAPE[1], "height_px": SHAPE[0], "um_per_px": UM_PER_PX},
-        "model": {"heat_w": HEAT_W},
-        "scheduler": {"duration_s": 60.0, "step_s": 1.0},
-    }
-    for name, values in sections.items():
-        data[name] = {**data.get(name, {}), **values}
-    return Settings.model_validate(data)
-
-
-class Harness:
-    def __init__(self, settings: Settings) -> None:
-        self.clock = make_clock(settings.bench.clock, settings.bench.time_factor)
-        self.devices: FakeDevices | None = None
-        self.daemon = Daemon(settings, clock=self.clock, open_devices=self._open)
-
-    def _open(self, settings: Settings, clock: Clock) -> FakeDevices:
-        self.devices = FakeDevices(clock, dict(settings.model.heat_w))
-        return self.devices
-
-    @property
-    def robot(self) -> FakeRobot:
-        assert self.devices is not None
-        return self.devices.robot
-
-
-def params(settings: Settings, **overrides: Any) -> RunParameters:
-    return RunParameters.from_settings(settings, **overrides)
+from daemon.report_queue import ReportStatus
+from daemon.runs import RunState, RunStateError
+from daemon.service import RunConflictError, RunParameterError
+from tests.fakes import GOAL, HEAT_W, SHAPE, Harness, make_settings, params
 
 
 async def test_compensated_run_keeps_the_spot_still_and_records_every_step(
@@ -292,7 +98,7 @@ async def test_unsafe_target_never_reaches_the_robot_and_pauses_the_run(tmp_path
     assert len(commands) == 1  # step 0 (zero offset) only
     assert steps[-1].flags == "unsafe-target" and "max_step_change_mm" in steps[-1].error
     assert steps[-1].pose_x_mm is None
-    assert final["state"] == "finished"
+    assert final["state"] == "stopped" and final["reason"] == "stopped by request"
 
 
 async def test_device_fault_parks_the_run_until_an_explicit_resume(tmp_path: Path) -> None:
@@ -354,8 +160,8 @@ async def test_pause_resume_stop_and_events(tmp_path: Path) -> None:
             while (event := events.get_nowait()) is not None:
                 kinds.append((event.kind, event.data.get("state")))
     states = [state for kind, state in kinds if kind == "state"]
-    assert states == ["starting", "running", "paused", "running", "stopping", "finished"]
-    assert final["state"] == "finished" and final["reason"] == "stopped by request"
+    assert states == ["starting", "running", "paused", "running", "stopping", "stopped"]
+    assert final["state"] == "stopped" and final["reason"] == "stopped by request"
     with pytest.raises(RunStateError):
         await daemon.pause()
 
@@ -406,7 +212,7 @@ async def test_crashed_run_is_interrupted_on_the_next_start(tmp_path: Path) -> N
         assert row is not None and row.state == "interrupted"
 
 
-async def test_shutdown_mid_run_aborts_it_and_holds_the_robot(tmp_path: Path) -> None:
+async def test_shutdown_mid_run_stops_it_and_holds_the_robot(tmp_path: Path) -> None:
     settings = make_settings(tmp_path, bench={"clock": "real"})
     harness = Harness(settings)
     async with harness.daemon as daemon:
@@ -415,7 +221,7 @@ async def test_shutdown_mid_run_aborts_it_and_holds_the_robot(tmp_path: Path) ->
     assert harness.robot.held
     with Recorder(tmp_path) as recorder:
         row = recorder.run(info["id"])
-    assert row is not None and row.state == "aborted" and row.reason == "the daemon shut down"
+    assert row is not None and row.state == "stopped" and row.reason == "daemon shut down"
 
 
 async def test_a_nan_prediction_never_reaches_the_robot(
@@ -513,7 +319,7 @@ async def test_stop_abandons_a_step_stuck_on_a_device_after_the_grace_period(
         final = await daemon.stop()
         assert daemon.recorder is not None
         steps = daemon.recorder.steps(info["id"])
-    assert final["state"] == "aborted" and "abandoned" in final["reason"]
+    assert final["state"] == "stopped" and "abandoned" in final["reason"]
     assert harness.robot.held
     assert [s.step for s in steps] == [0, 1]  # the abandoned step left nothing half-written
 
@@ -566,8 +372,9 @@ async def test_the_report_is_written_at_the_end_of_a_run(tmp_path: Path) -> None
     settings = make_settings(tmp_path, storage={"report_at_end": True})
     harness = Harness(settings)
     async with harness.daemon as daemon:
-        await daemon.start_run(params(settings, duration_s=5.0))
+        info = await daemon.start_run(params(settings, duration_s=5.0))
         await daemon.wait_run()
-        run = daemon.run
-    assert run is not None and run.report_path is not None
-    assert run.report_path.is_file() and run.report_path.is_relative_to(tmp_path)
+        # written after the run ended, by the daemon's report queue (never by a reader)
+        assert await daemon.reports.wait(info["id"]) is ReportStatus.WRITTEN
+        report = daemon.reports.html_path(info["id"])
+    assert report.is_file() and report.is_relative_to(tmp_path)

@@ -1,15 +1,21 @@
 """The dashboard in headless Debian Chromium (Playwright driving the system browser), against
 the real ``thermocomp serve`` on the simulated bench: load, start a run, see the plots and the
-camera frame update, stop it, find it in the history."""
+camera view update, pause, resume, hold, stop, find it in the history; a refused token; the
+run states and robot badges in the API's words (issue 21)."""
 
 from __future__ import annotations
 
+import itertools
+import json
+import math
+import re
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
-from playwright.sync_api import Browser, Page, sync_playwright
+from playwright.sync_api import Browser, Page, Route, sync_playwright
 
 from tests.helpers import running_server
 
@@ -25,6 +31,13 @@ CHROMIUM_ARGS = [
 CONTROL = "dashboard-control-token-42"
 #: steps the plots must show before the run is stopped
 STEPS_SEEN = 15
+#: The thesis two-link network's nodes (17), all plotted.
+MODEL_NODES = 17
+#: Smallest CIELAB distance (Delta E 1976) between any two series' colours: ~2.3 is a just
+#: noticeable difference, ~20 tells thin lines apart at a glance. The greedy palette gives
+#: 28.9 for the 20 series of the sim (17 nodes + 3 IR regions), 21 for 30.
+MIN_COLOUR_DISTANCE = 20.0
+FINAL_STATES = ("finished", "stopped", "aborted", "fault", "interrupted")
 
 
 @pytest.fixture
@@ -55,37 +68,19 @@ def points(page: Page, plot: str) -> int:
     return count
 
 
-def test_dashboard_and_docs_run_under_their_content_security_policy(
-    browser: Browser, server: str
-) -> None:
-    """Issue 16: every page carries a CSP without inline script or eval; the dashboard and the
-    API description work under it, with no violation reported."""
-    page = browser.new_page(viewport={"width": 1400, "height": 1000})
-    violations: list[str] = []
-    page.on(
-        "console",
-        lambda message: (
-            violations.append(message.text) if "Content Security Policy" in message.text else None
-        ),
-    )
-    page.on("pageerror", lambda error: violations.append(str(error)))
-    response = page.goto(server + "/")
-    assert response is not None
-    assert "frame-ancestors 'none'" in response.headers["content-security-policy"]
-    page.wait_for_selector("#stream-state.open")
-    page.wait_for_selector("#daemon-state:text-is('idle')")
-    page.locator("#network-select option", has_text="thesis-two-link").wait_for(state="attached")
-    assert page.evaluate("typeof uPlot") == "function"  # the vendored script loaded
-    assert page.evaluate("Array.isArray(window.thermocomp.plots.predicted.data)")
-    page.goto(server + "/docs")
-    page.wait_for_selector(".swagger-ui .info .title")  # the UI rendered the description
-    assert violations == []
+def message(page: Page) -> str:
+    return page.text_content("#message") or ""
 
 
-def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Path) -> None:
-    # Playwright's wait_for_function evaluates its predicate with `new Function`, which the
-    # dashboard's CSP (no eval) forbids: this test bypasses it; the one above runs under it.
-    page = browser.new_page(viewport={"width": 1400, "height": 1000}, bypass_csp=True)
+def new_page(browser: Browser) -> Page:
+    """A page whose test code may wait on JavaScript expressions: Playwright evaluates them
+    with eval, which the server's Content-Security-Policy refuses, so these pages bypass it
+    (test_the_dashboard_runs_under_its_own_csp checks the page itself needs no exception)."""
+    return browser.new_page(viewport={"width": 1400, "height": 1000}, bypass_csp=True)
+
+
+def open_dashboard(browser: Browser, server: str) -> tuple[Page, list[str]]:
+    page = new_page(browser)
     page_errors: list[str] = []
     page.on("pageerror", lambda error: page_errors.append(str(error)))
     page.goto(server + "/")
@@ -93,39 +88,303 @@ def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Pa
     # the state comes with the stream's hello and the network list from its own request:
     # both arrive after the socket opens, so wait for them rather than read them at once
     page.wait_for_function("document.querySelector('#daemon-state').textContent === 'idle'")
-    preset = page.locator("#network-select option", has_text="thesis-two-link")
-    preset.wait_for(state="attached")
-    assert preset.count() == 1
+    return page, page_errors
 
-    # without a token, control is refused and the page says so
-    page.fill("input[name=duration_s]", "3600")
-    page.fill("input[name=step_s]", "1")
-    page.click("#btn-start")
-    page.wait_for_selector("#message.error")
-    assert "401" in (page.text_content("#message") or "")
 
+def start_run(page: Page) -> None:
     page.fill("#token", CONTROL)
     page.click("#token-form button")
     page.wait_for_selector("#stream-state.open")
+    page.fill("input[name=duration_s]", "3600")
+    page.fill("input[name=step_s]", "1")
     page.click("#btn-start")
     page.wait_for_function("document.querySelector('#daemon-state').textContent === 'running'")
     page.wait_for_function(
         f"window.thermocomp.plots.residual.data[0].length >= {STEPS_SEEN}", timeout=60_000
     )
+
+
+def _lab(colour: str) -> tuple[float, float, float]:
+    """CIELAB (D65) of a #rrggbb colour."""
+
+    def linear(c: int) -> float:
+        v = c / 255
+        return v / 12.92 if v <= 0.04045 else ((v + 0.055) / 1.055) ** 2.4
+
+    r, g, b = (linear(int(colour[i : i + 2], 16)) for i in (1, 3, 5))
+    x = (0.4124 * r + 0.3576 * g + 0.1805 * b) / 0.95047
+    y = 0.2126 * r + 0.7152 * g + 0.0722 * b
+    z = (0.0193 * r + 0.1192 * g + 0.9505 * b) / 1.08883
+
+    def f(t: float) -> float:
+        return t ** (1 / 3) if t > 0.008856 else 7.787 * t + 16 / 116
+
+    return 116 * f(y) - 16, 500 * (f(x) - f(y)), 200 * (f(y) - f(z))
+
+
+def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Path) -> None:
+    page, page_errors = open_dashboard(browser, server)
+    preset = page.locator("#network-select option", has_text="thesis-two-link")
+    preset.wait_for(state="attached")
+    assert preset.count() == 1
+    # the device states of /health, as badges
+    page.locator("#device-badges .badge", has_text="robot: connected").wait_for()
+
+    # without a token, control is refused and the page says so, in the API's words
+    page.fill("input[name=duration_s]", "3600")
+    page.click("#btn-start")
+    page.wait_for_selector("#message.error")
+    assert "401" in message(page) and "control scope is needed" in message(page)
+
+    start_run(page)
     for plot in ("predicted", "offset", "residual", "temperature"):
         assert points(page, plot) >= STEPS_SEEN
     # the plotted values are the recorded ones: the predicted deformation grows under heat
     predicted_x = page.evaluate("window.thermocomp.plots.predicted.data[1]")
     assert predicted_x[-1] > predicted_x[1] > 0
+
+    # every model node is plotted, in natural order, each series in a colour of its own
+    names: list[str] = page.evaluate("window.thermocomp.plots.temperature.names")
+    nodes = [n for n in names if n.startswith("node ")]
+    assert len(nodes) == MODEL_NODES
+    assert nodes == [f"node {i}" for i in range(1, MODEL_NODES + 1)]  # node 2 before node 16
+    legend = page.locator("#plot-temperature .u-legend .u-label").all_text_contents()
+    assert legend == names  # what the reader sees, in that order
+    drawn: list[str] = page.evaluate(
+        "window.thermocomp.plots.temperature.plot.series.slice(1).map((s, i) =>"
+        " typeof s.stroke === 'function' ? s.stroke(window.thermocomp.plots.temperature.plot,"
+        " i + 1) : s.stroke)"
+    )
+    assert len(set(drawn)) == len(drawn) == len(names)
+    closest = min(math.dist(_lab(a), _lab(b)) for a, b in itertools.combinations(drawn, 2))
+    assert closest >= MIN_COLOUR_DISTANCE, closest
+
+    # the camera view: a zoom around the spot, contrast-stretched, and the full frame on click
     page.wait_for_function(
         "document.querySelector('#frame-caption').textContent.includes('centroid (')",
         timeout=30_000,
     )
+    canvas = page.locator("#frame-canvas")
+    assert canvas.get_attribute("data-view") == "zoom"
+    low, high = (int(v) for v in (canvas.get_attribute("data-contrast") or "").split("-"))
+    assert high > low
+    canvas.click()
+    page.wait_for_selector("#frame-canvas[data-view='full']")
+    assert "full frame, reduced 1:4 (188 x 145 px)" in (page.text_content("#frame-detail") or "")
+    canvas.click()
+    page.wait_for_selector("#frame-canvas[data-view='zoom']")
     page.screenshot(path=str(tmp_path / "dashboard-live.png"), full_page=True)
+
+    # each action answers with what happened
+    with page.expect_response(re.compile(r".*/runs/1/pause$")) as answer:
+        page.click("#btn-pause")
+    page.wait_for_function("document.querySelector('#message').textContent.includes('paused')")
+    paused = re.fullmatch(r"run 1 paused at step (\d+)", message(page))
+    assert paused, message(page)
+    run = httpx.get(f"{server}/api/v1/runs/1", timeout=10).json()
+    # the last step the page knew of: at least the answer's, at most the last one recorded
+    # (a step under way when the pause came is still recorded)
+    said = int(paused.group(1))
+    assert answer.value.json()["steps_recorded"] - 1 <= said <= run["steps_recorded"] - 1
+    assert run["state"] == "paused"
+    page.wait_for_function("document.querySelector('#daemon-state').textContent === 'paused'")
+    page.click("#btn-resume")
+    page.wait_for_function("document.querySelector('#message').textContent.includes('resumed')")
+    assert re.fullmatch(r"run 1 resumed at step \d+", message(page)), message(page)
+    page.wait_for_function("document.querySelector('#daemon-state').textContent === 'running'")
+
+    # hold: the answer says what it means, and the badge shows it
+    assert page.locator("#robot-badges .badge.held").count() == 0
+    page.click("#btn-hold")
+    page.wait_for_selector("#robot-badges .badge.held")
+    assert page.text_content("#robot-badges .badge.held") == "robot held"
+    assert message(page).startswith("hold acknowledged: no motion can be sent")
+
+    # a refused action answers with the API's error message, not a bare status
+    page.wait_for_function("document.querySelector('#daemon-state').textContent === 'paused'")
+    page.evaluate("document.querySelector('#btn-pause').disabled = false")
+    page.click("#btn-pause")
+    page.wait_for_selector("#message.error")
+    assert message(page).startswith("pause refused: 409 conflict: "), message(page)
 
     page.click("#btn-stop")
     page.wait_for_function("document.querySelector('#daemon-state').textContent === 'idle'")
-    page.wait_for_selector("#run-history tr td:nth-child(2):text-is('finished')")
     run = httpx.get(f"{server}/api/v1/runs/1", timeout=10).json()
-    assert run["state"] == "finished" and run["steps_recorded"] >= STEPS_SEEN
+    assert run["state"] == "stopped" and run["reason"] == "stopped by request"
+    assert run["steps_recorded"] >= STEPS_SEEN
+    assert message(page).startswith(f"run 1 {run['state']} after {run['steps_recorded']} steps")
+    # the history shows the API's word for the stopped run, its reason on hover and on click
+    word = page.locator("#run-history tr:first-child .state")
+    word.wait_for()
+    page.wait_for_function(
+        f"document.querySelector('#run-history tr:first-child .state').textContent"
+        f" === {json.dumps(run['state'])}"
+    )
+    assert run["state"] in (word.get_attribute("class") or "").split()
+    if run["reason"]:
+        assert run["reason"] in (word.get_attribute("title") or "")
+    word.click()
+    assert message(page).startswith(f"run 1 {run['state']}: ")
     assert page_errors == []
+
+
+def test_a_refused_token_shows_a_banner_and_the_plots_go_on(browser: Browser, server: str) -> None:
+    page, page_errors = open_dashboard(browser, server)
+    start_run(page)
+    assert page.is_hidden("#auth-banner")
+    before = points(page, "residual")
+
+    page.fill("#token", "not-the-token")
+    page.click("#token-form button")
+    page.wait_for_selector("#auth-banner", state="visible")
+    banner = page.text_content("#auth-banner") or ""
+    assert "The token was refused (401 unauthorized: unknown token)" in banner
+    assert "keep what they show" in banner
+    # nothing was cleared, and the plots go on (anonymous reading on loopback) while the
+    # banner stays until a valid token is entered
+    assert points(page, "residual") >= before
+    page.wait_for_function(
+        f"window.thermocomp.plots.residual.data[0].length >= {before + 10}", timeout=60_000
+    )
+    assert page.is_visible("#auth-banner")
+    # control with the refused token: the API's answer, in the message line
+    page.click("#btn-pause")
+    page.wait_for_selector("#message.error")
+    assert "pause refused: 401 unauthorized: unknown token" in message(page)
+
+    page.fill("#token", CONTROL)
+    page.click("#token-form button")
+    page.wait_for_selector("#auth-banner", state="hidden")
+    page.click("#btn-stop")
+    page.wait_for_function("document.querySelector('#daemon-state').textContent === 'idle'")
+    assert page_errors == []
+
+
+def _run(run_id: int, state: str, reason: str | None) -> dict[str, Any]:
+    base = f"/api/v1/runs/{run_id}"
+    return {
+        "id": run_id,
+        "state": state,
+        "reason": reason,
+        "started_at": 1_790_000_000.0 + run_id,
+        "ended_at": 1_790_000_100.0 + run_id,
+        "parameters": {"duration_s": 100.0, "step_s": 1.0},
+        "steps_recorded": 10 * run_id,
+        "progress_percent": 100.0,
+        "remaining_s": 0.0,
+        "eta_s": 0.0,
+        "summary": None,
+        "links": {"self": base, "steps_csv": f"{base}/steps?format=csv", "report": base},
+    }
+
+
+def test_run_states_and_robot_badges_in_the_apis_words(browser: Browser, server: str) -> None:
+    """Every final state the API may give (the lead adds `stopped`), and the robot and device
+    states: the page shows the API's answers as they are, so these are served to it."""
+    runs = [
+        _run(i, state, None if state == "finished" else f"why {state}")
+        for i, state in enumerate(FINAL_STATES, start=1)
+    ]
+    page = new_page(browser)
+
+    def fulfil(body: dict[str, Any]) -> Any:
+        return lambda route: route.fulfill(
+            status=200, content_type="application/json", body=json.dumps(body)
+        )
+
+    page.route(
+        re.compile(r".*/api/v1/runs\?limit=20$"),
+        fulfil({"runs": runs[::-1], "limit": 20, "offset": 0, "next_offset": None}),
+    )
+
+    def state(route: Route) -> None:
+        real = httpx.get(f"{server}/api/v1/state", timeout=10).json()
+        real["robot"] = {
+            "link": "awaiting-point-of-control",
+            "motion_held": True,
+            "last_error": None,
+        }
+        route.fulfill(status=200, content_type="application/json", body=json.dumps(real))
+
+    page.route(re.compile(r".*/api/v1/state$"), state)
+    page.route(
+        re.compile(r".*/api/v1/health$"),
+        fulfil(
+            {
+                "status": "ok",
+                "version": "0",
+                "daemon": "running",
+                "devices": {
+                    "robot": "awaiting-point-of-control",
+                    "camera": "ok",
+                    "ir": "timeout error",
+                },
+            }
+        ),
+    )
+    page.goto(server + "/")
+    page.wait_for_selector("#run-history tr:nth-child(5) .state")
+    for run in runs:
+        cell = page.locator(f"#run-history tr:has(td:text-is('{run['id']}')) .state")
+        assert cell.text_content() == run["state"]
+        assert run["state"] in (cell.get_attribute("class") or "").split()
+        title = cell.get_attribute("title") or ""
+        assert (run["reason"] or "no reason given") in title
+        cell.click()
+        reason = run["reason"] or "no reason given"
+        assert message(page) == f"run {run['id']} {run['state']}: {reason}"
+
+    page.wait_for_selector("#robot-badges .badge.waiting")
+    assert page.text_content("#robot-badges .badge.waiting") == (
+        "waiting for the operator: press PAUSE/CONTINUE"
+    )
+    assert page.text_content("#robot-badges .badge.held") == "robot held"
+    page.wait_for_selector("#device-badges .badge")
+    kinds = {
+        page.text_content(f"#device-badges .badge.{kind}") or "": kind
+        for kind in ("good", "warn", "bad")
+    }
+    assert kinds == {
+        "camera: ok": "good",
+        "robot: awaiting-point-of-control": "warn",
+        "ir: timeout error": "bad",
+    }
+
+
+def test_the_dashboard_runs_under_its_own_csp(browser: Browser, server: str) -> None:
+    """With the Content-Security-Policy enforced (no eval here: selectors only), the page loads
+    its scripts and styles, opens the stream and shows the daemon's state, and the browser
+    reports no violation."""
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    violations: list[str] = []
+    page.on(
+        "console",
+        lambda m: violations.append(m.text) if "Content Security Policy" in m.text else None,
+    )
+    page.on("pageerror", lambda error: violations.append(str(error)))
+    answer = page.goto(server + "/")
+    assert answer is not None and "default-src 'self'" in answer.headers["content-security-policy"]
+    page.wait_for_selector("#stream-state.open")
+    page.wait_for_selector("#daemon-state:text-is('idle')")
+    page.wait_for_selector("#plot-residual canvas, #plot-residual svg, #plot-residual .u-wrap")
+    assert violations == []
+    page.close()
+
+
+def test_the_api_description_runs_under_its_own_csp(browser: Browser, server: str) -> None:
+    """/docs (the vendored Swagger UI, started by a script file: no inline script) renders the
+    description with the CSP enforced and no violation."""
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    violations: list[str] = []
+    page.on(
+        "console",
+        lambda m: violations.append(m.text) if "Content Security Policy" in m.text else None,
+    )
+    page.on("pageerror", lambda error: violations.append(str(error)))
+    answer = page.goto(server + "/docs")
+    assert (
+        answer is not None and "frame-ancestors 'none'" in answer.headers["content-security-policy"]
+    )
+    page.wait_for_selector(".swagger-ui .info .title")
+    assert violations == []
+    page.close()

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import math
+import signal
 import subprocess
+import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -16,6 +18,7 @@ from scipy import stats
 from api.cli import main
 from config.settings import RobotSettings
 from drivers import c500c_protocol as proto
+from drivers.base import LinkState
 from drivers.c500c import C500CRobot
 from drivers.sim.emulator import (
     COMMAND_LOG_LINES,
@@ -38,6 +41,8 @@ def console(**overrides: object) -> Console:
 
 async def test_location_commands_and_absolute_moves() -> None:
     c = console(noise_um=0.0, online=True)
+    for name in ("opgoal", "cur", "p"):
+        assert await c.execute(f"new {name}") == []
     assert await c.execute("here opgoal") == []
     assert await c.execute("set cur = opgoal") == []
     assert await c.execute("wshift cur,0.5,-0.25,1,0,0,0") == []
@@ -62,27 +67,79 @@ async def test_the_command_log_is_bounded_but_counts_every_line() -> None:
 @pytest.mark.parametrize(
     ("command", "answer"),
     [
-        ("frobnicate", "Unrecognized command."),
-        ("wshift cur,1,2,3,0,0,0", "variable not found."),
-        ("wshift opgoal,1,2,3", "missing comma."),
-        ("wshift opgoal,1,2,3,0,0,0,9", "too many arguments."),
-        ("wshift opgoal,1,x,3,0,0,0", "missing number."),
-        ("move nowhere", "variable not found."),
+        ("frobnicate", "error: Unrecognized command."),
+        ("wshift cur,1,2,3,0,0,0", "error: variable not found."),
+        ("wshift opgoal,1,2,3", "error: missing comma."),
+        ("wshift opgoal,1,2,3,0,0,0,9", "error: too many arguments."),
+        ("wshift opgoal,1,x,3,0,0,0", "error: missing number."),
+        ("move nowhere", "error: variable not found."),
         ("moves opgoal", "error: Straight-line moves are possible only in online mode"),
         ("speed 150", "error: Illegal speed chosen"),
-        ("set far = {2000, 0, 0, 0, 0, 0}", None),
-        ("online maybe", "invalid argument."),
+        ("set opgoal = {2000, 0, 0, 0, 0, 0}", None),
+        ("online maybe", "error: invalid argument."),
+        ("new opgoal", "error: variable already exists."),
     ],
 )
 async def test_console_errors_use_the_firmware_texts(command: str, answer: str | None) -> None:
     c = console()
-    await c.execute("here opgoal")
+    await c.execute("new opgoal")
     lines = await c.execute(command)
     assert lines == ([] if answer is None else [answer])
+    parsed = proto.first_error(lines)
+    assert (parsed is None) is (answer is None)
+
+
+async def test_a_new_name_asks_create_it() -> None:
+    """C500C.md "Questions": `here`/`set` to a name that does not exist stops and asks."""
+    c = console(noise_um=0.0)
+    assert await c.execute("here spot") == ["Variable 'spot' not found."]
+    assert c.prompt == b"  -- create it? "
+    assert await c.execute("maybe") == []
+    assert c.prompt == b"Please answer 'yes' or 'no': "
+    assert await c.execute("no") == [] and "spot" not in c.state.locations
+    assert c.prompt == PROMPT
+    assert await c.execute("set spot = spot2") == ["error: variable not found."]
+    await c.execute("here spot")
+    assert await c.execute("yes") == [] and c.state.locations["spot"] == START_POSE
+
+
+async def test_ash_without_an_application_asks_for_it() -> None:
+    c = console(start_in_shell=True)
+    assert c.prompt == b"$ "
+    assert await c.execute("ash") == [] and c.prompt == b"Application name > "
+    assert await c.execute("cell") == ["cell: application not found"] and c.prompt == b"$ "
+    assert await c.execute("ash ash") == [] and c.prompt == PROMPT
+
+
+async def test_a_restart_forgets_every_variable() -> None:
+    c = console(online=True)
+    await c.execute("new opgoal")
+    c.restart()
+    assert c.state.locations == {} and not c.state.online and c.prompt == b"$ "
+    assert c.state.restarts == 1
+
+
+def test_w2_prints_the_firmware_layout_by_default() -> None:
+    c = console(noise_um=0.0)
+
+    async def read() -> list[str]:
+        return await c.execute("w2")
+
+    lines = asyncio.run(read())
+    assert lines[0] == proto.ACTUAL_TITLE and lines[7].startswith("WORLD")
+    assert lines[8] == " " * 8 + " ".join(f"{v:+10.3f}" for v in START_POSE)
+    assert proto.parse_position_table(lines).pulses == (0,) * 6
+    old = console(layout="single-line")
+    assert [line[:6] for line in asyncio.run(old.execute("w0"))[1:]] == [
+        "PULSES",
+        "JOINTS",
+        "WORLD:",
+    ]
 
 
 async def test_motion_preconditions() -> None:
     c = console(online=True)
+    await c.execute("new far")
     await c.execute("set far = {2000, 0, 0, 0, 0, 0}")
     assert await c.execute("move far") == ["error: Location out of reach"]
     await c.execute("armpower off")
@@ -93,13 +150,17 @@ async def test_motion_preconditions() -> None:
     await c.execute("home")
     c.state.point_of_control = False
     assert await c.execute("wx 1") == [proto.POINT_OF_CONTROL_MESSAGE]
-    assert c.state.commanded == START_POSE  # nothing moved
+    assert c.state.awaiting_button and c.state.commanded == START_POSE  # waits, nothing moved
+    c.press_pause_continue()
+    assert await c.wait_for_button() == []
+    assert not c.state.awaiting_button and c.state.commanded[0] == START_POSE[0] + 1
 
 
 async def test_positioning_noise_reproduces_the_thesis_spread() -> None:
     """Absolute moves to one goal: the sample deviation is the configured 0.9 um (the
     thesis's absolute-command S_x, Table 6.1) within the chi-squared 99.9 % interval."""
     c = Console(EmulatorConfig(paced=False, move_ms=0.0), np.random.default_rng(7))
+    await c.execute("new opgoal")
     await c.execute("here opgoal")
     n = 400
     errors = []
@@ -117,6 +178,7 @@ async def test_same_seed_same_positions() -> None:
         c = Console(
             EmulatorConfig(paced=False, move_ms=0.0, seed=seed), np.random.default_rng(seed)
         )
+        await c.execute("new g")
         await c.execute("here g")
         poses = []
         for _ in range(5):
@@ -149,7 +211,7 @@ RawLink = tuple[C500CEmulator, asyncio.StreamReader, asyncio.StreamWriter]
 async def raw_link() -> AsyncIterator[
     tuple[C500CEmulator, asyncio.StreamReader, asyncio.StreamWriter]
 ]:
-    config = EmulatorConfig(paced=False, faults=parse_faults("drop@2"), start_in_shell=True)
+    config = EmulatorConfig(paced=False, faults=parse_faults("drop@3"), start_in_shell=True)
     async with C500CEmulator(config) as emulator:
         reader, writer = await serial_asyncio.open_serial_connection(url=emulator.device_path)
         try:
@@ -168,15 +230,19 @@ async def test_exact_bytes_on_the_pty(
     emulator, reader, writer = raw_link
     assert await read_until(reader, b"$ ") == b"$ "  # the system shell greets first
     writer.write(b"ash\r\n")  # CRLF from the host counts as one line end
+    assert await read_until(reader, b"name > ") == b"ash\r\nApplication name > "
+    writer.write(b"ash\r")
     assert await read_until(reader, PROMPT) == b"ash\r\nash> "
     writer.write(b"wx 1\x05")  # Ctrl-E discards the half-typed line
     assert await read_until(reader, PROMPT) == b"wx 1\r\nash> "
-    writer.write(b"speed\r")  # the 2nd command line: its answer is dropped
+    writer.write(b"speed\r")  # the 3rd command line: its answer is dropped
     assert await read_until(reader, b"\r\n") == b"speed\r\n"
     writer.write(b"speed\r")
     assert await read_until(reader, PROMPT) == b"speed\r\nspeed = 10%\r\nash> "
-    assert emulator.faults_applied == [(2, "drop")]
-    assert list(emulator.state.commands) == ["ash", "speed", "speed"]
+    writer.write(b"nope\r")
+    assert await read_until(reader, PROMPT) == b"nope\r\nerror: Unrecognized command.\r\nash> "
+    assert emulator.faults_applied == [(3, "drop")]
+    assert list(emulator.state.commands) == ["ash", "ash", "speed", "speed", "nope"]
 
 
 async def test_probabilistic_faults_are_seeded() -> None:
@@ -202,8 +268,12 @@ async def test_probabilistic_faults_are_seeded() -> None:
 
 
 def test_cli_serves_a_pty_until_terminated() -> None:
+    """The emulator as a process: a move waits for the point of control until SIGUSR1 (the
+    button); SIGTERM stops it at once, and it says so (issue 21)."""
     process = subprocess.Popen(
-        cli_command("emulate", "c500c", "--pty", "--no-pacing", "--noise-um", "0"),
+        cli_command(
+            "emulate", "c500c", "--pty", "--no-pacing", "--noise-um", "0", "--no-point-of-control"
+        ),
         cwd=REPO_ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -217,17 +287,27 @@ def test_cli_serves_a_pty_until_terminated() -> None:
         async def converse() -> tuple[float, float, float]:
             async with C500CRobot(RobotSettings(command_timeout_s=2.0), port=path) as robot:
                 goal = await robot.teach_goal()
-                result = await robot.move_absolute((0.123, 0.0, 0.0))
+                move = asyncio.create_task(robot.move_absolute((0.123, 0.0, 0.0)))
+                await robot.wait_link(LinkState.AWAITING_POINT_OF_CONTROL, 10.0)
+                process.send_signal(signal.SIGUSR1)  # the operator presses PAUSE/CONTINUE
+                result = await move
             return (result.actual.x - goal.x, result.actual.y - goal.y, result.actual.z - goal.z)
 
         assert asyncio.run(converse()) == pytest.approx((0.123, 0.0, 0.0))
-    finally:
+        signalled = time.monotonic()
         process.terminate()
+        assert process.stdout.readline().strip() == "thermocomp emulate: stopped"
         process.wait(timeout=10)
+        exited_s = time.monotonic() - signalled
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(timeout=10)
         for stream in (process.stdout, process.stderr):
             if stream:
                 stream.close()
     assert process.returncode == 0
+    assert exited_s < 0.5  # ~0.05 s on the development machine
 
 
 def test_cli_rejects_bad_faults(capsys: pytest.CaptureFixture[str]) -> None:

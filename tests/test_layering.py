@@ -17,19 +17,39 @@ FORBIDDEN = {
 }
 
 
-def imported_modules(path: Path) -> set[str]:
+def imported_modules(path: Path, root: Path = REPO_ROOT) -> set[str]:
+    """Every module ``path`` imports, relative imports resolved to absolute names (``from ..
+    api import x`` in daemon/y.py is ``api`` and ``api.x``: it may name a module)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
+    package = module_name(path, root).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
     names: set[str] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names.add(node.module)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level == 0:
+                base = node.module or ""
+            else:
+                parts = package[: len(package) - (node.level - 1)]
+                base = ".".join([*parts, *([node.module] if node.module else [])])
+            names.add(base)
+            names.update(f"{base}.{alias.name}" for alias in node.names)
     return names
 
 
-def module_name(path: Path) -> str:
-    return ".".join(path.relative_to(REPO_ROOT).with_suffix("").parts)
+def module_name(path: Path, root: Path = REPO_ROOT) -> str:
+    parts = path.relative_to(root).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def test_relative_imports_are_resolved(tmp_path: Path) -> None:
+    (tmp_path / "daemon" / "sub").mkdir(parents=True)
+    source = tmp_path / "daemon" / "sub" / "thing.py"
+    source.write_text("from ...api import app\nfrom . import sibling\nfrom .. import runs\n")
+    names = imported_modules(source, tmp_path)
+    assert {"api", "api.app", "daemon.sub.sibling", "daemon.runs"} <= names
 
 
 def is_within(name: str, package: str) -> bool:

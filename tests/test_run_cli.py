@@ -30,7 +30,7 @@ def test_bad_run_parameters_are_usage_errors(tmp_path: Path) -> None:
     result = run_cli(["run", "--config", SIM, "--data-dir", str(tmp_path), "--step", "0.001"])
     assert result.returncode == 2
     assert "step_s" in result.stderr and "Traceback" not in result.stderr
-    result = run_cli(["run", "--config", SIM, "--data-dir", str(tmp_path), "--scale", "1e6"])
+    result = run_cli(["run", "--config", SIM, "--data-dir", str(tmp_path), "--scale", "1000"])
     assert result.returncode == 2
     assert "largest admissible scale" in result.stderr and "Traceback" not in result.stderr
 
@@ -140,11 +140,11 @@ def test_sigterm_stops_the_run_cleanly(tmp_path: Path) -> None:
             process.wait()
     assert process.returncode == 1  # the run did not finish: it was stopped
     final = json.loads(output)
-    assert final["state"] == "aborted" and final["reason"] == "stopped by a signal"
+    assert final["state"] == "stopped" and final["reason"] == "stopped by a signal"
     with Recorder(tmp_path) as recorder:
         assert recorder.interrupted_runs == []  # ended properly, nothing to mark
         (run,) = recorder.runs()
-        assert run.state == "aborted" and run.step_count == final["step"] + 1
+        assert run.state == "stopped" and run.step_count == final["step"] + 1
 
 
 def test_sigkill_at_random_points_of_successive_runs_loses_no_committed_step(

@@ -180,4 +180,5 @@ def test_a_robot_that_does_not_answer_is_one_line_and_exit_3(tmp_path: Path) -> 
     errors = [line for line in result.stderr.splitlines() if " ERROR " in line]
     assert "Traceback" not in result.stderr and "serving on" not in result.stderr
     assert len(errors) == 2, result.stderr  # ours, and uvicorn's "startup failed"
-    assert "cannot start the daemon: robot: no prompt" in errors[0]
+    assert "cannot start the daemon: robot: " in errors[0]
+    assert "0.5 s" in errors[0]  # what it waited for

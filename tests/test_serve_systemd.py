@@ -138,7 +138,7 @@ def test_serve_notifies_systemd_and_stops_safely_on_sigterm(
         assert recorder.interrupted_runs == []
         run = recorder.run(run_id)
         assert run is not None
-        assert run.state == "aborted" and run.reason == "the daemon shut down"
+        assert run.state == "stopped" and run.reason == "daemon shut down"
         steps = recorder.steps(run_id)
     assert run.step_count == len(steps) > 0
     assert [s.step for s in steps] == list(range(len(steps)))  # every step readable, no gap

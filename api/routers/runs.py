@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import asyncio
 import importlib.util
-import io
 import logging
+import sqlite3
 import tempfile
 import time
 from collections.abc import AsyncIterator
@@ -14,7 +13,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Body, Query, Response
 from fastapi import Path as PathParam
-from fastapi.responses import FileResponse, StreamingResponse
+from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from pydantic import (
     AfterValidator,
     BaseModel,
@@ -29,10 +28,11 @@ from pydantic_core import CoreSchema
 from api.broadcast import json_safe
 from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
+from daemon.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
 from daemon.model import available_presets
-from daemon.recorder import Recorder, RecorderError, RunRow, write_steps_csv
-from daemon.reports import ReportError, report_dir, write_run_report
-from daemon.runs import RunParameters, RunStateError
+from daemon.recorder import Recorder, RecorderError, RunRow
+from daemon.report_queue import ReportStatus
+from daemon.runs import RunParameters, RunState, RunStateError
 from daemon.service import Daemon, RunConflictError
 from drivers.errors import DeviceError
 
@@ -113,28 +113,30 @@ def _links(run_id: int) -> dict[str, str]:
 
 
 def run_info(row: RunRow, daemon: Daemon) -> RunInfo:
-    """A run as recorded, with the live progress when it is the daemon's current run."""
-    live = daemon.run if daemon.run is not None and daemon.run.id == row.id else None
+    """A run as recorded, with the live progress when it is the daemon's current run (read
+    from its frozen view: what the daemon knows is newer than the database, e.g. the end of a
+    run that the disk could not record yet)."""
+    view = daemon.run
+    live = view if view is not None and view.id == row.id else None
     parameters = row.parameters
     duration = float(parameters.get("duration_s") or 1.0)
     step_s = float(parameters.get("step_s") or 0.0)
     state, reason, summary = row.state, row.reason, row.summary
     remaining: float
     if live is not None:
-        info = live.info(daemon.clock.now())
-        state, reason = str(info["state"]), info["reason"]
-        summary = info["summary"] if info["summary"] is not None else summary
-        progress = float(info["progress_percent"])
-        remaining = float(info["remaining_s"]) if live.state.is_active else 0.0
+        state, reason = live.state.value, live.reason
+        summary = live.summary if live.summary is not None else summary
+        progress, remaining = live.progress(daemon.clock.now())
+        remaining = remaining if live.is_active else 0.0
     else:
         # not running here: what it recorded is how far it got (a stopped run stays short)
         progress = min(100.0, 100.0 * row.step_count * step_s / duration)
         remaining = 0.0
     eta: float | None = None
-    if live is not None and live.state.is_active and 0.0 < progress < 100.0:
+    if live is not None and live.is_active and 0.0 < progress < 100.0:
         elapsed_wall = time.time() - row.started_at
         eta = elapsed_wall * (100.0 - progress) / progress
-    elif live is None or not live.state.is_active:
+    elif live is None or not live.is_active:
         eta = 0.0  # ended
     return RunInfo(
         id=row.id,
@@ -160,7 +162,7 @@ def _recorder(daemon: Daemon) -> Recorder:
 
 async def _row(daemon: Daemon, run_id: int) -> RunRow:
     try:
-        row = await asyncio.to_thread(_recorder(daemon).run, run_id)
+        row = await daemon.read(_recorder(daemon).run, run_id)
     except RecorderError as err:
         raise ApiError(503, "storage", str(err)) from err
     if row is None:
@@ -221,7 +223,7 @@ async def list_runs(
 ) -> RunPage:
     """Runs, newest first, ``limit`` per page."""
     try:
-        rows = await asyncio.to_thread(_recorder(daemon).runs, limit, offset)
+        rows = await daemon.read(_recorder(daemon).runs, limit, offset)
     except RecorderError as err:
         raise ApiError(503, "storage", str(err)) from err
     return RunPage(
@@ -240,7 +242,7 @@ async def get_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
 
 def _current(daemon: Daemon, run_id: int) -> None:
     run = daemon.run
-    if run is None or run.id != run_id or not run.state.is_active:
+    if run is None or run.id != run_id or not run.is_active:
         raise ApiError(409, "conflict", f"run {run_id} is not the active run")
 
 
@@ -317,14 +319,13 @@ class _OfferedFormats:
 StepFormat = Annotated[
     Literal["json", "csv", "parquet"], AfterValidator(_exportable), _OfferedFormats()
 ]
-#: Steps per JSON answer when no limit is given, and at most (``next_from`` continues): a
-#: JSON page is built in memory, ~0.9 kB a step, so 5,000 steps is ~4.5 MB and a fraction of
-#: a second of a worker thread (50,000 were 44 MB and 5 s, issue 16). CSV and Parquet stream.
+#: Steps per JSON answer when no limit is given, and at most (``next_from`` continues): ~0.9 kB
+#: a step, so 5,000 steps is ~4.5 MB (50,000 were 44 MB and 5 s, issue 16). Both JSON and CSV
+#: stream chunk by chunk (daemon/exports.py's CHUNK_STEPS), encoded in export processes.
 JSON_PAGE_STEPS = 1_000
 JSON_MAX_STEPS = 5_000
-#: Steps read and encoded per CSV chunk: the export streams, in a worker thread, so a long
-#: run's CSV neither fills the memory nor holds the event loop the control loop runs on.
-CSV_CHUNK_STEPS = 5_000
+#: Steps read and encoded per CSV chunk: a long run's CSV never fills the memory.
+CSV_CHUNK_STEPS = CHUNK_STEPS
 
 
 @read_router.get(
@@ -349,30 +350,29 @@ async def get_steps(
     await _row(daemon, run_id)
     recorder = _recorder(daemon)
     if format == "parquet":
-        return await _parquet(recorder, run_id)
-    filename = f"run-{run_id}-steps.{format}"
+        return await _parquet(daemon, recorder, run_id)
+    # every chunk is read and encoded in an export process (daemon/exports.py): never by this
+    # process, whose control loop would wait for the GIL meanwhile (issue 15, point 6)
+    database = recorder.path
+    count = _chunk(limit) if format == "csv" else min(limit or JSON_PAGE_STEPS, JSON_MAX_STEPS)
     try:
         if format == "csv":
-            first = await asyncio.to_thread(
-                _csv_chunk, recorder, run_id, start, _chunk(limit), header=True
+            first = await daemon.export(csv_chunk, database, run_id, start, count, True)
+        else:
+            first = await daemon.export(
+                json_chunk, database, run_id, start, min(CHUNK_STEPS, count)
             )
-            return StreamingResponse(
-                _csv_stream(recorder, run_id, first, limit),
-                media_type="text/csv",
-                headers={"Content-Disposition": f'attachment; filename="{filename}"'},
-            )
-        page = min(limit or JSON_PAGE_STEPS, JSON_MAX_STEPS)
-        body = await asyncio.to_thread(_json_page, recorder, run_id, start, page)
-    except RecorderError as err:
-        raise ApiError(503, "storage", str(err)) from err
-    return Response(body, media_type="application/json")
-
-
-def _json_page(recorder: Recorder, run_id: int, start: int, page: int) -> bytes:
-    records = recorder.steps(run_id, start, page)
-    next_from = records[-1].step + 1 if len(records) == page else None
-    return _dumps(
-        {"run_id": run_id, "steps": [r.as_dict() for r in records], "next_from": next_from}
+    except (sqlite3.Error, OSError) as err:
+        raise ApiError(503, "storage", f"cannot read run {run_id}: {err}") from err
+    if format == "csv":
+        filename = f"run-{run_id}-steps.csv"
+        return StreamingResponse(
+            _csv_stream(daemon, database, run_id, first, limit),
+            media_type="text/csv",
+            headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+        )
+    return StreamingResponse(
+        _json_stream(daemon, database, run_id, first, count), media_type="application/json"
     )
 
 
@@ -380,39 +380,48 @@ def _chunk(remaining: int | None) -> int:
     return CSV_CHUNK_STEPS if remaining is None else min(CSV_CHUNK_STEPS, remaining)
 
 
-def _csv_chunk(
-    recorder: Recorder, run_id: int, start: int, count: int, *, header: bool
-) -> tuple[str, int, int | None]:
-    """(CSV text, steps in it, the next chunk's first step or None at the end)."""
-    records = recorder.steps(run_id, start, count)
-    buffer = io.StringIO()
-    write_steps_csv(records, buffer)
-    text = buffer.getvalue()
-    if not header:
-        text = text.split("\n", 1)[1]
-    next_start = records[-1].step + 1 if len(records) == count else None
-    return text, len(records), next_start
+async def _json_stream(
+    daemon: Daemon, database: Path, run_id: int, first: Chunk, page: int
+) -> AsyncIterator[bytes]:
+    """``{"run_id", "steps": [...], "next_from"}``, the steps chunk by chunk."""
+    yield b'{"run_id":%d,"steps":[' % run_id
+    chunk, sent = first, 0
+    while True:
+        if chunk.data:
+            yield (b"," if sent else b"") + chunk.data
+        sent += chunk.count
+        if chunk.next_start is None or sent >= page:
+            break
+        try:
+            chunk = await daemon.export(
+                json_chunk, database, run_id, chunk.next_start, min(CHUNK_STEPS, page - sent)
+            )
+        except (sqlite3.Error, OSError):
+            logger.exception("run %d: JSON page cut short", run_id)
+            return  # the client sees JSON that does not parse: never a silent short page
+    next_from = "null" if chunk.next_start is None else str(chunk.next_start)
+    yield f'],"next_from":{next_from}}}'.encode()
 
 
 async def _csv_stream(
-    recorder: Recorder, run_id: int, first: tuple[str, int, int | None], limit: int | None
-) -> AsyncIterator[str]:
-    text, count, next_start = first
-    remaining = None if limit is None else limit - count
-    yield text
-    while next_start is not None and remaining != 0:
+    daemon: Daemon, database: Path, run_id: int, first: Chunk, limit: int | None
+) -> AsyncIterator[bytes]:
+    chunk = first
+    remaining = None if limit is None else limit - chunk.count
+    yield chunk.data
+    while chunk.next_start is not None and remaining != 0:
         try:
-            text, count, next_start = await asyncio.to_thread(
-                _csv_chunk, recorder, run_id, next_start, _chunk(remaining), header=False
+            chunk = await daemon.export(
+                csv_chunk, database, run_id, chunk.next_start, _chunk(remaining), False
             )
-        except RecorderError:
+        except (sqlite3.Error, OSError):
             logger.exception("run %d: CSV export cut short", run_id)
             return
-        remaining = None if remaining is None else remaining - count
-        yield text
+        remaining = None if remaining is None else remaining - chunk.count
+        yield chunk.data
 
 
-async def _parquet(recorder: Recorder, run_id: int) -> Response:
+async def _parquet(daemon: Daemon, recorder: Recorder, run_id: int) -> Response:
     def export() -> bytes:
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / "steps.parquet"
@@ -420,7 +429,7 @@ async def _parquet(recorder: Recorder, run_id: int) -> Response:
             return path.read_bytes()
 
     try:
-        data = await asyncio.to_thread(export)
+        data = await daemon.read(export)
     except RecorderError as err:
         raise ApiError(503, "storage", str(err)) from err
     return Response(
@@ -430,10 +439,8 @@ async def _parquet(recorder: Recorder, run_id: int) -> Response:
     )
 
 
-def _dumps(value: Any) -> bytes:
-    import json
-
-    return json.dumps(json_safe(value), separators=(",", ":")).encode()
+#: When to ask again for a report still being written (s).
+REPORT_RETRY_AFTER_S = 2
 
 
 @read_router.get(
@@ -441,24 +448,30 @@ def _dumps(value: Any) -> bytes:
     response_class=FileResponse,
     responses={
         200: {"content": {"text/html": {}}},
-        404: {"model": ErrorBody},
+        202: {"model": ErrorBody, "description": "the report is being written: ask again"},
+        404: {"model": ErrorBody, "description": "no report (none written, or no such run)"},
         409: {"model": ErrorBody, "description": "the run has not ended yet"},
     },
 )
-async def get_report(run_id: RunId, daemon: DaemonDep) -> FileResponse:
-    """The analysis report of an ended run (a self-contained HTML page), written on first
-    request beside the database (``thermocomp report`` writes the same) and kept."""
+async def get_report(run_id: RunId, daemon: DaemonDep) -> Response:
+    """The analysis report of an ended run (a self-contained HTML page). Only the daemon
+    writes reports (storage.report_at_end, or ``thermocomp report RUN``): 202 while it is
+    being written, 404 when there is none; a request never renders one."""
     row = await _row(daemon, run_id)
-    if row.state not in ("finished", "aborted", "interrupted"):
+    status = daemon.report_status(run_id)
+    if status in (ReportStatus.QUEUED, ReportStatus.WRITING):
+        message = f"the report of run {run_id} is being written; ask again shortly"
+        body = {"status": 202, "kind": "pending", "message": message, "details": None}
+        headers = {"Retry-After": str(REPORT_RETRY_AFTER_S)}
+        return JSONResponse(body, status_code=202, headers=headers)
+    if not RunState(row.state).is_terminal:
         raise ApiError(409, "conflict", f"run {run_id} is {row.state}: no report before it ends")
-    data_dir = _recorder(daemon).data_dir
-    html = report_dir(data_dir, run_id) / "report.html"
+    html = daemon.reports.html_path(run_id)
     if not html.is_file():
-        try:
-            files = await asyncio.to_thread(write_run_report, data_dir, run_id)
-        except (ReportError, ValueError) as err:  # e.g. a run without a measured step
-            raise ApiError(404, "not-found", f"no report for run {run_id}: {err}") from err
-        html = files.html
+        hint = f"`thermocomp report {run_id}` writes one"
+        if status is ReportStatus.FAILED:
+            hint = f"writing it failed (see the daemon's log); {hint}"
+        raise ApiError(404, "not-found", f"no report for run {run_id}: {hint}")
     return FileResponse(html, media_type="text/html")
 
 
@@ -475,7 +488,7 @@ async def get_frame(
     """The archived 16-bit PNG of a step (storage.archive_every), when there is one."""
     recorder = _recorder(daemon)
     try:
-        records = await asyncio.to_thread(recorder.steps, run_id, step, 1)
+        records = await daemon.read(recorder.steps, run_id, step, 1)
     except RecorderError as err:
         raise ApiError(503, "storage", str(err)) from err
     if not records or records[0].step != step or not records[0].frame_path:

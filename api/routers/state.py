@@ -59,13 +59,7 @@ class HoldResult(BaseModel):
 
 def snapshot_json(context: ApiContext, daemon: Daemon) -> bytes:
     """The snapshot as JSON bytes, from the cache while nothing it shows has changed."""
-    run = daemon.run
-    version = (
-        context.event_count,
-        None if run is None else (run.id, run.state, run.step, run.machine.reason),
-        len(daemon.errors),
-        len(context.hub),
-    )
+    version = (context.event_count, daemon.view_version, len(daemon.errors), len(context.hub))
     cache = context.extras.get("state_cache")
     now = time.monotonic()
     if isinstance(cache, tuple) and cache[0] == version and now - cache[1] < STATE_CACHE_S:
@@ -93,7 +87,10 @@ async def get_errors(
 
 @control_router.post("/robot/stop")
 async def stop_robot(daemon: DaemonDep) -> HoldResult:
-    """Hold the robot where it is now, whatever the run state (a running run pauses)."""
+    """Hold the robot where it is now, whatever the run state (a running run pauses, a
+    starting one is cancelled). Answers ``held`` once the robot driver refuses every motion
+    command: no motion command can be written any more. What that does to a motion already
+    under way depends on the link (README "Holding the robot")."""
     try:
         await daemon.hold_robot()
     except DeviceError as err:

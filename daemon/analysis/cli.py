@@ -12,16 +12,24 @@ import csv
 import io
 import json
 import logging
+import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, positive_float, positive_int
-from daemon.analysis.fits import KINDS, FitError, Kind, direction_of, fit_exponential
-from daemon.analysis.statistics import ErrorStatistics, error_statistics
-from daemon.analysis.steps import RESIDUAL_COLUMN, number_or_nan
+from daemon.analysis.steps import RESIDUAL_COLUMN, natural_key, number_or_nan
+
+if TYPE_CHECKING:  # SciPy loads when stats or fit runs, not for `thermocomp --help`
+    from daemon.analysis.fits import Kind
+    from daemon.analysis.statistics import ErrorStatistics
+
+#: fits.KINDS, spelled out so that registering the commands imports no SciPy
+#: (tests/test_cli.py checks they agree).
+FIT_KINDS = ("rising", "decaying")
 
 logger = logging.getLogger(__name__)
 
@@ -60,10 +68,60 @@ def read_table(path: Path) -> list[dict[str, str]]:
     return rows
 
 
+#: ``--column ir:<region>`` reads an IR region's mean from the ``ir_json`` column of an
+#: exported run (``{"region": {"mean_c": .., "max_c": ..}}``); ``ir:<region>:max`` its maximum.
+IR_PREFIX = "ir:"
+IR_COLUMN = "ir_json"
+IR_READINGS = {"mean": "mean_c", "max": "max_c"}
+
+
+def _ir_regions(rows: list[dict[str, str]]) -> list[str]:
+    regions: set[str] = set()
+    for row in rows:
+        regions.update(_ir_cell(row))
+    return sorted(regions, key=natural_key)
+
+
+def _ir_cell(row: dict[str, str]) -> dict[str, object]:
+    try:
+        cell = json.loads(row.get(IR_COLUMN) or "{}")
+    except json.JSONDecodeError:
+        return {}
+    return cell if isinstance(cell, dict) else {}
+
+
+def ir_values(rows: list[dict[str, str]], spec: str, source: Path) -> NDArray[np.float64]:
+    """The series ``ir:<region>[:mean|:max]`` names: one value per row (NaN where the step
+    has no reading of that region)."""
+    name, reading = spec[len(IR_PREFIX) :], "mean"
+    head, _, tail = name.rpartition(":")
+    if head and tail in IR_READINGS:
+        name, reading = head, tail
+    if not rows or IR_COLUMN not in rows[0]:
+        raise InputError(f"{source} has no {IR_COLUMN} column: {spec!r} needs an exported run")
+    regions = _ir_regions(rows)
+    if name not in regions:
+        known = ", ".join(f"ir:{r}" for r in regions) or "none recorded"
+        raise InputError(f"{source} has no IR region {name!r}; IR regions: {known}")
+    key = IR_READINGS[reading]
+    values = []
+    for row in rows:
+        region = _ir_cell(row).get(name)
+        values.append(number_or_nan(region.get(key)) if isinstance(region, dict) else math.nan)
+    return np.array(values, dtype=float)
+
+
 def column_values(rows: list[dict[str, str]], name: str, source: Path) -> NDArray[np.float64]:
+    """A numeric column, or ``ir:<region>[:mean|:max]`` (see :func:`ir_values`)."""
+    if name.startswith(IR_PREFIX):
+        return ir_values(rows, name, source)
     if not rows or name not in rows[0]:
         known = ", ".join(rows[0]) if rows else "none"
-        raise InputError(f"{source} has no column {name!r}; columns: {known}")
+        hint = ""
+        if rows and IR_COLUMN in rows[0]:
+            regions = ", ".join(f"ir:{r}" for r in _ir_regions(rows))
+            hint = f"; IR regions: {regions}" if regions else ""
+        raise InputError(f"{source} has no column {name!r}; columns: {known}{hint}")
     return np.array([number_or_nan(row.get(name)) for row in rows], dtype=float)
 
 
@@ -91,7 +149,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     stats.add_argument(
         "--column",
         help=f"column to analyse (default {RESIDUAL_COLUMN}, the "
-        "measured error of an exported run)",
+        "measured error of an exported run; ir:<region>[:max] an IR region's mean [maximum])",
     )
     stats.add_argument("--json", action="store_true", help="print JSON instead of a table")
     stats.set_defaults(handler=run_stats)
@@ -106,7 +164,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "thesis 3.5.1).",
     )
     fit.add_argument("file", type=Path, help="CSV with a header, a plain list, or -")
-    fit.add_argument("--column", required=True, help="column to fit")
+    fit.add_argument(
+        "--column",
+        required=True,
+        help="column to fit; ir:<region> fits an IR region's mean temperature from an "
+        "exported run's ir_json column (ir:<region>:max its maximum)",
+    )
     fit.add_argument(
         "--time-column",
         help="time column in s (default scheduled_s or actual_s; "
@@ -120,7 +183,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     fit.add_argument(
         "--kind",
-        choices=("auto", *KINDS),
+        choices=("auto", *FIT_KINDS),
         default="auto",
         help="rising or decaying; auto: from the first and last values",
     )
@@ -195,6 +258,8 @@ def format_statistics(stats: ErrorStatistics, label: str) -> str:
 
 
 def run_stats(args: argparse.Namespace) -> int:
+    from daemon.analysis.statistics import error_statistics
+
     try:
         rows = read_table(args.file)
         column = args.column or default_column(rows)
@@ -225,6 +290,8 @@ def _times(rows: list[dict[str, str]], args: argparse.Namespace) -> NDArray[np.f
 
 
 def run_fit(args: argparse.Namespace) -> int:
+    from daemon.analysis.fits import FitError, direction_of, fit_exponential
+
     try:
         rows = read_table(args.file)
         values = column_values(rows, args.column, args.file)

@@ -99,6 +99,33 @@ PLOTS: tuple[_Plot, ...] = (
 )
 
 
+#: The clock setting (``bench.clock``) on which simulated time jumps to each deadline.
+VIRTUAL_CLOCK = "virtual"
+
+
+def lateness_note(steps: RunSteps, clock: str | None) -> str | None:
+    """Why the lateness figure would say nothing, or None when it is worth drawing.
+
+    On the virtual clock (``bench.clock = "virtual"``) simulated time jumps to each step's
+    deadline, so every step starts exactly on time: a flat line at zero. A CSV export does
+    not carry the settings; there a lateness of exactly 0 s on every step tells the same."""
+    if clock == VIRTUAL_CLOCK:
+        return (
+            'This run used a virtual clock (bench.clock = "virtual"): simulated time jumps '
+            "to each step's scheduled time, so every step starts exactly on time and the "
+            "lateness measures nothing. No lateness figure."
+        )
+    lateness = steps.numeric.get("lateness_s")
+    if clock is None and lateness is not None:
+        finite = lateness[np.isfinite(lateness)]
+        if finite.size and not finite.any():
+            return (
+                "Every step started exactly at its scheduled time (lateness 0 s): the run "
+                "used a virtual clock, on which lateness measures nothing. No lateness figure."
+            )
+    return None
+
+
 def _json_safe(value: object) -> object:
     """NaN and infinity are not JSON: they become null."""
     if isinstance(value, float):
@@ -175,6 +202,7 @@ def _html_page(
     summary: dict[str, object],
     stats: ErrorStatistics | None,
     images: Mapping[str, str],
+    notes: Mapping[str, str],
 ) -> str:
     run_summary = summary["run_summary"]
     flags = summary["flags"]
@@ -203,7 +231,8 @@ def _html_page(
             f"({'no evidence against' if test.p_value >= 0.05 else 'evidence against'} "
             f"a normal distribution at 5 %). The thesis read the lower tail, "
             f"P(χ²) = {test.thesis_lower_tail_p:.3f}, which is not a goodness-of-fit "
-            "p-value (DESIGN.md).</p>",
+            "p-value: a small upper tail rejects normality, while the lower tail only says how "
+            'unusually close the fit is (README "Run reports").</p>',
             _table(
                 ("j", "interval (µm)", "n_j", "n'_j", "(n_j − n'_j)²/n'_j"),
                 (
@@ -251,6 +280,9 @@ def _html_page(
         "<h2>Figures</h2>",
     ]
     for plot in PLOTS:
+        if plot.name in notes:  # a figure that would say nothing: one line saying why
+            parts.append(f'<p class="note">{html.escape(notes[plot.name])}</p>')
+            continue
         parts.append(
             f'<figure><img src="{html.escape(images[plot.name])}" alt="{plot.name}">'
             f"<figcaption>{html.escape(plot.caption)}</figcaption></figure>"
@@ -260,7 +292,7 @@ def _html_page(
         "color:#222}table{border-collapse:collapse;margin:1em 0}th,td{border:1px solid #ccc;"
         "padding:4px 10px;text-align:right}th{background:#f0f0f0}td:first-child{text-align:left}"
         "img{max-width:100%;border:1px solid #ddd}figure{margin:2em 0}"
-        "figcaption{color:#555;font-size:.95em}"
+        "figcaption{color:#555;font-size:.95em}.note{color:#555;font-style:italic}"
     )
     body = "\n".join(parts)
     return (
@@ -276,10 +308,13 @@ def write_report(
     *,
     title: str = "thermocomp run",
     embed_images: bool = False,
+    clock: str | None = None,
 ) -> ReportFiles:
     """Write the figures, ``summary.json`` and ``report.html`` of one run into ``out_dir``.
 
-    ``rows`` are the run's step records (the columns of daemon/recorder.py's StepRecord). Blocking.
+    ``rows`` are the run's step records (the columns of daemon/recorder.py's StepRecord).
+    ``clock`` is the run's ``bench.clock`` setting when known: on a virtual clock the
+    lateness figure is replaced by a line saying why it would be empty. Blocking.
     """
     steps = rows if isinstance(rows, RunSteps) else steps_from_rows(rows)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -288,7 +323,14 @@ def write_report(
     assert isinstance(run_summary, dict)
     plots: dict[str, Path] = {}
     images: dict[str, str] = {}
+    notes: dict[str, str] = {}
+    note = lateness_note(steps, clock)
+    if note is not None:
+        notes["lateness"] = note
     for plot in PLOTS:
+        if plot.name in notes:
+            (out_dir / f"{plot.name}.png").unlink(missing_ok=True)  # not a stale one
+            continue
         figure = plot.draw(steps, stats, run_summary)
         path = out_dir / f"{plot.name}.png"
         figure.savefig(path, dpi=DPI)
@@ -299,11 +341,12 @@ def write_report(
         else:
             images[plot.name] = path.name
     summary["plots"] = {name: path.name for name, path in plots.items()}
+    summary["notes"] = notes
     summary_path = out_dir / SUMMARY_FILE
     summary_path.write_text(
         json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n", encoding="utf-8"
     )
     html_path = out_dir / HTML_FILE
-    html_path.write_text(_html_page(title, summary, stats, images), encoding="utf-8")
+    html_path.write_text(_html_page(title, summary, stats, images, notes), encoding="utf-8")
     logger.info("wrote the report of run %s to %s", steps.run_id, out_dir)
     return ReportFiles(directory=out_dir, html=html_path, summary=summary_path, plots=plots)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 from array import array
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -238,11 +239,11 @@ def steps_from_rows(rows: Iterable[Mapping[str, object]]) -> RunSteps:
     return RunSteps(
         run_id=run_ids.pop() if run_ids else None,
         numeric={name: _floats(numeric[name]) for name in NUMERIC_COLUMNS if name in numeric},
-        ir_mean_c={region: _floats(ir_mean[region]) for region in sorted(ir_mean)},
-        ir_max_c={region: _floats(ir_max[region]) for region in sorted(ir_max)},
+        ir_mean_c={region: _floats(ir_mean[region]) for region in sorted(ir_mean, key=natural_key)},
+        ir_max_c={region: _floats(ir_max[region]) for region in sorted(ir_max, key=natural_key)},
         model_temperatures_c={
             node: _floats(model_temperatures[node])
-            for node in sorted(model_temperatures, key=_node_order)
+            for node in sorted(model_temperatures, key=natural_key)
         },
         flags=tuple(flags),
         errors=tuple(errors),
@@ -262,9 +263,18 @@ def _floats(series: array[float]) -> FloatArray:
     return np.frombuffer(series, dtype=np.float64)
 
 
-def _node_order(name: str) -> tuple[int, str]:
-    """Thesis node numbers sort numerically ("2" before "10"), other names after them."""
-    return (int(name), "") if name.isdigit() else (1 << 30, name)
+_DIGITS = re.compile(r"(\d+)")
+
+
+def natural_key(name: str) -> tuple[tuple[int, int, str], ...]:
+    """Natural order: the numbers inside names compare as numbers, so node "2" comes before
+    "10" and IR region "node-2" before "node-16" (a reader counts along the link, not
+    alphabetically). Plain names compare as text, case-insensitively."""
+    return tuple(
+        (0, int(part), "") if part.isdigit() else (1, 0, part.casefold())
+        for part in _DIGITS.split(name)
+        if part
+    )
 
 
 def summarize_run(rows: Iterable[Mapping[str, object]] | RunSteps) -> dict[str, float | int | None]:

@@ -199,8 +199,17 @@ class Bench:
 
     def spot_centre_px(self, t_s: float) -> tuple[float, float]:
         """The spot's centre on the chip (x = column, y = row), starting at the chip's centre."""
-        camera = self.settings.camera
+        camera, bench = self.settings.camera, self.settings.bench
         x_um, y_um = self.spot_offset_um(t_s)
+        if bench.camera_rotation_deg != 0.0 or bench.camera_scale != 1.0:
+            # The optics image the spot's motion turned and magnified (bench.camera_rotation_deg,
+            # camera_scale: what `calibrate camera` recovers); the stand moves the chip itself.
+            drift_um = self.stand_drift_um(t_s)
+            u_um, v_um = x_um - drift_um, y_um
+            angle = math.radians(bench.camera_rotation_deg)
+            cos, sin = math.cos(angle), math.sin(angle)
+            x_um = bench.camera_scale * (cos * u_um - sin * v_um) + drift_um
+            y_um = bench.camera_scale * (sin * u_um + cos * v_um)
         pitch_x, pitch_y = camera.pixel_pitch_um
         return (
             (camera.width_px - 1) / 2.0 + x_um / pitch_x,

@@ -1,9 +1,15 @@
-"""``thermocomp emulate c500c``: serve the emulated C500C console until a signal stops it."""
+"""``thermocomp emulate c500c``: serve the emulated C500C console until a signal stops it.
+
+SIGINT/SIGTERM stop it (it prints that it stopped, within a fraction of a second); SIGUSR1
+presses the controller's PAUSE/CONTINUE button (a motion waiting for the point of control goes
+on).
+"""
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import signal
 import sys
 from pathlib import Path
@@ -12,6 +18,11 @@ from config.cli import non_negative_float, non_negative_int, port_number
 from config.faults import Fault
 from config.settings import SUPPORTED_BAUDRATES
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig, FaultKind, parse_faults
+from drivers.sim.server_emulator import (
+    SERVER_BAUDRATE,
+    C500CServerEmulator,
+    server_emulator_config,
+)
 
 
 def _faults(text: str) -> tuple[Fault[FaultKind], ...]:
@@ -27,9 +38,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="serve an emulated device (the C500C robot console)",
         description="Serve the emulated CRS C500C console on a pseudo-terminal (prints the "
         "device path to open) or a TCP port (prints a socket:// URL pyserial opens). "
-        "SIGINT or SIGTERM stops it.",
+        "SIGINT or SIGTERM stops it; SIGUSR1 presses PAUSE/CONTINUE (gives the point of "
+        "control).",
         epilog="Fault SPEC: comma-separated KIND[=SECONDS][@N|%P] with KIND one of drop, "
-        "corrupt, delay, stall, close; @N strikes at the N-th command line, %P with "
+        "corrupt, delay, stall, close, restart; @N strikes at the N-th command line, %P with "
         "probability P per command. Example: --faults 'drop@5,delay=2@9,corrupt%0.01'.",
     )
     parser.add_argument("device", choices=["c500c"], help="the device to emulate")
@@ -56,9 +68,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument(
         "--baud",
         type=int,
-        default=57600,
+        default=None,
         choices=SUPPORTED_BAUDRATES,
-        help="baud rate the link is paced at (default 57600)",
+        help="baud rate the link is paced at (default 57600; 115200 with --server)",
     )
     parser.add_argument(
         "--no-pacing", action="store_true", help="answer at once instead of at the baud rate"
@@ -66,6 +78,25 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--faults", type=_faults, default=(), metavar="SPEC", help="faults")
     parser.add_argument(
         "--shell", action="store_true", help="start at the system shell `$ ` prompt"
+    )
+    parser.add_argument(
+        "--server",
+        action="store_true",
+        help="serve the fast path's program (controller/PROTOCOL.md) instead of the console",
+    )
+    parser.add_argument(
+        "--application", default="ash", help="the ash application's name (prompt `NAME> `)"
+    )
+    parser.add_argument(
+        "--no-point-of-control",
+        action="store_true",
+        help="start without the point of control: a motion waits for SIGUSR1 (the button)",
+    )
+    parser.add_argument(
+        "--layout",
+        choices=["firmware", "single-line"],
+        default="firmware",
+        help="w0/w2 layout: the firmware's (default) or this project's older single line",
     )
     parser.set_defaults(handler=run)
 
@@ -75,22 +106,59 @@ async def _serve(emulator: C500CEmulator) -> None:
     loop = asyncio.get_running_loop()
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, stop.set)
+    loop.add_signal_handler(signal.SIGUSR1, emulator.press_pause_continue)
     async with emulator:
         print(emulator.device_path, flush=True)
         await stop.wait()
+    print("thermocomp emulate: stopped", flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.server:
+        return _run_server(args)
     config = EmulatorConfig(
         seed=args.seed,
         noise_um=args.noise_um,
         move_ms=args.move_ms,
-        baudrate=args.baud,
+        baudrate=args.baud or 57600,
         paced=not args.no_pacing,
         faults=args.faults,
         start_in_shell=args.shell,
+        application=args.application,
+        point_of_control=not args.no_point_of_control,
+        layout=args.layout,
     )
     emulator = C500CEmulator(
+        config,
+        transport="tcp" if args.tcp is not None else "pty",
+        tcp_port=args.tcp or 0,
+        link_path=args.link,
+    )
+    try:
+        asyncio.run(_serve(emulator))
+    except OSError as err:
+        print(f"thermocomp emulate: {err}", file=sys.stderr)
+        return 1
+    # The process imported the whole stack (api.cli collects every command): collecting that
+    # heap at interpreter exit took 0.7-1.2 s on the development machine. Frozen objects are
+    # left alone, so the process ends within a fraction of a second of the signal (issue 21);
+    # the emulator itself is closed already (pty and temporary directory removed).
+    gc.freeze()
+    return 0
+
+
+def _run_server(args: argparse.Namespace) -> int:
+    if args.faults or args.shell:
+        print("thermocomp emulate: --faults and --shell are the console's", file=sys.stderr)
+        return 2
+    config = server_emulator_config(
+        seed=args.seed,
+        noise_um=args.noise_um,
+        move_ms=args.move_ms,
+        baudrate=args.baud or SERVER_BAUDRATE,
+        paced=not args.no_pacing,
+    )
+    emulator = C500CServerEmulator(
         config,
         transport="tcp" if args.tcp is not None else "pty",
         tcp_port=args.tcp or 0,

@@ -182,6 +182,7 @@ class SimCamera:
                 bit_depth=self.settings.bit_depth,
                 timestamp_s=t_s,
                 sequence=self._sequence,
+                timestamp_source="camera",  # rendered at its exposure time exactly
             )
             self._sequence += 1
         return frame

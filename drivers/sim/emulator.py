@@ -1,23 +1,25 @@
 """An emulated CRS C500C console (`ash` shell) on a real pseudo-terminal or a TCP port.
 
 It serves the subset of C500C.md the driver uses: echo, prompts, CRLF replies, arm power /
-homed / online / point-of-control states, named locations, `here`, `set`, `wshift`, `move`,
-`moves` (error 043 when not online), `wx`/`wy`/`wz` (and their straight-line `s` forms),
-`finish`, `w0`/`w2`, `online`, `armpower`, `home`, `speed`, Ctrl-E, and the shell `$ ` prompt.
+homed / online / point-of-control states, named locations, `new`, `here`, `set`, `wshift`,
+`move`, `moves` (error 043 when not online), `wx`/`wy`/`wz` (and their straight-line `s`
+forms), `finish`, `w0`/`w2` in the firmware's layout, `online`, `armpower`, `home`, `speed`,
+Ctrl-E, the shell `$ ` prompt and `ash [application]`. It asks the firmware's questions when
+the host triggers them (`here`/`set` to a variable that does not exist: "-- create it?"; `ash`
+without an application: "Application name > "), and a motion command without the point of
+control prints the PAUSE/CONTINUE request and blocks until the button is pressed
+(:meth:`C500CEmulator.press_pause_continue`, or SIGUSR1 to ``thermocomp emulate``).
 The byte-level conventions it follows are those of :mod:`drivers.c500c_protocol`, whose
-``ASSUMED`` block is the one place where unconfirmed parts of the protocol are written down.
-
-Emulator-only simplifications (not protocol assumptions): there are no A465 kinematics (the
-PULSES and JOINTS rows are zeros), the reach check is a sphere of ``REACH_MM`` around the base,
-relative `w*` moves start from the actual (not the commanded) pose, so their positioning errors
-accumulate as the thesis's incremental commands did (6.4.4).
+``ASSUMED`` block is the one place where unconfirmed parts of the protocol are written down;
+the command interpreter (and the emulator's simplifications) is :mod:`drivers.sim.ash`.
 
 Pacing: every byte costs 10 bit times (8N1 framing: start, 8 data, stop) at the configured baud
 rate in both directions, so timings measured against the emulator are those of the real link
 (57600 baud: 0.17 ms per byte). Pacing can be turned off for fast tests.
 
 Fault injection (for tests and robustness drills): drop the answer of a command, corrupt one of
-its bytes, delay it, stall the console, or close the link. See :func:`parse_faults`.
+its bytes, delay it, stall the console, close the link, or restart the controller (it forgets
+its variables). See :func:`parse_faults`.
 """
 
 from __future__ import annotations
@@ -26,16 +28,13 @@ import asyncio
 import contextlib
 import errno
 import logging
-import math
 import os
 import pty
-import re
 import shutil
 import tempfile
 import tty
-from collections import deque
-from collections.abc import Awaitable, Callable, Coroutine, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Awaitable, Callable, Coroutine
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal, Protocol, Self
@@ -45,25 +44,55 @@ import numpy as np
 from config import faults as fault_specs
 from config.faults import Fault
 from drivers import c500c_protocol as proto
+from drivers.sim.ash import (
+    COMMAND_LOG_LINES,
+    MOTION_WORDS,
+    REACH_MM,
+    RESTART_BANNER,
+    START_POSE,
+    Console,
+    ConsoleCommandError,
+    ConsoleState,
+    Location,
+    as_location,
+)
+
+__all__ = [
+    "BITS_PER_CHARACTER",
+    "COMMAND_LOG_LINES",
+    "CONTROLLER_FAULT_KINDS",
+    "FAULT_KINDS",
+    "MOTION_WORDS",
+    "REACH_MM",
+    "RESTART_BANNER",
+    "START_POSE",
+    "C500CEmulator",
+    "Console",
+    "ConsoleCommandError",
+    "ConsoleState",
+    "EmulatorConfig",
+    "Fault",
+    "FaultKind",
+    "Location",
+    "as_location",
+    "emulator_config",
+    "parse_faults",
+]
 
 logger = logging.getLogger(__name__)
 
 #: Bits on the wire per character with 8N1 framing (start bit, 8 data bits, stop bit).
 BITS_PER_CHARACTER = 10
-#: Emulator simplification: a location farther than this from the base is out of reach (mm).
-REACH_MM = 900.0
-#: Where the emulated arm starts: x, y, z (mm), z-rot, y-rot, x-rot (degrees).
-START_POSE: tuple[float, ...] = (457.200, 0.000, 254.000, 0.000, 90.000, 0.000)
 #: How long a `stall` fault lasts when the spec gives no duration (s).
 DEFAULT_STALL_S = 5.0
-#: Command lines the emulator keeps for inspection (tests, drills): the latest ones only.
-COMMAND_LOG_LINES = 10_000
 #: How long a `delay` fault delays an answer when the spec gives no duration (s).
 DEFAULT_DELAY_S = 1.0
 
-FaultKind = Literal["drop", "corrupt", "delay", "stall", "close"]
+FaultKind = Literal["drop", "corrupt", "delay", "stall", "close", "restart"]
+#: The link's faults: each is over once the driver has reconnected.
 FAULT_KINDS: tuple[FaultKind, ...] = ("drop", "corrupt", "delay", "stall", "close")
-Location = tuple[float, float, float, float, float, float]
+#: Faults of the controller itself: a restart forgets every variable (the taught goal too).
+CONTROLLER_FAULT_KINDS: tuple[FaultKind, ...] = ("restart",)
 
 
 def parse_faults(spec: str) -> tuple[Fault[FaultKind], ...]:
@@ -75,17 +104,11 @@ def parse_faults(spec: str) -> tuple[Fault[FaultKind], ...]:
     (lines and prompt) is lost; corrupt: one byte of the answer is replaced by a byte the
     console never sends; delay: the answer comes ``seconds`` late; stall: the console ignores
     everything for ``seconds``; close: the link closes (a pty is replaced by a fresh one behind
-    the same path, a TCP client is disconnected).
+    the same path, a TCP client is disconnected); restart: the command is not executed, the
+    controller restarts (every variable forgotten, online off) and its console is back at the
+    system shell `$ `.
     """
-    return fault_specs.parse_faults(spec, FAULT_KINDS)
-
-
-def as_location(values: Sequence[float]) -> Location:
-    """Six numbers (x, y, z mm; z-rot, y-rot, x-rot degrees) as a location."""
-    if len(values) != 6:
-        raise ValueError(f"a location has six values, not {len(values)}")
-    x, y, z, z_rot, y_rot, x_rot = (float(v) for v in values)
-    return (x, y, z, z_rot, y_rot, x_rot)
+    return fault_specs.parse_faults(spec, FAULT_KINDS + CONTROLLER_FAULT_KINDS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,292 +125,10 @@ class EmulatorConfig:
     point_of_control: bool = True
     start_in_shell: bool = False  # start at the system shell `$ ` instead of the ash prompt
     start_pose: tuple[float, ...] = START_POSE
+    #: how `w0`/`w2` print: the firmware's layout (C500C.md); "single-line" is this project's
+    #: older layout, kept only for the driver's compatibility test
+    layout: proto.Layout = "firmware"
     faults: tuple[Fault[FaultKind], ...] = ()
-
-
-class ConsoleCommandError(Exception):
-    """A command failed; ``line`` is what the console prints."""
-
-    def __init__(self, line: str) -> None:
-        super().__init__(line)
-        self.line = line
-
-
-#: Console commands that start a motion.
-MOTION_WORDS = ("move", "moves", "wx", "wy", "wz", "wxs", "wys", "wzs")
-
-
-@dataclass
-class ConsoleState:
-    """What the emulated controller knows. Tests may read and change it."""
-
-    arm_power: bool
-    homed: bool
-    online: bool
-    point_of_control: bool
-    commanded: Location
-    actual: Location
-    previous_actual: Location
-    in_shell: bool = False
-    speed_percent: int = 10
-    motion_end_s: float = 0.0
-    locations: dict[str, Location] = field(default_factory=dict)
-    # The latest command lines received, in order (bounded: a sim daemon runs for days at
-    # ~250 lines a second), and how many were ever received (fault injection counts them).
-    commands: deque[str] = field(default_factory=lambda: deque(maxlen=COMMAND_LOG_LINES))
-    received: int = 0
-
-    def log_command(self, line: str) -> None:
-        self.commands.append(line)
-        self.received += 1
-
-    def motion_commands(self) -> list[str]:
-        """The logged command lines that start a motion (what a held robot must never get)."""
-        return [c for c in self.commands if c.split(" ")[0] in MOTION_WORDS]
-
-
-class Console:
-    """The `ash` command interpreter: one line in, answer lines out (no I/O)."""
-
-    def __init__(self, config: EmulatorConfig, rng: np.random.Generator) -> None:
-        start = as_location(config.start_pose)
-        self.config = config
-        self.rng = rng
-        self.state = ConsoleState(
-            arm_power=config.arm_power,
-            homed=config.homed,
-            online=config.online,
-            point_of_control=config.point_of_control,
-            commanded=start,
-            actual=start,
-            previous_actual=start,
-            in_shell=config.start_in_shell,
-        )
-
-    @property
-    def prompt(self) -> bytes:
-        return (
-            proto.SHELL_PROMPT if self.state.in_shell else proto.prompt_for(self.config.application)
-        )
-
-    def actual_pose(self, now_s: float) -> Location:
-        """Where the arm really is at loop time ``now_s`` (the start pose while moving)."""
-        state = self.state
-        return state.actual if now_s >= state.motion_end_s else state.previous_actual
-
-    async def execute(self, line: str) -> list[str]:
-        """Run one command line; return the answer lines (errors included)."""
-        self.state.log_command(line)
-        words = line.strip()
-        if not words:
-            return []
-        if self.state.in_shell:
-            return self._shell(words)
-        name, _, rest = words.partition(" ")
-        try:
-            if name == "finish":
-                await self._finish()
-                return []
-            if name in MOTION_WORDS:
-                await self._finish()  # a new motion starts when the previous one has ended
-            handler = getattr(self, f"_cmd_{name}", None)
-            if handler is None:
-                raise ConsoleCommandError("Unrecognized command.")
-            answer: list[str] = handler(rest.strip())
-            return answer
-        except ConsoleCommandError as err:
-            return [err.line]
-
-    # --- the system shell ---
-
-    def _shell(self, words: str) -> list[str]:
-        parts = words.split()
-        if parts[0] != "ash" or len(parts) > 3:
-            return [f"{parts[0]}: not found"]
-        if len(parts) >= 2 and parts[1] != self.config.application:
-            return [f"{parts[1]}: application not found"]
-        self.state.in_shell = False
-        return []
-
-    # --- helpers ---
-
-    @staticmethod
-    def _arguments(rest: str, count: int) -> list[str]:
-        parts = [part.strip() for part in rest.split(",")] if rest else []
-        if len(parts) < count:
-            raise ConsoleCommandError("missing comma." if parts else "invalid argument.")
-        if len(parts) > count:
-            raise ConsoleCommandError("too many arguments.")
-        return parts
-
-    @staticmethod
-    def _number(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise ConsoleCommandError("missing number.") from None
-        if not math.isfinite(value):
-            raise ConsoleCommandError("invalid argument.")
-        return value
-
-    def _location(self, name: str) -> Location:
-        if name not in self.state.locations:
-            raise ConsoleCommandError("variable not found.")
-        return self.state.locations[name]
-
-    def _check_motion(self, straight: bool) -> list[str] | None:
-        state = self.state
-        if not state.arm_power:
-            raise ConsoleCommandError(proto.format_error(7))
-        if not state.homed:
-            raise ConsoleCommandError(proto.format_error(5))
-        if not state.point_of_control:
-            return [proto.POINT_OF_CONTROL_MESSAGE]  # ASSUMED 5: no motion, back to the prompt
-        if straight and not state.online:
-            raise ConsoleCommandError(proto.format_error(43))
-        return None
-
-    def _start_motion(self, target: Location) -> None:
-        if math.dist((0.0, 0.0, 0.0), target[:3]) > REACH_MM:
-            raise ConsoleCommandError(proto.format_error(3))
-        sigma_mm = self.config.noise_um / 1000.0
-        noise = self.rng.normal(0.0, sigma_mm, size=3) if sigma_mm > 0 else np.zeros(3)
-        state = self.state
-        state.previous_actual = state.actual
-        state.commanded = target
-        state.actual = as_location(
-            (target[0] + noise[0], target[1] + noise[1], target[2] + noise[2], *target[3:])
-        )
-        state.motion_end_s = asyncio.get_running_loop().time() + self.config.move_ms / 1000.0
-
-    async def _finish(self) -> None:
-        remaining = self.state.motion_end_s - asyncio.get_running_loop().time()
-        if remaining > 0:
-            await asyncio.sleep(remaining)
-
-    def _table(self, pose: Location) -> list[str]:
-        return proto.format_w_table(pose, (0.0,) * 6, (0.0,) * 6)
-
-    # --- commands (ash) ---
-
-    def _cmd_w0(self, rest: str) -> list[str]:
-        if rest:
-            raise ConsoleCommandError("too many arguments.")
-        return self._table(self.state.commanded)
-
-    def _cmd_w2(self, rest: str) -> list[str]:
-        if rest:
-            raise ConsoleCommandError("too many arguments.")
-        return self._table(self.actual_pose(asyncio.get_running_loop().time()))
-
-    def _cmd_here(self, rest: str) -> list[str]:
-        (name,) = self._arguments(rest, 1)
-        if not re.fullmatch(r"[A-Za-z_]\w*", name):
-            raise ConsoleCommandError("invalid argument.")
-        self.state.locations[name] = self.actual_pose(asyncio.get_running_loop().time())
-        return []
-
-    def _cmd_set(self, rest: str) -> list[str]:
-        name, equals, value = rest.partition("=")
-        name, value = name.strip(), value.strip()
-        if not equals or not re.fullmatch(r"[A-Za-z_]\w*", name) or not value:
-            raise ConsoleCommandError("invalid argument.")
-        if value.startswith("{"):
-            if not value.endswith("}"):
-                raise ConsoleCommandError("invalid argument.")
-            parts = self._arguments(value[1:-1], 6)
-            self.state.locations[name] = as_location([self._number(p) for p in parts])
-        else:
-            self.state.locations[name] = self._location(value)
-        return []
-
-    def _cmd_wshift(self, rest: str) -> list[str]:
-        parts = self._arguments(rest, 7)
-        base = self._location(parts[0])
-        dx, dy, dz, zr, yr, xr = (self._number(p) for p in parts[1:])
-        self.state.locations[parts[0]] = (
-            base[0] + dx,
-            base[1] + dy,
-            base[2] + dz,
-            base[3] + zr,
-            base[4] + yr,
-            base[5] + xr,
-        )
-        return []
-
-    def _move_to(self, rest: str, straight: bool) -> list[str]:
-        (name,) = self._arguments(rest, 1)
-        target = self._location(name)
-        held = self._check_motion(straight)
-        if held is not None:
-            return held
-        self._start_motion(target)
-        return []
-
-    def _cmd_move(self, rest: str) -> list[str]:
-        return self._move_to(rest, straight=False)
-
-    def _cmd_moves(self, rest: str) -> list[str]:
-        return self._move_to(rest, straight=True)
-
-    def _relative(self, rest: str, axis: int, straight: bool) -> list[str]:
-        (text,) = self._arguments(rest, 1)
-        distance = self._number(text)
-        held = self._check_motion(straight)
-        if held is not None:
-            return held
-        start = list(self.state.actual)  # emulator simplification: from the actual pose
-        start[axis] += distance
-        self._start_motion(as_location(start))
-        return []
-
-    def _cmd_wx(self, rest: str) -> list[str]:
-        return self._relative(rest, 0, straight=False)
-
-    def _cmd_wy(self, rest: str) -> list[str]:
-        return self._relative(rest, 1, straight=False)
-
-    def _cmd_wz(self, rest: str) -> list[str]:
-        return self._relative(rest, 2, straight=False)
-
-    def _cmd_wxs(self, rest: str) -> list[str]:
-        return self._relative(rest, 0, straight=True)
-
-    def _cmd_wys(self, rest: str) -> list[str]:
-        return self._relative(rest, 1, straight=True)
-
-    def _cmd_wzs(self, rest: str) -> list[str]:
-        return self._relative(rest, 2, straight=True)
-
-    def _on_off(self, rest: str) -> bool:
-        if rest not in ("on", "off"):
-            raise ConsoleCommandError("invalid argument.")
-        return rest == "on"
-
-    def _cmd_online(self, rest: str) -> list[str]:
-        self.state.online = self._on_off(rest)
-        return []
-
-    def _cmd_armpower(self, rest: str) -> list[str]:
-        self.state.arm_power = self._on_off(rest)
-        return []
-
-    def _cmd_home(self, rest: str) -> list[str]:
-        if rest:
-            raise ConsoleCommandError("too many arguments.")
-        if not self.state.arm_power:
-            raise ConsoleCommandError(proto.format_error(7))
-        self.state.homed = True
-        return []
-
-    def _cmd_speed(self, rest: str) -> list[str]:
-        if not rest:
-            return [f"speed = {self.state.speed_percent}%"]
-        value = self._number(rest)
-        if not 1 <= value <= 100 or value != int(value):
-            raise ConsoleCommandError(proto.format_error(15))
-        self.state.speed_percent = int(value)
-        return []
 
 
 class _Link(Protocol):
@@ -527,6 +268,11 @@ class C500CEmulator:
         self._stalled_until = 0.0
         self.device_path = ""
         self.faults_applied: list[tuple[int, FaultKind]] = []  # (command number, kind)
+        # answer gate (tests): hold the answer of a matching command until released
+        self._gate_open = asyncio.Event()
+        self._gate_open.set()
+        self._gate_command: str | None = None
+        self.answer_held = asyncio.Event()  # set while an answer waits at the gate
 
     @property
     def state(self) -> ConsoleState:
@@ -539,8 +285,26 @@ class C500CEmulator:
         self._pending.append(Fault(kind, seconds))
 
     def press_pause_continue(self) -> None:
-        """The operator takes the point of control at the controller."""
-        self.state.point_of_control = True
+        """The operator presses PAUSE/CONTINUE: the controller has the point of control, and a
+        motion command waiting for it carries on."""
+        self.console.press_pause_continue()
+
+    def hold_answers(self, command: str | None = None) -> None:
+        """Tests: the answer of the next command line (or of the next one equal to ``command``)
+        waits until :meth:`release_answers`; ``answer_held`` is set once one waits. The command
+        itself has run when its answer is held."""
+        self._gate_command = command
+        self._gate_open.clear()
+        self.answer_held.clear()
+
+    def release_answers(self) -> None:
+        self._gate_open.set()
+
+    def restart_controller(self) -> None:
+        """The controller restarts now: it forgets every variable (the taught goal too) and its
+        console is at the system shell (C500C.md); the link itself stays."""
+        logger.info("emulated controller restarts")
+        self.console.restart()
 
     def actual_pose(self) -> Location:
         return self.console.actual_pose(asyncio.get_running_loop().time())
@@ -664,6 +428,7 @@ class C500CEmulator:
                 for byte in chunk:
                     if byte == proto.CTRL_E[0]:
                         line.clear()
+                        self.console.question = None  # emulator choice: Ctrl-E drops a question
                         echo += proto.REPLY_LINE_END + self.console.prompt  # ASSUMED 6
                     elif byte in b"\r\n":
                         if byte == ord("\n") and last_was_cr:
@@ -698,12 +463,30 @@ class C500CEmulator:
             self.state.log_command(text)  # received, never executed
             link.close()
             raise _LinkClosed
+        if fault is not None and fault.kind == "restart":
+            self.state.log_command(text)  # received, never executed
+            self.console.restart()
+            await send(
+                proto.REPLY_LINE_END
+                + RESTART_BANNER.encode("ascii")
+                + proto.REPLY_LINE_END
+                + proto.SHELL_PROMPT
+            )
+            return
         if fault is not None and fault.kind == "stall":
             self.state.log_command(text)
             seconds = fault.seconds if fault.seconds is not None else DEFAULT_STALL_S
             self._stalled_until = asyncio.get_running_loop().time() + seconds
             return
         lines = await self.console.execute(text)
+        if not self._gate_open.is_set() and self._gate_command in (None, text):
+            self.answer_held.set()
+            await self._gate_open.wait()
+            self.answer_held.clear()
+        if self.state.awaiting_button:
+            # the PAUSE/CONTINUE request goes out now; the rest once the button is pressed
+            await send(b"".join(line.encode("ascii") + proto.REPLY_LINE_END for line in lines))
+            lines = await self.console.wait_for_button()
         answer = b"".join(line.encode("ascii") + proto.REPLY_LINE_END for line in lines)
         if fault is not None and fault.kind == "drop":
             return
@@ -730,6 +513,7 @@ def emulator_config(
     paced: bool = True,
     faults: str = "",
     application: str = "ash",
+    layout: proto.Layout = "firmware",
 ) -> EmulatorConfig:
     """An :class:`EmulatorConfig` from the command line's or the settings' plain values."""
     if noise_um < 0 or move_ms < 0:
@@ -743,4 +527,5 @@ def emulator_config(
         paced=paced,
         faults=parse_faults(faults),
         application=application,
+        layout=layout,
     )

@@ -1,0 +1,54 @@
+"""``GET /devices/preview``: the bring-up preview while the daemon is idle (issue 18).
+
+One frame (spot ringed), one thermal image (every IR region drawn and labelled) and the robot's
+pose, from the daemon's own open devices (daemon/devices_check.py), as a PNG. Refused with 409
+while a run is active: a preview grab would take a frame, an IR reading and a console round trip
+from the run's steps.
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+from fastapi.responses import Response
+
+from api.deps import DaemonDep, ReadAccess, SettingsDep
+from api.errors import ApiError, ErrorBody
+from daemon.devices_check import check_devices, preview_png
+from drivers.errors import DeviceError
+
+router = APIRouter(tags=["devices"], dependencies=[ReadAccess])
+
+#: The daemon's state in which the devices are free for a preview.
+IDLE = "idle"
+
+
+@router.get(
+    "/devices/preview",
+    response_class=Response,
+    responses={
+        200: {"content": {"image/png": {}}, "description": "the preview image"},
+        409: {"model": ErrorBody, "description": "a run is active"},
+        503: {"model": ErrorBody, "description": "no device gave an image"},
+    },
+)
+async def devices_preview(daemon: DaemonDep, settings: SettingsDep) -> Response:
+    """The camera frame with the spot marked beside the thermal image with the IR regions;
+    the devices' findings in ``X-Thermocomp-*`` headers (spot position, failures)."""
+    state = daemon.snapshot()["state"]
+    if state != IDLE:
+        raise ApiError(409, "conflict", f"a run is {state}: the preview is available while idle")
+    check = await check_devices(daemon.devices, settings)
+    try:
+        png = preview_png(check)
+    except DeviceError as err:
+        raise ApiError(503, "device", "; ".join(check.errors.values()) or str(err)) from err
+    headers = {}
+    if check.centroid is not None:
+        headers["X-Thermocomp-Spot-Px"] = (
+            f"{check.centroid['x_px']:.3f},{check.centroid['y_px']:.3f}"
+        )
+    if check.errors:
+        headers["X-Thermocomp-Device-Errors"] = "; ".join(
+            f"{device}: {error}" for device, error in check.errors.items()
+        )[:1000]
+    return Response(content=png, media_type="image/png", headers=headers)

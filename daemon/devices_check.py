@@ -1,0 +1,226 @@
+"""What the devices give right now (issue 18): one frame, one IR image and the robot's pose,
+described and drawn, for ``thermocomp devices check`` and ``GET /devices/preview``.
+
+Every device is asked on its own: one that fails is reported (its error, one line) while the
+others are still described, so a user bringing up a lab sees everything that is wrong at once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from config import Settings
+from config.settings import IrRegion
+from daemon.vision import CentroidError
+from daemon.vision.centroid import measure_with_camera_settings
+from daemon.vision.preview import (
+    RegionBox,
+    camera_panel,
+    encode_png,
+    ir_panel,
+    side_by_side,
+)
+from drivers.base import Camera, Frame, IrReader, IrReading, Pose, Robot
+from drivers.errors import DeviceError
+
+#: The robot's pose is read within this time (s), like a console command.
+POSE_TIMEOUT_S = 10.0
+
+
+class Devices(Protocol):
+    """The open devices: drivers.factory.Devices, or the daemon's ``devices``."""
+
+    @property
+    def camera(self) -> Camera: ...
+
+    @property
+    def ir(self) -> IrReader: ...
+
+    @property
+    def robot(self) -> Robot: ...
+
+
+@dataclass
+class DeviceCheck:
+    """One grab of each device and what was found in it; ``errors`` per failed device."""
+
+    frame: Frame | None = None
+    centroid: dict[str, Any] | None = None
+    centroid_error: str | None = None
+    reading: IrReading | None = None
+    regions: tuple[IrRegion, ...] = ()
+    pose: Pose | None = None
+    robot_link: str | None = None
+    errors: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+    def as_dict(self) -> dict[str, Any]:
+        frame, reading = self.frame, self.reading
+        return {
+            "camera": None
+            if frame is None
+            else {
+                "width_px": int(frame.image.shape[1]),
+                "height_px": int(frame.image.shape[0]),
+                "dtype": str(frame.image.dtype),
+                "bit_depth": frame.bit_depth,
+                "min_counts": int(frame.image.min()),
+                "max_counts": int(frame.image.max()),
+                "timestamp_source": frame.timestamp_source,
+                "spot": self.centroid,
+                "spot_error": self.centroid_error,
+            },
+            "ir": None
+            if reading is None
+            else {
+                "width_px": None if reading.frame_c is None else int(reading.frame_c.shape[1]),
+                "height_px": None if reading.frame_c is None else int(reading.frame_c.shape[0]),
+                "min_c": None if reading.frame_c is None else float(reading.frame_c.min()),
+                "max_c": None if reading.frame_c is None else float(reading.frame_c.max()),
+                "regions": {
+                    name: {"mean_c": r.mean_c, "max_c": r.max_c, "node": r.node}
+                    for name, r in reading.regions.items()
+                },
+            },
+            "robot": None
+            if self.pose is None
+            else {"link": self.robot_link, "pose": list(_pose_values(self.pose))},
+            "errors": dict(self.errors),
+        }
+
+
+def _pose_values(pose: Pose) -> tuple[float, ...]:
+    return (pose.x, pose.y, pose.z, pose.z_rot, pose.y_rot, pose.x_rot)
+
+
+def ir_regions(devices: Devices, settings: Settings) -> tuple[IrRegion, ...]:
+    """The regions the IR reader measures: the configured ones, or the sim's defaults (its
+    ``regions`` attribute, one per model node) when none are configured."""
+    regions = getattr(devices.ir, "regions", None)
+    if isinstance(regions, tuple) and regions:
+        return regions
+    return settings.ir.regions
+
+
+async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
+    """Grab one frame, read one IR image and the robot's pose; measure the spot."""
+    check = DeviceCheck(regions=ir_regions(devices, settings))
+    try:
+        check.frame = await asyncio.wait_for(devices.camera.grab(), settings.camera.grab_timeout_s)
+    except (DeviceError, TimeoutError) as err:
+        check.errors["camera"] = str(err) or "no frame within camera.grab_timeout_s"
+    if check.frame is not None:
+        try:
+            result = measure_with_camera_settings(check.frame.image, settings.camera)
+            check.centroid = {
+                "x_px": result.x_px,
+                "y_px": result.y_px,
+                "peak_fraction": result.peak_fraction,
+                "snr": result.snr,
+                "flags": list(result.flags),
+            }
+        except CentroidError as err:
+            check.centroid_error = str(err)
+    try:
+        check.reading = await asyncio.wait_for(devices.ir.read(), settings.ir.read_timeout_s)
+    except (DeviceError, TimeoutError) as err:
+        check.errors["ir"] = str(err) or "no reading within ir.read_timeout_s"
+    try:
+        check.pose = await asyncio.wait_for(devices.robot.actual_pose(), POSE_TIMEOUT_S)
+        check.robot_link = devices.robot.status().link.value
+    except (DeviceError, TimeoutError) as err:
+        check.errors["robot"] = str(err) or "no pose"
+    return check
+
+
+def describe(check: DeviceCheck) -> list[str]:
+    """The check as lines for people."""
+    data = check.as_dict()
+    lines = []
+    camera = data["camera"]
+    if camera is not None:
+        lines.append(
+            f"camera: {camera['width_px']}x{camera['height_px']} px, {camera['dtype']}, "
+            f"{camera['bit_depth']}-bit, counts {camera['min_counts']}..{camera['max_counts']}, "
+            f"frame time from {camera['timestamp_source']}"
+        )
+        spot = camera["spot"]
+        if spot is not None:
+            flags = f" [{', '.join(spot['flags'])}]" if spot["flags"] else ""
+            lines.append(
+                f"camera: spot found at ({spot['x_px']:.2f}, {spot['y_px']:.2f}) px, peak "
+                f"{100 * spot['peak_fraction']:.0f} % of full scale, SNR {spot['snr']:.0f}{flags}"
+            )
+        else:
+            lines.append(f"camera: no spot: {camera['spot_error']}")
+    ir = data["ir"]
+    if ir is not None:
+        if ir["width_px"] is not None:
+            lines.append(
+                f"ir: {ir['width_px']}x{ir['height_px']} px, "
+                f"{ir['min_c']:.2f}..{ir['max_c']:.2f} degC"
+            )
+        for name, region in ir["regions"].items():
+            node = f" (node {region['node']})" if region["node"] else ""
+            lines.append(
+                f"ir: region {name}{node}: mean {region['mean_c']:.2f} degC, max "
+                f"{region['max_c']:.2f} degC"
+            )
+        if not ir["regions"]:
+            lines.append("ir: no regions configured ([[ir.regions]]): place them on the preview")
+    robot = data["robot"]
+    if robot is not None:
+        x, y, z, z_rot, y_rot, x_rot = robot["pose"]
+        lines.append(
+            f"robot: {robot['link']}, pose x {x:.3f} y {y:.3f} z {z:.3f} mm, "
+            f"rotations {z_rot:.3f} {y_rot:.3f} {x_rot:.3f} deg"
+        )
+    lines.extend(f"{device}: FAILED: {error}" for device, error in data["errors"].items())
+    return lines
+
+
+def preview_image(check: DeviceCheck) -> NDArray[np.uint8]:
+    """The preview: camera frame with the centroid, thermal image with the regions."""
+    panels = []
+    height = 480
+    if check.frame is not None:
+        centroid = check.centroid
+        spot = None if centroid is None else (centroid["x_px"], centroid["y_px"])
+        caption = (
+            f"camera: spot at ({spot[0]:.1f}, {spot[1]:.1f}) px"
+            if spot is not None
+            else f"camera: no spot ({check.centroid_error})"
+        )
+        panels.append(camera_panel(check.frame.image, spot, caption))
+        height = check.frame.image.shape[0]
+    reading = check.reading
+    if reading is not None and reading.frame_c is not None:
+        boxes = [
+            RegionBox(
+                name=region.name,
+                x=region.x,
+                y=region.y,
+                width=region.width,
+                height=region.height,
+                label=f"{region.name} {reading.regions[region.name].mean_c:.1f} C"
+                if region.name in reading.regions
+                else region.name,
+            )
+            for region in check.regions
+        ]
+        panels.append(ir_panel(reading.frame_c, boxes, "ir: regions (mean degC)", height))
+    if not panels:
+        raise DeviceError("devices", "neither a frame nor a thermal image to preview")
+    return side_by_side(panels)
+
+
+def preview_png(check: DeviceCheck) -> bytes:
+    return encode_png(preview_image(check))

@@ -1,0 +1,50 @@
+"""What the API may read of a run: a frozen view, replaced (never changed) by the run's session
+at each state change and each recorded step. The API never reads a live run object (issue 15),
+so a request can neither see a half-made change nor make one."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from daemon.runs import RunParameters, RunState
+
+
+@dataclass(frozen=True, slots=True)
+class RunView:
+    id: int
+    state: RunState
+    reason: str | None
+    step: int  # last recorded step, -1 before the first
+    parameters: RunParameters
+    start_s: float = math.nan  # run clock at step 0
+    end_s: float = math.nan  # run clock when it ended (its progress stops there)
+    summary: dict[str, Any] | None = None
+    overruns: int = 0
+    skipped: int = 0
+    last_record: dict[str, Any] | None = None
+
+    @property
+    def is_active(self) -> bool:
+        return self.state.is_active
+
+    def progress(self, clock_now: float) -> tuple[float, float]:
+        """Percent of the duration elapsed on the run clock, and run-clock seconds left."""
+        now = clock_now if math.isnan(self.end_s) else min(clock_now, self.end_s)
+        elapsed = 0.0 if math.isnan(self.start_s) else max(now - self.start_s, 0.0)
+        duration = self.parameters.duration_s
+        return min(100.0, 100.0 * elapsed / duration), max(duration - elapsed, 0.0)
+
+    def info(self, clock_now: float) -> dict[str, Any]:
+        progress, remaining = self.progress(clock_now)
+        return {
+            "id": self.id,
+            "state": self.state.value,
+            "reason": self.reason,
+            "step": self.step,
+            "parameters": self.parameters.model_dump(mode="json"),
+            "progress_percent": progress,
+            "remaining_s": remaining,
+            "summary": self.summary,
+        }

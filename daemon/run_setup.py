@@ -1,0 +1,133 @@
+"""What a run is built from before its first step: the thermal model, the IR observer, the
+admissible-scale check (thesis 6.3) and the network snapshot recorded with the run."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from config import Settings
+from config.settings import IrRegion
+from daemon.model import ThermalModel, ThermalNetwork, load_network
+from daemon.model.compensation import check_scale
+from daemon.model.model import EXACT_NODE_LIMIT
+from daemon.model.observer import IrObserver, regions_to_nodes
+from daemon.runs import RunParameters, heat_at
+
+
+class RunParameterError(ValueError):
+    """The run's parameters are not admissible (e.g. scale pushes the spot off the chip)."""
+
+
+def build_model(
+    settings: Settings, parameters: RunParameters
+) -> tuple[ThermalNetwork, ThermalModel]:
+    """The controller's thermal model of the run's network (thesis 5.4), stepped at the run's
+    step in model time."""
+    try:
+        network = load_network(parameters.network)
+    except (ValueError, OSError) as err:
+        raise RunParameterError(f"network {parameters.network!r}: {err}") from err
+    model_settings = settings.model
+    try:
+        model = ThermalModel(
+            network,
+            stepper=model_settings.stepper,
+            dt_s=parameters.step_s * parameters.time_scale,
+            ambient_c=model_settings.ambient_c,
+            reference_nodes=model_settings.reference_nodes,
+            direction=model_settings.direction,
+            allow_substeps=True,
+        )
+    except ValueError as err:
+        raise RunParameterError(f"network {parameters.network!r}: {err}") from err
+    return network, model
+
+
+def build_observer(
+    settings: Settings, model: ThermalModel, reader_regions: Sequence[IrRegion]
+) -> IrObserver:
+    """The IR Kalman filter of a model+ir run (issue 9): the regions tied to model nodes
+    (the reader's own, else the configured ones), each with the noise of its mean."""
+    ir_settings = settings.ir
+    regions = tuple(reader_regions) or ir_settings.regions
+    tied = [region for region in regions if region.node]
+    if not tied:
+        raise RunParameterError("prediction model+ir needs IR regions tied to model nodes")
+    noise = {r.name: ir_settings.noise_c / math.sqrt(r.width * r.height) for r in tied}
+    return IrObserver(model, regions_to_nodes(tied), noise)
+
+
+def check_admissible_scale(
+    settings: Settings,
+    parameters: RunParameters,
+    network: ThermalNetwork,
+    direction: NDArray[np.float64],
+) -> None:
+    """Thesis 6.3: the scaled deformation must stay on the camera chip."""
+    largest = largest_predicted_deformation_um(settings, parameters, network)
+    camera = settings.camera
+    extent = (camera.width_px * camera.um_per_px[0], camera.height_px * camera.um_per_px[1])
+    try:
+        check_scale(
+            parameters.deformation_scale,
+            largest,
+            direction.tolist(),
+            extent,
+            settings.compensation.spot_size_um,
+        )
+    except ValueError as err:
+        raise RunParameterError(str(err)) from err
+
+
+def largest_predicted_deformation_um(
+    settings: Settings, parameters: RunParameters, network: ThermalNetwork, samples: int = 400
+) -> float:
+    """The largest |deformation| the model predicts over the run (for the scale check)."""
+    model = ThermalModel(
+        network,
+        stepper="exact" if network.node_count <= EXACT_NODE_LIMIT else "implicit",
+        dt_s=parameters.duration_s * parameters.time_scale / samples,
+        ambient_c=settings.model.ambient_c,
+        reference_nodes=settings.model.reference_nodes,
+    )
+    largest = 0.0
+    for k in range(1, samples + 1):
+        run_time = parameters.duration_s * k / samples
+        model.set_heat(heat_at(parameters, run_time - parameters.duration_s / samples))
+        model.advance_to(run_time * parameters.time_scale)
+        largest = max(largest, abs(float(model.deformation_um_scalar())))
+    return largest
+
+
+def unit_vector(vector: tuple[float, float, float]) -> NDArray[np.float64]:
+    array = np.asarray(vector, dtype=np.float64)
+    norm = float(np.linalg.norm(array))
+    if not math.isfinite(norm) or norm == 0:
+        raise RunParameterError(f"model.direction must be a non-zero vector, not {vector}")
+    return array / norm
+
+
+def network_snapshot(network: ThermalNetwork) -> dict[str, Any]:
+    """The network as recorded with the run (the model it was compensated with)."""
+    return {
+        "name": network.name,
+        "node_names": list(network.node_names),
+        "positions_mm": network.positions_mm.tolist(),
+        "capacitance_j_per_c": network.capacitance_j_per_c.tolist(),
+        "alpha_per_c": network.alpha_per_c.tolist(),
+        "r_ambient_c_per_w": [_finite_or_none(v) for v in network.r_ambient_c_per_w.tolist()],
+        "r_end_c_per_w": [_finite_or_none(v) for v in network.r_end_c_per_w.tolist()],
+        "resistances": [[r.a, r.b, r.r_c_per_w] for r in network.resistances],
+        "reference_nodes": list(network.reference_nodes),
+        "heater_nodes": list(network.heater_nodes),
+        "direction": network.direction.tolist(),
+    }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return value if math.isfinite(value) else None

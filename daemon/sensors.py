@@ -1,0 +1,62 @@
+"""The camera and the IR reader as a step uses them: bounded waits and how each last went."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable
+from typing import TypeVar
+
+from config import Settings
+from daemon.events import ErrorLog
+from drivers.base import Camera, Frame, IrReader, IrReading
+from drivers.errors import DeviceError, DeviceTimeoutError
+
+_T = TypeVar("_T")
+
+
+class Sensors:
+    """Grabs and reads bounded in wall time (issue 10), with the state of each sensor's last
+    grab/read for GET /health: "open" before the first, then "ok", "stale" or
+    "<error kind> error" (e.g. "timeout error")."""
+
+    def __init__(self, settings: Settings, camera: Camera, ir: IrReader, errors: ErrorLog) -> None:
+        self._settings = settings
+        self._camera = camera
+        self._ir = ir
+        self._errors = errors
+        self.states: dict[str, str] = {"camera": "open", "ir": "open"}
+
+    async def grab(self) -> Frame:
+        timeout_s = self._settings.camera.grab_timeout_s
+        return await self._bounded(self._camera.grab(), "camera", "frame", timeout_s)
+
+    async def read_ir(self) -> IrReading:
+        timeout_s = self._settings.ir.read_timeout_s
+        return await self._bounded(self._ir.read(), "ir", "reading", timeout_s)
+
+    async def _bounded(
+        self, operation: Awaitable[_T], device: str, what: str, timeout_s: float
+    ) -> _T:
+        """Await a grab/read for at most ``timeout_s`` of wall time, else DeviceTimeoutError.
+        Wall time, as the robot's command timeout: a hung device or thread does not run on the
+        bench's clock, and a virtual clock would jump a run-clock timeout forward at once."""
+        try:
+            try:
+                async with asyncio.timeout(timeout_s) as scope:
+                    result = await operation
+            except TimeoutError as err:
+                if not scope.expired():
+                    raise  # the device's own timeout (a DeviceTimeoutError): as it is
+                raise DeviceTimeoutError(device, f"no {what} within {timeout_s:g} s") from err
+        except DeviceError as err:
+            self.states[device] = f"{err.kind} error"
+            raise
+        self.states[device] = "ok"
+        return result
+
+    def stale(self, device: str, what: str, age_s: float) -> str:
+        """A stale frame/reading is a sensor error: note it, return the step's error text."""
+        err = DeviceError(device, f"stale {what}: {age_s:.3g} s old (limit {device}.max_age_s)")
+        self.states[device] = "stale"
+        self._errors.note(err)
+        return str(err)

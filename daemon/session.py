@@ -1,0 +1,502 @@
+"""One run, from its start to its final state: the only code that changes a run's state.
+
+prepare (teach the goal, warm-up, reference frame) -> loop (one step per deadline:
+daemon/step.py) -> finish (hold, summary, final state committed). Operator requests (pause,
+resume, stop, a robot hold) and the steps' verdicts meet here, in :meth:`RunSession._go`,
+against the state machine of daemon/runs.py: a request is refused with RunStateError when the
+state does not allow it; a verdict that arrives after a request (a step that ends in its own
+pause while the operator paused or stopped during it) is already on the step's record (flag
+and error) and changes nothing, so it never turns a run into ``aborted`` (issue 15, point 1).
+
+Every state change happens synchronously (no await between check and change), is published at
+once, and is persisted in order on the recorder's one thread; the run's frozen view
+(daemon/readmodel.py) is replaced at each change for the API to read.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from config import Settings
+from daemon.events import ErrorLog, Event, EventBus
+from daemon.readmodel import RunView
+from daemon.recorder import Recorder, RecorderError
+from daemon.report_queue import ReportQueue
+from daemon.runs import RunState, RunStateError, StateMachine
+from daemon.scheduler import FixedStepTimer, TimingStats
+from daemon.sensors import Sensors
+from daemon.step import RunWork, StepOutcome, StepPipeline, Verdict
+from daemon.summary import run_summary
+from daemon.vision import CentroidError, measure_with_camera_settings
+from daemon.workers import Workers
+from drivers.base import Robot
+from drivers.clock import Clock
+from drivers.errors import DeviceError, GoalLostError
+
+logger = logging.getLogger(__name__)
+
+
+class ResumeRefusedError(RunStateError):
+    """The run cannot continue (e.g. the controller lost the taught goal): a 409 with why."""
+
+
+class BenchControl(Protocol):
+    """What a run tells the simulated bench (drivers.sim.bench.Bench) when it starts."""
+
+    def start_run(
+        self,
+        t_s: float,
+        *,
+        deformation_scale: float | None = None,
+        procedure: str | None = None,
+        heater_off_s: float | None = None,
+    ) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class SessionServices:
+    """What a run uses of the daemon: its devices, workers, recorder and outlets."""
+
+    settings: Settings
+    clock: Clock
+    robot: Robot
+    sensors: Sensors
+    bench: BenchControl | None
+    pipeline: StepPipeline
+    recorder: Recorder
+    workers: Workers
+    bus: EventBus
+    errors: ErrorLog
+    timing: TimingStats
+    reports: ReportQueue
+    hold_generation: Callable[[], int]  # bumped by every hold, before the robot is held
+    on_view: Callable[[RunView], None]  # the daemon's read model
+    on_progress: Callable[[], None]  # the control loop is alive (systemd watchdog)
+    on_unrecorded_end: Callable[[int, str, dict[str, Any] | None, str | None], None]
+
+
+class RunSession:
+    def __init__(self, work: RunWork, services: SessionServices) -> None:
+        self.work = work
+        self.id = work.run_id
+        self._services = services
+        self.machine = StateMachine()
+        self.timer: FixedStepTimer | None = None
+        self.step = -1
+        self.last_record: dict[str, Any] | None = None
+        self.summary: dict[str, Any] | None = None
+        self.ended_s = math.nan  # run clock at the end
+        self.stop_requested = False
+        self._stop_reason: str | None = None
+        self._final_on_stop = RunState.STOPPED
+        self.finishing = False  # holding the robot, writing the summary and the final state
+        self._wake = asyncio.Event()
+        self._start_generation = services.hold_generation()
+        self.task: asyncio.Task[None] | None = None
+
+    @property
+    def state(self) -> RunState:
+        return self.machine.state
+
+    def start(self) -> None:
+        self._go(RunState.STARTING, None)
+        self.task = asyncio.get_running_loop().create_task(self._run(), name=f"run-{self.id}")
+
+    # --- operator requests (the daemon serialises them) -----------------------------------
+
+    def pause(self, reason: str) -> None:
+        if self.state is not RunState.RUNNING:
+            raise RunStateError(f"run {self.id} is {self.state.value}, not running")
+        self._go(RunState.PAUSED, reason)
+
+    async def resume(self) -> None:
+        """Motion is allowed again only on this explicit request; the actual pose is read back
+        first. A hold or stop that arrives meanwhile wins; a controller that lost the taught
+        goal refuses the resume (issue 15, point 9) instead of answering running and then
+        faulting at the next step."""
+        if self.state not in (RunState.PAUSED, RunState.FAULT):
+            raise RunStateError(f"run {self.id} is {self.state.value}: nothing to resume")
+        robot = self._services.robot
+        generation = self._services.hold_generation()
+        try:
+            if self.state is RunState.FAULT or robot.status().motion_held:
+                await robot.resume()
+            pose = await robot.actual_pose()
+        except GoalLostError as err:
+            self._services.errors.note(err)
+            await self._hold_quietly()
+            reason = (
+                f"{err.message}: the run cannot continue (its offsets are from that goal); "
+                "stop it and start a new run at the goal"
+            )
+            self._set_reason(reason)
+            raise ResumeRefusedError(reason) from err
+        except DeviceError as err:
+            self._services.errors.note(err)
+            if self.state is RunState.FAULT:
+                self._set_reason(f"resume failed: {err}")
+            elif self.state is RunState.PAUSED:
+                self._go(RunState.FAULT, f"resume failed: {err}")
+            raise
+        if (
+            self.stop_requested
+            or self.state not in (RunState.PAUSED, RunState.FAULT)
+            or self._services.hold_generation() != generation
+        ):
+            await self._hold_quietly()  # re-assert: the resume must not undo a later hold
+            raise RunStateError(f"run {self.id}: a hold or stop came during the resume")
+        if self.work.goal is not None:
+            # the incremental mode continues from where the robot really is
+            self.work.last_target_mm = np.subtract(pose.position, self.work.goal.position)
+        self._go(RunState.RUNNING, None)
+
+    def request_stop(self, reason: str, final: RunState = RunState.STOPPED) -> None:
+        """End the run at the next opportunity (the step in progress may finish)."""
+        if self.stop_requested:
+            return
+        if self.state is RunState.FAULT:  # it could not go on: the fault ended it
+            final = RunState.ABORTED
+            reason = f"fault: {self.machine.reason}; {reason}"
+        self.stop_requested = True  # before any await: the loop must see it first
+        self._stop_reason = reason
+        self._final_on_stop = final
+        if self.state is not RunState.STOPPING:
+            self._go(RunState.STOPPING, reason)
+        self._wake.set()
+
+    def robot_held(self, reason: str) -> None:
+        """The robot has just been held by request: a running run pauses; a run still starting
+        is cancelled (issue 15, point 2: a hold is never released by the start itself)."""
+        if self.state is RunState.RUNNING:
+            self._go(RunState.PAUSED, reason)
+        elif self.state is RunState.STARTING:
+            self.request_stop(f"start cancelled: {reason}")
+
+    async def wait_ended(self, grace_s: float) -> None:
+        """Wait for the run task; a step stuck on a device is abandoned after ``grace_s``."""
+        task = self.task
+        if task is None:
+            return
+        _, pending = await asyncio.wait({task}, timeout=grace_s)
+        if pending and not self.finishing:
+            logger.warning("run %d: abandoning the step in progress to stop", self.id)
+            task.cancel()
+        await asyncio.wait({task})
+
+    # --- the run task ------------------------------------------------------------------------
+
+    async def _run(self) -> None:
+        final, reason = RunState.FINISHED, None
+        try:
+            if await self._prepare():
+                await self._loop()
+            if self.stop_requested:
+                final, reason = self._final_on_stop, self._stop_reason
+        except RecorderError as err:
+            logger.error("run %d: recording failed: %s", self.id, err)
+            self._services.errors.note(err, device="storage")
+            final, reason = RunState.ABORTED, f"recording failed: {err}"
+        except asyncio.CancelledError:
+            if self.stop_requested:
+                final = self._final_on_stop
+                reason = f"{self._stop_reason}; the step in progress was abandoned"
+            else:
+                final, reason = RunState.ABORTED, "cancelled"
+            raise
+        except Exception as err:
+            logger.exception("run %d failed", self.id)  # the traceback goes to the journal
+            self._services.errors.note(err, device="daemon")
+            final, reason = RunState.ABORTED, f"{type(err).__name__}: {err}"
+        finally:
+            self.finishing = True  # from here on the run is never cancelled: it is ending
+            await self._finish(final, reason)
+
+    async def _prepare(self) -> bool:
+        """Teach the goal, wait for the camera, take the reference; False if stopped meanwhile."""
+        services = self._services
+        robot, parameters = services.robot, self.work.parameters
+        try:
+            # 6.4.3: every offset is from the goal taught here. Taught first, while still held:
+            # a resume checks the goal the controller holds, and after a controller restart the
+            # previous run's goal is gone (C500C.md), which must not refuse a new run.
+            self.work.goal = await robot.teach_goal()
+            if robot.status().motion_held:
+                # the previous run ended with the robot held; starting is an explicit request to
+                # move again -- unless a hold came after that request (it wins)
+                if self._hold_since_start():
+                    return False
+                await robot.resume()
+            if self._hold_since_start():
+                return False
+        except DeviceError as err:
+            services.errors.note(err)
+            await self._fault(f"cannot teach the operational goal: {err}")
+            if not await self._wait_while_held():
+                return False
+            self.work.goal = await robot.teach_goal()
+        if parameters.warmup_wait_s > 0:
+            logger.info("run %d: camera warm-up wait %.0f s", self.id, parameters.warmup_wait_s)
+            await self._sleep_until(services.clock.now() + parameters.warmup_wait_s)
+        if self.stop_requested:
+            return False
+        if services.bench is not None:
+            # the simulated links start cold with this run, at its scale and procedure
+            services.bench.start_run(
+                services.clock.now(),
+                deformation_scale=parameters.deformation_scale,
+                procedure=parameters.procedure,
+                heater_off_s=parameters.heater_off_s,
+            )
+        await self._capture_reference()
+        self.work.start_s = services.clock.now()
+        self.timer = FixedStepTimer(
+            services.clock,
+            parameters.step_s,
+            self.work.start_s,
+            precise_wake_s=services.settings.scheduler.precise_wake_ms / 1000.0,
+        )
+        if self.state is RunState.STARTING:
+            self._go(RunState.RUNNING, None)
+        return not self.stop_requested
+
+    def _hold_since_start(self) -> bool:
+        if self._services.hold_generation() == self._start_generation:
+            return False
+        self.request_stop("start cancelled: the robot was held after the start was requested")
+        return True
+
+    async def _capture_reference(self) -> None:
+        """The spot at the operational goal before the first move: the zero of every drift.
+
+        Thesis 6.2 sets the centroid "at the start at the operational goal". Taken here, the
+        robot has not moved since the goal was taught, so the reference carries no positioning
+        error. If no frame can be had, step 0's centroid is used."""
+        services = self._services
+        try:
+            frame = await services.sensors.grab()
+            result = await services.workers.step(
+                measure_with_camera_settings, frame.image, services.settings.camera
+            )
+        except (DeviceError, CentroidError) as err:
+            if isinstance(err, DeviceError):
+                services.errors.note(err)
+            logger.warning("run %d: no reference frame (%s): step 0 is the reference", self.id, err)
+            return
+        self.work.reference_um[0] = (result.x_um, result.y_um)
+        self.work.reference_source = "goal before the first move"
+
+    async def _loop(self) -> None:
+        timer = self.timer
+        assert timer is not None
+        end_s = self.work.start_s + self.work.parameters.duration_s
+        while True:
+            if self.stop_requested or self.state is RunState.STOPPING:
+                return
+            if self.state in (RunState.PAUSED, RunState.FAULT):
+                if not await self._wait_while_held():
+                    return
+                timer.resync()
+                continue
+            if timer.next_deadline_s >= end_s - 1e-9:
+                return
+            await self._sleep_until(timer.next_wake_s)
+            if self.stop_requested or self.state is not RunState.RUNNING:
+                continue  # woken by a request: handled at the top
+            # a request that lands during the last yield before the deadline finds this step
+            # under way (it completes): skipping it would leave a gap in the step numbers
+            tick = await timer.wait()
+            outcome = await self._services.pipeline.run(self.work, tick)
+            self._recorded(outcome)
+            await self._judge(tick.step, outcome.verdict)
+            timer.step_done()
+            self._services.on_progress()
+
+    def _recorded(self, outcome: StepOutcome) -> None:
+        """Publish a committed step: the event, the frame for live views, the read model."""
+        services, record = self._services, outcome.record
+        self.step = record.step
+        self.last_record = record.as_dict()
+        services.timing.add(record.lateness_s, outcome.stages_s)
+        services.bus.publish(
+            Event("step", {**self.last_record, "serial_round_trips_s": outcome.round_trips_s})
+        )
+        if outcome.frame is not None:  # for live views; a reference, no copy
+            frame = outcome.frame
+            services.bus.publish(
+                Event(
+                    "frame",
+                    {
+                        "run_id": self.id,
+                        "step": record.step,
+                        "image": frame.image,
+                        "bit_depth": frame.bit_depth,
+                        "timestamp_s": frame.timestamp_s,
+                        "centroid_x_px": record.centroid_x_px,
+                        "centroid_y_px": record.centroid_y_px,
+                    },
+                )
+            )
+        self._publish_view()
+
+    async def _judge(self, step: int, verdict: Verdict) -> None:
+        """A step's verdict meets the operator's requests here."""
+        if verdict.kind == "ok":
+            return
+        if verdict.kind == "fault":
+            await self._fault(verdict.reason or "device fault")
+            return
+        logger.warning("run %d step %d: %s", self.id, step, verdict.reason)
+        if self.state is RunState.RUNNING:
+            self._go(RunState.PAUSED, verdict.reason)
+        else:
+            logger.info(
+                "run %d step %d: its pause (%s) is on its record; the run is already %s",
+                self.id,
+                step,
+                verdict.reason,
+                self.state.value,
+            )
+
+    async def _fault(self, reason: str) -> None:
+        """A device fault: hold motion first, then park the run in ``fault`` until an explicit
+        resume -- unless a request (pause, stop) came first: then the fault is on the step."""
+        await self._hold_quietly()
+        if self.state in (RunState.RUNNING, RunState.STARTING):
+            self._go(RunState.FAULT, reason)
+        else:
+            logger.warning("run %d: %s (the run is already %s)", self.id, reason, self.state.value)
+
+    async def _wait_while_held(self) -> bool:
+        """Wait while paused or faulted; False when a stop came instead of a resume."""
+        while self.state in (RunState.PAUSED, RunState.FAULT) and not self.stop_requested:
+            self._wake.clear()
+            await self._wake.wait()
+        return not self.stop_requested
+
+    async def _sleep_until(self, deadline_s: float) -> None:
+        """Sleep on the run clock, waking early for any request."""
+        clock = self._services.clock
+        if clock.now() >= deadline_s:
+            return
+        self._wake.clear()
+        sleeper = asyncio.ensure_future(clock.sleep_until(deadline_s))
+        waker = asyncio.ensure_future(self._wake.wait())
+        try:
+            await asyncio.wait({sleeper, waker}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in (sleeper, waker):
+                if not task.done():
+                    task.cancel()
+            await asyncio.gather(sleeper, waker, return_exceptions=True)
+        if sleeper.done() and not sleeper.cancelled():
+            sleeper.result()  # the clock's own error (a deadline it refuses) is the run's
+
+    async def _finish(self, final: RunState, reason: str | None) -> None:
+        """Hold the robot, write the summary and the final state. Never raises: whatever fails
+        here, the run still ends in ``final`` with the daemon idle (issue 15, point 5)."""
+        services = self._services
+        try:
+            await self._hold_quietly()
+            if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
+                self._go(RunState.STOPPING, reason)
+            try:
+                summarize = functools.partial(
+                    run_summary,
+                    services.recorder,
+                    self.work,
+                    overruns=0 if self.timer is None else self.timer.overruns,
+                    skipped=0 if self.timer is None else self.timer.skipped,
+                    timing=services.timing.summary(fresh=True),
+                )
+                self.summary = await services.workers.db(summarize)
+            except Exception as err:
+                logger.exception("run %d: no summary", self.id)
+                services.errors.note(err, device="storage")
+            try:
+                await services.workers.db(
+                    services.recorder.finish_run, self.id, final.value, self.summary, reason
+                )
+            except Exception as err:
+                logger.error("run %d: cannot record its end yet: %s", self.id, err)
+                services.errors.note(err, device="storage")
+                services.on_unrecorded_end(self.id, final.value, self.summary, reason)
+        except Exception as err:  # a bug in the ending itself: still end (traceback logged)
+            logger.exception("run %d: error while ending", self.id)
+            services.errors.note(err, device="daemon")
+        finally:
+            self.ended_s = services.clock.now()
+            self.machine.state, self.machine.reason = final, reason
+            services.bus.publish(self._state_event())
+            self._publish_view()
+            if services.settings.storage.report_at_end and self.step >= 0:
+                services.reports.submit(self.id)
+            logger.info("run %d %s%s", self.id, final.value, f" ({reason})" if reason else "")
+
+    # --- the one place a state changes ----------------------------------------------------
+
+    def _go(self, state: RunState, reason: str | None) -> None:
+        """Change state now (no await between the caller's check and this), publish it and
+        the new view, and persist it in order on the recorder's thread."""
+        self.machine.go(state, reason)
+        if state is RunState.RUNNING:
+            self._services.on_progress()  # a pause is not a hung loop
+        self._wake.set()
+        logger.info("run %d: %s%s", self.id, state.value, f" ({reason})" if reason else "")
+        self._announce(state, reason)
+
+    def _set_reason(self, reason: str) -> None:
+        self.machine.reason = reason
+        self._announce(self.state, reason)
+
+    def _announce(self, state: RunState, reason: str | None) -> None:
+        services = self._services
+        services.bus.publish(self._state_event())
+        self._publish_view()
+        write = services.workers.db(services.recorder.set_run_state, self.id, state.value, reason)
+        write.add_done_callback(self._state_written)
+
+    def _state_written(self, write: asyncio.Future[None]) -> None:
+        if write.cancelled():
+            return
+        err = write.exception()
+        if err is not None:
+            logger.error("run %d: cannot record its state: %s", self.id, err)
+            self._services.errors.note(err, device="storage")
+
+    def _state_event(self) -> Event:
+        return Event(
+            "state", {"run_id": self.id, "state": self.state.value, "reason": self.machine.reason}
+        )
+
+    def view(self) -> RunView:
+        return RunView(
+            id=self.id,
+            state=self.state,
+            reason=self.machine.reason,
+            step=self.step,
+            parameters=self.work.parameters,
+            start_s=self.work.start_s,
+            end_s=self.ended_s,
+            summary=self.summary,
+            overruns=0 if self.timer is None else self.timer.overruns,
+            skipped=0 if self.timer is None else self.timer.skipped,
+            last_record=self.last_record,
+        )
+
+    def _publish_view(self) -> None:
+        self._services.on_view(self.view())
+
+    async def _hold_quietly(self) -> None:
+        try:
+            await self._services.robot.stop()
+        except DeviceError as err:
+            self._services.errors.note(err)
+            logger.warning("run %d: could not hold the robot: %s", self.id, err)

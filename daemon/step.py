@@ -1,0 +1,400 @@
+"""One step of a run (thesis 6.4), top to bottom: model -> target check -> move -> measure ->
+record. The pipeline computes the step and returns its outcome (the committed record, the
+frame, and a verdict: ok, pause(reason) or fault(reason)); it never changes the run's state.
+What the verdict does to the run is decided in one place, daemon/session.py, against the
+operator's requests that may have arrived meanwhile.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from config import Settings
+from daemon.events import ErrorLog
+from daemon.model import ThermalModel
+from daemon.model.compensation import (
+    CompensationLimits,
+    UnsafeTargetError,
+    check_offset,
+    compensation_offset_mm,
+)
+from daemon.model.observer import IrObserver
+from daemon.recorder import Recorder, StepRecord
+from daemon.runs import ProcedurePoint, RunParameters, heat_at, procedure_point
+from daemon.scheduler import Tick
+from daemon.sensors import Sensors
+from daemon.vision import CentroidError, measure_with_camera_settings
+from daemon.vision.calibration import camera_to_robot
+from daemon.workers import Workers
+from drivers.base import Frame, MoveResult, Pose, Robot
+from drivers.errors import DeviceError
+
+logger = logging.getLogger(__name__)
+
+#: Model advances above this many node-substeps of work go to the step's worker thread (numpy
+#: releases the GIL); a 17-node exact step is a few microseconds and stays on the loop.
+MODEL_WORK_OFF_LOOP = 200_000
+#: A step that begins more than this fraction of a period after its deadline is flagged late.
+LATE_FRACTION = 0.1
+#: Flags that scheduler.sensor_error_policy acts on (issue 10). A stale frame or reading
+#: counts: it is recorded but never used, so the step has no measurement.
+SENSOR_ERROR_FLAGS = frozenset(
+    {"camera-error", "ir-error", "centroid-error", "stale-frame", "stale-ir"}
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """What a step asks of its run: go on, pause (a refused target, a sensor error under the
+    "pause" policy) or park in fault (a device fault)."""
+
+    kind: Literal["ok", "pause", "fault"]
+    reason: str | None = None
+
+
+OK = Verdict("ok")
+
+
+@dataclass(frozen=True, slots=True)
+class StepOutcome:
+    record: StepRecord  # committed before the outcome is returned
+    frame: Frame | None
+    verdict: Verdict
+    round_trips_s: tuple[float, ...] = ()  # each console command of the move (s)
+    stages_s: dict[str, float] = field(default_factory=dict)  # scheduler.STAGES timings
+
+
+@dataclass(eq=False)
+class RunWork:
+    """What a run's steps carry from one to the next: the model and the compensation's
+    memory. Only the pipeline (and the session's resume, for the incremental mode) touch it."""
+
+    run_id: int
+    parameters: RunParameters
+    model: ThermalModel
+    direction: NDArray[np.float64]  # unit vector of the link axis, world coordinates
+    observer: IrObserver | None = None  # prediction "model+ir": the IR Kalman filter
+    goal: Pose | None = None  # taught operational goal
+    start_s: float = math.nan  # run clock at step 0
+    last_offset_mm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    last_target_mm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    reference_um: dict[int, tuple[float, float]] = field(default_factory=dict)
+    reference_source: str = "first step"  # where the drift's zero was measured
+    model_heat: dict[str, float] = field(default_factory=dict)
+
+
+class StepPipeline:
+    def __init__(
+        self,
+        settings: Settings,
+        *,
+        robot: Robot,
+        sensors: Sensors,
+        recorder: Recorder,
+        workers: Workers,
+        errors: ErrorLog,
+        clock_now: Callable[[], float],
+    ) -> None:
+        self._settings = settings
+        self._robot = robot
+        self._sensors = sensors
+        self._recorder = recorder
+        self._workers = workers
+        self._errors = errors
+        self._now = clock_now
+
+    async def run(self, work: RunWork, tick: Tick) -> StepOutcome:
+        parameters = work.parameters
+        run_time_s = tick.scheduled_s - work.start_s
+        record = StepRecord(
+            run_id=work.run_id,
+            step=tick.step,
+            scheduled_s=run_time_s,
+            actual_s=tick.actual_s - work.start_s,
+            lateness_s=tick.actual_s - tick.scheduled_s,
+            deformation_scale=parameters.deformation_scale,
+        )
+        flags: list[str] = []
+        errors: list[str] = []
+        stages: dict[str, float] = {}
+        if record.lateness_s > LATE_FRACTION * parameters.step_s:
+            flags.append("late")
+        point = procedure_point(parameters, tick.step, run_time_s)
+
+        # 1. the model, to the time the move is expected to execute (latency-compensated)
+        started = time.perf_counter()
+        predicted_um = await self._advance_model(work, run_time_s)
+        self._record_model(work, record, predicted_um)
+        stages["model"] = time.perf_counter() - started
+
+        # 2. the compensation target, checked before anything reaches the robot
+        started = time.perf_counter()
+        offset, target, unsafe = self._target(work, point, predicted_um)
+        record.offset_x_mm, record.offset_y_mm, record.offset_z_mm = map(float, offset)
+
+        # 3. the move (absolute from the goal, incremental, or none), then the actual pose
+        device_fault: str | None = None
+        round_trips_s: tuple[float, ...] = ()
+        if unsafe is not None:
+            flags.append("unsafe-target")
+            errors.append(unsafe)
+        else:
+            try:
+                pose, round_trips_s = await self._move(work, target)
+                work.last_offset_mm = offset
+                work.last_target_mm = target
+                if pose is None:  # robot.readback_every > 1: this move was not read back
+                    flags.append("no-readback")
+                else:
+                    record.pose_x_mm, record.pose_y_mm, record.pose_z_mm = pose.position
+            except DeviceError as err:
+                self._errors.note(err)
+                flags.append("robot-error")
+                errors.append(str(err))
+                device_fault = str(err)
+        stages["move"] = time.perf_counter() - started
+
+        # 4. measure: frame -> centroid, and the IR regions
+        frame: Frame | None = None
+        if point.capture and device_fault is None and unsafe is None:
+            frame = await self._measure(
+                work, point=point, record=record, flags=flags, errors=errors, stages=stages
+            )
+
+        # 5. record, committed before the next step begins
+        record.flags = ",".join(flags)
+        record.error = "; ".join(errors)
+        # the record's own stage cannot be in it: it is in the timing statistics only
+        record.stage_ms_json = json.dumps({k: round(v * 1e3, 3) for k, v in stages.items()})
+        started = time.perf_counter()
+        archive_every = self._settings.storage.archive_every
+        if frame is not None and archive_every and tick.step % archive_every == 0:
+            record.frame_path = await self._workers.db(
+                self._recorder.archive_frame, work.run_id, tick.step, frame.image
+            )
+        await self._workers.db(self._recorder.write_step, record)
+        stages["record"] = time.perf_counter() - started
+        verdict = self._verdict(unsafe, device_fault, flags, record)
+        return StepOutcome(record, frame, verdict, round_trips_s, stages)
+
+    def _verdict(
+        self, unsafe: str | None, device_fault: str | None, flags: list[str], record: StepRecord
+    ) -> Verdict:
+        if unsafe is not None:
+            return Verdict("pause", unsafe)
+        if device_fault is not None:
+            return Verdict("fault", device_fault)
+        if self._settings.scheduler.sensor_error_policy == "pause" and (
+            set(flags) & SENSOR_ERROR_FLAGS
+        ):
+            return Verdict("pause", f"sensor error: {record.error}")
+        return OK
+
+    # --- 1. the model ------------------------------------------------------------------
+
+    async def _advance_model(self, work: RunWork, run_time_s: float) -> NDArray[np.float64]:
+        """Advance the model to the expected execution time, switching the heaters at the
+        procedure's switching time exactly; return the predicted deformation vector (um)."""
+        parameters = work.parameters
+        scale = parameters.time_scale
+        target_model_s = (run_time_s + self._settings.compensation.latency_s) * scale
+        model = work.model
+        if parameters.heater_off_s is not None:
+            switch_s = parameters.heater_off_s * scale
+            if model.time_s < switch_s <= target_model_s:
+                await self._advance_to(work, switch_s)
+        if target_model_s > model.time_s:
+            await self._advance_to(work, target_model_s)
+        if work.observer is not None:
+            work.observer.predict(model.time_s)  # the covariance follows the model's mean
+        return model.deformation_um()
+
+    async def _advance_to(self, work: RunWork, model_s: float) -> None:
+        model = work.model
+        # the heat over the interval is the procedure's at its start (a step input)
+        heat = heat_at(work.parameters, model.time_s / work.parameters.time_scale + 1e-9)
+        if heat != work.model_heat:
+            model.set_heat(heat)
+            work.model_heat = heat
+        nodes = len(model.network.node_names)
+        work_units = nodes * nodes * max(1.0, (model_s - model.time_s) / max(model.dt_s, 1e-9))
+        if work_units > MODEL_WORK_OFF_LOOP:
+            await self._workers.step(model.advance_to, model_s)
+        else:
+            model.advance_to(model_s)
+
+    @staticmethod
+    def _record_model(work: RunWork, record: StepRecord, predicted_um: NDArray[np.float64]) -> None:
+        model = work.model
+        record.model_time_s = model.time_s
+        record.predicted_x_um, record.predicted_y_um, record.predicted_z_um = map(
+            float, predicted_um
+        )
+        temperatures = np.round(model.temperatures_c, 4).tolist()
+        record.model_temperatures_json = json.dumps(
+            dict(zip(model.network.node_names, temperatures, strict=True))
+        )
+        if work.observer is not None:
+            record.deformation_sigma_um = work.observer.corrected_deformation_um()[1]
+
+    # --- 2. the target -----------------------------------------------------------------
+
+    def _target(
+        self, work: RunWork, point: ProcedurePoint, predicted_um: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], str | None]:
+        """The compensating offset (thesis 6.4.4: -scale x deformation from the goal), the
+        motion target, and why it is refused (limits, non-finite) or None."""
+        parameters = work.parameters
+        offset = np.zeros(3)
+        target = np.asarray(point.pose_offset_mm, dtype=np.float64)
+        unsafe: str | None = None
+        if parameters.compensation != "off":
+            limits = CompensationLimits(
+                self._settings.compensation.max_step_change_mm,
+                self._settings.compensation.max_total_offset_mm,
+            )
+            try:
+                offset = check_offset(
+                    compensation_offset_mm(predicted_um, parameters.deformation_scale),
+                    work.last_offset_mm,
+                    limits,
+                )
+            except UnsafeTargetError as err:
+                unsafe = f"compensation target refused: {err}"
+            target = target + offset
+        if unsafe is None and not np.all(np.isfinite(target)):
+            unsafe = f"motion target is not finite: {target.tolist()}"
+        return offset, target, unsafe
+
+    # --- 3. the move ---------------------------------------------------------------------
+
+    async def _move(
+        self, work: RunWork, target_mm: NDArray[np.float64]
+    ) -> tuple[Pose | None, tuple[float, ...]]:
+        """The move of this step, if any: the actual pose after it (None when the driver did
+        not read it back), and the round trip of each console command it took."""
+        mode = work.parameters.compensation
+        moving_procedure = work.parameters.procedure != "stationary"
+        result: MoveResult | None = None
+        if mode == "absolute" or (mode == "off" and moving_procedure):
+            result = await self._robot.move_absolute(_vector3(target_mm))
+        elif mode == "incremental":
+            # thesis 6.4.3: each move is relative to where the previous one should have ended
+            result = await self._robot.move_incremental(_vector3(target_mm - work.last_target_mm))
+        if result is not None:
+            return result.pose, result.round_trips_s
+        return await self._robot.actual_pose(), ()
+
+    # --- 4. measure ----------------------------------------------------------------------
+
+    async def _measure(
+        self,
+        work: RunWork,
+        *,
+        point: ProcedurePoint,
+        record: StepRecord,
+        flags: list[str],
+        errors: list[str],
+        stages: dict[str, float],
+    ) -> Frame | None:
+        started = time.perf_counter()
+        frame: Frame | None = None
+        try:
+            frame = await self._sensors.grab()
+        except DeviceError as err:
+            self._errors.note(err)
+            flags.append("camera-error")
+            errors.append(str(err))
+        stages["frame"] = time.perf_counter() - started
+        started = time.perf_counter()
+        if frame is not None:
+            await self._centroid(
+                work, point=point, frame=frame, record=record, flags=flags, errors=errors
+            )
+        stages["centroid"] = time.perf_counter() - started
+        started = time.perf_counter()
+        await self._infrared(work, record, flags, errors)
+        stages["ir"] = time.perf_counter() - started
+        return frame
+
+    async def _centroid(
+        self,
+        work: RunWork,
+        *,
+        point: ProcedurePoint,
+        frame: Frame,
+        record: StepRecord,
+        flags: list[str],
+        errors: list[str],
+    ) -> None:
+        camera_settings = self._settings.camera
+        if frame.timestamp_source == "host":  # issue 18: say when the time is not exposure's
+            flags.append("host-timestamp")
+        age_s = self._now() - frame.timestamp_s
+        stale = age_s > camera_settings.max_age_s
+        if stale:
+            flags.append("stale-frame")
+            errors.append(self._sensors.stale("camera", "frame", age_s))
+        try:
+            result = await self._workers.step(
+                measure_with_camera_settings, frame.image, camera_settings
+            )
+        except CentroidError as err:
+            flags.append("centroid-error")
+            errors.append(f"centroid: {err}")
+            return
+        record.centroid_x_px, record.centroid_y_px = result.x_px, result.y_px
+        record.centroid_x_um, record.centroid_y_um = result.x_um, result.y_um
+        if stale:  # a stale frame is recorded and flagged, never used
+            return
+        reference = work.reference_um.setdefault(point.pose_index, (result.x_um, result.y_um))
+        record.drift_x_um = result.x_um - reference[0]
+        record.drift_y_um = result.y_um - reference[1]
+        # the drift in world coordinates (the camera's calibrated rotation, issue 18), along
+        # the link: the residual of the compensation (thesis 6.2)
+        world_um = camera_to_robot(
+            (record.drift_x_um, record.drift_y_um), self._settings.camera.rotation_deg
+        )
+        record.residual_um = float(np.dot(world_um, work.direction))
+
+    async def _infrared(
+        self, work: RunWork, record: StepRecord, flags: list[str], errors: list[str]
+    ) -> None:
+        try:
+            reading = await self._sensors.read_ir()
+        except DeviceError as err:
+            self._errors.note(err)
+            flags.append("ir-error")
+            errors.append(str(err))
+            return
+        age_s = self._now() - reading.timestamp_s
+        if age_s > self._settings.ir.max_age_s:
+            flags.append("stale-ir")
+            errors.append(self._sensors.stale("ir", "reading", age_s))
+        elif work.observer is not None:  # a stale reading is recorded, never fused
+            innovation = work.observer.update(
+                {name: region.mean_c for name, region in reading.regions.items()}
+            )
+            if innovation is not None:
+                record.innovation_nis = innovation.nis
+            if work.observer.drifting:
+                flags.append("model-drifting")
+        record.ir_json = json.dumps(
+            {
+                name: {"mean_c": region.mean_c, "max_c": region.max_c}
+                for name, region in reading.regions.items()
+            }
+        )
+
+
+def _vector3(array: NDArray[np.float64]) -> tuple[float, float, float]:
+    return (float(array[0]), float(array[1]), float(array[2]))

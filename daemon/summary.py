@@ -1,0 +1,69 @@
+"""The end-of-run summary (thesis Table 6.1 and the run's timing), read back from the database."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from daemon.analysis import NUMERIC_COLUMNS, RunSteps, summarize_run
+from daemon.recorder import Recorder
+from daemon.scheduler import percentiles
+from daemon.step import RunWork
+
+#: What the summary reads of the steps: no JSON columns (temperatures, IR, stage timings),
+#: which cost most of the time to read back.
+SUMMARY_COLUMNS = (*NUMERIC_COLUMNS, "run_id", "flags", "error")
+
+
+def run_summary(
+    recorder: Recorder,
+    work: RunWork,
+    *,
+    overruns: int,
+    skipped: int,
+    timing: dict[str, Any],
+) -> dict[str, Any]:
+    """Table 6.1's figures and the run's timing. The steps are series streamed from the
+    database, never one record object per step: an hour at a 20 ms step is 180,000 steps
+    (benchmarks/bench_run_end.py)."""
+    steps = recorder.run_steps(work.run_id, SUMMARY_COLUMNS)
+    parameters = work.parameters
+    reference = work.reference_um.get(0, (None, None))
+    summary: dict[str, Any] = dict(summarize_run(steps))
+    summary.update(
+        {
+            "steps": steps.n_steps,
+            "deformation_scale": parameters.deformation_scale,
+            "compensation": parameters.compensation,
+            "step_s": parameters.step_s,
+            "overruns": overruns,
+            "skipped_deadlines": skipped,
+            "reference": {
+                "source": work.reference_source,
+                "x_um": reference[0],
+                "y_um": reference[1],
+            },
+            "uncompensated_measured_max_um": measured_uncompensated_max_um(work, steps),
+            "timing": {
+                **timing,
+                # over every step of the run, not only the recent window
+                "lateness_s": percentiles(steps.numeric.get("lateness_s", ())),
+            },
+        }
+    )
+    return summary
+
+
+def measured_uncompensated_max_um(work: RunWork, steps: RunSteps) -> float | None:
+    """The largest drift the spot would have shown without the compensating moves: the
+    measured residual less the robot's actual displacement from the goal along the link
+    (issue 6 summary; stationary runs only, where the goal is the only pose)."""
+    goal = work.goal
+    if goal is None or work.parameters.procedure != "stationary" or steps.n_steps == 0:
+        return None
+    poses_mm = np.column_stack([steps.column(f"pose_{axis}_mm") for axis in "xyz"])
+    displacement_um = 1000.0 * (poses_mm - np.asarray(goal.position)) @ work.direction
+    values = steps.residual_um - displacement_um
+    values = values[np.isfinite(values)]  # steps with no residual or no pose read back
+    return float(np.abs(values).max()) if values.size else None

@@ -1,0 +1,72 @@
+"""The daemon's worker threads, each pool with one job (issue 15: the loop owns its workers).
+
+- ``step``: the control loop's CPU work (centroid, long model advances, reference frame):
+  nobody else submits here, so a burst of API reads can never delay a step's thread job.
+- ``db``: the one recorder thread: every write in order, off the event loop (an fsync per
+  step), and the end-of-run summary.
+- ``reads``: API reads, bounded: at most ``READ_THREADS`` run at once and the rest wait their
+  turn in the API, never in front of the control loop.
+- ``exports``: processes that encode step exports (daemon/exports.py): CPU-heavy work that
+  would hold this process's GIL for seconds, so it runs in processes of its own, started on
+  first use; at most ``EXPORT_PROCESSES`` at once.
+
+Drivers keep using the event loop's default executor for their own blocking calls (opening a
+port, an OpenCV read), which the API no longer touches.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import multiprocessing
+import os
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from typing import Any, TypeVar
+
+_T = TypeVar("_T")
+
+STEP_THREADS = 2
+READ_THREADS = 2
+EXPORT_PROCESSES = 2
+#: Export processes run this much nicer than the daemon: on a 2-core lab PC the kernel then
+#: gives the control loop the CPU first whenever both want it.
+EXPORT_NICENESS = 10
+
+
+class Workers:
+    def __init__(self) -> None:
+        self._step = ThreadPoolExecutor(STEP_THREADS, thread_name_prefix="step")
+        self._db = ThreadPoolExecutor(1, thread_name_prefix="recorder")
+        self._reads = ThreadPoolExecutor(READ_THREADS, thread_name_prefix="api-read")
+        self._exports: ProcessPoolExecutor | None = None
+
+    def step(self, function: Callable[..., _T], *args: Any) -> asyncio.Future[_T]:
+        return asyncio.get_running_loop().run_in_executor(self._step, function, *args)
+
+    def db(self, function: Callable[..., _T], *args: Any) -> asyncio.Future[_T]:
+        return asyncio.get_running_loop().run_in_executor(self._db, function, *args)
+
+    def read(self, function: Callable[..., _T], *args: Any) -> asyncio.Future[_T]:
+        return asyncio.get_running_loop().run_in_executor(self._reads, function, *args)
+
+    def export(self, function: Callable[..., _T], *args: Any) -> asyncio.Future[_T]:
+        """Run a picklable ``function`` in an export process (started on first use; "spawn":
+        a fork of a process with threads and an event loop is not safe)."""
+        if self._exports is None:
+            context = multiprocessing.get_context("spawn")
+            self._exports = ProcessPoolExecutor(
+                EXPORT_PROCESSES,
+                mp_context=context,
+                initializer=os.nice,
+                initargs=(EXPORT_NICENESS,),
+            )
+        return asyncio.get_running_loop().run_in_executor(self._exports, function, *args)
+
+    def shutdown(self) -> None:
+        """Wait for the recorder's pending writes (they are the run's record); drop queued
+        reads, exports and step work (their callers are gone)."""
+        for pool in (self._reads, self._step):
+            pool.shutdown(wait=False, cancel_futures=True)
+        if self._exports is not None:
+            self._exports.shutdown(wait=True, cancel_futures=True)
+        self._db.shutdown(wait=True)

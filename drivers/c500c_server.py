@@ -1,0 +1,224 @@
+"""The fast path: the robot driver for controller/thermocomp_server.r3, the RAPL-3 program that
+serves the binary protocol of controller/PROTOCOL.md on the controller's second serial port
+(the link itself: drivers/c500c_server_link.py).
+
+One step is one MOVE_GOAL frame out and one reply in (68 bytes, ~6 ms of line at 115200) instead
+of the console's five commands and its `w2` table (C500C.md "The fast path"). A hold writes
+HOLD at once, even while a move awaits its reply: the program polls the port during the move
+and halt()s it, and the move is answered with catalogue 044.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+
+from config.settings import RobotSettings
+from drivers import c500c_protocol as console_proto
+from drivers import c500c_server_protocol as proto
+from drivers.base import LinkState, MoveResult, Pose, RobotStatus, Vector3
+from drivers.c500c import READBACK_TOLERANCE_MM
+from drivers.c500c_server_link import DEVICE, RECONNECT_FIRST_BACKOFF_S, ServerLink
+from drivers.errors import (
+    DeviceError,
+    DeviceReportedError,
+    GoalLostError,
+    MotionHeldError,
+    NotConnectedError,
+    PointOfControlError,
+    ProtocolError,
+)
+
+logger = logging.getLogger(__name__)
+
+#: Catalogue 044 (C500C.md); the console's table of texts may not carry it.
+HALT_TEXT = "Halt() command invoked"
+
+
+def status_text(code: int) -> str:
+    if code == proto.Status.HALTED:
+        return HALT_TEXT
+    if code in proto.STATUS_TEXTS:
+        return proto.STATUS_TEXTS[code]
+    return console_proto.MOTION_ERRORS.get(code, "controller error")
+
+
+def _pose(values: proto.Pose6) -> Pose:
+    return Pose(*values)
+
+
+class C500CServerRobot(ServerLink):
+    """The robot (drivers.base.Robot) through the thermocomp server program on the C500C."""
+
+    def __init__(
+        self,
+        settings: RobotSettings,
+        *,
+        port: str | None = None,
+        first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
+    ) -> None:
+        super().__init__(settings, port=port, first_backoff_s=first_backoff_s)
+        self._motion_lock = asyncio.Lock()  # one motion at a time (the program refuses two)
+        self._goal: Pose | None = None
+        self._arm_power: bool | None = None
+        self._homed: bool | None = None
+
+    def _check(self, reply: proto.Reply, *, motion: bool) -> proto.Reply:
+        """Raise the controller's error, if any (catalogue numbers passed through)."""
+        if reply.ok:
+            if motion:
+                self._arm_power, self._homed = True, True
+            return reply
+        code = reply.status
+        if code == 7:
+            self._arm_power = False
+        elif code == 5:
+            self._homed = False
+        text = status_text(code)
+        if code == proto.Status.HELD:
+            self._hold("the controller program refused motion: held")
+            raise MotionHeldError(DEVICE, f"the controller program holds motion: {text}")
+        if code == proto.Status.NO_CONTROL:
+            raise PointOfControlError(
+                DEVICE, console_proto.POINT_OF_CONTROL_MESSAGE + " (restart the program)"
+            )
+        raise DeviceReportedError(DEVICE, code if code < proto.Status.NO_GOAL else None, text)
+
+    # --- the Robot protocol ---
+
+    async def teach_goal(self) -> Pose:
+        reply = await self._request(
+            proto.RequestType.TEACH_GOAL, timeout_s=self.settings.command_timeout_s
+        )
+        self._goal = _pose(self._check(reply, motion=False).pose)
+        logger.info("operational goal taught at %s", self._goal)
+        return self._goal
+
+    async def _move(
+        self,
+        request_type: proto.RequestType,
+        offset: Vector3,
+        expected_from: Pose,
+        exchanges_before: int = 0,
+    ) -> MoveResult:
+        """One motion frame and its reply; ``exchanges_before``: plain requests this step
+        made first (counted in the step's bytes: other traffic such as heartbeats is not)."""
+        if not all(math.isfinite(v) for v in offset):
+            raise DeviceError(DEVICE, f"refused a non-finite motion target {offset}")
+        self._require_motion_allowed()
+        offset6 = proto.quantise((*offset, 0.0, 0.0, 0.0))
+        commanded = (offset6[0], offset6[1], offset6[2])
+        async with self._motion_lock:
+            started = time.perf_counter()
+            try:
+                reply = self._check(
+                    await self._request(
+                        request_type, offset6, timeout_s=self.settings.move_timeout_s
+                    ),
+                    motion=True,
+                )
+            except DeviceError as err:
+                self._hold(str(err))
+                raise
+            round_trip_s = time.perf_counter() - started
+        actual = _pose(reply.pose)
+        expected = tuple(e + c for e, c in zip(expected_from.position, commanded, strict=True))
+        worst = max(abs(a - e) for a, e in zip(actual.position, expected, strict=True))
+        if worst > READBACK_TOLERANCE_MM:
+            error = ProtocolError(
+                DEVICE, f"pose {actual.position} is {worst:.4f} mm from {expected}"
+            )
+            self._link_fault(error)
+            raise error
+        return MoveResult(
+            offset,
+            commanded,
+            actual,  # every reply carries the pose: the fast path reads back every step
+            bytes_sent=proto.MOVE_REQUEST_BYTES + exchanges_before * proto.REQUEST_BYTES,
+            bytes_received=(1 + exchanges_before) * proto.REPLY_BYTES,
+            round_trips_s=(round_trip_s,),
+        )
+
+    async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
+        """Goal + offset in one frame (thesis 6.4.4): the program shifts `opgoal`, moves,
+        waits for the end of the motion and answers the actual pose."""
+        goal = self._goal
+        if goal is None:
+            raise DeviceError(DEVICE, "no operational goal: call teach_goal() first")
+        return await self._move(proto.RequestType.MOVE_GOAL, offset_mm, goal)
+
+    async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
+        """The actual pose + delta (only to reproduce the thesis's comparison)."""
+        self._require_motion_allowed()
+        start = await self.actual_pose()
+        return await self._move(proto.RequestType.MOVE_RELATIVE, delta_mm, start, 1)
+
+    async def actual_pose(self) -> Pose:
+        reply = await self._request(
+            proto.RequestType.READ_POSE, timeout_s=self.settings.command_timeout_s
+        )
+        return _pose(self._check(reply, motion=False).pose)
+
+    async def stop(self) -> None:
+        """Hold now (synchronously, before any await: no motion frame can be written from here
+        on), then send HOLD — not queued behind a move awaiting its reply — so the program
+        halt()s a motion in progress. A link that is down cannot carry it: the program's silence
+        timeout halts the arm instead."""
+        self._hold("stopped by request")
+        try:
+            self._check(
+                await self._request(
+                    proto.RequestType.HOLD, timeout_s=self.settings.command_timeout_s
+                ),
+                motion=False,
+            )
+        except DeviceError as err:
+            logger.warning("HOLD not acknowledged (%s); the program's silence timeout halts", err)
+
+    async def resume(self) -> None:
+        """Allow motion again: the link must be up and the program must still hold the goal
+        taught (it forgets it when restarted); then RELEASE."""
+        if self._link is not LinkState.CONNECTED:
+            raise NotConnectedError(DEVICE, f"cannot resume while {self._link.value}")
+        reply = self._check(
+            await self._request(
+                proto.RequestType.READ_POSE, timeout_s=self.settings.command_timeout_s
+            ),
+            motion=False,
+        )
+        if self._goal is not None and not reply.flags & proto.Flag.GOAL_TAUGHT:
+            raise GoalLostError(DEVICE, "program restarted?")
+        self._check(
+            await self._request(
+                proto.RequestType.RELEASE, timeout_s=self.settings.command_timeout_s
+            ),
+            motion=False,
+        )
+        self._motion_held = False
+        logger.info("robot motion resumed")
+
+    def status(self) -> RobotStatus:
+        flags = self._flags
+        return RobotStatus(
+            link=self._link,
+            arm_power=self._arm_power,
+            homed=self._homed,
+            online=self.settings.online,
+            point_of_control=None if flags is None else bool(flags & proto.Flag.POINT_OF_CONTROL),
+            motion_held=self._motion_held,
+            last_error=self._last_error,
+            extra={
+                "port": self.port,
+                "program": "thermocomp_server",
+                "reconnect_attempts": str(self._reconnect_attempts),
+                "bytes_sent": str(self._bytes_sent),
+                "bytes_received": str(self._bytes_received),
+                "controller_flags": "" if flags is None else str(int(flags)),
+            },
+        )
+
+    @property
+    def goal(self) -> Pose | None:
+        return self._goal

@@ -1,0 +1,445 @@
+"""The emulated C500C's `ash` command interpreter: one line in, answer lines out (no I/O).
+
+drivers/sim/emulator.py serves it on a pty or a TCP port. It follows the firmware's texts and
+layouts of C500C.md through drivers/c500c_protocol.py; what no source confirms is that module's
+``ASSUMED`` block. Emulator-only simplifications (not protocol assumptions): there are no A465
+kinematics (the PULSES and JOINTS rows are zeros), the reach check is a sphere of ``REACH_MM``
+around the base, relative `w*` moves start from the actual (not the commanded) pose, so their
+positioning errors accumulate as the thesis's incremental commands did (6.4.4).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import re
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from drivers import c500c_protocol as proto
+
+if TYPE_CHECKING:
+    from drivers.sim.emulator import EmulatorConfig
+
+#: Emulator simplification: a location farther than this from the base is out of reach (mm).
+REACH_MM = 900.0
+#: Where the emulated arm starts: x, y, z (mm), z-rot, y-rot, x-rot (degrees).
+START_POSE: tuple[float, ...] = (457.200, 0.000, 254.000, 0.000, 90.000, 0.000)
+#: Command lines the emulator keeps for inspection (tests, drills): the latest ones only.
+COMMAND_LOG_LINES = 10_000
+Location = tuple[float, float, float, float, float, float]
+
+
+def as_location(values: Sequence[float]) -> Location:
+    """Six numbers (x, y, z mm; z-rot, y-rot, x-rot degrees) as a location."""
+    if len(values) != 6:
+        raise ValueError(f"a location has six values, not {len(values)}")
+    x, y, z, z_rot, y_rot, x_rot = (float(v) for v in values)
+    return (x, y, z, z_rot, y_rot, x_rot)
+
+
+class ConsoleCommandError(Exception):
+    """A command failed; ``line`` is what the console prints."""
+
+    def __init__(self, line: str) -> None:
+        super().__init__(line)
+        self.line = line
+
+
+#: Console commands that start a motion (the ones the emulator knows).
+MOTION_WORDS = ("move", "moves", "wx", "wy", "wz", "wxs", "wys", "wzs")
+#: How the controller's console comes back after a restart: the boot ends at the system shell.
+RESTART_BANNER = "CROS restarted"
+
+
+@dataclass(frozen=True, slots=True)
+class _Question:
+    """A question the console printed instead of a prompt; the next line answers it."""
+
+    text: str
+    on_answer: Callable[[str], list[str]]
+
+
+@dataclass
+class ConsoleState:
+    """What the emulated controller knows. Tests may read and change it."""
+
+    arm_power: bool
+    homed: bool
+    online: bool
+    point_of_control: bool
+    commanded: Location
+    actual: Location
+    previous_actual: Location
+    in_shell: bool = False
+    awaiting_button: bool = False  # a motion waits for PAUSE/CONTINUE
+    restarts: int = 0
+    speed_percent: int = 10
+    motion_end_s: float = 0.0
+    locations: dict[str, Location] = field(default_factory=dict)
+    # The latest command lines received, in order (bounded: a sim daemon runs for days at
+    # ~250 lines a second), and how many were ever received (fault injection counts them).
+    commands: deque[str] = field(default_factory=lambda: deque(maxlen=COMMAND_LOG_LINES))
+    received: int = 0
+
+    def log_command(self, line: str) -> None:
+        self.commands.append(line)
+        self.received += 1
+
+    def motion_commands(self) -> list[str]:
+        """The logged command lines that start a motion (what a held robot must never get)."""
+        return [c for c in self.commands if proto.is_motion_command(c)]
+
+
+def _shell_error(text: str) -> str:
+    """A shell error as the firmware prints it: `error: ` and the text (C500C.md "Errors")."""
+    return proto.format_error(None, text)
+
+
+class Console:
+    """The `ash` command interpreter: one line in, answer lines out (no I/O)."""
+
+    def __init__(self, config: EmulatorConfig, rng: np.random.Generator) -> None:
+        start = as_location(config.start_pose)
+        self.config = config
+        self.rng = rng
+        self.state = ConsoleState(
+            arm_power=config.arm_power,
+            homed=config.homed,
+            online=config.online,
+            point_of_control=config.point_of_control,
+            commanded=start,
+            actual=start,
+            previous_actual=start,
+            in_shell=config.start_in_shell,
+        )
+        self.question: _Question | None = None
+        self._after_button: str | None = None  # the motion command waiting for the button
+        self._button: asyncio.Event | None = None
+
+    @property
+    def prompt(self) -> bytes:
+        if self.question is not None:
+            return self.question.text.encode("ascii")
+        return (
+            proto.SHELL_PROMPT if self.state.in_shell else proto.prompt_for(self.config.application)
+        )
+
+    def _ask(self, text: str, on_answer: Callable[[str], list[str]]) -> list[str]:
+        self.question = _Question(text, on_answer)
+        return []
+
+    def _create_it(self, name: str, then: Callable[[], list[str]]) -> list[str]:
+        """`here`/`set` to a variable that does not exist [firmware]: "Variable '<name>' not
+        found." and "  -- create it? "; "yes" creates it and carries on, "no" does nothing,
+        anything else asks "Please answer 'yes' or 'no': "."""
+
+        def answer(text: str) -> list[str]:
+            if text in ("yes", "y"):
+                self.state.locations[name] = self.state.actual
+                return then()
+            if text in ("no", "n"):
+                return []
+            return self._ask("Please answer 'yes' or 'no': ", answer)
+
+        self._ask("  -- create it? ", answer)
+        return [f"Variable '{name}' not found."]
+
+    def press_pause_continue(self) -> None:
+        """The operator takes the point of control at the controller."""
+        self.state.point_of_control = True
+        if self._button is not None:
+            self._button.set()
+
+    async def wait_for_button(self) -> list[str]:
+        """Block until PAUSE/CONTINUE is pressed, then run the motion command that waited."""
+        if self._button is None:
+            self._button = asyncio.Event()
+        while not self.state.point_of_control:
+            self._button.clear()
+            await self._button.wait()
+        line, self._after_button = self._after_button, None
+        self.state.awaiting_button = False
+        return [] if line is None else await self._execute(line)
+
+    def restart(self) -> None:
+        """The controller restarts: every variable is forgotten, online is off, any question or
+        waiting motion is gone, and the console is at the system shell."""
+        state = self.state
+        state.locations.clear()
+        state.online = False
+        state.in_shell = True
+        state.awaiting_button = False
+        state.restarts += 1
+        self.question = None
+        self._after_button = None
+
+    def actual_pose(self, now_s: float) -> Location:
+        """Where the arm really is at loop time ``now_s`` (the start pose while moving)."""
+        state = self.state
+        return state.actual if now_s >= state.motion_end_s else state.previous_actual
+
+    async def execute(self, line: str) -> list[str]:
+        """Run one command line; return the answer lines (errors included). A motion command
+        without the point of control answers the PAUSE/CONTINUE request and waits: the caller
+        then awaits :meth:`wait_for_button` for the rest of the answer."""
+        self.state.log_command(line)
+        question = self.question
+        if question is not None:
+            self.question = None
+            return question.on_answer(line.strip())
+        return await self._execute(line)
+
+    async def _execute(self, line: str) -> list[str]:
+        words = line.strip()
+        if not words:
+            return []
+        if self.state.in_shell:
+            return self._shell(words)
+        name, _, rest = words.partition(" ")
+        try:
+            if name == "finish":
+                await self._finish()
+                return []
+            if name in MOTION_WORDS:
+                await self._finish()  # a new motion starts when the previous one has ended
+            handler = getattr(self, f"_cmd_{name}", None)
+            if handler is None:
+                raise ConsoleCommandError(proto.format_error(None, "Unrecognized command."))
+            if name in MOTION_WORDS and not self.state.point_of_control:
+                # C500C.md "Point of control": the request, then the wait for the button
+                self.state.awaiting_button = True
+                self._after_button = line
+                return [proto.POINT_OF_CONTROL_MESSAGE]
+            answer: list[str] = handler(rest.strip())
+            return answer
+        except ConsoleCommandError as err:
+            return [err.line]
+
+    # --- the system shell ---
+
+    def _shell(self, words: str) -> list[str]:
+        parts = words.split()
+        if parts[0] != "ash" or len(parts) > 2:
+            return [f"{parts[0]}: not found"]
+        if len(parts) == 1:  # [firmware]: ash without an argument asks for the application
+            self._ask("Application name > ", lambda name: self._start_ash(name.strip()))
+            return []
+        return self._start_ash(parts[1])
+
+    def _start_ash(self, application: str) -> list[str]:
+        if application != self.config.application:
+            return [f"{application}: application not found"]
+        self.state.in_shell = False
+        return []
+
+    # --- helpers ---
+
+    @staticmethod
+    def _arguments(rest: str, count: int) -> list[str]:
+        parts = [part.strip() for part in rest.split(",")] if rest else []
+        if len(parts) < count:
+            raise ConsoleCommandError(
+                _shell_error("missing comma." if parts else "invalid argument.")
+            )
+        if len(parts) > count:
+            raise ConsoleCommandError(_shell_error("too many arguments."))
+        return parts
+
+    @staticmethod
+    def _number(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise ConsoleCommandError(_shell_error("missing number.")) from None
+        if not math.isfinite(value):
+            raise ConsoleCommandError(_shell_error("invalid argument."))
+        return value
+
+    def _location(self, name: str) -> Location:
+        if name not in self.state.locations:
+            raise ConsoleCommandError(_shell_error("variable not found."))
+        return self.state.locations[name]
+
+    @staticmethod
+    def _variable_name(name: str) -> str:
+        if not re.fullmatch(r"[A-Za-z_]\w*", name):
+            raise ConsoleCommandError(_shell_error("invalid argument."))
+        return name
+
+    def _check_motion(self, straight: bool) -> list[str] | None:
+        state = self.state
+        if not state.arm_power:
+            raise ConsoleCommandError(proto.format_error(7))
+        if not state.homed:
+            raise ConsoleCommandError(proto.format_error(5))
+        if straight and not state.online:
+            raise ConsoleCommandError(proto.format_error(43))
+        return None
+
+    def _start_motion(self, target: Location) -> None:
+        if math.dist((0.0, 0.0, 0.0), target[:3]) > REACH_MM:
+            raise ConsoleCommandError(proto.format_error(3))
+        sigma_mm = self.config.noise_um / 1000.0
+        noise = self.rng.normal(0.0, sigma_mm, size=3) if sigma_mm > 0 else np.zeros(3)
+        state = self.state
+        state.previous_actual = state.actual
+        state.commanded = target
+        state.actual = as_location(
+            (target[0] + noise[0], target[1] + noise[1], target[2] + noise[2], *target[3:])
+        )
+        state.motion_end_s = asyncio.get_running_loop().time() + self.config.move_ms / 1000.0
+
+    async def _finish(self) -> None:
+        remaining = self.state.motion_end_s - asyncio.get_running_loop().time()
+        if remaining > 0:
+            await asyncio.sleep(remaining)
+
+    def _table(self, pose: Location, title: str) -> list[str]:
+        # emulator simplification: no kinematics, so PULSES and JOINTS are zeros
+        return proto.format_w_table(
+            pose, (0.0,) * 6, (0,) * 6, title=title, layout=self.config.layout
+        )
+
+    # --- commands (ash) ---
+
+    def _cmd_w0(self, rest: str) -> list[str]:
+        if rest:
+            raise ConsoleCommandError(_shell_error("too many arguments."))
+        return self._table(self.state.commanded, proto.COMMANDED_TITLE)
+
+    def _cmd_w2(self, rest: str) -> list[str]:
+        if rest:
+            raise ConsoleCommandError(_shell_error("too many arguments."))
+        return self._table(self.actual_pose(asyncio.get_running_loop().time()), proto.ACTUAL_TITLE)
+
+    def _cmd_new(self, rest: str) -> list[str]:
+        """`new <name>` makes a location (C500C.md: `help new`); ASSUMED 7: silent, and an
+        error line when the name exists already (its value is kept)."""
+        (name,) = self._arguments(rest, 1)
+        if self._variable_name(name) in self.state.locations:
+            raise ConsoleCommandError(_shell_error("variable already exists."))
+        self.state.locations[name] = self.state.actual
+        return []
+
+    def _cmd_here(self, rest: str) -> list[str]:
+        (name,) = self._arguments(rest, 1)
+        self._variable_name(name)
+
+        def teach() -> list[str]:
+            self.state.locations[name] = self.actual_pose(asyncio.get_running_loop().time())
+            return []
+
+        return teach() if name in self.state.locations else self._create_it(name, teach)
+
+    def _cmd_set(self, rest: str) -> list[str]:
+        name, equals, value = rest.partition("=")
+        name, value = name.strip(), value.strip()
+        if not equals or not value:
+            raise ConsoleCommandError(_shell_error("invalid argument."))
+        self._variable_name(name)
+        if value.startswith("{"):
+            if not value.endswith("}"):
+                raise ConsoleCommandError(_shell_error("invalid argument."))
+            parts = self._arguments(value[1:-1], 6)
+            location = as_location([self._number(p) for p in parts])
+        else:
+            location = self._location(value)
+
+        def assign() -> list[str]:
+            self.state.locations[name] = location
+            return []
+
+        return assign() if name in self.state.locations else self._create_it(name, assign)
+
+    def _cmd_wshift(self, rest: str) -> list[str]:
+        parts = self._arguments(rest, 7)
+        base = self._location(parts[0])
+        dx, dy, dz, zr, yr, xr = (self._number(p) for p in parts[1:])
+        self.state.locations[parts[0]] = (
+            base[0] + dx,
+            base[1] + dy,
+            base[2] + dz,
+            base[3] + zr,
+            base[4] + yr,
+            base[5] + xr,
+        )
+        return []
+
+    def _move_to(self, rest: str, straight: bool) -> list[str]:
+        (name,) = self._arguments(rest, 1)
+        target = self._location(name)
+        held = self._check_motion(straight)
+        if held is not None:
+            return held
+        self._start_motion(target)
+        return []
+
+    def _cmd_move(self, rest: str) -> list[str]:
+        return self._move_to(rest, straight=False)
+
+    def _cmd_moves(self, rest: str) -> list[str]:
+        return self._move_to(rest, straight=True)
+
+    def _relative(self, rest: str, axis: int, straight: bool) -> list[str]:
+        (text,) = self._arguments(rest, 1)
+        distance = self._number(text)
+        held = self._check_motion(straight)
+        if held is not None:
+            return held
+        start = list(self.state.actual)  # emulator simplification: from the actual pose
+        start[axis] += distance
+        self._start_motion(as_location(start))
+        return []
+
+    def _cmd_wx(self, rest: str) -> list[str]:
+        return self._relative(rest, 0, straight=False)
+
+    def _cmd_wy(self, rest: str) -> list[str]:
+        return self._relative(rest, 1, straight=False)
+
+    def _cmd_wz(self, rest: str) -> list[str]:
+        return self._relative(rest, 2, straight=False)
+
+    def _cmd_wxs(self, rest: str) -> list[str]:
+        return self._relative(rest, 0, straight=True)
+
+    def _cmd_wys(self, rest: str) -> list[str]:
+        return self._relative(rest, 1, straight=True)
+
+    def _cmd_wzs(self, rest: str) -> list[str]:
+        return self._relative(rest, 2, straight=True)
+
+    def _on_off(self, rest: str) -> bool:
+        if rest not in ("on", "off"):
+            raise ConsoleCommandError(_shell_error("invalid argument."))
+        return rest == "on"
+
+    def _cmd_online(self, rest: str) -> list[str]:
+        self.state.online = self._on_off(rest)
+        return []
+
+    def _cmd_armpower(self, rest: str) -> list[str]:
+        self.state.arm_power = self._on_off(rest)
+        return []
+
+    def _cmd_home(self, rest: str) -> list[str]:
+        if rest:
+            raise ConsoleCommandError(_shell_error("too many arguments."))
+        if not self.state.arm_power:
+            raise ConsoleCommandError(proto.format_error(7))
+        self.state.homed = True
+        return []
+
+    def _cmd_speed(self, rest: str) -> list[str]:
+        if not rest:
+            return [f"speed = {self.state.speed_percent}%"]
+        value = self._number(rest)
+        if not 1 <= value <= 100 or value != int(value):
+            raise ConsoleCommandError(proto.format_error(15))
+        self.state.speed_percent = int(value)
+        return []

@@ -1,0 +1,272 @@
+"""Test doubles of drivers/base.py for the daemon's tests, and the harness that runs a Daemon
+on them.
+
+The fake bench's physical truth is a second ThermalModel of the same network with the same
+heat, so with a noise-free robot the compensated spot must stay put (the analytic oracle).
+The fake robot locks like the real driver (drivers/c500c.py): one command at a time under one
+lock, the hold checked under the lock right before a motion command is "written", so a move
+queued behind another command is refused once a hold came (issue 15). Gates let a test stop a
+device inside a call (``robot.pose_gate``, ``camera.gate``) to act during a step.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Self
+
+import numpy as np
+
+from config import Settings
+from daemon.model import ThermalModel, load_network
+from daemon.runs import RunParameters
+from daemon.service import Daemon
+from daemon.vision import render_spot
+from drivers.base import (
+    Frame,
+    IrReading,
+    LinkState,
+    MoveResult,
+    Pose,
+    RegionTemperature,
+    RobotStatus,
+    Vector3,
+)
+from drivers.clock import Clock, make_clock
+from drivers.errors import DeviceError, DeviceTimeoutError, MotionHeldError
+
+
+class Gate:
+    """Holds a device call until the test opens it; says when a call is waiting at it."""
+
+    def __init__(self) -> None:
+        self.reached = asyncio.Event()
+        self._open = asyncio.Event()
+        self.error: DeviceError | None = None  # raised by the call once opened, if set
+
+    async def pass_through(self) -> None:
+        self.reached.set()
+        await self._open.wait()
+        if self.error is not None:
+            raise self.error
+
+    def open(self, error: DeviceError | None = None) -> None:
+        self.error = error
+        self._open.set()
+
+
+HEAT_W = {"2": 5.0, "9": 5.0}  # ~35 um in the first minute: big enough to see
+UM_PER_PX = (10.22, 9.72)
+SHAPE = (120, 160)  # small frames keep the suite fast
+GOAL = Pose(500.0, 0.0, 300.0)
+SLOW_MOVE_S = 0.07  # 3.5 periods of the 20 ms step of the overrun test
+
+
+class FakeBench:
+    """The truth: the same network and heat as the controller's model."""
+
+    def __init__(self, clock: Clock, heat_w: dict[str, float]) -> None:
+        self.clock = clock
+        self.truth = ThermalModel(load_network("thesis-two-link"), "exact", 1.0, 22.0)
+        self.truth.set_heat(heat_w)
+        self.robot_offset_mm = np.zeros(3)
+
+    def spot_um(self) -> np.ndarray:
+        self.truth.advance_to(max(self.clock.now(), self.truth.time_s))
+        return self.truth.deformation_um() + 1000.0 * self.robot_offset_mm
+
+
+class FakeRobot:
+    def __init__(self, bench: FakeBench) -> None:
+        self.bench = bench
+        self.commands: list[tuple[str, Vector3]] = []  # motion commands "written"
+        self.fail_moves: set[int] = set()  # move numbers (0-based) that time out
+        self.slow_moves: set[int] = set()  # move numbers that take SLOW_MOVE_S of real time
+        self.hung_moves: set[int] = set()  # move numbers that never finish
+        self.hanging = asyncio.Event()
+        self.position_errors_um: dict[int, float] = {}  # move number -> x error of that move
+        self.held = False
+        self.resumes = 0
+        self.pose_reads = 0
+        self.moves = 0
+        self.lock = asyncio.Lock()  # one command at a time, as the real driver
+        self.pose_gate: Gate | None = None  # set: actual_pose() waits there, holding the lock
+        self.resume_gate: Gate | None = None  # set: resume() waits there before releasing
+        self.resume_error: DeviceError | None = None  # raised by resume()
+        self.moves_waiting = 0  # motion calls waiting for the lock
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def teach_goal(self) -> Pose:
+        async with self.lock:
+            self.bench.robot_offset_mm = np.zeros(3)
+            return GOAL
+
+    def _check(self) -> None:
+        """Right before a motion command is written, under the lock (drivers/c500c.py)."""
+        move = self.moves
+        self.moves += 1
+        if self.held:
+            raise MotionHeldError("robot", "motion held")
+        if move in self.fail_moves:
+            self.held = True
+            raise DeviceTimeoutError("robot", f"no answer to move {move}")
+
+    def _result(self, requested: Vector3) -> MoveResult:
+        return MoveResult(requested, requested, self._pose())
+
+    def _pose(self) -> Pose:
+        offset = self.bench.robot_offset_mm
+        return Pose(GOAL.x + offset[0], GOAL.y + offset[1], GOAL.z + offset[2])
+
+    async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
+        assert all(math.isfinite(v) for v in offset_mm)
+        self.moves_waiting += 1
+        try:
+            await self.lock.acquire()
+        finally:
+            self.moves_waiting -= 1
+        try:
+            if self.moves in self.slow_moves:
+                await asyncio.sleep(SLOW_MOVE_S)
+            if self.moves in self.hung_moves:
+                self.hanging.set()
+                await asyncio.Event().wait()  # a controller that never answers
+            self._check()
+            self.commands.append(("absolute", offset_mm))
+            error_mm = self.position_errors_um.get(self.moves - 1, 0.0) / 1000.0
+            self.bench.robot_offset_mm = np.asarray(offset_mm) + np.array([error_mm, 0.0, 0.0])
+            return self._result(offset_mm)
+        finally:
+            self.lock.release()
+
+    async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
+        async with self.lock:
+            self._check()
+            self.commands.append(("incremental", delta_mm))
+            self.bench.robot_offset_mm = self.bench.robot_offset_mm + np.asarray(delta_mm)
+            return self._result(delta_mm)
+
+    async def actual_pose(self) -> Pose:
+        async with self.lock:
+            self.pose_reads += 1
+            if self.pose_gate is not None:
+                await self.pose_gate.pass_through()
+            return self._pose()
+
+    async def stop(self) -> None:
+        self.held = True  # at once, before any await: no motion command can be written now
+
+    async def resume(self) -> None:
+        if self.resume_gate is not None:
+            await self.resume_gate.pass_through()
+        if self.resume_error is not None:
+            raise self.resume_error
+        self.resumes += 1
+        self.held = False
+
+    def status(self) -> RobotStatus:
+        return RobotStatus(LinkState.CONNECTED, motion_held=self.held)
+
+
+class FakeCamera:
+    def __init__(self, bench: FakeBench) -> None:
+        self.bench = bench
+        self.sequence = 0
+        self.age_s = 0.0
+        self.gates: dict[int, Gate] = {}  # grab number (0 = the reference frame) -> gate
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def grab(self) -> Frame:
+        gate = self.gates.get(self.sequence)
+        if gate is not None:
+            await gate.pass_through()
+        spot = self.bench.spot_um()
+        centre = (80.0 + spot[0] / UM_PER_PX[0], 60.0 + spot[1] / UM_PER_PX[1])
+        image = render_spot(shape=SHAPE, centre_xy=centre, sigma_px=3.0, bit_depth=16)
+        self.sequence += 1
+        # stamped at its exposure, as the sim camera: the fake knows the time exactly
+        timestamp_s = self.bench.clock.now() - self.age_s
+        return Frame(image, 16, timestamp_s, self.sequence, timestamp_source="camera")
+
+
+class FakeIr:
+    def __init__(self, clock: Clock) -> None:
+        self.clock = clock
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def read(self) -> IrReading:
+        region = RegionTemperature("shaft", 25.0, 26.5, "9")
+        return IrReading({"shaft": region}, self.clock.now(), 0)
+
+
+class FakeDevices:
+    def __init__(self, clock: Clock, heat_w: dict[str, float]) -> None:
+        self.truth = FakeBench(clock, heat_w)  # not `bench`: that is the real sim's hook
+        self.robot = FakeRobot(self.truth)
+        self.camera = FakeCamera(self.truth)
+        self.ir = FakeIr(clock)
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        return None
+
+
+def make_settings(tmp_path: Path, **sections: dict[str, Any]) -> Settings:
+    data: dict[str, Any] = {
+        "storage": {"data_dir": str(tmp_path), "report_at_end": False},
+        "camera": {"width_px": SHAPE[1], "height_px": SHAPE[0], "um_per_px": UM_PER_PX},
+        "model": {"heat_w": HEAT_W},
+        "scheduler": {"duration_s": 60.0, "step_s": 1.0},
+    }
+    for name, values in sections.items():
+        data[name] = {**data.get(name, {}), **values}
+    return Settings.model_validate(data)
+
+
+class Harness:
+    def __init__(self, settings: Settings) -> None:
+        self.clock = make_clock(settings.bench.clock, settings.bench.time_factor)
+        self.devices: FakeDevices | None = None
+        self.daemon = Daemon(settings, clock=self.clock, open_devices=self._open)
+
+    def _open(self, settings: Settings, clock: Clock) -> FakeDevices:
+        self.devices = FakeDevices(clock, dict(settings.model.heat_w))
+        return self.devices
+
+    @property
+    def robot(self) -> FakeRobot:
+        assert self.devices is not None
+        return self.devices.robot
+
+    @property
+    def camera(self) -> FakeCamera:
+        assert self.devices is not None
+        return self.devices.camera
+
+
+def params(settings: Settings, **overrides: Any) -> RunParameters:
+    return RunParameters.from_settings(settings, **overrides)
