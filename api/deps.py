@@ -106,9 +106,14 @@ def _authenticate(context: ApiContext, request: Request, scope: Scope) -> frozen
         raise _auth_failed(err) from err
 
 
+def require_read_now(context: ApiContext, request: Request) -> None:
+    """Reads need the ``read`` scope unless anonymous reads are allowed (raises ApiError)."""
+    _authenticate(context, request, "read")
+
+
 async def require_read(request: Request) -> None:
     """Reads need the ``read`` scope unless anonymous reads are allowed."""
-    _authenticate(context_of(request), request, "read")
+    require_read_now(context_of(request), request)
 
 
 async def require_control(request: Request) -> None:

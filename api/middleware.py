@@ -1,18 +1,21 @@
-"""Plain ASGI middleware around every request: the Host allow-list, the security headers, and
-honest ``OPTIONS`` answers. Plain ASGI (not BaseHTTPMiddleware): each costs one function call
-per request, nothing is buffered, and streamed exports stay streamed.
+"""One plain ASGI layer in front of every request (:class:`Gate`): the Host allow-list, honest
+``OPTIONS`` answers, ``HEAD`` wherever ``GET`` is, the request body limit and the security
+headers.
+
+One layer, not five: each ASGI layer costs a coroutine and a closure per request, and /state
+must serve within 0.7x of the bare stack (issue 16). Plain ASGI (not BaseHTTPMiddleware):
+nothing is buffered, streamed exports stay streamed.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
 
-from starlette.datastructures import MutableHeaders
 from starlette.responses import Response
 from starlette.routing import BaseRoute, Match, Mount
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from api.errors import error_response
+from api.errors import ApiError, error_response
 from api.security import HostAllowList
 
 #: The dashboard's policy: its own scripts, styles and connections only (no inline script or
@@ -26,81 +29,20 @@ CONTENT_SECURITY_POLICY = (
 DOCS_CONTENT_SECURITY_POLICY = CONTENT_SECURITY_POLICY.replace(
     "style-src 'self'", "style-src 'self' 'unsafe-inline'"
 )
-_COMMON_HEADERS = (
-    ("x-content-type-options", "nosniff"),
-    ("x-frame-options", "DENY"),
-    ("referrer-policy", "no-referrer"),
-    ("cross-origin-opener-policy", "same-origin"),
-)
-
-
-class HostCheck:
-    """Refuse (400) a request or WebSocket whose ``Host`` is not allowed (DNS rebinding)."""
-
-    def __init__(self, app: ASGIApp, hosts: HostAllowList) -> None:
-        self.app = app
-        self.hosts = hosts
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] in ("http", "websocket"):
-            host = next((v for k, v in scope["headers"] if k == b"host"), None)
-            text = host.decode("latin-1") if host is not None else None
-            if not self.hosts.allows(text):
-                response = error_response(
-                    400,
-                    "forbidden-host",
-                    f"Host {text!r} is not served here: reach the API by an allowed name "
-                    "(loopback, the bound address, api.allowed_hosts)",
-                )
-                if scope["type"] == "websocket":
-                    if "websocket.http.response" in scope.get("extensions", {}):
-                        await send(
-                            {
-                                "type": "websocket.http.response.start",
-                                "status": 400,
-                                "headers": response.raw_headers,
-                            }
-                        )
-                        await send({"type": "websocket.http.response.body", "body": response.body})
-                    else:
-                        await send({"type": "websocket.close", "code": 1008})
-                    return
-                await response(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
-
-
-class SecurityHeaders:
-    """Security headers on every HTTP response (error answers and static files included);
-    ``Cache-Control: no-store`` on what the API answers (live state, run data), which no
-    browser or proxy should keep."""
-
-    def __init__(self, app: ASGIApp, api_prefixes: tuple[str, ...]) -> None:
-        self.app = app
-        self.api_prefixes = api_prefixes
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        path: str = scope["path"]
-        policy = DOCS_CONTENT_SECURITY_POLICY if path == "/docs" else CONTENT_SECURITY_POLICY
-        no_store = path.startswith(self.api_prefixes)
-
-        async def send_with_headers(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                headers = MutableHeaders(scope=message)
-                headers.setdefault("content-security-policy", policy)
-                for name, value in _COMMON_HEADERS:
-                    headers.setdefault(name, value)
-                content_type = headers.get("content-type", "")
-                if no_store or content_type.startswith("application/json"):
-                    headers["cache-control"] = "no-store"
-            await send(message)
-
-        await self.app(scope, receive, send_with_headers)
-
-
+_COMMON_HEADERS = [
+    (b"x-content-type-options", b"nosniff"),
+    (b"x-frame-options", b"DENY"),
+    (b"referrer-policy", b"no-referrer"),
+    (b"cross-origin-opener-policy", b"same-origin"),
+]
+_PAGE_HEADERS = [(b"content-security-policy", CONTENT_SECURITY_POLICY.encode()), *_COMMON_HEADERS]
+_DOCS_HEADERS = [
+    (b"content-security-policy", DOCS_CONTENT_SECURITY_POLICY.encode()),
+    *_COMMON_HEADERS,
+]
+_NO_STORE = (b"cache-control", b"no-store")
+#: Methods that may carry a body (the only ones whose body is counted).
+_BODY_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 #: The methods probed for ``Allow`` (the API uses no others).
 _METHODS = ("GET", "POST", "PUT", "PATCH", "DELETE")
 
@@ -126,46 +68,153 @@ def allowed_methods(routes: Iterable[BaseRoute], path: str) -> list[str]:
     return sorted(methods)
 
 
-class MethodOptions:
-    """``OPTIONS <path>``: 204 with ``Allow`` listing the path's real methods (404 when none);
-    no token needed, nothing else is revealed."""
+class Gate:
+    """Before the application:
 
-    def __init__(self, app: ASGIApp, routes: Iterable[BaseRoute]) -> None:
+    - a request or WebSocket whose ``Host`` is not allowed is refused with 400 (DNS
+      rebinding: api/security.py HostAllowList);
+    - ``OPTIONS <path>``: 204 with ``Allow`` listing the path's real methods (404 when none),
+      no token needed, nothing else revealed;
+    - a declared ``Content-Length`` over ``api.max_body_bytes`` is refused at once (413); a
+      body without one (chunked) is counted as it arrives and refused past the limit;
+    - ``HEAD`` is served as the ``GET`` (FastAPI routes, unlike Starlette's, answer it 405)
+      and only the headers are sent;
+
+    and on every HTTP answer (refusals and static files included) the security headers, plus
+    ``Cache-Control: no-store`` on what the API answers (live state, run data) and any JSON.
+    """
+
+    def __init__(
+        self,
+        app: ASGIApp,
+        hosts: HostAllowList,
+        routes: Iterable[BaseRoute],
+        max_body_bytes: int,
+        api_prefixes: tuple[str, ...],
+    ) -> None:
         self.app = app
+        self.hosts = hosts
         self.routes = routes
+        self.max_body_bytes = max_body_bytes
+        self.api_prefixes = api_prefixes
+        self._allowed: set[bytes] = set()  # Host values already found allowed
+
+    def _host_allowed(self, scope: Scope) -> tuple[bool, str | None]:
+        host = next((value for name, value in scope["headers"] if name == b"host"), None)
+        if host is not None and host in self._allowed:
+            return True, None
+        text = host.decode("latin-1") if host is not None else None
+        if not self.hosts.allows(text):
+            return False, text
+        if host is not None and len(self._allowed) < 256:
+            self._allowed.add(host)
+        return True, None
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["method"] != "OPTIONS":
+        kind = scope["type"]
+        if kind not in ("http", "websocket"):
             await self.app(scope, receive, send)
             return
-        methods = allowed_methods(self.routes, scope["path"])
-        response: Response = (
-            Response(status_code=204, headers={"Allow": ", ".join(methods)})
-            if methods
-            else error_response(404, "not-found", "Not Found")
-        )
-        await response(scope, receive, send)
-
-
-class HeadAsGet:
-    """``HEAD`` wherever ``GET`` is: FastAPI routes (unlike Starlette's) answer HEAD with 405,
-    so a HEAD is served as the GET and only its headers (Content-Length included) are sent."""
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["method"] != "HEAD":
+        allowed, host = self._host_allowed(scope)
+        if not allowed:
+            await self._refuse_host(scope, receive, send, host)
+            return
+        if kind == "websocket":
             await self.app(scope, receive, send)
             return
-        ended = False
+        path: str = scope["path"]
+        extra = _DOCS_HEADERS if path == "/docs" else _PAGE_HEADERS
+        no_store = path.startswith(self.api_prefixes)
 
-        async def headers_only(message: Message) -> None:
-            nonlocal ended
+        async def send_with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":
-                await send(message)
-            elif message["type"] == "http.response.body" and not ended:
-                ended = True
-                await send({"type": "http.response.body", "body": b"", "more_body": False})
+                headers = list(message.get("headers", ()))
+                present = {name.lower() for name, _ in headers}
+                headers.extend(item for item in extra if item[0] not in present)
+                if b"cache-control" not in present:
+                    json = any(
+                        name.lower() == b"content-type" and value.startswith(b"application/json")
+                        for name, value in headers
+                    )
+                    if no_store or json:
+                        headers.append(_NO_STORE)
+                message = {**message, "headers": headers}
+            await send(message)
 
-        await self.app({**scope, "method": "GET"}, receive, headers_only)
+        method: str = scope["method"]
+        if method == "OPTIONS":
+            methods = allowed_methods(self.routes, path)
+            response: Response = (
+                Response(status_code=204, headers={"Allow": ", ".join(methods)})
+                if methods
+                else error_response(404, "not-found", "Not Found")
+            )
+            await response(scope, receive, send_with_headers)
+            return
+        if method in _BODY_METHODS:
+            await self._with_body_limit(scope, receive, send_with_headers)
+            return
+        if method == "HEAD":
+            await self.app({**scope, "method": "GET"}, receive, _headers_only(send_with_headers))
+            return
+        await self.app(scope, receive, send_with_headers)
+
+    async def _refuse_host(
+        self, scope: Scope, receive: Receive, send: Send, host: str | None
+    ) -> None:
+        response = error_response(
+            400,
+            "forbidden-host",
+            f"Host {host!r} is not served here: reach the API by an allowed name "
+            "(loopback, the bound address, api.allowed_hosts)",
+        )
+        if scope["type"] == "http":
+            headers = [*response.raw_headers, *_PAGE_HEADERS, _NO_STORE]
+            await send({"type": "http.response.start", "status": 400, "headers": headers})
+            await send({"type": "http.response.body", "body": response.body})
+        elif "websocket.http.response" in scope.get("extensions", {}):
+            await send(
+                {
+                    "type": "websocket.http.response.start",
+                    "status": 400,
+                    "headers": response.raw_headers,
+                }
+            )
+            await send({"type": "websocket.http.response.body", "body": response.body})
+        else:
+            await send({"type": "websocket.close", "code": 1008})
+
+    async def _with_body_limit(self, scope: Scope, receive: Receive, send: Send) -> None:
+        limit = self.max_body_bytes
+        declared = next((v for k, v in scope["headers"] if k == b"content-length"), None)
+        if declared is not None and (not declared.isdigit() or int(declared) > limit):
+            response = error_response(413, "too-large", f"request body over {limit} bytes")
+            await response(scope, receive, send)
+            return
+        received = 0
+
+        async def counting_receive() -> Message:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > limit:
+                    raise ApiError(413, "too-large", f"request body over {limit} bytes")
+            return message
+
+        await self.app(scope, counting_receive, send)
+
+
+def _headers_only(send: Send) -> Send:
+    """A ``send`` that passes the response's start and ends its body at once (HEAD)."""
+    ended = False
+
+    async def headers_only(message: Message) -> None:
+        nonlocal ended
+        if message["type"] == "http.response.start":
+            await send(message)
+        elif message["type"] == "http.response.body" and not ended:
+            ended = True
+            await send({"type": "http.response.body", "body": b"", "more_body": False})
+
+    return headers_only

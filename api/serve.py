@@ -227,8 +227,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"thermocomp serve: {err}", file=sys.stderr)
         notifier.status(f"failed to start: {err}")
         return err.status
-    limit_repeated_logs()
-    logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
+    limit_repeated_logs()  # "serving on ..." is logged once the daemon is up (api/app.py)
     previous = signal.signal(signal.SIGTERM, _stopped_by_signal)
     try:
         started = asyncio.run(serve(settings, notifier))

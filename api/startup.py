@@ -7,6 +7,7 @@ never on 2):
 - 2 (``EXIT_USAGE``): invalid configuration, including an API reachable from the network
   without a control token;
 - 3 (``EXIT_DEVICE``): a device is absent or cannot be opened (it may be plugged in later);
+  uvicorn exits with 3 too when the daemon cannot open a device that is there (api/app.py);
 - 4 (``EXIT_STORAGE``): the data directory or the run database cannot be used (unwritable,
   read-only, in use by another process);
 - 5 (``EXIT_ADDRESS``): the address and port cannot be bound (in use, not on this machine).
@@ -20,6 +21,7 @@ import os
 import resource
 import socket
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from api.connections import ACCEPT_MARGIN
@@ -224,14 +226,17 @@ class RepeatFilter(logging.Filter):
     it held back: a storm of identical errors (accept() failures, 503s beyond the concurrency
     limit) costs the journal one line per interval, not megabytes."""
 
-    def __init__(self, interval_s: float = 10.0) -> None:
+    def __init__(
+        self, interval_s: float = 10.0, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         super().__init__()
         self.interval_s = interval_s
+        self._clock = clock
         self._seen: dict[str, tuple[float, int]] = {}
 
     def filter(self, record: logging.LogRecord) -> bool:
         key = str(record.msg)
-        now = time.monotonic()
+        now = self._clock()
         last, held = self._seen.get(key, (-self.interval_s, 0))
         if now - last < self.interval_s:
             self._seen[key] = (last, held + 1)
@@ -244,7 +249,17 @@ class RepeatFilter(logging.Filter):
         return True
 
 
+class ReportedStartFailure(logging.Filter):
+    """Drops uvicorn's traceback of a daemon start failure api/app.py already logged in one
+    line (uvicorn logs the lifespan's traceback text whatever the application does)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "DaemonStartFailed" not in record.getMessage()
+
+
 def limit_repeated_logs() -> None:
-    """Install :class:`RepeatFilter` on the loggers a connection storm writes to."""
+    """Install :class:`RepeatFilter` on the loggers a connection storm writes to, and
+    :class:`ReportedStartFailure` on uvicorn's."""
     for name in ("asyncio", "uvicorn.error", "api.connections"):
         logging.getLogger(name).addFilter(RepeatFilter())
+    logging.getLogger("uvicorn.error").addFilter(ReportedStartFailure())

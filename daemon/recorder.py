@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -294,6 +293,8 @@ class Recorder:
     def archive_frame(self, run_id: int, step: int, image: NDArray[np.integer]) -> str:
         """Save a frame as a lossless 16-bit PNG beside the database; return its path relative
         to the data directory (the step's ``frame_path``)."""
+        import cv2  # here: `thermocomp run --help` must not load OpenCV
+
         relative = Path("frames") / f"run-{run_id:05d}" / f"step-{step:07d}.png"
         target = self.data_dir / relative
         try:

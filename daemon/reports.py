@@ -20,11 +20,14 @@ import sys
 from collections.abc import Mapping
 from contextlib import closing
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from config import load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
-from daemon.analysis import ReportFiles, RunSteps, steps_from_rows, summarize_run, write_report
+from daemon.analysis import RunSteps, steps_from_rows, summarize_run
+
+if TYPE_CHECKING:
+    from daemon.analysis import ReportFiles
 from daemon.analysis import cli as analysis_cli
 from daemon.recorder import DATABASE_NAME, step_rows
 
@@ -114,6 +117,8 @@ def write_run_report(
             )
     if out_dir is None:
         out_dir, embed_images = report_dir(data_dir, run_id), True
+    from daemon.analysis import write_report  # Matplotlib: loaded to write, not to import
+
     return write_report(
         steps,
         out_dir,
@@ -157,6 +162,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def run_report(args: argparse.Namespace) -> int:
+    from daemon.analysis import write_report
+
     target = Path(args.target)
     try:
         if target.is_file():

@@ -14,7 +14,7 @@ import math
 import signal
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
@@ -30,7 +30,10 @@ from config.cli import (
 from daemon.recorder import RecorderError
 from daemon.report_queue import ReportStatus
 from daemon.runs import RunParameters, RunState, RunStateError
-from daemon.service import Daemon, RunParameterError
+
+if TYPE_CHECKING:  # the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not
+    # for `thermocomp run --help`
+    from daemon.service import Daemon
 
 logger = logging.getLogger(__name__)
 
@@ -114,6 +117,8 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 
 async def _run(settings: Settings, parameters: RunParameters, args: argparse.Namespace) -> int:
+    from daemon.service import Daemon, RunParameterError
+
     loop = asyncio.get_running_loop()
     stop_requested = asyncio.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):

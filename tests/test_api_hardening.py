@@ -278,3 +278,59 @@ def test_422_messages_a_curl_user_understands() -> None:
         assert "expected a JSON body with Content-Type: application/json" in message
         assert "application/x-www-form-urlencoded" in message
         assert "-H 'Content-Type: application/json'" in message
+
+
+async def test_polled_state_route_keeps_the_read_checks() -> None:
+    """/state is served by a plain route ahead of FastAPI's (api/app.py): the same checks."""
+    remote = create_app(hardened_settings(host="0.0.0.0"))
+    transport = httpx.ASGITransport(app=remote)
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
+        anonymous = await client.get("/api/v1/state")
+        assert anonymous.status_code == 401 and anonymous.headers["WWW-Authenticate"] == "Bearer"
+        assert anonymous.json()["kind"] == "unauthorized"
+        basic = await client.get("/api/v1/state", headers={"Authorization": "Basic eDp5"})
+        assert basic.status_code == 401
+        read = await client.get("/api/v1/state", headers={"Authorization": f"Bearer {READ}"})
+        assert read.status_code == 503 and read.json()["kind"] == "unavailable"  # no daemon
+        assert read.headers["cache-control"] == "no-store"
+        head = await client.head("/api/v1/state", headers={"Authorization": f"Bearer {READ}"})
+        assert head.status_code == 503 and head.content == b""
+
+
+@pytest.mark.parametrize(
+    ("bound", "extra", "host", "allowed"),
+    [
+        ("127.0.0.1", (), "127.0.0.1:8000", True),
+        ("127.0.0.1", (), "localhost", True),
+        ("127.0.0.1", (), "[::1]:8000", True),
+        ("127.0.0.1", (), "127.0.0.2:8000", True),  # loopback, not a rebindable name
+        ("127.0.0.1", (), "evil.example", False),
+        ("127.0.0.1", (), "evil.example:8000", False),
+        ("127.0.0.1", (), "192.168.1.20:8000", False),  # not where we listen
+        ("127.0.0.1", (), None, False),
+        ("192.168.1.20", (), "192.168.1.20:8000", True),  # the bound address
+        ("0.0.0.0", (), "192.168.1.20:8000", True),  # any address of this machine
+        ("0.0.0.0", (), "lab-pc.example.org", False),
+        ("0.0.0.0", ("Lab-PC.example.org",), "lab-pc.example.org:8000", True),
+        ("0.0.0.0", ("*",), "anything.example", True),  # explicitly anything
+    ],
+)
+def test_host_allow_list(
+    bound: str, extra: tuple[str, ...], host: str | None, allowed: bool
+) -> None:
+    from api.security import HostAllowList
+
+    hosts = HostAllowList(hardened_settings(host=bound, allowed_hosts=extra).api)
+    assert hosts.allows(host) is allowed
+
+
+def test_origins_are_judged_by_the_allow_list() -> None:
+    from api.security import HostAllowList
+
+    api = hardened_settings(allowed_origins=("https://dash.example.org",)).api
+    hosts = HostAllowList(api)
+    assert hosts.allows_origin("http://localhost:8000", api.allowed_origins)
+    assert hosts.allows_origin("https://dash.example.org/", api.allowed_origins)
+    assert not hosts.allows_origin("http://evil.example", api.allowed_origins)
+    assert not hosts.allows_origin("file://localhost", api.allowed_origins)
+    assert not hosts.allows_origin("null", api.allowed_origins)

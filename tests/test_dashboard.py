@@ -374,3 +374,22 @@ def test_the_dashboard_runs_under_its_own_csp(browser: Browser, server: str) -> 
     assert page.locator("#preview-image").evaluate("image => image.naturalWidth") > 0
     assert violations == []
     page.close()
+
+
+def test_the_api_description_runs_under_its_own_csp(browser: Browser, server: str) -> None:
+    """/docs (the vendored Swagger UI, started by a script file: no inline script) renders the
+    description with the CSP enforced and no violation."""
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    violations: list[str] = []
+    page.on(
+        "console",
+        lambda m: violations.append(m.text) if "Content Security Policy" in m.text else None,
+    )
+    page.on("pageerror", lambda error: violations.append(str(error)))
+    answer = page.goto(server + "/docs")
+    assert (
+        answer is not None and "frame-ancestors 'none'" in answer.headers["content-security-policy"]
+    )
+    page.wait_for_selector(".swagger-ui .info .title")
+    assert violations == []
+    page.close()

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import socket
+import tty
 from pathlib import Path
 
 import pytest
@@ -153,3 +154,31 @@ def test_binary_or_non_utf8_files_are_refused_in_one_line(
     assert network.returncode == EXIT_USAGE
     assert network.stderr.strip().startswith(f"thermocomp model: error: {path}: {reason}")
     assert len(network.stderr.strip().splitlines()) == 1
+
+
+def test_a_robot_that_does_not_answer_is_one_line_and_exit_3(tmp_path: Path) -> None:
+    """The port is there (the checks pass) but nothing answers on it: the daemon's start
+    fails in the server's lifespan, logged in one line, not uvicorn's traceback."""
+    controller, port = os.openpty()
+    tty.setraw(port)
+    try:
+        env = {
+            "THERMOCOMP_ROBOT__DRIVER": "c500c",
+            "THERMOCOMP_ROBOT__PORT": os.ttyname(port),
+            "THERMOCOMP_ROBOT__COMMAND_TIMEOUT_S": "0.5",
+            "THERMOCOMP_STORAGE__DATA_DIR": str(tmp_path),
+        }
+        result = run_cli(
+            ["serve", "--config", "config/sim.toml", "--port", str(free_port())],
+            env=env,
+            timeout=60,
+        )
+    finally:
+        os.close(controller)
+        os.close(port)
+    assert result.returncode == EXIT_DEVICE, result.stderr
+    errors = [line for line in result.stderr.splitlines() if " ERROR " in line]
+    assert "Traceback" not in result.stderr and "serving on" not in result.stderr
+    assert len(errors) == 2, result.stderr  # ours, and uvicorn's "startup failed"
+    assert "cannot start the daemon: robot: " in errors[0]
+    assert "0.5 s" in errors[0]  # what it waited for

@@ -1,6 +1,6 @@
 """``/api/v1/ws``: the daemon's events as JSON messages, to a subset a client subscribes to.
 
-Before the handshake is accepted: the Host must be allowed (api/middleware.py), the Origin
+Before the handshake is accepted: the Host must be allowed (api/middleware.py Gate), the Origin
 (when a browser sends one) must be of an allowed host or in ``api.allowed_origins``; the token
 must grant ``read``; the client count must be below ``api.ws_max_clients``. A refusal is an
 HTTP 400/401/403 with the usual error body.

@@ -15,14 +15,21 @@ import logging
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, positive_float, positive_int
-from daemon.analysis.fits import KINDS, FitError, Kind, direction_of, fit_exponential
-from daemon.analysis.statistics import ErrorStatistics, error_statistics
 from daemon.analysis.steps import RESIDUAL_COLUMN, natural_key, number_or_nan
+
+if TYPE_CHECKING:  # SciPy loads when stats or fit runs, not for `thermocomp --help`
+    from daemon.analysis.fits import Kind
+    from daemon.analysis.statistics import ErrorStatistics
+
+#: fits.KINDS, spelled out so that registering the commands imports no SciPy
+#: (tests/test_cli.py checks they agree).
+FIT_KINDS = ("rising", "decaying")
 
 logger = logging.getLogger(__name__)
 
@@ -176,7 +183,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     fit.add_argument(
         "--kind",
-        choices=("auto", *KINDS),
+        choices=("auto", *FIT_KINDS),
         default="auto",
         help="rising or decaying; auto: from the first and last values",
     )
@@ -251,6 +258,8 @@ def format_statistics(stats: ErrorStatistics, label: str) -> str:
 
 
 def run_stats(args: argparse.Namespace) -> int:
+    from daemon.analysis.statistics import error_statistics
+
     try:
         rows = read_table(args.file)
         column = args.column or default_column(rows)
@@ -281,6 +290,8 @@ def _times(rows: list[dict[str, str]], args: argparse.Namespace) -> NDArray[np.f
 
 
 def run_fit(args: argparse.Namespace) -> int:
+    from daemon.analysis.fits import FitError, direction_of, fit_exponential
+
     try:
         rows = read_table(args.file)
         values = column_values(rows, args.column, args.file)
