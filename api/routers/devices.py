@@ -19,6 +19,7 @@ from drivers.errors import DeviceError
 
 router = APIRouter(tags=["devices"], dependencies=[ReadAccess])
 
+
 @router.get(
     "/devices/preview",
     response_class=Response,
