@@ -218,6 +218,10 @@ def _stopped_by_signal(signum: int, frame: FrameType | None) -> None:
     logger.info("stopped by %s", signal.Signals(signum).name)
 
 
+#: The GIL switch interval while serving (s); see run().
+GIL_SWITCH_INTERVAL_S = 0.0005
+
+
 def run(args: argparse.Namespace) -> int:
     settings = with_address(load_settings(args.config), args.host, args.port)
     notifier = SystemdNotifier()
@@ -228,6 +232,10 @@ def run(args: argparse.Namespace) -> int:
         notifier.status(f"failed to start: {err}")
         return err.status
     limit_repeated_logs()  # "serving on ..." is logged once the daemon is up (api/app.py)
+    # the control loop runs on this process's event loop: a worker thread holding the GIL
+    # (an API read, the export pool's result reader) must hand it back within this, not
+    # CPython's default 5 ms, for the next step to begin on time (issue 15)
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     previous = signal.signal(signal.SIGTERM, _stopped_by_signal)
     try:
         started = asyncio.run(serve(settings, notifier))
