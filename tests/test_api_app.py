@@ -16,7 +16,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from api.app import create_app
 from api.broadcast import Hub, json_safe
-from api.relay import thumbnail
+from api.relay import CROP_FRAME_PX, spot_crop, thumbnail
 from api.security import Authenticator, AuthError, RateLimiter, is_loopback
 from config import CONFIG_DIR, Settings
 from daemon.vision import render_spot
@@ -379,6 +379,31 @@ def test_thumbnail_keeps_the_spot_where_the_centroid_says() -> None:
     # the brightest block is the one holding the spot's centre: (x + 0.5) / scale
     row, col = np.unravel_index(np.argmax(small), small.shape)
     assert (col, row) == (int((centre[0] + 0.5) // scale), int((centre[1] + 0.5) // scale))
+
+
+@pytest.mark.parametrize("centre", [(401.3, 233.6), (3.2, 578.9)])  # mid-frame, in a corner
+def test_the_spot_crop_is_full_resolution_around_the_centroid(
+    centre: tuple[float, float],
+) -> None:
+    import base64
+
+    import cv2
+
+    image = render_spot(centre_xy=centre, sigma_px=2.0, rng=np.random.default_rng(4))
+    picture = spot_crop(image, centre)
+    size, x0, y0 = picture["crop_size_px"], picture["crop_x0_px"], picture["crop_y0_px"]
+    assert size == CROP_FRAME_PX and 0 <= x0 <= 752 - size and 0 <= y0 <= 582 - size
+    crop = cv2.imdecode(
+        np.frombuffer(base64.b64decode(picture["crop_png_base64"]), np.uint8),
+        cv2.IMREAD_UNCHANGED,
+    )
+    assert crop.shape == (size, size) and crop.min() == 0 and crop.max() == 255  # stretched
+    window = image[y0 : y0 + size, x0 : x0 + size]
+    assert (picture["crop_low"], picture["crop_high"]) == (window.min(), window.max())
+    # the brightest crop pixel is the frame's brightest pixel of the window, one to one
+    row, col = np.unravel_index(np.argmax(crop), crop.shape)
+    assert image[y0 + row, x0 + col] == window.max()
+    assert abs(x0 + col - centre[0]) <= 1 and abs(y0 + row - centre[1]) <= 1
 
 
 def test_every_issue_route_is_in_the_openapi_description() -> None:

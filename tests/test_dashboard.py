@@ -168,6 +168,7 @@ def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Pa
     assert canvas.get_attribute("data-view") == "zoom"
     low, high = (int(v) for v in (canvas.get_attribute("data-contrast") or "").split("-"))
     assert high > low
+    assert "frame px at full resolution" in (page.text_content("#frame-detail") or "")
     canvas.click()
     page.wait_for_selector("#frame-canvas[data-view='full']")
     assert "full frame, reduced 1:4 (188 x 145 px)" in (page.text_content("#frame-detail") or "")

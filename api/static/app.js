@@ -534,16 +534,45 @@
   // a click switches to the whole frame (with the crop outlined) and back.
   const CROP_PX = 16; // thumbnail pixels each side of the crop (16 x 4 = 64 frame pixels)
   const ZOOM_CANVAS_PX = 256;
-  const frameView = { image: null, frame: null, full: false };
+  const frameView = { image: null, crop: null, frame: null, full: false };
 
   function showFrame(frame) {
+    // the thumbnail, and (when the spot was found) the server's full-resolution crop around it
     const image = new Image();
-    image.onload = () => {
+    const crop = frame.crop_png_base64 ? new Image() : null;
+    let pending = crop ? 2 : 1;
+    const loaded = () => {
+      pending -= 1;
+      if (pending > 0) return;
       frameView.image = image;
+      frameView.crop = crop;
       frameView.frame = frame;
       drawFrame();
     };
+    image.onload = loaded;
     image.src = `data:image/png;base64,${frame.png_base64}`;
+    if (crop) {
+      crop.onload = loaded;
+      crop.src = `data:image/png;base64,${frame.crop_png_base64}`;
+    }
+  }
+
+  function drawCrop(canvas, context, frame, crop, x, y) {
+    // the server's crop: full resolution, already contrast-stretched over the crop itself
+    const size = Number(frame.crop_size_px);
+    canvas.width = ZOOM_CANVAS_PX;
+    canvas.height = ZOOM_CANVAS_PX;
+    context.imageSmoothingEnabled = false;
+    context.drawImage(crop, 0, 0, ZOOM_CANVAS_PX, ZOOM_CANVAS_PX);
+    const zoom = ZOOM_CANVAS_PX / size;
+    // frame pixel centres are at integers: pixel c spans c - 0.5 .. c + 0.5
+    const cx = (x - Number(frame.crop_x0_px) + 0.5) * zoom;
+    const cy = (y - Number(frame.crop_y0_px) + 0.5) * zoom;
+    cross(context, cx, cy, 1.5 * zoom, 5 * zoom);
+    canvas.dataset.view = "zoom";
+    canvas.dataset.contrast = `${Math.round(frame.crop_low)}-${Math.round(frame.crop_high)}`;
+    $("frame-detail").textContent = `zoom around the spot: ${size} x ${size} frame px at full `
+      + "resolution, contrast stretched over the crop; click for the full frame";
   }
 
   function cross(context, cx, cy, gap, arm) {
@@ -594,6 +623,10 @@
       canvas.dataset.view = "full";
       $("frame-detail").textContent = `full frame, reduced 1:${scale} (${frame.width} x `
         + `${frame.height} px)${cx === null ? "" : "; yellow: the zoomed area; click to zoom"}`;
+      return;
+    }
+    if (frameView.crop) {
+      drawCrop(canvas, context, frame, frameView.crop, x, y);
       return;
     }
     const [sx, sy] = cropOrigin(frame, cx, cy);
