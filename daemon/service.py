@@ -24,11 +24,11 @@ from collections.abc import AsyncIterator, Callable
 from contextlib import AbstractAsyncContextManager
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Protocol, TypeVar
+from typing import Any, TypeVar
 
 from config import Settings
 from daemon import __version__
-from daemon.devices_check import DeviceCheck, check_devices
+from daemon.devices_check import DeviceCheck, Devices, check_devices
 from daemon.events import (
     ERROR_HISTORY,
     EVENT_QUEUE_DEFAULT,
@@ -54,7 +54,6 @@ from daemon.sensors import Sensors
 from daemon.session import BenchControl, ResumeRefusedError, RunSession, SessionServices
 from daemon.step import RunWork, StepPipeline
 from daemon.workers import Workers
-from drivers.base import Camera, IrReader, Robot
 from drivers.clock import Clock, make_clock
 
 __all__ = [
@@ -77,19 +76,6 @@ HOLD_REASON = "robot held by request"
 
 class RunConflictError(RunStateError):
     """A run is already active: one run at a time."""
-
-
-class Devices(Protocol):
-    """What the daemon needs of ``drivers.factory.open_devices``'s result."""
-
-    @property
-    def camera(self) -> Camera: ...
-
-    @property
-    def ir(self) -> IrReader: ...
-
-    @property
-    def robot(self) -> Robot: ...
 
 
 DeviceOpener = Callable[[Settings, Clock], AbstractAsyncContextManager[Devices]]
