@@ -23,21 +23,19 @@ import math
 import re
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument, positive_float
-from daemon.vision import CentroidError
-from daemon.vision.calibration import (
-    CalibrationError,
-    CameraCalibration,
-    fit_calibration,
-    pattern_offsets_um,
-)
-from daemon.vision.centroid import measure_with_camera_settings
 from drivers.base import Vector3
-from drivers.clock import make_clock
 from drivers.errors import DeviceError
-from drivers.factory import Devices, open_devices
+
+if TYPE_CHECKING:
+    from daemon.vision.calibration import CameraCalibration
+    from drivers.factory import Devices
+
+# the vision modules (OpenCV, SciPy) and the drivers are imported where they are used:
+# `thermocomp calibrate --help` must answer at once (issue 16)
 
 logger = logging.getLogger(__name__)
 
@@ -121,6 +119,8 @@ def checked_pattern(
     settings: Settings, size_mm: float, step_mm: float
 ) -> list[tuple[float, float]]:
     """The pattern's offsets (um), or PatternError if it breaks the compensation limits."""
+    from daemon.vision.calibration import CalibrationError, pattern_offsets_um
+
     try:
         offsets = pattern_offsets_um(size_mm * UM_PER_MM, step_mm * UM_PER_MM)
     except CalibrationError as err:
@@ -139,6 +139,8 @@ async def measure_pattern(
     devices: Devices, settings: Settings, offsets_um: list[tuple[float, float]]
 ) -> list[tuple[float, float]]:
     """Teach the goal, visit every offset and measure the spot; back to the goal at the end."""
+    from daemon.vision import CentroidError, measure_with_camera_settings
+
     robot, camera = devices.robot, devices.camera
     await robot.teach_goal()
     max_step_mm = settings.compensation.max_step_change_mm
@@ -180,6 +182,10 @@ def bench_truth(settings: Settings) -> tuple[tuple[float, float], float]:
 
 
 async def calibrate(settings: Settings, offsets_um: list[tuple[float, float]]) -> CameraCalibration:
+    from daemon.vision.calibration import fit_calibration
+    from drivers.clock import make_clock
+    from drivers.factory import open_devices
+
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     async with open_devices(settings, clock) as devices:
         centroids = await measure_pattern(devices, settings, offsets_um)
@@ -209,6 +215,8 @@ def write_camera_keys(path: Path, values: dict[str, str]) -> None:
 
 
 def run_calibrate_camera(args: argparse.Namespace) -> int:
+    from daemon.vision.calibration import CalibrationError
+
     settings = load_settings(args.config)
     size_mm = args.size or settings.camera.calibration_size_mm
     step_mm = args.step or settings.camera.calibration_step_mm

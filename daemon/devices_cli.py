@@ -12,13 +12,17 @@ import asyncio
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, add_config_argument
-from daemon.devices_check import DeviceCheck, check_devices, describe, preview_png
-from drivers.clock import make_clock
 from drivers.errors import DeviceError
-from drivers.factory import open_devices
+
+if TYPE_CHECKING:
+    from daemon.devices_check import DeviceCheck
+
+# the device and vision modules (OpenCV, SciPy, the drivers) are imported where they are used:
+# `thermocomp devices --help` must answer at once (issue 16)
 
 PROG = "thermocomp devices check"
 
@@ -49,12 +53,18 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 async def _check(settings: Settings) -> DeviceCheck:
+    from daemon.devices_check import check_devices
+    from drivers.clock import make_clock
+    from drivers.factory import open_devices
+
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     async with open_devices(settings, clock) as devices:
         return await check_devices(devices, settings)
 
 
 def run_devices_check(args: argparse.Namespace) -> int:
+    from daemon.devices_check import describe, preview_png
+
     settings = load_settings(args.config)
     try:
         check = asyncio.run(_check(settings))
