@@ -590,3 +590,23 @@ async def test_an_ended_run_stops_making_progress(tmp_path: Path) -> None:
         await daemon.clock.sleep_until(daemon.clock.now() + 30.0)  # time goes on after it
         later = daemon.snapshot()["run"]
     assert later["progress_percent"] == stopped["progress_percent"] < 100.0
+
+
+async def test_a_run_on_the_real_driver_ends_without_a_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The C500C driver over the emulator's pty (the bench): a run that ends normally holds
+    the robot as routine, not as a fault (issue 15, point 10), and /state's robot error stays
+    empty (point 8)."""
+    settings = Settings.model_validate(
+        {"storage": {"data_dir": str(tmp_path), "report_at_end": False}}
+    )
+    async with Daemon(settings) as daemon:
+        with caplog.at_level(logging.INFO):
+            await daemon.start_run(params(settings, duration_s=5.0))
+            final = await daemon.wait_run()
+        robot = daemon.snapshot()["robot"]
+    assert final["state"] == "finished"
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []
+    assert robot["motion_held"] and robot["last_error"] is None
+    assert robot["hold_reason"] == "stopped by request"
