@@ -16,7 +16,12 @@ from daemon.model import ThermalModel, ThermalNetwork, load_network
 from daemon.model.compensation import check_scale
 from daemon.model.model import EXACT_NODE_LIMIT
 from daemon.model.observer import IrObserver, regions_to_nodes
+from daemon.recorder import Recorder
 from daemon.runs import RunParameters, heat_at
+
+#: Final states of a run whose recorded drift can serve as a reference (it ran, in part or
+#: whole, and its steps are committed).
+REFERENCE_STATES = ("finished", "stopped")
 
 
 class RunParameterError(ValueError):
@@ -102,6 +107,35 @@ def largest_predicted_deformation_um(
         model.advance_to(run_time * parameters.time_scale)
         largest = max(largest, abs(float(model.deformation_um_scalar())))
     return largest
+
+
+def check_reference_run(recorder: Recorder, parameters: RunParameters) -> None:
+    """The run named by ``reference_run`` must be an ended, uncompensated run at the same
+    deformation scale: its measured drift is what the summary's reduction compares with
+    (issue 19). Blocking (the database): call it on the database worker."""
+    reference_id = parameters.reference_run
+    if reference_id is None:
+        return
+    row = recorder.run(reference_id)
+    if row is None:
+        raise RunParameterError(f"reference_run {reference_id}: no such run")
+    if row.state not in REFERENCE_STATES:
+        raise RunParameterError(
+            f"reference_run {reference_id} is {row.state}: a reference must have ended "
+            f"({' or '.join(REFERENCE_STATES)})"
+        )
+    compensation = row.parameters.get("compensation")
+    if compensation != "off":
+        raise RunParameterError(
+            f"reference_run {reference_id} was compensated ({compensation}): a reference "
+            "must be an uncompensated run (compensation off) measuring the drift"
+        )
+    scale = row.parameters.get("deformation_scale", 1.0)
+    if not math.isclose(float(scale), parameters.deformation_scale):
+        raise RunParameterError(
+            f"reference_run {reference_id} ran at deformation scale {scale}, this run at "
+            f"{parameters.deformation_scale}: their drifts are not comparable"
+        )
 
 
 def unit_vector(vector: tuple[float, float, float]) -> NDArray[np.float64]:

@@ -52,6 +52,51 @@ def test_a_short_compensated_bench_run_prints_its_summary(tmp_path: Path) -> Non
     assert all(s.pose_x_mm is not None and s.centroid_x_px is not None for s in steps)
 
 
+def test_reduction_is_measured_against_a_named_uncompensated_run(tmp_path: Path) -> None:
+    """Issue 19: an off run states its drift; a compensated run naming it as its reference
+    gets a measured reduction over the time both cover; a compensated run is no reference."""
+    options = ["--data-dir", str(tmp_path), "--duration", "30", "--json"]
+    off = run_cli(["run", "--config", SIM, *options, "--compensation", "off"])
+    assert off.returncode == 0, off.stderr
+    off_final = json.loads(off.stdout)
+    drift = off_final["summary"]
+    assert drift["reduction_basis"] == "drift" and drift["reduction_percent"] is None
+    assert drift["measured_drift_max_um"] == drift["residual_max_um"] > 0
+
+    reference = str(off_final["id"])
+    compensated = run_cli(
+        [
+            "run",
+            "--config",
+            SIM,
+            *options[:-1],
+            "--duration",
+            "20",
+            "--json",
+            "--reference-run",
+            reference,
+        ]
+    )
+    assert compensated.returncode == 0, compensated.stderr
+    final = json.loads(compensated.stdout)
+    summary = final["summary"]
+    assert summary["reduction_basis"] == "reference"
+    assert summary["reference_run"] == off_final["id"]
+    with Recorder(tmp_path) as recorder:
+        drift_steps = recorder.steps(off_final["id"])
+        steps = recorder.steps(final["id"])
+    span = steps[-1].scheduled_s  # the shorter run's end
+    assert summary["reference_span_s"] == span
+    reference_max = max(abs(s.residual_um) for s in drift_steps if s.scheduled_s <= span)
+    residual_max = max(abs(s.residual_um) for s in steps)
+    assert summary["reference_max_um"] == reference_max
+    assert abs(summary["reduction_percent"] - 100 * (1 - residual_max / reference_max)) < 1e-9
+
+    refused = run_cli(["run", "--config", SIM, *options, "--reference-run", str(final["id"])])
+    assert refused.returncode == 2
+    assert "must be an uncompensated run" in refused.stderr and "Traceback" not in refused.stderr
+
+
 def _committed_steps(database: Path) -> int:
     if not database.exists():
         return 0
