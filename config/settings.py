@@ -271,7 +271,8 @@ class ModelSettings(_Section):
     ambient_c: float = Field(22.0, description="Ambient temperature (degC).")
     heat_w: dict[str, NonNegativeFloat] = Field(
         default_factory=lambda: {"2": 0.5, "9": 0.5},
-        description="Heat input per node (1-based thesis number or name) in W.",
+        description="Heat input per node (1-based thesis number or name) in W; a key naming "
+        "no node of the run's network refuses the run at its start.",
     )
     reference_nodes: tuple[str, str] | None = Field(
         None, description="Deformation between these nodes; none: the network's default."

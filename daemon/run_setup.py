@@ -4,7 +4,7 @@ admissible-scale check (thesis 6.3) and the network snapshot recorded with the r
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -37,6 +37,7 @@ def build_model(
         network = load_network(parameters.network)
     except (ValueError, OSError) as err:
         raise RunParameterError(f"network {parameters.network!r}: {err}") from err
+    check_heat_nodes(parameters.heat_w, network)
     model_settings = settings.model
     try:
         model = ThermalModel(
@@ -51,6 +52,17 @@ def build_model(
     except ValueError as err:
         raise RunParameterError(f"network {parameters.network!r}: {err}") from err
     return network, model
+
+
+def check_heat_nodes(heat_w: Mapping[str, float], network: ThermalNetwork) -> None:
+    """Every heat input must name a node of the run's network (by name, or by its 1-based
+    number): a key naming no node would otherwise fail the run at its first step, after the
+    goal was taught (issue 19)."""
+    for node in heat_w:
+        try:
+            network.node_index(node)
+        except ValueError as err:
+            raise RunParameterError(f"heat_w: {err}") from err
 
 
 def build_observer(

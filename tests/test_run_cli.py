@@ -35,6 +35,17 @@ def test_bad_run_parameters_are_usage_errors(tmp_path: Path) -> None:
     assert "largest admissible scale" in result.stderr and "Traceback" not in result.stderr
 
 
+def test_a_heat_input_naming_no_node_is_refused_before_the_run(tmp_path: Path) -> None:
+    """Issue 19: model.heat_w keys are checked against the run's network at its start (exit
+    2), not at the first step after the goal was taught (a traceback)."""
+    result = run_cli(
+        ["run", "--config", SIM, "--data-dir", str(tmp_path), "--duration", "5"],
+        env={"THERMOCOMP_MODEL__HEAT_W": '{"99": 0.5}'},
+    )
+    assert result.returncode == 2
+    assert "heat_w: unknown node '99'" in result.stderr and "Traceback" not in result.stderr
+
+
 def test_a_short_compensated_bench_run_prints_its_summary(tmp_path: Path) -> None:
     csv_path = tmp_path / "steps.csv"
     options = ["--data-dir", str(tmp_path), "--duration", "20", "--json", "--csv", str(csv_path)]
