@@ -13,7 +13,14 @@ from numpy.typing import NDArray
 from config import Settings
 from config.settings import IrRegion
 from daemon.model import ThermalModel, ThermalNetwork, load_network
-from daemon.model.compensation import check_scale
+from daemon.model.compensation import (
+    CONSOLE_RESOLUTION_MM,
+    MAX_INCREMENT_LOSS_FRACTION,
+    check_scale,
+    incremental_rounding,
+    max_admissible_scale,
+    smallest_working_scale,
+)
 from daemon.model.model import EXACT_NODE_LIMIT
 from daemon.model.observer import IrObserver, regions_to_nodes
 from daemon.recorder import Recorder
@@ -22,6 +29,8 @@ from daemon.runs import RunParameters, heat_at
 #: Final states of a run whose recorded drift can serve as a reference (it ran, in part or
 #: whole, and its steps are committed).
 REFERENCE_STATES = ("finished", "stopped")
+#: The incremental-mode check follows at most this many steps (a few seconds of model steps).
+MAX_CHECKED_STEPS = 200_000
 
 
 class RunParameterError(ValueError):
@@ -99,6 +108,65 @@ def check_admissible_scale(
         )
     except ValueError as err:
         raise RunParameterError(str(err)) from err
+    if parameters.compensation == "incremental":
+        limit = max_admissible_scale(
+            largest, direction.tolist(), extent, settings.compensation.spot_size_um
+        )
+        check_incremental_resolution(settings, parameters, network, direction, limit)
+
+
+def check_incremental_resolution(
+    settings: Settings,
+    parameters: RunParameters,
+    network: ThermalNetwork,
+    direction: NDArray[np.float64],
+    largest_admissible_scale: float,
+) -> None:
+    """Thesis 6.3: refuse an incremental run whose moves the console's 0.001 mm would mostly
+    round away (issue 19: at a 1 s step the robot never moved), naming the whole scale that
+    would work at this step, or saying that none on the chip does."""
+    predicted = step_deformations_um(settings, parameters, network) * direction
+    rounding = incremental_rounding(predicted, parameters.deformation_scale)
+    if rounding.admissible:
+        return
+    working = smallest_working_scale(predicted, largest_admissible_scale)
+    remedy = (
+        f"deformation scale {working} would work"
+        if working is not None
+        else f"no scale the camera chip admits (up to {largest_admissible_scale:.1f}) works: "
+        "use a longer step or absolute compensation"
+    )
+    raise RunParameterError(
+        f"incremental compensation at a {parameters.step_s:g} s step and deformation scale "
+        f"{parameters.deformation_scale:g}: the console rounds every move to "
+        f"{CONSOLE_RESOLUTION_MM} mm; {rounding.lost_steps} of the run's {rounding.steps} "
+        f"moves (largest {rounding.largest_move_um:.3f} um) would round to no motion, and the "
+        f"rounding would leave {rounding.largest_error_um:.1f} um of the "
+        f"{rounding.largest_deformation_um:.1f} um scaled deformation uncompensated "
+        f"({100 * rounding.loss_fraction:.0f} %, more than "
+        f"{100 * MAX_INCREMENT_LOSS_FRACTION:.0f} %); {remedy}"
+    )
+
+
+def step_deformations_um(
+    settings: Settings, parameters: RunParameters, network: ThermalNetwork
+) -> NDArray[np.float64]:
+    """The deformation (µm, along the link) the model expects at each step of the run, at
+    most :data:`MAX_CHECKED_STEPS` of them (the first)."""
+    steps = min(parameters.step_count, MAX_CHECKED_STEPS)
+    model = ThermalModel(
+        network,
+        stepper="exact" if network.node_count <= EXACT_NODE_LIMIT else "implicit",
+        dt_s=parameters.step_s * parameters.time_scale,
+        ambient_c=settings.model.ambient_c,
+        reference_nodes=settings.model.reference_nodes,
+    )
+    values = np.zeros(steps)
+    for k in range(1, steps):
+        model.set_heat(heat_at(parameters, (k - 1) * parameters.step_s))
+        model.advance_to(k * parameters.step_s * parameters.time_scale)
+        values[k] = model.deformation_um_scalar()
+    return values[:, None]
 
 
 def largest_predicted_deformation_um(

@@ -75,7 +75,9 @@ async def test_incremental_mode_sends_the_differences_of_the_offsets(tmp_path: P
     settings = make_settings(tmp_path)
     harness = Harness(settings)
     async with harness.daemon as daemon:
-        info = await daemon.start_run(params(settings, compensation="incremental", duration_s=10))
+        info = await daemon.start_run(
+            params(settings, compensation="incremental", duration_s=10, deformation_scale=10.0)
+        )
         await daemon.wait_run()
         assert daemon.recorder is not None
         steps = daemon.recorder.steps(info["id"])

@@ -5,6 +5,7 @@ and the run marked interrupted."""
 import json
 import os
 import random
+import re
 import signal
 import sqlite3
 import subprocess
@@ -44,6 +45,25 @@ def test_a_heat_input_naming_no_node_is_refused_before_the_run(tmp_path: Path) -
     )
     assert result.returncode == 2
     assert "heat_w: unknown node '99'" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_incremental_moves_below_the_console_resolution_are_refused(tmp_path: Path) -> None:
+    """Issue 19 / thesis 6.3: at a 1 s step every incremental move of the unscaled bench is
+    under the console's 0.001 mm, so the run is refused before it starts, naming a scale that
+    works; at that scale the run goes and the robot really moves."""
+    options = ["--data-dir", str(tmp_path), "--duration", "60", "--compensation", "incremental"]
+    refused = run_cli(["run", "--config", SIM, *options])
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
+    assert "would round to no motion" in refused.stderr
+    match = re.search(r"deformation scale (\d+) would work", refused.stderr)
+    assert match is not None, refused.stderr
+    result = run_cli(["run", "--config", SIM, *options, "--scale", match.group(1), "--json"])
+    assert result.returncode == 0, result.stderr
+    final = json.loads(result.stdout)
+    assert final["id"] == 1  # the refused run was never recorded
+    with Recorder(tmp_path) as recorder:
+        poses = {s.pose_x_mm for s in recorder.steps(final["id"])}
+    assert len(poses) > 10  # the robot followed the deformation, 0.001 mm at a time
 
 
 def test_a_short_compensated_bench_run_prints_its_summary(tmp_path: Path) -> None:
