@@ -318,8 +318,9 @@ def _html_page(
     fit_rows = []
     for name, fit in fits.items():
         if "error" in fit:
-            fit_rows.append((name, "–", None, None, None, None, fit["error"]))
+            fit_rows.append((name, "–", None, None, None, None, None, fit["error"]))
         else:
+            steady = fit["steady_state_s"]
             fit_rows.append(
                 (
                     name,
@@ -327,7 +328,10 @@ def _html_page(
                     fit["final_value"],
                     fit["tau_s"],
                     fit["tau_stderr_s"],
-                    fit["steady_state_s"],
+                    steady
+                    if steady is not None
+                    else f"not steady within the run (τ = {fit['tau_s']:.4g} s)",
+                    fit.get("fit_settling_s"),
                     f"band ±{fit['steady_band']:.3g}",
                 )
             )
@@ -336,9 +340,20 @@ def _html_page(
         "<p>y = y0 + A (1 − e^(−(t − t0)/τ)) (or the decaying form). τ is the time constant "
         "(63 % of the change); steady state is the first time after which the data (running "
         "mean of 9 samples) stay within ±3σ of the mean of their final 20 % (thesis 3.5.1); "
-        "σ is that final segment's.</p>",
+        "σ is that final segment's. A signal is called steady only when the fitted curve also "
+        "enters that band before the run ends (fit settles, s); otherwise it is still moving "
+        "and the time constant says how far it has to go.</p>",
         _table(
-            ("signal", "form", "final value", "τ (s)", "± (s)", "steady from (s)", "note"),
+            (
+                "signal",
+                "form",
+                "final value",
+                "τ (s)",
+                "± (s)",
+                "steady from (s)",
+                "fit settles (s)",
+                "note",
+            ),
             fit_rows,
         ),
         "<h2>Figures</h2>",
