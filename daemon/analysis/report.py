@@ -315,7 +315,7 @@ def _html_page(
         parts.append(f"<p>No chi-squared test: {html.escape(stats.note)}.</p>")
     fits = summary["fits"]
     assert isinstance(fits, dict)
-    fit_rows = []
+    fit_rows: list[tuple[object, ...]] = []
     for name, fit in fits.items():
         if "error" in fit:
             fit_rows.append((name, "–", None, None, None, None, None, fit["error"]))
