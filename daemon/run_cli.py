@@ -57,6 +57,15 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="model: open loop (thesis); model+ir: corrected each step from the IR regions",
     )
     parser.add_argument(
+        "--heat",
+        type=_heat,
+        nargs="+",
+        action="extend",
+        metavar="NODE=WATTS",
+        help="heat input per model node while the heaters are on, replacing model.heat_w "
+        "(several after one --heat, or --heat repeated); a node the network lacks is refused",
+    )
+    parser.add_argument(
         "--reference-run",
         type=int,
         metavar="RUN",
@@ -70,6 +79,24 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--csv", type=Path, help="also export the run's steps to this CSV file")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.set_defaults(handler=run_command)
+
+
+def _heat(text: str) -> tuple[str, float]:
+    node, equals, watts = text.partition("=")
+    try:
+        value = float(watts)
+    except ValueError:
+        value = math.nan
+    if not equals or not node.strip() or not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"expected NODE=WATTS (watts >= 0), got {text!r}")
+    return node.strip(), value
+
+
+def _heat_map(pairs: list[tuple[str, float]]) -> dict[str, float]:
+    heat: dict[str, float] = {}
+    for node, watts in pairs:
+        heat[node] = heat.get(node, 0.0) + watts
+    return heat
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -98,7 +125,11 @@ def _settings(args: argparse.Namespace) -> Settings:
             "deformation_scale": args.scale,
             "time_scale": args.time_scale,
         },
-        "model": {"network": args.network, "prediction": args.prediction},
+        "model": {
+            "network": args.network,
+            "prediction": args.prediction,
+            "heat_w": _heat_map(args.heat) if args.heat else None,
+        },
         "storage": {"data_dir": args.data_dir},
     }
     data = settings.model_dump()

@@ -47,6 +47,22 @@ def test_a_heat_input_naming_no_node_is_refused_before_the_run(tmp_path: Path) -
     assert "heat_w: unknown node '99'" in result.stderr and "Traceback" not in result.stderr
 
 
+def test_heat_inputs_on_the_command_line_replace_the_settings(tmp_path: Path) -> None:
+    """`--heat 2=0.7 9=0.3` replaces model.heat_w (issue 19: run had no --heat); a node the
+    network lacks or a malformed value is a usage error."""
+    options = ["--data-dir", str(tmp_path), "--duration", "5", "--json"]
+    result = run_cli(["run", "--config", SIM, *options, "--heat", "2=0.7", "9=0.3"])
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["parameters"]["heat_w"] == {"2": 0.7, "9": 0.3}
+    for bad, message in (
+        (["--heat", "17=1", "99=1"], "unknown node '99'"),
+        (["--heat", "2=hot"], "NODE=WATTS"),
+    ):
+        refused = run_cli(["run", "--config", SIM, *options, *bad])
+        assert refused.returncode == 2 and message in refused.stderr, refused.stderr
+        assert "Traceback" not in refused.stderr
+
+
 def test_incremental_moves_below_the_console_resolution_are_refused(tmp_path: Path) -> None:
     """Issue 19 / thesis 6.3: at a 1 s step every incremental move of the unscaled bench is
     under the console's 0.001 mm, so the run is refused before it starts, naming a scale that
