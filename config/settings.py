@@ -461,7 +461,8 @@ class ModelSettings(_Section):
     )
     heat_w: dict[str, Annotated[float, Field(ge=0, le=MAX_HEAT_W)]] = Field(
         default_factory=lambda: {"2": 0.5, "9": 0.5},
-        description="Heat input per node (1-based thesis number or name) in W.",
+        description="Heat input per node (1-based thesis number or name) in W; a key naming "
+        "no node of the run's network refuses the run at its start.",
     )
     reference_nodes: tuple[str, str] | None = Field(
         None, description="Deformation between these nodes; none: the network's default."

@@ -94,6 +94,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "bench.heater_off_s of --config)",
     )
     add_config_argument(parser)
+    parser.add_argument(
+        "--data-dir",
+        type=Path,
+        help="folder of the run database (default: storage.data_dir of --config), as for "
+        "`thermocomp run --data-dir`",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.set_defaults(handler=run_identify)
 
@@ -196,6 +202,10 @@ def _number(value: float | None) -> str:
 
 def run_identify(args: argparse.Namespace) -> int:
     settings = load_settings(args.config)
+    if args.data_dir is not None:
+        settings = settings.model_copy(
+            update={"storage": settings.storage.model_copy(update={"data_dir": args.data_dir})}
+        )
     try:
         run = load_run(args.target, settings, args.heater_off)
     except (RunInputError, OSError, ValueError) as err:

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from config import load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
-from daemon.analysis import RunSteps, steps_from_rows, summarize_run
+from daemon.analysis import RunSteps, compensation_of, steps_from_rows, summarize_run
 
 if TYPE_CHECKING:
     from daemon.analysis import ReportFiles
@@ -65,6 +65,32 @@ def read_run(data_dir: Path, run_id: int) -> tuple[RunSteps, dict[str, Any] | No
     return steps, summary
 
 
+def run_parameters(data_dir: Path, run_id: int) -> dict[str, Any]:
+    """The parameters a run was started with ({} when the database does not say)."""
+    path = Path(data_dir) / DATABASE_NAME
+    try:
+        with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
+            row = db.execute("SELECT parameters_json FROM runs WHERE id = ?", (run_id,)).fetchone()
+    except sqlite3.Error as err:
+        raise ReportError(f"cannot read {path}: {err}") from err
+    try:
+        parameters = json.loads(row[0]) if row and row[0] else {}
+    except json.JSONDecodeError:
+        return {}
+    return parameters if isinstance(parameters, dict) else {}
+
+
+def reference_steps(data_dir: Path, reference_run: int) -> RunSteps:
+    """The steps of an uncompensated reference run; ReportError if it is not one."""
+    compensation = run_parameters(data_dir, reference_run).get("compensation")
+    if compensation != "off":
+        raise ReportError(
+            f"run {reference_run} was compensated ({compensation}): a reference must be an "
+            "uncompensated run (compensation off) measuring the drift"
+        )
+    return read_run(data_dir, reference_run)[0]
+
+
 def run_clock(data_dir: Path, run_id: int) -> str | None:
     """The run's ``bench.clock`` setting, from the settings the daemon recorded with it (None
     when the database does not say): the report drops the lateness figure on a virtual clock."""
@@ -90,8 +116,8 @@ def disagreements(recorded: Mapping[str, Any], computed: Mapping[str, Any]) -> l
         if key not in recorded:
             continue
         other = recorded[key]
-        if value is None or other is None:
-            if value is not other:
+        if value is None or other is None or isinstance(value, str) or isinstance(other, str):
+            if value != other:
                 differing.append(key)
         elif not math.isclose(float(value), float(other), rel_tol=SUMMARY_TOLERANCE):
             differing.append(key)
@@ -99,16 +125,33 @@ def disagreements(recorded: Mapping[str, Any], computed: Mapping[str, Any]) -> l
 
 
 def write_run_report(
-    data_dir: Path, run_id: int, out_dir: Path | None = None, *, embed_images: bool = False
+    data_dir: Path,
+    run_id: int,
+    out_dir: Path | None = None,
+    *,
+    embed_images: bool = False,
+    reference_run: int | None = None,
 ) -> ReportFiles:
     """Write the report of a recorded run. Blocking.
 
+    The reduction is measured against ``reference_run`` (an uncompensated run), else against
+    the run's own ``reference_run`` parameter, else only stated against the prediction.
     Without ``out_dir`` it goes to :func:`report_dir`, the folder the API serves
     ``GET /api/v1/runs/{id}/report`` from as a single page, so there the images are always
     embedded (the PNG files are written beside it too)."""
     steps, recorded = read_run(data_dir, run_id)
+    parameters = run_parameters(data_dir, run_id)
+    compensation = parameters.get("compensation")
+    if reference_run is None and isinstance(parameters.get("reference_run"), int):
+        reference_run = parameters["reference_run"]
+    reference = None if reference_run is None else reference_steps(data_dir, reference_run)
+    summary_options: dict[str, Any] = {
+        "compensation": compensation if isinstance(compensation, str) else None,
+        "reference": reference,
+        "reference_run": reference_run,
+    }
     if recorded is not None:
-        differing = disagreements(recorded, summarize_run(steps))
+        differing = disagreements(recorded, summarize_run(steps, **summary_options))
         if differing:
             logger.warning(
                 "run %d: the report's %s differ from the daemon's recorded summary",
@@ -125,6 +168,7 @@ def write_run_report(
         title=f"thermocomp run {run_id}",
         embed_images=embed_images,
         clock=run_clock(data_dir, run_id),
+        **summary_options,
     )
 
 
@@ -153,6 +197,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="TOML settings file naming storage.data_dir (default: built-in defaults)",
     )
     parser.add_argument(
+        "--reference",
+        metavar="RUN",
+        help="an uncompensated run (run number, or an exported CSV for a CSV target) whose "
+        "measured drift the reduction is computed against (default: the run's own "
+        "reference_run parameter; none: the figure is only relative to the prediction)",
+    )
+    parser.add_argument(
         "--embed-images",
         action="store_true",
         help="embed the PNGs in report.html so the page is a single file (always done for "
@@ -165,20 +216,48 @@ def run_report(args: argparse.Namespace) -> int:
     from daemon.analysis import write_report
 
     target = Path(args.target)
+    reference_arg: str | None = args.reference
     try:
         if target.is_file():
             rows = analysis_cli.read_table(target)
+            reference = None
+            if reference_arg is not None:
+                if not Path(reference_arg).is_file():
+                    print(
+                        f"thermocomp report: --reference {reference_arg!r}: for an exported "
+                        "run, name the reference's exported CSV file",
+                        file=sys.stderr,
+                    )
+                    return EXIT_USAGE
+                reference = steps_from_rows(analysis_cli.read_table(Path(reference_arg)))
+                if compensation_of(reference) != "off":
+                    raise ReportError(
+                        f"{reference_arg} records compensating offsets: a reference must be "
+                        "an uncompensated run (compensation off)"
+                    )
             out_dir = args.out or target.with_name(f"{target.stem}-report")
             files = write_report(
                 rows,
                 out_dir,
                 title=f"thermocomp run ({target.name})",
                 embed_images=args.embed_images,
+                reference=reference,
+                reference_run=None if reference_arg is None else Path(reference_arg).name,
             )
         elif args.target.isdigit():
+            if reference_arg is not None and not reference_arg.isdigit():
+                print(
+                    f"thermocomp report: --reference {reference_arg!r} is not a run number",
+                    file=sys.stderr,
+                )
+                return EXIT_USAGE
             data_dir = load_settings(args.config).storage.data_dir
             files = write_run_report(
-                data_dir, int(args.target), args.out, embed_images=args.embed_images
+                data_dir,
+                int(args.target),
+                args.out,
+                embed_images=args.embed_images,
+                reference_run=None if reference_arg is None else int(reference_arg),
             )
         else:
             print(

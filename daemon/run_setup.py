@@ -4,7 +4,7 @@ admissible-scale check (thesis 6.3) and the network snapshot recorded with the r
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -13,10 +13,24 @@ from numpy.typing import NDArray
 from config import Settings
 from config.settings import IrRegion
 from daemon.model import ThermalModel, ThermalNetwork, load_network
-from daemon.model.compensation import check_scale
+from daemon.model.compensation import (
+    CONSOLE_RESOLUTION_MM,
+    MAX_INCREMENT_LOSS_FRACTION,
+    check_scale,
+    incremental_rounding,
+    max_admissible_scale,
+    smallest_working_scale,
+)
 from daemon.model.model import EXACT_NODE_LIMIT
 from daemon.model.observer import IrObserver, regions_to_nodes
+from daemon.recorder import Recorder
 from daemon.runs import RunParameters, heat_at
+
+#: Final states of a run whose recorded drift can serve as a reference (it ran, in part or
+#: whole, and its steps are committed).
+REFERENCE_STATES = ("finished", "stopped")
+#: The incremental-mode check follows at most this many steps (a few seconds of model steps).
+MAX_CHECKED_STEPS = 200_000
 
 
 class RunParameterError(ValueError):
@@ -32,6 +46,7 @@ def build_model(
         network = load_network(parameters.network)
     except (ValueError, OSError) as err:
         raise RunParameterError(f"network {parameters.network!r}: {err}") from err
+    check_heat_nodes(parameters.heat_w, network)
     model_settings = settings.model
     try:
         model = ThermalModel(
@@ -46,6 +61,17 @@ def build_model(
     except ValueError as err:
         raise RunParameterError(f"network {parameters.network!r}: {err}") from err
     return network, model
+
+
+def check_heat_nodes(heat_w: Mapping[str, float], network: ThermalNetwork) -> None:
+    """Every heat input must name a node of the run's network (by name, or by its 1-based
+    number): a key naming no node would otherwise fail the run at its first step, after the
+    goal was taught (issue 19)."""
+    for node in heat_w:
+        try:
+            network.node_index(node)
+        except ValueError as err:
+            raise RunParameterError(f"heat_w: {err}") from err
 
 
 def build_observer(
@@ -82,6 +108,65 @@ def check_admissible_scale(
         )
     except ValueError as err:
         raise RunParameterError(str(err)) from err
+    if parameters.compensation == "incremental":
+        limit = max_admissible_scale(
+            largest, direction.tolist(), extent, settings.compensation.spot_size_um
+        )
+        check_incremental_resolution(settings, parameters, network, direction, limit)
+
+
+def check_incremental_resolution(
+    settings: Settings,
+    parameters: RunParameters,
+    network: ThermalNetwork,
+    direction: NDArray[np.float64],
+    largest_admissible_scale: float,
+) -> None:
+    """Thesis 6.3: refuse an incremental run whose moves the console's 0.001 mm would mostly
+    round away (issue 19: at a 1 s step the robot never moved), naming the whole scale that
+    would work at this step, or saying that none on the chip does."""
+    predicted = step_deformations_um(settings, parameters, network) * direction
+    rounding = incremental_rounding(predicted, parameters.deformation_scale)
+    if rounding.admissible:
+        return
+    working = smallest_working_scale(predicted, largest_admissible_scale)
+    remedy = (
+        f"deformation scale {working} would work"
+        if working is not None
+        else f"no scale the camera chip admits (up to {largest_admissible_scale:.1f}) works: "
+        "use a longer step or absolute compensation"
+    )
+    raise RunParameterError(
+        f"incremental compensation at a {parameters.step_s:g} s step and deformation scale "
+        f"{parameters.deformation_scale:g}: the console rounds every move to "
+        f"{CONSOLE_RESOLUTION_MM} mm; {rounding.lost_steps} of the run's {rounding.steps} "
+        f"moves (largest {rounding.largest_move_um:.3f} um) would round to no motion, and the "
+        f"rounding would leave {rounding.largest_error_um:.1f} um of the "
+        f"{rounding.largest_deformation_um:.1f} um scaled deformation uncompensated "
+        f"({100 * rounding.loss_fraction:.0f} %, more than "
+        f"{100 * MAX_INCREMENT_LOSS_FRACTION:.0f} %); {remedy}"
+    )
+
+
+def step_deformations_um(
+    settings: Settings, parameters: RunParameters, network: ThermalNetwork
+) -> NDArray[np.float64]:
+    """The deformation (µm, along the link) the model expects at each step of the run, at
+    most :data:`MAX_CHECKED_STEPS` of them (the first)."""
+    steps = min(parameters.step_count, MAX_CHECKED_STEPS)
+    model = ThermalModel(
+        network,
+        stepper="exact" if network.node_count <= EXACT_NODE_LIMIT else "implicit",
+        dt_s=parameters.step_s * parameters.time_scale,
+        ambient_c=settings.model.ambient_c,
+        reference_nodes=settings.model.reference_nodes,
+    )
+    values = np.zeros(steps)
+    for k in range(1, steps):
+        model.set_heat(heat_at(parameters, (k - 1) * parameters.step_s))
+        model.advance_to(k * parameters.step_s * parameters.time_scale)
+        values[k] = model.deformation_um_scalar()
+    return values[:, None]
 
 
 def largest_predicted_deformation_um(
@@ -102,6 +187,35 @@ def largest_predicted_deformation_um(
         model.advance_to(run_time * parameters.time_scale)
         largest = max(largest, abs(float(model.deformation_um_scalar())))
     return largest
+
+
+def check_reference_run(recorder: Recorder, parameters: RunParameters) -> None:
+    """The run named by ``reference_run`` must be an ended, uncompensated run at the same
+    deformation scale: its measured drift is what the summary's reduction compares with
+    (issue 19). Blocking (the database): call it on the database worker."""
+    reference_id = parameters.reference_run
+    if reference_id is None:
+        return
+    row = recorder.run(reference_id)
+    if row is None:
+        raise RunParameterError(f"reference_run {reference_id}: no such run")
+    if row.state not in REFERENCE_STATES:
+        raise RunParameterError(
+            f"reference_run {reference_id} is {row.state}: a reference must have ended "
+            f"({' or '.join(REFERENCE_STATES)})"
+        )
+    compensation = row.parameters.get("compensation")
+    if compensation != "off":
+        raise RunParameterError(
+            f"reference_run {reference_id} was compensated ({compensation}): a reference "
+            "must be an uncompensated run (compensation off) measuring the drift"
+        )
+    scale = row.parameters.get("deformation_scale", 1.0)
+    if not math.isclose(float(scale), parameters.deformation_scale):
+        raise RunParameterError(
+            f"reference_run {reference_id} ran at deformation scale {scale}, this run at "
+            f"{parameters.deformation_scale}: their drifts are not comparable"
+        )
 
 
 def unit_vector(vector: tuple[float, float, float]) -> NDArray[np.float64]:

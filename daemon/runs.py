@@ -146,6 +146,12 @@ class RunParameters(BaseModel):
     heater_off_s: Annotated[float, Field(ge=0, le=MAX_DURATION_S, allow_inf_nan=False)] | None = (
         Field(None, description="Run time at which the heaters switch off; none: stay on.")
     )
+    reference_run: Annotated[int, Field(ge=1)] | None = Field(
+        None,
+        description="An uncompensated (compensation off) run of the same bench and scale whose "
+        "measured drift the summary's reduction is computed against; none: the reduction is "
+        "only stated against the model's prediction.",
+    )
     # moving procedure (thesis 3.2.4): a wiper arc about the goal, back home to capture
     arc_amplitude_deg: Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)] = 15.0
     arc_radius_mm: Annotated[float, Field(ge=0, le=MAX_OFFSET_MM, allow_inf_nan=False)] = 10.0

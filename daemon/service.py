@@ -45,6 +45,7 @@ from daemon.run_setup import (
     build_model,
     build_observer,
     check_admissible_scale,
+    check_reference_run,
     network_snapshot,
     unit_vector,
 )
@@ -196,6 +197,7 @@ class Daemon:
             await workers.step(
                 check_admissible_scale, self.settings, parameters, network, direction
             )
+            await workers.db(check_reference_run, recorder, parameters)
             observer = None
             if parameters.prediction == "model+ir":
                 reader_regions = tuple(getattr(self.devices.ir, "regions", ()) or ())

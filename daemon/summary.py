@@ -30,7 +30,17 @@ def run_summary(
     steps = recorder.run_steps(work.run_id, SUMMARY_COLUMNS)
     parameters = work.parameters
     reference = work.reference_um.get(0, (None, None))
-    summary: dict[str, Any] = dict(summarize_run(steps))
+    # the reduction against a measured uncompensated run, when the run names one (checked
+    # at its start: ended, compensation off, same scale); otherwise against the prediction
+    drift_run = parameters.reference_run
+    summary: dict[str, Any] = dict(
+        summarize_run(
+            steps,
+            compensation=parameters.compensation,
+            reference=None if drift_run is None else recorder.run_steps(drift_run, SUMMARY_COLUMNS),
+            reference_run=drift_run,
+        )
+    )
     summary.update(
         {
             "steps": steps.n_steps,

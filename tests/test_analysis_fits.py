@@ -1,6 +1,7 @@
 """First-order exponential fits, steady-state time and the thesis's time2def curve."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from daemon.analysis import (
     fit_exponential,
     predictive_curve,
     steady_state_time,
+    write_report,
 )
 
 
@@ -97,3 +99,35 @@ def test_unfittable_data_is_a_clear_error() -> None:
         fit_exponential([0.0, 1.0, 2.0], [0.0, 1.0, 1.5])
     with pytest.raises(ValueError, match="kind"):
         fit_exponential(np.arange(10.0), np.arange(10.0), "linear")  # type: ignore[arg-type]
+
+
+def test_a_slow_rise_cut_short_is_not_steady_though_its_last_fifth_is_banded() -> None:
+    """Issue 19: 600 s of a rise with tau 2730 s. Its last fifth spans a wide band, so the
+    data test alone calls it steady long before the end; the fitted curve is still far from
+    its asymptote at 600 s, so the fit says it is not steady, and gives tau."""
+    rng = np.random.default_rng(19)
+    t = np.arange(0.0, 600.0, 1.0)
+    y = 120 * (1 - np.exp(-t / 2730)) + rng.normal(0, 0.3, t.size)
+    data_only, band = steady_state_time(t, y)
+    assert data_only is not None and data_only < 600  # the misleading answer
+    fit = fit_exponential(t, y)
+    assert fit.steady_state_s is None and fit.end_s == 599.0
+    assert fit.curve.settling_time_s(band) > 600
+    assert fit.curve.tau_s == pytest.approx(2730, rel=0.3)
+    document = fit.to_dict()
+    assert document["steady"] is False and document["fit_settling_s"] > 600
+
+
+def test_the_report_says_not_steady_with_the_time_constant(tmp_path: Path) -> None:
+    rng = np.random.default_rng(20)
+    rows = [
+        {
+            "step": k,
+            "scheduled_s": float(k),
+            "predicted_x_um": 120 * (1 - math.exp(-k / 2730)) + rng.normal(0, 0.3),
+            "residual_um": rng.normal(0, 0.5),
+        }
+        for k in range(600)
+    ]
+    page = write_report(rows, tmp_path).html.read_text(encoding="utf-8")
+    assert "not steady within the run (τ = " in page and "fit settles (s)" in page

@@ -49,7 +49,9 @@ async def test_compensated_run_keeps_the_spot_still_and_records_every_step(
     summary = row.summary
     assert summary is not None and summary["n"] == 60
     assert summary["uncompensated_max_um"] == pytest.approx(predicted.max())
-    assert summary["reduction_percent"] > 98.0
+    # no reference run named: relative to the prediction only, and labelled so
+    assert summary["reduction_basis"] == "prediction" and summary["reduction_percent"] is None
+    assert summary["reduction_vs_prediction_percent"] > 98.0
     # without the moves the spot would have drifted by the whole deformation
     assert summary["uncompensated_measured_max_um"] == pytest.approx(predicted.max(), abs=0.5)
     assert all(kind == "absolute" for kind, _ in harness.robot.commands)
@@ -73,7 +75,9 @@ async def test_incremental_mode_sends_the_differences_of_the_offsets(tmp_path: P
     settings = make_settings(tmp_path)
     harness = Harness(settings)
     async with harness.daemon as daemon:
-        info = await daemon.start_run(params(settings, compensation="incremental", duration_s=10))
+        info = await daemon.start_run(
+            params(settings, compensation="incremental", duration_s=10, deformation_scale=10.0)
+        )
         await daemon.wait_run()
         assert daemon.recorder is not None
         steps = daemon.recorder.steps(info["id"])

@@ -226,6 +226,10 @@ def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Pa
         assert run["reason"] in (word.get_attribute("title") or "")
     word.click()
     assert message(page).startswith(f"run 1 {run['state']}: ")
+    # no reference run was named: the figure is labelled relative to the model (issue 19)
+    relative = run["summary"]["reduction_vs_prediction_percent"]
+    cells = page.locator("#run-history tr:first-child td")
+    assert cells.nth(5).text_content() == f"{relative:.1f} % vs model"
     assert page_errors == []
 
 

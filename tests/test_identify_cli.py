@@ -159,3 +159,11 @@ def test_a_recorded_run_from_the_database(tmp_path: Path) -> None:
     assert values["heat:2"] == pytest.approx(1.3, rel=0.05)
     assert values["alpha"] == pytest.approx(1.0, rel=0.05)
     assert load_network(out).name == "thesis-two-link-identified"
+    # the same run found by --data-dir, whatever storage.data_dir the settings name
+    by_folder = run_cli(
+        ["identify", "1", "--config", "config/sim.toml", "--data-dir", str(tmp_path / "data"),
+         "--json"]
+    )  # fmt: skip
+    assert by_folder.returncode == 0, by_folder.stderr
+    again = {p["name"]: p["value"] for p in json.loads(by_folder.stdout)["parameters"]}
+    assert again == values

@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -106,10 +107,57 @@ def test_simulate_table_is_readable(capsys: pytest.CaptureFixture[str]) -> None:
 def test_simulate_bad_input_exits_2_with_a_message(
     argv: list[str], message: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    status, out, err = run(["model", "simulate", "--duration", "10", *argv], capsys)
+    status, out, err = run(
+        ["model", "simulate", "--duration", "10", "--heat", "2=1", *argv], capsys
+    )
     assert status == 2
     assert message in err
     assert "Traceback" not in err and out == ""
+
+
+def test_simulate_without_any_heat_input_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 19: the presets carry no heat, so no --heat simulated 22 degC everywhere."""
+    status, out, err = run("model simulate --duration 10", capsys)
+    assert status == 2 and out == ""
+    assert "no heat input" in err and "its heater nodes: 2, 9" in err
+    # an explicit zero is a request, not an omission
+    status, out, err = run("model simulate --duration 10 --heat 2=0 --json", capsys)
+    assert status == 0, err
+    assert np.abs(json.loads(out)["deformation_um"]).max() < 1e-9  # rounding only
+
+
+def test_simulate_uses_the_networks_own_heat(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A network file whose nodes carry heat_w needs no --heat; --heat replaces it."""
+    preset = Path("config/networks/thesis-two-link.toml").read_text()
+    heated = preset.replace(
+        "r_ambient_c_per_w = 248.000496\n", "r_ambient_c_per_w = 248.000496\nheat_w = 0.5\n", 1
+    )
+    assert heated != preset
+    path = tmp_path / "heated.toml"
+    path.write_text(heated)
+    status, out, err = run(f"model simulate --network {path} --duration 60 --json", capsys)
+    assert status == 0, err
+    own = json.loads(out)["deformation_um"]
+    status, out, err = run(
+        f"model simulate --network {path} --duration 60 --heat 2=0.5 --json", capsys
+    )
+    assert status == 0, err
+    assert own[-1] > 0 and json.loads(out)["deformation_um"] == own
+
+
+def test_several_heat_inputs_after_one_heat_option(capsys: pytest.CaptureFixture[str]) -> None:
+    """The README's form `--heat 2=0.5 9=0.5` equals `--heat 2=0.5 --heat 9=0.5`."""
+    documents = []
+    for heat in (["--heat", "2=0.5", "9=0.5"], ["--heat", "2=0.5", "--heat", "9=0.5"]):
+        status, out, err = run(
+            ["model", "simulate", "--duration", "60", "--every", "30", *heat, "--json"], capsys
+        )
+        assert status == 0, err
+        documents.append(json.loads(out))
+    assert documents[0] == documents[1]
+    assert documents[0]["deformation_um"][-1] > 0
 
 
 def test_explicit_sub_steps_on_request(capsys: pytest.CaptureFixture[str]) -> None:

@@ -5,6 +5,7 @@ and the run marked interrupted."""
 import json
 import os
 import random
+import re
 import signal
 import sqlite3
 import subprocess
@@ -35,6 +36,52 @@ def test_bad_run_parameters_are_usage_errors(tmp_path: Path) -> None:
     assert "largest admissible scale" in result.stderr and "Traceback" not in result.stderr
 
 
+def test_a_heat_input_naming_no_node_is_refused_before_the_run(tmp_path: Path) -> None:
+    """Issue 19: model.heat_w keys are checked against the run's network at its start (exit
+    2), not at the first step after the goal was taught (a traceback)."""
+    result = run_cli(
+        ["run", "--config", SIM, "--data-dir", str(tmp_path), "--duration", "5"],
+        env={"THERMOCOMP_MODEL__HEAT_W": '{"99": 0.5}'},
+    )
+    assert result.returncode == 2
+    assert "heat_w: unknown node '99'" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_heat_inputs_on_the_command_line_replace_the_settings(tmp_path: Path) -> None:
+    """`--heat 2=0.7 9=0.3` replaces model.heat_w (issue 19: run had no --heat); a node the
+    network lacks or a malformed value is a usage error."""
+    options = ["--data-dir", str(tmp_path), "--duration", "5", "--json"]
+    result = run_cli(["run", "--config", SIM, *options, "--heat", "2=0.7", "9=0.3"])
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["parameters"]["heat_w"] == {"2": 0.7, "9": 0.3}
+    for bad, message in (
+        (["--heat", "17=1", "99=1"], "unknown node '99'"),
+        (["--heat", "2=hot"], "NODE=WATTS"),
+    ):
+        refused = run_cli(["run", "--config", SIM, *options, *bad])
+        assert refused.returncode == 2 and message in refused.stderr, refused.stderr
+        assert "Traceback" not in refused.stderr
+
+
+def test_incremental_moves_below_the_console_resolution_are_refused(tmp_path: Path) -> None:
+    """Issue 19 / thesis 6.3: at a 1 s step every incremental move of the unscaled bench is
+    under the console's 0.001 mm, so the run is refused before it starts, naming a scale that
+    works; at that scale the run goes and the robot really moves."""
+    options = ["--data-dir", str(tmp_path), "--duration", "60", "--compensation", "incremental"]
+    refused = run_cli(["run", "--config", SIM, *options])
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
+    assert "would round to no motion" in refused.stderr
+    match = re.search(r"deformation scale (\d+) would work", refused.stderr)
+    assert match is not None, refused.stderr
+    result = run_cli(["run", "--config", SIM, *options, "--scale", match.group(1), "--json"])
+    assert result.returncode == 0, result.stderr
+    final = json.loads(result.stdout)
+    assert final["id"] == 1  # the refused run was never recorded
+    with Recorder(tmp_path) as recorder:
+        poses = {s.pose_x_mm for s in recorder.steps(final["id"])}
+    assert len(poses) > 10  # the robot followed the deformation, 0.001 mm at a time
+
+
 def test_a_short_compensated_bench_run_prints_its_summary(tmp_path: Path) -> None:
     csv_path = tmp_path / "steps.csv"
     options = ["--data-dir", str(tmp_path), "--duration", "20", "--json", "--csv", str(csv_path)]
@@ -50,6 +97,51 @@ def test_a_short_compensated_bench_run_prints_its_summary(tmp_path: Path) -> Non
         steps = recorder.steps(final["id"])
     # the real C500C driver read the pose back at every step, at the 0.001 mm console grain
     assert all(s.pose_x_mm is not None and s.centroid_x_px is not None for s in steps)
+
+
+def test_reduction_is_measured_against_a_named_uncompensated_run(tmp_path: Path) -> None:
+    """Issue 19: an off run states its drift; a compensated run naming it as its reference
+    gets a measured reduction over the time both cover; a compensated run is no reference."""
+    options = ["--data-dir", str(tmp_path), "--duration", "30", "--json"]
+    off = run_cli(["run", "--config", SIM, *options, "--compensation", "off"])
+    assert off.returncode == 0, off.stderr
+    off_final = json.loads(off.stdout)
+    drift = off_final["summary"]
+    assert drift["reduction_basis"] == "drift" and drift["reduction_percent"] is None
+    assert drift["measured_drift_max_um"] == drift["residual_max_um"] > 0
+
+    reference = str(off_final["id"])
+    compensated = run_cli(
+        [
+            "run",
+            "--config",
+            SIM,
+            *options[:-1],
+            "--duration",
+            "20",
+            "--json",
+            "--reference-run",
+            reference,
+        ]
+    )
+    assert compensated.returncode == 0, compensated.stderr
+    final = json.loads(compensated.stdout)
+    summary = final["summary"]
+    assert summary["reduction_basis"] == "reference"
+    assert summary["reference_run"] == off_final["id"]
+    with Recorder(tmp_path) as recorder:
+        drift_steps = recorder.steps(off_final["id"])
+        steps = recorder.steps(final["id"])
+    span = steps[-1].scheduled_s  # the shorter run's end
+    assert summary["reference_span_s"] == span
+    reference_max = max(abs(s.residual_um) for s in drift_steps if s.scheduled_s <= span)
+    residual_max = max(abs(s.residual_um) for s in steps)
+    assert summary["reference_max_um"] == reference_max
+    assert abs(summary["reduction_percent"] - 100 * (1 - residual_max / reference_max)) < 1e-9
+
+    refused = run_cli(["run", "--config", SIM, *options, "--reference-run", str(final["id"])])
+    assert refused.returncode == 2
+    assert "must be an uncompensated run" in refused.stderr and "Traceback" not in refused.stderr
 
 
 def _committed_steps(database: Path) -> int:

@@ -458,6 +458,26 @@
     }
   }
 
+  // What the summary's reduction is measured against (issue 19): a measured uncompensated
+  // reference run, else only the model's prediction; an uncompensated run has its drift.
+  function reductionText(summary) {
+    const number = (value, digits) =>
+      value === undefined || value === null ? null : Number(value).toFixed(digits);
+    if (summary.reduction_basis === "drift") {
+      const drift = number(summary.measured_drift_max_um, 2);
+      return drift === null ? "–" : `drift ${drift} µm (off)`;
+    }
+    if (summary.reduction_basis === "reference") {
+      const measured = number(summary.reduction_percent, 1);
+      return measured === null ? "–" : `${measured} % vs run ${summary.reference_run}`;
+    }
+    // no reference run: relative to the prediction (older summaries had it as reduction_percent)
+    const predicted = number(
+      summary.reduction_basis === "prediction"
+        ? summary.reduction_vs_prediction_percent : summary.reduction_percent, 1);
+    return predicted === null ? "–" : `${predicted} % vs model`;
+  }
+
   function historyRow(run) {
     const row = document.createElement("tr");
     const summary = run.summary || {};
@@ -468,8 +488,7 @@
       String(run.steps_recorded),
       summary.residual_max_um === undefined || summary.residual_max_um === null
         ? "–" : Number(summary.residual_max_um).toFixed(2),
-      summary.reduction_percent === undefined || summary.reduction_percent === null
-        ? "–" : Number(summary.reduction_percent).toFixed(1),
+      reductionText(summary),
     ];
     for (const text of cells) {
       const cell = document.createElement("td");

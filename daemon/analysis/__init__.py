@@ -14,6 +14,7 @@ from daemon.analysis.steps import (
     RESIDUAL_COLUMN,
     SUMMARY_KEYS,
     RunSteps,
+    compensation_of,
     steps_from_rows,
     summarize_run,
 )
@@ -105,6 +106,7 @@ __all__ = [
     "RunSteps",
     "build_summary",
     "chi_squared_against_normal",
+    "compensation_of",
     "cte_from_run",
     "cte_table",
     "error_statistics",

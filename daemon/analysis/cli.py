@@ -322,7 +322,11 @@ def run_fit(args: argparse.Namespace) -> int:
         return EXIT_OK
     curve = fit.curve
     form = "(1 - exp(-(t - t0)/tau))" if kind == "rising" else "exp(-(t - t0)/tau)"
-    steady = f"{fit.steady_state_s:.6g} s" if fit.steady_state_s is not None else "not reached"
+    steady = (
+        f"{fit.steady_state_s:.6g} s"
+        if fit.steady_state_s is not None
+        else f"not steady within the data (tau = {curve.tau_s:.4g} s)"
+    )
     settling = f"{curve.settling_time_s(fit.steady_band):.6g} s" if fit.steady_band > 0 else "-"
     print(
         "\n".join(

@@ -85,8 +85,11 @@ class ExponentialFit:
     tau_stderr_s: float
     residual_std: float  # standard deviation of data minus fit
     n: int
-    steady_state_s: float | None  # from the data, see steady_state_time()
+    # from the data (see steady_state_time), and None also when the fitted curve is still
+    # outside that band at the end of the data: the signal has not settled within the run
+    steady_state_s: float | None
     steady_band: float  # half-width of the band used
+    end_s: float = math.nan  # the last sample's time
 
     def to_dict(self) -> dict[str, object]:
         result: dict[str, object] = asdict(self.curve)
@@ -95,6 +98,7 @@ class ExponentialFit:
         # The same band applied to the fitted curve: robust to a single noisy late sample.
         band = self.steady_band
         result["fit_settling_s"] = self.curve.settling_time_s(band) if band > 0 else None
+        result["steady"] = self.steady_state_s is not None
         return result
 
 
@@ -236,6 +240,12 @@ def fit_exponential(
         final_fraction=final_fraction,
         smoothing=smoothing,
     )
+    end = float(times[-1])
+    # The band around the final segment's mean is met early by a signal still rising slowly
+    # (its last fifth then spans a wide band): steady only if the fit agrees (issue 19: "steady
+    # from 438 s" of a 600 s run with tau 2730 s).
+    if steady_s is not None and half_width > 0 and curve.settling_time_s(half_width) > end:
+        steady_s = None
     logger.debug("fitted %s exponential: %s", kind, curve)
     return ExponentialFit(
         curve=curve,
@@ -246,4 +256,5 @@ def fit_exponential(
         n=int(values.size),
         steady_state_s=steady_s,
         steady_band=half_width,
+        end_s=end,
     )

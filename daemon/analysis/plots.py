@@ -10,7 +10,7 @@ steps run on time.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from typing import Any, Literal
 
 import numpy as np
@@ -338,7 +338,7 @@ def plot_compensation(steps: RunSteps, stats: ErrorStatistics | None) -> Figure:
 
 
 def plot_compensated_vs_uncompensated(
-    steps: RunSteps, summary: dict[str, float | int | None]
+    steps: RunSteps, summary: Mapping[str, float | int | str | None]
 ) -> Figure:
     """Figure 6.9: where the tool would have gone (uncompensated) against where it went."""
     figure, (ax,) = _figure()
@@ -365,11 +365,21 @@ def plot_compensated_vs_uncompensated(
     _time_limits([ax], times)
     lines = []
     if summary.get("uncompensated_max_um") is not None:
-        lines.append(f"uncompensated max: {summary['uncompensated_max_um']:.1f} µm")
-    if summary.get("residual_max_um") is not None:
+        lines.append(f"predicted max: {summary['uncompensated_max_um']:.1f} µm")
+    if summary.get("reduction_basis") == "drift":
+        if summary.get("measured_drift_max_um") is not None:
+            lines.append(f"measured drift max (off): {summary['measured_drift_max_um']:.2f} µm")
+    elif summary.get("residual_max_um") is not None:
         lines.append(f"compensated max |error|: {summary['residual_max_um']:.2f} µm")
+    if summary.get("reference_max_um") is not None:
+        lines.append(
+            f"run {summary.get('reference_run')} (off) drift max: "
+            f"{summary['reference_max_um']:.2f} µm"
+        )
     if summary.get("reduction_percent") is not None:
-        lines.append(f"reduction: {summary['reduction_percent']:.1f} %")
+        lines.append(f"reduction (measured): {summary['reduction_percent']:.1f} %")
+    if summary.get("reduction_vs_prediction_percent") is not None:
+        lines.append(f"vs prediction: {summary['reduction_vs_prediction_percent']:.1f} %")
     if lines:
         ax.text(
             0.98,

@@ -43,9 +43,61 @@ SUMMARY_LABELS: dict[str, tuple[str, str, str]] = {
     "residual_mean_um": ("Mean error", "x̄", "µm"),
     "residual_std_um": ("Standard deviation", "S_x", "µm"),
     "residual_std_mean_um": ("Standard deviation of the mean", "S_x̄ = S_x/√N", "µm"),
-    "uncompensated_max_um": ("Largest predicted (uncompensated) deformation", "", "µm"),
-    "reduction_percent": ("Reduction of the largest displacement", "", "%"),
+    "measured_drift_max_um": ("Largest measured drift (compensation off)", "", "µm"),
+    "uncompensated_max_um": ("Largest predicted deformation (the model's)", "", "µm"),
+    "reduction_percent": (
+        "Reduction of the largest displacement, measured against the reference run",
+        "",
+        "%",
+    ),
+    "reduction_vs_prediction_percent": (
+        "Largest error relative to the largest predicted deformation (not a measured reduction)",
+        "1 − max|x| / max prediction",
+        "%",
+    ),
+    "reference_max_um": ("Largest measured drift of the reference run", "", "µm"),
+    "reference_span_s": ("Time both runs cover (maxima taken over it)", "", "s"),
 }
+
+#: The Table 6.1 rows shown for each ``reduction_basis`` (the rest would be empty).
+_BASIS_ROWS: dict[str, frozenset[str]] = {
+    "drift": frozenset({"measured_drift_max_um", "uncompensated_max_um"}),
+    "prediction": frozenset({"uncompensated_max_um", "reduction_vs_prediction_percent"}),
+    "reference": frozenset(
+        {
+            "uncompensated_max_um",
+            "reference_max_um",
+            "reference_span_s",
+            "reduction_percent",
+            "reduction_vs_prediction_percent",
+        }
+    ),
+}
+_TABLE_6_1_KEYS = frozenset(
+    {"n", "residual_max_um", "residual_mean_um", "residual_std_um", "residual_std_mean_um"}
+)
+
+
+def reduction_note(run_summary: Mapping[str, object]) -> str:
+    """One sentence saying what the summary's reduction figure is measured against."""
+    basis = run_summary.get("reduction_basis")
+    if basis == "drift":
+        return (
+            "This run was not compensated (compensation off): its error is the measured "
+            "thermal drift, and there is no reduction to state."
+        )
+    if basis == "reference":
+        return (
+            f"The reduction compares this run's largest error with the largest drift measured "
+            f"by the uncompensated reference run {run_summary.get('reference_run')}, both "
+            "over the time the two runs cover."
+        )
+    return (
+        "No uncompensated reference run was named (run parameter reference_run, "
+        "thermocomp report --reference RUN): the only figure is relative to the model's "
+        "own prediction, which says how well the moves followed the model, not how much of "
+        "the real drift they removed (a wrong model over-predicts and looks better)."
+    )
 
 
 @dataclass(frozen=True)
@@ -62,7 +114,7 @@ class ReportFiles:
 class _Plot:
     name: str
     caption: str
-    draw: Callable[[RunSteps, ErrorStatistics | None, dict[str, float | int | None]], Figure]
+    draw: Callable[[RunSteps, ErrorStatistics | None, dict[str, float | int | str | None]], Figure]
 
 
 PLOTS: tuple[_Plot, ...] = (
@@ -151,10 +203,19 @@ def _fit_summary(times: FloatArray, values: FloatArray) -> dict[str, object]:
     return fit.to_dict()
 
 
-def build_summary(steps: RunSteps) -> tuple[dict[str, object], ErrorStatistics | None]:
-    """Everything the report states in numbers: Table 6.1, the chi-squared test, the time
-    constants and steady-state times, and counts of flagged steps."""
-    run_summary = summarize_run(steps)
+def build_summary(
+    steps: RunSteps,
+    *,
+    compensation: str | None = None,
+    reference: RunSteps | None = None,
+    reference_run: int | str | None = None,
+) -> tuple[dict[str, object], ErrorStatistics | None]:
+    """Everything the report states in numbers: Table 6.1 (its reduction against the
+    uncompensated ``reference`` run when given, see :func:`summarize_run`), the chi-squared
+    test, the time constants and steady-state times, and counts of flagged steps."""
+    run_summary = summarize_run(
+        steps, compensation=compensation, reference=reference, reference_run=reference_run
+    )
     stats: ErrorStatistics | None = None
     statistics: dict[str, object] | None = None
     try:
@@ -218,9 +279,12 @@ def _html_page(
             (
                 (label, symbol, run_summary.get(key), unit)
                 for key in SUMMARY_KEYS
+                if key in _TABLE_6_1_KEYS
+                or key in _BASIS_ROWS.get(str(run_summary.get("reduction_basis")), frozenset())
                 for label, symbol, unit in (SUMMARY_LABELS[key],)
             ),
         ),
+        f'<p class="note">{html.escape(reduction_note(run_summary))}</p>',
     ]
     if stats is not None and stats.chi_squared is not None:
         test = stats.chi_squared
@@ -251,11 +315,12 @@ def _html_page(
         parts.append(f"<p>No chi-squared test: {html.escape(stats.note)}.</p>")
     fits = summary["fits"]
     assert isinstance(fits, dict)
-    fit_rows = []
+    fit_rows: list[tuple[object, ...]] = []
     for name, fit in fits.items():
         if "error" in fit:
-            fit_rows.append((name, "–", None, None, None, None, fit["error"]))
+            fit_rows.append((name, "–", None, None, None, None, None, fit["error"]))
         else:
+            steady = fit["steady_state_s"]
             fit_rows.append(
                 (
                     name,
@@ -263,7 +328,10 @@ def _html_page(
                     fit["final_value"],
                     fit["tau_s"],
                     fit["tau_stderr_s"],
-                    fit["steady_state_s"],
+                    steady
+                    if steady is not None
+                    else f"not steady within the run (τ = {fit['tau_s']:.4g} s)",
+                    fit.get("fit_settling_s"),
                     f"band ±{fit['steady_band']:.3g}",
                 )
             )
@@ -272,9 +340,20 @@ def _html_page(
         "<p>y = y0 + A (1 − e^(−(t − t0)/τ)) (or the decaying form). τ is the time constant "
         "(63 % of the change); steady state is the first time after which the data (running "
         "mean of 9 samples) stay within ±3σ of the mean of their final 20 % (thesis 3.5.1); "
-        "σ is that final segment's.</p>",
+        "σ is that final segment's. A signal is called steady only when the fitted curve also "
+        "enters that band before the run ends (fit settles, s); otherwise it is still moving "
+        "and the time constant says how far it has to go.</p>",
         _table(
-            ("signal", "form", "final value", "τ (s)", "± (s)", "steady from (s)", "note"),
+            (
+                "signal",
+                "form",
+                "final value",
+                "τ (s)",
+                "± (s)",
+                "steady from (s)",
+                "fit settles (s)",
+                "note",
+            ),
             fit_rows,
         ),
         "<h2>Figures</h2>",
@@ -309,16 +388,24 @@ def write_report(
     title: str = "thermocomp run",
     embed_images: bool = False,
     clock: str | None = None,
+    compensation: str | None = None,
+    reference: RunSteps | None = None,
+    reference_run: int | str | None = None,
 ) -> ReportFiles:
     """Write the figures, ``summary.json`` and ``report.html`` of one run into ``out_dir``.
 
     ``rows`` are the run's step records (the columns of daemon/recorder.py's StepRecord).
     ``clock`` is the run's ``bench.clock`` setting when known: on a virtual clock the
-    lateness figure is replaced by a line saying why it would be empty. Blocking.
+    lateness figure is replaced by a line saying why it would be empty. ``compensation`` (the
+    run's mode, inferred from its offsets when None), ``reference`` and ``reference_run``
+    (an uncompensated run's steps and name) decide what the reduction is measured against
+    (:func:`summarize_run`). Blocking.
     """
     steps = rows if isinstance(rows, RunSteps) else steps_from_rows(rows)
     out_dir.mkdir(parents=True, exist_ok=True)
-    summary, stats = build_summary(steps)
+    summary, stats = build_summary(
+        steps, compensation=compensation, reference=reference, reference_run=reference_run
+    )
     run_summary = summary["run_summary"]
     assert isinstance(run_summary, dict)
     plots: dict[str, Path] = {}

@@ -14,6 +14,7 @@ import re
 from array import array
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,16 +53,26 @@ NUMERIC_COLUMNS: tuple[str, ...] = (
 #: The measured compensation error along the link axis: what Table 6.1 summarises.
 RESIDUAL_COLUMN = "residual_um"
 
-#: Keys of the run summary, in Table 6.1's order.
+#: Numeric keys of the run summary, in Table 6.1's order (then the reduction's reference).
 SUMMARY_KEYS: tuple[str, ...] = (
     "n",
     "residual_max_um",
     "residual_mean_um",
     "residual_std_um",
     "residual_std_mean_um",
+    "measured_drift_max_um",
     "uncompensated_max_um",
     "reduction_percent",
+    "reduction_vs_prediction_percent",
+    "reference_max_um",
+    "reference_span_s",
 )
+
+#: What ``reduction_percent`` is measured against (the summary's ``reduction_basis``).
+#: reference: a measured uncompensated run; prediction: no reference run, only
+#: ``reduction_vs_prediction_percent`` (against the model's own prediction); drift: the run
+#: was not compensated (its residual is the measured drift, there is no reduction).
+ReductionBasis = Literal["reference", "prediction", "drift"]
 
 FloatArray = NDArray[np.float64]
 
@@ -277,21 +288,54 @@ def natural_key(name: str) -> tuple[tuple[int, int, str], ...]:
     )
 
 
-def summarize_run(rows: Iterable[Mapping[str, object]] | RunSteps) -> dict[str, float | int | None]:
-    """The run summary of Table 6.1 (keys SUMMARY_KEYS).
+def compensation_of(steps: RunSteps) -> str | None:
+    """``"off"`` when every recorded compensating offset is exactly zero (what an
+    uncompensated run records), else None: unknown. For exported runs, which do not carry
+    their parameters."""
+    offsets = [steps.numeric.get(f"offset_{axis}_mm") for axis in "xyz"]
+    if any(column is None for column in offsets):
+        return None
+    values = np.concatenate([column for column in offsets if column is not None])
+    values = values[np.isfinite(values)]
+    return "off" if values.size and not values.any() else None
+
+
+def summarize_run(
+    rows: Iterable[Mapping[str, object]] | RunSteps,
+    *,
+    compensation: str | None = None,
+    reference: RunSteps | None = None,
+    reference_run: int | str | None = None,
+) -> dict[str, float | int | str | None]:
+    """The run summary of Table 6.1 (keys SUMMARY_KEYS, ``reduction_basis``,
+    ``reference_run``).
 
     n counts the steps with a measured residual; residual_max_um is the largest |residual|
     (thesis 6.5 "maximum error"); the deviation is the sample one (N - 1) and its mean's
     deviation S_x / sqrt(N) (Eq. 6.1). uncompensated_max_um is the largest predicted
-    deformation times the step's deformation scale (thesis 6.3): what the spot would have moved
-    on the chip without compensation, in the residual's own units; and
-    reduction_percent = 100 (1 - max error / max uncompensated) as thesis 6.7 reports (98 %).
-    Values that cannot be computed are None.
+    deformation times the step's deformation scale (thesis 6.3): what the model says the spot
+    would have moved on the chip without compensation, in the residual's own units.
+
+    The reduction (thesis 6.7: 100 (1 - max error / max uncompensated), 98 % there) is only
+    called a reduction when the uncompensated drift was *measured*: ``reference``, the steps
+    of an uncompensated run of the same bench (``reference_run`` names it), whose largest
+    |residual| is its drift. Both maxima are then taken over the time both runs cover
+    (``reference_span_s``), since the drift grows with time. Without a reference,
+    ``reduction_percent`` is None and ``reduction_vs_prediction_percent`` gives the same
+    formula against the model's prediction: that says how well the moves followed the
+    model, not how much drift they removed (a wrong model predicts a large deformation and
+    "reduces" it by far more than the measured drift fell). A run with ``compensation``
+    "off" (inferred from all-zero offsets when not given) reports its measured drift
+    (``measured_drift_max_um``) and no reduction of either kind. Values that cannot be
+    computed are None.
     """
     steps = rows if isinstance(rows, RunSteps) else steps_from_rows(rows)
-    residual = steps.residual_um[np.isfinite(steps.residual_um)]
+    if compensation is None:
+        compensation = compensation_of(steps)
+    finite = np.isfinite(steps.residual_um)
+    residual = steps.residual_um[finite]
     n = int(residual.size)
-    summary: dict[str, float | int | None] = dict.fromkeys(SUMMARY_KEYS)
+    summary: dict[str, float | int | str | None] = dict.fromkeys(SUMMARY_KEYS)
     summary["n"] = n
     if n >= 1:
         summary["residual_max_um"] = float(np.abs(residual).max())
@@ -305,10 +349,41 @@ def summarize_run(rows: Iterable[Mapping[str, object]] | RunSteps) -> dict[str, 
     with np.errstate(over="ignore", invalid="ignore"):
         predicted = np.linalg.norm(steps.predicted_vector_um, axis=1) * steps.deformation_scale
     predicted = predicted[np.isfinite(predicted)]
-    if predicted.size:
-        uncompensated = float(predicted.max())
-        summary["uncompensated_max_um"] = uncompensated
-        residual_max = summary["residual_max_um"]
-        if uncompensated > 0 and residual_max is not None:
-            summary["reduction_percent"] = 100.0 * (1.0 - float(residual_max) / uncompensated)
+    uncompensated = float(predicted.max()) if predicted.size else None
+    summary["uncompensated_max_um"] = uncompensated
+    residual_max = summary["residual_max_um"]
+    summary["reference_run"] = None
+    if compensation == "off":
+        summary["reduction_basis"] = "drift"
+        summary["measured_drift_max_um"] = residual_max
+        return summary
+    if uncompensated is not None and uncompensated > 0 and residual_max is not None:
+        summary["reduction_vs_prediction_percent"] = 100.0 * (
+            1.0 - float(residual_max) / uncompensated
+        )
+    summary["reduction_basis"] = "prediction"
+    if reference is not None:
+        summary["reduction_basis"] = "reference"
+        summary["reference_run"] = reference_run if reference_run is not None else reference.run_id
+        _reduction_against(summary, steps, reference)
     return summary
+
+
+def _reduction_against(
+    summary: dict[str, float | int | str | None], steps: RunSteps, reference: RunSteps
+) -> None:
+    """``reduction_percent`` from the largest |residual| of this run and of the uncompensated
+    ``reference`` over the time both cover."""
+    times, reference_times = steps.time_s, reference.time_s
+    if not (np.isfinite(times).any() and np.isfinite(reference_times).any()):
+        return
+    span = float(min(np.nanmax(times), np.nanmax(reference_times)))
+    summary["reference_span_s"] = span
+    ours = steps.residual_um[(times <= span) & np.isfinite(steps.residual_um)]
+    theirs = reference.residual_um[(reference_times <= span) & np.isfinite(reference.residual_um)]
+    if not (ours.size and theirs.size):
+        return
+    reference_max = float(np.abs(theirs).max())
+    summary["reference_max_um"] = reference_max
+    if reference_max > 0:
+        summary["reduction_percent"] = 100.0 * (1.0 - float(np.abs(ours).max()) / reference_max)

@@ -79,11 +79,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     simulate.add_argument(
         "--heat",
         type=_heat,
-        action="append",
+        nargs="+",
+        action="extend",
         default=[],
         metavar="NODE=WATTS",
-        help="heat input; NODE is the node's name or 1-based number (repeatable; default: the "
-        "network's own heat inputs, none for the presets)",
+        help="heat inputs; NODE is the node's name or 1-based number (several after one "
+        "--heat, or --heat repeated; default: the network's own heat inputs; the presets have "
+        "none, and a simulation without any heat input is refused)",
     )
     simulate.add_argument(
         "--ambient",
@@ -168,6 +170,13 @@ def run_simulate(args: argparse.Namespace) -> int:
         heat[node] = heat.get(node, 0.0) + watts
     try:
         network = load_network(args.network)
+        if not heat and not network.heat_w.any():
+            heaters = ", ".join(network.heater_nodes)
+            return _fail(
+                f"no heat input: network {network.name!r} defines none and no --heat was "
+                "given, so every node would stay at ambient; give --heat NODE=WATTS"
+                + (f" (its heater nodes: {heaters})" if heaters else "")
+            )
         document = simulate(
             network,
             duration_s=args.duration,

@@ -121,3 +121,89 @@ def check_scale(
 
 def _fmt(vector: NDArray[np.float64]) -> str:
     return "(" + ", ".join(f"{v:.4f}" for v in np.atleast_1d(vector)) + ")"
+
+
+# --------------------------------------------------------------------------- incremental mode
+
+#: C500C.md: the console takes and prints positions as ``%.3f`` mm, so every commanded move is
+#: rounded to 0.001 mm (drivers/c500c_protocol.py ``round_mm``).
+CONSOLE_RESOLUTION_MM = 0.001
+#: The share of the scaled deformation that the console's rounding of incremental moves may
+#: leave uncompensated before a run is refused. Thesis 6.3 scaled the deformation "to obtain
+#: at least 90 % overall compensation accuracy" with moves the robot could make.
+MAX_INCREMENT_LOSS_FRACTION = 0.1
+#: The largest scale :func:`smallest_working_scale` tries (runs admit up to 1000).
+MAX_SEARCHED_SCALE = 1000
+
+
+@dataclass(frozen=True, slots=True)
+class IncrementalRounding:
+    """What the console's rounding does to a run's incremental moves (thesis 6.4.3).
+
+    Incremental mode sends each step the difference between this step's and the previous
+    step's *intended* offsets; the console rounds it to its resolution, and what is rounded
+    away is never sent again, so the rounding errors add up. Lengths are on the chip, i.e.
+    scaled (µm), per axis.
+    """
+
+    deformation_scale: float
+    steps: int
+    lost_steps: int  # moves that round to no motion on every axis
+    largest_move_um: float  # the largest intended move of one step on one axis
+    largest_error_um: float  # the largest accumulated rounding error on one axis
+    largest_deformation_um: float  # the largest scaled deformation on one axis
+
+    @property
+    def loss_fraction(self) -> float:
+        """The accumulated rounding error over the deformation (0 when nothing deforms)."""
+        if self.largest_deformation_um <= 0:
+            return 0.0
+        return self.largest_error_um / self.largest_deformation_um
+
+    @property
+    def admissible(self) -> bool:
+        return self.loss_fraction <= MAX_INCREMENT_LOSS_FRACTION
+
+
+def incremental_rounding(
+    predicted_um: ArrayLike,
+    deformation_scale: float,
+    resolution_mm: float = CONSOLE_RESOLUTION_MM,
+) -> IncrementalRounding:
+    """The rounding of the incremental moves that follow ``predicted_um`` (n x 3: the
+    expected deformation at each step, from the goal where it is 0) at ``deformation_scale``.
+
+    Step k moves by ``offset_k - offset_(k-1)`` (the first from the goal), offsets being
+    ``-scale x deformation`` (:func:`compensation_offset_mm`); the console executes each move
+    rounded to ``resolution_mm`` per axis.
+    """
+    predicted = np.atleast_2d(np.asarray(predicted_um, dtype=np.float64))
+    resolution_um = resolution_mm * UM_PER_MM
+    offsets_um = -deformation_scale * predicted
+    moves = np.diff(offsets_um, axis=0, prepend=np.zeros((1, predicted.shape[1])))
+    sent = np.round(moves / resolution_um) * resolution_um
+    error = np.cumsum(sent - moves, axis=0)
+    lost = np.all(sent == 0.0, axis=1) & np.any(moves != 0.0, axis=1)
+    return IncrementalRounding(
+        deformation_scale=deformation_scale,
+        steps=int(predicted.shape[0]),
+        lost_steps=int(np.count_nonzero(lost)),
+        largest_move_um=float(np.abs(moves).max(initial=0.0)),
+        largest_error_um=float(np.abs(error).max(initial=0.0)),
+        largest_deformation_um=float(np.abs(offsets_um).max(initial=0.0)),
+    )
+
+
+def smallest_working_scale(
+    predicted_um: ArrayLike,
+    largest_admissible_scale: float,
+    resolution_mm: float = CONSOLE_RESOLUTION_MM,
+) -> int | None:
+    """The smallest whole deformation scale (thesis 6.3 used 28) up to the largest one the
+    camera chip admits at which incremental rounding is :attr:`IncrementalRounding.admissible`;
+    None when none is."""
+    highest = math.floor(min(largest_admissible_scale, MAX_SEARCHED_SCALE))
+    for scale in range(1, highest + 1):
+        if incremental_rounding(predicted_um, float(scale), resolution_mm).admissible:
+            return scale
+    return None

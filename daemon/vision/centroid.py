@@ -45,6 +45,19 @@ _MAX_ITERATIONS = 40
 _EDGE_SHIFT_PX = 1e-3  # a frame edge that would move the centroid more than this cuts the spot
 _LOW_SNR = 20.0
 _QUANTISATION_VARIANCE = 1.0 / 12.0  # counts², rounding to integers
+# Below this background noise (counts RMS) rounding is no longer dithered by noise: a spot's
+# faint flanks round the same way frame after frame, the errors of windowed moments become a
+# function of the sub-pixel position, and moments stay 1.2-1.5x the Cramér-Rao bound (8-bit
+# frames of a 16-bit-class sensor). A fit of the pixel-integrated Gaussian that weighs each
+# pixel by its photon + quantisation variance reaches the bound there (benchmarks/
+# bench_centroid.py), so such frames are refined by it. 0.5 count: quantisation (1/12
+# count²) is then a quarter or more of the pixel variance.
+_QUANTISED_NOISE_COUNTS = 0.5
+# ... but only where a Gaussian describes the spot: fits of Gaussian spots end at a reduced
+# chi² of ~1 (~0.1 without noise), of flat-top or rotated elliptical ones at 300 and more,
+# whose fitted centre would then be biased; those keep their moments (flag
+# "quantised-moments").
+_FIT_MAX_REDUCED_CHI2 = 4.0
 #: the 8 neighbours of a pixel (dilating with it gives their maximum)
 _NEIGHBOURS = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], dtype=np.uint8)
 _MIN_REDUCED_FRAME_PX = 64  # smaller frames are searched at full resolution
@@ -87,7 +100,9 @@ class CentroidResult:
     saturated_fraction: float  # share of the spot's pixels at full scale
     histogram: tuple[int, ...]  # 10 bins of pixel value / full scale over the measured area
     # "saturated", "saturation-fit-failed", "edge" (window clipped by the frame, spot whole),
-    # "low-snr" (snr < 20), "hot-pixels" (some replaced in the window)
+    # "low-snr" (snr < 20), "hot-pixels" (some replaced in the window), "quantised-moments"
+    # (noise under half a count, but the refining fit did not converge or the spot is not
+    # Gaussian: the moments stand, up to ~1.5x the Cramér-Rao bound)
     flags: tuple[str, ...]
     iterations: int
 
@@ -418,12 +433,36 @@ def _support(window: NDArray[np.float64]) -> slice:
     return slice(int(inside[0]), int(inside[-1]) + 1)
 
 
-def _local_background(region: NDArray[np.float64]) -> tuple[float, float, float, float]:
+def _grouped_median(counts: NDArray[np.float64]) -> float:
+    """Median of non-negative whole numbers read as grouped data: value k stands for the
+    interval [k - 1/2, k + 1/2] (0 for [0, 1/2]: these are magnitudes), and the median is
+    interpolated inside its interval.
+
+    The plain median of quantised magnitudes is a whole number: for noise under one count most
+    differences are 0 and the median is exactly 0. The grouped median is continuous in the
+    noise and, when every difference is 0, gives 1/4 count, i.e. 0.26 count of noise: the
+    rounding error (uniform, sqrt(1/12) = 0.29 count RMS) that is then the only noise left.
+    """
+    size = counts.size
+    middle = float(np.partition(counts, size // 2)[size // 2])
+    below = int(np.count_nonzero(counts < middle - 0.5))
+    within = int(np.count_nonzero(np.abs(counts - middle) < 0.5))
+    lower = max(middle - 0.5, 0.0)
+    width = 0.5 if middle < 0.5 else 1.0
+    return lower + (0.5 * size - below) / within * width
+
+
+def _local_background(
+    region: NDArray[np.float64], *, quantised: bool = False
+) -> tuple[float, float, float, float]:
     """(level at the region centre, slope x, slope y, noise sigma) from the region's border.
 
     The medians of the four bands are robust to hot pixels and, for a linear gradient, equal
     the plane at each band's middle, so a tilted background is removed exactly. The noise
-    comes from differences of neighbouring pixels along the bands (a gradient cancels out).
+    comes from differences of neighbouring pixels along the bands (a gradient cancels out):
+    their median absolute value (MAD), read as grouped data when the pixels are whole counts
+    (``quantised``, :func:`_grouped_median`) so that it does not collapse to 0 under one
+    count of noise.
     """
     ring = _RING_PX
     left, right = region[:, :ring], region[:, -ring:]
@@ -442,7 +481,9 @@ def _local_background(region: NDArray[np.float64]) -> tuple[float, float, float,
             np.diff(bottom, axis=1).ravel(),
         ]
     )
-    noise = 1.4826 / math.sqrt(2.0) * _median(np.abs(steps))
+    magnitudes = np.abs(steps)
+    spread = _grouped_median(magnitudes) if quantised else _median(magnitudes)
+    noise = 1.4826 / math.sqrt(2.0) * spread
     return level, slope_x, slope_y, noise
 
 
@@ -470,7 +511,17 @@ def _without_hot_pixels(
     return region, count
 
 
-def _fit_saturated_flanks(
+@dataclass(frozen=True, slots=True)
+class _SpotFit:
+    x: float
+    y: float
+    flux: float
+    sigma_x: float
+    sigma_y: float
+    reduced_chi2: float  # weighed squared residual per degree of freedom (~1: the model fits)
+
+
+def _fit_spot(
     excess: NDArray[np.float64],
     usable: NDArray[np.bool_],
     columns: NDArray[np.float64],
@@ -478,19 +529,24 @@ def _fit_saturated_flanks(
     start: tuple[float, float, float, float],
     *,
     noise: float,
-) -> tuple[float, float, float, float, float] | None:
+    gain_e_per_count: float,
+) -> _SpotFit | None:
     """Least-squares fit of a pixel-integrated Gaussian (x, y, flux, σx, σy) to the
-    unsaturated pixels of a partly saturated spot; None if it does not converge.
+    ``usable`` pixels of the background-subtracted window; None if it does not converge.
 
-    Moments of a clipped spot are biased with its sub-pixel position (by ~0.006 px for a spot
-    saturated to 3x full scale): the pixel values jump where the spot crosses full scale and
-    the sampled moments alias that kink. The flanks are undistorted, and a model that knows
-    the pixel integration fits them without that bias (Gauss–Newton, Levenberg damping,
-    weights 1/variance).
+    Used where moments fall short of the bound. A partly saturated spot: moments of a clipped
+    spot are biased with its sub-pixel position (by ~0.006 px for a spot saturated to 3x full
+    scale), since the pixel values jump where the spot crosses full scale and the sampled
+    moments alias that kink; its unsaturated flanks are undistorted. A quantised frame (noise
+    under :data:`_QUANTISED_NOISE_COUNTS`): see there. A model that knows the pixel
+    integration fits either without that bias (Gauss–Newton, Levenberg damping, weights
+    1/variance: photon noise ``value / gain`` plus the background's noise and rounding).
     """
     x, y, sx, sy = start
     data = excess[usable]
-    weights = 1.0 / (np.clip(data, 0.0, None) + noise * noise + _QUANTISATION_VARIANCE)
+    weights = 1.0 / (
+        np.clip(data, 0.0, None) / gain_e_per_count + noise * noise + _QUANTISATION_VARIANCE
+    )
     share_x, _, _ = pixel_gaussian(columns, x, sx)
     share_y, _, _ = pixel_gaussian(rows, y, sy)
     model_shape = np.outer(share_y, share_x)[usable]
@@ -523,7 +579,9 @@ def _fit_saturated_flanks(
         sx = max(0.3, sx + float(step[3]))
         sy = max(0.3, sy + float(step[4]))
         if abs(step[0]) < _TOLERANCE_PX and abs(step[1]) < _TOLERANCE_PX:
-            return x, y, flux, sx, sy
+            # the residual of the last step's start: the step is too small to change it
+            degrees = max(1, data.size - 5)
+            return _SpotFit(x, y, flux, sx, sy, float(weights @ residual**2) / degrees)
     return None
 
 
@@ -564,7 +622,7 @@ def _robust(
        the current estimate, half-size 4 second-moment widths, until the estimate moves less
        than 1e-5 px; the region is re-cut if the window outgrows it.
     5. A partly saturated spot is then located by a fit of the pixel-integrated Gaussian to
-       its unsaturated flanks (:func:`_fit_saturated_flanks`), since clipped moments alias.
+       its unsaturated flanks (:func:`_fit_spot`), since clipped moments alias.
        Where that model does not fit (a saturated flat-topped spot) the moments stand and the
        frame is flagged ``saturation-fit-failed``: expect up to ~0.01 px of sub-pixel bias.
     6. Isolated hot pixels in the region are replaced by their 3 x 3 median first
@@ -578,6 +636,7 @@ def _robust(
         raise CentroidError(
             "dimensions", f"wrong dimensions: {width}x{height} px is too small to measure"
         )
+    quantised = bool(np.issubdtype(image.dtype, np.integer))
     x, y, coarse_width = _locate(image)
     half_x = half_y = max(_MIN_HALF_WIDTH, _WINDOW_SIGMAS * coarse_width)
     iterations = 0
@@ -588,7 +647,7 @@ def _robust(
         r0 = max(0, math.floor(y - half_y - slack))
         r1 = min(height, math.ceil(y + half_y + slack) + 1)
         region = image[r0:r1, c0:c1].astype(np.float64)
-        level, slope_x, slope_y, noise = _local_background(region)
+        level, slope_x, slope_y, noise = _local_background(region, quantised=quantised)
         columns = np.arange(c0, c1, dtype=np.float64)
         rows = np.arange(r0, r1, dtype=np.float64)
         centre_x, centre_y = 0.5 * (c0 + c1 - 1), 0.5 * (r0 + r1 - 1)
@@ -678,7 +737,8 @@ def _robust(
     saturated = int(np.count_nonzero(raw >= white))
     if saturated:
         flags.insert(0, "saturated")
-        fit = _fit_saturated_flanks(
+    if saturated or noise < _QUANTISED_NOISE_COUNTS:
+        fit = _fit_spot(
             above_all,
             raw < white,
             window_columns,
@@ -690,12 +750,19 @@ def _robust(
                 math.sqrt(max(var_y - 1.0 / 12.0, 0.1)),
             ),
             noise=noise,
+            gain_e_per_count=gain_e_per_count,
         )
-        if fit is not None and abs(fit[0] - x) < 1.0 and abs(fit[1] - y) < 1.0:
-            x, y, signal = fit[0], fit[1], fit[2]
-            var_x, var_y = fit[3] ** 2 + 1.0 / 12.0, fit[4] ** 2 + 1.0 / 12.0
+        usable = (
+            fit is not None
+            and abs(fit.x - x) < 1.0
+            and abs(fit.y - y) < 1.0
+            and (saturated or fit.reduced_chi2 <= _FIT_MAX_REDUCED_CHI2)
+        )
+        if fit is not None and usable:
+            x, y, signal = fit.x, fit.y, fit.flux
+            var_x, var_y = fit.sigma_x**2 + 1.0 / 12.0, fit.sigma_y**2 + 1.0 / 12.0
         else:
-            flags.append("saturation-fit-failed")
+            flags.append("saturation-fit-failed" if saturated else "quantised-moments")
     if hot_pixels:
         flags.append("hot-pixels")
     background = level + slope_x * (x - centre_x) + slope_y * (y - centre_y)
