@@ -27,7 +27,11 @@ _T = TypeVar("_T")
 
 STEP_THREADS = 2
 READ_THREADS = 2
-EXPORT_PROCESSES = 2
+#: One: exports then use at most one core of a 2-core lab PC and stream ~19 MB/s, which the
+#: event loop forwards with no effect on the steps (benchmarks/bench_control_core.py: six
+#: readers moved the p99 lateness by -0.03 and +0.35 ms with one process, +2.1 to +2.9 ms
+#: with two).
+EXPORT_PROCESSES = 1
 #: Export processes run this much nicer than the daemon: on a 2-core lab PC the kernel then
 #: gives the control loop the CPU first whenever both want it.
 EXPORT_NICENESS = 10
