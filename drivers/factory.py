@@ -58,6 +58,21 @@ def _emulated_server(settings: Settings) -> bool:
     return settings.robot.driver == "c500c-server" and settings.bench.enabled
 
 
+def emulated_server(settings: Settings, *, seed: int) -> C500CServerEmulator:
+    """The fast path's program, emulated as the settings configure it (not yet started)."""
+    robot_settings = settings.robot
+    return C500CServerEmulator(
+        server_emulator_config(
+            seed=seed,
+            noise_um=settings.bench.robot_noise_um,
+            move_ms=robot_settings.emulator_move_ms,
+            baudrate=robot_settings.server_baudrate,
+            paced=robot_settings.emulator_paced,
+            silence_timeout_s=robot_settings.server_silence_s,
+        )
+    )
+
+
 @contextlib.asynccontextmanager
 async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
     """Open camera, IR reader and robot as the settings say; close them all on exit."""
@@ -74,16 +89,7 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
         if _emulated_server(settings):
             assert bench is not None
             robot_settings = settings.robot
-            emulator = C500CServerEmulator(
-                server_emulator_config(
-                    seed=bench.robot_seed,
-                    noise_um=settings.bench.robot_noise_um,
-                    move_ms=robot_settings.emulator_move_ms,
-                    baudrate=robot_settings.server_baudrate,
-                    paced=robot_settings.emulator_paced,
-                    silence_timeout_s=robot_settings.server_silence_s,
-                )
-            )
+            emulator = emulated_server(settings, seed=bench.robot_seed)
             await stack.enter_async_context(emulator)
             bench.attach_robot(emulator.actual_pose)
             robot = C500CServerRobot(robot_settings, port=emulator.device_path)

@@ -12,7 +12,7 @@ from typing import Any
 from config import Settings
 from drivers import c500c_server_protocol as proto
 from drivers.c500c_server import C500CServerRobot
-from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
+from drivers.factory import emulated_server
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,16 +65,7 @@ async def run_server_check(settings: Settings, *, port: str | None) -> ServerChe
     robot_settings = settings.robot
     async with AsyncExitStack() as stack:
         if port is None and settings.bench.enabled:
-            emulator = C500CServerEmulator(
-                server_emulator_config(
-                    seed=settings.bench.seed,
-                    noise_um=settings.bench.robot_noise_um,
-                    move_ms=robot_settings.emulator_move_ms,
-                    baudrate=robot_settings.server_baudrate,
-                    paced=robot_settings.emulator_paced,
-                    silence_timeout_s=robot_settings.server_silence_s,
-                )
-            )
+            emulator = emulated_server(settings, seed=settings.bench.seed)
             await stack.enter_async_context(emulator)
             port = emulator.device_path
         robot = C500CServerRobot(robot_settings, port=port)
