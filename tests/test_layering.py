@@ -7,7 +7,7 @@ import pytest
 
 from tests.helpers import REPO_ROOT
 
-PURE_CORE = ("daemon.model", "daemon.vision", "daemon.analysis")
+PURE_CORE = ("daemon.model", "daemon.vision", "daemon.analysis", "daemon.arm")
 
 # What each layer must never import.
 FORBIDDEN = {
