@@ -256,3 +256,15 @@ def tool_error(
     cold = forward(arm, q_rad)
     warm = forward(warm_arm(arm, states, bending=bending), q_rad)
     return pose_difference(warm, cold)
+
+
+def tool_errors(
+    arm: Arm,
+    qs_rad: Sequence[Sequence[float] | FloatArray],
+    states: Sequence[LinkThermalState],
+    bending: bool = False,
+) -> list[Pose6]:
+    """``tool_error`` at several configurations (a duty cycle's measured poses) for one thermal
+    state: the arm is warmed once."""
+    warm = warm_arm(arm, states, bending=bending)
+    return [pose_difference(forward(warm, q), forward(arm, q)) for q in qs_rad]
