@@ -365,3 +365,12 @@ def test_urdf_companion_refuses_dh_values(tmp_path: Path) -> None:
 def test_missing_preset_lists_the_presets() -> None:
     with pytest.raises(ArmError, match="crs-a465"):
         load_arm("no-such-arm")
+
+
+def test_inverse_without_restarts_stays_on_the_seeds_branch() -> None:
+    arm = load_arm("ur5e")
+    q = np.array([0.4, -1.2, 1.0, -0.8, 1.3, 0.3])
+    target = forward(arm, q)
+    solution = inverse(arm, target, q + 0.05, restarts=0)
+    assert pose_difference(forward(arm, solution), target).translation_norm_mm < 1e-6
+    np.testing.assert_allclose(solution, q, atol=1e-7)  # the seed's branch, not another
