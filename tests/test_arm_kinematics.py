@@ -21,6 +21,7 @@ from daemon.arm.kinematics import (
     link_frames,
     pose_difference,
     tool_error,
+    tool_errors,
     warm_arm,
 )
 from daemon.arm.types import LinkThermalState
@@ -119,6 +120,18 @@ def test_bare_urdf_loads_its_kinematics_from_the_deepest_leaf() -> None:
     flip = np.diag([-1.0, -1.0, 1.0, 1.0])
     q = np.array([0.2, -1.0, 0.7, 0.1, -0.4, 0.9])
     np.testing.assert_allclose(flip @ forward(arm, q), forward(load_arm("ur5e"), q), atol=1e-6)
+
+
+def test_link_lengths_follow_grows_with() -> None:
+    arm = load_arm("crs-a465")
+    assert arm.link_length_mm("turret") == pytest.approx(330.2)
+    assert arm.link_length_mm("upper-arm") == pytest.approx(304.8)
+    assert arm.link_length_mm("forearm") == pytest.approx(330.2)
+    assert arm.link_length_mm("wrist-roll") == 0.0  # no row grows with it
+    ur5e = load_arm("ur5e")
+    assert ur5e.link_length_mm("upper_arm") == pytest.approx(425.0)
+    # d4 lies along z_3, a3 along x_3: the forearm row's geometry is its a only.
+    assert ur5e.link_length_mm("forearm") == pytest.approx(392.2)
 
 
 def test_link_frames_end_at_the_flange() -> None:
@@ -232,7 +245,7 @@ def test_a_perpendicular_link_moves_the_tool_sideways() -> None:
 def test_bending_matches_the_beam_formula() -> None:
     # A cantilever along x of length L with a gradient g across it (°C/mm along y): thermal
     # curvature alpha·g, end rotation alpha·g·L about -z (away from the hot +y side), end
-    # deflection alpha·g·L²/2 towards -y (Timoshenko & Goodier § 152).
+    # deflection alpha·g·L²/2 towards -y (Roark's Table 8.1, kinematics docstring).
     length, overhang, g = 400.0, 50.0, 0.05
     arm = planar_arm([length], tool={"xyz_mm": [overhang, 0.0, 0.0]})
     error = tool_error(arm, np.zeros(1), [state("l1", 0.0, (g, 0.0))], bending=True)
@@ -248,6 +261,17 @@ def test_bending_matches_the_beam_formula() -> None:
     up = tool_error(arm, np.zeros(1), [state("l1", 0.0, (0.0, g))], bending=True)
     np.testing.assert_allclose(up.rotation_rad, [0.0, angle, 0.0], rtol=1e-12, atol=1e-18)
     assert up.translation_mm[2] < 0
+
+
+def test_tool_errors_at_several_poses_equal_one_at_a_time() -> None:
+    arm = load_arm("crs-a465")
+    states = [state(name, 3.0 + i, (0.01 * i, -0.02)) for i, name in enumerate(arm.link_names)]
+    qs = [np.zeros(6), np.radians([30.0, 20.0, -40.0, 10.0, 60.0, -90.0])]
+    together = tool_errors(arm, qs, states, bending=True)
+    for q, error in zip(qs, together, strict=True):
+        alone = tool_error(arm, q, states, bending=True)
+        np.testing.assert_array_equal(error.as_array(), alone.as_array())
+    assert together[0].translation_norm_mm != together[1].translation_norm_mm
 
 
 def test_bending_ignores_a_gradient_along_the_beam() -> None:
@@ -319,6 +343,34 @@ def test_unreadable_urdf_is_refused(tmp_path: Path) -> None:
         load_arm(path)
 
 
+def test_urdf_companion_naming_an_unknown_joint_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "arm.toml"
+    path.write_text(
+        f'urdf = "{ARMS / "ur5e.urdf"}"\n[[joints]]\nname = "knee_joint"\n', encoding="utf-8"
+    )
+    with pytest.raises(ArmError, match="joint 'knee_joint': no moving joint"):
+        load_arm(path)
+
+
+def test_urdf_companion_refuses_dh_values(tmp_path: Path) -> None:
+    path = tmp_path / "arm.toml"
+    path.write_text(
+        f'urdf = "{ARMS / "ur5e.urdf"}"\n[[joints]]\nname = "elbow_joint"\na_mm = 3\n',
+        encoding="utf-8",
+    )
+    with pytest.raises(ArmError, match="takes no DH values"):
+        load_arm(path)
+
+
 def test_missing_preset_lists_the_presets() -> None:
     with pytest.raises(ArmError, match="crs-a465"):
         load_arm("no-such-arm")
+
+
+def test_inverse_without_restarts_stays_on_the_seeds_branch() -> None:
+    arm = load_arm("ur5e")
+    q = np.array([0.4, -1.2, 1.0, -0.8, 1.3, 0.3])
+    target = forward(arm, q)
+    solution = inverse(arm, target, q + 0.05, restarts=0)
+    assert pose_difference(forward(arm, solution), target).translation_norm_mm < 1e-6
+    np.testing.assert_allclose(solution, q, atol=1e-7)  # the seed's branch, not another
