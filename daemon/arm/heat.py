@@ -17,8 +17,8 @@ import numpy as np
 
 from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle
-from daemon.arm.motors import MotorTable, arm_motors, joint_heat_w
-from daemon.arm.types import FloatArray, JointSample
+from daemon.arm.motors import MotorTable, arm_motors, joint_heat_batch_w
+from daemon.arm.types import FloatArray
 
 #: Default integration step of one cycle's heat (s): a few per acceleration ramp.
 DEFAULT_RESOLUTION_S = 0.005
@@ -50,14 +50,7 @@ class JointHeatProfile:
         steps = max(1, math.ceil(cycle.period_s / resolution_s))
         h = cycle.period_s / steps
         q, qd, qdd = cycle.state((np.arange(steps) + 0.5) * h)
-        power = np.array(
-            [
-                joint_heat_w(
-                    arm, JointSample(0.0, q[k], qd[k], qdd[k]), motors=table, payload_kg=payload
-                )
-                for k in range(steps)
-            ]
-        )
+        power = joint_heat_batch_w(arm, q, qd, qdd, motors=table, payload_kg=payload)
         energy = np.vstack([np.zeros(power.shape[1]), np.cumsum(power * h, axis=0)])
         return cls(cycle.period_s, np.linspace(0.0, cycle.period_s, steps + 1), energy)
 
