@@ -20,7 +20,7 @@ from daemon.arm.duty import (
     load_duty_cycle,
     trapezoid_timing,
 )
-from daemon.arm.heat import JointHeatProfile
+from daemon.arm.heat import HeatMeter, JointHeatProfile
 from daemon.arm.kinematics import forward, link_frames
 from daemon.arm.motors import (
     GRAVITY_M_S2,
@@ -390,3 +390,26 @@ def test_batch_torques_are_the_per_sample_torques() -> None:
     push = torques_batch_nm(arm, q[:1], np.zeros((1, 6)), np.eye(6)[1:2])
     table = arm_motors(arm)
     assert (push - rest)[0, 1] > table.ratio[1] ** 2 * table.rotor_inertia[1]
+
+
+def test_heat_meter_means_the_performed_motion_between_takes() -> None:
+    """Readings of the heat of the motion performed (here the preset cycle on a 10 ms grid)
+    averaged per 1 s step: the whole run's mean equals the cycle's mean heat."""
+    arm = load_arm("crs-a465")
+    cycle = load_duty_cycle("a465-pick-and-place")
+    times = np.arange(0.0, 5 * cycle.period_s + 1e-9, 0.01)
+    q, qd, qdd = cycle.state(times)
+    power = joint_heat_batch_w(arm, q, qd, qdd, payload_kg=cycle.payload_kg)
+    meter = HeatMeter(arm.dof)
+    means = []
+    for k, t in enumerate(times):
+        meter.add(float(t), power[k])
+        if k and k % 100 == 0:
+            means.append(meter.take_mean_w())
+    means.append(meter.take_mean_w())
+    spans = np.diff(np.concatenate([[0.0], times[100::100], [times[-1]]]))
+    run_mean = np.average(means, axis=0, weights=spans)
+    profile = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.01)
+    np.testing.assert_allclose(run_mean, profile.mean_power_w, rtol=2e-3, atol=1e-6)
+    with pytest.raises(ValueError, match="before the last one"):
+        meter.add(0.0, power[0])
