@@ -374,3 +374,18 @@ def test_inverse_without_restarts_stays_on_the_seeds_branch() -> None:
     solution = inverse(arm, target, q + 0.05, restarts=0)
     assert pose_difference(forward(arm, solution), target).translation_norm_mm < 1e-6
     np.testing.assert_allclose(solution, q, atol=1e-7)  # the seed's branch, not another
+
+
+@pytest.mark.parametrize("name", ["crs-a465", "ur5e", "ur5e-urdf"])
+def test_growth_superposes_and_never_turns_the_tool(name: str) -> None:
+    # Positions are linear in the lengths at fixed angles and lengths never change
+    # orientations: the growth errors of separate links add up and carry no rotation.
+    arm = load_arm(name)
+    q = np.radians([25.0, -35.0, 50.0, -20.0, 40.0, 70.0])
+    rises = [4.0, 9.0, 2.5, 6.0, 11.0, 3.0]
+    states = [state(link, rise) for link, rise in zip(arm.link_names, rises, strict=True)]
+    together = tool_error(arm, q, states)
+    apart = sum(tool_error(arm, q, [one]).translation_mm for one in states)
+    np.testing.assert_allclose(together.translation_mm, apart, atol=1e-12)
+    np.testing.assert_allclose(together.rotation_rad, 0.0, atol=1e-14)
+    assert together.translation_norm_mm > 0.01
