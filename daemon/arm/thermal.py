@@ -18,8 +18,9 @@ link and 3-D position (the arm at its zero configuration).
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,6 +76,31 @@ class LinkBody:
     #: the link's whole mass when known (flanges, housings, covers: more than the tube);
     #: its heat capacity is then ``mass c`` spread along the link, else the tube's.
     mass_kg: float | None = None
+    #: for a model that resolves the temperature across links (``across_link=True``): the
+    #: section's size along ``across_axis`` (a unit vector across the link, base frame at the
+    #: zero configuration; default: the "up" side), its wall (0: solid), and that axis's
+    #: components along the y and z axes of the frame ``kinematics.warm_arm`` bends the link
+    #: in (default: the base frame's).
+    thickness_mm: float = 0.0
+    wall_mm: float = 0.0
+    across_axis: tuple[float, float, float] | None = None
+    across_yz: tuple[float, float] | None = None
+
+    def across(self) -> FloatArray:
+        """The unit vector across the link that separates its two rows of nodes."""
+        along = np.subtract(self.end_mm, self.start_mm).astype(np.float64)
+        norm = float(np.linalg.norm(along))
+        along = along / norm if norm > 0.0 else np.array([1.0, 0.0, 0.0])
+        candidates = [self.across_axis] if self.across_axis is not None else []
+        candidates += [(0.0, 0.0, 1.0), (1.0, 0.0, 0.0)]
+        for candidate in candidates:
+            vector = np.asarray(candidate, dtype=np.float64)
+            vector = vector - float(vector @ along) * along
+            size = float(np.linalg.norm(vector))
+            if size > 1e-6:
+                result: FloatArray = vector / size
+                return result
+        raise ValueError(f"link {self.name!r}: no axis across it")
 
     def heat_capacity_per_mm(self, length_mm: float) -> float:
         """J/°C per mm of link: the tube's, or the whole mass's if that is more."""
@@ -103,6 +129,9 @@ class JointBody:
     proximal_r_c_per_w: float = DEFAULT_CONTACT_R_C_PER_W
     distal_r_c_per_w: float = DEFAULT_CONTACT_R_C_PER_W
     link: str | None = None
+    #: with ``across_link``: the share of each flange's conductance that reaches the links'
+    #: "+" row (the housing's side); 0.5 heats both sides alike (no gradient).
+    plus_share: float = 0.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,6 +177,22 @@ class _Layout:
     link_lengths: tuple[FloatArray, ...]  # the length each of those nodes stands for (mm)
     joint_nodes: IntArray  # index of each joint's node
     base_node: int
+    #: with ``across_link``: each link's "+" and "-" row (indices), else empty
+    plus_rows: tuple[IntArray, ...] = ()
+    minus_rows: tuple[IntArray, ...] = ()
+
+
+def _flange(
+    resistances: list[Resistance], joint: int, rows: Sequence[int], r: float, share: float
+) -> None:
+    """Join a joint's node to a link end: one node, or the "+" / "-" pair splitting the
+    flange's conductance ``1/r`` by ``share`` (parallel: still ``r`` in all)."""
+    if len(rows) == 1:
+        resistances.append(Resistance(joint, rows[0], r))
+        return
+    for row, part in zip(rows, (share, 1.0 - share), strict=True):
+        if part > 0.0:
+            resistances.append(Resistance(joint, row, r / part))
 
 
 def build_arm_network(
@@ -156,8 +201,17 @@ def build_arm_network(
     *,
     convection_scale: float = 1.0,
     ambient_c: float = 22.0,
+    across_link: bool = False,
 ) -> tuple[ThermalNetwork, _Layout]:
-    """The arm's chain network (module docstring) and where its parts are in it."""
+    """The arm's chain network (module docstring) and where its parts are in it.
+
+    ``across_link`` resolves the temperature across each link: two rows of nodes, the halves
+    of the section on either side of ``LinkBody.across()`` ("+" and "-"; each with half the
+    heat capacity, conduction area and surface), joined across by conduction through the
+    section's side walls (path half the thickness, area ``2 wall dx``, or ``thickness dx``
+    when solid); a joint's flanges reach the "+" row with ``plus_share`` of their
+    conductance. With ``plus_share = 0.5`` both rows stay equal and the model is the chain.
+    """
     if not (math.isfinite(node_spacing_mm) and node_spacing_mm > 0.0):
         raise ValueError(f"node spacing must be positive, got {node_spacing_mm} mm")
     names: list[str] = ["base"]
@@ -170,23 +224,27 @@ def build_arm_network(
     resistances: list[Resistance] = []
     link_nodes: list[IntArray] = []
     link_lengths: list[FloatArray] = []
+    plus_rows: list[IntArray] = []
+    minus_rows: list[IntArray] = []
     joint_nodes: list[int] = []
-    previous_last = 0  # the node the next joint's proximal flange touches
+    previous_end: list[int] = [0]  # the node(s) the next joint's proximal flange touches
     position = 0.0
     for link, joint in zip(description.links, description.joints, strict=True):
         start, end = np.asarray(link.start_mm, np.float64), np.asarray(link.end_mm, np.float64)
         if start.shape != (3,) or end.shape != (3,):
             raise ValueError(f"link {link.name!r}: start and end must be 3-D points")
+        if not 0.0 <= joint.plus_share <= 1.0:
+            raise ValueError(f"joint {joint.name!r}: plus_share must be in [0, 1]")
         # the joint's node, proximal flange on the previous link (or the base)
         joint_index = len(names)
         names.append(joint.name)
-        links_of.append(joint.link or links_of[previous_last])
+        links_of.append(joint.link or links_of[previous_end[0]])
         arc.append(position)
         spatial.append(start.copy())
         capacitance.append(joint.capacitance_j_per_c)
         alpha.append(link.alpha_per_c)
         ambient_g.append(joint.ambient_conductance_w_per_c * convection_scale)
-        resistances.append(Resistance(previous_last, joint_index, joint.proximal_r_c_per_w))
+        _flange(resistances, joint_index, previous_end, joint.proximal_r_c_per_w, joint.plus_share)
         joint_nodes.append(joint_index)
         # the link's nodes, evenly spaced over its (effective) length, both ends included
         length = max(link.length_mm, MIN_LINK_LENGTH_MM)
@@ -196,31 +254,50 @@ def build_arm_network(
         shares = np.full(count, dx)
         shares[0] = shares[-1] = dx / 2.0
         h = convection_scale * link.h_w_per_m2k + radiation_h_w_per_m2k(link.emissivity, ambient_c)
+        sides: tuple[tuple[str, float], ...] = (("", 0.0),)
+        if across_link:
+            if not link.thickness_mm > 0.0:
+                raise ValueError(f"link {link.name!r}: across_link needs its thickness_mm")
+            sides = (("+", 1.0), ("-", -1.0))
+        fraction = 1.0 / len(sides)
+        offset = link.across() * link.thickness_mm / 4.0 if across_link else np.zeros(3)
         first = len(names)
         for k in range(count):
-            names.append(f"{link.name}.{k + 1}")
-            links_of.append(link.name)
-            arc.append(position + k * dx)
-            spatial.append(start + (end - start) * (k / intervals))
-            part_m = shares[k] * MM
-            capacitance.append(link.heat_capacity_per_mm(length) * shares[k])
-            alpha.append(link.alpha_per_c)
-            ambient_g.append(h * link.perimeter_m * part_m)
+            for suffix, sign in sides:
+                names.append(f"{link.name}.{k + 1}{suffix}")
+                links_of.append(link.name)
+                arc.append(position + k * dx)
+                spatial.append(start + (end - start) * (k / intervals) + sign * offset)
+                capacitance.append(link.heat_capacity_per_mm(length) * shares[k] * fraction)
+                alpha.append(link.alpha_per_c)
+                ambient_g.append(h * link.perimeter_m * shares[k] * MM * fraction)
+            here = first + k * len(sides)
             if k > 0:
+                axial = dx * MM / (link.conductivity_w_per_mk * link.area_m2 * fraction)
+                for side in range(len(sides)):
+                    resistances.append(Resistance(here - len(sides) + side, here + side, axial))
+            if across_link:
+                wall = link.wall_mm if link.wall_mm > 0.0 else link.thickness_mm / 2.0
+                across_m2 = 2.0 * wall * shares[k] * MM * MM
                 resistances.append(
                     Resistance(
-                        first + k - 1,
-                        first + k,
-                        dx * MM / (link.conductivity_w_per_mk * link.area_m2),
+                        here,
+                        here + 1,
+                        link.thickness_mm / 2.0 * MM / (link.conductivity_w_per_mk * across_m2),
                     )
                 )
-        resistances.append(Resistance(joint_index, first, joint.distal_r_c_per_w))
-        link_nodes.append(np.arange(first, first + count, dtype=np.intp))
-        link_lengths.append(shares)
-        previous_last = first + count - 1
+        rows = np.arange(first, first + count * len(sides), dtype=np.intp)
+        _flange(resistances, joint_index, rows[: len(sides)].tolist(), joint.distal_r_c_per_w,
+                joint.plus_share)  # fmt: skip
+        link_nodes.append(rows)
+        link_lengths.append(np.repeat(shares, len(sides)) * fraction)
+        if across_link:
+            plus_rows.append(rows[0::2])
+            minus_rows.append(rows[1::2])
+        previous_end = rows[-len(sides) :].tolist()
         position += length
     network = ThermalNetwork(
-        name=f"{description.name}-arm({node_spacing_mm:g} mm)",
+        name=f"{description.name}-arm({node_spacing_mm:g} mm{', across' if across_link else ''})",
         node_names=tuple(names),
         positions_mm=np.array(arc),
         capacitance_j_per_c=np.array(capacitance),
@@ -239,6 +316,8 @@ def build_arm_network(
         link_lengths=tuple(link_lengths),
         joint_nodes=np.array(joint_nodes, dtype=np.intp),
         base_node=0,
+        plus_rows=tuple(plus_rows),
+        minus_rows=tuple(minus_rows),
     )
     return network, layout
 
@@ -267,6 +346,7 @@ class ArmThermalModel:
         convection_scale: float = 1.0,
         reference_c: float | ArrayLike | None = None,
         initial_c: float | ArrayLike | None = None,
+        across_link: bool = False,
     ) -> None:
         description = arm if isinstance(arm, ArmThermalDescription) else describe_arm(arm)
         self.description = description
@@ -278,8 +358,13 @@ class ArmThermalModel:
         else:
             start_c = float(ambient_c)
         self.network, self._layout = build_arm_network(
-            description, node_spacing_mm, convection_scale=convection_scale, ambient_c=start_c
+            description,
+            node_spacing_mm,
+            convection_scale=convection_scale,
+            ambient_c=start_c,
+            across_link=across_link,
         )
+        self.across_link = across_link
         self.node_spacing_mm = float(node_spacing_mm)
         self._model = ThermalModel(
             self.network,
@@ -412,16 +497,26 @@ class ArmThermalModel:
 
     def link_states(self) -> tuple[LinkThermalState, ...]:
         """Each link's mean temperature rise over its length (above ``reference_c``), in the
-        order of the arm's links. A chain of nodes does not resolve the temperature across a
-        link, so the gradient is (0, 0)."""
+        order of the arm's links, and, when the model resolves it (``across_link``), the mean
+        temperature gradient across the link (°C/mm, the difference between its two rows over
+        the distance between their centres, half the thickness) in the bending frame's (y, z);
+        a chain of nodes does not resolve it: (0, 0)."""
         rise = self._model.temperatures_c - self._reference
         states = []
-        for link, nodes, lengths in zip(
-            self.description.links, self._layout.link_nodes, self._layout.link_lengths,
-            strict=True,
+        for index, (link, nodes, lengths) in enumerate(
+            zip(self.description.links, self._layout.link_nodes, self._layout.link_lengths,
+                strict=True)
         ):  # fmt: skip
             mean = float(lengths @ rise[nodes] / lengths.sum())
-            states.append(LinkThermalState(link.name, mean, link.alpha_per_c))
+            gradient = (0.0, 0.0)
+            if self._layout.plus_rows:
+                plus, minus = self._layout.plus_rows[index], self._layout.minus_rows[index]
+                weights = lengths[0::2]
+                difference = float(weights @ (rise[plus] - rise[minus]) / weights.sum())
+                per_mm = difference / (link.thickness_mm / 2.0)
+                y, z = link.across_yz if link.across_yz is not None else link.across()[1:]
+                gradient = (per_mm * float(y), per_mm * float(z))
+            states.append(LinkThermalState(link.name, mean, link.alpha_per_c, gradient))
         return tuple(states)
 
     def joint_temperatures_c(self) -> FloatArray:
@@ -438,6 +533,7 @@ def describe_arm(
     joint_area_m2: float = DEFAULT_JOINT_AREA_M2,
     base_capacitance_j_per_c: float = DEFAULT_BASE_MASS_KG * BASE_SPECIFIC_HEAT_J_PER_KGK,
     base_r_ambient_c_per_w: float = DEFAULT_BASE_R_AMBIENT_C_PER_W,
+    plus_share: float = 0.5,
 ) -> ArmThermalDescription:
     """The thermal description of an arm file (kinematics + link materials and sections +
     motors). Link ``i`` spans the geometry of the joints whose lengths grow with it
@@ -447,7 +543,9 @@ def describe_arm(
     arm file's, with flanges and covers) when that exceeds its tube's. Each joint's housing
     sits on its motor's ``heats_link`` (bolted: ``contact_r_c_per_w``); its other flange is
     reached through the bearings (``bearing_r_c_per_w``). The joint, base and contact values
-    are estimates (module constants) that a finer truth model may change."""
+    are estimates (module constants) that a finer truth model may change; ``plus_share``
+    (every joint's) and the links' section height (``thickness_mm``; the rows split across the
+    bending frame's y or z, see below) serve a model built with ``across_link``."""
     from daemon.arm.description import ArmError
     from daemon.arm.kinematics import link_frames
 
@@ -479,7 +577,27 @@ def describe_arm(
                 h_w_per_m2k=material.convection_w_per_m2k,
                 thermal_length_mm=arm.link_length_mm(link.name),
                 mass_kg=link.mass_kg if link.mass_kg > 0.0 else None,
+                thickness_mm=link.section.outer_height_mm,
+                wall_mm=link.section.wall_mm,
             )
+        )
+        # The frame warm_arm bends the link's geometry in (after its first joint's geometry,
+        # Arm.geometry_mm, at the zero configuration) carries a gradient along its y and z
+        # only: the rows are split across that frame's y or z, whichever is more nearly
+        # perpendicular to the link (z on a tie: "up" for most arms' zero pose).
+        bend_frame = frames[own[0] + 1 if own else k + 1][:3, :3]
+        along = np.subtract(end, start)
+        size = float(np.linalg.norm(along))
+        along = along / size if size > 0.0 else bend_frame[:, 0]
+        axis = 1 if abs(bend_frame[:, 1] @ along) < abs(bend_frame[:, 2] @ along) - 1e-9 else 2
+        candidate = bend_frame[:, axis]
+        links[-1] = dataclasses.replace(
+            links[-1], across_axis=(float(candidate[0]), float(candidate[1]), float(candidate[2]))
+        )
+        across = links[-1].across()
+        links[-1] = dataclasses.replace(
+            links[-1],
+            across_yz=(float(across @ bend_frame[:, 1]), float(across @ bend_frame[:, 2])),
         )
     joints = []
     for j, joint in enumerate(arm.joints):
@@ -494,6 +612,7 @@ def describe_arm(
                 proximal_r_c_per_w=bearing_r_c_per_w if on_distal else contact_r_c_per_w,
                 distal_r_c_per_w=contact_r_c_per_w if on_distal else bearing_r_c_per_w,
                 link=housing,
+                plus_share=plus_share,
             )
         )
     return ArmThermalDescription(
