@@ -55,10 +55,12 @@ __all__ = [
     "Triangulation",
     "axis_camera",
     "cameras_toml",
+    "depths_mm",
     "intrinsic_matrix",
     "load_cameras",
     "look_at",
     "measure_in_plane",
+    "points_array",
     "pose_covariance_difference",
     "pose_difference",
     "project",
@@ -107,7 +109,8 @@ class Triangulation:
     dof: int
 
 
-def _points(points_mm: ArrayLike) -> FloatArray:
+def points_array(points_mm: ArrayLike) -> FloatArray:
+    """Points as an N x 3 float array (one point of 3 -> 1 x 3); MultiviewError otherwise."""
     points = np.asarray(points_mm, dtype=np.float64)
     if points.ndim == 1:
         points = points.reshape(1, -1)
@@ -127,7 +130,7 @@ def projection_jacobian(camera: CameraModel, points_mm: ArrayLike) -> tuple[Floa
 
     OpenCV's Jacobian gives d(pixel)/d(tvec); a world point enters as ``R X + t``, so
     d(pixel)/dX = d(pixel)/d(tvec) R."""
-    points = _points(points_mm)
+    points = points_array(points_mm)
     pixels, jacobian = cv2.projectPoints(
         points.reshape(-1, 1, 3),
         camera.rotation_rad,
@@ -142,7 +145,8 @@ def projection_jacobian(camera: CameraModel, points_mm: ArrayLike) -> tuple[Floa
     )
 
 
-def _depths(camera: CameraModel, points: FloatArray) -> FloatArray:
+def depths_mm(camera: CameraModel, points: FloatArray) -> FloatArray:
+    """Each point's depth along the camera's optical axis (mm; <= 0: behind the camera)."""
     return np.asarray((points @ camera.rotation_matrix.T + camera.translation_mm)[:, 2])
 
 
@@ -230,7 +234,7 @@ def triangulate_detailed(
 
     fit = least_squares(residuals, start, jac=jacobian, method="lm", xtol=1e-12, ftol=1e-12)
     point = np.asarray(fit.x, dtype=np.float64)
-    behind = [c.name for c in cameras if _depths(c, point.reshape(1, 3))[0] <= 0]
+    behind = [c.name for c in cameras if depths_mm(c, point.reshape(1, 3))[0] <= 0]
     if behind:
         raise MultiviewError(f"the point lies behind camera(s) {', '.join(behind)}")
     whitened = jacobian(point)
@@ -379,8 +383,8 @@ def rigid_pose_from_markers(
     ``exp([dr]x) R``: translation and rotation vector in the world frame, the order of
     :meth:`Pose6.as_array`.
     """
-    model = _points(model_mm)
-    measured = _points(measured_mm)
+    model = points_array(model_mm)
+    measured = points_array(measured_mm)
     count = model.shape[0]
     if measured.shape != model.shape:
         raise MultiviewError(
