@@ -31,18 +31,20 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.common import print_table, write_results
-from daemon.vision import measure_centroid
-from daemon.vision.markers import render_marker_window
+from daemon.vision.markers import MarkerSpot, centroids_of_markers
 from daemon.vision.multiview import (
     CameraModel,
     intrinsic_matrix,
     look_at,
+    pose_difference,
     project,
     triangulate,
 )
+from daemon.vision.tool_pose import measure_tool_pose
 
 CENTRE_MM = np.array([0.0, 0.0, 400.0])
 HALF_SIZE_MM = 50.0
@@ -52,6 +54,10 @@ POSITIONS_MM = [
     (0.0, -700.0, 1100.0),
     (600.0, 700.0, 600.0),
 ]
+#: Four markers on the tool (tool frame, mm): a tetrahedron ~60 mm across.
+TOOL_MARKERS_MM = np.array(
+    [[0.0, 0.0, 0.0], [60.0, 0.0, 0.0], [0.0, 45.0, 0.0], [20.0, 20.0, 30.0]]
+)
 SPOT_SIGMA_PX = 3.0  # bench.spot_sigma_px
 PEAK_FRACTION = 0.5  # bench.spot_peak_fraction
 READ_NOISE_E = 5.0  # camera.read_noise_e
@@ -84,35 +90,56 @@ def cameras() -> list[CameraModel]:
     return rig
 
 
-def observe(
-    rig: list[CameraModel], truth: NDArray[np.float64], sensor: Sensor, rng: np.random.Generator
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Centroids (cameras x 2), their reported sigmas, and their errors from the projection."""
-    pixels, sigmas, errors = [], [], []
-    for camera in rig:
-        rendered = render_marker_window(
-            camera,
-            truth,
-            rng=rng,
-            sigma_px=SPOT_SIGMA_PX,
-            peak_fraction=PEAK_FRACTION,
-            bit_depth=sensor.bit_depth,
-            read_noise_counts=READ_NOISE_E / sensor.gain_e_per_count,
-            gain_e_per_count=sensor.gain_e_per_count,
+def spot(sensor: Sensor) -> MarkerSpot:
+    return MarkerSpot(
+        sigma_px=SPOT_SIGMA_PX,
+        peak_fraction=PEAK_FRACTION,
+        bit_depth=sensor.bit_depth,
+        gain_e_per_count=sensor.gain_e_per_count,
+        read_noise_e=READ_NOISE_E,
+    )
+
+
+def run_tool(sensor: Sensor, count: int, seed: int) -> list[dict[str, Any]]:
+    """The tool's pose from its four markers: translation and rotation errors vs predicted."""
+    rig = cameras()
+    rng = np.random.default_rng(seed)
+    records: dict[int, list[tuple[NDArray[np.float64], NDArray[np.float64]]]] = {
+        2: [],
+        3: [],
+        4: [],
+    }
+    for _ in range(count):
+        pose = np.eye(4)
+        pose[:3, :3] = Rotation.from_rotvec(rng.uniform(-0.35, 0.35, 3)).as_matrix()
+        pose[:3, 3] = CENTRE_MM + rng.uniform(-HALF_SIZE_MM, HALF_SIZE_MM, 3)
+        markers = TOOL_MARKERS_MM @ pose[:3, :3].T + pose[:3, 3]
+        pixels, sigmas = centroids_of_markers(rig, markers, rng, spot(sensor))
+        for views, record in records.items():
+            measured = measure_tool_pose(
+                rig[:views], TOOL_MARKERS_MM, pixels[:views], sigmas[:views]
+            )
+            record.append((pose_difference(pose, measured.pose).as_array(), measured.covariance))
+    rows = []
+    for views, pairs in records.items():
+        errors = np.array([e for e, _ in pairs])
+        covariances = np.array([c for _, c in pairs])
+        translation = math.sqrt(float(np.mean(np.sum(errors[:, :3] ** 2, axis=1))))
+        rotation = math.sqrt(float(np.mean(np.sum(errors[:, 3:] ** 2, axis=1))))
+        predicted_t = math.sqrt(float(np.mean(np.trace(covariances[:, :3, :3], axis1=1, axis2=2))))
+        predicted_r = math.sqrt(float(np.mean(np.trace(covariances[:, 3:, 3:], axis1=1, axis2=2))))
+        rows.append(
+            {
+                "sensor": sensor.name,
+                "cameras": views,
+                "poses": count,
+                "translation_rms_um": 1000 * translation,
+                "translation_predicted_um": 1000 * predicted_t,
+                "rotation_rms_urad": 1e6 * rotation,
+                "rotation_predicted_urad": 1e6 * predicted_r,
+            }
         )
-        assert rendered is not None, "the work volume is in every camera's view"
-        window, (column0, row0) = rendered
-        result = measure_centroid(
-            window,
-            bit_depth=sensor.bit_depth,
-            gain_e_per_count=sensor.gain_e_per_count,
-            read_noise_e=READ_NOISE_E,
-        )
-        found = np.array([result.x_px + column0, result.y_px + row0])
-        pixels.append(found)
-        sigmas.append((result.sigma_x_px, result.sigma_y_px))
-        errors.append(found - project(camera, truth)[0])
-    return np.array(pixels), np.array(sigmas), np.array(errors)
+    return rows
 
 
 def run(sensor: Sensor, count: int, seed: int) -> list[dict[str, Any]]:
@@ -127,7 +154,9 @@ def run(sensor: Sensor, count: int, seed: int) -> list[dict[str, Any]]:
     started = time.perf_counter()
     for _ in range(count):
         truth = CENTRE_MM + rng.uniform(-HALF_SIZE_MM, HALF_SIZE_MM, 3)
-        pixels, sigmas, errors = observe(rig, truth, sensor, rng)
+        found, reported = centroids_of_markers(rig, truth, rng, spot(sensor))
+        pixels, sigmas = found[:, 0], reported[:, 0]
+        errors = pixels - np.array([project(camera, truth)[0] for camera in rig])
         centroid_errors.append(errors)
         centroid_sigmas.append(sigmas)
         for views, record in records.items():
@@ -204,6 +233,20 @@ def main() -> None:
             for r in rows
         ],
     )
+    tool_rows = run_tool(SENSORS[0], max(20, count // 4), args.seed + 10)
+    print()
+    print_table(
+        ["sensor", "cameras", "translation RMS/predicted um", "rotation RMS/predicted urad"],
+        [
+            [
+                r["sensor"],
+                r["cameras"],
+                f"{r['translation_rms_um']:.3f}/{r['translation_predicted_um']:.3f}",
+                f"{r['rotation_rms_urad']:.2f}/{r['rotation_predicted_urad']:.2f}",
+            ]
+            for r in tool_rows
+        ],
+    )
     write_results(
         "bench_multiview",
         {
@@ -211,6 +254,7 @@ def main() -> None:
             "seed": args.seed,
             "load_average_1min": [load_before[0], os.getloadavg()[0]],
             "rows": rows,
+            "tool_rows": tool_rows,
         },
     )
 
