@@ -557,3 +557,34 @@ def test_an_offset_the_tool_never_turns_about_is_refused() -> None:
     pixels = np.array([project(c, points) for c in cameras])
     with pytest.raises(MultiviewError, match="never turns"):
         fit_cameras_and_marker(cameras, poses, pixels)
+
+
+def test_the_thesis_layout_of_one_camera_per_axis_triangulates() -> None:
+    """Thesis 7.2.2 proposes one camera per axis, mounted orthogonally: three cameras looking
+    along world x, y and z at the work point. Each axis is then seen by the two cameras across
+    it, at the same scale, so the covariance is diagonal and isotropic at the work point."""
+    cameras = []
+    for name, position, up in [
+        ("along-x", (-1000.0, 0.0, 400.0), (0.0, 0.0, 1.0)),
+        ("along-y", (0.0, -1000.0, 400.0), (0.0, 0.0, 1.0)),
+        ("along-z", (0.0, 0.0, 1400.0), (0.0, 1.0, 0.0)),  # up along z is its optical axis
+    ]:
+        rvec, tvec = look_at(position, TARGET, up)
+        cameras.append(
+            CameraModel(
+                name=name,
+                matrix=intrinsic_matrix((2400.0, 2400.0), (375.5, 290.5)),
+                distortion=np.zeros(5),
+                rotation_rad=rvec,
+                translation_mm=tvec,
+                image_size_px=(752, 582),
+                pixel_sigma_px=SIGMA_PX,
+            )
+        )
+    truth = TARGET + np.array([3.0, -2.0, 1.5])
+    pixels = np.vstack([project(c, truth) for c in cameras])
+    point, _ = triangulate(cameras, pixels)
+    assert point == pytest.approx(truth, abs=1e-9)
+    _, at_centre = triangulate(cameras, np.vstack([project(c, TARGET) for c in cameras]))
+    variance = (SIGMA_PX * 1000.0 / 2400.0) ** 2 / 2  # two views per axis, 1 m away
+    assert at_centre == pytest.approx(np.diag([variance] * 3), rel=1e-6, abs=1e-15)
