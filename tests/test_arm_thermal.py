@@ -59,7 +59,7 @@ def test_uniform_heat_on_one_link_reaches_the_fin_steady_state() -> None:
     isolated = ArmThermalDescription(
         "one",
         (link("bar", (0, 0, 0), (500, 0, 0)),),
-        (JointBody("J1", contact_r_c_per_w=1e12),),
+        (JointBody("J1", proximal_r_c_per_w=1e12, distal_r_c_per_w=1e12),),
     )
     network, layout = build_arm_network(isolated, node_spacing_mm=20.0, ambient_c=20.0)
     nodes = layout.link_nodes[0]
@@ -83,9 +83,15 @@ def test_uniform_heat_on_one_link_reaches_the_fin_steady_state() -> None:
 
 def test_joint_heat_through_a_lumped_link_matches_the_circuit() -> None:
     """A very conductive link is one temperature; joint heat Q splits into the joint's own
-    surface, the base path (contact + base resistance) and the link (contact + its surface)."""
-    joint = JointBody("J1", capacitance_j_per_c=400.0, ambient_conductance_w_per_c=0.05,
-                      contact_r_c_per_w=0.7)  # fmt: skip
+    surface, the base path (proximal flange + base) and the link (distal flange + its
+    surface)."""
+    joint = JointBody(
+        "J1",
+        capacitance_j_per_c=400.0,
+        ambient_conductance_w_per_c=0.05,
+        proximal_r_c_per_w=0.9,
+        distal_r_c_per_w=0.7,
+    )
     description = ArmThermalDescription(
         "lumped",
         (link("bar", (0, 0, 0), (0, 0, 400), conductivity=1e9),),
@@ -96,11 +102,11 @@ def test_joint_heat_through_a_lumped_link_matches_the_circuit() -> None:
     model = ArmThermalModel(description, node_spacing_mm=50.0, ambient_c=21.0, dt_s=10.0)
     h_eff = 5.0 + radiation_h_w_per_m2k(0.9, 21.0)
     g_link = h_eff * PERIMETER_M * 0.4
-    r_c, r_b = 0.7, 1.5
+    r_p, r_d, r_b = 0.9, 0.7, 1.5
     q = 12.0
-    g_total = 0.05 + 1 / (r_c + r_b) + 1 / (r_c + 1 / g_link)
+    g_total = 0.05 + 1 / (r_p + r_b) + 1 / (r_d + 1 / g_link)
     theta_joint = q / g_total
-    theta_link = theta_joint * (1 / g_link) / (r_c + 1 / g_link)
+    theta_link = theta_joint * (1 / g_link) / (r_d + 1 / g_link)
     model.advance_to(400_000.0, [q])  # ~30 slowest time constants
     (state,) = model.link_states()
     assert state.link == "bar"

@@ -45,6 +45,7 @@ DEFAULT_JOINT_MASS_KG = 0.8
 JOINT_SPECIFIC_HEAT_J_PER_KGK = 480.0
 DEFAULT_JOINT_AREA_M2 = 0.02
 DEFAULT_CONTACT_R_C_PER_W = 0.5
+DEFAULT_BEARING_R_C_PER_W = 2.0
 DEFAULT_BASE_MASS_KG = 6.0
 BASE_SPECIFIC_HEAT_J_PER_KGK = 896.0  # 6061-T6 (thesis Table 3.1)
 DEFAULT_BASE_R_AMBIENT_C_PER_W = 0.8
@@ -77,13 +78,18 @@ class LinkBody:
 
 @dataclass(frozen=True, slots=True)
 class JointBody:
-    """A joint's motor and gearbox: its heat capacity, its surface to ambient (W/°C) and the
-    contact resistance across each of its two flanges."""
+    """A joint's motor and gearbox: its heat capacity, its surface to ambient (W/°C), the
+    resistance across its flange to the proximal link (or the base) and to the distal link,
+    and the link its housing is mounted on (``None``: the proximal one). The housing side is
+    bolted (a contact resistance); the other side is reached through the bearings and the
+    output shaft (:func:`describe_arm` makes it :data:`DEFAULT_BEARING_R_C_PER_W`)."""
 
     name: str
     capacitance_j_per_c: float = DEFAULT_JOINT_MASS_KG * JOINT_SPECIFIC_HEAT_J_PER_KGK
     ambient_conductance_w_per_c: float = DEFAULT_H_W_PER_M2K * DEFAULT_JOINT_AREA_M2
-    contact_r_c_per_w: float = DEFAULT_CONTACT_R_C_PER_W
+    proximal_r_c_per_w: float = DEFAULT_CONTACT_R_C_PER_W
+    distal_r_c_per_w: float = DEFAULT_CONTACT_R_C_PER_W
+    link: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -161,13 +167,13 @@ def build_arm_network(
         # the joint's node, proximal flange on the previous link (or the base)
         joint_index = len(names)
         names.append(joint.name)
-        links_of.append(links_of[previous_last])
+        links_of.append(joint.link or links_of[previous_last])
         arc.append(position)
         spatial.append(start.copy())
         capacitance.append(joint.capacitance_j_per_c)
         alpha.append(link.alpha_per_c)
         ambient_g.append(joint.ambient_conductance_w_per_c * convection_scale)
-        resistances.append(Resistance(previous_last, joint_index, joint.contact_r_c_per_w))
+        resistances.append(Resistance(previous_last, joint_index, joint.proximal_r_c_per_w))
         joint_nodes.append(joint_index)
         # the link's nodes, evenly spaced over its (effective) length, both ends included
         length = max(link.length_mm, MIN_LINK_LENGTH_MM)
@@ -197,7 +203,7 @@ def build_arm_network(
                         dx * MM / (link.conductivity_w_per_mk * link.area_m2),
                     )
                 )
-        resistances.append(Resistance(joint_index, first, joint.contact_r_c_per_w))
+        resistances.append(Resistance(joint_index, first, joint.distal_r_c_per_w))
         link_nodes.append(np.arange(first, first + count, dtype=np.intp))
         link_lengths.append(shares)
         previous_last = first + count - 1
