@@ -18,9 +18,11 @@ from daemon.arm.kinematics import (
     forward,
     inverse,
     jacobian,
+    joint_axes,
     link_frames,
     pose_difference,
     tool_error,
+    tool_errors,
     warm_arm,
 )
 from daemon.arm.types import LinkThermalState
@@ -119,6 +121,18 @@ def test_bare_urdf_loads_its_kinematics_from_the_deepest_leaf() -> None:
     flip = np.diag([-1.0, -1.0, 1.0, 1.0])
     q = np.array([0.2, -1.0, 0.7, 0.1, -0.4, 0.9])
     np.testing.assert_allclose(flip @ forward(arm, q), forward(load_arm("ur5e"), q), atol=1e-6)
+
+
+def test_link_lengths_follow_grows_with() -> None:
+    arm = load_arm("crs-a465")
+    assert arm.link_length_mm("turret") == pytest.approx(330.2)
+    assert arm.link_length_mm("upper-arm") == pytest.approx(304.8)
+    assert arm.link_length_mm("forearm") == pytest.approx(330.2)
+    assert arm.link_length_mm("wrist-roll") == 0.0  # no row grows with it
+    ur5e = load_arm("ur5e")
+    assert ur5e.link_length_mm("upper_arm") == pytest.approx(425.0)
+    # d4 lies along z_3, a3 along x_3: the forearm row's geometry is its a only.
+    assert ur5e.link_length_mm("forearm") == pytest.approx(392.2)
 
 
 def test_link_frames_end_at_the_flange() -> None:
@@ -232,7 +246,7 @@ def test_a_perpendicular_link_moves_the_tool_sideways() -> None:
 def test_bending_matches_the_beam_formula() -> None:
     # A cantilever along x of length L with a gradient g across it (°C/mm along y): thermal
     # curvature alpha·g, end rotation alpha·g·L about -z (away from the hot +y side), end
-    # deflection alpha·g·L²/2 towards -y (Timoshenko & Goodier § 152).
+    # deflection alpha·g·L²/2 towards -y (Roark's Table 8.1, kinematics docstring).
     length, overhang, g = 400.0, 50.0, 0.05
     arm = planar_arm([length], tool={"xyz_mm": [overhang, 0.0, 0.0]})
     error = tool_error(arm, np.zeros(1), [state("l1", 0.0, (g, 0.0))], bending=True)
@@ -248,6 +262,17 @@ def test_bending_matches_the_beam_formula() -> None:
     up = tool_error(arm, np.zeros(1), [state("l1", 0.0, (0.0, g))], bending=True)
     np.testing.assert_allclose(up.rotation_rad, [0.0, angle, 0.0], rtol=1e-12, atol=1e-18)
     assert up.translation_mm[2] < 0
+
+
+def test_tool_errors_at_several_poses_equal_one_at_a_time() -> None:
+    arm = load_arm("crs-a465")
+    states = [state(name, 3.0 + i, (0.01 * i, -0.02)) for i, name in enumerate(arm.link_names)]
+    qs = [np.zeros(6), np.radians([30.0, 20.0, -40.0, 10.0, 60.0, -90.0])]
+    together = tool_errors(arm, qs, states, bending=True)
+    for q, error in zip(qs, together, strict=True):
+        alone = tool_error(arm, q, states, bending=True)
+        np.testing.assert_array_equal(error.as_array(), alone.as_array())
+    assert together[0].translation_norm_mm != together[1].translation_norm_mm
 
 
 def test_bending_ignores_a_gradient_along_the_beam() -> None:
@@ -319,6 +344,139 @@ def test_unreadable_urdf_is_refused(tmp_path: Path) -> None:
         load_arm(path)
 
 
+def test_urdf_companion_naming_an_unknown_joint_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "arm.toml"
+    path.write_text(
+        f'urdf = "{ARMS / "ur5e.urdf"}"\n[[joints]]\nname = "knee_joint"\n', encoding="utf-8"
+    )
+    with pytest.raises(ArmError, match="joint 'knee_joint': no moving joint"):
+        load_arm(path)
+
+
+def test_urdf_companion_refuses_dh_values(tmp_path: Path) -> None:
+    path = tmp_path / "arm.toml"
+    path.write_text(
+        f'urdf = "{ARMS / "ur5e.urdf"}"\n[[joints]]\nname = "elbow_joint"\na_mm = 3\n',
+        encoding="utf-8",
+    )
+    with pytest.raises(ArmError, match="takes no DH values"):
+        load_arm(path)
+
+
 def test_missing_preset_lists_the_presets() -> None:
     with pytest.raises(ArmError, match="crs-a465"):
         load_arm("no-such-arm")
+
+
+def test_inverse_without_restarts_stays_on_the_seeds_branch() -> None:
+    arm = load_arm("ur5e")
+    q = np.array([0.4, -1.2, 1.0, -0.8, 1.3, 0.3])
+    target = forward(arm, q)
+    solution = inverse(arm, target, q + 0.05, restarts=0)
+    assert pose_difference(forward(arm, solution), target).translation_norm_mm < 1e-6
+    np.testing.assert_allclose(solution, q, atol=1e-7)  # the seed's branch, not another
+
+
+@pytest.mark.parametrize("name", ["crs-a465", "ur5e", "ur5e-urdf"])
+def test_growth_superposes_and_never_turns_the_tool(name: str) -> None:
+    # Positions are linear in the lengths at fixed angles and lengths never change
+    # orientations: the growth errors of separate links add up and carry no rotation.
+    arm = load_arm(name)
+    q = np.radians([25.0, -35.0, 50.0, -20.0, 40.0, 70.0])
+    rises = [4.0, 9.0, 2.5, 6.0, 11.0, 3.0]
+    states = [state(link, rise) for link, rise in zip(arm.link_names, rises, strict=True)]
+    together = tool_error(arm, q, states)
+    apart = sum(tool_error(arm, q, [one]).translation_mm for one in states)
+    np.testing.assert_allclose(together.translation_mm, apart, atol=1e-12)
+    np.testing.assert_allclose(together.rotation_rad, 0.0, atol=1e-14)
+    assert together.translation_norm_mm > 0.01
+
+
+def reak_a465_axes(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The A465 as the ReaK model builds it (mikael-s-persson/ReaK,
+    build_CRS_A465_model.cpp: revolute joints about z, rigid links link_1..link_5 in metres
+    given here in mm), independent of the DH table and of its zero angles: joint axes
+    (points, directions) and the flange point."""
+
+    def rigid(xyz: tuple[float, float, float], rotation: Rotation) -> np.ndarray:
+        out = np.eye(4)
+        out[:3, :3] = rotation.as_matrix()
+        out[:3, 3] = xyz
+        return out
+
+    quarter = math.pi / 2
+    about = Rotation.from_rotvec
+    links = [
+        rigid((0.0, 0.0, 330.2), about([quarter, 0, 0])),
+        rigid((304.8, 0.0, 0.0), Rotation.identity()),
+        rigid((150.0, 0.0, 0.0), about([0, quarter, 0]) * about([0, 0, quarter])),
+        rigid((0.0, 0.0, 180.2), about([-quarter, 0, 0])),
+        rigid((76.2, 0.0, 0.0), about([0, quarter, 0]) * about([0, 0, quarter])),
+    ]
+    frame = np.eye(4)
+    points, directions = [], []
+    for i in range(6):
+        points.append(frame[:3, 3].copy())
+        directions.append(frame[:3, 2].copy())
+        frame = frame @ rigid((0.0, 0.0, 0.0), about([0, 0, q[i]]))
+        if i < len(links):
+            frame = frame @ links[i]
+    return np.array(points), np.array(directions), frame[:3, 3]
+
+
+def axis_invariants(points: np.ndarray, directions: np.ndarray, flange: np.ndarray) -> list[float]:
+    """What any description of one mechanism shares, whatever its zero angles: distances and
+    angles between successive joint axes, the wrist centre's distance from axis 3, the
+    flange's distance from the wrist centre and from axis 6."""
+
+    def line_distance(i: int, j: int) -> float:
+        normal = np.cross(directions[i], directions[j])
+        gap = points[j] - points[i]
+        if np.linalg.norm(normal) < 1e-12:
+            return float(np.linalg.norm(np.cross(gap, directions[i])))
+        return abs(float(gap @ normal)) / float(np.linalg.norm(normal))
+
+    def angle(i: int, j: int) -> float:
+        cross = float(np.linalg.norm(np.cross(directions[i], directions[j])))
+        return math.atan2(cross, abs(float(directions[i] @ directions[j])))
+
+    # Wrist centre: the point nearest axes 4, 5 and 6 (they meet there).
+    rows = [np.eye(3) - np.outer(d, d) for d in directions[3:]]
+    centre = np.linalg.solve(sum(rows), sum(r @ p for r, p in zip(rows, points[3:], strict=True)))
+    to_axis_3 = np.cross(centre - points[2], directions[2])
+    return [
+        *(line_distance(i, i + 1) for i in range(5)),
+        *(angle(i, i + 1) for i in range(5)),
+        float(np.linalg.norm(to_axis_3)),
+        float(np.linalg.norm(flange - centre)),
+        float(np.linalg.norm(np.cross(flange - points[5], directions[5]))),
+    ]
+
+
+def test_crs_a465_has_the_joint_geometry_of_the_reak_model() -> None:
+    arm = load_arm("crs-a465")
+    rng = np.random.default_rng(465)
+    for _ in range(3):
+        q = rng.uniform(arm.lower_rad, arm.upper_rad)
+        ours = joint_axes(arm, q)
+        flange = forward(arm, q)[:3, 3]
+        theirs = reak_a465_axes(rng.uniform(-math.pi, math.pi, 6))
+        np.testing.assert_allclose(
+            axis_invariants(*ours, flange), axis_invariants(*theirs), atol=1e-9
+        )
+    # And they are the published lengths: shoulder offset 0, upper arm 304.8, forearm 330.2
+    # from axis 3 to the wrist centre, flange 76.2 from it on axis 6.
+    invariants = axis_invariants(*joint_axes(arm, np.zeros(6)), forward(arm, np.zeros(6))[:3, 3])
+    assert invariants[1] == pytest.approx(304.8)
+    assert invariants[10:] == pytest.approx([330.2, 76.2, 0.0], abs=1e-9)
+
+
+def test_joint_axes_are_the_jacobians_axes() -> None:
+    arm = load_arm("ur5e-urdf")
+    q = np.array([0.1, -0.9, 1.4, 0.3, -0.7, 2.0])
+    points, directions = joint_axes(arm, q)
+    tool = forward(arm, q)[:3, 3]
+    expected = np.vstack([np.cross(directions, tool - points).T, directions.T])
+    np.testing.assert_allclose(jacobian(arm, q), expected, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0)
+    np.testing.assert_allclose(points[0], [0.0, 0.0, 162.5], atol=1e-9)  # shoulder pan axis

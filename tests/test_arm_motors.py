@@ -7,27 +7,39 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
+from daemon.arm.description import ArmError, load_arm
 from daemon.arm.duty import (
     DutyCycle,
     DutyCycleError,
     TaughtPose,
+    arm_inverse,
     available_duty_cycles,
     duty_cycle_from_mapping,
     load_duty_cycle,
     trapezoid_timing,
 )
+from daemon.arm.heat import HeatMeter, JointHeatProfile
+from daemon.arm.kinematics import forward, link_frames
 from daemon.arm.motors import (
     GRAVITY_M_S2,
     MotorParameters,
+    arm_motors,
     friction_torque_nm,
     gravity_torques_nm,
     heat_from_current_w,
     heat_from_power_w,
     inertia_diagonal_kg_m2,
+    joint_heat_batch_w,
+    joint_heat_w,
     joint_torques_nm,
     motor_heat_w,
+    motor_parameters,
+    torques_batch_nm,
+    torques_nm,
 )
+from daemon.arm.types import JointSample
 
 MOTOR = MotorParameters(
     gear_ratio=50.0,
@@ -252,3 +264,152 @@ def test_duty_file_errors_name_the_pose() -> None:
     )
     assert cycle.poses[1].q_rad == pytest.approx((0.5, 0.6))
     np.testing.assert_allclose(seeds[0], np.radians([10, 20]))
+
+
+# -- on the A465 preset -----------------------------------------------------------------------
+
+
+def test_gravity_torque_is_the_gradient_of_potential_energy() -> None:
+    """torques_nm at rest = dV/dq with V = g sum m_i z_i (centres from link_frames): an
+    independent check of the axes, levers and signs, payload included."""
+    arm = load_arm("crs-a465")
+    payload = 1.5
+    q = np.radians([20.0, 35.0, 40.0, 30.0, -25.0, 10.0])
+
+    def potential(angles: np.ndarray) -> float:
+        frames = link_frames(arm, angles)
+        energy = 0.0
+        for i, link in enumerate(arm.links):
+            centre = frames[i + 1] @ np.array([*link.com_mm, 1.0])
+            energy += link.mass_kg * GRAVITY_M_S2 * centre[2] * 1e-3
+        tool = (frames[-1] @ arm.tool)[2, 3]
+        return float(energy + payload * GRAVITY_M_S2 * tool * 1e-3)
+
+    step = 1e-6
+    gradient = np.array(
+        [(potential(q + step * e) - potential(q - step * e)) / (2 * step) for e in np.eye(arm.dof)]
+    )
+    rest = JointSample(0.0, q, np.zeros(6), np.zeros(6))
+    torque = torques_nm(arm, rest, payload_kg=payload)
+    np.testing.assert_allclose(torque, gradient, atol=1e-6)
+    assert abs(torque[1]) > 10.0  # the shoulder carries the arm
+    # heat at rest is the copper loss of holding that torque
+    table = arm_motors(arm)
+    current = torque / (table.k_t * table.ratio)
+    np.testing.assert_allclose(
+        joint_heat_w(arm, rest, payload_kg=payload), table.resistance * current**2, rtol=1e-12
+    )
+
+
+def test_arm_motor_friction_at_the_joint_is_the_same_loss() -> None:
+    arm = load_arm("crs-a465")
+    motor = arm.joints[0].motor
+    assert motor is not None
+    params = motor_parameters(motor)
+    omega = 1.3
+    expected = motor.viscous_friction_nm_s_per_rad * omega**2 + motor.coulomb_friction_nm * omega
+    heat = motor_heat_w(params, omega, friction_torque_nm(params, omega))
+    copper = (
+        params.resistance_ohm
+        * (
+            friction_torque_nm(params, omega)
+            / (params.torque_constant_nm_per_a * params.gear_ratio)
+        )
+        ** 2
+    )
+    assert heat - copper == pytest.approx(expected, rel=1e-12)
+
+
+def test_heat_profile_integrates_one_cycle_and_repeats() -> None:
+    arm = load_arm("crs-a465")
+    cycle = load_duty_cycle("a465-pick-and-place")
+    profile = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.02)
+    table = arm_motors(arm)
+
+    def power(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        return np.array(
+            [
+                joint_heat_w(
+                    arm,
+                    JointSample(0.0, q[k], qd[k], qdd[k]),
+                    motors=table,
+                    payload_kg=cycle.payload_kg,
+                )
+                for k in range(len(q))
+            ]
+        )
+
+    np.testing.assert_allclose(profile.cycle_energy_j, cycle.cycle_energy_j(power, 0.02), rtol=1e-9)
+    period = cycle.period_s
+    # whole cycles: the mean power; energy is additive over any split of an interval
+    np.testing.assert_allclose(profile.step_power_w(3 * period, 5 * period), profile.mean_power_w)
+    split = profile.energy_at_j(100.3) - profile.energy_at_j(0.0)
+    parts = sum(profile.step_power_w(a, b) * (b - a) for a, b in ((0.0, 41.7), (41.7, 100.3)))
+    np.testing.assert_allclose(split, parts, rtol=1e-12)
+    assert np.all(profile.mean_power_w >= 0.0) and profile.mean_power_w[1] > 5.0
+
+
+def test_tool_poses_in_a_duty_file_go_through_the_arms_inverse_kinematics() -> None:
+    arm = load_arm("crs-a465")
+    q_taught = np.radians([25.0, 40.0, 35.0, 0.0, 15.0, 10.0])
+    pose = forward(arm, q_taught)
+    zyx = Rotation.from_matrix(pose[:3, :3]).as_euler("ZYX", degrees=True)
+    data = {
+        "max_speed_deg_s": 90.0,
+        "max_accel_deg_s2": 180.0,
+        "poses": [
+            {"name": "home", "joints_deg": [20.0, 35.0, 40.0, 0.0, 10.0, 0.0]},
+            {"name": "taught", "tool_mm": pose[:3, 3].tolist(), "tool_zyx_deg": zyx.tolist()},
+        ],
+    }
+    cycle = duty_cycle_from_mapping(data, inverse=arm_inverse(arm))
+    reached = forward(arm, np.array(cycle.poses[1].q_rad))
+    np.testing.assert_allclose(reached, pose, atol=1e-6)
+
+    def unreachable(pose: np.ndarray, seed: np.ndarray) -> np.ndarray:
+        raise ArmError("pose out of reach within the joint limits")
+
+    with pytest.raises(DutyCycleError, match=r"pose 'taught': pose out of reach"):
+        duty_cycle_from_mapping(data, inverse=unreachable)
+
+
+def test_batch_torques_are_the_per_sample_torques() -> None:
+    arm = load_arm("crs-a465")
+    rng = np.random.default_rng(7)
+    q = rng.uniform(arm.lower_rad, arm.upper_rad, size=(5, arm.dof))
+    qd = rng.normal(0.0, 1.0, size=(5, arm.dof))
+    qdd = rng.normal(0.0, 3.0, size=(5, arm.dof))
+    batch = torques_batch_nm(arm, q, qd, qdd, payload_kg=0.7)
+    for k in range(5):
+        single = torques_nm(arm, JointSample(0.0, q[k], qd[k], qdd[k]), payload_kg=0.7)
+        np.testing.assert_allclose(batch[k], single, rtol=1e-12, atol=1e-12)
+    heat = joint_heat_batch_w(arm, q, qd, qdd, payload_kg=0.7)
+    np.testing.assert_allclose(heat, motor_heat_w(arm_motors(arm), qd, batch), rtol=1e-12)
+    # point masses: the diagonal inertia is what the acceleration alone adds, less the rotor
+    rest = torques_batch_nm(arm, q[:1], np.zeros((1, 6)), np.zeros((1, 6)))
+    push = torques_batch_nm(arm, q[:1], np.zeros((1, 6)), np.eye(6)[1:2])
+    table = arm_motors(arm)
+    assert (push - rest)[0, 1] > table.ratio[1] ** 2 * table.rotor_inertia[1]
+
+
+def test_heat_meter_means_the_performed_motion_between_takes() -> None:
+    """Readings of the heat of the motion performed (here the preset cycle on a 10 ms grid)
+    averaged per 1 s step: the whole run's mean equals the cycle's mean heat."""
+    arm = load_arm("crs-a465")
+    cycle = load_duty_cycle("a465-pick-and-place")
+    times = np.arange(0.0, 5 * cycle.period_s + 1e-9, 0.01)
+    q, qd, qdd = cycle.state(times)
+    power = joint_heat_batch_w(arm, q, qd, qdd, payload_kg=cycle.payload_kg)
+    meter = HeatMeter(arm.dof)
+    means = []
+    for k, t in enumerate(times):
+        meter.add(float(t), power[k])
+        if k and k % 100 == 0:
+            means.append(meter.take_mean_w())
+    means.append(meter.take_mean_w())
+    spans = np.diff(np.concatenate([[0.0], times[100::100], [times[-1]]]))
+    run_mean = np.average(means, axis=0, weights=spans)
+    profile = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.01)
+    np.testing.assert_allclose(run_mean, profile.mean_power_w, rtol=2e-3, atol=1e-6)
+    with pytest.raises(ValueError, match="before the last one"):
+        meter.add(0.0, power[0])
