@@ -59,13 +59,13 @@ from drivers.sim.arm_markers import (
 )
 from drivers.sim.arm_motion import JointMotionSource, MotorEnergy, PowerFunction, StillMotion
 
-#: Default markers on the tool (tool frame, mm): four LEDs on a 40 mm cross, one raised, so
-#: that no three are on a line and the rotation is seen about every axis.
+#: Default markers on the tool (tool frame, mm): four LEDs on a 120 mm cross plate, two raised,
+#: so that no three are on a line and the rotation is seen about every axis.
 DEFAULT_MARKERS_MM: tuple[tuple[float, float, float], ...] = (
-    (40.0, 0.0, 0.0),
-    (0.0, 40.0, 0.0),
-    (-40.0, 0.0, 10.0),
-    (0.0, -40.0, 25.0),
+    (60.0, 0.0, 0.0),
+    (0.0, 60.0, 0.0),
+    (-60.0, 0.0, 15.0),
+    (0.0, -60.0, 35.0),
 )
 #: Default IR regions: (name, link, fraction along the link from its proximal joint).
 DEFAULT_IR_REGIONS: tuple[tuple[str, str, float], ...] = ()
