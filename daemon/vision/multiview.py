@@ -55,10 +55,12 @@ __all__ = [
     "Triangulation",
     "axis_camera",
     "cameras_toml",
+    "depths_mm",
     "intrinsic_matrix",
     "load_cameras",
     "look_at",
     "measure_in_plane",
+    "points_array",
     "pose_covariance_difference",
     "pose_difference",
     "project",
@@ -80,6 +82,12 @@ MIN_MARKER_SPREAD = 1e-3
 #: A ray meeting the plane at less than this angle (rad; ~0.6°) gives no usable point.
 MIN_PLANE_INCIDENCE_RAD = 0.01
 _UM_PER_MM = 1000.0
+#: Newton steps of measure_in_plane after the ray's intersection (quadratic convergence).
+_PLANE_NEWTON_STEPS = 3
+#: Gauss-Newton of the marker pose: at most this many steps, done when a step is below the
+#: tolerance (mm and rad alike: far below any marker noise).
+_MAX_POSE_ITERATIONS = 20
+_POSE_STEP_TOLERANCE = 1e-12
 
 
 class MultiviewError(ValueError):
@@ -107,7 +115,8 @@ class Triangulation:
     dof: int
 
 
-def _points(points_mm: ArrayLike) -> FloatArray:
+def points_array(points_mm: ArrayLike) -> FloatArray:
+    """Points as an N x 3 float array (one point of 3 -> 1 x 3); MultiviewError otherwise."""
     points = np.asarray(points_mm, dtype=np.float64)
     if points.ndim == 1:
         points = points.reshape(1, -1)
@@ -127,7 +136,7 @@ def projection_jacobian(camera: CameraModel, points_mm: ArrayLike) -> tuple[Floa
 
     OpenCV's Jacobian gives d(pixel)/d(tvec); a world point enters as ``R X + t``, so
     d(pixel)/dX = d(pixel)/d(tvec) R."""
-    points = _points(points_mm)
+    points = points_array(points_mm)
     pixels, jacobian = cv2.projectPoints(
         points.reshape(-1, 1, 3),
         camera.rotation_rad,
@@ -142,7 +151,8 @@ def projection_jacobian(camera: CameraModel, points_mm: ArrayLike) -> tuple[Floa
     )
 
 
-def _depths(camera: CameraModel, points: FloatArray) -> FloatArray:
+def depths_mm(camera: CameraModel, points: FloatArray) -> FloatArray:
+    """Each point's depth along the camera's optical axis (mm; <= 0: behind the camera)."""
     return np.asarray((points @ camera.rotation_matrix.T + camera.translation_mm)[:, 2])
 
 
@@ -230,7 +240,7 @@ def triangulate_detailed(
 
     fit = least_squares(residuals, start, jac=jacobian, method="lm", xtol=1e-12, ftol=1e-12)
     point = np.asarray(fit.x, dtype=np.float64)
-    behind = [c.name for c in cameras if _depths(c, point.reshape(1, 3))[0] <= 0]
+    behind = [c.name for c in cameras if depths_mm(c, point.reshape(1, 3))[0] <= 0]
     if behind:
         raise MultiviewError(f"the point lies behind camera(s) {', '.join(behind)}")
     whitened = jacobian(point)
@@ -313,7 +323,13 @@ def measure_in_plane(
     point = centre + distance * direction
     sigma = _sigmas([camera], None if sigma_px is None else [sigma_px])[0]
     basis = _plane_basis(normal)
-    in_plane = projection_jacobian(camera, point)[1][0] @ basis  # d pixel / d (plane coords)
+    # cv2.undistortPoints inverts the distortion iteratively, to ~1e-3 px for strong
+    # distortion: Newton steps in the plane make the point reproject onto the pixel exactly
+    for _ in range(_PLANE_NEWTON_STEPS):
+        projected, jacobian = projection_jacobian(camera, point)
+        in_plane = jacobian[0] @ basis  # d pixel / d (plane coords)
+        point = point + basis @ np.linalg.solve(in_plane, observed - projected[0])
+    in_plane = projection_jacobian(camera, point)[1][0] @ basis
     inverse = np.linalg.inv(in_plane)
     covariance_plane = inverse @ np.diag(sigma**2) @ inverse.T
     covariance = basis @ covariance_plane @ basis.T
@@ -379,8 +395,8 @@ def rigid_pose_from_markers(
     ``exp([dr]x) R``: translation and rotation vector in the world frame, the order of
     :meth:`Pose6.as_array`.
     """
-    model = _points(model_mm)
-    measured = _points(measured_mm)
+    model = points_array(model_mm)
+    measured = points_array(measured_mm)
     count = model.shape[0]
     if measured.shape != model.shape:
         raise MultiviewError(
@@ -414,22 +430,31 @@ def rigid_pose_from_markers(
     rotation0 = start.as_matrix()
     translation0 = measured_centre - rotation0 @ model_centre
 
-    def pose_of(delta: FloatArray) -> tuple[FloatArray, FloatArray]:
-        rotation = Rotation.from_rotvec(delta[3:]).as_matrix() @ rotation0
-        return rotation, translation0 + delta[:3]
+    def whitened_system(
+        rotation: FloatArray, translation: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Whitened residuals and their Jacobian in (dt, dr) at a pose (the perturbation
+        ``R -> exp([dr]x) R``, ``t -> t + dt``: d(R m + t) = dt - [R m]x dr)."""
+        rotated = model @ rotation.T
+        errors = rotated + translation - measured
+        residual = np.einsum("mji,mj->mi", whiten, errors).ravel()
+        blocks = [
+            chol.T @ np.hstack([np.eye(3), -_skew(arm)])
+            for arm, chol in zip(rotated, whiten, strict=True)
+        ]
+        return np.asarray(residual, dtype=np.float64), np.vstack(blocks)
 
-    def residuals(delta: FloatArray) -> FloatArray:
-        rotation, translation = pose_of(delta)
-        errors = model @ rotation.T + translation - measured
-        return np.asarray(np.einsum("mji,mj->mi", whiten, errors).ravel(), dtype=np.float64)
-
-    fit = least_squares(residuals, np.zeros(6), method="lm", xtol=1e-14, ftol=1e-14)
-    rotation, translation = pose_of(fit.x)
-    rows = []
-    for marker, chol in zip(model, whiten, strict=True):
-        block = np.hstack([np.eye(3), -_skew(rotation @ marker)])  # d(R m + t)/d(dt, dr)
-        rows.append(chol.T @ block)
-    jacobian = np.vstack(rows)
+    # Gauss-Newton from the Kabsch start: the problem is nearly linear there (small residuals
+    # of well-measured markers), so a few steps reach machine precision
+    rotation, translation = rotation0, translation0
+    for _ in range(_MAX_POSE_ITERATIONS):
+        residual, jacobian = whitened_system(rotation, translation)
+        step = np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
+        rotation = Rotation.from_rotvec(step[3:]).as_matrix() @ rotation
+        translation = translation + step[:3]
+        if np.linalg.norm(step) < _POSE_STEP_TOLERANCE:
+            break
+    _, jacobian = whitened_system(rotation, translation)
     covariance = np.linalg.inv(jacobian.T @ jacobian)
     transform = np.eye(4)
     transform[:3, :3] = rotation
@@ -447,7 +472,11 @@ def _pose_parts(pose: ArrayLike) -> tuple[FloatArray, FloatArray]:
 def pose_difference(reference: ArrayLike, current: ArrayLike) -> Pose6:
     """``current`` relative to ``reference`` in the world frame: the tool point's displacement
     ``t_cur - t_ref`` (mm) and the rotation vector of ``R_cur R_ref^T`` (rad). A tool error is
-    ``pose_difference(cold, warm)``; the correction that cancels it is its negative."""
+    ``pose_difference(cold, warm)``; the correction that cancels it is its negative.
+
+    Mind the order: the reference comes first here, while
+    ``daemon.arm.kinematics.pose_difference(pose, reference)`` takes it second (same result
+    for the same roles); pass keywords where both are in reach."""
     rotation_ref, translation_ref = _pose_parts(reference)
     rotation_cur, translation_cur = _pose_parts(current)
     rotvec = Rotation.from_matrix(rotation_cur @ rotation_ref.T).as_rotvec()

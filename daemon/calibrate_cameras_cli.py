@@ -1,0 +1,432 @@
+"""``thermocomp calibrate cameras``: each camera's pose in the robot's world from marker positions
+the robot visited (issue 20); the fits are the pure :mod:`daemon.vision.camera_pose` and
+:mod:`daemon.vision.camera_rig`.
+
+The cameras' intrinsics and distortion come from ``--cameras FILE`` (a camera file, see
+README "Measuring in 3-D with several cameras"; the poses in it are not used). The observations
+are either
+
+* recorded: ``--observations CSV`` with one row per camera and tool pose, columns
+  ``camera,x_mm,y_mm,z_mm,x_px,y_px``, optionally ``rx_rad,ry_rad,rz_rad`` (the tool's
+  rotation vector; zero without them) and ``sigma_x_px,sigma_y_px`` (the centroid's own
+  1-sigma; without them the noise is estimated from the residuals), or
+* simulated: ``--simulate TRUTH`` (a camera file of the true cameras): the tool visits a cube
+  of ``--per-axis``³ positions ±``--size`` mm about ``--centre``, turned at random by up to
+  ``--turn`` rad about each axis (seeded); the marker at ``--true-marker`` on it is rendered
+  with photon and read noise in every true camera and measured by the robust centroid;
+  ``--save-observations`` keeps those rows as CSV; the output then also gives each camera's
+  error from the truth.
+
+The marker sits at ``--marker`` (mm, tool frame; default 0,0,0: the tool point, so that x, y,
+z are the marker's own positions), i.e. at ``R marker + p`` in the world. With
+``--fit-marker`` that offset is only the starting guess and is fitted together with the
+cameras (the tool must turn between poses).
+
+Driving the arm through the daemon to record the observations is not part of this command yet:
+record them with the arm (its commanded tool poses and the centroids) and pass the CSV.
+
+Exit statuses: 0 calibrated; 1 a fit failed (a camera saw the marker at fewer than four
+positions, positions on one line, an offset the moves do not determine); 2 bad usage, an
+unreadable camera file or CSV.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, positive_float
+
+if TYPE_CHECKING:
+    from daemon.vision.camera_pose import CameraPoseFit
+    from daemon.vision.cameras import CameraModel
+
+# numpy, OpenCV and SciPy are imported where they are used: `--help` answers at once (issue 16)
+
+PROG = "thermocomp calibrate cameras"
+CSV_COLUMNS = ("camera", "x_mm", "y_mm", "z_mm", "x_px", "y_px")
+SIGMA_COLUMNS = ("sigma_x_px", "sigma_y_px")
+ROTATION_COLUMNS = ("rx_rad", "ry_rad", "rz_rad")
+#: The simulated marker: a spot like the bench's laser spot (bench.spot_sigma_px, 16-bit,
+#: half full scale, 1 e-/count, 5 e- read noise: the [camera] defaults).
+SIM_SPOT_SIGMA_PX = 3.0
+SIM_PEAK_FRACTION = 0.5
+SIM_READ_NOISE_COUNTS = 5.0
+
+
+class ObservationError(Exception):
+    """The observations cannot be read or used (exit 2) ."""
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """One camera's centroid of the marker with the tool at (position, rotation vector)."""
+
+    camera: str
+    position_mm: tuple[float, float, float]
+    pixel_px: tuple[float, float]
+    sigma_px: tuple[float, float] | None
+    rotation_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = kinds.add_parser(
+        "cameras",
+        help="fit each camera's pose (camera file) from marker positions the robot visited",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--cameras", type=Path, required=True, metavar="FILE", help="camera file (intrinsics)"
+    )
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--observations", type=Path, metavar="CSV", help="recorded observations")
+    source.add_argument(
+        "--simulate", type=Path, metavar="TRUTH", help="camera file of the true cameras"
+    )
+    parser.add_argument(
+        "--centre",
+        type=_triple,
+        default=(0.0, 0.0, 400.0),
+        metavar="X,Y,Z",
+        help="simulation: centre of the cube of positions (mm, world; default 0,0,400)",
+    )
+    parser.add_argument(
+        "--size",
+        type=positive_float,
+        default=50.0,
+        metavar="MM",
+        help="simulation: half-width of the cube (default 50)",
+    )
+    parser.add_argument(
+        "--per-axis",
+        type=int,
+        default=3,
+        metavar="N",
+        help="simulation: positions per axis (default 3: 27 positions)",
+    )
+    parser.add_argument(
+        "--turn",
+        type=float,
+        default=0.0,
+        metavar="RAD",
+        help="simulation: turn the tool at random by up to this about each axis (default 0)",
+    )
+    parser.add_argument(
+        "--marker",
+        type=_triple,
+        default=(0.0, 0.0, 0.0),
+        metavar="X,Y,Z",
+        help="the marker's offset on the tool (mm, tool frame; default 0,0,0: the tool point)",
+    )
+    parser.add_argument(
+        "--fit-marker",
+        action="store_true",
+        help="fit the marker's offset too (--marker is the guess; the tool must turn)",
+    )
+    parser.add_argument(
+        "--true-marker",
+        type=_triple,
+        metavar="X,Y,Z",
+        help="simulation: the marker's true offset on the tool (default --marker)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="simulation: noise seed (default 0)")
+    parser.add_argument(
+        "--save-observations", type=Path, metavar="CSV", help="simulation: write the rows here"
+    )
+    parser.add_argument(
+        "--write", type=Path, metavar="FILE", help="write the calibrated camera file here"
+    )
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.set_defaults(handler=run_calibrate_cameras)
+
+
+def _triple(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in mm, got {text!r}") from err
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z, got {text!r}")
+    return values[0], values[1], values[2]
+
+
+def read_observations(path: Path) -> list[Observation]:
+    """The CSV's rows (module docstring); ObservationError names the file and the row."""
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            reader = csv.DictReader(handle)
+            missing = [c for c in CSV_COLUMNS if c not in (reader.fieldnames or [])]
+            if missing:
+                raise ObservationError(f"{path}: missing column(s) {', '.join(missing)}")
+            with_sigma = all(c in (reader.fieldnames or []) for c in SIGMA_COLUMNS)
+            with_rotation = all(c in (reader.fieldnames or []) for c in ROTATION_COLUMNS)
+            rows = []
+            for number, row in enumerate(reader, start=2):
+                try:
+                    values = [float(row[c]) for c in CSV_COLUMNS[1:]]
+                    sigma = (
+                        (float(row["sigma_x_px"]), float(row["sigma_y_px"])) if with_sigma else None
+                    )
+                    turn = [float(row[c]) for c in ROTATION_COLUMNS] if with_rotation else [0.0] * 3
+                except (TypeError, ValueError) as err:
+                    raise ObservationError(f"{path}: line {number}: not a number ({err})") from err
+                rows.append(
+                    Observation(
+                        row["camera"],
+                        (values[0], values[1], values[2]),
+                        (values[3], values[4]),
+                        sigma,
+                        (turn[0], turn[1], turn[2]),
+                    )
+                )
+    except OSError as err:
+        raise ObservationError(f"{path}: cannot read: {err.strerror}") from err
+    if not rows:
+        raise ObservationError(f"{path}: no observations")
+    return rows
+
+
+def write_observations(path: Path, rows: list[Observation]) -> None:
+    with path.open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow([*CSV_COLUMNS, *ROTATION_COLUMNS, *SIGMA_COLUMNS])
+        for row in rows:
+            sigma = row.sigma_px or ("", "")
+            writer.writerow(
+                [row.camera, *row.position_mm, *row.pixel_px, *row.rotation_rad, *sigma]
+            )
+
+
+def simulate_observations(
+    truth: tuple[CameraModel, ...],
+    args: argparse.Namespace,
+) -> list[Observation]:
+    """The marker rendered at every tool pose of the cube in every true camera and measured;
+    a camera that does not see it at a pose (off the chip, cut by its edge) has no row there."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from daemon.vision import CentroidError, measure_centroid
+    from daemon.vision.camera_pose import grid_positions
+    from daemon.vision.markers import render_marker_window
+
+    rng = np.random.default_rng(args.seed)
+    marker = np.array(args.true_marker if args.true_marker is not None else args.marker)
+    rows = []
+    for position in grid_positions(args.centre, args.size, args.per_axis):
+        turn = rng.uniform(-args.turn, args.turn, 3) if args.turn > 0 else np.zeros(3)
+        point = Rotation.from_rotvec(turn).as_matrix() @ marker + position
+        for camera in truth:
+            rendered = render_marker_window(
+                camera,
+                point,
+                rng=rng,
+                sigma_px=SIM_SPOT_SIGMA_PX,
+                peak_fraction=SIM_PEAK_FRACTION,
+                read_noise_counts=SIM_READ_NOISE_COUNTS,
+            )
+            if rendered is None:
+                continue  # off this camera's chip: it sees fewer positions (the fit says so)
+            window, (column0, row0) = rendered
+            try:
+                result = measure_centroid(window)
+            except CentroidError:
+                continue
+            if "edge" in result.flags:
+                continue
+            rows.append(
+                Observation(
+                    camera.name,
+                    (float(position[0]), float(position[1]), float(position[2])),
+                    (result.x_px + column0, result.y_px + row0),
+                    (result.sigma_x_px, result.sigma_y_px),
+                    (float(turn[0]), float(turn[1]), float(turn[2])),
+                )
+            )
+    return rows
+
+
+@dataclass(frozen=True, eq=False)
+class Calibrated:
+    fits: list[CameraPoseFit]
+    marker_mm: tuple[float, float, float]
+    marker_se_mm: tuple[float, float, float] | None  # None: given, not fitted
+
+
+def _checked(cameras: tuple[CameraModel, ...], rows: list[Observation]) -> None:
+    unknown = sorted({row.camera for row in rows} - {camera.name for camera in cameras})
+    if unknown:
+        raise ObservationError(f"observations of unknown camera(s): {', '.join(unknown)}")
+
+
+def fit_known_marker(
+    cameras: tuple[CameraModel, ...], rows: list[Observation], marker: tuple[float, float, float]
+) -> Calibrated:
+    """Each camera on its own: the marker's world positions follow from the tool poses."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from daemon.vision.camera_pose import fit_camera_pose
+
+    _checked(cameras, rows)
+    fits = []
+    for camera in cameras:
+        mine = [row for row in rows if row.camera == camera.name]
+        turns = Rotation.from_rotvec(np.array([row.rotation_rad for row in mine]).reshape(-1, 3))
+        points = turns.apply(np.array(marker)) + np.array([row.position_mm for row in mine])
+        sigmas = [row.sigma_px for row in mine]
+        given = None if any(s is None for s in sigmas) else [s for s in sigmas if s is not None]
+        fits.append(fit_camera_pose(camera, points, [row.pixel_px for row in mine], given))
+    return Calibrated(fits, marker, None)
+
+
+def fit_with_marker(
+    cameras: tuple[CameraModel, ...], rows: list[Observation], guess: tuple[float, float, float]
+) -> Calibrated:
+    """Cameras and the marker's offset together (camera_rig): rows grouped by tool pose."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from daemon.vision.camera_rig import fit_cameras_and_marker
+
+    _checked(cameras, rows)
+    keys: dict[tuple[float, ...], int] = {}
+    for row in rows:
+        keys.setdefault((*row.position_mm, *row.rotation_rad), len(keys))
+    index = {camera.name: c for c, camera in enumerate(cameras)}
+    pixels = np.full((len(cameras), len(keys), 2), np.nan)
+    sigmas = np.full_like(pixels, np.nan)
+    for row in rows:
+        where = (index[row.camera], keys[(*row.position_mm, *row.rotation_rad)])
+        pixels[where] = row.pixel_px
+        sigmas[where] = row.sigma_px if row.sigma_px is not None else np.nan
+    poses = np.tile(np.eye(4), (len(keys), 1, 1))
+    for key, k in keys.items():
+        poses[k, :3, :3] = Rotation.from_rotvec(key[3:]).as_matrix()
+        poses[k, :3, 3] = key[:3]
+    given = bool(np.all(np.isfinite(sigmas[np.isfinite(pixels)])))  # every centroid's own
+    result = fit_cameras_and_marker(
+        list(cameras),
+        poses,
+        pixels,
+        np.where(np.isfinite(sigmas), sigmas, 1.0) if given else None,
+        guess,
+    )
+    m, se = result.marker_mm, result.marker_se_mm
+    return Calibrated(
+        list(result.fits),
+        (float(m[0]), float(m[1]), float(m[2])),
+        (float(se[0]), float(se[1]), float(se[2])),
+    )
+
+
+def run_calibrate_cameras(args: argparse.Namespace) -> int:
+    from daemon.vision.cameras import CameraFileError, cameras_toml, load_cameras, write_cameras
+    from daemon.vision.multiview import MultiviewError
+
+    if args.per_axis < 2:
+        print(f"{PROG}: --per-axis must be 2 or more", file=sys.stderr)
+        return EXIT_USAGE
+    if not (math.isfinite(args.turn) and 0.0 <= args.turn <= math.pi):
+        print(f"{PROG}: --turn must be between 0 and pi rad", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        cameras = load_cameras(args.cameras)
+        truth = load_cameras(args.simulate) if args.simulate is not None else None
+        rows = read_observations(args.observations) if args.observations is not None else None
+    except (CameraFileError, ObservationError) as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        if truth is not None:
+            missing = sorted({c.name for c in cameras} - {c.name for c in truth})
+            if missing:
+                print(
+                    f"{PROG}: {args.simulate}: no camera(s) {', '.join(missing)}", file=sys.stderr
+                )
+                return EXIT_USAGE
+            shown = tuple(c for c in truth if c.name in {m.name for m in cameras})
+            rows = simulate_observations(shown, args)
+            if args.save_observations is not None:
+                write_observations(args.save_observations, rows)
+        assert rows is not None
+        fit = fit_with_marker if args.fit_marker else fit_known_marker
+        calibrated = fit(cameras, rows, args.marker)
+    except ObservationError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except MultiviewError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    fits = calibrated.fits
+    truths = {c.name: c for c in truth} if truth is not None else {}
+    marker_line = (
+        "# marker offset on the tool: ("
+        + ", ".join(
+            f"{v:.4f}" + (f"+-{s:.4f}" if calibrated.marker_se_mm is not None else "")
+            for v, s in zip(
+                calibrated.marker_mm, calibrated.marker_se_mm or (0.0,) * 3, strict=True
+            )
+        )
+        + ") mm"
+        + ("" if calibrated.marker_se_mm is not None else " (given)")
+    )
+    if args.json:
+        data = {
+            "cameras": [_as_dict(f, truths.get(f.camera.name)) for f in fits],
+            "marker_mm": list(calibrated.marker_mm),
+            "marker_se_mm": (
+                list(calibrated.marker_se_mm) if calibrated.marker_se_mm is not None else None
+            ),
+        }
+        print(json.dumps(data, indent=2))
+    else:
+        for one in fits:
+            print(_summary(one, truths.get(one.camera.name)))
+        print(marker_line)
+        if args.write is None:
+            print(cameras_toml([f.camera for f in fits]), end="")
+    if args.write is not None:
+        write_cameras(args.write, [f.camera for f in fits])
+        print(f"# written to {args.write}", file=sys.stderr)
+    return EXIT_OK
+
+
+def _as_dict(fit: CameraPoseFit, truth: CameraModel | None) -> dict[str, object]:
+    data: dict[str, object] = {
+        "camera": fit.camera.name,
+        "points": fit.points,
+        "rotation_rad": fit.camera.rotation_rad.tolist(),
+        "rotation_se_rad": fit.camera.rotation_se_rad.tolist(),
+        "translation_mm": fit.camera.translation_mm.tolist(),
+        "translation_se_mm": fit.camera.translation_se_mm.tolist(),
+        "centre_mm": fit.centre_mm.tolist(),
+        "centre_se_mm": fit.centre_se_mm.tolist(),
+        "residual_px": fit.residual_px,
+        "reduced_chi2": fit.reduced_chi2,
+    }
+    if truth is not None:
+        data["centre_error_mm"] = (fit.centre_mm - truth.centre_mm).tolist()
+        data["rotation_error_rad"] = (fit.camera.rotation_rad - truth.rotation_rad).tolist()
+    return data
+
+
+def _summary(fit: CameraPoseFit, truth: CameraModel | None) -> str:
+    centre = ", ".join(
+        f"{v:.3f}+-{s:.3f}" for v, s in zip(fit.centre_mm, fit.centre_se_mm, strict=True)
+    )
+    line = (
+        f"# {fit.camera.name}: {fit.points} positions, residual {fit.residual_px:.4f} px RMS, "
+        f"reduced chi2 {fit.reduced_chi2:.2f}; centre ({centre}) mm"
+    )
+    if truth is not None:
+        error = fit.centre_mm - truth.centre_mm
+        line += "; error from the truth (" + ", ".join(f"{v:+.4f}" for v in error) + ") mm"
+    return line
