@@ -321,6 +321,6 @@ def test_markers_rendered_and_triangulated_recover_the_true_tool_within_the_nois
         measured = bench.measure_tool(0, STATION)
         error = measured.pose[:3, 3] - truth[:3, 3]
         chi2.append(float(error @ np.linalg.solve(measured.covariance[:3, :3], error)))
-        np.testing.assert_allclose(measured.markers_mm, bench.markers_world_mm(STATION), atol=0.05)
+        np.testing.assert_allclose(measured.points_mm, bench.markers_world_mm(STATION), atol=0.05)
     # chi-squared with 3 degrees of freedom per frame: mean 3
     assert 0.8 < np.mean(chi2) < 8.0

@@ -48,12 +48,12 @@ from daemon.arm.motors import arm_motors, joint_heat_w
 from daemon.arm.thermal import ArmThermalDescription, ArmThermalModel, describe_arm
 from daemon.arm.types import FloatArray, JointSample, LinkThermalState
 from daemon.vision.multiview import CameraModel
+from daemon.vision.tool_pose import ToolMeasurement
 from drivers.base import Frame
 from drivers.sim.arm_markers import (
     CameraRig,
     MarkerRenderer,
     MarkerWindow,
-    ToolMeasurement,
     markers_world_mm,
     measure_tool,
 )
