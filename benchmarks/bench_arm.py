@@ -84,6 +84,9 @@ IR_REGIONS = (
     ("upper-arm-tip", "upper-arm", 0.8),
     ("forearm", "forearm", 0.5),
 )
+#: The controllers' models resolve the temperature across each link and bend it, as the truth
+#: (where each motor housing sits, ``plus_share``, is the arm's design: known to both).
+ACROSS_LINK = True
 #: The controllers' models advance on this grid with the mean motor heat over each step.
 CONTROL_STEP_S = 5.0
 #: The calibration cycle's heat record, for identification: mean heat over steps of this length
@@ -107,15 +110,17 @@ def commanded_q(arm: Arm, q: FloatArray, correction: Pose6) -> FloatArray:
 
 def region_nodes(
     model: ArmThermalModel, regions: Sequence[tuple[str, str, float]]
-) -> dict[str, int]:
-    """The controller's node nearest each IR region's point."""
-    nodes: dict[str, int] = {}
+) -> dict[str, tuple[int, ...]]:
+    """The controller's nodes nearest each IR region's point (both rows of a link modelled
+    across its section: the region sees their mean)."""
+    nodes: dict[str, tuple[int, ...]] = {}
     positions = model.network.positions_mm
     for name, link, fraction in regions:
         indices = np.asarray(model.link_node_indices(link), dtype=np.intp)
         along = positions[indices]
         point = along[0] + fraction * (along[-1] - along[0])
-        nodes[name] = int(indices[int(np.argmin(np.abs(along - point)))])
+        distance = np.abs(along - point)
+        nodes[name] = tuple(int(i) for i in indices[distance <= distance.min() + 1e-9])
     return nodes
 
 
@@ -134,21 +139,27 @@ class Controller:
         self.arm = arm
         self.scales = scales
         self.model = ArmThermalModel(
-            arm,
+            describe_arm(arm, plus_share=bench.config.plus_share),
             ambient_c=bench.ambient_c,  # a room thermometer reads the air the arm is in
             dt_s=CONTROL_STEP_S,
             convection_scale=1.0 if scales is None else scales.convection,
+            across_link=ACROSS_LINK,
         )
         self.heat = np.ones(arm.dof) if scales is None else scales.heat
         self.alpha = 1.0 if scales is None else scales.alpha
-        self.energy = MotorEnergy(motion, motion_power(arm), arm.dof, bench.config.motion_step_s)
+        self.energy = MotorEnergy(
+            motion,
+            motion_power(arm, bench.config.payload_kg),
+            arm.dof,
+            bench.config.motion_step_s,
+        )
         self.observer: IrObserver | None = None
         if observe:
             nodes = region_nodes(self.model, IR_REGIONS)
             names = self.model.node_names
             self.observer = IrObserver(
                 self.model.thermal_model,
-                {region: (names[node],) for region, node in nodes.items()},
+                {region: tuple(names[i] for i in group) for region, group in nodes.items()},
                 OBSERVER_IR_NOISE_C,
                 offsets_c=None if scales is None else scales.offsets_c,
                 offset_sigma_c=OBSERVER_OFFSET_SIGMA_C,
@@ -172,7 +183,7 @@ class Controller:
             dataclasses.replace(state, alpha_per_c=state.alpha_per_c * self.alpha)
             for state in self.model.link_states()
         ]
-        return kinematics.tool_error(self.arm, q, states)
+        return kinematics.tool_error(self.arm, q, states, bending=ACROSS_LINK)
 
 
 @dataclass
@@ -288,13 +299,14 @@ def calibration_cycle(
             values.append(reading[name])
     nodes = region_nodes(controller.model, IR_REGIONS)
     spec = ArmModelSpec(
-        description=describe_arm(bench.nominal_arm),
+        description=describe_arm(bench.nominal_arm, plus_share=config.plus_share),
         node_spacing_mm=controller.model.node_spacing_mm,
-        regions={name: (node,) for name, node in nodes.items()},
+        regions=nodes,
         sensitivities=[
-            marker_sensitivity(bench.nominal_arm, q, bench.markers_tool_mm)
+            marker_sensitivity(bench.nominal_arm, q, bench.markers_tool_mm, ACROSS_LINK)
             for q in bench.stations_q_rad
         ],
+        across_link=ACROSS_LINK,
     )
     run = ArmRunData(
         heat_step_s=IDENTIFY_STEP_S,
@@ -363,7 +375,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     duty = load_duty_cycle(DUTY)
     stations = tuple(tuple(pose.q_rad) for pose in duty.measured_poses())
     config = ArmBenchConfig(
-        seed=args.seed, stations_q_rad=stations, ir_regions=IR_REGIONS, arm=duty.arm
+        seed=args.seed,
+        stations_q_rad=stations,
+        ir_regions=IR_REGIONS,
+        arm=duty.arm,
+        payload_kg=duty.payload_kg,
     )
     calibration_config = dataclasses.replace(config, noise_seed=args.seed + 1000)
     run, spec = calibration_cycle(

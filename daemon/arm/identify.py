@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from daemon.arm import kinematics
+from daemon.arm.description import Arm
 from daemon.arm.thermal import ArmThermalDescription, build_arm_network
 from daemon.arm.types import FloatArray, LinkThermalState
 from daemon.model.identify import (
@@ -115,29 +116,46 @@ class ArmRunData:
 class ArmModelSpec:
     """The controller's arm model as identification sees it: its thermal description and node
     spacing, which node(s) each IR region covers, and for each measured pose the markers'
-    displacement (M*3, flattened x, y, z per marker) per unit strain of each link
-    (:func:`marker_sensitivity`)."""
+    displacement (M*3, flattened x, y, z per marker) per unit strain of each link, and with
+    ``across_link`` per unit ``alpha * gradient`` across it (:func:`marker_sensitivity`)."""
 
     description: ArmThermalDescription
     node_spacing_mm: float
     regions: Mapping[str, Sequence[int]]
     sensitivities: Sequence[FloatArray]
+    #: two rows of nodes per link and their bending (sensitivities then have 3 columns per
+    #: link: strain, then alpha times the gradient across it in y and z)
+    across_link: bool = False
 
 
-def marker_sensitivity(arm: Any, q_rad: FloatArray, markers_tool_mm: FloatArray) -> FloatArray:
-    """The markers' displacement (M*3) per unit strain of each link (columns, the arm's link
-    order) at ``q_rad``: ``kinematics.tool_error`` with one link strained by
-    SENSITIVITY_STRAIN, the markers moved by the error's translation and rotation."""
+def marker_sensitivity(
+    arm: Arm, q_rad: FloatArray, markers_tool_mm: FloatArray, bending: bool = False
+) -> FloatArray:
+    """The markers' displacement (M*3) per unit strain of each link (one column per link, the
+    arm's link order) at ``q_rad``; with ``bending`` three columns per link: strain, then
+    ``alpha * gradient`` across it in y and in z (per mm). ``kinematics.tool_error`` with one
+    link strained (or bent) by SENSITIVITY_STRAIN, the markers moved by the error's
+    translation and rotation: the error is linear in both at these sizes."""
     cold = np.asarray(kinematics.forward(arm, q_rad), dtype=np.float64)
     lever = markers_tool_mm @ cold[:3, :3].T  # each marker from the tool point, world axes
     names = arm.link_names
+    cases: list[tuple[str, float, tuple[float, float]]] = []
+    for name in names:
+        cases.append((name, 1.0, (0.0, 0.0)))
+        if bending:
+            cases += [(name, 0.0, (1.0, 0.0)), (name, 0.0, (0.0, 1.0))]
     columns = []
-    for strained in names:
+    for strained, rise, gradient in cases:
         states = [
-            LinkThermalState(name, 1.0 if name == strained else 0.0, SENSITIVITY_STRAIN)
+            LinkThermalState(
+                name,
+                rise if name == strained else 0.0,
+                SENSITIVITY_STRAIN,
+                gradient if name == strained else (0.0, 0.0),
+            )
             for name in names
         ]
-        error = kinematics.tool_error(arm, q_rad, states)
+        error = kinematics.tool_error(arm, q_rad, states, bending=bending)
         moved = error.translation_mm + np.cross(error.rotation_rad, lever)
         columns.append(moved.reshape(-1) / SENSITIVITY_STRAIN)
     return np.column_stack(columns)
@@ -156,6 +174,9 @@ class Responses:
     ambient: FloatArray  # K x N
     link_rows: FloatArray  # L x N
     reference_c: float
+    #: with ``across_link``: each link's gradient across it (°C/mm, y then z) as weights over
+    #: the nodes (2L x N, rows y1, z1, y2, z2, ...), as ArmThermalModel.link_states computes it
+    gradient_rows: FloatArray | None = None
 
 
 def responses(
@@ -163,6 +184,7 @@ def responses(
     node_spacing_mm: float,
     convection_scale: float,
     run: ArmRunData,
+    across_link: bool = False,
 ) -> Responses:
     """The network's response to each input, on the run's grid (module docstring)."""
     network, layout = build_arm_network(
@@ -170,6 +192,7 @@ def responses(
         node_spacing_mm,
         convection_scale=convection_scale,
         ambient_c=float(run.ambient_c[0]),
+        across_link=across_link,
     )
     modes = NetworkModes(network)
     dt = run.heat_step_s
@@ -200,11 +223,24 @@ def responses(
         zip(layout.link_nodes, layout.link_lengths, strict=True)
     ):
         rows[link, np.asarray(nodes, dtype=np.intp)] = lengths / lengths.sum()
+    gradient_rows = None
+    if across_link and layout.plus_rows:
+        gradient_rows = np.zeros((2 * len(layout.link_nodes), network.node_count))
+        for link, body in enumerate(description.links):
+            weights = layout.link_lengths[link][0::2]
+            difference = np.zeros(network.node_count)
+            difference[layout.plus_rows[link]] += weights / weights.sum()
+            difference[layout.minus_rows[link]] -= weights / weights.sum()
+            per_mm = difference / (body.thickness_mm / 2.0)
+            y, z = body.across_yz if body.across_yz is not None else body.across()[1:]
+            gradient_rows[2 * link] = per_mm * float(y)
+            gradient_rows[2 * link + 1] = per_mm * float(z)
     return Responses(
         per_joint=temperatures[:joints],
         ambient=temperatures[joints],
         link_rows=rows,
         reference_c=float(run.ambient_c[0]),
+        gradient_rows=gradient_rows,
     )
 
 
@@ -357,7 +393,11 @@ class _ArmProblem:
             if len(self._cache) > 64:
                 self._cache.clear()
             cached = responses(
-                self.model.description, self.model.node_spacing_mm, convection, self.run
+                self.model.description,
+                self.model.node_spacing_mm,
+                convection,
+                self.run,
+                self.model.across_link,
             )
             self._cache[key] = cached
         return cached
@@ -366,9 +406,16 @@ class _ArmProblem:
         scales = apply_values(self.specs, values, self.joints, self.region_names)
         response = self._responses(scales.convection)
         temperatures = response.ambient + np.einsum("j,jkn->kn", scales.heat, response.per_joint)
-        rises = (temperatures - response.reference_c) @ response.link_rows.T  # K x L
-        alphas = np.array([link.alpha_per_c for link in self.model.description.links])
-        strains = scales.alpha * rises * alphas
+        rise = temperatures - response.reference_c
+        alphas = scales.alpha * np.array(
+            [link.alpha_per_c for link in self.model.description.links]
+        )
+        strains = rise @ response.link_rows.T * alphas  # K x L
+        if response.gradient_rows is not None:  # strain, alpha g_y, alpha g_z per link
+            bends = (rise @ response.gradient_rows.T).reshape(rise.shape[0], -1, 2)
+            strains = np.concatenate(
+                [strains[:, :, None], bends * alphas[None, :, None]], axis=2
+            ).reshape(rise.shape[0], -1)
         markers = np.einsum("kml,kl->km", self.sensitivity, strains)
         regions = {
             name: temperatures[:, list(self.model.regions[name])].mean(axis=1)
