@@ -232,9 +232,9 @@ def responses(
             difference[layout.plus_rows[link]] += weights / weights.sum()
             difference[layout.minus_rows[link]] -= weights / weights.sum()
             per_mm = difference / (body.thickness_mm / 2.0)
-            y, z = body.across_yz if body.across_yz is not None else body.across()[1:]
-            gradient_rows[2 * link] = per_mm * float(y)
-            gradient_rows[2 * link + 1] = per_mm * float(z)
+            across = body.across_yz if body.across_yz is not None else body.across()[1:]
+            gradient_rows[2 * link] = per_mm * float(across[0])
+            gradient_rows[2 * link + 1] = per_mm * float(across[1])
     return Responses(
         per_joint=temperatures[:joints],
         ambient=temperatures[joints],
