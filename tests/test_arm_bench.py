@@ -324,3 +324,48 @@ def test_markers_rendered_and_triangulated_recover_the_true_tool_within_the_nois
         np.testing.assert_allclose(measured.points_mm, bench.markers_world_mm(STATION), atol=0.05)
     # chi-squared with 3 degrees of freedom per frame: mean 3
     assert 0.8 < np.mean(chi2) < 8.0
+
+
+def test_identifications_forward_model_is_the_arm_model() -> None:
+    """responses() (all inputs at once through the modes) against ArmThermalModel stepped
+    the ordinary way, across the links too: the same temperatures, link rises and gradients."""
+    from daemon.arm.description import load_arm
+    from daemon.arm.thermal import describe_arm
+
+    description = describe_arm(load_arm("crs-a465"), plus_share=0.75)
+    step, steps = 20.0, 120
+    rng = np.random.default_rng(0)
+    heat = rng.uniform(0.0, 10.0, (steps, 6))
+    ambient = 22.0 + 0.3 * np.sin(np.arange(steps) / 17.0)
+    times = np.array([0.0, 200.0, 1000.0, 2400.0])
+    run = ArmRunData(
+        step, heat, ambient, times, np.zeros(4, dtype=np.intp), np.zeros((4, 1, 3)), {}
+    )
+    scales = np.array([1.2, 0.8, 1.0, 1.1, 0.9, 1.0])
+    response = responses(description, 50.0, 0.7, run, across_link=True)
+    assert response.gradient_rows is not None
+    model = ArmThermalModel(
+        description,
+        node_spacing_mm=50.0,
+        ambient_c=lambda t: float(ambient[min(int(t // step), steps - 1)]),
+        dt_s=step,
+        convection_scale=0.7,
+        across_link=True,
+    )
+    for k, t in enumerate(times):
+        while model.time_s < t - 1e-9:
+            index = round(model.time_s / step)
+            model.advance_to(model.time_s + step, heat[index] * scales)
+        predicted = response.ambient[k] + scales @ response.per_joint[:, k]
+        np.testing.assert_allclose(predicted, model.temperatures_c, atol=1e-8)
+        states = model.link_states()
+        rise = predicted - response.reference_c
+        np.testing.assert_allclose(
+            response.link_rows @ rise, [s.mean_rise_c for s in states], atol=1e-9
+        )
+        np.testing.assert_allclose(
+            (response.gradient_rows @ rise).reshape(-1, 2),
+            [s.gradient_c_per_mm for s in states],
+            atol=1e-9,
+        )
+    assert max(abs(g) for s in model.link_states() for g in s.gradient_c_per_mm) > 1e-4
