@@ -72,7 +72,7 @@ from daemon.arm.thermal import ArmThermalModel, describe_arm
 from daemon.arm.types import FloatArray, Pose6
 from daemon.model.observer import IrObserver
 from daemon.vision.multiview import pose_difference, rigid_pose_from_markers
-from drivers.sim.arm_bench import ArmBench, ArmBenchConfig, motion_power
+from drivers.sim.arm_bench import ArmBench, ArmBenchConfig, motion_power, motion_power_batch
 from drivers.sim.arm_motion import DutyCycleMotion, MotorEnergy
 
 DUTY = "a465-pick-and-place"
@@ -152,6 +152,7 @@ class Controller:
             motion_power(arm, bench.config.payload_kg),
             arm.dof,
             bench.config.motion_step_s,
+            motion_power_batch(arm, bench.config.payload_kg),
         )
         self.observer: IrObserver | None = None
         if observe:

@@ -369,3 +369,25 @@ def test_identifications_forward_model_is_the_arm_model() -> None:
             atol=1e-9,
         )
     assert max(abs(g) for s in model.link_states() for g in s.gradient_c_per_mm) > 1e-4
+
+
+def test_an_emulator_like_source_heats_the_truth_as_the_duty_cycle_does() -> None:
+    """A source that only answers joint_sample(t) (the C500C emulator in joint space) is
+    integrated forward on its own grid: the same heat as the periodic duty cycle, within what
+    10 ms trapezoids of a power with steps in it (the trapezoids' accelerations) can tell."""
+    periodic = DutyCycleMotion(SWING)
+
+    class Emulator:
+        def joint_sample(self, t_s: float) -> JointSample:
+            return periodic.joint_sample(t_s)
+
+    duration = 5 * SWING.period_s
+    reference = ArmBench(bench_config(), periodic)
+    reference.advance_to(duration)
+    driven = ArmBench(bench_config(), Emulator())
+    for t in np.linspace(0.0, duration, 7)[1:]:
+        driven.advance_to(float(t))
+    np.testing.assert_allclose(driven.heat_delivered_j, reference.heat_delivered_j, rtol=3e-3)
+    rise = reference.thermal.temperatures_c - 22.0
+    assert float(np.max(rise)) > 1e-3
+    np.testing.assert_allclose(driven.thermal.temperatures_c - 22.0, rise, rtol=3e-3, atol=1e-9)

@@ -46,7 +46,7 @@ import numpy as np
 
 from daemon.arm import kinematics
 from daemon.arm.description import Arm, load_arm
-from daemon.arm.motors import arm_motors, joint_heat_w
+from daemon.arm.motors import arm_motors, joint_heat_batch_w, joint_heat_w
 from daemon.arm.thermal import ArmThermalDescription, ArmThermalModel, describe_arm
 from daemon.arm.types import FloatArray, JointSample, LinkThermalState
 from daemon.vision.multiview import CameraModel
@@ -59,7 +59,13 @@ from drivers.sim.arm_markers import (
     markers_world_mm,
     measure_tool,
 )
-from drivers.sim.arm_motion import JointMotionSource, MotorEnergy, PowerFunction, StillMotion
+from drivers.sim.arm_motion import (
+    BatchPowerFunction,
+    JointMotionSource,
+    MotorEnergy,
+    PowerFunction,
+    StillMotion,
+)
 
 #: Default markers on the tool (tool frame, mm): four LEDs on a 120 mm cross plate, two raised,
 #: so that no three are on a line and the rotation is seen about every axis.
@@ -193,6 +199,20 @@ def motion_power(arm: Arm, payload_kg: float = 0.0) -> PowerFunction:
     return power
 
 
+def motion_power_batch(arm: Arm, payload_kg: float = 0.0) -> BatchPowerFunction:
+    """:func:`motion_power` for many samples at once (``joint_heat_batch_w``)."""
+    motors = arm_motors(arm)
+
+    def power(q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        heat: FloatArray = np.asarray(
+            joint_heat_batch_w(arm, q, qd, qdd, motors=motors, payload_kg=payload_kg),
+            dtype=np.float64,
+        )
+        return heat
+
+    return power
+
+
 class ArmBench:
     """The arm bench's truth, advanced on demand on its own time (s from a cold start)."""
 
@@ -268,7 +288,13 @@ class ArmBench:
         self.motion: JointMotionSource = motion or StillMotion(
             self.stations_q_rad[0], holding=False
         )
-        self.energy = MotorEnergy(self.motion, self.power, joints, config.motion_step_s)
+        self.energy = MotorEnergy(
+            self.motion,
+            self.power,
+            joints,
+            config.motion_step_s,
+            motion_power_batch(self.true_arm, config.payload_kg),
+        )
         self.heat_delivered_j = np.zeros(joints)
 
     def station_camera_indices(self, station: int) -> range:
@@ -406,6 +432,7 @@ __all__ = [
     "ArmBench",
     "ArmBenchConfig",
     "motion_power",
+    "motion_power_batch",
     "true_arm",
     "true_description",
 ]
