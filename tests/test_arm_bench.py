@@ -391,3 +391,30 @@ def test_an_emulator_like_source_heats_the_truth_as_the_duty_cycle_does() -> Non
     rise = reference.thermal.temperatures_c - 22.0
     assert float(np.max(rise)) > 1e-3
     np.testing.assert_allclose(driven.thermal.temperatures_c - 22.0, rise, rtol=3e-3, atol=1e-9)
+
+
+def test_a_whole_frame_has_every_marker_where_the_camera_sees_it() -> None:
+    from daemon.vision.centroid import measure_centroid
+    from daemon.vision.multiview import project
+
+    rig = CameraRig(count=2, width_px=800, height_px=600, focal_px=1500.0)
+    bench = ArmBench(bench_config(rig=rig, jitter_px=0.0))
+    frame = bench.render(1, STATION)
+    assert frame.image.shape == (600, 800) and frame.bit_depth == rig.bit_depth
+    assert (frame.sequence, bench.render(1, STATION).sequence) == (0, 1)
+    pixels = project(bench.cameras[1], bench.markers_world_mm(STATION))
+    for x, y in pixels:
+        c0, r0 = round(x) - 10, round(y) - 10
+        spot = measure_centroid(frame.image[r0 : r0 + 21, c0 : c0 + 21], bit_depth=rig.bit_depth)
+        assert abs(spot.x_px + c0 - x) < 0.05 and abs(spot.y_px + r0 - y) < 0.05
+
+
+def test_ambient_drift_warms_and_cools_a_still_arm() -> None:
+    period = 4 * 3600.0
+    bench = ArmBench(bench_config(ambient_drift_c=2.0, ambient_period_s=period))
+    bench.advance_to(period / 4)  # the air at its warmest
+    assert bench.ambient_c(period / 4) == pytest.approx(24.0)
+    warm = bench.thermal.temperatures_c.copy()
+    assert 22.2 < float(np.mean(warm)) < 24.0  # following, with its lag
+    bench.advance_to(3 * period / 4)  # the air at its coldest
+    assert float(np.mean(bench.thermal.temperatures_c)) < 22.0 < float(np.mean(warm))
