@@ -231,10 +231,9 @@ class ArmBench:
         truth_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(1)[0])
         noise_seed = config.seed if config.noise_seed is None else config.noise_seed
         streams = np.random.SeedSequence([noise_seed, 1]).spawn(
-            2 + config.rig.count * len(stations)
+            1 + config.rig.count * len(stations)
         )
         self.ir_rng = np.random.default_rng(streams[0])
-        self.robot_rng = np.random.default_rng(streams[1])
         if config.heat_scales is not None:
             if len(config.heat_scales) != joints:
                 raise ValueError(f"heat_scales: {joints} joints, {len(config.heat_scales)} given")
@@ -280,7 +279,7 @@ class ArmBench:
         )
         self._renderers = [
             MarkerRenderer(camera, config.rig, np.random.default_rng(stream))
-            for camera, stream in zip(self.cameras, streams[2:], strict=True)
+            for camera, stream in zip(self.cameras, streams[1:], strict=True)
         ]
         self._sequences = [0] * len(self.cameras)
         self.time_s = 0.0
