@@ -219,7 +219,7 @@ class SimIrReader:
     def default_regions(self, settings: Settings) -> tuple[IrRegion, ...]:
         """Without configured regions: one per heater and reference node of the controller's
         network, named ``node-<name>`` and tied to it."""
-        network = load_network(settings.model.network)
+        network = load_network(settings.model.network, settings.storage.data_dir)
         names = dict.fromkeys((*network.heater_nodes, *network.reference_nodes))
         half = DEFAULT_REGION_WIDTH_PX // 2
         regions = []
