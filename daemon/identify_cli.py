@@ -66,11 +66,19 @@ class LoadedRun:
     settings: Settings  # the run's own (recorded) settings, else --config's
     network: str | None = None  # the network the run's controller used, if recorded
 
-    def data(self, network: ThermalNetwork) -> RunData:
+    @property
+    def data(self) -> RunData:
+        """The run as identification sees it, for a run that recorded its heat (from the
+        database); else see :meth:`data_for`."""
+        return self.data_for(None)
+
+    def data_for(self, network: ThermalNetwork | None) -> RunData:
         """The run as identification sees it, against ``network``: a run that recorded no
         heat (an exported CSV) gets the heat a run on ``network`` would (resolve_heat)."""
         heat = self.heat_w
         if heat is None:
+            if network is None:
+                raise RunInputError(f"{self.name} recorded no heat input: give its network")
             try:
                 heat, _ = resolve_heat(self.settings, None, network)
             except RunParameterError as err:
@@ -256,11 +264,11 @@ def run_identify(args: argparse.Namespace) -> int:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_USAGE
     try:
-        result = identify(run.data(network), network, run.regions, args.params)
+        result = identify(run.data_for(network), network, run.regions, args.params)
         validation_runs: list[str] = []
         if args.validate:
             other = load_run(args.validate, settings, args.heater_off)
-            result = validate(result, other.data(network), network, other.regions)
+            result = validate(result, other.data_for(network), network, other.regions)
             validation_runs.append(other.name)
         calibration = calibration_of(
             result,
