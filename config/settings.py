@@ -506,7 +506,9 @@ class ModelSettings(_Section):
     """The controller's thermal model (thesis 5.4)."""
 
     network: str = Field(
-        "thesis-two-link", description="Preset name in config/networks or a TOML file path."
+        "thesis-two-link",
+        description="Preset name in config/networks, an identified network saved in "
+        "storage.data_dir/networks (identify --save NAME), or a TOML file path.",
     )
     stepper: Literal["exact", "explicit", "implicit"] = Field(
         "exact", description="exact: zero-order hold (any dt); explicit: Eq. 5.1; implicit: sparse."

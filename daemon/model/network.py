@@ -202,11 +202,14 @@ class ThermalNetwork:
         )
 
     def listed_node_names(self) -> str:
-        """The node names, comma-separated; at most LISTED_NODES of them and the count."""
+        """The node names, comma-separated; of a long network the first few, the last, the
+        count and the nodes named other than by number (holes: shaft, diode)."""
         names = self.node_names
         if len(names) <= LISTED_NODES:
             return ", ".join(names)
-        return ", ".join(names[:LISTED_NODES]) + f", ... ({len(names)} nodes)"
+        named = [name for name in names if not name.isdigit()][:LISTED_NODES]
+        listed = f"{', '.join(names[:4])}, ..., {names[-1]} ({len(names)} nodes"
+        return listed + (f"; named: {', '.join(named)})" if named else ")")
 
     def heat_by_name(self, heat_w: Mapping[str, float]) -> FloatArray:
         """The heat vector (W per node) of inputs keyed by node name (see :meth:`node_named`)."""
