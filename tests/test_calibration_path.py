@@ -301,3 +301,35 @@ def test_the_saved_file_is_plain_toml_with_its_identification_table(data_dir: Pa
     assert all(isinstance(p["identifiable"], bool) for p in table["parameters"])
     heated = {n["name"]: n["heat_w"] for n in document["nodes"] if "heat_w" in n}
     assert set(heated) == {"2", "9"}
+
+
+def test_calibrate_model_chains_the_three_steps(tmp_path: Path) -> None:
+    """`thermocomp calibrate model`: uncompensated run -> identify --save -> validation run
+    with the saved network, its reduction measured against the calibration run's drift."""
+    data = tmp_path / "data"
+    config = tmp_path / "bench.toml"
+    config.write_text("[bench]\ntruth_heat_scale = 1.3\ntruth_convection_scale = 0.7\n")
+    options = ["--config", str(config), "--data-dir", str(data), "--duration", "900"]
+    refused = run_cli(["calibrate", "model", *options, "--save", "thesis-two-link"])
+    assert refused.returncode == 2 and "a preset has that name" in refused.stderr
+    assert not data.exists()  # nothing ran
+    result = run_cli(
+        ["calibrate", "model", *options, "--step", "10", "--save", "chained", "--json"]
+    )
+    assert result.returncode == 0, result.stderr
+    outcome = json.loads(result.stdout)
+    assert outcome["calibration_run"]["id"] == 1
+    assert outcome["calibration_run"]["reduction_basis"] == "drift"
+    validation = outcome["validation_run"]
+    assert validation["id"] == 2 and validation["state"] == "finished"
+    assert validation["reduction_basis"] == "reference" and validation["reference_run"] == 1
+    assert validation["reduction_percent"] > 95.0
+    fitted = {p["name"]: p["value"] for p in outcome["identified"]["parameters"]}
+    assert fitted["heat:2"] > 1.1  # the truth's x1.3 seen (effective value, 17 vs 2 mm nodes)
+    network = load_network("chained", data)
+    assert network.calibration is not None and network.calibration.source_runs == ("run 1",)
+    with Recorder(data) as recorder:
+        row = recorder.run(2)
+        assert row is not None
+        assert row.parameters["network"] == "chained"
+        assert row.parameters["heat_w"] == pytest.approx(network.own_heat_w())
