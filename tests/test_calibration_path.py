@@ -235,7 +235,7 @@ def test_from_a_recorded_run_to_a_run_with_its_network(tmp_path: Path) -> None:
 async def test_saved_networks_are_listed_and_started_by_name_over_the_api(
     data_dir: Path,
 ) -> None:
-    app = create_app(bench_settings(data_dir), service_factory=Daemon)
+    app = create_app(bench_settings(data_dir, clock="virtual"), service_factory=Daemon)
     async with (
         serve(app) as address,
         httpx.AsyncClient(base_url=f"http://{address}", timeout=30) as client,
@@ -281,7 +281,7 @@ async def test_saved_networks_are_listed_and_started_by_name_over_the_api(
 
         started = await client.post(
             "/api/v1/runs",
-            json={"network": SAVED, "duration_s": 5, "compensation": "off"},
+            json={"network": SAVED, "duration_s": 20, "compensation": "off"},
             headers=CONTROL_HEADERS,
         )
         assert started.status_code == 201, started.text
@@ -291,6 +291,19 @@ async def test_saved_networks_are_listed_and_started_by_name_over_the_api(
         await wait_state(client, "idle", timeout_s=60)
         done = (await client.get(f"/api/v1/runs/{run['id']}")).json()
         assert done["state"] == "finished"
+        steps = (await client.get(f"/api/v1/runs/{run['id']}/steps")).json()["steps"]
+        assert len(steps) >= 2 and steps[-1]["predicted_x_um"] > 0.01  # the network's heat
+        # an explicit empty heat_w heats nothing, though the network carries heat of its own
+        cold = await client.post(
+            "/api/v1/runs",
+            json={"network": SAVED, "duration_s": 20, "compensation": "off", "heat_w": {}},
+            headers=CONTROL_HEADERS,
+        )
+        assert cold.status_code == 201, cold.text
+        assert cold.json()["parameters"]["heat_w"] == {}
+        await wait_state(client, "idle", timeout_s=60)
+        steps = (await client.get(f"/api/v1/runs/{cold.json()['id']}/steps")).json()["steps"]
+        assert steps and all(abs(s["predicted_x_um"]) < 1e-9 for s in steps), steps[-1]
 
 
 def test_the_saved_file_is_plain_toml_with_its_identification_table(data_dir: Path) -> None:
