@@ -275,7 +275,8 @@ def _parameter(
         nodes = (argument,) if argument else network.heater_nodes
         if not nodes:
             raise IdentificationError(f"parameter {spec!r}: the network names no heater node")
-        return Parameter(spec, kind, tuple(nodes), tuple(network.node_index(n) for n in nodes))
+        indices = tuple(network.node_named(n, "heat node") for n in nodes)  # by name (issue 19)
+        return Parameter(spec, kind, tuple(nodes), indices)
     if not argument:
         raise IdentificationError(f"parameter {spec!r}: write contact:NODE (a shaft's node)")
     index = network.node_index(argument)
