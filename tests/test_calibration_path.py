@@ -260,8 +260,11 @@ async def test_saved_networks_are_listed_and_started_by_name_over_the_api(
         # a network saved later is listed on the next request (no stale cache)
         copy = saved_networks_dir(data_dir) / "second.toml"
         copy.write_text((saved_networks_dir(data_dir) / f"{SAVED}.toml").read_text())
+        (saved_networks_dir(data_dir) / "broken.toml").write_text("[[nodes]]\nname = 1\n")
         again = (await client.get("/api/v1/networks", headers=CONTROL_HEADERS)).json()
         assert "second" in {n["name"] for n in again["networks"]}
+        unreadable = {p["name"]: p["error"] for p in again["unreadable"]}
+        assert set(unreadable) == {"broken"} and "broken.toml" in unreadable["broken"]
 
         for body, status, message in (
             ({"network": "../../etc/passwd"}, 422, "String should match pattern"),
@@ -277,7 +280,9 @@ async def test_saved_networks_are_listed_and_started_by_name_over_the_api(
             "/api/v1/runs", json={"network": "nonesuch"}, headers=CONTROL_HEADERS
         )
         assert "presets: thesis-single-link" in unknown.json()["message"]
-        assert f"saved in {saved_networks_dir(data_dir)}: {SAVED}" in unknown.json()["message"]
+        assert (
+            f"saved in {saved_networks_dir(data_dir)}: broken, {SAVED}" in unknown.json()["message"]
+        )
 
         started = await client.post(
             "/api/v1/runs",
