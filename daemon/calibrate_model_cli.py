@@ -102,11 +102,11 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 
 def run_calibrate_model(args: argparse.Namespace) -> int:
-    from daemon.identify_cli import _saved_path
+    from daemon.identify_cli import saved_network_path
 
     settings = _settings(args)
     try:
-        saved = _saved_path(args.save, settings.storage.data_dir)
+        saved = saved_network_path(args.save, settings.storage.data_dir)
     except ValueError as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return EXIT_USAGE

@@ -252,7 +252,7 @@ def run_identify(args: argparse.Namespace) -> int:
     saved = None
     try:
         if args.save is not None:
-            saved = _saved_path(args.save, settings.storage.data_dir)
+            saved = saved_network_path(args.save, settings.storage.data_dir)
         run = load_run(args.target, settings, args.heater_off)
     except (RunInputError, OSError, ValueError) as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
@@ -305,7 +305,7 @@ def run_identify(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _saved_path(name: str, data_dir: Path) -> Path:
+def saved_network_path(name: str, data_dir: Path) -> Path:
     """Where ``--save NAME`` writes: a valid name, no preset's, not yet taken (ValueError)."""
     check_network_name(name)
     if name in available_presets():
