@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import ValidationError
 
 from config import Settings
 from config.settings import IrRegion
@@ -67,8 +68,11 @@ def build_model(settings: Settings, parameters: RunParameters) -> BuiltModel:
     step in model time, and the run's parameters with its heat resolved (:func:`resolve_heat`)."""
     network = run_network(settings, parameters.network)
     heat, source = resolve_heat(settings, parameters.heat_w, network)
-    if heat != parameters.heat_w:
-        parameters = parameters.model_copy(update={"heat_w": heat})
+    if heat != parameters.heat_w:  # validated as a request's would be (0 to 1000 W a node)
+        try:
+            parameters = RunParameters.model_validate({**dict(parameters), "heat_w": heat})
+        except ValidationError as err:
+            raise RunParameterError(f"heat_w ({source}): {err.errors()[0]['msg']}") from err
     model_settings = settings.model
     try:
         model = ThermalModel(
