@@ -39,6 +39,7 @@ from config.settings import BenchSettings, Settings
 from daemon.model import ThermalModel, ThermalNetwork, load_network
 from daemon.model.identify import RunData, heat_schedule, identify
 from daemon.model.observer import PROCESS_NOISE_C2_PER_S, IrObserver
+from daemon.run_setup import resolve_heat
 from drivers.clock import VirtualClock
 from drivers.ir import region_temperatures
 from drivers.sim.bench import Bench
@@ -135,7 +136,7 @@ def main() -> None:
     }
     robot_noise_um = base.bench.robot_noise_um
     preset = load_network(base.model.network)
-    heat_w = dict(base.model.heat_w)
+    heat_w, _ = resolve_heat(base, None, preset)  # what a run on the preset commands
 
     started = time.perf_counter()
     calibration_settings = Settings(bench=BenchSettings(**bench_settings, seed=11))

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import math
 import sys
 import tempfile
@@ -35,7 +36,7 @@ from benchmarks.common import print_table, write_results
 from config import Settings
 from daemon.identify_cli import load_run
 from daemon.model import load_network
-from daemon.model.identify import identify, network_toml
+from daemon.model.identify import calibration_of, identify, network_toml
 from daemon.runs import RunParameters
 from daemon.service import Daemon
 
@@ -86,9 +87,13 @@ async def compare(data_dir: Path, duration_s: float, step_s: float) -> dict[str,
     )
     calibration = load_run(str(calibration_id), settings, None)
     result = identify(calibration.data, load_network(PRESET), calibration.regions, None)
+    # the path of `identify --save`: the file carries the identified heat and IR offsets, so
+    # the runs below give no heat of their own (issue 19)
+    provenance = calibration_of(result, PRESET, [calibration.data.name], "bench_identify_runs")
+    network = dataclasses.replace(result.network, calibration=provenance)
     network_file = data_dir / "identified.toml"
-    network_file.write_text(network_toml(result.network, header="bench_identify_runs"))
-    identified = {"network": str(network_file), "heat_w": dict(result.heat_w)}
+    network_file.write_text(network_toml(network, header="bench_identify_runs"))
+    identified = {"network": str(network_file)}
     ways = {
         "(a) preset, open loop": {"network": PRESET, "prediction": "model"},
         "(b) preset + IR observer": {"network": PRESET, "prediction": "model+ir"},

@@ -82,10 +82,49 @@ class BenchSettings(_Section):
         1, description="Seed of every random part of the bench."
     )
     heater_power_w: Annotated[float, Field(ge=0, le=MAX_HEAT_W)] = Field(
-        0.5, description="Power of each heater pad on the bench (W)."
+        0.5,
+        description="Truth: power of each heater pad on the bench (W); the controller "
+        "believes model.heater_power_w (or the network's heat).",
     )
     heater_off_s: NonNegativeFloat | None = Field(
-        None, description="Bench time at which the heaters switch off (s); none: stay on."
+        None,
+        description="Run time at which the procedure switches the heaters off (s), the "
+        "default of a run's heater_off_s; none: stay on.",
+    )
+    heater_on_delay_s: Annotated[float, Field(ge=0, le=MAX_DURATION_S)] = Field(
+        0.0,
+        description="Truth: the pads really heat this long after the run starts (s); the "
+        "controller believes they start with the run. 0: they do.",
+    )
+    heater_off_delay_s: Annotated[float, Field(ge=-MAX_DURATION_S, le=MAX_DURATION_S)] = Field(
+        0.0,
+        description="Truth: the pads really stop this long after the run's heater_off_s "
+        "(s; negative: before it). 0: when the controller believes.",
+    )
+    ambient_c: Annotated[float, Field(ge=-60, le=150)] | None = Field(
+        None,
+        description="Truth: the room's temperature at bench time 0 (degC); none: "
+        "model.ambient_c (the controller's belief is then right at the start).",
+    )
+    ambient_drift_c_per_h: Annotated[float, Field(ge=-20, le=20)] = Field(
+        0.0, description="Truth: linear drift of the room's temperature (degC per hour); 0: none."
+    )
+    ambient_swing_c: Annotated[float, Field(ge=0, le=20)] = Field(
+        0.0,
+        description="Truth: amplitude of a sinusoidal swing of the room's temperature (degC), "
+        "zero at bench time 0; 0: none.",
+    )
+    ambient_swing_period_h: Annotated[float, Field(gt=0, le=1000)] = Field(
+        24.0, description="Truth: period of the room's temperature swing (hours)."
+    )
+    ir_noise_c: NonNegativeFloat | None = Field(
+        None,
+        description="Truth: 1-sigma pixel noise of the sim IR camera (degC); none: ir.noise_c "
+        "(the controller's belief is then right).",
+    )
+    direction: tuple[float, float, float] | None = Field(
+        None,
+        description="Truth: the link's axis in world coordinates; none: model.direction.",
     )
     truth_network: str = Field(
         "thesis-two-link-geometry",
@@ -100,10 +139,20 @@ class BenchSettings(_Section):
         1.0, description="Truth convection / model convection (1 = model is right)."
     )
     stand_drift_um: Annotated[float, Field(ge=-1000, le=1000)] = Field(
-        2.0, description="Camera-stand warm-up drift amplitude (um), thesis 4.8; 0 = off."
+        2.0,
+        description="Camera-stand warm-up drift amplitude (um), thesis 4.8 (1.90-2.05 um); "
+        "the centre of the seed's draw (stand_drift_spread); 0 = off.",
     )
     stand_drift_tau_s: PositiveFloat = Field(
-        600.0, description="Time constant of the camera-stand drift (s), thesis 4.8."
+        600.0,
+        description="Time constant of the camera-stand drift (s): settled within ~30 min "
+        "(3 tau), thesis 4.8; the centre of the seed's draw.",
+    )
+    stand_drift_spread: Annotated[float, Field(ge=0, le=0.9)] = Field(
+        0.25,
+        description="The stand drift's amplitude and time constant are drawn from bench.seed "
+        "uniformly within +-this fraction of stand_drift_um / stand_drift_tau_s, so that runs "
+        "of different seeds do not repeat one drift; 0: exactly those (seed 1: 1.61 um, 706 s).",
     )
     robot_noise_um: NonNegativeFloat = Field(
         0.9,
@@ -349,9 +398,15 @@ class IrSettings(_Section):
         description="Linear calibration (scale, offset): T = scale * counts + offset; the "
         "default reads centi-kelvin counts (FLIR Lepton radiometric Y16).",
     )
-    noise_c: NonNegativeFloat = Field(0.08, description="Sim: 1-sigma noise (degC).")
+    noise_c: NonNegativeFloat = Field(
+        0.08,
+        description="1-sigma pixel noise (degC) as the controller believes it (the observer's "
+        "R); the sim's truth uses bench.ir_noise_c (none: this).",
+    )
     offset_c: Annotated[float, Field(ge=-50, le=50)] = Field(
-        0.5, description="Sim: fixed offset within the +-2 degC accuracy."
+        0.5,
+        description="Sim truth: the IR camera's fixed offset within its +-2 degC accuracy "
+        "(the controller learns it: observer, identification).",
     )
     regions: tuple[IrRegion, ...] = Field(
         (),
@@ -451,24 +506,36 @@ class ModelSettings(_Section):
     """The controller's thermal model (thesis 5.4)."""
 
     network: str = Field(
-        "thesis-two-link", description="Preset name in config/networks or a TOML file path."
+        "thesis-two-link",
+        description="Preset name in config/networks, an identified network saved in "
+        "storage.data_dir/networks (identify --save NAME), or a TOML file path.",
     )
     stepper: Literal["exact", "explicit", "implicit"] = Field(
         "exact", description="exact: zero-order hold (any dt); explicit: Eq. 5.1; implicit: sparse."
     )
     ambient_c: Annotated[float, Field(ge=-60, le=150)] = Field(
-        22.0, description="Ambient temperature (degC)."
+        22.0,
+        description="Ambient temperature the controller's model assumes (degC); the sim "
+        "bench's real room is bench.ambient_c (none: this).",
     )
     heat_w: dict[str, Annotated[float, Field(ge=0, le=MAX_HEAT_W)]] = Field(
-        default_factory=lambda: {"2": 0.5, "9": 0.5},
-        description="Heat input per node (1-based thesis number or name) in W; a key naming "
-        "no node of the run's network refuses the run at its start.",
+        default_factory=dict,
+        description="Heat input per node NAME (W) for a network that carries no heat of its "
+        "own; a key naming no node of the run's network refuses the run. Precedence: the "
+        "run's heat_w (--heat) > the network file's heat > this > heater_power_w.",
+    )
+    heater_power_w: Annotated[float, Field(ge=0, le=MAX_HEAT_W)] = Field(
+        0.5,
+        description="The controller's belief of each heater pad's power (W): the heat of "
+        "every heater node of a network with no heat of its own when heat_w is empty.",
     )
     reference_nodes: tuple[str, str] | None = Field(
         None, description="Deformation between these nodes; none: the network's default."
     )
     direction: tuple[float, float, float] = Field(
-        (1.0, 0.0, 0.0), description="Unit vector of the link's axis in world coordinates."
+        (1.0, 0.0, 0.0),
+        description="Unit vector of the link's axis in world coordinates, as the controller "
+        "believes it (the sim truth's: bench.direction).",
     )
     prediction: Literal["model", "model+ir"] = Field(
         "model",

@@ -55,13 +55,16 @@ class SpotLostError(Exception):
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "calibrate",
-        help="calibrate a device with the robot (camera: um per pixel and rotation)",
+        help="calibrate with the robot: the camera (um per pixel, rotation), several cameras in 3-D, or the model",
         description="Calibrate with the robot itself. `calibrate camera`: with the robot at "
         "the goal (spot near the chip's centre), move it through a square grid of known "
         "offsets in the camera plane, measure the spot at each, and fit the micrometres per "
         "pixel in x and y and the camera's rotation from the robot's axes, with standard "
         "errors. The robot returns to the goal at the end. `calibrate cameras`: each camera's "
-        "pose in the world (camera file) from marker positions the robot visited.",
+        "pose in the world (camera file) from marker positions the robot visited. "
+        "`calibrate model`: an "
+        "uncompensated run, identification of the network from it (saved by name), and a "
+        "compensated validation run with it.",
     )
     kinds = parser.add_subparsers(dest="device", metavar="DEVICE", required=True)
     camera = kinds.add_parser(
@@ -93,6 +96,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     camera.add_argument("--json", action="store_true", help="print the result as JSON")
     camera.set_defaults(handler=run_calibrate_camera)
     calibrate_cameras_cli.register(kinds)  # `calibrate cameras`: 3-D camera poses (issue 20)
+    from daemon import calibrate_model_cli  # light: its heavy imports are where it runs
+
+    calibrate_model_cli.add_parser(kinds)
 
 
 def split_move(start: Vector3, end: Vector3, max_step_mm: float) -> list[Vector3]:

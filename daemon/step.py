@@ -89,7 +89,9 @@ class RunWork:
     last_target_mm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     reference_um: dict[int, tuple[float, float]] = field(default_factory=dict)
     reference_source: str = "first step"  # where the drift's zero was measured
-    model_heat: dict[str, float] = field(default_factory=dict)
+    # None until the first step sets the procedure's heat (even an empty one: a run told to
+    # heat nothing must not keep its network's own heat)
+    model_heat: dict[str, float] | None = None
 
 
 class StepPipeline:

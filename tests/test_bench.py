@@ -75,9 +75,15 @@ async def test_sim_drivers_need_the_bench() -> None:
 
 async def test_spot_goes_where_physics_puts_it() -> None:
     """Deformation x scale + robot offset + stand drift, through the 8.6 x 8.3 um pitch,
-    measured back with the centroid of the vision work."""
+    measured back with the centroid of the vision work. (Spread 0: the stand drift is exactly
+    the configured first-order lag; the seed's draw is tested in test_bench_truth.py.)"""
     config = settings(
-        bench={"robot_noise_um": 0.0, "stand_drift_um": 2.0, "stand_drift_tau_s": 600.0},
+        bench={
+            "robot_noise_um": 0.0,
+            "stand_drift_um": 2.0,
+            "stand_drift_tau_s": 600.0,
+            "stand_drift_spread": 0.0,
+        },
         compensation={"deformation_scale": 5.0},
     )
     clock = VirtualClock()

@@ -233,7 +233,7 @@ def test_measured_deformation_removes_the_compensation_and_the_scale() -> None:
     ("spec", "message"),
     [
         ("viscosity", "unknown parameter"),
-        ("heat:99", "unknown node"),
+        ("heat:99", "heat node .99. names no node"),
         ("offset:nowhere", "unknown region"),
         ("convection:2", "convection:A..B"),
         ("contact", "contact:NODE"),

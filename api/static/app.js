@@ -848,8 +848,14 @@
       for (const network of list.networks) {
         const option = document.createElement("option");
         option.value = network.name;
-        option.textContent = network.name;
-        option.title = network.description;
+        const found = network.identification;
+        // an identified network says where it came from (issue 19): its source runs and date
+        option.textContent = found
+          ? `${network.name} (identified from ${found.source_runs.join(", ")})`
+          : network.name;
+        option.title = found
+          ? `${network.description}\nidentified ${found.identified_at} from ${found.base_network}`
+          : network.description;
         select.append(option);
       }
     } catch { /* the list is a convenience; the config's network is the default */ }

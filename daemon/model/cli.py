@@ -14,6 +14,7 @@ import json
 import math
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from config.cli import EXIT_OK, EXIT_USAGE, finite_float, non_negative_float, positive_float
@@ -56,7 +57,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     simulate.add_argument(
         "--network",
         default="thesis-two-link",
-        help="preset name or TOML file (default %(default)s)",
+        help="preset name, identified network saved in --data-dir, or TOML file "
+        "(default %(default)s)",
+    )
+    simulate.add_argument(
+        "--data-dir", type=Path, help="data directory whose saved networks NAME may be"
     )
     simulate.add_argument(
         "--duration", type=non_negative_float, required=True, help="simulated time (s)"
@@ -83,7 +88,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         action="extend",
         default=[],
         metavar="NODE=WATTS",
-        help="heat inputs; NODE is the node's name or 1-based number (several after one "
+        help="heat inputs; NODE is the node's name (several after one "
         "--heat, or --heat repeated; default: the network's own heat inputs; the presets have "
         "none, and a simulation without any heat input is refused)",
     )
@@ -106,7 +111,14 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "stability limit, the slowest and fastest time constants, and the steady deformation "
         "per watt of each heat input (the network's heaters, or every node if it names none).",
     )
-    info.add_argument("network", metavar="NAME|PATH", help="preset name or TOML file")
+    info.add_argument(
+        "network",
+        metavar="NAME|PATH",
+        help="preset name, identified network saved in --data-dir, or TOML file",
+    )
+    info.add_argument(
+        "--data-dir", type=Path, help="data directory whose saved networks NAME may be"
+    )
     info.add_argument("--json", action="store_true", help="JSON on stdout")
     info.set_defaults(handler=run_info)
 
@@ -169,7 +181,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     for node, watts in args.heat:
         heat[node] = heat.get(node, 0.0) + watts
     try:
-        network = load_network(args.network)
+        network = load_network(args.network, args.data_dir)
         if not heat and not network.heat_w.any():
             heaters = ", ".join(network.heater_nodes)
             return _fail(
@@ -241,7 +253,7 @@ def describe(network: ThermalNetwork) -> dict[str, Any]:
 
 def run_info(args: argparse.Namespace) -> int:
     try:
-        network = load_network(args.network)
+        network = load_network(args.network, args.data_dir)
         document = describe(network)
     except NetworkError as err:
         return _fail(str(err))

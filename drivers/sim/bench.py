@@ -5,12 +5,20 @@ robot's real pose, and where all of that puts the laser spot on the camera chip.
   (2 mm nodes, far finer than the controller's 17-node Table 5.1 model), with its convection
   and heat input scaled by ``bench.truth_convection_scale`` / ``bench.truth_heat_scale`` so that
   the controller's prediction is not trivially perfect.
-- Heater schedule: both pads (the shafts, thesis 5.2) on at t = 0, off at ``bench.heater_off_s``.
+- Heater schedule: both pads (the shafts, thesis 5.2) on ``bench.heater_on_delay_s`` after the
+  run starts, off ``bench.heater_off_delay_s`` after the run's ``heater_off_s``: the truth's own
+  timing, which the controller believes to be the run's (both delays 0 by default).
+- Ambient: the room's own temperature, ``bench.ambient_c`` (none: ``model.ambient_c``) plus an
+  optional linear drift (``ambient_drift_c_per_h``) and sinusoidal swing (``ambient_swing_c``
+  over ``ambient_swing_period_h``), in bench time; held for AMBIENT_STEP_S at a time. The
+  controller's ``model.ambient_c`` is only its belief (issue 19).
 - Moving case (thesis 3.2.4, two-link 5.2): the right link wipes a 30 degree arc about the middle
   shaft; its forced convection is modelled as ``bench.moving_convection_scale`` times the
   still-air convection of every node beyond the middle shaft.
 - Camera stand (thesis 4.8): its aluminium plate warms up and shifts the chip by about 2 um in
-  x over ~30 min, a first-order lag ``A (1 - exp(-t / tau))``.
+  x over ~30 min, a first-order lag ``A (1 - exp(-t / tau))``; ``A`` and ``tau`` are drawn from
+  the seed, uniformly within +-``stand_drift_spread`` (relative) of ``stand_drift_um`` /
+  ``stand_drift_tau_s``, so that identification cannot learn one seed's drift as physics.
 - The spot on the chip moves with the true deformation times the deformation scale (thesis
   6.3), plus the robot's actual offset from where it started, plus the stand drift; world x is
   chip x and world z is chip -y (image rows grow downwards), through the physical pixel pitch.
@@ -46,6 +54,11 @@ GEOMETRY_TRUTH = "thesis-two-link-geometry"
 TRUTH_STEP_S = 0.5
 #: Thesis 5.2: the right link moves about the middle shaft, so nodes beyond it wipe the air.
 MOVING_LINK_FROM_MM = TWO_LINK_SHAFTS_MM[1]
+#: A drifting room's temperature is held this long (s) between updates of the truth's input:
+#: at the largest drift the settings admit (20 degC/h) a 0.06 degC step, against the link's
+#: ~2,000 s time constants.
+AMBIENT_STEP_S = 10.0
+SECONDS_PER_HOUR = 3600.0
 
 PoseSource = Callable[[], Sequence[float]]
 
@@ -95,11 +108,24 @@ class Bench:
         self.settings = settings
         self.clock = clock
         bench = settings.bench
-        camera_seed, ir_seed, robot_seed = np.random.SeedSequence(bench.seed).spawn(3)
+        # Children 0-2 are the streams the bench always had (same seed, same frames); the
+        # stand's draw has its own fourth stream.
+        streams = np.random.SeedSequence(bench.seed).spawn(4)
+        camera_seed, ir_seed, robot_seed, stand_seed = streams
         self.camera_rng = np.random.default_rng(camera_seed)
         self.ir_rng = np.random.default_rng(ir_seed)
         #: Seed of the emulated robot's positioning noise (drawn from ``bench.seed``).
         self.robot_seed = int(robot_seed.generate_state(1)[0])
+        amplitude_u, tau_u = np.random.default_rng(stand_seed).uniform(-1.0, 1.0, 2)
+        spread = bench.stand_drift_spread
+        #: This seed's camera-stand drift: amplitude (um) and time constant (s), each drawn
+        #: uniformly within +-spread (relative) of the nominal: bounded, never changing sign.
+        self.stand_drift_amplitude_um = bench.stand_drift_um * (1.0 + spread * float(amplitude_u))
+        self.stand_drift_tau_s = bench.stand_drift_tau_s * (1.0 + spread * float(tau_u))
+        #: The truth's IR pixel noise (degC) and room temperature at bench time 0.
+        self.ir_noise_c = settings.ir.noise_c if bench.ir_noise_c is None else bench.ir_noise_c
+        self.ambient0_c = settings.model.ambient_c if bench.ambient_c is None else bench.ambient_c
+        self._ambient_varies = bench.ambient_drift_c_per_h != 0.0 or bench.ambient_swing_c != 0.0
         self.deformation_scale = settings.compensation.deformation_scale
         self._run_start_s = 0.0
         self._heater_off_s = bench.heater_off_s
@@ -115,16 +141,40 @@ class Bench:
         self._robot_start = np.asarray(robot_pose()[:3], dtype=np.float64)
 
     def _build_truth(self, procedure: str) -> None:
+        bench = self.settings.bench
         self.network = truth_network(self.settings, procedure)
+        ambient = self.ambient_at(self._run_start_s)
         self.model = ThermalModel(
             self.network,
             stepper="exact" if self.network.node_count <= EXACT_NODE_LIMIT else "implicit",
             dt_s=TRUTH_STEP_S,
-            ambient_c=self.settings.model.ambient_c,
-            direction=self.settings.model.direction,
+            ambient_c=ambient,
+            direction=self.settings.model.direction if bench.direction is None else bench.direction,
         )
-        self._heaters_on = self.settings.bench.heater_power_w > 0
-        self._set_heaters(self._heaters_on)
+        self._heaters_on = False
+        self._set_heaters(self._heaters_due(0.0))
+
+    def ambient_at(self, t_s: float) -> float:
+        """The room's true temperature (degC) at bench time ``t_s``."""
+        bench = self.settings.bench
+        hours = t_s / SECONDS_PER_HOUR
+        swing = bench.ambient_swing_c * math.sin(
+            2.0 * math.pi * hours / bench.ambient_swing_period_h
+        )
+        return self.ambient0_c + bench.ambient_drift_c_per_h * hours + swing
+
+    def _heaters_due(self, run_s: float) -> bool:
+        """Whether the pads really heat at run time ``run_s`` (the truth's own timing)."""
+        bench = self.settings.bench
+        if bench.heater_power_w <= 0 or run_s < bench.heater_on_delay_s:
+            return False
+        off_s = self._truth_off_s()
+        return off_s is None or run_s < off_s
+
+    def _truth_off_s(self) -> float | None:
+        if self._heater_off_s is None:
+            return None
+        return max(self._heater_off_s + self.settings.bench.heater_off_delay_s, 0.0)
 
     def start_run(
         self,
@@ -149,18 +199,27 @@ class Bench:
     def _set_heaters(self, on: bool) -> None:
         watts = self.settings.bench.heater_power_w * self.settings.bench.truth_heat_scale
         self.model.set_heat({node: watts for node in self.network.heater_nodes} if on else {})
+        self._heaters_on = on
 
     def advance_to(self, t_s: float) -> None:
-        """Bring the truth to bench time ``t_s`` (on the TRUTH_STEP_S grid; never backwards)."""
+        """Bring the truth to bench time ``t_s`` (on the TRUTH_STEP_S grid; never backwards),
+        switching the heaters at their own times exactly and holding a drifting room's
+        temperature for AMBIENT_STEP_S at a time (its value at the middle of the hold)."""
         run_s = max(t_s - self._run_start_s, 0.0)
         target = math.floor(run_s / TRUTH_STEP_S + 1e-9) * TRUTH_STEP_S
-        off_s = self._heater_off_s
-        if self._heaters_on and off_s is not None and target >= off_s:
-            self.model.advance_to(max(self.model.time_s, off_s))  # the switch is exact
-            self._heaters_on = False
-            self._set_heaters(False)
-        if target > self.model.time_s:
-            self.model.advance_to(target)
+        switches = [self.settings.bench.heater_on_delay_s, self._truth_off_s()]
+        while True:
+            now = self.model.time_s
+            due = self._heaters_due(now)
+            if due != self._heaters_on:
+                self._set_heaters(due)
+            if now >= target:
+                return
+            stop = min([target, *(s for s in switches if s is not None and now < s < target)])
+            if self._ambient_varies:
+                stop = min(stop, (math.floor(now / AMBIENT_STEP_S + 1e-9) + 1) * AMBIENT_STEP_S)
+                self.model.set_ambient(self.ambient_at(self._run_start_s + (now + stop) / 2))
+            self.model.advance_to(stop)
 
     # --- ground truth ---
 
@@ -181,9 +240,10 @@ class Bench:
         )
 
     def stand_drift_um(self, t_s: float) -> float:
-        """Camera-stand warm-up drift along chip x (µm), first order (thesis 4.8)."""
-        bench = self.settings.bench
-        return bench.stand_drift_um * (1.0 - math.exp(-max(t_s, 0.0) / bench.stand_drift_tau_s))
+        """Camera-stand warm-up drift along chip x (µm), first order (thesis 4.8), with this
+        seed's amplitude and time constant."""
+        lag = 1.0 - math.exp(-max(t_s, 0.0) / self.stand_drift_tau_s)
+        return self.stand_drift_amplitude_um * lag
 
     def robot_offset_um(self) -> NDArray[np.float64]:
         """The robot's actual position minus where it started (µm, world x, y, z)."""

@@ -219,7 +219,7 @@ class SimIrReader:
     def default_regions(self, settings: Settings) -> tuple[IrRegion, ...]:
         """Without configured regions: one per heater and reference node of the controller's
         network, named ``node-<name>`` and tied to it."""
-        network = load_network(settings.model.network)
+        network = load_network(settings.model.network, settings.storage.data_dir)
         names = dict.fromkeys((*network.heater_nodes, *network.reference_nodes))
         half = DEFAULT_REGION_WIDTH_PX // 2
         regions = []
@@ -254,7 +254,7 @@ class SimIrReader:
         frame = np.full(IR_SHAPE, self.bench.model.ambient_c, dtype=np.float64)
         profile = self.bench.temperatures_at(self._column_mm[self._on_link], t_s)
         frame[LINK_ROWS[0] : LINK_ROWS[1], self._on_link] = profile
-        noise = self.bench.ir_rng.normal(0.0, self.settings.noise_c, size=IR_SHAPE)
+        noise = self.bench.ir_rng.normal(0.0, self.bench.ir_noise_c, size=IR_SHAPE)
         result: NDArray[np.float64] = frame + self.settings.offset_c + noise
         return result
 
