@@ -204,6 +204,38 @@ def render_spot(
         angle_rad=angle_rad,
     )
     signal += _background_plane(shape, background, gradient_xy)
+    return camera_noise(
+        signal,
+        bit_depth=bit_depth,
+        rng=rng,
+        read_noise_counts=read_noise_counts,
+        photon_noise=photon_noise,
+        gain_e_per_count=gain_e_per_count,
+        hot_pixels=hot_pixels,
+        hot_pixel_value=hot_pixel_value,
+    )
+
+
+def camera_noise(
+    signal: NDArray[np.float64],
+    *,
+    bit_depth: int | None = 16,
+    rng: np.random.Generator | None = None,
+    read_noise_counts: float = 0.0,
+    photon_noise: bool = True,
+    gain_e_per_count: float = 1.0,
+    hot_pixels: int = 0,
+    hot_pixel_value: float | None = None,
+) -> NDArray[np.generic]:
+    """What a camera does to the expected frame ``signal`` (counts, float): the noise of
+    :func:`render_spot` (module docstring's order), quantisation and clipping; the returned
+    type as :func:`render_spot`'s. Also used by :mod:`daemon.vision.markers` (several
+    markers in one frame)."""
+    if bit_depth not in (None, 8, 12, 16):
+        raise ValueError(f"bit_depth must be 8, 12, 16 or None, got {bit_depth!r}")
+    white = full_scale(16 if bit_depth is None else bit_depth)
+    signal = np.array(signal, dtype=np.float64)  # the caller's expectation stays as it was
+    shape = signal.shape
     if rng is not None and photon_noise:
         electrons = rng.poisson(np.clip(signal, 0.0, None) * gain_e_per_count)
         signal = electrons / gain_e_per_count
