@@ -341,7 +341,7 @@ def record_measurement(
     measured at the same taught goal before the first move (the first measurement when there
     was none), in µm and µrad; orientation only from >= 3 markers."""
     reference = work.reference.setdefault(pose.name, measurement.pose)
-    drift = pose_difference(measurement.pose, reference)
+    drift = pose_difference(reference, measurement.pose)
     record.measured_tx_um, record.measured_ty_um, record.measured_tz_um = translation_um(drift)
     record.drift_3d_um = norm_um(drift)
     record.measured_sigma_um = measurement.sigma_mm * 1000.0

@@ -18,6 +18,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from daemon.arm.types import Pose6
+from daemon.vision.multiview import pose_difference
+
+__all__ = [
+    "ArmPredictor",
+    "MeasuredPose",
+    "MeasurementError",
+    "ToolMeasurement",
+    "angle_urad",
+    "norm_um",
+    "pose_difference",
+    "rotation_urad",
+    "translation_um",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -75,20 +88,6 @@ class ToolMeasurement:
 
 class MeasurementError(ValueError):
     """The markers could not be measured (not seen in enough cameras, too few markers)."""
-
-
-def pose_difference(measured: FloatArray, reference: FloatArray) -> Pose6:
-    """``measured`` relative to ``reference``, both 4x4 in the base frame: translation
-    ``p - p_ref`` and the rotation vector of ``R R_ref^T`` (base frame), the convention of
-    Pose6 (daemon/arm/types.py) so that a drift and a predicted tool error compare directly."""
-    from scipy.spatial.transform import Rotation
-
-    measured = np.asarray(measured, dtype=np.float64)
-    reference = np.asarray(reference, dtype=np.float64)
-    translation = measured[:3, 3] - reference[:3, 3]
-    relative = measured[:3, :3] @ reference[:3, :3].T
-    rotation = Rotation.from_matrix(relative).as_rotvec()
-    return Pose6(translation, rotation)
 
 
 def translation_um(pose: Pose6) -> tuple[float, float, float]:
