@@ -73,6 +73,10 @@ class ThermalNetwork:
     bar_ends_mm: tuple[float, float] | None = None
     description: str = ""
     heat_w: FloatArray = field(default_factory=lambda: np.zeros(0))  # q_i (W); empty: zero
+    # Issue 20: the link each node belongs to and its 3-D position (mm, N x 3); empty / None
+    # for a one-dimensional network (every node on one straight bar along ``direction``).
+    node_links: tuple[str, ...] = ()
+    positions_3d_mm: FloatArray | None = None
     _index: dict[str, int] = field(init=False, repr=False, default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -99,6 +103,20 @@ class ThermalNetwork:
         direction = direction / norm
         direction.setflags(write=False)
         set_(self, "direction", direction)
+        set_(self, "node_links", tuple(str(link) for link in self.node_links))
+        if self.node_links and len(self.node_links) != count:
+            raise NetworkError(
+                f"node_links: expected {count} link names, got {len(self.node_links)}"
+            )
+        if self.positions_3d_mm is not None:
+            spatial = np.array(self.positions_3d_mm, dtype=np.float64)
+            if spatial.shape != (count, 3) or not np.all(np.isfinite(spatial)):
+                raise NetworkError(
+                    f"positions_3d_mm: expected {count} finite 3-D positions, got shape "
+                    f"{spatial.shape}"
+                )
+            spatial.setflags(write=False)
+            set_(self, "positions_3d_mm", spatial)
         self._index.update({name: i for i, name in enumerate(self.node_names)})
         self._validate()
         if self.bar_ends_mm is None:
@@ -180,6 +198,36 @@ class ThermalNetwork:
         raise NetworkError(
             f"unknown node {key!r} in network {self.name!r} (names or numbers 1..{self.node_count})"
         )
+
+    @property
+    def is_spatial(self) -> bool:
+        """True when every node carries its link and 3-D position (issue 20)."""
+        return bool(self.node_links) and self.positions_3d_mm is not None
+
+    def one_dimensional_problem(self) -> str | None:
+        """Why this network cannot be read as one straight bar, or None if it can.
+
+        A 1-D network puts every node on one line (``positions_mm`` along ``direction``), so
+        it must be a chain whose neighbours follow that line: no node joined to three or more
+        others (a branch), no neighbour on the same side twice (a link folding back). Such a
+        network needs each node's link and 3-D position; without them it would silently treat
+        a perpendicular link as collinear (issue 20).
+        """
+        if self.is_spatial:
+            return None
+        between = self.between_nodes_matrix.tocsr()
+        for i, name in enumerate(self.node_names):
+            neighbours = between.indices[between.indptr[i] : between.indptr[i + 1]]
+            if len(neighbours) >= 3:
+                return f"node {name!r} joins {len(neighbours)} nodes (a branched network)"
+            if len(neighbours) == 2:
+                sides = np.sign(self.positions_mm[neighbours] - self.positions_mm[i])
+                if sides[0] == sides[1]:
+                    joined = ", ".join(repr(self.node_names[j]) for j in neighbours)
+                    return (
+                        f"node {name!r} joins {joined}, both on the same side of it along the bar"
+                    )
+        return None
 
     # -- matrices -----------------------------------------------------------------------------
 

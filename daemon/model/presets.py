@@ -38,6 +38,8 @@ class _Node(_Strict):
     r_ambient_c_per_w: float = math.inf
     r_end_c_per_w: float = math.inf
     heat_w: float = 0.0
+    link: str | None = None  # issue 20: the link the node belongs to
+    position_3d_mm: tuple[float, float, float] | None = None  # and where it is (mm)
 
 
 class _Link(_Strict):
@@ -193,7 +195,8 @@ def network_from_mapping(data: dict[str, Any], default_name: str = "network") ->
             Resistance(index[link.between[0]], index[link.between[1]], link.r_c_per_w)
         )
     names = [node.name for node in spec.nodes]
-    return ThermalNetwork(
+    node_links, positions_3d = _spatial(spec.nodes)
+    network = ThermalNetwork(
         name=name,
         node_names=tuple(names),
         positions_mm=np.array([node.position_mm for node in spec.nodes]),
@@ -208,4 +211,27 @@ def network_from_mapping(data: dict[str, Any], default_name: str = "network") ->
         direction=np.array(spec.direction),
         bar_ends_mm=spec.bar_ends_mm,
         description=spec.description,
+        node_links=node_links,
+        positions_3d_mm=positions_3d,
     )
+    problem = network.one_dimensional_problem()
+    if problem is not None:
+        raise NetworkError(
+            f"{problem}: a branched or bent network needs every node's link and "
+            "position_3d_mm, else its links would be treated as collinear"
+        )
+    return network
+
+
+def _spatial(nodes: tuple[_Node, ...]) -> tuple[tuple[str, ...], np.ndarray | None]:
+    """Each node's link and 3-D position (issue 20): given for every node or for none."""
+    links = [node.link for node in nodes]
+    spatial = [node.position_3d_mm for node in nodes]
+    for values, key in ((links, "link"), (spatial, "position_3d_mm")):
+        missing = [node.name for node, value in zip(nodes, values, strict=True) if value is None]
+        if missing and len(missing) < len(nodes):
+            raise NetworkError(f"node {missing[0]!r}: no {key} (give it for every node or none)")
+    node_links = tuple(link for link in links if link is not None)
+    if spatial[0] is None:
+        return node_links, None
+    return node_links, np.array(spatial, dtype=np.float64)

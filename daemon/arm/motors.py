@@ -1,0 +1,284 @@
+"""Heat of each joint's motor and gearbox from the motion (issue 20; thesis 1.3 "Step 2:
+calculate work and losses ... using the efficiency of the motors").
+
+A joint is a motor (torque constant ``k_t``, winding resistance ``R``, rotor inertia ``J_r``)
+driving the link through a gearbox of ratio ``N`` (motor turns per joint turn) and efficiency
+``eta``. With the joint-side torque ``tau`` and speed ``omega`` (what :func:`torques_nm` and the
+duty cycle give), the motor side turns at ``omega_m = N omega`` and delivers
+
+    tau_m = tau / (N eta)   when it drives the load (tau omega >= 0),
+    tau_m = tau eta / N     when the load drives it (braking, lowering against gravity),
+
+so its current is ``I = tau_m / k_t`` and the heat released in the joint is
+
+    P = R I^2                                   copper (Joule) loss
+      + b omega_m^2 + tau_c |omega_m|            viscous and Coulomb friction (motor side)
+      + |tau omega - tau_m omega_m|              the gearbox's loss (zero when eta = 1).
+
+These are the datasheet conventions of DC/EC servo motors (maxon, "Key information on maxon
+DC and EC motors": terminal resistance ``R``, torque constant ``k_M``, Joule loss ``R I^2``,
+friction torque; a gearbox by its maximum efficiency). The friction torques are part of the
+torque the motor supplies: :func:`torques_nm` adds them to ``tau``, so the friction work is
+counted once, as heat. Kinetic and potential energy are not heat: the inertia and gravity
+terms only heat the joint through ``R I^2``.
+
+Where a robot reports its motor currents or electrical power, the heat comes from the
+measurement instead: :func:`heat_from_current_w` and :func:`heat_from_power_w`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from daemon.arm.types import FloatArray
+
+#: Standard gravity (m/s^2), ISO 80000-3.
+GRAVITY_M_S2 = 9.80665
+MM = 1e-3  # m per mm
+
+
+@dataclass(frozen=True, slots=True)
+class MotorParameters:
+    """One joint's motor and gearbox, datasheet conventions (see the module docstring).
+
+    ``gear_ratio``: motor turns per joint turn (``N``, > 0). ``torque_constant_nm_per_a``:
+    ``k_t``. ``resistance_ohm``: winding (terminal) resistance ``R``. ``viscous_nm_s_per_rad``
+    and ``coulomb_nm``: friction at the motor side (``b``, ``tau_c``). ``gear_efficiency``:
+    ``eta`` in (0, 1]. ``rotor_inertia_kg_m2``: rotor + gearbox input, motor side (``J_r``);
+    it appears at the joint as ``N^2 J_r``. ``housing_mass_kg``: motor + gearbox mass, for
+    the joint's heat capacity and the gravity load (0: unknown).
+    """
+
+    gear_ratio: float
+    torque_constant_nm_per_a: float
+    resistance_ohm: float
+    viscous_nm_s_per_rad: float = 0.0
+    coulomb_nm: float = 0.0
+    gear_efficiency: float = 1.0
+    rotor_inertia_kg_m2: float = 0.0
+    housing_mass_kg: float = 0.0
+
+    def __post_init__(self) -> None:
+        for item in fields(self):
+            value = getattr(self, item.name)
+            if not math.isfinite(value) or value < 0.0:
+                raise ValueError(f"motor {item.name} must be finite and >= 0, got {value}")
+        for name in ("gear_ratio", "torque_constant_nm_per_a"):
+            if getattr(self, name) <= 0.0:
+                raise ValueError(f"motor {name} must be positive, got {getattr(self, name)}")
+        if not 0.0 < self.gear_efficiency <= 1.0:
+            raise ValueError(f"gear efficiency must be in (0, 1], got {self.gear_efficiency}")
+
+
+@dataclass(frozen=True, eq=False)
+class MotorTable:
+    """The parameters of several joints as arrays (one element per joint), for vector math."""
+
+    joints: tuple[MotorParameters, ...]
+
+    def _column(self, name: str) -> FloatArray:
+        return np.array([getattr(joint, name) for joint in self.joints], dtype=np.float64)
+
+    @cached_property
+    def ratio(self) -> FloatArray:
+        return self._column("gear_ratio")
+
+    @cached_property
+    def k_t(self) -> FloatArray:
+        return self._column("torque_constant_nm_per_a")
+
+    @cached_property
+    def resistance(self) -> FloatArray:
+        return self._column("resistance_ohm")
+
+    @cached_property
+    def viscous(self) -> FloatArray:
+        return self._column("viscous_nm_s_per_rad")
+
+    @cached_property
+    def coulomb(self) -> FloatArray:
+        return self._column("coulomb_nm")
+
+    @cached_property
+    def efficiency(self) -> FloatArray:
+        return self._column("gear_efficiency")
+
+    @cached_property
+    def rotor_inertia(self) -> FloatArray:
+        return self._column("rotor_inertia_kg_m2")
+
+    @classmethod
+    def of(cls, params: MotorParameters | Sequence[MotorParameters] | MotorTable) -> MotorTable:
+        if isinstance(params, MotorTable):
+            return params
+        if isinstance(params, MotorParameters):
+            return cls((params,))
+        return cls(tuple(params))
+
+
+def motor_torque_nm(
+    params: MotorParameters | Sequence[MotorParameters] | MotorTable,
+    qd_rad_s: ArrayLike,
+    torque_nm: ArrayLike,
+) -> FloatArray:
+    """The motor-side torque ``tau_m`` for a joint torque ``tau`` (module docstring)."""
+    table = MotorTable.of(params)
+    tau = np.asarray(torque_nm, dtype=np.float64)
+    omega = np.asarray(qd_rad_s, dtype=np.float64)
+    driving = tau * omega >= 0.0
+    result: FloatArray = np.where(
+        driving, tau / (table.ratio * table.efficiency), tau * table.efficiency / table.ratio
+    )
+    return result
+
+
+def friction_torque_nm(
+    params: MotorParameters | Sequence[MotorParameters] | MotorTable, qd_rad_s: ArrayLike
+) -> FloatArray:
+    """The joint-side torque the motor spends on its own friction: ``N (b N omega + tau_c
+    sign(omega))`` (zero at rest: static friction does no work)."""
+    table = MotorTable.of(params)
+    omega = np.asarray(qd_rad_s, dtype=np.float64)
+    result: FloatArray = table.ratio * (
+        table.viscous * table.ratio * omega + table.coulomb * np.sign(omega)
+    )
+    return result
+
+
+def motor_heat_w(
+    params: MotorParameters | Sequence[MotorParameters] | MotorTable,
+    qd_rad_s: ArrayLike,
+    torque_nm: ArrayLike,
+) -> FloatArray:
+    """Heat released in each joint (W) at joint speed ``qd_rad_s`` and joint torque
+    ``torque_nm`` (friction included, as :func:`torques_nm` gives it): copper loss, motor
+    friction and gearbox loss (module docstring). Element-wise over joints (and broadcasts
+    over leading axes, e.g. a whole cycle of samples × joints)."""
+    table = MotorTable.of(params)
+    tau = np.asarray(torque_nm, dtype=np.float64)
+    omega = np.asarray(qd_rad_s, dtype=np.float64)
+    tau_m = motor_torque_nm(table, omega, tau)
+    omega_m = table.ratio * omega
+    current = tau_m / table.k_t
+    copper = table.resistance * current**2
+    friction = table.viscous * omega_m**2 + table.coulomb * np.abs(omega_m)
+    gearbox = np.abs(tau * omega - tau_m * omega_m)
+    heat: FloatArray = copper + friction + gearbox
+    return heat
+
+
+def heat_from_current_w(
+    params: MotorParameters | Sequence[MotorParameters] | MotorTable,
+    qd_rad_s: ArrayLike,
+    current_a: ArrayLike,
+) -> FloatArray:
+    """Heat from a measured motor current (a robot's per-joint current feed): ``R I^2`` plus
+    the motor friction at the measured speed. The gearbox's loss is not observable from the
+    current alone and is left out (``eta = 1``)."""
+    table = MotorTable.of(params)
+    current = np.asarray(current_a, dtype=np.float64)
+    omega_m = table.ratio * np.asarray(qd_rad_s, dtype=np.float64)
+    heat: FloatArray = (
+        table.resistance * current**2 + table.viscous * omega_m**2 + table.coulomb * np.abs(omega_m)
+    )
+    return heat
+
+
+def heat_from_power_w(
+    electrical_power_w: ArrayLike, qd_rad_s: ArrayLike, torque_nm: ArrayLike
+) -> FloatArray:
+    """Heat from a measured electrical input power per joint: what goes in and does not leave
+    as mechanical power ``tau omega`` at the joint. Clipped at zero (a regenerating joint
+    returns power to the drive, it does not cool the arm)."""
+    power = np.asarray(electrical_power_w, dtype=np.float64)
+    mechanical = np.asarray(torque_nm, dtype=np.float64) * np.asarray(qd_rad_s, dtype=np.float64)
+    heat: FloatArray = np.clip(power - mechanical, 0.0, None)
+    return heat
+
+
+def gravity_torques_nm(
+    joint_origins_mm: FloatArray,
+    joint_axes: FloatArray,
+    masses_kg: FloatArray,
+    centres_mm: FloatArray,
+    gravity_m_s2: FloatArray | None = None,
+) -> FloatArray:
+    """Torque each revolute joint must hold against gravity (N·m).
+
+    Joint ``j`` (origin ``o_j``, unit axis ``z_j``, base frame) carries every mass ``i >= j``
+    (mass ``m_i`` at ``p_i``): ``tau_j = -sum_{i >= j} (z_j x (p_i - o_j)) . m_i g``, the
+    derivative of the potential energy ``-sum m_i g . p_i`` (Siciliano et al., *Robotics:
+    Modelling, Planning and Control*, 2009, Sec. 7.2: ``g(q) = -sum m_i J_P^(i)T g0``).
+    ``masses_kg[i]``/``centres_mm[i]`` belong to link ``i``, the one joint ``i`` moves.
+    """
+    g = np.array([0.0, 0.0, -GRAVITY_M_S2]) if gravity_m_s2 is None else gravity_m_s2
+    count = len(joint_origins_mm)
+    torques = np.zeros(count)
+    for j in range(count):
+        arms_m = (centres_mm[j:] - joint_origins_mm[j]) * MM
+        lever = np.cross(joint_axes[j], arms_m)  # dp_i / dq_j per unit rotation
+        torques[j] = -float(np.sum((lever @ g) * masses_kg[j:]))
+    return torques
+
+
+def inertia_diagonal_kg_m2(
+    joint_origins_mm: FloatArray,
+    joint_axes: FloatArray,
+    masses_kg: FloatArray,
+    centres_mm: FloatArray,
+) -> FloatArray:
+    """The diagonal of the joint-space mass matrix for point masses at the links' centres:
+    ``M_jj = sum_{i >= j} m_i |z_j x (p_i - o_j)|^2`` (kg·m²). The links' own rotational
+    inertia and the off-diagonal coupling are left out: a duty cycle's heat is dominated by
+    gravity and friction, and its accelerations act only for short ramps."""
+    count = len(joint_origins_mm)
+    result = np.zeros(count)
+    for j in range(count):
+        arms_m = (centres_mm[j:] - joint_origins_mm[j]) * MM
+        lever = np.cross(joint_axes[j], arms_m)
+        result[j] = float(np.sum(np.einsum("ij,ij->i", lever, lever) * masses_kg[j:]))
+    return result
+
+
+def joint_torques_nm(
+    params: MotorParameters | Sequence[MotorParameters] | MotorTable,
+    qd_rad_s: ArrayLike,
+    qdd_rad_s2: ArrayLike,
+    gravity_nm: ArrayLike,
+    link_inertia_kg_m2: ArrayLike,
+) -> FloatArray:
+    """``tau = g(q) + (M_jj + N^2 J_r) qdd + friction(qd)``: gravity, the links' inertia (the
+    diagonal of the mass matrix), the rotor's inertia reflected through the gearbox and the
+    motor friction (:func:`friction_torque_nm`)."""
+    table = MotorTable.of(params)
+    qdd = np.asarray(qdd_rad_s2, dtype=np.float64)
+    inertia = np.asarray(link_inertia_kg_m2, dtype=np.float64) + table.ratio**2 * (
+        table.rotor_inertia
+    )
+    torque: FloatArray = (
+        np.asarray(gravity_nm, dtype=np.float64)
+        + inertia * qdd
+        + friction_torque_nm(table, qd_rad_s)
+    )
+    return torque
+
+
+__all__ = [
+    "GRAVITY_M_S2",
+    "MotorParameters",
+    "MotorTable",
+    "friction_torque_nm",
+    "gravity_torques_nm",
+    "heat_from_current_w",
+    "heat_from_power_w",
+    "inertia_diagonal_kg_m2",
+    "joint_torques_nm",
+    "motor_heat_w",
+    "motor_torque_nm",
+]

@@ -1,0 +1,254 @@
+"""Motor heat from motion, joint torques and duty-cycle profiles (issue 20), against closed
+forms: constant-speed losses, trapezoid integrals, a point mass on a lever."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from daemon.arm.duty import (
+    DutyCycle,
+    DutyCycleError,
+    TaughtPose,
+    available_duty_cycles,
+    duty_cycle_from_mapping,
+    load_duty_cycle,
+    trapezoid_timing,
+)
+from daemon.arm.motors import (
+    GRAVITY_M_S2,
+    MotorParameters,
+    friction_torque_nm,
+    gravity_torques_nm,
+    heat_from_current_w,
+    heat_from_power_w,
+    inertia_diagonal_kg_m2,
+    joint_torques_nm,
+    motor_heat_w,
+)
+
+MOTOR = MotorParameters(
+    gear_ratio=50.0,
+    torque_constant_nm_per_a=0.05,
+    resistance_ohm=2.0,
+    viscous_nm_s_per_rad=2e-5,
+    coulomb_nm=0.01,
+    rotor_inertia_kg_m2=3e-6,
+)
+
+
+# -- motor heat -------------------------------------------------------------------------------
+
+
+def test_constant_speed_heat_is_copper_plus_friction() -> None:
+    omega, tau = 1.5, 4.0  # rad/s at the joint, N·m at the joint
+    current = tau / (MOTOR.torque_constant_nm_per_a * MOTOR.gear_ratio)
+    omega_m = MOTOR.gear_ratio * omega
+    expected = (
+        MOTOR.resistance_ohm * current**2
+        + MOTOR.viscous_nm_s_per_rad * omega_m**2
+        + MOTOR.coulomb_nm * omega_m
+    )
+    assert motor_heat_w(MOTOR, omega, tau) == pytest.approx(expected, rel=1e-12)
+    # the sign of the speed or torque does not change the loss of a lossless gearbox
+    assert motor_heat_w(MOTOR, -omega, -tau) == pytest.approx(expected, rel=1e-12)
+    # at rest, holding a torque costs only the copper loss
+    assert motor_heat_w(MOTOR, 0.0, tau) == pytest.approx(MOTOR.resistance_ohm * current**2)
+
+
+def test_gearbox_efficiency_loses_the_power_it_does_not_pass() -> None:
+    lossy = MotorParameters(
+        gear_ratio=10.0, torque_constant_nm_per_a=1.0, resistance_ohm=0.0, gear_efficiency=0.8
+    )
+    # driving 10 N·m at 1 rad/s: the motor supplies 10/0.8 = 12.5 W, 2.5 W stay in the gears
+    assert motor_heat_w(lossy, 1.0, 10.0) == pytest.approx(2.5)
+    # braking (the load drives the motor): only 80 % of the 10 W reach the motor
+    assert motor_heat_w(lossy, 1.0, -10.0) == pytest.approx(2.0)
+
+
+def test_motor_heat_integrates_to_the_energy_of_a_known_motion() -> None:
+    """One joint moves 90° and back on trapezoids under a constant torque: over one cycle
+    the Coulomb loss is tau_c N x distance, the viscous loss b N^2 int w^2, the copper loss
+    R I^2 x period, whatever the profile's shape."""
+    cycle = DutyCycle(
+        name="swing",
+        poses=(
+            TaughtPose("a", (0.0,), speed=0.5, dwell_s=0.5),
+            TaughtPose("b", (math.pi / 2,), speed=0.5, dwell_s=0.25),
+        ),
+        max_speed_rad_s=(2.0,),
+        max_accel_rad_s2=(4.0,),
+    )
+    tau = 3.0
+    energy = cycle.cycle_energy_j(
+        lambda q, qd, qdd: motor_heat_w(MOTOR, qd, np.full_like(qd, tau)), dt_s=1e-4
+    )
+    distance = math.pi  # there and back
+    duration, blend, peak = trapezoid_timing(math.pi / 2, 1.0, 4.0)  # speed fraction 0.5
+    speed_squared_integral = 2 * (peak**2 * (duration - 2 * blend) + 2 * peak**2 * blend / 3)
+    current = tau / (MOTOR.torque_constant_nm_per_a * MOTOR.gear_ratio)
+    n = MOTOR.gear_ratio
+    expected = (
+        MOTOR.resistance_ohm * current**2 * cycle.period_s
+        + MOTOR.coulomb_nm * n * distance
+        + MOTOR.viscous_nm_s_per_rad * n**2 * speed_squared_integral
+    )
+    assert cycle.period_s == pytest.approx(0.75 + 2 * duration)
+    assert energy[0] == pytest.approx(expected, rel=1e-5)
+
+
+def test_measured_current_and_power_feeds() -> None:
+    omega = np.array([0.0, 2.0])
+    current = np.array([1.0, -3.0])
+    omega_m = MOTOR.gear_ratio * omega
+    expected = (
+        MOTOR.resistance_ohm * current**2
+        + MOTOR.viscous_nm_s_per_rad * omega_m**2
+        + MOTOR.coulomb_nm * np.abs(omega_m)
+    )
+    np.testing.assert_allclose(heat_from_current_w([MOTOR, MOTOR], omega, current), expected)
+    # 50 W in, 20 N·m at 2 rad/s out: 10 W of heat; regenerating does not cool
+    np.testing.assert_allclose(
+        heat_from_power_w([50.0, -5.0], [2.0, 1.0], [20.0, 10.0]), [10.0, 0.0]
+    )
+
+
+def test_motor_parameters_are_validated() -> None:
+    with pytest.raises(ValueError, match="gear_ratio"):
+        MotorParameters(gear_ratio=0.0, torque_constant_nm_per_a=1.0, resistance_ohm=1.0)
+    with pytest.raises(ValueError, match="efficiency"):
+        MotorParameters(
+            gear_ratio=1.0, torque_constant_nm_per_a=1.0, resistance_ohm=1.0, gear_efficiency=1.5
+        )
+
+
+# -- torques ----------------------------------------------------------------------------------
+
+
+def test_gravity_on_a_horizontal_two_link_arm() -> None:
+    """Two joints about y at x = 0 and x = 300 mm; masses 2 kg at 150 mm and 1 kg at 450 mm:
+    the shoulder holds (2 x 0.15 + 1 x 0.45) g, the elbow 1 x 0.15 g (sign: the torque that
+    lifts the masses, about +y, is negative for masses at +x under -z gravity)."""
+    origins = np.array([[0.0, 0.0, 0.0], [300.0, 0.0, 0.0]])
+    axes = np.array([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    masses = np.array([2.0, 1.0])
+    centres = np.array([[150.0, 0.0, 0.0], [450.0, 0.0, 0.0]])
+    torques = gravity_torques_nm(origins, axes, masses, centres)
+    g = GRAVITY_M_S2
+    np.testing.assert_allclose(torques, [-(2 * 0.15 + 0.45) * g, -0.15 * g], rtol=1e-12)
+    # a vertical axis carries no gravity torque
+    vertical = gravity_torques_nm(origins, np.array([[0, 0, 1.0], [0, 0, 1.0]]), masses, centres)
+    np.testing.assert_allclose(vertical, 0.0, atol=1e-12)
+    inertia = inertia_diagonal_kg_m2(origins, axes, masses, centres)
+    np.testing.assert_allclose(inertia, [2 * 0.15**2 + 0.45**2, 0.15**2], rtol=1e-12)
+
+
+def test_joint_torque_adds_inertia_rotor_and_friction() -> None:
+    torque = joint_torques_nm([MOTOR], [0.5], [2.0], [1.0], [0.3])
+    n = MOTOR.gear_ratio
+    expected = (
+        1.0
+        + (0.3 + n**2 * MOTOR.rotor_inertia_kg_m2) * 2.0
+        + n * (MOTOR.viscous_nm_s_per_rad * n * 0.5 + MOTOR.coulomb_nm)
+    )
+    assert torque[0] == pytest.approx(expected)
+    assert friction_torque_nm(MOTOR, 0.0)[()] == 0.0  # static friction does no work
+
+
+# -- duty cycles ------------------------------------------------------------------------------
+
+
+def test_trapezoids_reach_each_pose_within_the_limits_synchronised() -> None:
+    speed = (1.0, 2.0, 0.5)
+    accel = (2.0, 8.0, 1.0)
+    poses = (
+        TaughtPose("a", (0.0, 0.0, 0.0), dwell_s=0.3),
+        TaughtPose("b", (1.2, -0.4, 0.05), speed=0.8, accel=0.5, dwell_s=0.2),
+        TaughtPose("c", (0.2, 0.1, 0.05), dwell_s=0.1),
+    )
+    cycle = DutyCycle("test", poses, speed, accel)
+    dt = 1e-3
+    q, qd, qdd = cycle.state(np.arange(0.0, cycle.period_s, dt))
+    # limits, scaled by each move's fractions (0.8 / 0.5 for the move into b, 1 otherwise)
+    assert np.all(np.abs(qd) <= np.array(speed) * (1 + 1e-9))
+    assert np.all(np.abs(qdd) <= np.array(accel) * (1 + 1e-9))
+    # speed is the derivative of position (the profile is consistent)
+    np.testing.assert_allclose(np.gradient(q, dt, axis=0)[1:-1], qd[1:-1], atol=3e-3)
+    # the arm is at rest at each pose when it arrives, and stays for the dwell
+    for pose, arrival in zip(poses, cycle.arrival_times_s(), strict=True):
+        at, speed_at, _ = cycle.state([arrival, arrival + pose.dwell_s * 0.99])
+        np.testing.assert_allclose(at, [pose.q_rad, pose.q_rad], atol=1e-12)
+        np.testing.assert_allclose(speed_at, 0.0, atol=1e-12)
+    # synchronised: the move a -> b is led by joint 0 (1.2 rad at 0.8 rad/s): every joint's
+    # normalised progress is the same at every instant
+    move = cycle.moves[0]
+    local = move.t0 + np.linspace(0.0, move.duration, 50)
+    q_move, _, _ = cycle.state(local)
+    progress = (q_move - move.start) / move.delta
+    np.testing.assert_allclose(progress, progress[:, :1].repeat(3, axis=1), atol=1e-12)
+    lead_duration, _, _ = trapezoid_timing(1.2, 0.8 * 1.0, 0.5 * 2.0)
+    assert move.duration == pytest.approx(lead_duration)
+    # periodic
+    later, _, _ = cycle.state(np.array([0.77, 0.77 + 5 * cycle.period_s]))
+    np.testing.assert_allclose(later[0], later[1], atol=1e-9)
+
+
+def test_short_move_is_triangular() -> None:
+    duration, blend, peak = trapezoid_timing(0.1, 1.0, 1.0)  # v^2 / a = 1 > 0.1
+    assert duration == pytest.approx(2 * math.sqrt(0.1))
+    assert peak == pytest.approx(math.sqrt(0.1)) and peak < 1.0
+    assert blend == pytest.approx(duration / 2)
+
+
+def test_samples_on_a_fixed_step() -> None:
+    cycle = load_duty_cycle("a465-pick-and-place")
+    samples = list(cycle.samples(0.5, 10.0))
+    assert [s.time_s for s in samples] == pytest.approx(np.arange(21) * 0.5)
+    assert all(s.q_rad.shape == (6,) for s in samples)
+    q, _, _ = cycle.state([s.time_s for s in samples])
+    np.testing.assert_array_equal(q, np.array([s.q_rad for s in samples]))
+    assert [p.name for p in cycle.measured_poses()] == ["camera", "place"]
+    assert "a465-pick-and-place" in available_duty_cycles()
+
+
+def test_duty_file_errors_name_the_pose() -> None:
+    base = {"max_speed_deg_s": 90.0, "max_accel_deg_s2": 180.0}
+    with pytest.raises(DutyCycleError, match="'b': give joints_deg or tool_mm"):
+        duty_cycle_from_mapping(
+            {**base, "poses": [{"name": "a", "joints_deg": [0, 0]}, {"name": "b"}]}
+        )
+    with pytest.raises(DutyCycleError, match="'b': a tool pose needs the arm's kinematics"):
+        duty_cycle_from_mapping(
+            {
+                **base,
+                "poses": [{"name": "a", "joints_deg": [0, 0]}, {"name": "b", "tool_mm": [1, 2, 3]}],
+            }
+        )
+    with pytest.raises(DutyCycleError, match="'b': 3 joint angles for 2 joints"):
+        duty_cycle_from_mapping(
+            {
+                **base,
+                "poses": [
+                    {"name": "a", "joints_deg": [0, 0]},
+                    {"name": "b", "joints_deg": [0, 0, 1]},
+                ],
+            }
+        )
+    # tool poses go through the arm's inverse kinematics, seeded with the previous pose
+    seeds = []
+
+    def inverse(pose: np.ndarray, seed: np.ndarray) -> np.ndarray:
+        seeds.append(seed.copy())
+        return np.array([pose[0, 3], pose[1, 3]]) / 100.0
+
+    cycle = duty_cycle_from_mapping(
+        {
+            **base,
+            "poses": [{"name": "a", "joints_deg": [10, 20]}, {"name": "b", "tool_mm": [50, 60, 0]}],
+        },
+        inverse=inverse,
+    )
+    assert cycle.poses[1].q_rad == pytest.approx((0.5, 0.6))
+    np.testing.assert_allclose(seeds[0], np.radians([10, 20]))

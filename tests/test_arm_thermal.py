@@ -1,0 +1,257 @@
+"""The arm's thermal network (issue 20) against closed forms, the refusal of branched 1-D
+network files, and the speed of an 8-hour run."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from daemon.arm.thermal import (
+    ArmThermalDescription,
+    ArmThermalModel,
+    JointBody,
+    LinkBody,
+    build_arm_network,
+    radiation_h_w_per_m2k,
+    steady_link_rise_c,
+    tube_section,
+)
+from daemon.model import NetworkError, ThermalModel, load_network, material, steady_state_c
+
+ALUMINIUM = material("6061-T6")
+AREA_M2, PERIMETER_M = tube_section(60.0, 4.0)
+
+
+def link(name: str, start: tuple[float, float, float], end: tuple[float, float, float],
+         conductivity: float = ALUMINIUM.conductivity_w_per_mk) -> LinkBody:  # fmt: skip
+    return LinkBody(
+        name,
+        start,
+        end,
+        AREA_M2,
+        PERIMETER_M,
+        conductivity,
+        ALUMINIUM.density_kg_per_m3,
+        ALUMINIUM.specific_heat_j_per_kgk,
+        ALUMINIUM.expansion_per_k,
+        emissivity=0.9,
+        h_w_per_m2k=5.0,
+    )
+
+
+def six_link_arm() -> ArmThermalDescription:
+    points = [(0, 0, 0), (0, 0, 330), (300, 0, 330), (600, 0, 330), (600, 0, 330),
+              (600, 0, 330), (600, 0, 400)]  # fmt: skip
+    links = tuple(link(f"link{i + 1}", points[i], points[i + 1]) for i in range(6))
+    return ArmThermalDescription("six", links, tuple(JointBody(f"J{i + 1}") for i in range(6)))
+
+
+# -- closed forms -----------------------------------------------------------------------------
+
+
+def test_uniform_heat_on_one_link_reaches_the_fin_steady_state() -> None:
+    """A link isolated from its joint (contact resistance ~ infinite) heated uniformly
+    (q' W per metre): no conduction along it, each node at T_amb + q' / (h_eff P)."""
+    isolated = ArmThermalDescription(
+        "one",
+        (link("bar", (0, 0, 0), (500, 0, 0)),),
+        (JointBody("J1", proximal_r_c_per_w=1e12, distal_r_c_per_w=1e12),),
+    )
+    network, layout = build_arm_network(isolated, node_spacing_mm=20.0, ambient_c=20.0)
+    nodes = layout.link_nodes[0]
+    assert len(nodes) == 26
+    per_metre = 8.0  # W/m
+    heat = np.zeros(network.node_count)
+    heat[nodes] = per_metre * layout.link_lengths[0] * 1e-3
+    h_eff = 5.0 + radiation_h_w_per_m2k(0.9, 20.0)
+    expected = per_metre / (h_eff * PERIMETER_M)
+    steady = steady_state_c(network, heat, 20.0)
+    np.testing.assert_allclose(steady[nodes] - 20.0, expected, rtol=1e-6)
+    # the time stepper gets there too: time constant rho c A / (h_eff P)
+    tau = ALUMINIUM.volumetric_heat_capacity_j_per_m3k * AREA_M2 / (h_eff * PERIMETER_M)
+    model = ThermalModel(network, "exact", 60.0, 20.0)
+    model.set_heat({network.node_names[i]: float(heat[i]) for i in nodes})
+    model.advance_to(tau)
+    np.testing.assert_allclose(
+        model.temperatures_c[nodes] - 20.0, expected * (1 - math.exp(-1.0)), rtol=1e-6
+    )
+
+
+def test_joint_heat_through_a_lumped_link_matches_the_circuit() -> None:
+    """A very conductive link is one temperature; joint heat Q splits into the joint's own
+    surface, the base path (proximal flange + base) and the link (distal flange + its
+    surface)."""
+    joint = JointBody(
+        "J1",
+        capacitance_j_per_c=400.0,
+        ambient_conductance_w_per_c=0.05,
+        proximal_r_c_per_w=0.9,
+        distal_r_c_per_w=0.7,
+    )
+    description = ArmThermalDescription(
+        "lumped",
+        (link("bar", (0, 0, 0), (0, 0, 400), conductivity=1e9),),
+        (joint,),
+        base_capacitance_j_per_c=2000.0,
+        base_r_ambient_c_per_w=1.5,
+    )
+    model = ArmThermalModel(description, node_spacing_mm=50.0, ambient_c=21.0, dt_s=10.0)
+    h_eff = 5.0 + radiation_h_w_per_m2k(0.9, 21.0)
+    g_link = h_eff * PERIMETER_M * 0.4
+    r_p, r_d, r_b = 0.9, 0.7, 1.5
+    q = 12.0
+    g_total = 0.05 + 1 / (r_p + r_b) + 1 / (r_d + 1 / g_link)
+    theta_joint = q / g_total
+    theta_link = theta_joint * (1 / g_link) / (r_d + 1 / g_link)
+    model.advance_to(400_000.0, [q])  # ~30 slowest time constants
+    (state,) = model.link_states()
+    assert state.link == "bar"
+    assert state.mean_rise_c == pytest.approx(theta_link, rel=1e-6)
+    assert state.alpha_per_c == ALUMINIUM.expansion_per_k
+    assert state.gradient_c_per_mm == (0.0, 0.0)
+    assert model.joint_temperatures_c()[0] - 21.0 == pytest.approx(theta_joint, rel=1e-6)
+
+
+def test_ambient_is_an_input_that_may_vary() -> None:
+    model = ArmThermalModel(
+        six_link_arm(), ambient_c=lambda t: 20.0 if t < 100.0 else 25.0, dt_s=1000.0
+    )
+    model.advance_to(100.0, np.zeros(6))
+    np.testing.assert_allclose(model.temperatures_c, 20.0)
+    model.advance_to(1_000_000.0)  # the schedule's 25 °C, held for ~250 h
+    np.testing.assert_allclose(model.temperatures_c, 25.0, atol=1e-6)
+    assert all(s.mean_rise_c == pytest.approx(5.0, abs=1e-6) for s in model.link_states())
+    model.set_ambient(22.0)
+    assert model.ambient_c == 22.0
+    model.advance_to(2_000_000.0)
+    np.testing.assert_allclose(model.temperatures_c, 22.0, atol=1e-6)
+
+
+def test_nodes_carry_their_link_and_position() -> None:
+    description = six_link_arm()
+    model = ArmThermalModel(description, node_spacing_mm=30.0)
+    network = model.network
+    assert network.is_spatial and network.positions_3d_mm is not None
+    assert len(model.node_names) == len(model.node_links) == network.node_count
+    upper_arm = model.link_node_indices("link2")
+    assert {model.node_links[i] for i in upper_arm} == {"link2"}
+    positions = network.positions_3d_mm[upper_arm]
+    np.testing.assert_allclose(positions[0], (0, 0, 330))
+    np.testing.assert_allclose(positions[-1], (300, 0, 330))
+    assert np.max(np.diff(positions[:, 0])) <= 30.0 + 1e-9
+    assert model.joint_node_names == ("J1", "J2", "J3", "J4", "J5", "J6")
+    assert [s.link for s in model.link_states()] == [f"link{i}" for i in range(1, 7)]
+
+
+# -- branched network files -------------------------------------------------------------------
+
+T_NETWORK = """
+name = "tee"
+alpha_per_c = 2e-5
+[[nodes]]
+name = "a"
+position_mm = 0
+capacitance_j_per_c = 1
+r_ambient_c_per_w = 10
+{a}
+[[nodes]]
+name = "b"
+position_mm = 100
+capacitance_j_per_c = 1
+{b}
+[[nodes]]
+name = "c"
+position_mm = 200
+capacitance_j_per_c = 1
+{c}
+[[nodes]]
+name = "d"
+position_mm = 100
+capacitance_j_per_c = 1
+{d}
+[[resistances]]
+between = ["a", "b"]
+r_c_per_w = 1
+[[resistances]]
+between = ["b", "c"]
+r_c_per_w = 1
+[[resistances]]
+between = ["b", "d"]
+r_c_per_w = 1
+"""
+
+
+def test_a_branched_network_without_links_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "tee.toml"
+    path.write_text(T_NETWORK.format(a="", b="", c="", d=""))
+    with pytest.raises(NetworkError) as caught:
+        load_network(path)
+    message = str(caught.value)
+    assert "\n" not in message
+    assert "node 'b' joins 3 nodes (a branched network)" in message
+    assert "link" in message and "position_3d_mm" in message
+
+
+def test_a_branched_network_with_links_and_positions_loads(tmp_path: Path) -> None:
+    spatial = {
+        "a": 'link = "upper"\nposition_3d_mm = [0, 0, 0]',
+        "b": 'link = "upper"\nposition_3d_mm = [100, 0, 0]',
+        "c": 'link = "upper"\nposition_3d_mm = [200, 0, 0]',
+        "d": 'link = "side"\nposition_3d_mm = [100, 50, 0]',
+    }
+    path = tmp_path / "tee.toml"
+    path.write_text(T_NETWORK.format(**spatial))
+    network = load_network(path)
+    assert network.node_links == ("upper", "upper", "upper", "side")
+    assert network.positions_3d_mm is not None
+    np.testing.assert_allclose(network.positions_3d_mm[3], (100, 50, 0))
+    # a node without them, when the others have them, is named
+    spatial["c"] = ""
+    path.write_text(T_NETWORK.format(**spatial))
+    with pytest.raises(NetworkError, match="node 'c': no link"):
+        load_network(path)
+
+
+def test_a_chain_folding_back_is_refused(tmp_path: Path) -> None:
+    """Nodes a - b - c where c sits back beside a: a bent bar read as a straight one."""
+    folded = T_NETWORK.replace("position_mm = 200", "position_mm = 50")
+    folded = folded.split('[[nodes]]\nname = "d"')[0] + (
+        '[[resistances]]\nbetween = ["a", "b"]\nr_c_per_w = 1\n'
+        '[[resistances]]\nbetween = ["b", "c"]\nr_c_per_w = 1\n'
+    )
+    path = tmp_path / "folded.toml"
+    path.write_text(folded.format(a="", b="", c=""))
+    with pytest.raises(NetworkError, match="both on the same side of it"):
+        load_network(path)
+
+
+def test_existing_presets_still_load_as_one_dimensional() -> None:
+    for name in ("thesis-two-link", "thesis-single-link", "thesis-single-link-moving"):
+        network = load_network(name)
+        assert network.one_dimensional_problem() is None
+        assert not network.is_spatial and network.node_links == ()
+
+
+# -- speed ------------------------------------------------------------------------------------
+
+
+def test_an_eight_hour_run_at_one_second_is_fast_and_reaches_the_steady_state() -> None:
+    """28,800 steps of a ~120-node arm with heat that changes every step. The bound is
+    generous for a loaded 2-core machine (measured ~0.4 s unloaded); the run must also land
+    on the steady state of the mean heat, since every time constant is well below 8 h."""
+    description = six_link_arm()
+    model = ArmThermalModel(description, node_spacing_mm=10.0, ambient_c=22.0)
+    assert 100 <= model.network.node_count <= 150
+    mean_heat = np.array([6.0, 9.0, 5.0, 2.0, 2.0, 1.0])
+    start = time.perf_counter()
+    for k in range(1, 28_801):
+        model.advance_to(float(k), mean_heat * (1.0 + 0.5 * math.sin(2 * math.pi * k / 7.0)))
+    elapsed = time.perf_counter() - start
+    assert elapsed < 20.0
+    steady = steady_link_rise_c(description, mean_heat, node_spacing_mm=10.0, ambient_c=22.0)
+    for state in model.link_states():
+        assert state.mean_rise_c == pytest.approx(steady[state.link], rel=0.03)
