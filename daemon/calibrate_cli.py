@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument, positive_float
+from daemon import calibrate_cameras_cli
 from drivers.base import Vector3
 from drivers.errors import DeviceError
 
@@ -59,7 +60,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "the goal (spot near the chip's centre), move it through a square grid of known "
         "offsets in the camera plane, measure the spot at each, and fit the micrometres per "
         "pixel in x and y and the camera's rotation from the robot's axes, with standard "
-        "errors. The robot returns to the goal at the end.",
+        "errors. The robot returns to the goal at the end. `calibrate cameras`: each camera's "
+        "pose in the world (camera file) from marker positions the robot visited.",
     )
     kinds = parser.add_subparsers(dest="device", metavar="DEVICE", required=True)
     camera = kinds.add_parser(
@@ -90,6 +92,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     camera.add_argument("--json", action="store_true", help="print the result as JSON")
     camera.set_defaults(handler=run_calibrate_camera)
+    calibrate_cameras_cli.register(kinds)  # `calibrate cameras`: 3-D camera poses (issue 20)
 
 
 def split_move(start: Vector3, end: Vector3, max_step_mm: float) -> list[Vector3]:

@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from daemon.vision.cameras import CameraModel
+from daemon.vision.centroid import CentroidError, measure_centroid
 from daemon.vision.multiview import depths_mm, points_array, project
 from daemon.vision.synthetic import Profile, camera_noise, expected_spot, full_scale
 
@@ -130,3 +132,61 @@ def render_marker_window(
         gain_e_per_count=gain_e_per_count,
     )
     return window, (c0, r0)
+
+
+@dataclass(frozen=True, slots=True)
+class MarkerSpot:
+    """How a marker looks on the chip and what the sensor adds: the bench's laser spot by
+    default (``bench.spot_sigma_px``, ``bench.spot_peak_fraction``, the [camera] defaults:
+    16 bits, 1 e-/count, 5 e- read noise)."""
+
+    sigma_px: float = 3.0
+    peak_fraction: float = 0.5
+    bit_depth: int = 16
+    gain_e_per_count: float = 1.0
+    read_noise_e: float = 5.0
+
+
+def centroids_of_markers(
+    cameras: Sequence[CameraModel],
+    points_mm: ArrayLike,
+    rng: np.random.Generator | None,
+    spot: MarkerSpot = MarkerSpot(),
+) -> tuple[FloatArray, FloatArray]:
+    """Every marker rendered alone in a window of every camera (markers lit in turn, as LEDs
+    are) and measured by the robust centroid: pixels and their reported 1-sigma, both
+    cameras x markers x 2, NaN where a camera does not see a marker (off the chip, behind it,
+    or cut by the chip's edge) — the input of :func:`daemon.vision.tool_pose.measure_tool_pose`
+    and of :func:`daemon.vision.multiview.triangulate`."""
+    points = points_array(points_mm)
+    pixels = np.full((len(cameras), points.shape[0], 2), np.nan)
+    sigmas = np.full_like(pixels, np.nan)
+    for c, camera in enumerate(cameras):
+        for m, point in enumerate(points):
+            rendered = render_marker_window(
+                camera,
+                point,
+                rng=rng,
+                sigma_px=spot.sigma_px,
+                peak_fraction=spot.peak_fraction,
+                bit_depth=spot.bit_depth,
+                read_noise_counts=spot.read_noise_e / spot.gain_e_per_count,
+                gain_e_per_count=spot.gain_e_per_count,
+            )
+            if rendered is None:
+                continue
+            window, (column0, row0) = rendered
+            try:
+                result = measure_centroid(
+                    window,
+                    bit_depth=spot.bit_depth,
+                    gain_e_per_count=spot.gain_e_per_count,
+                    read_noise_e=spot.read_noise_e,
+                )
+            except CentroidError:
+                continue
+            if "edge" in result.flags:
+                continue
+            pixels[c, m] = (result.x_px + column0, result.y_px + row0)
+            sigmas[c, m] = (result.sigma_x_px, result.sigma_y_px)
+    return pixels, sigmas

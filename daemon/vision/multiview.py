@@ -82,6 +82,10 @@ MIN_MARKER_SPREAD = 1e-3
 #: A ray meeting the plane at less than this angle (rad; ~0.6°) gives no usable point.
 MIN_PLANE_INCIDENCE_RAD = 0.01
 _UM_PER_MM = 1000.0
+#: Gauss-Newton of the marker pose: at most this many steps, done when a step is below the
+#: tolerance (mm and rad alike: far below any marker noise).
+_MAX_POSE_ITERATIONS = 20
+_POSE_STEP_TOLERANCE = 1e-12
 
 
 class MultiviewError(ValueError):
@@ -418,22 +422,31 @@ def rigid_pose_from_markers(
     rotation0 = start.as_matrix()
     translation0 = measured_centre - rotation0 @ model_centre
 
-    def pose_of(delta: FloatArray) -> tuple[FloatArray, FloatArray]:
-        rotation = Rotation.from_rotvec(delta[3:]).as_matrix() @ rotation0
-        return rotation, translation0 + delta[:3]
+    def whitened_system(
+        rotation: FloatArray, translation: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Whitened residuals and their Jacobian in (dt, dr) at a pose (the perturbation
+        ``R -> exp([dr]x) R``, ``t -> t + dt``: d(R m + t) = dt - [R m]x dr)."""
+        rotated = model @ rotation.T
+        errors = rotated + translation - measured
+        residual = np.einsum("mji,mj->mi", whiten, errors).ravel()
+        blocks = [
+            chol.T @ np.hstack([np.eye(3), -_skew(arm)])
+            for arm, chol in zip(rotated, whiten, strict=True)
+        ]
+        return np.asarray(residual, dtype=np.float64), np.vstack(blocks)
 
-    def residuals(delta: FloatArray) -> FloatArray:
-        rotation, translation = pose_of(delta)
-        errors = model @ rotation.T + translation - measured
-        return np.asarray(np.einsum("mji,mj->mi", whiten, errors).ravel(), dtype=np.float64)
-
-    fit = least_squares(residuals, np.zeros(6), method="lm", xtol=1e-14, ftol=1e-14)
-    rotation, translation = pose_of(fit.x)
-    rows = []
-    for marker, chol in zip(model, whiten, strict=True):
-        block = np.hstack([np.eye(3), -_skew(rotation @ marker)])  # d(R m + t)/d(dt, dr)
-        rows.append(chol.T @ block)
-    jacobian = np.vstack(rows)
+    # Gauss-Newton from the Kabsch start: the problem is nearly linear there (small residuals
+    # of well-measured markers), so a few steps reach machine precision
+    rotation, translation = rotation0, translation0
+    for _ in range(_MAX_POSE_ITERATIONS):
+        residual, jacobian = whitened_system(rotation, translation)
+        step = np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
+        rotation = Rotation.from_rotvec(step[3:]).as_matrix() @ rotation
+        translation = translation + step[:3]
+        if np.linalg.norm(step) < _POSE_STEP_TOLERANCE:
+            break
+    _, jacobian = whitened_system(rotation, translation)
     covariance = np.linalg.inv(jacobian.T @ jacobian)
     transform = np.eye(4)
     transform[:3, :3] = rotation
