@@ -121,6 +121,18 @@ def test_bare_urdf_loads_its_kinematics_from_the_deepest_leaf() -> None:
     np.testing.assert_allclose(flip @ forward(arm, q), forward(load_arm("ur5e"), q), atol=1e-6)
 
 
+def test_link_lengths_follow_grows_with() -> None:
+    arm = load_arm("crs-a465")
+    assert arm.link_length_mm("turret") == pytest.approx(330.2)
+    assert arm.link_length_mm("upper-arm") == pytest.approx(304.8)
+    assert arm.link_length_mm("forearm") == pytest.approx(330.2)
+    assert arm.link_length_mm("wrist-roll") == 0.0  # no row grows with it
+    ur5e = load_arm("ur5e")
+    assert ur5e.link_length_mm("upper_arm") == pytest.approx(425.0)
+    # d4 lies along z_3, a3 along x_3: the forearm row's geometry is its a only.
+    assert ur5e.link_length_mm("forearm") == pytest.approx(392.2)
+
+
 def test_link_frames_end_at_the_flange() -> None:
     arm = load_arm("crs-a465")
     q = np.radians([10.0, -20.0, 30.0, 40.0, -50.0, 60.0])
@@ -232,7 +244,7 @@ def test_a_perpendicular_link_moves_the_tool_sideways() -> None:
 def test_bending_matches_the_beam_formula() -> None:
     # A cantilever along x of length L with a gradient g across it (°C/mm along y): thermal
     # curvature alpha·g, end rotation alpha·g·L about -z (away from the hot +y side), end
-    # deflection alpha·g·L²/2 towards -y (Timoshenko & Goodier § 152).
+    # deflection alpha·g·L²/2 towards -y (Roark's Table 8.1, kinematics docstring).
     length, overhang, g = 400.0, 50.0, 0.05
     arm = planar_arm([length], tool={"xyz_mm": [overhang, 0.0, 0.0]})
     error = tool_error(arm, np.zeros(1), [state("l1", 0.0, (g, 0.0))], bending=True)

@@ -149,8 +149,8 @@ class LinkSection:
 class Link:
     """One moving link (the body its joint moves). ``mass_kg`` and ``com_mm`` (centre of mass
     in the link's frame, ``link_frames(arm, q)[i + 1]``) give gravity torques; ``length_mm``
-    the length its thermal network spans (``None``: the length of its kinematic geometry,
-    ``Arm.geometry_length_mm``). ``material``/``section`` are ``None`` when the file gives only
+    the length its thermal network spans (``None``: the lengths of the geometry that grows
+    with it, ``Arm.link_length_mm``). ``material``/``section`` are ``None`` when the file gives only
     kinematics (the thermal model then refuses the arm)."""
 
     name: str
@@ -240,8 +240,13 @@ class Arm:
     base: FloatArray = field(default_factory=lambda: _IDENTITY)
     tool: FloatArray = field(default_factory=lambda: _IDENTITY)
     description: str = ""
+    # Each joint's fixed transforms, computed once (forward kinematics runs per step).
+    _pre: tuple[FloatArray, ...] = field(init=False, repr=False, default=())
+    _post: tuple[FloatArray, ...] = field(init=False, repr=False, default=())
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "_pre", tuple(_frozen(_pre(self, i)) for i in range(self.dof)))
+        object.__setattr__(self, "_post", tuple(_frozen(_post(self, i)) for i in range(self.dof)))
         object.__setattr__(self, "base", _frozen(self.base))
         object.__setattr__(self, "tool", _frozen(self.tool))
         if self.base.shape != (4, 4) or self.tool.shape != (4, 4):
@@ -308,26 +313,11 @@ class Arm:
 
     def pre(self, joint_index: int) -> FloatArray:
         """The fixed transform before joint ``joint_index``'s rotation (module docstring)."""
-        joint = self.joints[joint_index]
-        if self.convention == "standard":
-            return _IDENTITY
-        if self.convention == "modified":
-            return rot_x(joint.alpha_rad) @ translation(joint.a_mm, 0.0, 0.0)
-        return joint.origin @ joint.deflection
+        return self._pre[joint_index]
 
     def post(self, joint_index: int) -> FloatArray:
         """The fixed transform after joint ``joint_index``'s rotation, with its deflection."""
-        joint = self.joints[joint_index]
-        if self.convention == "standard":
-            return (
-                translation(0.0, 0.0, joint.d_mm)
-                @ translation(joint.a_mm, 0.0, 0.0)
-                @ rot_x(joint.alpha_rad)
-                @ joint.deflection
-            )
-        if self.convention == "modified":
-            return translation(0.0, 0.0, joint.d_mm) @ joint.deflection
-        return _IDENTITY
+        return self._post[joint_index]
 
     def geometry_mm(self, joint_index: int) -> FloatArray:
         """The straight segment joint ``joint_index``'s fixed geometry spans (its lengths that
@@ -348,6 +338,32 @@ class Arm:
 
     def geometry_length_mm(self, joint_index: int) -> float:
         return float(np.linalg.norm(self.geometry_mm(joint_index)))
+
+    def link_length_mm(self, name: str) -> float:
+        """The length a link's thermal network spans: its ``length_mm`` when the file gives
+        one, else the sum of the geometry lengths that grow with it (``grows_with``)."""
+        link = self.link(name)
+        if link.length_mm is not None:
+            return link.length_mm
+        return sum(
+            self.geometry_length_mm(i) for i in range(self.dof) if self.grows_with(i) == name
+        )
+
+
+def _pre(arm: Arm, joint_index: int) -> FloatArray:
+    joint = arm.joints[joint_index]
+    if arm.convention == "standard":
+        return _IDENTITY
+    if arm.convention == "modified":
+        return rot_x(joint.alpha_rad) @ translation(joint.a_mm, 0.0, 0.0)
+    return joint.origin @ joint.deflection
+
+
+def _post(arm: Arm, joint_index: int) -> FloatArray:
+    joint = arm.joints[joint_index]
+    if arm.convention == "urdf":
+        return _IDENTITY
+    return _strip_deflection(arm, joint_index) @ joint.deflection
 
 
 def _strip_deflection(arm: Arm, joint_index: int) -> FloatArray:
@@ -537,14 +553,13 @@ def _limit(value_deg: float | None, default_rad: float) -> float:
 
 def _check_links_named(arm: Arm) -> None:
     names = set(arm.link_names)
-    for index, joint in enumerate(arm.joints):
+    for joint in arm.joints:
         if joint.grows_with and joint.grows_with not in names:
             raise ArmError(f"joint {joint.name!r}: grows_with {joint.grows_with!r} is no link")
         if joint.motor is not None and joint.motor.heats_link not in names:
             raise ArmError(
                 f"joint {joint.name!r}: motor.heats_link {joint.motor.heats_link!r} is no link"
             )
-        del index
 
 
 def _dh_arm(spec: _ArmFile, name: str) -> Arm:

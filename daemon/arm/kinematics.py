@@ -6,15 +6,19 @@ arm's base (world) frame; errors are ``Pose6`` (translation + rotation vector, b
 The warm arm (issue 20, "Tool error"): each link's thermal growth changes the link's kinematic
 parameters, and the tool error at a configuration is the pose from the warm parameters relative
 to the pose from the cold ones. A link whose mean temperature rises by ``ΔT`` grows
-``alpha·ΔT`` per unit length along its geometry, so its DH ``a`` and ``d`` (or its URDF origin's
-translation) scale by ``1 + alpha·ΔT`` (thesis Eq. 5.x, the 1-D growth ``δ = alpha·ΔT·L``
-applied to each length of the link). With ``bending``, a temperature difference across the
-link bends it as a beam: a linear gradient ``g`` (°C per mm across the section) gives the
-thermal curvature ``κ = alpha·g`` (Timoshenko & Goodier, *Theory of Elasticity*, 3rd ed.,
-§ 152: ``1/r = alpha·(T_top - T_bottom)/h``; the same in Boley & Weiner, *Theory of Thermal
-Stresses*, § 9.3), uniform along an unrestrained beam, so over the link's length ``L`` its end
-turns by ``θ = alpha·g·L`` (= ``alpha·ΔT_across·L/h``) away from the hot side and moves
-``alpha·g·L²/2`` towards the cold side.
+``alpha·ΔT`` per unit length along its geometry, so its DH ``a`` and ``d`` (or its URDF
+origin's translation) scale by ``1 + alpha·ΔT`` (thesis Eq. 3.6, ``alpha = dL/(L dT)``,
+integrated over the link as the finite-difference model of thesis 5.3 does:
+``ΔL = alpha·mean(ΔT)·L``).
+
+With ``bending``, a temperature difference across the link bends it as a beam. A linear
+gradient ``g`` (°C per mm across the section, ``g = ΔT_across/h``) gives the uniform thermal
+curvature ``κ = alpha·g`` of an unrestrained beam (Timoshenko & Goodier, *Theory of
+Elasticity*, chapter "Thermal stress": ``1/r = alpha·(T1 - T2)/h``; Roark's *Formulas for Stress
+and Strain*, 7th ed., Table 8.1, "uniform temperature variation from top to bottom", left end
+fixed, right end free: end slope ``gamma·(T1 - T2)·l/t``, end deflection
+``gamma·(T1 - T2)·l²/(2t)``). So over the link's length ``L`` its end turns by
+``θ = alpha·g·L`` away from the hot side and moves ``alpha·g·L²/2`` towards the cold side.
 """
 
 from __future__ import annotations
@@ -26,12 +30,12 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from daemon.arm.description import Arm, ArmError, FloatArray, rot_axis
+from daemon.arm.description import Arm, ArmError, FloatArray, rot_axis, rot_z
 from daemon.arm.types import LinkThermalState, Pose6
 
 #: ``inverse`` accepts a solution within these of the target pose (far below the A465's
 #: ±50 µm repeatability, thesis 3.2.1, and the µm-scale thermal errors it corrects).
-IK_POSITION_TOLERANCE_MM = 1e-6 * 1e3  # 1 nm
+IK_POSITION_TOLERANCE_MM = 1e-6  # 1 nm
 IK_ROTATION_TOLERANCE_RAD = 1e-9
 #: Weight of the rotation residual: 1 rad of orientation error counts as this many mm, about
 #: the reach of a small arm, so that position and orientation are balanced.
@@ -57,9 +61,11 @@ def _chain(arm: Arm, q: FloatArray) -> tuple[list[FloatArray], list[FloatArray]]
     pivots = []
     current = frames[0]
     for i, joint in enumerate(arm.joints):
-        pivot = current @ arm.pre(i)
+        pivot = current @ arm.pre(i) if arm.convention != "standard" else current
         pivots.append(pivot)
-        current = pivot @ rot_axis(joint.axis, float(q[i]) + joint.theta_offset_rad) @ arm.post(i)
+        angle = float(q[i]) + joint.theta_offset_rad
+        turn = rot_z(angle) if joint.axis[2] == 1.0 else rot_axis(joint.axis, angle)
+        current = pivot @ turn @ arm.post(i)
         frames.append(current)
     return frames, pivots
 
@@ -140,7 +146,7 @@ def inverse(
             residual,
             start,
             jac=derivative,
-            bounds=(lower, upper) if np.all(np.isfinite(lower + upper)) else (-np.inf, np.inf),
+            bounds=(lower, upper),
             method="trf",
             xtol=1e-15,
             ftol=1e-15,
@@ -199,8 +205,11 @@ def warm_arm(arm: Arm, states: Sequence[LinkThermalState], bending: bool = False
     """The arm with each link's lengths grown by ``1 + alpha·mean_rise`` (its DH ``a`` and
     ``d``, or its URDF origin's translation; ``Arm.grows_with`` says which link's temperature
     scales which joint's lengths) and, with ``bending``, each link's end turned and moved by
-    its across-link gradient (``bending_deflection``). Links without a state stay cold; a state
-    naming no link of the arm is an error. Base and tool do not grow."""
+    its across-link gradient (``bending_deflection``; the gradient's (y, z) are those of the
+    frame at the distal end of the geometry it bends: for a DH arm the link's own frame,
+    ``link_frames[i + 1]``; for a URDF arm the frame of the next joint's origin, fixed in the
+    link). Links without a state stay cold; a state naming no link of the arm is an error.
+    Base and tool do not grow."""
     by_link: dict[str, LinkThermalState] = {}
     state: LinkThermalState | None
     for state in states:
