@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from daemon.arm.description import load_arm
 from daemon.arm.duty import (
     DutyCycle,
     DutyCycleError,
@@ -17,17 +18,24 @@ from daemon.arm.duty import (
     load_duty_cycle,
     trapezoid_timing,
 )
+from daemon.arm.heat import JointHeatProfile
+from daemon.arm.kinematics import link_frames
 from daemon.arm.motors import (
     GRAVITY_M_S2,
     MotorParameters,
+    arm_motors,
     friction_torque_nm,
     gravity_torques_nm,
     heat_from_current_w,
     heat_from_power_w,
     inertia_diagonal_kg_m2,
+    joint_heat_w,
     joint_torques_nm,
     motor_heat_w,
+    motor_parameters,
+    torques_nm,
 )
+from daemon.arm.types import JointSample
 
 MOTOR = MotorParameters(
     gear_ratio=50.0,
@@ -252,3 +260,86 @@ def test_duty_file_errors_name_the_pose() -> None:
     )
     assert cycle.poses[1].q_rad == pytest.approx((0.5, 0.6))
     np.testing.assert_allclose(seeds[0], np.radians([10, 20]))
+
+
+# -- on the A465 preset -----------------------------------------------------------------------
+
+
+def test_gravity_torque_is_the_gradient_of_potential_energy() -> None:
+    """torques_nm at rest = dV/dq with V = g sum m_i z_i (centres from link_frames): an
+    independent check of the axes, levers and signs, payload included."""
+    arm = load_arm("crs-a465")
+    payload = 1.5
+    q = np.radians([20.0, 35.0, 40.0, 30.0, -25.0, 10.0])
+
+    def potential(angles: np.ndarray) -> float:
+        frames = link_frames(arm, angles)
+        energy = 0.0
+        for i, link in enumerate(arm.links):
+            centre = frames[i + 1] @ np.array([*link.com_mm, 1.0])
+            energy += link.mass_kg * GRAVITY_M_S2 * centre[2] * 1e-3
+        tool = (frames[-1] @ arm.tool)[2, 3]
+        return float(energy + payload * GRAVITY_M_S2 * tool * 1e-3)
+
+    step = 1e-6
+    gradient = np.array(
+        [(potential(q + step * e) - potential(q - step * e)) / (2 * step) for e in np.eye(arm.dof)]
+    )
+    rest = JointSample(0.0, q, np.zeros(6), np.zeros(6))
+    torque = torques_nm(arm, rest, payload_kg=payload)
+    np.testing.assert_allclose(torque, gradient, atol=1e-6)
+    assert abs(torque[1]) > 10.0  # the shoulder carries the arm
+    # heat at rest is the copper loss of holding that torque
+    table = arm_motors(arm)
+    current = torque / (table.k_t * table.ratio)
+    np.testing.assert_allclose(
+        joint_heat_w(arm, rest, payload_kg=payload), table.resistance * current**2, rtol=1e-12
+    )
+
+
+def test_arm_motor_friction_at_the_joint_is_the_same_loss() -> None:
+    arm = load_arm("crs-a465")
+    motor = arm.joints[0].motor
+    assert motor is not None
+    params = motor_parameters(motor)
+    omega = 1.3
+    expected = motor.viscous_friction_nm_s_per_rad * omega**2 + motor.coulomb_friction_nm * omega
+    heat = motor_heat_w(params, omega, friction_torque_nm(params, omega))
+    copper = (
+        params.resistance_ohm
+        * (
+            friction_torque_nm(params, omega)
+            / (params.torque_constant_nm_per_a * params.gear_ratio)
+        )
+        ** 2
+    )
+    assert heat - copper == pytest.approx(expected, rel=1e-12)
+
+
+def test_heat_profile_integrates_one_cycle_and_repeats() -> None:
+    arm = load_arm("crs-a465")
+    cycle = load_duty_cycle("a465-pick-and-place")
+    profile = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.01)
+    table = arm_motors(arm)
+
+    def power(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        return np.array(
+            [
+                joint_heat_w(
+                    arm,
+                    JointSample(0.0, q[k], qd[k], qdd[k]),
+                    motors=table,
+                    payload_kg=cycle.payload_kg,
+                )
+                for k in range(len(q))
+            ]
+        )
+
+    np.testing.assert_allclose(profile.cycle_energy_j, cycle.cycle_energy_j(power, 0.01), rtol=1e-9)
+    period = cycle.period_s
+    # whole cycles: the mean power; energy is additive over any split of an interval
+    np.testing.assert_allclose(profile.step_power_w(3 * period, 5 * period), profile.mean_power_w)
+    split = profile.energy_at_j(100.3) - profile.energy_at_j(0.0)
+    parts = sum(profile.step_power_w(a, b) * (b - a) for a, b in ((0.0, 41.7), (41.7, 100.3)))
+    np.testing.assert_allclose(split, parts, rtol=1e-12)
+    assert np.all(profile.mean_power_w >= 0.0) and profile.mean_power_w[1] > 5.0

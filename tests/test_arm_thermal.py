@@ -10,6 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from daemon.arm.description import load_arm
+from daemon.arm.duty import load_duty_cycle
+from daemon.arm.heat import JointHeatProfile
+from daemon.arm.kinematics import link_frames, tool_error
 from daemon.arm.thermal import (
     ArmThermalDescription,
     ArmThermalModel,
@@ -255,3 +259,56 @@ def test_an_eight_hour_run_at_one_second_is_fast_and_reaches_the_steady_state() 
     steady = steady_link_rise_c(description, mean_heat, node_spacing_mm=10.0, ambient_c=22.0)
     for state in model.link_states():
         assert state.mean_rise_c == pytest.approx(steady[state.link], rel=0.03)
+
+
+# -- on the A465 preset -----------------------------------------------------------------------
+
+
+def test_an_arm_file_gives_links_in_order_and_nodes_that_ride_their_links() -> None:
+    arm = load_arm("crs-a465")
+    model = ArmThermalModel(arm, node_spacing_mm=25.0)
+    assert model.link_names == arm.link_names
+    assert [s.link for s in model.link_states()] == list(arm.link_names)
+    assert model.joint_node_names == arm.joint_names
+    # the upper arm spans the elbow's a (304.8 mm) from the shoulder to the elbow
+    upper = model.link_node_indices("upper-arm")
+    assert len(upper) == math.ceil(304.8 / 25.0) + 1
+    q = np.radians([30.0, 40.0, -20.0, 10.0, 35.0, 0.0])
+    frames = link_frames(arm, q)
+    positions = model.node_positions_mm(q)
+    np.testing.assert_allclose(positions[upper[0]], frames[2][:3, 3], atol=1e-9)
+    np.testing.assert_allclose(positions[upper[-1]], frames[3][:3, 3], atol=1e-9)
+    zero = model.node_positions_mm(np.zeros(arm.dof))
+    assert model.network.positions_3d_mm is not None
+    np.testing.assert_allclose(zero, model.network.positions_3d_mm, atol=1e-9)
+    # each joint's housing is on its motor's link, which its node reports
+    for joint in arm.joints:
+        assert joint.motor is not None
+        index = model.node_names.index(joint.name)
+        assert model.node_links[index] == joint.motor.heats_link
+
+
+def test_the_preset_cycle_drifts_the_a465_tool_over_8_hours_in_seconds() -> None:
+    """The issue's 8-hour target on the model alone: 28,800 one-second steps with each step's
+    mean motor heat; the tool at the measured poses drifts >= 100 um (the bench's truth
+    differs; benchmarks/bench_arm_thermal.py reports the number). The time bound is generous
+    for a loaded 2-core machine (measured ~3 s there, well under 1 s idle)."""
+    arm = load_arm("crs-a465")
+    cycle = load_duty_cycle("a465-pick-and-place")
+    profile = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.02)
+    model = ArmThermalModel(arm, ambient_c=22.0)
+    start = time.perf_counter()
+    for k in range(1, 28_801):
+        model.advance_to(float(k), profile.step_power_w(k - 1.0, float(k)))
+    elapsed = time.perf_counter() - start
+    assert elapsed < 30.0
+    states = model.link_states()
+    drift_um = [
+        tool_error(arm, np.array(pose.q_rad), states).translation_norm_mm * 1e3
+        for pose in cycle.measured_poses()
+    ]
+    assert min(drift_um) >= 100.0
+    # after 8 h the arm is at (within 2 % of) the steady state of the cycle's mean heat
+    steady = steady_link_rise_c(model.description, profile.mean_power_w)
+    for state in states:
+        assert state.mean_rise_c == pytest.approx(steady[state.link], rel=0.02)

@@ -17,6 +17,7 @@ The file (TOML; ``config/duty/`` holds presets)::
     arm = "crs-a465"                       # the arm it was taught on (tool poses need it)
     max_speed_deg_s = [180, 180, 180, 170, 170, 225]   # per joint, or one number
     max_accel_deg_s2 = [360, 360, 360, 340, 340, 450]
+    payload_kg = 1.0                       # at the tool point: gripper + part (default 0)
 
     [[poses]]
     name = "pick"
@@ -129,8 +130,11 @@ class DutyCycle:
     max_accel_rad_s2: tuple[float, ...]
     arm: str = ""
     description: str = ""
+    payload_kg: float = 0.0  # carried at the tool point (gripper + part)
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.payload_kg) and self.payload_kg >= 0.0):
+            raise DutyCycleError(f"payload must be >= 0 kg, got {self.payload_kg}")
         if len(self.poses) < 2:
             raise DutyCycleError(f"duty cycle {self.name!r} needs at least two poses")
         joints = len(self.max_speed_rad_s)
@@ -274,6 +278,7 @@ class _DutyFile(_Strict):
     arm: str = ""
     max_speed_deg_s: float | tuple[float, ...]
     max_accel_deg_s2: float | tuple[float, ...]
+    payload_kg: float = Field(default=0.0, ge=0.0)
     poses: tuple[_Pose, ...]
 
 
@@ -357,6 +362,7 @@ def duty_cycle_from_mapping(
         max_accel_rad_s2=per_joint(spec.max_accel_deg_s2, "max_accel_deg_s2"),
         arm=spec.arm,
         description=spec.description,
+        payload_kg=spec.payload_kg,
     )
 
 

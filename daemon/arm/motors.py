@@ -36,7 +36,8 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike
 
-from daemon.arm.types import FloatArray
+from daemon.arm.description import Arm, ArmError, Motor
+from daemon.arm.types import FloatArray, JointSample
 
 #: Standard gravity (m/s^2), ISO 80000-3.
 GRAVITY_M_S2 = 9.80665
@@ -269,16 +270,112 @@ def joint_torques_nm(
     return torque
 
 
+def motor_parameters(motor: Motor) -> MotorParameters:
+    """An arm file's motor (``description.Motor``: friction given at the joint) as
+    :class:`MotorParameters` (friction at the motor side: ``b = B_joint / N^2``,
+    ``tau_c = tau_c,joint / N``; the same losses). The arm file has no gearbox efficiency:
+    its friction holds the gearbox's losses (``eta = 1``)."""
+    ratio = motor.gear_ratio
+    return MotorParameters(
+        gear_ratio=ratio,
+        torque_constant_nm_per_a=motor.torque_constant_nm_per_a,
+        resistance_ohm=motor.winding_resistance_ohm,
+        viscous_nm_s_per_rad=motor.viscous_friction_nm_s_per_rad / ratio**2,
+        coulomb_nm=motor.coulomb_friction_nm / ratio,
+        rotor_inertia_kg_m2=motor.rotor_inertia_kg_m2,
+    )
+
+
+def arm_motors(arm: Arm) -> MotorTable:
+    """Every joint's motor from the arm file; an arm with a joint without one cannot say how
+    its motion heats it."""
+    missing = [joint.name for joint in arm.joints if joint.motor is None]
+    if missing:
+        raise ArmError(f"arm {arm.name!r}: joint {missing[0]!r} has no motor parameters")
+    return MotorTable(tuple(motor_parameters(joint.motor) for joint in arm.joints if joint.motor))
+
+
+@dataclass(frozen=True, eq=False)
+class _MassModel:
+    """Joint axes and origins and the links' masses and centres at one configuration."""
+
+    origins_mm: FloatArray
+    axes: FloatArray
+    masses_kg: FloatArray
+    centres_mm: FloatArray
+
+
+def _mass_model(arm: Arm, q_rad: FloatArray, payload_kg: float) -> _MassModel:
+    from daemon.arm.kinematics import link_frames
+
+    frames = link_frames(arm, q_rad)
+    origins, axes, centres = [], [], []
+    for i, joint in enumerate(arm.joints):
+        pivot = frames[i] @ arm.pre(i)  # the frame joint i rotates in (kinematics._chain)
+        origins.append(pivot[:3, 3])
+        axes.append(pivot[:3, :3] @ joint.axis)
+        centre = frames[i + 1] @ np.array([*arm.links[i].com_mm, 1.0])
+        centres.append(centre[:3])
+    masses = np.array([link.mass_kg for link in arm.links], dtype=np.float64)
+    if payload_kg > 0.0:  # the payload at the tool point, carried by the last link
+        tool_point = (frames[-1] @ arm.tool)[:3, 3]
+        last = masses[-1] + payload_kg
+        if last > 0.0:
+            centres[-1] = (masses[-1] * centres[-1] + payload_kg * tool_point) / last
+        masses[-1] = last
+    return _MassModel(np.array(origins), np.array(axes), masses, np.array(centres))
+
+
+def torques_nm(
+    arm: Arm,
+    sample: JointSample,
+    *,
+    motors: MotorTable | None = None,
+    payload_kg: float = 0.0,
+) -> FloatArray:
+    """The joint torques (N·m) the motors supply at ``sample``: gravity from the links'
+    masses and centres of mass (:func:`gravity_torques_nm` over ``kinematics.link_frames``),
+    the diagonal inertia of the links as point masses plus the rotors' reflected inertia
+    times ``qdd``, and the motors' friction (:func:`joint_torques_nm`). Simple on purpose:
+    Coriolis/centrifugal terms and the off-diagonal inertia are left out (slow, short moves:
+    their work over a cycle is small against gravity's copper loss and friction)."""
+    table = arm_motors(arm) if motors is None else motors
+    model = _mass_model(arm, sample.q_rad, payload_kg)
+    gravity = gravity_torques_nm(model.origins_mm, model.axes, model.masses_kg, model.centres_mm)
+    inertia = inertia_diagonal_kg_m2(
+        model.origins_mm, model.axes, model.masses_kg, model.centres_mm
+    )
+    return joint_torques_nm(table, sample.qd_rad_s, sample.qdd_rad_s2, gravity, inertia)
+
+
+def joint_heat_w(
+    arm: Arm,
+    sample: JointSample,
+    *,
+    motors: MotorTable | None = None,
+    payload_kg: float = 0.0,
+) -> FloatArray:
+    """Heat released in each joint (W) at ``sample``: :func:`motor_heat_w` of
+    :func:`torques_nm`."""
+    table = arm_motors(arm) if motors is None else motors
+    torque = torques_nm(arm, sample, motors=table, payload_kg=payload_kg)
+    return motor_heat_w(table, sample.qd_rad_s, torque)
+
+
 __all__ = [
     "GRAVITY_M_S2",
     "MotorParameters",
     "MotorTable",
+    "arm_motors",
     "friction_torque_nm",
     "gravity_torques_nm",
     "heat_from_current_w",
     "heat_from_power_w",
     "inertia_diagonal_kg_m2",
+    "joint_heat_w",
     "joint_torques_nm",
     "motor_heat_w",
+    "motor_parameters",
     "motor_torque_nm",
+    "torques_nm",
 ]

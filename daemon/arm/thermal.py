@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from daemon.arm.description import Arm
 from daemon.arm.types import FloatArray, LinkThermalState
 from daemon.model.model import ModelError, Stepper, ThermalModel
 from daemon.model.network import Resistance, ThermalNetwork
@@ -70,9 +71,12 @@ class LinkBody:
     alpha_per_c: float
     emissivity: float = 0.9
     h_w_per_m2k: float = DEFAULT_H_W_PER_M2K
+    thermal_length_mm: float | None = None  # the metal's length if not start-to-end
 
     @property
     def length_mm(self) -> float:
+        if self.thermal_length_mm is not None:
+            return self.thermal_length_mm
         return float(np.linalg.norm(np.subtract(self.end_mm, self.start_mm)))
 
 
@@ -247,7 +251,7 @@ class ArmThermalModel:
 
     def __init__(
         self,
-        arm: object,
+        arm: Arm | ArmThermalDescription,
         *,
         node_spacing_mm: float = DEFAULT_NODE_SPACING_MM,
         ambient_c: AmbientInput = 22.0,
@@ -259,6 +263,7 @@ class ArmThermalModel:
     ) -> None:
         description = arm if isinstance(arm, ArmThermalDescription) else describe_arm(arm)
         self.description = description
+        self.arm = None if isinstance(arm, ArmThermalDescription) else arm
         self._schedule: Callable[[float], float] | None = None
         if callable(ambient_c):
             self._schedule = ambient_c
@@ -284,6 +289,7 @@ class ArmThermalModel:
         )
         self._joint_names = tuple(self.network.node_names[i] for i in self._layout.joint_nodes)
         self._heat = np.zeros(len(self._joint_names))
+        self._local: tuple[IntArray, FloatArray] | None = None
 
     # -- inputs -------------------------------------------------------------------------------
 
@@ -360,6 +366,35 @@ class ArmThermalModel:
         index = link if isinstance(link, int) else self.link_names.index(link)
         return self._layout.link_nodes[index]
 
+    def node_positions_mm(self, q_rad: ArrayLike) -> FloatArray:
+        """Every node's 3-D position (mm, base frame) with the arm at ``q_rad``: each node
+        rides its link's frame (``kinematics.link_frames``); the base node stays put. Needs
+        the model to be built from an Arm."""
+        if self.arm is None:
+            raise ModelError("node positions at a configuration need the model built from an Arm")
+        from daemon.arm.kinematics import link_frames
+
+        if self._local is None:
+            self._local = self._local_positions(self.arm)
+        frames = np.array(link_frames(self.arm, np.asarray(q_rad, dtype=np.float64)))
+        frame_of, local = self._local
+        moved = np.einsum("nij,nj->ni", frames[frame_of], local)
+        result: FloatArray = moved[:, :3]
+        return result
+
+    def _local_positions(self, arm: Arm) -> tuple[IntArray, FloatArray]:
+        """Each node's frame index and its position in that frame (homogeneous)."""
+        from daemon.arm.kinematics import link_frames
+
+        frames = link_frames(arm, np.zeros(arm.dof))
+        index = {name: k + 1 for k, name in enumerate(arm.link_names)}
+        frame_of = np.array([index.get(link, 0) for link in self.node_links], dtype=np.intp)
+        assert self.network.positions_3d_mm is not None
+        points = np.hstack([self.network.positions_3d_mm, np.ones((self.network.node_count, 1))])
+        inverse = np.linalg.inv(np.array(frames))
+        local = np.einsum("nij,nj->ni", inverse[frame_of], points)
+        return frame_of, local
+
     def set_temperatures(self, temperatures_c: float | ArrayLike) -> None:
         self._model.set_temperatures(temperatures_c)
 
@@ -387,10 +422,78 @@ class ArmThermalModel:
         return result
 
 
-def describe_arm(arm: object) -> ArmThermalDescription:
-    """The thermal description of an arm from its description (kinematics + materials +
-    motors); filled in once ``daemon.arm.description`` exists."""
-    raise TypeError(f"cannot build a thermal model from {type(arm).__name__}")
+def describe_arm(
+    arm: Arm,
+    *,
+    contact_r_c_per_w: float = DEFAULT_CONTACT_R_C_PER_W,
+    bearing_r_c_per_w: float = DEFAULT_BEARING_R_C_PER_W,
+    joint_capacitance_j_per_c: float = DEFAULT_JOINT_MASS_KG * JOINT_SPECIFIC_HEAT_J_PER_KGK,
+    joint_area_m2: float = DEFAULT_JOINT_AREA_M2,
+    base_capacitance_j_per_c: float = DEFAULT_BASE_MASS_KG * BASE_SPECIFIC_HEAT_J_PER_KGK,
+    base_r_ambient_c_per_w: float = DEFAULT_BASE_R_AMBIENT_C_PER_W,
+) -> ArmThermalDescription:
+    """The thermal description of an arm file (kinematics + link materials and sections +
+    motors). Link ``i`` spans the geometry of the joints whose lengths grow with it
+    (``Arm.grows_with``), from the first one's frame origin to the last one's end, at the zero
+    configuration; a link that holds no length (a wrist) is a short lump at its frame's
+    origin. Each joint's housing sits on its motor's ``heats_link`` (bolted:
+    ``contact_r_c_per_w``); its other flange is reached through the bearings
+    (``bearing_r_c_per_w``). The joint, base and contact values are estimates (module
+    constants) that a finer truth model may change."""
+    from daemon.arm.description import ArmError
+    from daemon.arm.kinematics import link_frames
+
+    frames = link_frames(arm, np.zeros(arm.dof))
+    origins = [frame[:3, 3] for frame in frames]
+    links = []
+    for k, link in enumerate(arm.links):
+        if link.material is None or link.section is None:
+            raise ArmError(
+                f"arm {arm.name!r}: link {link.name!r} has no material or section; the thermal "
+                "model needs both"
+            )
+        own = [j for j in range(arm.dof) if arm.grows_with(j) == link.name]
+        start = origins[own[0]] if own else origins[k + 1]
+        end = origins[own[-1] + 1] if own else origins[k + 1]
+        material = link.material
+        links.append(
+            LinkBody(
+                name=link.name,
+                start_mm=(float(start[0]), float(start[1]), float(start[2])),
+                end_mm=(float(end[0]), float(end[1]), float(end[2])),
+                area_m2=link.section.area_mm2 * MM * MM,
+                perimeter_m=link.section.perimeter_mm * MM,
+                conductivity_w_per_mk=material.conductivity_w_per_mk,
+                density_kg_per_m3=material.density_kg_per_m3,
+                specific_heat_j_per_kgk=material.specific_heat_j_per_kgk,
+                alpha_per_c=material.alpha_per_c,
+                emissivity=material.emissivity,
+                h_w_per_m2k=material.convection_w_per_m2k,
+                thermal_length_mm=link.length_mm,
+            )
+        )
+    joints = []
+    for j, joint in enumerate(arm.joints):
+        proximal = arm.links[j - 1].name if j > 0 else None
+        housing = joint.motor.heats_link if joint.motor is not None else proximal
+        on_distal = housing == arm.links[j].name
+        joints.append(
+            JointBody(
+                name=joint.name,
+                capacitance_j_per_c=joint_capacitance_j_per_c,
+                ambient_conductance_w_per_c=DEFAULT_H_W_PER_M2K * joint_area_m2,
+                proximal_r_c_per_w=bearing_r_c_per_w if on_distal else contact_r_c_per_w,
+                distal_r_c_per_w=contact_r_c_per_w if on_distal else bearing_r_c_per_w,
+                link=housing,
+            )
+        )
+    return ArmThermalDescription(
+        arm.name,
+        tuple(links),
+        tuple(joints),
+        base_capacitance_j_per_c=base_capacitance_j_per_c,
+        base_r_ambient_c_per_w=base_r_ambient_c_per_w,
+    )
 
 
 def steady_link_rise_c(
