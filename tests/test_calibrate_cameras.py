@@ -14,7 +14,7 @@ import pytest
 from daemon import calibrate_cli
 from daemon.vision.cameras import load_cameras, write_cameras
 from daemon.vision.multiview import CameraModel, intrinsic_matrix, look_at, project
-from tests.helpers import run_in_process
+from tests.helpers import run_cli, run_in_process
 
 TARGET = (0.0, 0.0, 400.0)
 
@@ -140,3 +140,9 @@ def test_positions_on_one_line_fail_with_exit_1(
     status, _, err = calibrate(["--cameras", str(intrinsics), "--observations", str(path)], capsys)
     assert status == 1
     assert "one line" in err
+
+
+def test_the_command_is_part_of_thermocomp() -> None:
+    result = run_cli(["calibrate", "cameras", "--help"])
+    assert result.returncode == 0, result.stderr
+    assert "--observations CSV" in result.stdout and "--simulate TRUTH" in result.stdout
