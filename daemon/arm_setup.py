@@ -8,7 +8,6 @@ that its tests can run an arm run on exact fakes; the defaults here build the re
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +17,7 @@ from config import CONFIG_DIR, Settings
 from daemon.arm.run import ArmPredictor, MeasuredPose
 from daemon.arm_step import ArmRobot, ToolMeter
 from daemon.devices_check import Devices
+from daemon.runs import RunParameters
 from daemon.workers import Workers
 from drivers.base import Robot
 
@@ -36,7 +36,7 @@ class ArmPlan:
     snapshot: dict[str, Any] = field(default_factory=dict)
 
 
-ArmSetup = Callable[[Settings, str], ArmPlan]
+ArmSetup = Callable[[Settings, RunParameters], ArmPlan]
 ArmMeterFactory = Callable[[Settings, Devices, Workers], ToolMeter]
 
 #: Preset arm descriptions (wt-kin: config/arms/<name>.toml).
@@ -58,15 +58,31 @@ def check_arm_run(settings: Settings, duty_cycle: str | None) -> None:
         raise ArmSetupError("an arm run needs a duty cycle (run duty_cycle or arm.duty_cycle)")
 
 
-def default_arm_setup(settings: Settings, duty_cycle: str) -> ArmPlan:
-    """The controller's model of the arm from the arm file and the duty cycle (daemon/arm:
-    kinematics, motors, thermal, duty)."""
-    try:
-        controller = importlib.import_module("daemon.arm.controller")
-    except ImportError as err:
-        raise ArmSetupError(f"the arm model is not available: {err}") from err
-    build = cast(Callable[[Settings, Path, str], ArmPlan], controller.build_arm_plan)
-    return build(settings, arm_file(settings), duty_cycle)
+def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
+    """The controller's model of the arm from the arm file and the run's duty cycle
+    (daemon/arm/controller.py), stepped at the run's step in model time."""
+    from daemon.arm.controller import ArmModelOptions, load_controller
+
+    arm_settings = settings.arm
+    assert parameters.duty_cycle is not None
+    options = ArmModelOptions(
+        motion_dt_s=arm_settings.motion_dt_s,
+        ambient_c=settings.model.ambient_c,
+        bending=arm_settings.bending,
+        model_dt_s=parameters.step_s * parameters.time_scale,
+    )
+    controller = load_controller(arm_file(settings), parameters.duty_cycle, options)
+    poses = controller.measured_poses(arm_settings.measured_poses)
+    snapshot = {
+        "arm": controller.arm.name,
+        "arm_file": str(arm_file(settings)),
+        "duty_cycle": controller.duty.name,
+        "period_s": controller.duty.period_s,
+        "measured_poses": [pose.name for pose in poses],
+        "node_names": list(controller.thermal.node_names),
+        "mean_joint_heat_w": controller.heat.mean_power_w.tolist(),
+    }
+    return ArmPlan(controller, poses, snapshot)
 
 
 def default_arm_meter(settings: Settings, devices: Devices, workers: Workers) -> ToolMeter:

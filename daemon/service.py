@@ -245,7 +245,7 @@ class Daemon:
         try:
             check_arm_run(self.settings, parameters.duty_cycle)
             assert parameters.duty_cycle is not None
-            plan = await workers.step(self._arm_setup, self.settings, parameters.duty_cycle)
+            plan = await workers.step(self._arm_setup, self.settings, parameters)
             robot = arm_robot(self.devices.robot)
             meter = self._arm_meter(self.settings, self.devices, workers)
         except (ArmSetupError, ValueError, OSError) as err:

@@ -248,8 +248,9 @@ class ArmHarness:
         self.devices = FakeArmDevices(clock)
         return self.devices
 
-    def _setup(self, settings: Settings, duty_cycle: str) -> ArmPlan:
-        self.setups.append(duty_cycle)
+    def _setup(self, settings: Settings, parameters: RunParameters) -> ArmPlan:
+        assert parameters.duty_cycle is not None
+        self.setups.append(parameters.duty_cycle)
         return ArmPlan(self._predictor(), POSES, {"arm": "fake"})
 
     def _meter(self, settings: Settings, devices: Devices, workers: Workers) -> ToolMeter:
@@ -495,3 +496,38 @@ def test_arm_run_parameters_refuse_incremental_and_procedures() -> None:
 def test_fake_robot_is_an_arm_robot() -> None:
     robot: ArmRobot = FakeArmRobot(ArmTruth(make_clock("virtual")))
     assert robot.status().motion_held is False
+
+
+# --- the real controller model (daemon/arm/controller.py) ------------------------------------
+
+
+def test_controller_heats_from_the_duty_cycle_and_predicts_at_each_pose() -> None:
+    from daemon.arm.controller import ArmModelOptions, load_controller
+    from daemon.arm.kinematics import forward, tool_error
+
+    controller = load_controller(
+        "config/arms/crs-a465.toml", "a465-pick-and-place", ArmModelOptions(model_dt_s=60.0)
+    )
+    poses = controller.measured_poses()
+    assert [pose.name for pose in poses] == [p.name for p in controller.duty.measured_poses()]
+    for pose in poses:
+        np.testing.assert_array_equal(pose.tool_pose, forward(controller.arm, pose.q_rad))
+        assert controller.tool_error(pose).translation_norm_mm == 0.0  # cold: no error
+    # the mean heat over whole cycles is the cycle's energy over its period
+    period = controller.duty.period_s
+    np.testing.assert_allclose(
+        controller.mean_heat_w(2 * period, 5 * period), controller.heat.mean_power_w, rtol=1e-9
+    )
+    controller.advance_to(3600.0)
+    assert controller.time_s == 3600.0
+    np.testing.assert_allclose(controller.last_heat_w, controller.mean_heat_w(0.0, 3600.0))
+    for pose in poses:  # the links' present states at the pose's own configuration
+        expected = tool_error(controller.arm, pose.q_rad, controller.thermal.link_states())
+        np.testing.assert_array_equal(controller.tool_error(pose).as_array(), expected.as_array())
+        assert controller.tool_error(pose).translation_norm_mm > 0.005  # warm after an hour
+    temperatures = controller.temperatures_c()
+    assert set(temperatures) == set(controller.thermal.node_names)
+    assert max(temperatures.values()) > 22.5
+    with pytest.raises(ValueError, match="nowhere"):
+        controller.measured_poses(("camera", "nowhere"))
+    assert [p.name for p in controller.measured_poses(("place",))] == ["place"]

@@ -3,19 +3,17 @@ run (daemon/arm_step.py). Pure.
 
 Each advance takes the motor heat of the duty cycle's *commanded* motion over the interval
 (the duty cycle's joint positions, speeds and accelerations on ``motion_dt_s``, the joint
-torques they need, each joint's motor and gearbox losses: daemon/arm/motors.py), holds its
-mean power over the interval (a zero-order hold of the interval's mean: it carries the
-interval's energy exactly) and advances the arm's thermal network (daemon/arm/thermal.py).
-The motion is periodic, so each joint's energy over one cycle is integrated once (midpoint
-rule, as daemon/arm/duty.py ``cycle_energy_j``) and any interval's is read from it. The
-tool error at a measured pose is kinematics.tool_error at that pose's joint angles with the
-links' current thermal states.
+torques they need, each joint's motor and gearbox losses: daemon/arm/motors.py, integrated
+once per cycle by daemon/arm/heat.py JointHeatProfile), holds its mean power over the
+interval (a zero-order hold of the interval's mean: it carries the interval's energy
+exactly) and advances the arm's thermal network (daemon/arm/thermal.py). The tool error at
+a measured pose is kinematics.tool_error at that pose's joint angles with the links' current
+thermal states.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,15 +21,11 @@ import numpy as np
 
 from daemon.arm.description import Arm, load_arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
+from daemon.arm.heat import JointHeatProfile
 from daemon.arm.kinematics import forward, inverse, tool_error
 from daemon.arm.run import FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel
 from daemon.arm.types import Pose6
-
-#: Joint heat (W, samples x joints) of the motion (q, qd, qdd; samples x joints).
-JointHeat = Callable[[FloatArray, FloatArray, FloatArray], FloatArray]
-#: Most motion samples of one cycle integrated for its heat.
-MAX_SAMPLES = 1_000_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,14 +44,15 @@ class ArmController:
         self,
         arm: Arm,
         duty: DutyCycle,
-        joint_heat_w: JointHeat,
         options: ArmModelOptions = ArmModelOptions(),
+        *,
+        heat: JointHeatProfile | None = None,
         thermal: ArmThermalModel | None = None,
     ) -> None:
         self.arm = arm
         self.duty = duty
         self.options = options
-        self._joint_heat = joint_heat_w
+        self.heat = heat or JointHeatProfile.from_duty(arm, duty, resolution_s=options.motion_dt_s)
         self.thermal = thermal or ArmThermalModel(
             arm,
             node_spacing_mm=options.node_spacing_mm,
@@ -65,37 +60,14 @@ class ArmController:
             dt_s=options.model_dt_s,
         )
         self.last_heat_w: FloatArray = np.zeros(len(arm.joints))
-        self._energy = self._cycle_energy()
 
     @property
     def time_s(self) -> float:
         return float(self.thermal.time_s)
 
-    def _cycle_energy(self) -> tuple[float, FloatArray]:
-        """The duty cycle's period and each joint's motor energy (J) from the cycle's start to
-        each point of a grid of ``motion_dt_s`` over one period (midpoint rule): the heat is
-        a function of the cycle's phase only, so it is computed once."""
-        period = float(self.duty.period_s)
-        count = min(MAX_SAMPLES, max(1, math.ceil(period / self.options.motion_dt_s - 1e-9)))
-        h = period / count
-        q, qd, qdd = self.duty.state((np.arange(count) + 0.5) * h)
-        heat = np.asarray(self._joint_heat(q, qd, qdd), dtype=np.float64)
-        energy = np.vstack([np.zeros((1, heat.shape[1])), np.cumsum(heat * h, axis=0)])
-        return period, energy
-
-    def energy_j(self, t_s: float) -> FloatArray:
-        """Each joint's motor energy (J) from the run's start to ``t_s`` of the duty cycle."""
-        period, energy = self._energy
-        cycles, phase = divmod(t_s, period)
-        grid = np.linspace(0.0, period, energy.shape[0])
-        within = np.array([np.interp(phase, grid, column) for column in energy.T])
-        total: FloatArray = cycles * energy[-1] + within
-        return total
-
     def mean_heat_w(self, start_s: float, end_s: float) -> FloatArray:
         """Each joint's mean motor heat (W) over ``[start_s, end_s]`` of the duty cycle."""
-        mean: FloatArray = (self.energy_j(end_s) - self.energy_j(start_s)) / (end_s - start_s)
-        return mean
+        return self.heat.step_power_w(start_s, end_s)
 
     def advance_to(self, t_s: float) -> None:
         start = self.time_s
@@ -133,7 +105,7 @@ class ArmController:
 
 
 def load_controller(
-    arm_path: str | Path, duty_cycle: str | Path, joint_heat_w: JointHeat, options: ArmModelOptions
+    arm_path: str | Path, duty_cycle: str | Path, options: ArmModelOptions
 ) -> ArmController:
     """The arm file and the duty cycle (tool poses in the file are solved on this arm)."""
     arm = load_arm(arm_path)
@@ -147,4 +119,4 @@ def load_controller(
             f"duty cycle {duty.name!r} has {duty.joint_count} joints, arm {arm.name!r} "
             f"{len(arm.joints)}"
         )
-    return ArmController(arm, duty, joint_heat_w, options)
+    return ArmController(arm, duty, options)
