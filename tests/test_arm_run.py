@@ -531,3 +531,62 @@ def test_controller_heats_from_the_duty_cycle_and_predicts_at_each_pose() -> Non
     with pytest.raises(ValueError, match="nowhere"):
         controller.measured_poses(("camera", "nowhere"))
     assert [p.name for p in controller.measured_poses(("place",))] == ["place"]
+
+
+# --- what the API, the exports and the report show of an arm run ------------------------------
+
+
+async def test_arm_run_through_the_api_exports_and_report(tmp_path: Path) -> None:
+    import csv
+    import io
+    import json
+
+    import httpx
+
+    from api.app import create_app
+    from daemon.reports import write_run_report
+    from tests.test_api_server import CONTROL, serve
+
+    settings = arm_settings(tmp_path)
+    settings = settings.model_copy(
+        update={"api": settings.api.model_copy(update={"control_token": CONTROL})}
+    )
+    harness = ArmHarness(settings, FakePredictor)
+    app = create_app(settings, service_factory=lambda _settings: harness.daemon)
+    headers = {"Authorization": f"Bearer {CONTROL}"}
+    async with (
+        serve(app) as address,
+        httpx.AsyncClient(base_url=f"http://{address}", timeout=WAIT_S, headers=headers) as client,
+    ):
+        refused = await client.post("/api/v1/runs", json={"duty_cycle": "/etc/passwd"})
+        assert refused.status_code == 422  # a preset name, never a path
+        started = await client.post(
+            "/api/v1/runs", json={"duty_cycle": "a465-pick-and-place", "compensation": "off"}
+        )
+        assert started.status_code in (200, 201), started.text
+        run_id = started.json()["id"]
+        async with asyncio.timeout(WAIT_S):
+            await harness.daemon.wait_run()
+        info = (await client.get(f"/api/v1/runs/{run_id}")).json()
+        assert info["parameters"]["duty_cycle"] == "a465-pick-and-place"
+        summary = info["summary"]
+        truth = error_law("place", DURATION_S - STEP_S, TRUTH_FACTOR)
+        assert summary["drift_3d_max_um"] == pytest.approx(1000 * truth.translation_norm_mm)
+        assert summary["rotation_error_max_urad"] == pytest.approx(
+            1e6 * truth.rotation_angle_rad, rel=1e-5
+        )
+        steps = (await client.get(f"/api/v1/runs/{run_id}/steps?format=json")).json()["steps"]
+        last = steps[-1]
+        assert last["arm_pose"] == "place"
+        np.testing.assert_allclose(
+            [last[f"measured_t{a}_um"] for a in "xyz"], 1000 * truth.translation_mm, atol=1e-6
+        )
+        text = (await client.get(f"/api/v1/runs/{run_id}/steps?format=csv")).text
+        rows = list(csv.DictReader(io.StringIO(text)))
+        assert float(rows[-1]["drift_3d_um"]) == pytest.approx(last["drift_3d_um"])
+        assert float(rows[-1]["measured_rx_urad"]) == pytest.approx(last["measured_rx_urad"])
+    files = await asyncio.to_thread(write_run_report, tmp_path, run_id, tmp_path / "report")
+    report = json.loads(files.summary.read_text())
+    assert report["arm"]["drift_3d_max_um"] == pytest.approx(summary["drift_3d_max_um"])
+    assert "arm_drift" in files.plots and files.plots["arm_drift"].stat().st_size > 0
+    assert "Whole arm: 3-D drift and rotation error" in files.html.read_text()
