@@ -21,6 +21,7 @@ from daemon.arm.kinematics import (
     link_frames,
     pose_difference,
     tool_error,
+    tool_errors,
     warm_arm,
 )
 from daemon.arm.types import LinkThermalState
@@ -262,6 +263,17 @@ def test_bending_matches_the_beam_formula() -> None:
     assert up.translation_mm[2] < 0
 
 
+def test_tool_errors_at_several_poses_equal_one_at_a_time() -> None:
+    arm = load_arm("crs-a465")
+    states = [state(name, 3.0 + i, (0.01 * i, -0.02)) for i, name in enumerate(arm.link_names)]
+    qs = [np.zeros(6), np.radians([30.0, 20.0, -40.0, 10.0, 60.0, -90.0])]
+    together = tool_errors(arm, qs, states, bending=True)
+    for q, error in zip(qs, together, strict=True):
+        alone = tool_error(arm, q, states, bending=True)
+        np.testing.assert_array_equal(error.as_array(), alone.as_array())
+    assert together[0].translation_norm_mm != together[1].translation_norm_mm
+
+
 def test_bending_ignores_a_gradient_along_the_beam() -> None:
     rotation, displacement = bending_deflection(np.array([0.0, 0.0, 100.0]), ALPHA_AL, (0.0, 1.0))
     assert np.all(rotation == 0) and np.all(displacement == 0)
@@ -331,6 +343,49 @@ def test_unreadable_urdf_is_refused(tmp_path: Path) -> None:
         load_arm(path)
 
 
+def test_urdf_companion_naming_an_unknown_joint_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "arm.toml"
+    path.write_text(
+        f'urdf = "{ARMS / "ur5e.urdf"}"\n[[joints]]\nname = "knee_joint"\n', encoding="utf-8"
+    )
+    with pytest.raises(ArmError, match="joint 'knee_joint': no moving joint"):
+        load_arm(path)
+
+
+def test_urdf_companion_refuses_dh_values(tmp_path: Path) -> None:
+    path = tmp_path / "arm.toml"
+    path.write_text(
+        f'urdf = "{ARMS / "ur5e.urdf"}"\n[[joints]]\nname = "elbow_joint"\na_mm = 3\n',
+        encoding="utf-8",
+    )
+    with pytest.raises(ArmError, match="takes no DH values"):
+        load_arm(path)
+
+
 def test_missing_preset_lists_the_presets() -> None:
     with pytest.raises(ArmError, match="crs-a465"):
         load_arm("no-such-arm")
+
+
+def test_inverse_without_restarts_stays_on_the_seeds_branch() -> None:
+    arm = load_arm("ur5e")
+    q = np.array([0.4, -1.2, 1.0, -0.8, 1.3, 0.3])
+    target = forward(arm, q)
+    solution = inverse(arm, target, q + 0.05, restarts=0)
+    assert pose_difference(forward(arm, solution), target).translation_norm_mm < 1e-6
+    np.testing.assert_allclose(solution, q, atol=1e-7)  # the seed's branch, not another
+
+
+@pytest.mark.parametrize("name", ["crs-a465", "ur5e", "ur5e-urdf"])
+def test_growth_superposes_and_never_turns_the_tool(name: str) -> None:
+    # Positions are linear in the lengths at fixed angles and lengths never change
+    # orientations: the growth errors of separate links add up and carry no rotation.
+    arm = load_arm(name)
+    q = np.radians([25.0, -35.0, 50.0, -20.0, 40.0, 70.0])
+    rises = [4.0, 9.0, 2.5, 6.0, 11.0, 3.0]
+    states = [state(link, rise) for link, rise in zip(arm.link_names, rises, strict=True)]
+    together = tool_error(arm, q, states)
+    apart = sum(tool_error(arm, q, [one]).translation_mm for one in states)
+    np.testing.assert_allclose(together.translation_mm, apart, atol=1e-12)
+    np.testing.assert_allclose(together.rotation_rad, 0.0, atol=1e-14)
+    assert together.translation_norm_mm > 0.01

@@ -113,13 +113,15 @@ def inverse(
     *,
     position_tolerance_mm: float = IK_POSITION_TOLERANCE_MM,
     rotation_tolerance_rad: float = IK_ROTATION_TOLERANCE_RAD,
+    restarts: int = IK_RESTARTS,
 ) -> FloatArray:
     """Joint angles (rad) within the joint limits that put the tool at ``pose`` (4×4, base
-    frame), found by SciPy's bounded least squares (trust-region reflective) from ``q_seed``
-    (the solution nearest the seed's branch; a redundant or multi-solution arm returns the one
-    the seed leads to). When the seed does not converge, a few deterministic starting points
-    are tried. Raises :class:`ArmError` when no solution is within the tolerances (the pose is
-    out of reach or outside the joint limits)."""
+    frame), found by SciPy's bounded least squares (trust-region reflective) from ``q_seed``:
+    the solution of the seed's branch (an arm with several solutions returns the one the seed
+    leads to). When the seed does not converge, ``restarts`` deterministic starting points are
+    tried; they may land on another branch, so pass ``restarts=0`` where continuity with the
+    seed matters more than finding a solution. Raises :class:`ArmError` when no solution is
+    within the tolerances (the pose is out of reach or outside the joint limits)."""
     target = np.asarray(pose, dtype=np.float64)
     if target.shape != (4, 4) or not np.all(np.isfinite(target)):
         raise ArmError("inverse: the pose must be a finite 4×4 transform")
@@ -161,7 +163,7 @@ def inverse(
     finite_low = np.where(np.isfinite(lower), lower, -np.pi)
     finite_high = np.where(np.isfinite(upper), upper, np.pi)
     best: tuple[FloatArray, float, float] | None = None
-    starts = [seed, *(rng.uniform(finite_low, finite_high) for _ in range(IK_RESTARTS))]
+    starts = [seed, *(rng.uniform(finite_low, finite_high) for _ in range(restarts))]
     for start in starts:
         q, position_error, rotation_error = solve(start)
         if position_error <= position_tolerance_mm and rotation_error <= rotation_tolerance_rad:
@@ -256,3 +258,15 @@ def tool_error(
     cold = forward(arm, q_rad)
     warm = forward(warm_arm(arm, states, bending=bending), q_rad)
     return pose_difference(warm, cold)
+
+
+def tool_errors(
+    arm: Arm,
+    qs_rad: Sequence[Sequence[float] | FloatArray],
+    states: Sequence[LinkThermalState],
+    bending: bool = False,
+) -> list[Pose6]:
+    """``tool_error`` at several configurations (a duty cycle's measured poses) for one thermal
+    state: the arm is warmed once."""
+    warm = warm_arm(arm, states, bending=bending)
+    return [pose_difference(forward(warm, q), forward(arm, q)) for q in qs_rad]

@@ -21,20 +21,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from daemon.arm.description import (
-    MM_PER_M,
-    Arm,
-    ArmError,
-    FloatArray,
-    Joint,
-    _check_links_named,
-    _limit,
-    _links,
-    _motor,
-)
+from daemon.arm.arm_file import build_links, build_motor, check_links_named, limit_rad
+from daemon.arm.description import MM_PER_M, Arm, ArmError, FloatArray, Joint
 
 if TYPE_CHECKING:
-    from daemon.arm.description import _ArmFile
+    from daemon.arm.arm_file import ArmFileSpec
 
 #: Joint types that move by rotation (URDF ``<joint type>``); "continuous" has no limits.
 _REVOLUTE = ("revolute", "continuous")
@@ -77,7 +68,7 @@ def arm_from_urdf(
     tip_link: str | None = None,
     base: FloatArray | None = None,
     tool: FloatArray | None = None,
-    companion: _ArmFile | None = None,
+    companion: ArmFileSpec | None = None,
 ) -> Arm:
     """The arm of the URDF at ``path`` (see the module docstring); ``companion`` is the arm TOML
     that named it (materials, motors, limits overrides by joint and link name)."""
@@ -162,9 +153,9 @@ def arm_from_urdf(
         joints.append(
             Joint(
                 name=joint.name,
-                lower_rad=_limit(row.lower_deg if row else None, lower),
-                upper_rad=_limit(row.upper_deg if row else None, upper),
-                motor=_motor(row.motor if row else None, joint.child),
+                lower_rad=limit_rad(row.lower_deg if row else None, lower),
+                upper_rad=limit_rad(row.upper_deg if row else None, upper),
+                motor=build_motor(row.motor if row else None, joint.child),
                 grows_with=row.grows_with if row else None,
                 origin=origin,
                 axis=axis,
@@ -176,10 +167,10 @@ def arm_from_urdf(
         name=name,
         convention="urdf",
         joints=tuple(joints),
-        links=_links(companion.links if companion else (), child_links),
+        links=build_links(companion.links if companion else (), child_links),
         base=base_transform @ base_fixed,
         tool=tool_transform,
         description=description,
     )
-    _check_links_named(arm)
+    check_links_named(arm)
     return arm
