@@ -7,19 +7,21 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
-from daemon.arm.description import load_arm
+from daemon.arm.description import ArmError, load_arm
 from daemon.arm.duty import (
     DutyCycle,
     DutyCycleError,
     TaughtPose,
+    arm_inverse,
     available_duty_cycles,
     duty_cycle_from_mapping,
     load_duty_cycle,
     trapezoid_timing,
 )
 from daemon.arm.heat import JointHeatProfile
-from daemon.arm.kinematics import link_frames
+from daemon.arm.kinematics import forward, link_frames
 from daemon.arm.motors import (
     GRAVITY_M_S2,
     MotorParameters,
@@ -343,3 +345,27 @@ def test_heat_profile_integrates_one_cycle_and_repeats() -> None:
     parts = sum(profile.step_power_w(a, b) * (b - a) for a, b in ((0.0, 41.7), (41.7, 100.3)))
     np.testing.assert_allclose(split, parts, rtol=1e-12)
     assert np.all(profile.mean_power_w >= 0.0) and profile.mean_power_w[1] > 5.0
+
+
+def test_tool_poses_in_a_duty_file_go_through_the_arms_inverse_kinematics() -> None:
+    arm = load_arm("crs-a465")
+    q_taught = np.radians([25.0, 40.0, 35.0, 0.0, 15.0, 10.0])
+    pose = forward(arm, q_taught)
+    zyx = Rotation.from_matrix(pose[:3, :3]).as_euler("ZYX", degrees=True)
+    data = {
+        "max_speed_deg_s": 90.0,
+        "max_accel_deg_s2": 180.0,
+        "poses": [
+            {"name": "home", "joints_deg": [20.0, 35.0, 40.0, 0.0, 10.0, 0.0]},
+            {"name": "taught", "tool_mm": pose[:3, 3].tolist(), "tool_zyx_deg": zyx.tolist()},
+        ],
+    }
+    cycle = duty_cycle_from_mapping(data, inverse=arm_inverse(arm))
+    reached = forward(arm, np.array(cycle.poses[1].q_rad))
+    np.testing.assert_allclose(reached, pose, atol=1e-6)
+
+    def unreachable(pose: np.ndarray, seed: np.ndarray) -> np.ndarray:
+        raise ArmError("pose out of reach within the joint limits")
+
+    with pytest.raises(DutyCycleError, match=r"pose 'taught': pose out of reach"):
+        duty_cycle_from_mapping(data, inverse=unreachable)

@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from config.settings import read_toml
+from daemon.arm.description import Arm
 from daemon.arm.types import FloatArray, JointSample
 
 PRESET_PACKAGE = "config"
@@ -300,6 +301,16 @@ def tool_pose_matrix(tool_mm: Sequence[float], zyx_deg: Sequence[float]) -> Floa
     return pose
 
 
+def arm_inverse(arm: Arm) -> InverseKinematics:
+    """The arm's inverse kinematics (``kinematics.inverse``) for tool poses in a duty file."""
+    from daemon.arm.kinematics import inverse
+
+    def solve(pose: FloatArray, seed: FloatArray) -> FloatArray:
+        return inverse(arm, pose, seed)
+
+    return solve
+
+
 def duty_cycle_from_mapping(
     data: dict[str, Any],
     default_name: str = "duty",
@@ -391,6 +402,7 @@ __all__ = [
     "DutyCycle",
     "DutyCycleError",
     "TaughtPose",
+    "arm_inverse",
     "available_duty_cycles",
     "duty_cycle_from_mapping",
     "load_duty_cycle",

@@ -469,7 +469,7 @@ def describe_arm(
                 alpha_per_c=material.alpha_per_c,
                 emissivity=material.emissivity,
                 h_w_per_m2k=material.convection_w_per_m2k,
-                thermal_length_mm=link.length_mm,
+                thermal_length_mm=arm.link_length_mm(link.name),
             )
         )
     joints = []
