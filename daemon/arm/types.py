@@ -68,7 +68,9 @@ class Pose6:
         z-y-x Euler angles of the same rotation."""
         from scipy.spatial.transform import Rotation
 
-        z, y, x = Rotation.from_rotvec(self.rotation_rad).as_euler("ZYX", degrees=True)
+        # a copy: SciPy's Cython rotations refuse the read-only arrays Pose6 holds
+        rotvec = np.array(self.rotation_rad)
+        z, y, x = Rotation.from_rotvec(rotvec).as_euler("ZYX", degrees=True)
         return float(z), float(y), float(x)
 
 
