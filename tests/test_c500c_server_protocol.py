@@ -195,7 +195,7 @@ def test_the_controller_program_uses_the_same_numbers() -> None:
         name: int(value, 0)
         for name, value in re.findall(r"^const (\w+) = (0x[0-9A-Fa-f]+|\d+)", program, re.M)
     }
-    types = {
+    types: dict[str, int] = {
         "T_HEARTBEAT": proto.RequestType.HEARTBEAT,
         "T_TEACH": proto.RequestType.TEACH_GOAL,
         "T_MOVE_GOAL": proto.RequestType.MOVE_GOAL,
