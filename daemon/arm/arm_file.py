@@ -1,0 +1,311 @@
+"""Arm files: the TOML schema of ``config/arms/*.toml`` and the builders from it.
+
+README "Describing an arm" lists the fields; ``daemon.arm.description`` holds the values they
+build and ``load_arm``, the entry point. Every problem is an :class:`ArmError` with one line
+naming the file and the field (or the joint/link) at fault.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from config.settings import read_toml
+from daemon.arm.description import (
+    Arm,
+    ArmError,
+    FloatArray,
+    Joint,
+    Link,
+    LinkMaterial,
+    LinkSection,
+    Motor,
+    xyz_rpy,
+)
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class _Placement(_Strict):
+    xyz_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+class _Motor(_Strict):
+    torque_constant_nm_per_a: float = Field(gt=0)
+    winding_resistance_ohm: float = Field(ge=0)
+    gear_ratio: float = Field(gt=0)
+    viscous_friction_nm_s_per_rad: float = Field(default=0.0, ge=0)
+    coulomb_friction_nm: float = Field(default=0.0, ge=0)
+    rotor_inertia_kg_m2: float = Field(default=0.0, ge=0)
+    heats_link: str | None = None
+
+
+class _Joint(_Strict):
+    name: str
+    link: str | None = None  # DH: the link this joint moves (default "<joint name>-link")
+    a_mm: float = 0.0
+    alpha_deg: float = 0.0
+    d_mm: float = 0.0
+    theta_offset_deg: float = 0.0
+    lower_deg: float | None = None
+    upper_deg: float | None = None
+    grows_with: str | None = None  # "" : the base (does not grow)
+    motor: _Motor | None = None
+
+
+class _Material(_Strict):
+    name: str = ""
+    alpha_per_c: float = Field(ge=0)
+    density_kg_per_m3: float = Field(gt=0)
+    specific_heat_j_per_kgk: float = Field(gt=0)
+    conductivity_w_per_mk: float = Field(gt=0)
+    emissivity: float = Field(ge=0, le=1)
+    convection_w_per_m2k: float = Field(ge=0)
+
+
+class _Section(_Strict):
+    shape: Literal["round", "rect"]
+    outer_width_mm: float = Field(gt=0)
+    outer_height_mm: float | None = Field(default=None, gt=0)
+    wall_mm: float = Field(default=0.0, ge=0)
+
+
+class _Link(_Strict):
+    name: str
+    mass_kg: float = Field(default=0.0, ge=0)
+    com_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    length_mm: float | None = Field(default=None, gt=0)
+    material: _Material | None = None
+    section: _Section | None = None
+
+
+class ArmFileSpec(_Strict):
+    name: str | None = None
+    description: str = ""
+    convention: Literal["standard", "modified"] | None = None
+    urdf: str | None = None  # path relative to this file
+    base_link: str | None = None  # URDF: the chain's root (default: the URDF's root)
+    tip_link: str | None = None  # URDF: the chain's last link (default: the only leaf)
+    base: _Placement = _Placement()
+    tool: _Placement = _Placement()
+    joints: tuple[_Joint, ...] = ()
+    links: tuple[_Link, ...] = ()
+
+
+def _describe(err: ValidationError, data: dict[str, Any]) -> str:
+    problems = []
+    for problem in err.errors():
+        location = list(problem["loc"])
+        where = ".".join(str(part) for part in location)
+        table = str(location[0]) if location else ""
+        if len(location) >= 2 and table in ("joints", "links") and isinstance(location[1], int):
+            try:
+                name = data[table][location[1]]["name"]
+                kind = table[:-1]
+                where = f"{kind} {name!r}: " + ".".join(str(part) for part in location[2:])
+            except (KeyError, IndexError, TypeError):
+                pass
+        problems.append(f"{where}: {problem['msg']}")
+    return "; ".join(problems)
+
+
+def _placement(spec: _Placement) -> FloatArray:
+    roll, pitch, yaw = (math.radians(v) for v in spec.rpy_deg)
+    return xyz_rpy(spec.xyz_mm, (roll, pitch, yaw))
+
+
+def _material(spec: _Material | None) -> LinkMaterial | None:
+    if spec is None:
+        return None
+    return LinkMaterial(
+        name=spec.name,
+        alpha_per_c=spec.alpha_per_c,
+        density_kg_per_m3=spec.density_kg_per_m3,
+        specific_heat_j_per_kgk=spec.specific_heat_j_per_kgk,
+        conductivity_w_per_mk=spec.conductivity_w_per_mk,
+        emissivity=spec.emissivity,
+        convection_w_per_m2k=spec.convection_w_per_m2k,
+    )
+
+
+def _section(spec: _Section | None) -> LinkSection | None:
+    if spec is None:
+        return None
+    height = spec.outer_height_mm
+    if spec.shape == "round":
+        height = spec.outer_width_mm
+    elif height is None:
+        raise ArmError("section: a rect section needs outer_height_mm")
+    if spec.wall_mm * 2 >= min(spec.outer_width_mm, height):
+        raise ArmError("section: wall_mm is half the outer size or more (give 0 for solid)")
+    return LinkSection(spec.shape, spec.outer_width_mm, height, spec.wall_mm)
+
+
+def build_links(specs: tuple[_Link, ...], names: list[str]) -> tuple[Link, ...]:
+    by_name: dict[str, _Link] = {}
+    spec: _Link | None
+    for spec in specs:
+        if spec.name in by_name:
+            raise ArmError(f"link {spec.name!r}: listed twice")
+        if spec.name not in names:
+            raise ArmError(f"link {spec.name!r}: no joint moves it (links: {', '.join(names)})")
+        by_name[spec.name] = spec
+    links = []
+    for name in names:
+        spec = by_name.get(name)
+        if spec is None:
+            links.append(Link(name))
+            continue
+        try:
+            section = _section(spec.section)
+        except ArmError as err:
+            raise ArmError(f"link {name!r}: {err}") from err
+        links.append(
+            Link(
+                name=name,
+                material=_material(spec.material),
+                section=section,
+                mass_kg=spec.mass_kg,
+                com_mm=spec.com_mm,
+                length_mm=spec.length_mm,
+            )
+        )
+    return tuple(links)
+
+
+def build_motor(spec: _Motor | None, default_link: str) -> Motor | None:
+    if spec is None:
+        return None
+    return Motor(
+        torque_constant_nm_per_a=spec.torque_constant_nm_per_a,
+        winding_resistance_ohm=spec.winding_resistance_ohm,
+        gear_ratio=spec.gear_ratio,
+        viscous_friction_nm_s_per_rad=spec.viscous_friction_nm_s_per_rad,
+        coulomb_friction_nm=spec.coulomb_friction_nm,
+        rotor_inertia_kg_m2=spec.rotor_inertia_kg_m2,
+        heats_link=spec.heats_link or default_link,
+    )
+
+
+def limit_rad(value_deg: float | None, default_rad: float) -> float:
+    return default_rad if value_deg is None else math.radians(value_deg)
+
+
+def check_links_named(arm: Arm) -> None:
+    names = set(arm.link_names)
+    for joint in arm.joints:
+        if joint.grows_with and joint.grows_with not in names:
+            raise ArmError(f"joint {joint.name!r}: grows_with {joint.grows_with!r} is no link")
+        if joint.motor is not None and joint.motor.heats_link not in names:
+            raise ArmError(
+                f"joint {joint.name!r}: motor.heats_link {joint.motor.heats_link!r} is no link"
+            )
+
+
+def _dh_arm(spec: ArmFileSpec, name: str) -> Arm:
+    if spec.convention is None:
+        raise ArmError('convention: give "standard" or "modified" (or urdf = "<file>")')
+    if not spec.joints:
+        raise ArmError("joints: a DH arm needs [[joints]] rows")
+    link_names = [joint.link or f"{joint.name}-link" for joint in spec.joints]
+    joints = tuple(
+        Joint(
+            name=row.name,
+            a_mm=row.a_mm,
+            alpha_rad=math.radians(row.alpha_deg),
+            d_mm=row.d_mm,
+            theta_offset_rad=math.radians(row.theta_offset_deg),
+            lower_rad=limit_rad(row.lower_deg, -math.pi),
+            upper_rad=limit_rad(row.upper_deg, math.pi),
+            motor=build_motor(row.motor, link_names[i]),
+            grows_with=row.grows_with,
+        )
+        for i, row in enumerate(spec.joints)
+    )
+    arm = Arm(
+        name=name,
+        convention=spec.convention,
+        joints=joints,
+        links=build_links(spec.links, link_names),
+        base=_placement(spec.base),
+        tool=_placement(spec.tool),
+        description=spec.description,
+    )
+    check_links_named(arm)
+    return arm
+
+
+def arm_from_mapping(
+    data: dict[str, Any], default_name: str = "arm", folder: Path | None = None
+) -> Arm:
+    """The arm a parsed TOML document describes (``folder``: where a named URDF is looked for)."""
+    try:
+        spec = ArmFileSpec.model_validate(data)
+    except ValidationError as err:
+        raise ArmError(_describe(err, data)) from err
+    name = spec.name or default_name
+    if spec.urdf is None:
+        return _dh_arm(spec, name)
+    if spec.convention is not None:
+        raise ArmError("convention: a URDF arm takes its kinematics from the URDF; drop it")
+    from daemon.arm.urdf import arm_from_urdf
+
+    urdf_path = Path(spec.urdf)
+    if not urdf_path.is_absolute() and folder is not None:
+        urdf_path = folder / urdf_path
+    for row in spec.joints:
+        if row.a_mm or row.alpha_deg or row.d_mm or row.theta_offset_deg:
+            raise ArmError(f"joint {row.name!r}: a URDF arm takes no DH values")
+    return arm_from_urdf(
+        urdf_path,
+        name=name,
+        description=spec.description,
+        base_link=spec.base_link,
+        tip_link=spec.tip_link,
+        base=_placement(spec.base),
+        tool=_placement(spec.tool),
+        companion=spec,
+    )
+
+
+def arms_dir() -> Path:
+    """Where the presets live (``config/arms``)."""
+    from importlib import resources
+
+    return Path(str(resources.files("config").joinpath("arms")))
+
+
+def available_arms() -> list[str]:
+    return sorted(path.stem for path in arms_dir().glob("*.toml"))
+
+
+def load_arm_file(name_or_path: str | Path) -> Arm:
+    """An arm by preset name (``"crs-a465"``) or file: a TOML arm file (DH table, or ``urdf =``
+    naming a URDF plus materials and motors) or a bare ``.urdf`` (kinematics only). Raises
+    :class:`ArmError` with a one-line message naming the file and the field."""
+    text = str(name_or_path)
+    path = Path(text)
+    if not (text.endswith((".toml", ".urdf")) or path.is_file()):
+        path = arms_dir() / f"{text}.toml"
+        if not path.is_file():
+            raise ArmError(
+                f"no arm preset {text!r} (presets: {', '.join(available_arms())}) and no such file"
+            )
+    if path.suffix.lower() == ".urdf":
+        from daemon.arm.urdf import arm_from_urdf
+
+        return arm_from_urdf(path, name=path.stem)
+    data = read_toml(path, ArmError)
+    try:
+        return arm_from_mapping(data, default_name=path.stem, folder=path.parent)
+    except ArmError as err:
+        message = str(err)
+        if message.startswith(str(path)):
+            raise
+        raise ArmError(f"{path}: {message}") from err
