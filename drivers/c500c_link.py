@@ -532,7 +532,9 @@ class ConsoleLink:
             error = proto.first_error(lines)
             if error is not None:
                 self._note_device_error(error.code)
-                if error.text == VARIABLE_NOT_FOUND and command.endswith(f"= {GOAL_LOCATION}"):
+                if error.text == VARIABLE_NOT_FOUND and command.startswith(
+                    f"set {TARGET_LOCATION} = "
+                ):  # the target is set only from a taught goal: that goal is gone
                     raise GoalLostError(DEVICE, f"{command!r} answered {error.text!r}")
                 raise DeviceReportedError(DEVICE, error.code, error.text)
             blocked = proto.blocking_message(lines)

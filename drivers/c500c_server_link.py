@@ -363,6 +363,7 @@ class ServerLink:
         *,
         timeout_s: float,
         handshake: bool = False,
+        goal: int = 0,
     ) -> proto.Reply:
         """Write one request and await its reply (other requests may be outstanding). A timeout
         or a garbled link is a link fault (the handshake's failure is its caller's). A cancelled
@@ -372,7 +373,9 @@ class ServerLink:
         if connection is None or not ready:
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
         sequence = self._next_sequence()
-        data = proto.encode_request(sequence, request_type, offset, straight=self.settings.online)
+        data = proto.encode_request(
+            sequence, request_type, offset, straight=self.settings.online, goal=goal
+        )
         future: asyncio.Future[proto.Reply] = asyncio.get_running_loop().create_future()
         written = False
         try:

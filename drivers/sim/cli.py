@@ -108,6 +108,12 @@ async def _serve(emulator: C500CEmulator) -> None:
         loop.add_signal_handler(signum, stop.set)
     loop.add_signal_handler(signal.SIGUSR1, emulator.press_pause_continue)
     async with emulator:
+        # The emulator stands in for another machine: a full collection of the heap this
+        # process imported (the whole stack, ~10-15 ms in CPython 3.11) would delay its paced
+        # replies as no controller does. Freeze it once started, as the daemon does its own
+        # (daemon/heap.py; issue 17).
+        gc.collect()
+        gc.freeze()
         print(emulator.device_path, flush=True)
         await stop.wait()
     print("thermocomp emulate: stopped", flush=True)

@@ -88,6 +88,11 @@ class ServerEmulatorConfig:
     faults: tuple[Fault[ServerFaultKind], ...] = ()
 
 
+def goal_location(index: int) -> str:
+    """The console location the program's goal ``index`` is kept in (goal 0: `opgoal`)."""
+    return GOAL_LOCATION if index == 0 else f"{GOAL_LOCATION}{index}"
+
+
 def _shifted(base: proto.Pose6, offset: proto.Pose6) -> proto.Pose6:
     x, y, z, zr, yr, xr = (b + o for b, o in zip(base, offset, strict=True))
     return (x, y, z, zr, yr, xr)
@@ -149,7 +154,12 @@ class C500CServerEmulator(C500CEmulator):
 
     @property
     def goal(self) -> proto.Pose6 | None:
+        """Goal 0 (the default goal), if taught."""
         return self.state.locations.get(GOAL_LOCATION)
+
+    def goal_at(self, index: int) -> proto.Pose6 | None:
+        """Goal ``index`` (PROTOCOL.md "Goals"), if taught."""
+        return self.state.locations.get(goal_location(index))
 
     # --- lifecycle ---
 
@@ -193,7 +203,7 @@ class C500CServerEmulator(C500CEmulator):
 
     def _flags(self) -> proto.Flag:
         flags = proto.Flag(0)
-        if self.goal is not None:
+        if any(goal_location(i) in self.state.locations for i in range(proto.MAX_GOALS)):
             flags |= proto.Flag.GOAL_TAUGHT
         if self.held:
             flags |= proto.Flag.HELD
@@ -320,7 +330,7 @@ class C500CServerEmulator(C500CEmulator):
             # here(opgoal): the goal is where the arm is now (a move in progress is refused).
             status = proto.Status.BUSY if self.moving else proto.Status.OK
             if status == proto.Status.OK:
-                self.state.locations[GOAL_LOCATION] = self.actual_pose()
+                self.state.locations[goal_location(request.goal)] = self.actual_pose()
             await answer(self._reply(seq, request_type, status))
         elif request_type is kind.HOLD:
             early_s = arrived - asyncio.get_running_loop().time()
@@ -349,7 +359,7 @@ class C500CServerEmulator(C500CEmulator):
             return proto.Status.HELD
         if self.moving:
             return proto.Status.BUSY
-        if request.type is proto.RequestType.MOVE_GOAL and self.goal is None:
+        if request.type is proto.RequestType.MOVE_GOAL and self.goal_at(request.goal) is None:
             return proto.Status.NO_GOAL
         if not self.state.point_of_control:
             return proto.Status.NO_CONTROL
@@ -358,7 +368,8 @@ class C500CServerEmulator(C500CEmulator):
     async def _move(self, request: proto.Request, answer: _Answer, arrived: float) -> None:
         assert request.offset is not None
         state = self.state
-        base = self.goal if request.type is proto.RequestType.MOVE_GOAL else self.actual_pose()
+        moves_to_goal = request.type is proto.RequestType.MOVE_GOAL
+        base = self.goal_at(request.goal) if moves_to_goal else self.actual_pose()
         assert base is not None
         # shift_w(cur, offset): world-frame shift of every coordinate (C500C.md `wshift`).
         state.locations[TARGET_LOCATION] = _shifted(base, request.offset)
