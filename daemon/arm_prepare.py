@@ -34,7 +34,7 @@ class ArmServices:
 async def teach_poses(work: ArmRunWork, robot: ArmRobot) -> None:
     """Teach each measured pose as the goal of its name (raises DeviceError)."""
     for pose in work.poses:
-        work.taught[pose.name] = await robot.teach_pose(pose.name, pose.q_rad)
+        work.taught[pose.name] = await robot.teach_pose(pose)
         logger.info("run %d: taught pose %r", work.run_id, pose.name)
 
 

@@ -19,7 +19,7 @@ from daemon.arm_step import ArmRobot, ToolMeter
 from daemon.devices_check import Devices
 from daemon.runs import RunParameters
 from daemon.workers import Workers
-from drivers.base import Robot
+from drivers.base import GoalRobot, Robot
 
 
 class ArmSetupError(ValueError):
@@ -107,12 +107,13 @@ def default_arm_meter(settings: Settings, devices: Devices, workers: Workers) ->
 
 
 def arm_robot(robot: Robot) -> ArmRobot:
-    """The robot's arm face (named goals, moves with a rotation); ArmSetupError when the
-    driver has none."""
-    for method in ("teach_pose", "move_to_goal"):
-        if not callable(getattr(robot, method, None)):
-            raise ArmSetupError(
-                f"the robot driver {type(robot).__name__} cannot run an arm duty cycle "
-                f"(no {method})"
-            )
-    return cast(ArmRobot, robot)
+    """The robot's arm face (daemon/arm_robot.py) over a driver with named taught goals and
+    rotated absolute moves; ArmSetupError when the driver has none."""
+    from daemon.arm_robot import GoalRobotArm
+
+    if not callable(getattr(robot, "taught_goals", None)):
+        raise ArmSetupError(
+            f"the robot driver {type(robot).__name__} cannot run an arm duty cycle "
+            "(no named taught goals)"
+        )
+    return GoalRobotArm(cast(GoalRobot, robot))

@@ -60,12 +60,13 @@ ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR}
 
 
 class ArmRobot(Protocol):
-    """What an arm run needs of the robot driver (wt-link: named taught goals, absolute moves
-    with a rotation). The hold contract is drivers/base.py Robot's: after ``stop()`` every
-    motion command is refused right before its bytes are written."""
+    """What an arm run needs of the robot (daemon/arm_robot.py over a driver with named taught
+    goals and rotated absolute moves, drivers/base.py GoalRobot). The hold contract is
+    drivers/base.py Robot's: after ``stop()`` every motion command is refused right before its
+    bytes are written."""
 
-    async def teach_pose(self, name: str, q_rad: FloatArray) -> Pose:
-        """Move to the joint angles ``q_rad`` and teach the pose there as the goal ``name``."""
+    async def teach_pose(self, pose: MeasuredPose) -> Pose:
+        """Bring the tool to ``pose`` and teach it there as the goal ``pose.name``."""
         ...
 
     async def move_to_goal(self, goal: str, correction: Pose6) -> MoveResult:

@@ -26,13 +26,13 @@ from daemon.arm.correction import CorrectionLimits, check_correction, correction
 from daemon.arm.run import MeasuredPose, ToolMeasurement
 from daemon.arm.types import Pose6
 from daemon.arm_setup import ArmPlan
-from daemon.arm_step import ArmRobot, ToolMeter
+from daemon.arm_step import ToolMeter
 from daemon.devices_check import Devices
 from daemon.model.compensation import UnsafeTargetError
 from daemon.runs import RunParameters, RunState
 from daemon.service import Daemon, RunParameterError
 from daemon.workers import Workers
-from drivers.base import LinkState, MoveResult, Pose, RobotStatus
+from drivers.base import DEFAULT_GOAL, GoalRobot, LinkState, MoveResult, Pose, RobotStatus, Vector3
 from drivers.clock import Clock, make_clock
 from drivers.errors import MotionHeldError
 from tests.fakes import FakeBench, FakeCamera, FakeIr, Gate
@@ -128,15 +128,17 @@ class ArmTruth:
 
 
 class FakeArmRobot:
-    """The arm face of a robot driver, locking like drivers/c500c.py: the hold is checked
-    under the lock right before a motion command is "written"."""
+    """A robot driver with named taught goals (drivers/base.py GoalRobot), locking like
+    drivers/c500c.py: the hold is checked under the lock right before a motion command is
+    "written". The tool's position follows the moves; its error is the truth's (FakeMeter)."""
 
     def __init__(self, truth: ArmTruth) -> None:
         self.truth = truth
         self.lock = asyncio.Lock()
         self.held = False
         self.written: list[tuple[str, Pose6]] = []  # motion commands that reached the writer
-        self.taught: list[str] = []
+        self.taught: dict[str, Pose] = {}
+        self.position = np.array([400.0, 0.0, 300.0])  # where the tool stands at the start
         self.goal: str | None = None
         self.correction = Pose6.zero()
         self.move_gate: Gate | None = None  # set: the next move waits there before the lock
@@ -151,31 +153,33 @@ class FakeArmRobot:
         if self.held:
             raise MotionHeldError("robot", "motion held")
 
-    async def teach_pose(self, name: str, q_rad: np.ndarray) -> Pose:
+    async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
+        """Moves nothing: the goal is where the robot stands."""
         async with self.lock:
-            self._check()
-            self.written.append((f"teach {name}", Pose6.zero()))
-            self.taught.append(name)
-            self.goal, self.correction = name, Pose6.zero()
-            return Pose(0.0, 0.0, 0.0)
+            self.taught[goal] = self._pose()
+            self.goal, self.correction = goal, Pose6.zero()
+            return self.taught[goal]
 
-    async def move_to_goal(self, goal: str, correction: Pose6) -> MoveResult:
+    def taught_goals(self) -> dict[str, Pose]:
+        return dict(self.taught)
+
+    def _pose(self) -> Pose:
+        return Pose(*self.position)
+
+    async def move_absolute(
+        self, offset_mm: Vector3, rotation_rad: Vector3 = (0.0, 0.0, 0.0), *, goal: str = "opgoal"
+    ) -> MoveResult:
         gate, self.move_gate = self.move_gate, None
         if gate is not None:
             await gate.pass_through()
         async with self.lock:
             self._check()
+            correction = pose6(offset_mm, rotation_rad)
             assert np.all(np.isfinite(correction.as_array()))
             self.written.append((goal, correction))
             self.goal, self.correction = goal, correction
-            offset = tuple(float(v) for v in correction.translation_mm)
-            return MoveResult(offset, offset, Pose(*offset))  # type: ignore[arg-type]
-
-    async def teach_goal(self) -> Pose:
-        return Pose(0.0, 0.0, 0.0)
-
-    async def move_absolute(self, offset_mm: Any) -> MoveResult:
-        raise AssertionError("an arm run moves to its named goals only")
+            self.position = np.add(self.taught[goal].position, offset_mm)
+            return MoveResult(offset_mm, offset_mm, self._pose(), goal=goal)
 
     async def move_incremental(self, delta_mm: Any) -> MoveResult:
         raise AssertionError("an arm run moves to its named goals only")
@@ -352,7 +356,17 @@ async def test_uncompensated_arm_run_records_the_truth_drift(tmp_path: Path) -> 
     assert final["state"] == "finished" and harness.setups == ["pick-and-place.toml"]
     robot = harness.robot
     # each measured pose taught (a move), then measured at its goal before the first step
-    assert robot.taught == ["pick", "place"]
+    assert list(robot.taught) == ["opgoal", "pick", "place"]
+    # each reached by one move from where the robot stood (opgoal), then measured at its goal
+    start = np.eye(4)
+    start[:3, 3] = (400.0, 0.0, 300.0)
+    teaching = [c for goal, c in robot.written[:2]]
+    assert [goal for goal, _ in robot.written[:4]] == ["opgoal", "opgoal", "pick", "place"]
+    for move, pose in zip(teaching, POSES, strict=True):
+        np.testing.assert_allclose(move.translation_mm, pose.tool_pose[:3, 3] - start[:3, 3])
+        turned = Rotation.from_rotvec(np.array(move.rotation_rad)).as_matrix()
+        np.testing.assert_allclose(turned, pose.tool_pose[:3, :3], atol=1e-12)
+        assert robot.taught[pose.name].position == tuple(pose.tool_pose[:3, 3])
     assert len(steps) == DURATION_S / STEP_S
     assert harness.devices is not None and harness.devices.bench.duty_cycles == [
         "pick-and-place.toml"
@@ -396,7 +410,7 @@ async def test_compensated_arm_run_leaves_the_model_error_only(tmp_path: Path) -
         off, off_steps = await run_to_end(harness, compensation="off")
         final, steps = await run_to_end(harness, compensation="absolute", reference_run=off["id"])
     assert final["state"] == "finished"
-    moves = [(goal, c) for goal, c in harness.robot.written if not goal.startswith("teach")]
+    moves = [(goal, c) for goal, c in harness.robot.written if goal != DEFAULT_GOAL]
     for record in steps:
         t, name = record["scheduled_s"], record["arm_pose"]
         predicted = error_law(name, t)
@@ -440,9 +454,9 @@ async def test_correction_over_the_rotation_limit_never_reaches_the_writer(
         angle = math.hypot(*(refused[f"predicted_r{a}_urad"] for a in "xyz")) * 1e-6 * 1000
         assert math.degrees(angle) > 0.1
         # nothing over the limit was written, and the refused step's move was not written
-        for _goal, correction in harness.robot.written:
+        moves = [c for g, c in harness.robot.written if g != DEFAULT_GOAL]  # not teaching
+        for correction in moves:
             assert math.degrees(correction.rotation_angle_rad) <= 0.1
-        moves = [g for g, _ in harness.robot.written if not g.startswith("teach")]
         assert len(moves) == len(POSES) + refused["step"]  # references + steps before it
         await daemon.stop()
 
@@ -493,8 +507,8 @@ def test_arm_run_parameters_refuse_incremental_and_procedures() -> None:
     assert RunParameters.from_settings(Settings()).duty_cycle is None
 
 
-def test_fake_robot_is_an_arm_robot() -> None:
-    robot: ArmRobot = FakeArmRobot(ArmTruth(make_clock("virtual")))
+def test_fake_robot_is_a_goal_robot() -> None:
+    robot: GoalRobot = FakeArmRobot(ArmTruth(make_clock("virtual")))
     assert robot.status().motion_held is False
 
 
