@@ -87,6 +87,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "against the model's prediction)",
     )
     parser.add_argument(
+        "--duty-cycle",
+        metavar="NAME|PATH",
+        help="an arm run (issue 20): the duty cycle (preset in config/duty or TOML file) to "
+        "follow, its measured poses corrected in 6-DOF; sets arm.duty_cycle and arm.enabled",
+    )
+    parser.add_argument(
         "--data-dir", type=Path, help="folder of the run database (default: storage.data_dir)"
     )
     parser.add_argument("--csv", type=Path, help="also export the run's steps to this CSV file")
@@ -148,6 +154,10 @@ def _settings(args: argparse.Namespace) -> Settings:
             "heat_w": _heat_map(args.heat) if args.heat else None,
         },
         "storage": {"data_dir": args.data_dir},
+        "arm": {
+            "duty_cycle": args.duty_cycle,
+            "enabled": True if args.duty_cycle is not None else None,
+        },
     }
     data = settings.model_dump()
     for section, values in overrides.items():
