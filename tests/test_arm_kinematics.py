@@ -18,6 +18,7 @@ from daemon.arm.kinematics import (
     forward,
     inverse,
     jacobian,
+    joint_axes,
     link_frames,
     pose_difference,
     tool_error,
@@ -389,3 +390,93 @@ def test_growth_superposes_and_never_turns_the_tool(name: str) -> None:
     np.testing.assert_allclose(together.translation_mm, apart, atol=1e-12)
     np.testing.assert_allclose(together.rotation_rad, 0.0, atol=1e-14)
     assert together.translation_norm_mm > 0.01
+
+
+def reak_a465_axes(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The A465 as the ReaK model builds it (mikael-s-persson/ReaK,
+    build_CRS_A465_model.cpp: revolute joints about z, rigid links link_1..link_5 in metres
+    given here in mm), independent of the DH table and of its zero angles: joint axes
+    (points, directions) and the flange point."""
+
+    def rigid(xyz: tuple[float, float, float], rotation: Rotation) -> np.ndarray:
+        out = np.eye(4)
+        out[:3, :3] = rotation.as_matrix()
+        out[:3, 3] = xyz
+        return out
+
+    quarter = math.pi / 2
+    about = Rotation.from_rotvec
+    links = [
+        rigid((0.0, 0.0, 330.2), about([quarter, 0, 0])),
+        rigid((304.8, 0.0, 0.0), Rotation.identity()),
+        rigid((150.0, 0.0, 0.0), about([0, quarter, 0]) * about([0, 0, quarter])),
+        rigid((0.0, 0.0, 180.2), about([-quarter, 0, 0])),
+        rigid((76.2, 0.0, 0.0), about([0, quarter, 0]) * about([0, 0, quarter])),
+    ]
+    frame = np.eye(4)
+    points, directions = [], []
+    for i in range(6):
+        points.append(frame[:3, 3].copy())
+        directions.append(frame[:3, 2].copy())
+        frame = frame @ rigid((0.0, 0.0, 0.0), about([0, 0, q[i]]))
+        if i < len(links):
+            frame = frame @ links[i]
+    return np.array(points), np.array(directions), frame[:3, 3]
+
+
+def axis_invariants(points: np.ndarray, directions: np.ndarray, flange: np.ndarray) -> list[float]:
+    """What any description of one mechanism shares, whatever its zero angles: distances and
+    angles between successive joint axes, the wrist centre's distance from axis 3, the
+    flange's distance from the wrist centre and from axis 6."""
+
+    def line_distance(i: int, j: int) -> float:
+        normal = np.cross(directions[i], directions[j])
+        gap = points[j] - points[i]
+        if np.linalg.norm(normal) < 1e-12:
+            return float(np.linalg.norm(np.cross(gap, directions[i])))
+        return abs(float(gap @ normal)) / float(np.linalg.norm(normal))
+
+    def angle(i: int, j: int) -> float:
+        cross = float(np.linalg.norm(np.cross(directions[i], directions[j])))
+        return math.atan2(cross, abs(float(directions[i] @ directions[j])))
+
+    # Wrist centre: the point nearest axes 4, 5 and 6 (they meet there).
+    rows = [np.eye(3) - np.outer(d, d) for d in directions[3:]]
+    centre = np.linalg.solve(sum(rows), sum(r @ p for r, p in zip(rows, points[3:], strict=True)))
+    to_axis_3 = np.cross(centre - points[2], directions[2])
+    return [
+        *(line_distance(i, i + 1) for i in range(5)),
+        *(angle(i, i + 1) for i in range(5)),
+        float(np.linalg.norm(to_axis_3)),
+        float(np.linalg.norm(flange - centre)),
+        float(np.linalg.norm(np.cross(flange - points[5], directions[5]))),
+    ]
+
+
+def test_crs_a465_has_the_joint_geometry_of_the_reak_model() -> None:
+    arm = load_arm("crs-a465")
+    rng = np.random.default_rng(465)
+    for _ in range(3):
+        q = rng.uniform(arm.lower_rad, arm.upper_rad)
+        ours = joint_axes(arm, q)
+        flange = forward(arm, q)[:3, 3]
+        theirs = reak_a465_axes(rng.uniform(-math.pi, math.pi, 6))
+        np.testing.assert_allclose(
+            axis_invariants(*ours, flange), axis_invariants(*theirs), atol=1e-9
+        )
+    # And they are the published lengths: shoulder offset 0, upper arm 304.8, forearm 330.2
+    # from axis 3 to the wrist centre, flange 76.2 from it on axis 6.
+    invariants = axis_invariants(*joint_axes(arm, np.zeros(6)), forward(arm, np.zeros(6))[:3, 3])
+    assert invariants[1] == pytest.approx(304.8)
+    assert invariants[10:] == pytest.approx([330.2, 76.2, 0.0], abs=1e-9)
+
+
+def test_joint_axes_are_the_jacobians_axes() -> None:
+    arm = load_arm("ur5e-urdf")
+    q = np.array([0.1, -0.9, 1.4, 0.3, -0.7, 2.0])
+    points, directions = joint_axes(arm, q)
+    tool = forward(arm, q)[:3, 3]
+    expected = np.vstack([np.cross(directions, tool - points).T, directions.T])
+    np.testing.assert_allclose(jacobian(arm, q), expected, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0)
+    np.testing.assert_allclose(points[0], [0.0, 0.0, 162.5], atol=1e-9)  # shoulder pan axis

@@ -84,6 +84,18 @@ def forward(arm: Arm, q_rad: Sequence[float] | FloatArray) -> FloatArray:
     return np.asarray(frames[-1] @ arm.tool, dtype=np.float64)
 
 
+def joint_axes(arm: Arm, q_rad: Sequence[float] | FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Each joint's axis in the base frame at ``q_rad``: ``(points, directions)``, both N×3
+    (mm; unit vectors): a point the axis passes through and its direction (gravity torques,
+    ``tau_i = z_i · sum((p_c - o_i) × m g)``)."""
+    _, pivots = _chain(arm, _q_array(arm, q_rad))
+    points = np.array([pivot[:3, 3] for pivot in pivots])
+    directions = np.array(
+        [pivot[:3, :3] @ joint.axis for pivot, joint in zip(pivots, arm.joints, strict=True)]
+    )
+    return points, directions
+
+
 def jacobian(arm: Arm, q_rad: Sequence[float] | FloatArray) -> FloatArray:
     """The geometric Jacobian (6×N, base frame) of the tool point: rows ``[v (mm/rad);
     omega (rad/rad)]``; column ``i`` is ``[z_i × (p_tool - o_i); z_i]`` for revolute joint ``i``
