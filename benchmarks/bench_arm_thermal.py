@@ -41,6 +41,7 @@ def run(hours: float, spacing_mm: float) -> dict[str, float]:
     measured = [np.array(pose.q_rad) for pose in cycle.measured_poses()]
     steps = round(hours * 3600)
     drift_um = np.zeros(len(measured))
+    hourly: dict[str, float] = {}
     step_s = 0.0
     error_s = 0.0
     for k in range(1, steps + 1):
@@ -53,6 +54,8 @@ def run(hours: float, spacing_mm: float) -> dict[str, float]:
             for i, q in enumerate(measured):
                 drift_um[i] = max(drift_um[i], tool_error(arm, q, states).translation_norm_mm * 1e3)
             error_s += time.perf_counter() - t0
+            if k % 3600 == 0:
+                hourly[f"drift_{k // 3600}h_um"] = float(drift_um.max())
     rises = {s.link: s.mean_rise_c for s in model.link_states()}
     return {
         "nodes": model.network.node_count,
@@ -63,6 +66,7 @@ def run(hours: float, spacing_mm: float) -> dict[str, float]:
         "max_drift_um": float(drift_um.max()),
         "mean_heat_w": float(profile.mean_power_w.sum()),
         "max_link_rise_c": max(rises.values()),
+        **hourly,
     }
 
 

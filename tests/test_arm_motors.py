@@ -20,7 +20,7 @@ from daemon.arm.duty import (
     load_duty_cycle,
     trapezoid_timing,
 )
-from daemon.arm.heat import JointHeatProfile
+from daemon.arm.heat import HeatMeter, JointHeatProfile
 from daemon.arm.kinematics import forward, link_frames
 from daemon.arm.motors import (
     GRAVITY_M_S2,
@@ -31,10 +31,12 @@ from daemon.arm.motors import (
     heat_from_current_w,
     heat_from_power_w,
     inertia_diagonal_kg_m2,
+    joint_heat_batch_w,
     joint_heat_w,
     joint_torques_nm,
     motor_heat_w,
     motor_parameters,
+    torques_batch_nm,
     torques_nm,
 )
 from daemon.arm.types import JointSample
@@ -321,7 +323,7 @@ def test_arm_motor_friction_at_the_joint_is_the_same_loss() -> None:
 def test_heat_profile_integrates_one_cycle_and_repeats() -> None:
     arm = load_arm("crs-a465")
     cycle = load_duty_cycle("a465-pick-and-place")
-    profile = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.01)
+    profile = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.02)
     table = arm_motors(arm)
 
     def power(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
@@ -337,7 +339,7 @@ def test_heat_profile_integrates_one_cycle_and_repeats() -> None:
             ]
         )
 
-    np.testing.assert_allclose(profile.cycle_energy_j, cycle.cycle_energy_j(power, 0.01), rtol=1e-9)
+    np.testing.assert_allclose(profile.cycle_energy_j, cycle.cycle_energy_j(power, 0.02), rtol=1e-9)
     period = cycle.period_s
     # whole cycles: the mean power; energy is additive over any split of an interval
     np.testing.assert_allclose(profile.step_power_w(3 * period, 5 * period), profile.mean_power_w)
@@ -369,3 +371,45 @@ def test_tool_poses_in_a_duty_file_go_through_the_arms_inverse_kinematics() -> N
 
     with pytest.raises(DutyCycleError, match=r"pose 'taught': pose out of reach"):
         duty_cycle_from_mapping(data, inverse=unreachable)
+
+
+def test_batch_torques_are_the_per_sample_torques() -> None:
+    arm = load_arm("crs-a465")
+    rng = np.random.default_rng(7)
+    q = rng.uniform(arm.lower_rad, arm.upper_rad, size=(5, arm.dof))
+    qd = rng.normal(0.0, 1.0, size=(5, arm.dof))
+    qdd = rng.normal(0.0, 3.0, size=(5, arm.dof))
+    batch = torques_batch_nm(arm, q, qd, qdd, payload_kg=0.7)
+    for k in range(5):
+        single = torques_nm(arm, JointSample(0.0, q[k], qd[k], qdd[k]), payload_kg=0.7)
+        np.testing.assert_allclose(batch[k], single, rtol=1e-12, atol=1e-12)
+    heat = joint_heat_batch_w(arm, q, qd, qdd, payload_kg=0.7)
+    np.testing.assert_allclose(heat, motor_heat_w(arm_motors(arm), qd, batch), rtol=1e-12)
+    # point masses: the diagonal inertia is what the acceleration alone adds, less the rotor
+    rest = torques_batch_nm(arm, q[:1], np.zeros((1, 6)), np.zeros((1, 6)))
+    push = torques_batch_nm(arm, q[:1], np.zeros((1, 6)), np.eye(6)[1:2])
+    table = arm_motors(arm)
+    assert (push - rest)[0, 1] > table.ratio[1] ** 2 * table.rotor_inertia[1]
+
+
+def test_heat_meter_means_the_performed_motion_between_takes() -> None:
+    """Readings of the heat of the motion performed (here the preset cycle on a 10 ms grid)
+    averaged per 1 s step: the whole run's mean equals the cycle's mean heat."""
+    arm = load_arm("crs-a465")
+    cycle = load_duty_cycle("a465-pick-and-place")
+    times = np.arange(0.0, 5 * cycle.period_s + 1e-9, 0.01)
+    q, qd, qdd = cycle.state(times)
+    power = joint_heat_batch_w(arm, q, qd, qdd, payload_kg=cycle.payload_kg)
+    meter = HeatMeter(arm.dof)
+    means = []
+    for k, t in enumerate(times):
+        meter.add(float(t), power[k])
+        if k and k % 100 == 0:
+            means.append(meter.take_mean_w())
+    means.append(meter.take_mean_w())
+    spans = np.diff(np.concatenate([[0.0], times[100::100], [times[-1]]]))
+    run_mean = np.average(means, axis=0, weights=spans)
+    profile = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.01)
+    np.testing.assert_allclose(run_mean, profile.mean_power_w, rtol=2e-3, atol=1e-6)
+    with pytest.raises(ValueError, match="before the last one"):
+        meter.add(0.0, power[0])

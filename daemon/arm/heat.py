@@ -17,8 +17,8 @@ import numpy as np
 
 from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle
-from daemon.arm.motors import MotorTable, arm_motors, joint_heat_w
-from daemon.arm.types import FloatArray, JointSample
+from daemon.arm.motors import MotorTable, arm_motors, joint_heat_batch_w
+from daemon.arm.types import FloatArray
 
 #: Default integration step of one cycle's heat (s): a few per acceleration ramp.
 DEFAULT_RESOLUTION_S = 0.005
@@ -50,14 +50,7 @@ class JointHeatProfile:
         steps = max(1, math.ceil(cycle.period_s / resolution_s))
         h = cycle.period_s / steps
         q, qd, qdd = cycle.state((np.arange(steps) + 0.5) * h)
-        power = np.array(
-            [
-                joint_heat_w(
-                    arm, JointSample(0.0, q[k], qd[k], qdd[k]), motors=table, payload_kg=payload
-                )
-                for k in range(steps)
-            ]
-        )
+        power = joint_heat_batch_w(arm, q, qd, qdd, motors=table, payload_kg=payload)
         energy = np.vstack([np.zeros(power.shape[1]), np.cumsum(power * h, axis=0)])
         return cls(cycle.period_s, np.linspace(0.0, cycle.period_s, steps + 1), energy)
 
@@ -93,4 +86,41 @@ class JointHeatProfile:
         return result
 
 
-__all__ = ["DEFAULT_RESOLUTION_S", "JointHeatProfile"]
+class HeatMeter:
+    """Each joint's heat from a feed of timed power readings (W per joint): the heat computed
+    from the motion actually performed (:func:`~daemon.arm.motors.joint_heat_batch_w` of the
+    joint samples a controller reports), or measured power (``heat_from_current_w`` /
+    ``heat_from_power_w``). Integrated by the trapezoid rule between readings;
+    :meth:`take_mean_w` gives the mean since the last take, the constant a model step holds."""
+
+    def __init__(self, joints: int) -> None:
+        self._energy = np.zeros(joints)
+        self._last_time: float | None = None
+        self._last_power = np.zeros(joints)
+        self._since: float | None = None
+
+    def add(self, time_s: float, power_w: FloatArray) -> None:
+        power = np.asarray(power_w, dtype=np.float64).reshape(-1)
+        if power.shape != self._energy.shape:
+            raise ValueError(f"expected {self._energy.size} joint powers, got {power.size}")
+        if self._last_time is not None:
+            if time_s < self._last_time:
+                raise ValueError(f"reading at {time_s} s before the last one ({self._last_time} s)")
+            self._energy += (time_s - self._last_time) * (power + self._last_power) / 2.0
+        else:
+            self._since = time_s
+        self._last_time, self._last_power = time_s, power
+
+    def take_mean_w(self) -> FloatArray:
+        """Mean power per joint since the last take (or the first reading); the last reading's
+        power when no time has passed."""
+        if self._last_time is None or self._since is None:
+            return np.zeros_like(self._energy)
+        span = self._last_time - self._since
+        mean: FloatArray = self._energy / span if span > 0.0 else self._last_power.copy()
+        self._energy = np.zeros_like(self._energy)
+        self._since = self._last_time
+        return mean
+
+
+__all__ = ["DEFAULT_RESOLUTION_S", "HeatMeter", "JointHeatProfile"]

@@ -295,35 +295,80 @@ def arm_motors(arm: Arm) -> MotorTable:
     return MotorTable(tuple(motor_parameters(joint.motor) for joint in arm.joints if joint.motor))
 
 
+def _rotations(axis: FloatArray, angles: FloatArray) -> FloatArray:
+    """(S, 4, 4) rotations about one unit ``axis`` by each angle: Rodrigues' formula
+    ``R = c I + s [a]x + (1 - c) a a^T``, as ``description.rot_axis``."""
+    x, y, z = axis
+    skew = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    c, s = np.cos(angles)[:, None, None], np.sin(angles)[:, None, None]
+    out = np.zeros((len(angles), 4, 4))
+    out[:, :3, :3] = c * np.eye(3) + s * skew + (1.0 - c) * np.outer(axis, axis)
+    out[:, 3, 3] = 1.0
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class _MassModel:
-    """Joint axes and origins and the links' masses and centres at one configuration."""
+    """Per sample (first axis): joint origins and axes, the links' centres, and the masses."""
 
-    origins_mm: FloatArray
-    axes: FloatArray
-    masses_kg: FloatArray
-    centres_mm: FloatArray
+    origins_mm: FloatArray  # (S, N, 3)
+    axes: FloatArray  # (S, N, 3)
+    centres_mm: FloatArray  # (S, N, 3)
+    masses_kg: FloatArray  # (N,)
 
 
 def _mass_model(arm: Arm, q_rad: FloatArray, payload_kg: float) -> _MassModel:
-    from daemon.arm.kinematics import link_frames
-
-    frames = link_frames(arm, q_rad)
+    """The chain of ``kinematics.link_frames`` (pivot ``frame_i pre_i``, rotation about the
+    joint's axis, ``post_i``) for many configurations at once (rows of ``q_rad``)."""
+    q = np.atleast_2d(np.asarray(q_rad, dtype=np.float64))
+    count = len(q)
+    current = np.broadcast_to(arm.base, (count, 4, 4))
     origins, axes, centres = [], [], []
     for i, joint in enumerate(arm.joints):
-        pivot = frames[i] @ arm.pre(i)  # the frame joint i rotates in (kinematics._chain)
-        origins.append(pivot[:3, 3])
-        axes.append(pivot[:3, :3] @ joint.axis)
-        centre = frames[i + 1] @ np.array([*arm.links[i].com_mm, 1.0])
-        centres.append(centre[:3])
+        pivot = current @ arm.pre(i)
+        origins.append(pivot[:, :3, 3])
+        axes.append(pivot[:, :3, :3] @ joint.axis)
+        current = pivot @ _rotations(joint.axis, q[:, i] + joint.theta_offset_rad) @ arm.post(i)
+        centres.append((current @ np.array([*arm.links[i].com_mm, 1.0]))[:, :3])
     masses = np.array([link.mass_kg for link in arm.links], dtype=np.float64)
+    centre = np.stack(centres, axis=1)
     if payload_kg > 0.0:  # the payload at the tool point, carried by the last link
-        tool_point = (frames[-1] @ arm.tool)[:3, 3]
+        tool_point = (current @ arm.tool)[:, :3, 3]
         last = masses[-1] + payload_kg
-        if last > 0.0:
-            centres[-1] = (masses[-1] * centres[-1] + payload_kg * tool_point) / last
+        centre[:, -1] = (masses[-1] * centre[:, -1] + payload_kg * tool_point) / last
         masses[-1] = last
-    return _MassModel(np.array(origins), np.array(axes), masses, np.array(centres))
+    return _MassModel(np.stack(origins, axis=1), np.stack(axes, axis=1), centre, masses)
+
+
+def _levers(model: _MassModel) -> FloatArray:
+    """``z_j x (p_i - o_j)`` (m per rad) for i >= j, zero below: (S, N joints, N links, 3)."""
+    arms_m = (model.centres_mm[:, None, :, :] - model.origins_mm[:, :, None, :]) * MM
+    lever = np.cross(model.axes[:, :, None, :], arms_m)
+    count = model.masses_kg.size
+    carried = np.triu(np.ones((count, count), dtype=bool))  # joint j carries links i >= j
+    result: FloatArray = lever * carried[None, :, :, None]
+    return result
+
+
+def torques_batch_nm(
+    arm: Arm,
+    q_rad: ArrayLike,
+    qd_rad_s: ArrayLike,
+    qdd_rad_s2: ArrayLike,
+    *,
+    motors: MotorTable | None = None,
+    payload_kg: float = 0.0,
+) -> FloatArray:
+    """:func:`torques_nm` for many samples at once (rows: samples, columns: joints)."""
+    table = arm_motors(arm) if motors is None else motors
+    model = _mass_model(arm, np.asarray(q_rad, dtype=np.float64), payload_kg)
+    lever = _levers(model)
+    g = np.array([0.0, 0.0, -GRAVITY_M_S2])
+    gravity = -((lever @ g) @ model.masses_kg)  # -sum_i m_i (z_j x r_ij) . g
+    inertia = np.square(lever).sum(axis=-1) @ model.masses_kg  # sum_i m_i |z_j x r_ij|^2
+    qd = np.atleast_2d(np.asarray(qd_rad_s, dtype=np.float64))
+    qdd = np.atleast_2d(np.asarray(qdd_rad_s2, dtype=np.float64))
+    return joint_torques_nm(table, qd, qdd, gravity, inertia)
 
 
 def torques_nm(
@@ -334,18 +379,33 @@ def torques_nm(
     payload_kg: float = 0.0,
 ) -> FloatArray:
     """The joint torques (N·m) the motors supply at ``sample``: gravity from the links'
-    masses and centres of mass (:func:`gravity_torques_nm` over ``kinematics.link_frames``),
-    the diagonal inertia of the links as point masses plus the rotors' reflected inertia
-    times ``qdd``, and the motors' friction (:func:`joint_torques_nm`). Simple on purpose:
-    Coriolis/centrifugal terms and the off-diagonal inertia are left out (slow, short moves:
-    their work over a cycle is small against gravity's copper loss and friction)."""
+    masses and centres of mass (as :func:`gravity_torques_nm`, along the chain of
+    ``kinematics.link_frames``), the diagonal inertia of the links as point masses plus the
+    rotors' reflected inertia times ``qdd``, and the motors' friction
+    (:func:`joint_torques_nm`). Simple on purpose: Coriolis/centrifugal terms and the
+    off-diagonal inertia are left out (slow, short moves: their work over a cycle is small
+    against gravity's copper loss and friction)."""
+    torque = torques_batch_nm(
+        arm, sample.q_rad, sample.qd_rad_s, sample.qdd_rad_s2, motors=motors,
+        payload_kg=payload_kg,
+    )  # fmt: skip
+    result: FloatArray = torque[0]
+    return result
+
+
+def joint_heat_batch_w(
+    arm: Arm,
+    q_rad: ArrayLike,
+    qd_rad_s: ArrayLike,
+    qdd_rad_s2: ArrayLike,
+    *,
+    motors: MotorTable | None = None,
+    payload_kg: float = 0.0,
+) -> FloatArray:
+    """:func:`joint_heat_w` for many samples at once (rows: samples, columns: joints)."""
     table = arm_motors(arm) if motors is None else motors
-    model = _mass_model(arm, sample.q_rad, payload_kg)
-    gravity = gravity_torques_nm(model.origins_mm, model.axes, model.masses_kg, model.centres_mm)
-    inertia = inertia_diagonal_kg_m2(
-        model.origins_mm, model.axes, model.masses_kg, model.centres_mm
-    )
-    return joint_torques_nm(table, sample.qd_rad_s, sample.qdd_rad_s2, gravity, inertia)
+    torque = torques_batch_nm(arm, q_rad, qd_rad_s, qdd_rad_s2, motors=table, payload_kg=payload_kg)
+    return motor_heat_w(table, np.atleast_2d(np.asarray(qd_rad_s, np.float64)), torque)
 
 
 def joint_heat_w(
@@ -372,10 +432,12 @@ __all__ = [
     "heat_from_current_w",
     "heat_from_power_w",
     "inertia_diagonal_kg_m2",
+    "joint_heat_batch_w",
     "joint_heat_w",
     "joint_torques_nm",
     "motor_heat_w",
     "motor_parameters",
     "motor_torque_nm",
+    "torques_batch_nm",
     "torques_nm",
 ]

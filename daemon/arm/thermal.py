@@ -72,6 +72,15 @@ class LinkBody:
     emissivity: float = 0.9
     h_w_per_m2k: float = DEFAULT_H_W_PER_M2K
     thermal_length_mm: float | None = None  # the metal's length if not start-to-end
+    #: the link's whole mass when known (flanges, housings, covers: more than the tube);
+    #: its heat capacity is then ``mass c`` spread along the link, else the tube's.
+    mass_kg: float | None = None
+
+    def heat_capacity_per_mm(self, length_mm: float) -> float:
+        """J/°C per mm of link: the tube's, or the whole mass's if that is more."""
+        tube = self.density_kg_per_m3 * self.area_m2 * MM
+        per_mm = tube if self.mass_kg is None else max(tube, self.mass_kg / length_mm)
+        return per_mm * self.specific_heat_j_per_kgk
 
     @property
     def length_mm(self) -> float:
@@ -194,9 +203,7 @@ def build_arm_network(
             arc.append(position + k * dx)
             spatial.append(start + (end - start) * (k / intervals))
             part_m = shares[k] * MM
-            capacitance.append(
-                link.density_kg_per_m3 * link.specific_heat_j_per_kgk * link.area_m2 * part_m
-            )
+            capacitance.append(link.heat_capacity_per_mm(length) * shares[k])
             alpha.append(link.alpha_per_c)
             ambient_g.append(h * link.perimeter_m * part_m)
             if k > 0:
@@ -435,11 +442,12 @@ def describe_arm(
     """The thermal description of an arm file (kinematics + link materials and sections +
     motors). Link ``i`` spans the geometry of the joints whose lengths grow with it
     (``Arm.grows_with``), from the first one's frame origin to the last one's end, at the zero
-    configuration; a link that holds no length (a wrist) is a short lump at its frame's
-    origin. Each joint's housing sits on its motor's ``heats_link`` (bolted:
-    ``contact_r_c_per_w``); its other flange is reached through the bearings
-    (``bearing_r_c_per_w``). The joint, base and contact values are estimates (module
-    constants) that a finer truth model may change."""
+    configuration, over ``Arm.link_length_mm``; a link that holds no length (a wrist) is a
+    short lump at its frame's origin. A link's heat capacity is its whole ``mass_kg`` (the
+    arm file's, with flanges and covers) when that exceeds its tube's. Each joint's housing
+    sits on its motor's ``heats_link`` (bolted: ``contact_r_c_per_w``); its other flange is
+    reached through the bearings (``bearing_r_c_per_w``). The joint, base and contact values
+    are estimates (module constants) that a finer truth model may change."""
     from daemon.arm.description import ArmError
     from daemon.arm.kinematics import link_frames
 
@@ -470,6 +478,7 @@ def describe_arm(
                 emissivity=material.emissivity,
                 h_w_per_m2k=material.convection_w_per_m2k,
                 thermal_length_mm=arm.link_length_mm(link.name),
+                mass_kg=link.mass_kg if link.mass_kg > 0.0 else None,
             )
         )
     joints = []

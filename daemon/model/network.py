@@ -222,7 +222,7 @@ class ThermalNetwork:
                 return f"node {name!r} joins {len(neighbours)} nodes (a branched network)"
             if len(neighbours) == 2:
                 sides = np.sign(self.positions_mm[neighbours] - self.positions_mm[i])
-                if sides[0] == sides[1]:
+                if sides[0] == sides[1] != 0.0:
                     joined = ", ".join(repr(self.node_names[j]) for j in neighbours)
                     return (
                         f"node {name!r} joins {joined}, both on the same side of it along the bar"
