@@ -1,24 +1,33 @@
 """``thermocomp calibrate cameras``: each camera's pose in the robot's world from marker positions
-the robot visited (issue 20); the fit is the pure :mod:`daemon.vision.camera_pose`.
+the robot visited (issue 20); the fits are the pure :mod:`daemon.vision.camera_pose` and
+:mod:`daemon.vision.camera_rig`.
 
 The cameras' intrinsics and distortion come from ``--cameras FILE`` (a camera file, see
 README "Measuring in 3-D with several cameras"; the poses in it are not used). The observations
 are either
 
-* recorded: ``--observations CSV`` with one row per camera and position, columns
-  ``camera,x_mm,y_mm,z_mm,x_px,y_px`` and optionally ``sigma_x_px,sigma_y_px`` (the centroid's
-  own 1-sigma; without them the noise is estimated from the residuals), or
-* simulated: ``--simulate TRUTH`` (a camera file of the true cameras): the marker visits a cube
-  of ``--per-axis``³ positions ±``--size`` mm about ``--centre``, is rendered with photon and
-  read noise in every true camera and measured by the robust centroid; ``--save-observations``
-  keeps those rows as CSV; the output then also gives each camera's error from the truth.
+* recorded: ``--observations CSV`` with one row per camera and tool pose, columns
+  ``camera,x_mm,y_mm,z_mm,x_px,y_px``, optionally ``rx_rad,ry_rad,rz_rad`` (the tool's
+  rotation vector; zero without them) and ``sigma_x_px,sigma_y_px`` (the centroid's own
+  1-sigma; without them the noise is estimated from the residuals), or
+* simulated: ``--simulate TRUTH`` (a camera file of the true cameras): the tool visits a cube
+  of ``--per-axis``³ positions ±``--size`` mm about ``--centre``, turned at random by up to
+  ``--turn`` rad about each axis (seeded); the marker at ``--true-marker`` on it is rendered
+  with photon and read noise in every true camera and measured by the robust centroid;
+  ``--save-observations`` keeps those rows as CSV; the output then also gives each camera's
+  error from the truth.
+
+The marker sits at ``--marker`` (mm, tool frame; default 0,0,0: the tool point, so that x, y,
+z are the marker's own positions), i.e. at ``R marker + p`` in the world. With
+``--fit-marker`` that offset is only the starting guess and is fitted together with the
+cameras (the tool must turn between poses).
 
 Driving the arm through the daemon to record the observations is not part of this command yet:
-record them with the arm (marker positions = commanded tool poses x the marker's tool offset)
-and pass the CSV.
+record them with the arm (its commanded tool poses and the centroids) and pass the CSV.
 
-Exit statuses: 0 calibrated; 1 a fit failed (too few or collinear positions, a marker off a
-camera's chip); 2 bad usage, an unreadable camera file or CSV.
+Exit statuses: 0 calibrated; 1 a fit failed (a camera saw the marker at fewer than four
+positions, positions on one line, an offset the moves do not determine); 2 bad usage, an
+unreadable camera file or CSV.
 """
 
 from __future__ import annotations
@@ -43,6 +52,7 @@ if TYPE_CHECKING:
 PROG = "thermocomp calibrate cameras"
 CSV_COLUMNS = ("camera", "x_mm", "y_mm", "z_mm", "x_px", "y_px")
 SIGMA_COLUMNS = ("sigma_x_px", "sigma_y_px")
+ROTATION_COLUMNS = ("rx_rad", "ry_rad", "rz_rad")
 #: The simulated marker: a spot like the bench's laser spot (bench.spot_sigma_px, 16-bit,
 #: half full scale, 1 e-/count, 5 e- read noise: the [camera] defaults).
 SIM_SPOT_SIGMA_PX = 3.0
@@ -56,10 +66,13 @@ class ObservationError(Exception):
 
 @dataclass(frozen=True, slots=True)
 class Observation:
+    """One camera's centroid of the marker with the tool at (position, rotation vector)."""
+
     camera: str
-    point_mm: tuple[float, float, float]
+    position_mm: tuple[float, float, float]
     pixel_px: tuple[float, float]
     sigma_px: tuple[float, float] | None
+    rotation_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -98,6 +111,31 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="N",
         help="simulation: positions per axis (default 3: 27 positions)",
     )
+    parser.add_argument(
+        "--turn",
+        type=float,
+        default=0.0,
+        metavar="RAD",
+        help="simulation: turn the tool at random by up to this about each axis (default 0)",
+    )
+    parser.add_argument(
+        "--marker",
+        type=_triple,
+        default=(0.0, 0.0, 0.0),
+        metavar="X,Y,Z",
+        help="the marker's offset on the tool (mm, tool frame; default 0,0,0: the tool point)",
+    )
+    parser.add_argument(
+        "--fit-marker",
+        action="store_true",
+        help="fit the marker's offset too (--marker is the guess; the tool must turn)",
+    )
+    parser.add_argument(
+        "--true-marker",
+        type=_triple,
+        metavar="X,Y,Z",
+        help="simulation: the marker's true offset on the tool (default --marker)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="simulation: noise seed (default 0)")
     parser.add_argument(
         "--save-observations", type=Path, metavar="CSV", help="simulation: write the rows here"
@@ -128,6 +166,7 @@ def read_observations(path: Path) -> list[Observation]:
             if missing:
                 raise ObservationError(f"{path}: missing column(s) {', '.join(missing)}")
             with_sigma = all(c in (reader.fieldnames or []) for c in SIGMA_COLUMNS)
+            with_rotation = all(c in (reader.fieldnames or []) for c in ROTATION_COLUMNS)
             rows = []
             for number, row in enumerate(reader, start=2):
                 try:
@@ -135,6 +174,7 @@ def read_observations(path: Path) -> list[Observation]:
                     sigma = (
                         (float(row["sigma_x_px"]), float(row["sigma_y_px"])) if with_sigma else None
                     )
+                    turn = [float(row[c]) for c in ROTATION_COLUMNS] if with_rotation else [0.0] * 3
                 except (TypeError, ValueError) as err:
                     raise ObservationError(f"{path}: line {number}: not a number ({err})") from err
                 rows.append(
@@ -143,6 +183,7 @@ def read_observations(path: Path) -> list[Observation]:
                         (values[0], values[1], values[2]),
                         (values[3], values[4]),
                         sigma,
+                        (turn[0], turn[1], turn[2]),
                     )
                 )
     except OSError as err:
@@ -155,30 +196,33 @@ def read_observations(path: Path) -> list[Observation]:
 def write_observations(path: Path, rows: list[Observation]) -> None:
     with path.open("w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
-        writer.writerow([*CSV_COLUMNS, *SIGMA_COLUMNS])
+        writer.writerow([*CSV_COLUMNS, *ROTATION_COLUMNS, *SIGMA_COLUMNS])
         for row in rows:
             sigma = row.sigma_px or ("", "")
-            writer.writerow([row.camera, *row.point_mm, *row.pixel_px, *sigma])
+            writer.writerow(
+                [row.camera, *row.position_mm, *row.pixel_px, *row.rotation_rad, *sigma]
+            )
 
 
 def simulate_observations(
     truth: tuple[CameraModel, ...],
-    centre_mm: tuple[float, float, float],
-    size_mm: float,
-    per_axis: int,
-    seed: int,
+    args: argparse.Namespace,
 ) -> list[Observation]:
-    """The marker rendered at every cube position in every true camera and measured."""
+    """The marker rendered at every tool pose of the cube in every true camera and measured;
+    a camera that does not see it at a pose (off the chip, cut by its edge) has no row there."""
     import numpy as np
+    from scipy.spatial.transform import Rotation
 
     from daemon.vision import CentroidError, measure_centroid
     from daemon.vision.camera_pose import grid_positions
     from daemon.vision.markers import render_marker_window
-    from daemon.vision.multiview import MultiviewError
 
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(args.seed)
+    marker = np.array(args.true_marker if args.true_marker is not None else args.marker)
     rows = []
-    for point in grid_positions(centre_mm, size_mm, per_axis):
+    for position in grid_positions(args.centre, args.size, args.per_axis):
+        turn = rng.uniform(-args.turn, args.turn, 3) if args.turn > 0 else np.zeros(3)
+        point = Rotation.from_rotvec(turn).as_matrix() @ marker + position
         for camera in truth:
             rendered = render_marker_window(
                 camera,
@@ -188,43 +232,99 @@ def simulate_observations(
                 peak_fraction=SIM_PEAK_FRACTION,
                 read_noise_counts=SIM_READ_NOISE_COUNTS,
             )
-            where = f"({point[0]:g}, {point[1]:g}, {point[2]:g}) mm"
             if rendered is None:
-                raise MultiviewError(f"camera {camera.name} does not see the marker at {where}")
+                continue  # off this camera's chip: it sees fewer positions (the fit says so)
             window, (column0, row0) = rendered
             try:
                 result = measure_centroid(window)
-            except CentroidError as err:
-                raise MultiviewError(f"camera {camera.name}, marker at {where}: {err}") from err
+            except CentroidError:
+                continue
+            if "edge" in result.flags:
+                continue
             rows.append(
                 Observation(
                     camera.name,
-                    (float(point[0]), float(point[1]), float(point[2])),
+                    (float(position[0]), float(position[1]), float(position[2])),
                     (result.x_px + column0, result.y_px + row0),
                     (result.sigma_x_px, result.sigma_y_px),
+                    (float(turn[0]), float(turn[1]), float(turn[2])),
                 )
             )
     return rows
 
 
-def fit_all(cameras: tuple[CameraModel, ...], rows: list[Observation]) -> list[CameraPoseFit]:
-    from daemon.vision.camera_pose import fit_camera_pose
+@dataclass(frozen=True, eq=False)
+class Calibrated:
+    fits: list[CameraPoseFit]
+    marker_mm: tuple[float, float, float]
+    marker_se_mm: tuple[float, float, float] | None  # None: given, not fitted
 
-    names = {camera.name for camera in cameras}
-    unknown = sorted({row.camera for row in rows} - names)
+
+def _checked(cameras: tuple[CameraModel, ...], rows: list[Observation]) -> None:
+    unknown = sorted({row.camera for row in rows} - {camera.name for camera in cameras})
     if unknown:
         raise ObservationError(f"observations of unknown camera(s): {', '.join(unknown)}")
+
+
+def fit_known_marker(
+    cameras: tuple[CameraModel, ...], rows: list[Observation], marker: tuple[float, float, float]
+) -> Calibrated:
+    """Each camera on its own: the marker's world positions follow from the tool poses."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from daemon.vision.camera_pose import fit_camera_pose
+
+    _checked(cameras, rows)
     fits = []
     for camera in cameras:
         mine = [row for row in rows if row.camera == camera.name]
+        turns = Rotation.from_rotvec(np.array([row.rotation_rad for row in mine]).reshape(-1, 3))
+        points = turns.apply(np.array(marker)) + np.array([row.position_mm for row in mine])
         sigmas = [row.sigma_px for row in mine]
         given = None if any(s is None for s in sigmas) else [s for s in sigmas if s is not None]
-        fits.append(
-            fit_camera_pose(
-                camera, [row.point_mm for row in mine], [row.pixel_px for row in mine], given
-            )
-        )
-    return fits
+        fits.append(fit_camera_pose(camera, points, [row.pixel_px for row in mine], given))
+    return Calibrated(fits, marker, None)
+
+
+def fit_with_marker(
+    cameras: tuple[CameraModel, ...], rows: list[Observation], guess: tuple[float, float, float]
+) -> Calibrated:
+    """Cameras and the marker's offset together (camera_rig): rows grouped by tool pose."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from daemon.vision.camera_rig import fit_cameras_and_marker
+
+    _checked(cameras, rows)
+    keys: dict[tuple[float, ...], int] = {}
+    for row in rows:
+        keys.setdefault((*row.position_mm, *row.rotation_rad), len(keys))
+    index = {camera.name: c for c, camera in enumerate(cameras)}
+    pixels = np.full((len(cameras), len(keys), 2), np.nan)
+    sigmas = np.full_like(pixels, np.nan)
+    for row in rows:
+        where = (index[row.camera], keys[(*row.position_mm, *row.rotation_rad)])
+        pixels[where] = row.pixel_px
+        sigmas[where] = row.sigma_px if row.sigma_px is not None else np.nan
+    poses = np.tile(np.eye(4), (len(keys), 1, 1))
+    for key, k in keys.items():
+        poses[k, :3, :3] = Rotation.from_rotvec(key[3:]).as_matrix()
+        poses[k, :3, 3] = key[:3]
+    given = bool(np.all(np.isfinite(sigmas[np.isfinite(pixels)])))  # every centroid's own
+    result = fit_cameras_and_marker(
+        list(cameras),
+        poses,
+        pixels,
+        np.where(np.isfinite(sigmas), sigmas, 1.0) if given else None,
+        guess,
+    )
+    m, se = result.marker_mm, result.marker_se_mm
+    return Calibrated(
+        list(result.fits),
+        (float(m[0]), float(m[1]), float(m[2])),
+        (float(se[0]), float(se[1]), float(se[2])),
+    )
 
 
 def run_calibrate_cameras(args: argparse.Namespace) -> int:
@@ -233,6 +333,9 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
 
     if args.per_axis < 2:
         print(f"{PROG}: --per-axis must be 2 or more", file=sys.stderr)
+        return EXIT_USAGE
+    if not (math.isfinite(args.turn) and 0.0 <= args.turn <= math.pi):
+        print(f"{PROG}: --turn must be between 0 and pi rad", file=sys.stderr)
         return EXIT_USAGE
     try:
         cameras = load_cameras(args.cameras)
@@ -250,28 +353,48 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
                 )
                 return EXIT_USAGE
             shown = tuple(c for c in truth if c.name in {m.name for m in cameras})
-            rows = simulate_observations(shown, args.centre, args.size, args.per_axis, args.seed)
+            rows = simulate_observations(shown, args)
             if args.save_observations is not None:
                 write_observations(args.save_observations, rows)
         assert rows is not None
-        fits = fit_all(cameras, rows)
+        fit = fit_with_marker if args.fit_marker else fit_known_marker
+        calibrated = fit(cameras, rows, args.marker)
     except ObservationError as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return EXIT_USAGE
     except MultiviewError as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return EXIT_FAILURE
-    calibrated = tuple(fit.camera for fit in fits)
+    fits = calibrated.fits
     truths = {c.name: c for c in truth} if truth is not None else {}
+    marker_line = (
+        "# marker offset on the tool: ("
+        + ", ".join(
+            f"{v:.4f}" + (f"+-{s:.4f}" if calibrated.marker_se_mm is not None else "")
+            for v, s in zip(
+                calibrated.marker_mm, calibrated.marker_se_mm or (0.0,) * 3, strict=True
+            )
+        )
+        + ") mm"
+        + ("" if calibrated.marker_se_mm is not None else " (given)")
+    )
     if args.json:
-        print(json.dumps([_as_dict(fit, truths.get(fit.camera.name)) for fit in fits], indent=2))
+        data = {
+            "cameras": [_as_dict(f, truths.get(f.camera.name)) for f in fits],
+            "marker_mm": list(calibrated.marker_mm),
+            "marker_se_mm": (
+                list(calibrated.marker_se_mm) if calibrated.marker_se_mm is not None else None
+            ),
+        }
+        print(json.dumps(data, indent=2))
     else:
-        for fit in fits:
-            print(_summary(fit, truths.get(fit.camera.name)))
+        for one in fits:
+            print(_summary(one, truths.get(one.camera.name)))
+        print(marker_line)
         if args.write is None:
-            print(cameras_toml(calibrated), end="")
+            print(cameras_toml([f.camera for f in fits]), end="")
     if args.write is not None:
-        write_cameras(args.write, calibrated)
+        write_cameras(args.write, [f.camera for f in fits])
         print(f"# written to {args.write}", file=sys.stderr)
     return EXIT_OK
 

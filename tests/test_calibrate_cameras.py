@@ -60,7 +60,7 @@ def test_simulated_moves_recover_every_camera_within_its_standard_errors(
         [*argv, "--write", str(out_file), "--save-observations", str(rows), "--json"], capsys
     )
     assert status == 0, err
-    report = json.loads(out)
+    report = json.loads(out)["cameras"]
     assert [entry["camera"] for entry in report] == ["c0", "c1"]
     for entry, camera, fitted in zip(report, true_cameras(), load_cameras(out_file), strict=True):
         assert entry["points"] == 27
@@ -81,7 +81,7 @@ def test_simulated_moves_recover_every_camera_within_its_standard_errors(
         ["--cameras", str(intrinsics), "--observations", str(rows), "--json"], capsys
     )
     assert status == 0, err
-    again = json.loads(out)
+    again = json.loads(out)["cameras"]
     for first, second in zip(report, again, strict=True):
         assert second["centre_mm"] == pytest.approx(first["centre_mm"], abs=1e-9)
 
@@ -146,3 +146,30 @@ def test_the_command_is_part_of_thermocomp() -> None:
     result = run_cli(["calibrate", "cameras", "--help"])
     assert result.returncode == 0, result.stderr
     assert "--observations CSV" in result.stdout and "--simulate TRUTH" in result.stdout
+
+
+def test_the_marker_offset_is_fitted_when_the_tool_turns(
+    files: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    truth, intrinsics = files
+    base = ["--cameras", str(intrinsics), "--simulate", str(truth), "--seed", "2", "--turn", "0.3"]
+    marker = ["--true-marker", "10,-5,60", "--json"]
+    status, out, err = calibrate([*base, *marker, "--fit-marker"], capsys)
+    assert status == 0, err
+    result = json.loads(out)
+    error = np.array(result["marker_mm"]) - [10.0, -5.0, 60.0]
+    assert np.all(np.abs(error) < 4 * np.array(result["marker_se_mm"]))
+    for entry in result["cameras"]:
+        assert np.all(np.abs(entry["centre_error_mm"]) < 4 * np.array(entry["centre_se_mm"]))
+    # the same moves with the offset given: each camera on its own, the offset not fitted
+    status, out, err = calibrate([*base, *marker, "--marker", "10,-5,60"], capsys)
+    assert status == 0, err
+    given = json.loads(out)
+    assert given["marker_se_mm"] is None
+    for entry in given["cameras"]:
+        assert np.all(np.abs(entry["centre_error_mm"]) < 4 * np.array(entry["centre_se_mm"]))
+    # a tool that never turns cannot show where the marker is on it
+    status, _, err = calibrate(
+        ["--cameras", str(intrinsics), "--simulate", str(truth), "--fit-marker"], capsys
+    )
+    assert status == 1 and "never turns" in err

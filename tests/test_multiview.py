@@ -229,6 +229,27 @@ def test_one_camera_along_one_axis_is_the_existing_single_camera(rotation_deg: f
         assert math.sqrt(covariance[2, 2]) * 1000 == pytest.approx(0.02 * um_per_px[1])
 
 
+def test_a_distorted_camera_measures_in_its_plane_exactly() -> None:
+    """A wide lens (f = 900 px) with strong distortion, points far out in the image, on a
+    tilted plane: the measured point reprojects onto the pixel (cv2.undistortPoints alone is
+    off by ~4e-5 mm at the image's edge; the Newton steps remove it)."""
+    wide = camera("c", (-800.0, -600.0, 500.0))
+    wide = CameraModel(
+        name="wide",
+        matrix=intrinsic_matrix((900.0, 900.0), (375.5, 290.5)),
+        distortion=np.array([-0.4, 0.2, 2e-3, -1e-3, 0.05]),
+        rotation_rad=wide.rotation_rad,
+        translation_mm=wide.translation_mm,
+        image_size_px=(752, 582),
+    )
+    plane = Plane((0.0, 0.0, 400.0), (0.3, -0.2, 1.0))
+    basis = np.linalg.svd(np.array([[0.3, -0.2, 1.0]]))[2][1:]
+    for offset in [(0.0, 0.0), (150.0, -100.0), (300.0, 200.0)]:
+        truth = TARGET + np.array(offset) @ basis
+        point, _ = measure_in_plane(wide, tuple(project(wide, truth)[0]), plane)
+        assert point == pytest.approx(truth, abs=1e-9)
+
+
 def test_a_plane_along_the_ray_or_behind_is_refused() -> None:
     cam = axis_camera((10.0, 10.0), spot_mm=(0.0, 0.0, 0.0))
     with pytest.raises(MultiviewError, match="along the plane"):
@@ -557,3 +578,34 @@ def test_an_offset_the_tool_never_turns_about_is_refused() -> None:
     pixels = np.array([project(c, points) for c in cameras])
     with pytest.raises(MultiviewError, match="never turns"):
         fit_cameras_and_marker(cameras, poses, pixels)
+
+
+def test_the_thesis_layout_of_one_camera_per_axis_triangulates() -> None:
+    """Thesis 7.2.2 proposes one camera per axis, mounted orthogonally: three cameras looking
+    along world x, y and z at the work point. Each axis is then seen by the two cameras across
+    it, at the same scale, so the covariance is diagonal and isotropic at the work point."""
+    cameras = []
+    for name, position, up in [
+        ("along-x", (-1000.0, 0.0, 400.0), (0.0, 0.0, 1.0)),
+        ("along-y", (0.0, -1000.0, 400.0), (0.0, 0.0, 1.0)),
+        ("along-z", (0.0, 0.0, 1400.0), (0.0, 1.0, 0.0)),  # up along z is its optical axis
+    ]:
+        rvec, tvec = look_at(position, TARGET, up)
+        cameras.append(
+            CameraModel(
+                name=name,
+                matrix=intrinsic_matrix((2400.0, 2400.0), (375.5, 290.5)),
+                distortion=np.zeros(5),
+                rotation_rad=rvec,
+                translation_mm=tvec,
+                image_size_px=(752, 582),
+                pixel_sigma_px=SIGMA_PX,
+            )
+        )
+    truth = TARGET + np.array([3.0, -2.0, 1.5])
+    pixels = np.vstack([project(c, truth) for c in cameras])
+    point, _ = triangulate(cameras, pixels)
+    assert point == pytest.approx(truth, abs=1e-9)
+    _, at_centre = triangulate(cameras, np.vstack([project(c, TARGET) for c in cameras]))
+    variance = (SIGMA_PX * 1000.0 / 2400.0) ** 2 / 2  # two views per axis, 1 m away
+    assert at_centre == pytest.approx(np.diag([variance] * 3), rel=1e-6, abs=1e-15)

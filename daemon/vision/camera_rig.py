@@ -82,6 +82,9 @@ def fit_cameras_and_marker(
         sigmas = np.asarray(sigmas_px, dtype=np.float64)
         if sigmas.shape != observed.shape:
             raise MultiviewError(f"sigmas of shape {sigmas.shape} for pixels {observed.shape}")
+    visible = np.all(np.isfinite(observed), axis=2)
+    if not np.all(sigmas[visible] > 0) or not np.all(np.isfinite(sigmas[visible])):
+        raise MultiviewError("pixel sigmas must be positive and finite")
     seen = [np.flatnonzero(np.all(np.isfinite(observed[c]), axis=1)) for c in range(len(cameras))]
     for camera, rows in zip(cameras, seen, strict=True):
         if rows.size < MIN_POSE_POINTS:

@@ -82,6 +82,8 @@ MIN_MARKER_SPREAD = 1e-3
 #: A ray meeting the plane at less than this angle (rad; ~0.6°) gives no usable point.
 MIN_PLANE_INCIDENCE_RAD = 0.01
 _UM_PER_MM = 1000.0
+#: Newton steps of measure_in_plane after the ray's intersection (quadratic convergence).
+_PLANE_NEWTON_STEPS = 3
 #: Gauss-Newton of the marker pose: at most this many steps, done when a step is below the
 #: tolerance (mm and rad alike: far below any marker noise).
 _MAX_POSE_ITERATIONS = 20
@@ -321,7 +323,13 @@ def measure_in_plane(
     point = centre + distance * direction
     sigma = _sigmas([camera], None if sigma_px is None else [sigma_px])[0]
     basis = _plane_basis(normal)
-    in_plane = projection_jacobian(camera, point)[1][0] @ basis  # d pixel / d (plane coords)
+    # cv2.undistortPoints inverts the distortion iteratively, to ~1e-3 px for strong
+    # distortion: Newton steps in the plane make the point reproject onto the pixel exactly
+    for _ in range(_PLANE_NEWTON_STEPS):
+        projected, jacobian = projection_jacobian(camera, point)
+        in_plane = jacobian[0] @ basis  # d pixel / d (plane coords)
+        point = point + basis @ np.linalg.solve(in_plane, observed - projected[0])
+    in_plane = projection_jacobian(camera, point)[1][0] @ basis
     inverse = np.linalg.inv(in_plane)
     covariance_plane = inverse @ np.diag(sigma**2) @ inverse.T
     covariance = basis @ covariance_plane @ basis.T
@@ -464,7 +472,11 @@ def _pose_parts(pose: ArrayLike) -> tuple[FloatArray, FloatArray]:
 def pose_difference(reference: ArrayLike, current: ArrayLike) -> Pose6:
     """``current`` relative to ``reference`` in the world frame: the tool point's displacement
     ``t_cur - t_ref`` (mm) and the rotation vector of ``R_cur R_ref^T`` (rad). A tool error is
-    ``pose_difference(cold, warm)``; the correction that cancels it is its negative."""
+    ``pose_difference(cold, warm)``; the correction that cancels it is its negative.
+
+    Mind the order: the reference comes first here, while
+    ``daemon.arm.kinematics.pose_difference(pose, reference)`` takes it second (same result
+    for the same roles); pass keywords where both are in reach."""
     rotation_ref, translation_ref = _pose_parts(reference)
     rotation_cur, translation_cur = _pose_parts(current)
     rotvec = Rotation.from_matrix(rotation_cur @ rotation_ref.T).as_rotvec()
