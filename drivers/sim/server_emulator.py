@@ -11,8 +11,9 @@ checks), so a HOLD halts the move: the move is answered with catalogue 044 `Halt
 invoked`. If the host is silent longer than ``silence_timeout_s`` it halts and holds until a
 RELEASE.
 
-Emulator simplification (as the console emulator's): a halted move leaves the arm where it
-started (the emulated arm jumps to its target when the move time has passed).
+Emulator simplification (as the console emulator's): without an arm a halted move leaves the
+arm where it started (the emulated arm jumps to its target when the move time has passed); with
+one (joint space, drivers/sim/joint_arm.py) the arm stops where its joints are.
 
 Faults (strike the reply of the N-th non-heartbeat request, or ``inject()`` for the next
 request of any type): crc (one CRC byte flipped), short (only the first half of the reply,
@@ -91,11 +92,6 @@ class ServerEmulatorConfig:
 def goal_location(index: int) -> str:
     """The console location the program's goal ``index`` is kept in (goal 0: `opgoal`)."""
     return GOAL_LOCATION if index == 0 else f"{GOAL_LOCATION}{index}"
-
-
-def _shifted(base: proto.Pose6, offset: proto.Pose6) -> proto.Pose6:
-    x, y, z, zr, yr, xr = (b + o for b, o in zip(base, offset, strict=True))
-    return (x, y, z, zr, yr, xr)
 
 
 def _catalogue_code(lines: list[str]) -> int:
@@ -372,7 +368,7 @@ class C500CServerEmulator(C500CEmulator):
         base = self.goal_at(request.goal) if moves_to_goal else self.actual_pose()
         assert base is not None
         # shift_w(cur, offset): world-frame shift of every coordinate (C500C.md `wshift`).
-        state.locations[TARGET_LOCATION] = _shifted(base, request.offset)
+        state.locations[TARGET_LOCATION] = self.console.shift_location(base, request.offset)
         lines = await self.console.execute(f"{'moves' if request.straight else 'move'} cur")
         status: int = proto.Status.OK
         ended: float | None = None
@@ -391,9 +387,10 @@ class C500CServerEmulator(C500CEmulator):
                 async with asyncio.timeout_at(ended + (reply_s if self.config.paced else 0.0)):
                     await self._halt.wait()
             if self._halt.is_set() and loop.time() < ended:
-                # halt(): the arm stops where it is (emulator: where the move started).
-                state.actual = state.commanded = state.previous_actual
-                state.motion_end_s = ended = loop.time()
+                # halt(): the arm stops where it is (an emulator without an arm: where the
+                # move started; with one: where its joints are, drivers/sim/joint_arm.py).
+                ended = loop.time()
+                self.console.halt_motion(ended)
                 self.halts += 1
                 self.motion_halted.set()
                 status = proto.Status.HALTED
