@@ -20,6 +20,7 @@ from daemon.arm.thermal import (
     JointBody,
     LinkBody,
     build_arm_network,
+    describe_arm,
     radiation_h_w_per_m2k,
     steady_link_rise_c,
     tube_section,
@@ -30,8 +31,12 @@ ALUMINIUM = material("6061-T6")
 AREA_M2, PERIMETER_M = tube_section(60.0, 4.0)
 
 
-def link(name: str, start: tuple[float, float, float], end: tuple[float, float, float],
-         conductivity: float = ALUMINIUM.conductivity_w_per_mk) -> LinkBody:  # fmt: skip
+def link(
+    name: str,
+    start: tuple[float, float, float],
+    end: tuple[float, float, float],
+    conductivity: float = ALUMINIUM.conductivity_w_per_mk,
+) -> LinkBody:
     return LinkBody(
         name,
         start,
@@ -48,8 +53,15 @@ def link(name: str, start: tuple[float, float, float], end: tuple[float, float, 
 
 
 def six_link_arm() -> ArmThermalDescription:
-    points = [(0, 0, 0), (0, 0, 330), (300, 0, 330), (600, 0, 330), (600, 0, 330),
-              (600, 0, 330), (600, 0, 400)]  # fmt: skip
+    points = [
+        (0, 0, 0),
+        (0, 0, 330),
+        (300, 0, 330),
+        (600, 0, 330),
+        (600, 0, 330),
+        (600, 0, 330),
+        (600, 0, 400),
+    ]
     links = tuple(link(f"link{i + 1}", points[i], points[i + 1]) for i in range(6))
     return ArmThermalDescription("six", links, tuple(JointBody(f"J{i + 1}") for i in range(6)))
 
@@ -312,3 +324,58 @@ def test_the_preset_cycle_drifts_the_a465_tool_over_8_hours_in_seconds() -> None
     steady = steady_link_rise_c(model.description, profile.mean_power_w)
     for state in states:
         assert state.mean_rise_c == pytest.approx(steady[state.link], rel=0.02)
+
+
+# -- across the links -------------------------------------------------------------------------
+
+
+def test_two_rows_heated_alike_are_the_chain() -> None:
+    """With both sides of every flange heated alike, the model resolving the temperature
+    across the links gives the chain's temperatures and no gradient."""
+    arm = load_arm("crs-a465")
+    heat = np.array([3.0, 20.0, 4.0, 0.5, 0.4, 0.1])
+    chain = ArmThermalModel(arm, node_spacing_mm=40.0, dt_s=30.0)
+    rows = ArmThermalModel(arm, node_spacing_mm=40.0, dt_s=30.0, across_link=True)
+    assert rows.network.node_count == 2 * chain.network.node_count - (arm.dof + 1)
+    for t in (600.0, 3600.0, 20_000.0):
+        chain.advance_to(t, heat)
+        rows.advance_to(t, heat)
+        for a, b in zip(chain.link_states(), rows.link_states(), strict=True):
+            assert b.mean_rise_c == pytest.approx(a.mean_rise_c, rel=1e-9, abs=1e-12)
+            assert b.gradient_c_per_mm == pytest.approx((0.0, 0.0), abs=1e-12)
+        np.testing.assert_allclose(
+            rows.joint_temperatures_c(), chain.joint_temperatures_c(), rtol=1e-9
+        )
+
+
+def test_heat_entering_one_side_bends_the_links() -> None:
+    arm = load_arm("crs-a465")
+    heat = np.array([3.0, 20.0, 4.0, 0.5, 0.4, 0.1])
+    states = {}
+    for share in (0.9, 0.1):
+        model = ArmThermalModel(
+            describe_arm(arm, plus_share=share),
+            node_spacing_mm=40.0,
+            dt_s=60.0,
+            across_link=True,
+        )
+        model.advance_to(8 * 3600.0, heat)
+        states[share] = model.link_states()
+        upper = model.link_node_indices("upper-arm")
+        plus = [i for i in upper if model.node_names[i].endswith("+")]
+        minus = [i for i in upper if model.node_names[i].endswith("-")]
+        hotter = np.mean(model.temperatures_c[plus]) - np.mean(model.temperatures_c[minus])
+        assert hotter * (share - 0.5) > 0.0  # the housing's side is the warmer one
+    for hot, cold in zip(states[0.9], states[0.1], strict=True):
+        # mirror images: the same growth, opposite gradients
+        assert hot.mean_rise_c == pytest.approx(cold.mean_rise_c, rel=1e-9)
+        np.testing.assert_allclose(
+            hot.gradient_c_per_mm, -np.array(cold.gradient_c_per_mm), rtol=1e-9, atol=1e-15
+        )
+    upper_state = states[0.9][arm.link_index("upper-arm")]
+    assert np.hypot(*upper_state.gradient_c_per_mm) > 1e-4
+    q = np.radians([0.0, 35.0, 55.0, 0.0, 0.0, 0.0])
+    straight = tool_error(arm, q, states[0.9])
+    bent = tool_error(arm, q, states[0.9], bending=True)
+    assert straight.rotation_angle_rad == pytest.approx(0.0, abs=1e-12)
+    assert bent.rotation_angle_rad > 1e-6

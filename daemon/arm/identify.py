@@ -1,0 +1,497 @@
+"""Grey-box identification of the arm's thermal model from a calibration cycle (issue 20).
+
+The arm generalisation of :mod:`daemon.model.identify`: the controller's arm model
+(:class:`daemon.arm.thermal.ArmThermalModel`) keeps its structure; a few physically meaningful
+groups of its parameters are scaled to fit what a calibration cycle (compensation off)
+measured: the 3-D displacement of the tool's markers at each measured pose of the cycle
+(daemon.vision.multiview, several cameras) and the IR region temperatures on several links.
+
+Parameters (names as in the two-link identification):
+
+* ``heat:J`` (joint J, 1-based) or ``heat`` (every joint, one factor): the heat really released
+  in the joint per watt the motor model predicts from the motion;
+* ``convection``: h of every surface (links and joint housings), ArmThermalModel's
+  ``convection_scale``;
+* ``alpha``: the expansion coefficient of every link;
+* ``offset`` (one for every IR region) or ``offset:REGION``: an additive IR offset (degC).
+
+Scale factors are fitted as logarithms within [1/10, 10], offsets within +-5 degC, with
+``scipy.optimize.least_squares`` and a robust loss, two passes (the second weighs markers and
+temperatures by their own residual RMS); standard errors, correlations and what is not
+identifiable from ``J`` at the solution exactly as daemon.model.identify reports them (its
+``_uncertainty``: normalised J^T J, near-singular directions, |correlation| > 0.995, relative
+SE > 0.5, parameters at a bound).
+
+The forward model is cheap because the arm's network is linear: for a given convection the
+node temperatures are a sum of one response per joint (times its heat factor) plus the
+response to ambient, all computed in one pass of the network's modes (the exact zero-order
+hold of :class:`daemon.model.model.NetworkModes`) over the run's heat grid; and a link's
+growth is tiny, so the tool's error is linear in the links' strains ``alpha * mean rise``:
+each measured pose carries the markers' displacement per unit strain of each link
+(:func:`marker_sensitivity`, from ``kinematics.tool_error`` of the nominal arm).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from daemon.arm import kinematics
+from daemon.arm.thermal import ArmThermalDescription, build_arm_network
+from daemon.arm.types import FloatArray, LinkThermalState
+from daemon.model.identify import (
+    LOSS,
+    LOSS_SCALE,
+    FittedParameter,
+    IdentificationError,
+    Parameter,
+    _uncertainty,
+)
+from daemon.model.model import NetworkModes
+
+IntArray = NDArray[np.intp]
+
+#: The strain used to read the tool's sensitivity off ``tool_error`` (dimensionless): the size
+#: of a warm link's (23e-6 /K x 5 K ~ 1e-4), small enough that the response is linear.
+SENSITIVITY_STRAIN = 1e-4
+#: Bounds (as in daemon.model.identify) of a scale factor and of an IR offset.
+SCALE_BOUNDS = (0.1, 10.0)
+OFFSET_BOUND_C = 5.0
+
+
+# -- data ----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ArmRunData:
+    """A calibration cycle as identification sees it.
+
+    ``joint_heat_w`` (S x J): the heat the controller's motor model predicts for each joint,
+    mean over each step ``[k dt, (k+1) dt)`` of ``heat_step_s``, from the commanded motion;
+    ``ambient_c`` (S,): the air's temperature over each step. Measurements at ``time_s`` (K,
+    on the heat grid, from a cold start at ambient): ``pose_index`` (K,) says which measured
+    pose, ``marker_displacement_mm`` (K x M x 3) the markers' measured positions minus their
+    cold positions at that pose (NaN where missing), ``region_c`` each IR region's mean
+    (K,), NaN where missing."""
+
+    heat_step_s: float
+    joint_heat_w: FloatArray
+    ambient_c: FloatArray
+    time_s: FloatArray
+    pose_index: IntArray
+    marker_displacement_mm: FloatArray
+    region_c: Mapping[str, FloatArray]
+    name: str = "calibration cycle"
+
+    def __post_init__(self) -> None:
+        steps, _ = self.joint_heat_w.shape
+        if self.ambient_c.shape != (steps,):
+            raise IdentificationError(f"{self.name}: one ambient per heat step")
+        count = self.time_s.size
+        if count < 2 or self.pose_index.shape != (count,):
+            raise IdentificationError(f"{self.name}: needs two or more measurements, one pose each")
+        if self.marker_displacement_mm.shape[0] != count:
+            raise IdentificationError(f"{self.name}: one marker set per measurement")
+        for region, values in self.region_c.items():
+            if values.shape != (count,):
+                raise IdentificationError(f"{self.name}: region {region!r} has the wrong length")
+        if np.any(self.time_s < 0) or np.any(self.time_s > steps * self.heat_step_s + 1e-6):
+            raise IdentificationError(f"{self.name}: a measurement lies outside the heat record")
+
+    @property
+    def grid_index(self) -> IntArray:
+        """Each measurement's index on the heat grid (0 = the start)."""
+        return np.asarray(np.rint(self.time_s / self.heat_step_s), dtype=np.intp)
+
+
+@dataclass(frozen=True)
+class ArmModelSpec:
+    """The controller's arm model as identification sees it: its thermal description and node
+    spacing, which node(s) each IR region covers, and for each measured pose the markers'
+    displacement (M*3, flattened x, y, z per marker) per unit strain of each link
+    (:func:`marker_sensitivity`)."""
+
+    description: ArmThermalDescription
+    node_spacing_mm: float
+    regions: Mapping[str, Sequence[int]]
+    sensitivities: Sequence[FloatArray]
+
+
+def marker_sensitivity(arm: Any, q_rad: FloatArray, markers_tool_mm: FloatArray) -> FloatArray:
+    """The markers' displacement (M*3) per unit strain of each link (columns, the arm's link
+    order) at ``q_rad``: ``kinematics.tool_error`` with one link strained by
+    SENSITIVITY_STRAIN, the markers moved by the error's translation and rotation."""
+    cold = np.asarray(kinematics.forward(arm, q_rad), dtype=np.float64)
+    lever = markers_tool_mm @ cold[:3, :3].T  # each marker from the tool point, world axes
+    names = arm.link_names
+    columns = []
+    for strained in names:
+        states = [
+            LinkThermalState(name, 1.0 if name == strained else 0.0, SENSITIVITY_STRAIN)
+            for name in names
+        ]
+        error = kinematics.tool_error(arm, q_rad, states)
+        moved = error.translation_mm + np.cross(error.rotation_rad, lever)
+        columns.append(moved.reshape(-1) / SENSITIVITY_STRAIN)
+    return np.column_stack(columns)
+
+
+# -- the forward model ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Responses:
+    """Node temperatures on the measurements' grid points: ``per_joint[j]`` (K x N) for 1 W in
+    joint j (at its predicted profile), ``ambient`` (K x N) from the ambient alone, and what
+    the links' mean rises are made of (``link_rows``: L x N, weights of each link's mean)."""
+
+    per_joint: FloatArray  # J x K x N
+    ambient: FloatArray  # K x N
+    link_rows: FloatArray  # L x N
+    reference_c: float
+
+
+def responses(
+    description: ArmThermalDescription,
+    node_spacing_mm: float,
+    convection_scale: float,
+    run: ArmRunData,
+) -> Responses:
+    """The network's response to each input, on the run's grid (module docstring)."""
+    network, layout = build_arm_network(
+        description,
+        node_spacing_mm,
+        convection_scale=convection_scale,
+        ambient_c=float(run.ambient_c[0]),
+    )
+    modes = NetworkModes(network)
+    dt = run.heat_step_s
+    decay = np.exp(-modes.rates * dt)
+    gain = -np.expm1(-modes.rates * dt) / modes.rates
+    joints = run.joint_heat_w.shape[1]
+    joint_nodes = np.asarray(layout.joint_nodes, dtype=np.intp)
+    # modal forcing per unit input: each joint's heat, and the ambient through g_amb
+    channels = np.zeros((network.node_count, joints + 1))
+    channels[joint_nodes, np.arange(joints)] = 1.0
+    channels[:, joints] = network.ambient_conductance_w_per_c
+    forcing = modes.vectors.T @ (channels / modes.root_c[:, None])  # N x (J+1)
+    inputs = np.column_stack([run.joint_heat_w, run.ambient_c])  # S x (J+1)
+    wanted = run.grid_index
+    last = int(wanted.max())
+    z = np.zeros((network.node_count, joints + 1))
+    start = np.full(network.node_count, float(run.ambient_c[0]))
+    z[:, joints] = modes.vectors.T @ (modes.root_c * start)
+    states = np.empty((last + 1, network.node_count, joints + 1))
+    states[0] = z
+    for k in range(last):
+        z = decay[:, None] * z + gain[:, None] * forcing * inputs[k][None, :]
+        states[k + 1] = z
+    chosen = states[wanted]  # K x N(modes) x (J+1)
+    temperatures = np.einsum("nm,kmc->ckn", modes.vectors, chosen) / modes.root_c
+    rows = np.zeros((len(layout.link_nodes), network.node_count))
+    for link, (nodes, lengths) in enumerate(
+        zip(layout.link_nodes, layout.link_lengths, strict=True)
+    ):
+        rows[link, np.asarray(nodes, dtype=np.intp)] = lengths / lengths.sum()
+    return Responses(
+        per_joint=temperatures[:joints],
+        ambient=temperatures[joints],
+        link_rows=rows,
+        reference_c=float(run.ambient_c[0]),
+    )
+
+
+# -- parameters ----------------------------------------------------------------------------------
+
+
+def default_parameters(joints: int, regions: Mapping[str, Sequence[int]]) -> list[str]:
+    """Each joint's heat, convection, alpha and (with IR regions) one common IR offset."""
+    names = [*(f"heat:{j + 1}" for j in range(joints)), "convection", "alpha"]
+    return [*names, "offset"] if regions else names
+
+
+def parse_parameters(
+    names: Sequence[str], joints: int, regions: Mapping[str, Sequence[int]]
+) -> list[Parameter]:
+    """The parameters from their names (module docstring); raises IdentificationError."""
+    parsed: list[Parameter] = []
+    for raw in names:
+        spec = raw.strip()
+        kind, _, argument = spec.partition(":")
+        if kind == "heat":
+            if argument:
+                if not argument.isdigit() or not 1 <= int(argument) <= joints:
+                    raise IdentificationError(f"{spec!r}: joints are numbered 1..{joints}")
+                indices: tuple[int, ...] = (int(argument) - 1,)
+            else:
+                indices = tuple(range(joints))
+            parsed.append(Parameter(spec, "heat", (), indices))
+        elif kind in ("convection", "alpha"):
+            if argument:
+                raise IdentificationError(f"{spec!r}: {kind} takes no argument")
+            parsed.append(Parameter(spec, kind, ()))  # type: ignore[arg-type]
+        elif kind == "offset":
+            if not regions:
+                raise IdentificationError(f"{spec!r}: the run has no IR region")
+            if argument and argument not in regions:
+                raise IdentificationError(f"{spec!r}: unknown region {argument!r}")
+            parsed.append(Parameter(spec, "offset", (argument,) if argument else tuple(regions)))
+        else:
+            raise IdentificationError(
+                f"unknown parameter {spec!r}; kinds: heat[:J], convection, alpha, offset[:R]"
+            )
+    if len({p.name for p in parsed}) != len(parsed):
+        raise IdentificationError("a parameter is given twice")
+    if not parsed:
+        raise IdentificationError("no parameter to fit")
+    return parsed
+
+
+@dataclass(frozen=True)
+class ArmScales:
+    """A parameter vector applied: heat factor per joint, convection and alpha factors, IR
+    offset per region."""
+
+    heat: FloatArray
+    convection: float
+    alpha: float
+    offsets_c: dict[str, float]
+
+
+def apply_values(
+    specs: Sequence[Parameter], values: FloatArray, joints: int, regions: Sequence[str]
+) -> ArmScales:
+    heat = np.ones(joints)
+    convection = alpha = 1.0
+    offsets = dict.fromkeys(regions, 0.0)
+    for spec, value in zip(specs, values, strict=True):
+        if spec.kind == "heat":
+            heat[list(spec.node_indices)] *= math.exp(value)
+        elif spec.kind == "convection":
+            convection *= math.exp(value)
+        elif spec.kind == "alpha":
+            alpha *= math.exp(value)
+        else:
+            for region in spec.targets:
+                offsets[region] += float(value)
+    return ArmScales(heat, convection, alpha, offsets)
+
+
+# -- the fit -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ArmFitQuality:
+    marker_rms_mm: float | None
+    temperature_rms_c: float | None
+    marker_samples: int
+    temperature_samples: int
+
+
+@dataclass(frozen=True)
+class ArmIdentification:
+    parameters: tuple[FittedParameter, ...]
+    correlation: FloatArray
+    scales: ArmScales
+    fit: ArmFitQuality
+    values: FloatArray
+    specs: tuple[Parameter, ...]
+    conditioning: float  # largest / smallest singular value of the normalised J^T J
+    success: bool
+    message: str
+    warnings: tuple[str, ...] = ()
+
+    def parameter(self, name: str) -> FittedParameter:
+        for parameter in self.parameters:
+            if parameter.name == name:
+                return parameter
+        raise KeyError(name)
+
+    def to_dict(self) -> dict[str, Any]:
+        names = [p.name for p in self.parameters]
+        return {
+            "parameters": [dataclasses.asdict(p) for p in self.parameters],
+            "correlation": {
+                a: {b: float(self.correlation[i, j]) for j, b in enumerate(names)}
+                for i, a in enumerate(names)
+            },
+            "heat_scales": self.scales.heat.tolist(),
+            "convection_scale": self.scales.convection,
+            "alpha_scale": self.scales.alpha,
+            "offsets_c": self.scales.offsets_c,
+            "fit": dataclasses.asdict(self.fit),
+            "conditioning": self.conditioning,
+            "success": self.success,
+            "message": self.message,
+            "warnings": list(self.warnings),
+        }
+
+
+class _ArmProblem:
+    """Weighted residuals of a calibration cycle for a parameter vector."""
+
+    def __init__(self, run: ArmRunData, model: ArmModelSpec, specs: Sequence[Parameter]) -> None:
+        self.run, self.model, self.specs = run, model, list(specs)
+        self.joints = run.joint_heat_w.shape[1]
+        self.region_names = [r for r in model.regions if r in run.region_c]
+        self._cache: dict[float, Responses] = {}
+        displacement = run.marker_displacement_mm.reshape(run.time_s.size, -1)
+        self.measured_markers = displacement
+        self.marker_mask = np.isfinite(displacement)
+        self.region_masks = {r: np.isfinite(run.region_c[r]) for r in self.region_names}
+        self.sensitivity = np.stack([model.sensitivities[int(p)] for p in run.pose_index])
+        self.marker_sigma_mm = 1.0
+        self.temperature_sigma_c = 1.0
+
+    def _responses(self, convection: float) -> Responses:
+        key = round(math.log(convection), 12)
+        cached = self._cache.get(key)
+        if cached is None:
+            if len(self._cache) > 64:
+                self._cache.clear()
+            cached = responses(
+                self.model.description, self.model.node_spacing_mm, convection, self.run
+            )
+            self._cache[key] = cached
+        return cached
+
+    def predictions(self, values: FloatArray) -> tuple[FloatArray, dict[str, FloatArray]]:
+        scales = apply_values(self.specs, values, self.joints, self.region_names)
+        response = self._responses(scales.convection)
+        temperatures = response.ambient + np.einsum("j,jkn->kn", scales.heat, response.per_joint)
+        rises = (temperatures - response.reference_c) @ response.link_rows.T  # K x L
+        alphas = np.array([link.alpha_per_c for link in self.model.description.links])
+        strains = scales.alpha * rises * alphas
+        markers = np.einsum("kml,kl->km", self.sensitivity, strains)
+        regions = {
+            name: temperatures[:, list(self.model.regions[name])].mean(axis=1)
+            + scales.offsets_c[name]
+            for name in self.region_names
+        }
+        return markers, regions
+
+    def raw(self, values: FloatArray) -> tuple[FloatArray, FloatArray]:
+        markers, regions = self.predictions(values)
+        marker = (markers - self.measured_markers)[self.marker_mask]
+        temperature = [
+            (regions[r] - self.run.region_c[r])[self.region_masks[r]] for r in self.region_names
+        ]
+        return marker, np.concatenate(temperature) if temperature else np.zeros(0)
+
+    def weighted(self, values: FloatArray) -> FloatArray:
+        marker, temperature = self.raw(values)
+        return np.concatenate(
+            [marker / self.marker_sigma_mm, temperature / self.temperature_sigma_c]
+        )
+
+    def quality(self, values: FloatArray) -> ArmFitQuality:
+        marker, temperature = self.raw(values)
+        return ArmFitQuality(_rms(marker), _rms(temperature), marker.size, temperature.size)
+
+
+def _rms(values: FloatArray) -> float | None:
+    return float(np.sqrt(np.mean(values**2))) if values.size else None
+
+
+def _jacobian(problem: _ArmProblem, values: FloatArray, step: float = 1e-5) -> FloatArray:
+    columns = []
+    for k in range(values.size):
+        up, down = values.copy(), values.copy()
+        up[k] += step
+        down[k] -= step
+        columns.append((problem.weighted(up) - problem.weighted(down)) / (2.0 * step))
+    return np.column_stack(columns)
+
+
+def identify_arm(
+    run: ArmRunData,
+    model: ArmModelSpec,
+    parameters: Sequence[str] | None = None,
+    *,
+    marker_sigma_mm: float = 0.005,
+    temperature_sigma_c: float = 0.1,
+) -> ArmIdentification:
+    """Fit ``parameters`` (default :func:`default_parameters`) of the arm model to ``run``."""
+    joints = run.joint_heat_w.shape[1]
+    used = {r: nodes for r, nodes in model.regions.items() if r in run.region_c}
+    specs = parse_parameters(parameters or default_parameters(joints, used), joints, used)
+    if len(model.sensitivities) <= int(run.pose_index.max()):
+        raise IdentificationError("a measurement names a pose with no sensitivity")
+    problem = _ArmProblem(run, model, specs)
+    count = int(problem.marker_mask.sum() + sum(m.sum() for m in problem.region_masks.values()))
+    if count <= len(specs):
+        raise IdentificationError(f"{count} measurements cannot fit {len(specs)} parameters")
+    lower = np.array([_bounds(s)[0] for s in specs])
+    upper = np.array([_bounds(s)[1] for s in specs])
+    values = np.zeros(len(specs))
+    sigmas = (marker_sigma_mm, temperature_sigma_c)
+    result: Any = None
+    for _ in range(2):  # the second pass weighs each kind by its own residual RMS
+        problem.marker_sigma_mm, problem.temperature_sigma_c = sigmas
+        result = least_squares(
+            problem.weighted,
+            values,
+            bounds=(lower, upper),
+            loss=LOSS,
+            f_scale=LOSS_SCALE,
+            x_scale=1.0,
+            diff_step=1e-6,
+            max_nfev=100 * len(specs),
+        )
+        values = np.asarray(result.x, dtype=np.float64)
+        quality = problem.quality(values)
+        sigmas = (
+            max(quality.marker_rms_mm or marker_sigma_mm, 1e-6),
+            max(quality.temperature_rms_c or temperature_sigma_c, 1e-4),
+        )
+    jacobian = _jacobian(problem, values)
+    residuals = problem.weighted(values)
+    variance = float(residuals @ residuals) / max(residuals.size - len(specs), 1)
+    fitted, correlation, warnings = _uncertainty(specs, values, jacobian, variance)
+    information = jacobian.T @ jacobian
+    diagonal = np.sqrt(np.clip(np.diag(information), 1e-300, None))
+    singular = np.linalg.svd(information / np.outer(diagonal, diagonal), compute_uv=False)
+    conditioning = float(singular[0] / max(singular[-1], 1e-300))
+    return ArmIdentification(
+        parameters=tuple(fitted),
+        correlation=correlation,
+        scales=apply_values(specs, values, joints, problem.region_names),
+        fit=problem.quality(values),
+        values=values,
+        specs=tuple(specs),
+        conditioning=conditioning,
+        success=bool(result.success),
+        message=str(result.message),
+        warnings=tuple(warnings),
+    )
+
+
+def _bounds(spec: Parameter) -> tuple[float, float]:
+    if spec.kind == "offset":
+        return -OFFSET_BOUND_C, OFFSET_BOUND_C
+    return math.log(SCALE_BOUNDS[0]), math.log(SCALE_BOUNDS[1])
+
+
+__all__ = [
+    "SENSITIVITY_STRAIN",
+    "ArmFitQuality",
+    "ArmIdentification",
+    "ArmModelSpec",
+    "ArmRunData",
+    "ArmScales",
+    "IdentificationError",
+    "Responses",
+    "apply_values",
+    "default_parameters",
+    "identify_arm",
+    "marker_sensitivity",
+    "parse_parameters",
+    "responses",
+]

@@ -1,0 +1,390 @@
+"""The physical truth of the simulated arm bench (issue 20): a serial arm warming up from its own
+motion, watched by several cameras through markers on its tool and by an IR camera on its links.
+
+What is true here and what the controller believes differ, as on a real arm:
+
+- Kinematics: the arm's true DH table is the preset's with every length (``a``, ``d``) moved
+  by a seeded draw of 1-sigma ``dh_length_sigma_mm`` and every angle (``alpha``, ``theta``
+  offset) by ``dh_angle_sigma_rad``: the size of a small arm's uncalibrated geometric error
+  (an arm's absolute accuracy is "an order of magnitude worse than its repeatability",
+  thesis 2.2; the A465's repeatability is +-50 um). The controller keeps the nominal table.
+- Thermal: the true model is the preset's :class:`~daemon.arm.thermal.ArmThermalModel` at
+  ``node_spacing_mm`` (10 mm, five times finer than the controller's 50 mm default), with the
+  still-air convection times ``convection_scale``, the links' expansion coefficient times
+  ``alpha_scale`` (6061-T6 is 23.6e-6 /K in one handbook, 23.4 in another; the truth is
+  also its temper and its anodising) and each joint's heat capacity times ``capacity_scale``.
+- Motors: each joint's winding resistance and friction are the preset's times a seeded factor
+  in ``[1 - heat_spread, 1 + heat_spread]`` (copper at another temperature, a gearbox run in
+  or not), unless ``heat_scales`` gives them. The heat comes from the motion the arm really
+  performs (drivers.sim.arm_motion: the emulator's joints or a duty cycle played in process).
+- Ambient: ``ambient_c`` plus an optional sinusoidal drift (``ambient_drift_c`` amplitude over
+  ``ambient_period_s``; a lab's day), the same air for the arm and its heat loss.
+
+Measurements (everything random from generators spawned from ``seed``, one per device:
+one per camera, one for the IR reader, one for the truth's parameters; one device's extra
+draws never change another's):
+
+- Cameras: ``rig`` (drivers.sim.arm_markers) around the tool at the reference configuration
+  ``reference_q_rad``; each marker's spot is rendered with photon and read noise, its centre
+  moved by a seeded image-plane jitter of 1-sigma ``jitter_px`` (air turbulence and stand
+  vibration: what limits a photogrammetric system at a metre, not the centroid).
+- IR regions: the mean of the true nodes within ``ir_half_width_mm`` of a point at a fraction
+  along a link, plus a constant per-region offset (1-sigma ``ir_offset_sigma_c``; the FLIR's
+  +-2 degC accuracy, thesis 3.2.2, after a rough calibration) and noise ``ir_noise_c``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from daemon.arm import kinematics
+from daemon.arm.description import Arm, load_arm
+from daemon.arm.motors import arm_motors, joint_heat_w
+from daemon.arm.thermal import ArmThermalDescription, ArmThermalModel, describe_arm
+from daemon.arm.types import FloatArray, JointSample, LinkThermalState
+from daemon.vision.multiview import CameraModel
+from drivers.base import Frame
+from drivers.sim.arm_markers import (
+    CameraRig,
+    MarkerRenderer,
+    MarkerWindow,
+    ToolMeasurement,
+    markers_world_mm,
+    measure_tool,
+)
+from drivers.sim.arm_motion import JointMotionSource, MotorEnergy, PowerFunction, StillMotion
+
+#: Default markers on the tool (tool frame, mm): four LEDs on a 120 mm cross plate, two raised,
+#: so that no three are on a line and the rotation is seen about every axis.
+DEFAULT_MARKERS_MM: tuple[tuple[float, float, float], ...] = (
+    (60.0, 0.0, 0.0),
+    (0.0, 60.0, 0.0),
+    (-60.0, 0.0, 15.0),
+    (0.0, -60.0, 35.0),
+)
+#: Default IR regions: (name, link, fraction along the link from its proximal joint).
+DEFAULT_IR_REGIONS: tuple[tuple[str, str, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class ArmBenchConfig:
+    """What the arm bench is made of (module docstring for the meaning and the defaults)."""
+
+    arm: str = "crs-a465"
+    seed: int = 0
+    #: the measurement noise's seed (default: ``seed``); the truth's parameters come from
+    #: ``seed`` alone, so two benches of one seed and two noise seeds are one arm, measured
+    #: twice (a calibration cycle and a run)
+    noise_seed: int | None = None
+    # truth: kinematics
+    dh_length_sigma_mm: float = 0.2
+    dh_angle_sigma_rad: float = 2e-4
+    # truth: thermal
+    node_spacing_mm: float = 10.0
+    truth_step_s: float = 2.0
+    convection_scale: float = 0.8
+    alpha_scale: float = 1.05
+    capacity_scale: float = 1.1
+    heat_scales: tuple[float, ...] | None = None
+    heat_spread: float = 0.25
+    ambient_c: float = 22.0
+    ambient_drift_c: float = 0.0
+    ambient_period_s: float = 86_400.0
+    # motion
+    motion_step_s: float = 0.01
+    # cameras and markers
+    rig: CameraRig = field(default_factory=CameraRig)
+    markers_tool_mm: tuple[tuple[float, float, float], ...] = DEFAULT_MARKERS_MM
+    jitter_px: float = 0.03
+    #: the configurations the cameras are set up around: one rig per station (default: the
+    #: arm's zero configuration)
+    stations_q_rad: tuple[tuple[float, ...], ...] = ()
+    # IR
+    ir_regions: tuple[tuple[str, str, float], ...] = DEFAULT_IR_REGIONS
+    ir_half_width_mm: float = 15.0
+    ir_noise_c: float = 0.05
+    ir_offset_sigma_c: float = 0.3
+
+
+def true_arm(
+    arm: Arm,
+    rng: np.random.Generator,
+    length_mm: float,
+    angle_rad: float,
+    heat_scales: FloatArray,
+) -> Arm:
+    """The true arm: each DH row's a, d (1-sigma ``length_mm``) and alpha, theta offset
+    (``angle_rad``) moved by draws from ``rng``, and each joint's winding resistance and
+    friction times its heat factor (its heat for the same motion scales by about that
+    factor; module docstring)."""
+    rows = []
+    for row, factor in zip(arm.joints, heat_scales, strict=True):
+        a, d, alpha, theta = rng.normal(0.0, 1.0, 4)
+        motor = row.motor
+        if motor is not None:
+            k = float(factor)
+            motor = dataclasses.replace(
+                motor,
+                winding_resistance_ohm=motor.winding_resistance_ohm * k,
+                viscous_friction_nm_s_per_rad=motor.viscous_friction_nm_s_per_rad * k,
+                coulomb_friction_nm=motor.coulomb_friction_nm * k,
+            )
+        rows.append(
+            dataclasses.replace(
+                row,
+                a_mm=row.a_mm + length_mm * a,
+                d_mm=row.d_mm + length_mm * d,
+                alpha_rad=row.alpha_rad + angle_rad * alpha,
+                theta_offset_rad=row.theta_offset_rad + angle_rad * theta,
+                motor=motor,
+            )
+        )
+    return dataclasses.replace(arm, name=f"{arm.name} (true)", joints=tuple(rows))
+
+
+def true_description(arm: Arm, alpha_scale: float, capacity_scale: float) -> ArmThermalDescription:
+    """The thermal description of the true arm (its links' alpha and joints' capacity)."""
+    description = describe_arm(arm)
+    return dataclasses.replace(
+        description,
+        links=tuple(
+            dataclasses.replace(link, alpha_per_c=link.alpha_per_c * alpha_scale)
+            for link in description.links
+        ),
+        joints=tuple(
+            dataclasses.replace(
+                joint, capacitance_j_per_c=joint.capacitance_j_per_c * capacity_scale
+            )
+            for joint in description.joints
+        ),
+    )
+
+
+def motion_power(arm: Arm) -> PowerFunction:
+    """The heat of every joint (W) for a motion sample: :func:`daemon.arm.motors.joint_heat_w`
+    (the motors' losses at the torque the sample takes, with the arm's own motors)."""
+    motors = arm_motors(arm)
+
+    def power(sample: JointSample) -> FloatArray:
+        heat: FloatArray = np.asarray(joint_heat_w(arm, sample, motors=motors), dtype=np.float64)
+        return heat
+
+    return power
+
+
+class ArmBench:
+    """The arm bench's truth, advanced on demand on its own time (s from a cold start)."""
+
+    def __init__(
+        self,
+        config: ArmBenchConfig | None = None,
+        motion: JointMotionSource | None = None,
+        *,
+        arm: Arm | None = None,
+    ) -> None:
+        self.config = config = config or ArmBenchConfig()
+        self.nominal_arm: Arm = arm if arm is not None else load_arm(config.arm)
+        joints = self.nominal_arm.dof
+        stations = config.stations_q_rad or ((0.0,) * joints,)
+        # The truth's parameters from ``seed``; every device's noise from ``noise_seed``.
+        truth_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(1)[0])
+        noise_seed = config.seed if config.noise_seed is None else config.noise_seed
+        streams = np.random.SeedSequence([noise_seed, 1]).spawn(
+            2 + config.rig.count * len(stations)
+        )
+        self.ir_rng = np.random.default_rng(streams[0])
+        self.robot_rng = np.random.default_rng(streams[1])
+        if config.heat_scales is not None:
+            if len(config.heat_scales) != joints:
+                raise ValueError(f"heat_scales: {joints} joints, {len(config.heat_scales)} given")
+            self.heat_scales = np.array(config.heat_scales, dtype=np.float64)
+        else:
+            spread = config.heat_spread
+            self.heat_scales = truth_rng.uniform(1.0 - spread, 1.0 + spread, joints)
+        self.true_arm = true_arm(
+            self.nominal_arm,
+            truth_rng,
+            config.dh_length_sigma_mm,
+            config.dh_angle_sigma_rad,
+            self.heat_scales,
+        )
+        self.power = motion_power(self.true_arm)
+        self.thermal = ArmThermalModel(
+            true_description(self.true_arm, config.alpha_scale, config.capacity_scale),
+            node_spacing_mm=config.node_spacing_mm,
+            ambient_c=self.ambient_c,
+            dt_s=config.truth_step_s,
+            convection_scale=config.convection_scale,
+        )
+        self.ir_offsets_c = {
+            name: float(truth_rng.normal(0.0, config.ir_offset_sigma_c))
+            for name, _, _ in config.ir_regions
+        }
+        self._ir_rows = self._region_rows()
+        self.markers_tool_mm = np.array(config.markers_tool_mm, dtype=np.float64)
+        self.stations_q_rad = tuple(np.asarray(q, dtype=np.float64) for q in stations)
+        #: the cameras of each station (rig.count each), looking at the tool there
+        self.station_cameras: tuple[tuple[CameraModel, ...], ...] = tuple(
+            tuple(
+                dataclasses.replace(camera, name=f"s{s}-{camera.name}")
+                for camera in config.rig.cameras(self.tool_pose_cold(q)[:3, 3])
+            )
+            for s, q in enumerate(self.stations_q_rad)
+        )
+        self.cameras: tuple[CameraModel, ...] = tuple(
+            camera for cameras in self.station_cameras for camera in cameras
+        )
+        self._renderers = [
+            MarkerRenderer(camera, config.rig, np.random.default_rng(stream))
+            for camera, stream in zip(self.cameras, streams[2:], strict=True)
+        ]
+        self._sequences = [0] * len(self.cameras)
+        self.time_s = 0.0
+        # no motion given: the arm rests on its brakes, motors off (no heat)
+        self.motion: JointMotionSource = motion or StillMotion(
+            self.stations_q_rad[0], holding=False
+        )
+        self.energy = MotorEnergy(self.motion, self.power, joints, config.motion_step_s)
+        self.heat_delivered_j = np.zeros(joints)
+
+    def station_camera_indices(self, station: int) -> range:
+        """Indices (into ``cameras``) of one station's cameras."""
+        count = self.config.rig.count
+        return range(station * count, (station + 1) * count)
+
+    # -- time ------------------------------------------------------------------------------------
+
+    def ambient_c(self, t_s: float) -> float:
+        """The air's temperature at ``t_s`` (degC)."""
+        config = self.config
+        if config.ambient_drift_c == 0.0:
+            return config.ambient_c
+        return config.ambient_c + config.ambient_drift_c * math.sin(
+            2.0 * math.pi * t_s / config.ambient_period_s
+        )
+
+    def advance_to(self, t_s: float) -> None:
+        """Bring the truth to ``t_s`` (never backwards): on the truth's grid, each step with the
+        mean motor power over it (the energy of the motion, arm_motion.MotorEnergy)."""
+        step = self.config.truth_step_s
+        target = math.floor(t_s / step + 1e-9) * step
+        start = self.thermal.time_s
+        steps = round((target - start) / step)
+        if steps > 0:
+            energies = [self.energy.energy_j(start + k * step) for k in range(steps + 1)]
+            for k in range(steps):
+                watts = (energies[k + 1] - energies[k]) / step
+                self.thermal.advance_to(start + (k + 1) * step, watts)
+            self.heat_delivered_j = self.heat_delivered_j + energies[-1] - energies[0]
+        self.time_s = max(self.time_s, t_s)
+
+    # -- truth -----------------------------------------------------------------------------------
+
+    def link_states(self) -> tuple[LinkThermalState, ...]:
+        return self.thermal.link_states()
+
+    def tool_pose_cold(self, q_rad: Sequence[float] | FloatArray) -> FloatArray:
+        """The tool's pose (4x4, base frame) of the true arm at ambient."""
+        pose: FloatArray = np.asarray(kinematics.forward(self.true_arm, np.asarray(q_rad)))
+        return pose
+
+    def tool_pose_true(self, q_rad: Sequence[float] | FloatArray) -> FloatArray:
+        """The tool's true pose (4x4, base frame) at ``q_rad`` and the bench's current
+        temperatures."""
+        warm = kinematics.warm_arm(self.true_arm, self.link_states(), bending=False)
+        pose: FloatArray = np.asarray(kinematics.forward(warm, np.asarray(q_rad)))
+        return pose
+
+    def markers_world_mm(self, q_rad: Sequence[float] | FloatArray) -> FloatArray:
+        """The markers' true positions (M x 3, world mm) at ``q_rad`` now."""
+        return markers_world_mm(self.tool_pose_true(q_rad), self.markers_tool_mm)
+
+    def current_q(self) -> FloatArray:
+        return np.asarray(self.motion.joint_sample(self.time_s).q_rad, dtype=np.float64)
+
+    # -- cameras ---------------------------------------------------------------------------------
+
+    def render_windows(
+        self, camera_index: int, q_rad: Sequence[float] | FloatArray | None = None
+    ) -> list[MarkerWindow]:
+        """Each marker's region of interest in camera ``camera_index`` (the arm at ``q_rad``,
+        default where the motion has it now)."""
+        renderer = self._renderers[camera_index]
+        q = self.current_q() if q_rad is None else np.asarray(q_rad, dtype=np.float64)
+        return renderer.render_windows(self.markers_world_mm(q), jitter_px=self.config.jitter_px)
+
+    def render(self, camera_index: int, q_rad: Sequence[float] | FloatArray | None = None) -> Frame:
+        """A whole frame of camera ``camera_index`` with every marker's spot."""
+        renderer = self._renderers[camera_index]
+        q = self.current_q() if q_rad is None else np.asarray(q_rad, dtype=np.float64)
+        image = renderer.render(self.markers_world_mm(q), jitter_px=self.config.jitter_px)
+        sequence = self._sequences[camera_index]
+        self._sequences[camera_index] += 1
+        return Frame(
+            image=image,  # type: ignore[arg-type]
+            bit_depth=self.config.rig.bit_depth,
+            timestamp_s=self.time_s,
+            sequence=sequence,
+            timestamp_source="camera",
+        )
+
+    def measure_tool(
+        self, station: int, q_rad: Sequence[float] | FloatArray | None = None
+    ) -> ToolMeasurement:
+        """The tool measured by one station's cameras (rendered windows, centroids,
+        triangulation, pose fit: drivers.sim.arm_markers.measure_tool)."""
+        indices = self.station_camera_indices(station)
+        return measure_tool(
+            [self.cameras[i] for i in indices],
+            [self.render_windows(i, q_rad) for i in indices],
+            self.markers_tool_mm,
+            self.config.rig,
+            self.config.jitter_px,
+        )
+
+    # -- IR --------------------------------------------------------------------------------------
+
+    def _region_rows(self) -> dict[str, FloatArray]:
+        """Each IR region's weights over the truth's nodes (the mean of the nodes within the
+        region's half width of its point)."""
+        thermal = self.thermal
+        rows: dict[str, FloatArray] = {}
+        for name, link, fraction in self.config.ir_regions:
+            nodes = np.asarray(thermal.link_node_indices(link), dtype=np.intp)
+            along = thermal.network.positions_mm[nodes]
+            point = along[0] + fraction * (along[-1] - along[0])
+            inside = nodes[np.abs(along - point) <= self.config.ir_half_width_mm]
+            if inside.size == 0:
+                inside = nodes[[int(np.argmin(np.abs(along - point)))]]
+            row = np.zeros(thermal.network.node_count)
+            row[inside] = 1.0 / inside.size
+            rows[name] = row
+        return rows
+
+    def ir_true_c(self) -> dict[str, float]:
+        """Each region's true mean temperature now (no offset, no noise)."""
+        temperatures = self.thermal.temperatures_c
+        return {name: float(row @ temperatures) for name, row in self._ir_rows.items()}
+
+    def ir_read(self) -> dict[str, float]:
+        """One IR reading: each region's mean (degC) with its offset and noise."""
+        noise = self.ir_rng.normal(0.0, self.config.ir_noise_c, len(self._ir_rows))
+        return {
+            name: value + self.ir_offsets_c[name] + float(n)
+            for (name, value), n in zip(self.ir_true_c().items(), noise, strict=True)
+        }
+
+
+__all__ = [
+    "DEFAULT_MARKERS_MM",
+    "ArmBench",
+    "ArmBenchConfig",
+    "motion_power",
+    "true_arm",
+    "true_description",
+]
