@@ -430,6 +430,8 @@ class Daemon:
             clock_now=self.clock.now,
         )
         bench: BenchControl | None = getattr(devices, "bench", None)
+        if arm is not None:  # an arm run starts the arm bench's truth, when there is one
+            bench = getattr(devices, "arm_bench", None) or bench
         return SessionServices(
             settings=self.settings,
             clock=self.clock,
