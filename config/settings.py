@@ -640,8 +640,9 @@ class ArmSettings(_Section):
     markers_mm: Annotated[
         tuple[tuple[float, float, float], ...], Field(min_length=1, max_length=MAX_MARKERS)
     ] = Field(
-        ((0.0, 0.0, 0.0), (40.0, 0.0, 0.0), (0.0, 40.0, 0.0)),
-        description="Markers on the tool, tool frame (mm); >= 3 give the orientation.",
+        ((60.0, 0.0, 0.0), (0.0, 60.0, 0.0), (-60.0, 0.0, 15.0), (0.0, -60.0, 30.0)),
+        description="Markers on the tool, tool frame (mm); >= 3 not in a line give the "
+        "orientation (default: a 120 mm cross, two raised).",
     )
     measured_poses: Annotated[tuple[str, ...], Field(max_length=100)] = Field(
         (), description="Duty-cycle poses measured and corrected; empty: those it marks measured."
