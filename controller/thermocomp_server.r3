@@ -210,10 +210,9 @@ sub hold(int silence)
     end if
 end sub
 
-;; MOVE_TO: cur = the location of the body. MOVE_GOAL / MOVE_RELATIVE: cur = base (goal k or
-;; the actual pose) shifted by the offset's
-;; six values (x, y, z mm; z-rot, y-rot, x-rot degrees) in world coordinates, then move; the
-;; reply waits for the end of the motion (poll_move).
+;; MOVE_GOAL / MOVE_RELATIVE: cur = base (goal k or the actual pose) shifted by the offset's
+;; six values (x, y, z mm; z-rot, y-rot, x-rot degrees) in world coordinates; MOVE_TO: cur =
+;; the location of the body. Then move; the reply waits for the end of the motion (poll_move).
 sub start_move(int seq, int type, int body, int goal)
     wloc_t offset
     int i, status
