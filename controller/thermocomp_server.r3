@@ -36,7 +36,6 @@ const T_MOVE_REL = 4
 const T_READ = 5
 const T_HOLD = 6
 const T_RELEASE = 7
-const T_MOVE_TO = 8
 
 const S_OK = 0
 const S_HALTED = 44            ;; catalogue 044 `Halt() command invoked` (C500C.md)
@@ -211,8 +210,8 @@ sub hold(int silence)
 end sub
 
 ;; MOVE_GOAL / MOVE_RELATIVE: cur = base (goal k or the actual pose) shifted by the offset's
-;; six values (x, y, z mm; z-rot, y-rot, x-rot degrees) in world coordinates; MOVE_TO: cur =
-;; the location of the body. Then move; the reply waits for the end of the motion (poll_move).
+;; six values (x, y, z mm; z-rot, y-rot, x-rot degrees) in world coordinates, then move; the
+;; reply waits for the end of the motion (poll_move).
 sub start_move(int seq, int type, int body, int goal)
     wloc_t offset
     int i, status
@@ -240,14 +239,7 @@ sub start_move(int seq, int type, int body, int goal)
     for i = 0 to 5
         offset.f[i + 1] = get_i32(g_rx, body + 4 * i) / 10000.0    ;; int/float: UNCONFIRMED
     end for
-    if type == T_MOVE_TO then
-        ;; the body is the location itself: here()'s flags word and extra axes, its six values
-        for i = 1 to 6
-            g_cur.f[i] = offset.f[i]
-        end for
-    else
-        shift_w(g_cur.c, offset.c)                  ;; shift_w(cloc, cloc) [st]
-    end if
+    shift_w(g_cur.c, offset.c)                      ;; shift_w(cloc, cloc) [st]
     if str_chr_get(g_rx, body + 24) == 1 then
         status = moves(g_cur.c)                     ;; moves(cloc) [st]; its return: UNCONFIRMED
     else
@@ -295,7 +287,7 @@ end func
 sub serve(int seq, int type, int len)
     int body = 6
     int goal = 0
-    if type == T_MOVE_GOAL or type == T_MOVE_REL or type == T_MOVE_TO then
+    if type == T_MOVE_GOAL or type == T_MOVE_REL then
         if len == MOVE_LEN + 1 and type == T_MOVE_GOAL then
             goal = goal_of(len, MOVE_LEN)
         elseif len != MOVE_LEN then

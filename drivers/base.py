@@ -116,8 +116,7 @@ class MoveResult:
     #: the rotation sent with the move as the controller's z-rot, y-rot, x-rot (degrees, rounded
     #: as sent: 0.001 on the console, 0.0001 on the fast path); zeros for a translation only
     commanded_rotation_deg: Vector3 = (0.0, 0.0, 0.0)
-    #: the taught goal the move was relative to (absolute moves); "" for a move to a location
-    goal: str = DEFAULT_GOAL
+    goal: str = DEFAULT_GOAL  # the taught goal the move was relative to (absolute moves)
 
     @property
     def read_back(self) -> bool:
@@ -221,10 +220,4 @@ class GoalRobot(Robot, Protocol):
 
     def taught_goals(self) -> dict[str, Pose]:
         """The goals taught on this connection's controller, by name."""
-        ...
-
-    async def move_to_pose(self, pose: Pose) -> MoveResult:
-        """A joint-interpolated move to the world location ``pose`` (mm, degrees; how a duty
-        cycle's poses are reached before :meth:`teach_goal` teaches them). A motion: held like
-        every other; always read back (``requested_mm``/``commanded_mm``: the position)."""
         ...

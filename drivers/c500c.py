@@ -234,36 +234,6 @@ class C500CRobot(ConsoleLink):
                 goal=goal,
             )
 
-    async def move_to_pose(self, pose: Pose) -> MoveResult:
-        """`set cur = {x,y,z,zrot,yrot,xrot}` (3 decimals; C500C.md: `set <var> = <value>`
-        takes a constant; ASSUMED: a location constant is written in braces), `move cur`
-        (joint-interpolated: a move between a duty cycle's poses is large), `finish` and `w2`,
-        always read back: the pose is what the next teach_goal() teaches."""
-        values = (pose.x, pose.y, pose.z, pose.z_rot, pose.y_rot, pose.x_rot)
-        require_finite(values[:3], "motion target", DEVICE)
-        require_finite(values[3:], "motion target", DEVICE)
-        self._require_motion_allowed()
-        async with self._lock:
-            self._require_motion_allowed()
-            position = (proto.round_mm(pose.x), proto.round_mm(pose.y), proto.round_mm(pose.z))
-            angles = (
-                proto.round_deg(pose.z_rot),
-                proto.round_deg(pose.y_rot),
-                proto.round_deg(pose.x_rot),
-            )
-            constant = ",".join(
-                [*(proto.format_mm(v) for v in position), *(proto.format_deg(v) for v in angles)]
-            )
-            writes: list[proto.Write] = [
-                (f"set {TARGET_LOCATION} = {{{constant}}}",),
-                (f"move {TARGET_LOCATION}",),
-                ("finish",),
-                ("w2",),
-            ]
-            return await self._run_motion(
-                writes, pose.position, position, position, rotation_deg=angles, goal=""
-            )
-
     async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
         """Relative `wx`/`wy`/`wz` moves (only to reproduce the thesis's comparison)."""
         self._require_finite(delta_mm)

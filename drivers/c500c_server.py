@@ -137,7 +137,6 @@ class C500CServerRobot(ServerLink):
         rotation_deg: Vector3 = (0.0, 0.0, 0.0),
         goal: str = DEFAULT_GOAL,
         goal_index: int = 0,
-        straight: bool | None = None,
     ) -> MoveResult:
         """One motion frame and its reply; ``exchanges_before``: plain requests this step
         made first (counted in the step's bytes: other traffic such as heartbeats is not)."""
@@ -154,7 +153,6 @@ class C500CServerRobot(ServerLink):
                         offset6,
                         timeout_s=self.settings.move_timeout_s,
                         goal=goal_index,
-                        straight=straight,
                     ),
                     motion=True,
                 )
@@ -209,20 +207,6 @@ class C500CServerRobot(ServerLink):
             rotation_deg=rotation_deg,
             goal=goal,
             goal_index=index,
-        )
-
-    async def move_to_pose(self, pose: Pose) -> MoveResult:
-        """MOVE_TO the world location, joint-interpolated (PROTOCOL.md): the program sets `cur`
-        to it, moves, waits, and answers the actual pose."""
-        angles = (pose.z_rot, pose.y_rot, pose.x_rot)
-        require_finite(angles, "motion target", DEVICE)
-        return await self._move(
-            proto.RequestType.MOVE_TO,
-            pose.position,
-            Pose(0.0, 0.0, 0.0),  # the reply must be at the location itself
-            rotation_deg=angles,
-            goal="",
-            straight=False,
         )
 
     async def move_incremental(self, delta_mm: Vector3) -> MoveResult:

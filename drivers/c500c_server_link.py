@@ -45,7 +45,7 @@ DEVICE = proto.DEVICE
 #: Cancelled requests whose replies may still arrive are remembered this many at most.
 ABANDONED_LIMIT = 1024
 
-_MOTION = proto.MOTION_REQUESTS
+_MOTION = (proto.RequestType.MOVE_GOAL, proto.RequestType.MOVE_RELATIVE)
 
 #: The link's state machine (drivers.base.LinkState), the console driver's without its
 #: point-of-control state: the program takes the point of control once, at its start.
@@ -345,7 +345,6 @@ class ServerLink:
         timeout_s: float,
         handshake: bool = False,
         goal: int = 0,
-        straight: bool | None = None,
     ) -> proto.Reply:
         """Write one request and await its reply (other requests may be outstanding). A timeout
         or a garbled link is a link fault (the handshake's failure is its caller's). A cancelled
@@ -356,11 +355,7 @@ class ServerLink:
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
         sequence = self._next_sequence()
         data = proto.encode_request(
-            sequence,
-            request_type,
-            offset,
-            straight=self.settings.online if straight is None else straight,
-            goal=goal,
+            sequence, request_type, offset, straight=self.settings.online, goal=goal
         )
         future: asyncio.Future[proto.Reply] = asyncio.get_running_loop().create_future()
         written = False

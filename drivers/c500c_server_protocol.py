@@ -57,11 +57,6 @@ class RequestType(enum.IntEnum):
     READ_POSE = 0x05
     HOLD = 0x06  # halt() a motion in progress; refuse motion until RELEASE
     RELEASE = 0x07
-    MOVE_TO = 0x08  # to the world location of the body (absolute), joint-interpolated or not
-
-
-#: The requests that move the arm (the hold contract is checked before each is written).
-MOTION_REQUESTS = frozenset({RequestType.MOVE_GOAL, RequestType.MOVE_RELATIVE, RequestType.MOVE_TO})
 
 
 class Status(enum.IntEnum):
@@ -292,7 +287,7 @@ def quantise(pose: Sequence[float]) -> Pose6:
 class Request:
     sequence: int
     type: RequestType
-    offset: Pose6 | None = None  # motion requests only (MOVE_TO: the location itself)
+    offset: Pose6 | None = None  # MOVE_GOAL / MOVE_RELATIVE only
     straight: bool = True
     goal: int = 0  # TEACH_GOAL / MOVE_GOAL: which taught goal
 
@@ -305,7 +300,7 @@ def encode_request(
     straight: bool = True,
     goal: int = 0,
 ) -> bytes:
-    moves = request_type in MOTION_REQUESTS
+    moves = request_type in (RequestType.MOVE_GOAL, RequestType.MOVE_RELATIVE)
     if moves != (offset is not None):
         raise ValueError(f"{request_type.name} {'needs' if moves else 'takes no'} offset")
     if not 0 <= goal < MAX_GOALS:
@@ -338,7 +333,7 @@ def parse_request(frame: Frame) -> Request:
     except ValueError:
         raise ProtocolError(DEVICE, f"unknown request type 0x{frame.type:02x}") from None
     body = frame.body
-    if request_type in MOTION_REQUESTS:
+    if request_type in (RequestType.MOVE_GOAL, RequestType.MOVE_RELATIVE):
         sizes = (MOVE_BODY.size, MOVE_BODY.size + GOAL_INDEX.size)
         if len(body) not in sizes[: 2 if request_type is RequestType.MOVE_GOAL else 1]:
             raise ProtocolError(DEVICE, f"{request_type.name}: body of {len(body)} bytes")

@@ -11,10 +11,8 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import NDArray
 
 from daemon.arm.types import Pose6
 from drivers.base import DEFAULT_GOAL, Vector3
@@ -62,27 +60,3 @@ def rotation_zyx_deg(rotation_rad: Vector3, device: str) -> Vector3:
         return (0.0, 0.0, 0.0)
     z, y, x = Pose6(np.zeros(3), np.array(rotation_rad, dtype=np.float64)).zyx_deg()
     return (z, y, x)
-
-
-Location = tuple[float, float, float, float, float, float]
-
-
-def pose_of(location: Sequence[float]) -> NDArray[np.float64]:
-    """A world location as the controller prints it (x, y, z mm; z-rot, y-rot, x-rot degrees)
-    as a 4x4 transform. ASSUMED (C500C.md names the angles, not their convention): intrinsic
-    z-y-x angles of the tool's rotation, as daemon.arm.types.Pose6.zyx_deg."""
-    from scipy.spatial.transform import Rotation
-
-    pose = np.eye(4)
-    pose[:3, :3] = Rotation.from_euler("ZYX", list(location[3:6]), degrees=True).as_matrix()
-    pose[:3, 3] = location[:3]
-    return pose
-
-
-def location_of(pose: NDArray[np.float64]) -> Location:
-    """A 4x4 transform as a world location (:func:`pose_of`'s inverse)."""
-    from scipy.spatial.transform import Rotation
-
-    z, y, x = Rotation.from_matrix(np.array(pose[:3, :3])).as_euler("ZYX", degrees=True)
-    px, py, pz = (float(v) for v in pose[:3, 3])
-    return (px, py, pz, float(z), float(y), float(x))

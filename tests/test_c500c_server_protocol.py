@@ -203,7 +203,6 @@ def test_the_controller_program_uses_the_same_numbers() -> None:
         "T_READ": proto.RequestType.READ_POSE,
         "T_HOLD": proto.RequestType.HOLD,
         "T_RELEASE": proto.RequestType.RELEASE,
-        "T_MOVE_TO": proto.RequestType.MOVE_TO,
         "S_OK": proto.Status.OK,
         "S_HALTED": proto.Status.HALTED,
         "S_NO_GOAL": proto.Status.NO_GOAL,

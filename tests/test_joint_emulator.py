@@ -17,26 +17,22 @@ from scipy.spatial.transform import Rotation
 from config.settings import RobotSettings
 from daemon.arm.description import load_arm
 from daemon.arm.kinematics import forward
-from daemon.arm.types import Pose6
 from drivers import c500c_protocol as console_proto
 from drivers import c500c_server_protocol as proto
-from drivers.arm_robot import ArmRobot
-from drivers.base import GoalRobot, Pose
 from drivers.c500c import C500CRobot
 from drivers.c500c_server import C500CServerRobot
-from drivers.errors import DeviceReportedError, MotionHeldError
-from drivers.goals import location_of
+from drivers.errors import DeviceReportedError
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.joint_arm import (
     ESTIMATED_A465_PULSES_PER_DEG,
     JointArm,
     JointArmConfig,
+    location_of,
     pose_of,
     shift_location,
     trapezoid,
 )
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
-from tests.c500c_scripted import ScriptedRobot
 from tests.helpers import REPO_ROOT, cli_command, run_cli
 
 A465 = load_arm("crs-a465")
@@ -200,102 +196,6 @@ async def test_fast_path_hold_stops_the_joints_mid_motion() -> None:
         assert emulator.actual_pose()[:3] == pytest.approx(stopped_at[:3], abs=1e-6)
         later = emulator.joint_sample(loop.time() + 5.0)
         assert later.q_rad == pytest.approx(halted.q_rad)  # and stays there
-
-
-# --- moves to locations and the arm run's robot (drivers/arm_robot.py) -----------------------
-
-
-async def test_console_move_to_pose_exchange() -> None:
-
-    prompt = b"ash> "
-    target = (400.0, 50.0, 300.0, 20.0, 80.0, -30.0)
-    table = console_proto.format_w_table(target, (0.0,) * 6, (0,) * 6)
-    w2 = b"w2\r\n" + "".join(f"{line}\r\n" for line in table).encode() + prompt
-
-    def ok(command: bytes) -> tuple[bytes, bytes]:
-        return (command + b"\r", command + b"\r\n" + prompt)
-
-    constant = b"set cur = {400.000,50.000,300.000,20.000,80.000,-30.000}"
-    script = [
-        (b"\x05tcsync1\r", b"tcsync1\r\nerror: Unrecognized command.\r\n" + prompt),
-        ok(b"new cur"),
-        ok(b"online on"),
-        ok(constant),
-        ok(b"move cur"),  # joint-interpolated, even online
-        ok(b"finish"),
-        (b"w2\r", w2),
-    ]
-    robot = ScriptedRobot(script)
-    async with robot:
-        result = await robot.move_to_pose(Pose(400.0004, 50.0, 300.0, 20.0, 80.0, -30.0))
-        assert result.actual == Pose(*target)
-        assert result.commanded_mm == (400.0, 50.0, 300.0) and result.goal == ""
-        await robot.stop()
-        with pytest.raises(MotionHeldError):  # a move to a location is a motion: held
-            await robot.move_to_pose(Pose(*target))
-    robot.assert_all_used()
-
-
-def test_move_to_frames() -> None:
-    location = (400.0, 50.0, 300.0, 20.0, 80.0, -30.0)
-    data = proto.encode_request(4, proto.RequestType.MOVE_TO, location, straight=False)
-    assert len(data) == proto.MOVE_REQUEST_BYTES
-    request = proto.parse_request(proto.decode_frame(data))
-    assert request.offset == pytest.approx(location) and not request.straight
-    assert proto.RequestType.MOVE_TO in proto.MOTION_REQUESTS
-
-
-@pytest.mark.parametrize("fast_path", [False, True])
-async def test_arm_robot_teaches_joint_poses_and_moves_goal_plus_correction(
-    fast_path: bool,
-) -> None:
-    emulator: C500CEmulator
-    if fast_path:
-        config = server_emulator_config(paced=False, noise_um=0.0, silence_timeout_s=4.0)
-        emulator = C500CServerEmulator(
-            replace(config, console=replace(config.console, joint_arm=ARM))
-        )
-    else:
-        emulator = C500CEmulator(EmulatorConfig(paced=False, noise_um=0.0, joint_arm=ARM))
-    loop = asyncio.get_running_loop()
-    q_a = np.radians([15.0, 35.0, 55.0, 10.0, 25.0, -5.0])
-    q_b = np.radians([-20.0, 25.0, 70.0, -5.0, 35.0, 10.0])
-    async with emulator:
-        driver: GoalRobot = (
-            C500CServerRobot(SERVER, port=emulator.device_path)
-            if fast_path
-            else C500CRobot(CONSOLE, port=emulator.device_path)
-        )
-        async with ArmRobot(driver, A465) as robot:
-            taught_a = await robot.teach_pose("a", q_a)
-            assert emulator.joint_sample(loop.time()).q_rad == pytest.approx(q_a, abs=1e-5)
-            taught_b = await robot.teach_pose("b", q_b)
-            assert emulator.joint_sample(loop.time()).q_rad == pytest.approx(q_b, abs=1e-5)
-            assert taught_a.position == pytest.approx(forward(A465, q_a)[:3, 3], abs=1e-3)
-            correction = Pose6(np.array([0.5, -0.25, 0.1]), np.radians([0.0, 0.1, 0.2]))
-            result = await robot.move_to_goal("a", correction)
-            # the arm is where goal a shifted and turned by the correction puts it (IK)
-            reached = location_of(forward(A465, emulator.joint_sample(loop.time()).q_rad))
-            angles = correction.zyx_deg()
-            expected = shift_location(
-                (
-                    taught_a.x,
-                    taught_a.y,
-                    taught_a.z,
-                    taught_a.z_rot,
-                    taught_a.y_rot,
-                    taught_a.x_rot,
-                ),
-                (0.5, -0.25, 0.1, *angles),
-            )
-            assert reached == pytest.approx(expected, abs=2e-3)
-            assert result.goal == "a"
-            assert result.actual.position == pytest.approx(expected[:3], abs=1e-3)
-            back = await robot.move_to_goal("b", Pose6.zero())
-            assert back.actual.position == pytest.approx(taught_b.position, abs=1e-3)
-            await robot.stop()
-            with pytest.raises(MotionHeldError):
-                await robot.move_to_goal("a", correction)
 
 
 # --- `thermocomp emulate c500c --arm` ---------------------------------------------------------

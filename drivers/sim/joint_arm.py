@@ -31,10 +31,9 @@ from scipy.spatial.transform import Rotation
 from daemon.arm.description import Arm, ArmError
 from daemon.arm.kinematics import forward, inverse, jacobian
 from daemon.arm.types import JointSample
-from drivers.goals import Location, location_of, pose_of
 
 FloatArray = NDArray[np.float64]
-__all__ = ["JointArm", "JointArmConfig", "location_of", "pose_of", "shift_location"]
+Location = tuple[float, float, float, float, float, float]
 
 #: Where the emulated arm starts (degrees): elbow up, wrist bent, away from the singularities of
 #: a 6-axis elbow arm (shoulder, elbow and wrist pitch all non-zero).
@@ -141,6 +140,21 @@ def trapezoid(
         ramp = math.sqrt(distance / acceleration)
         duration = 2.0 * ramp
     return _Motion(start_s, q0, q1, distance, acceleration, ramp, duration)
+
+
+def pose_of(location: Sequence[float]) -> FloatArray:
+    """A world location (mm, z-y-x degrees) as a 4x4 transform."""
+    pose = np.eye(4)
+    pose[:3, :3] = Rotation.from_euler("ZYX", list(location[3:6]), degrees=True).as_matrix()
+    pose[:3, 3] = location[:3]
+    return pose
+
+
+def location_of(pose: FloatArray) -> Location:
+    """A 4x4 transform as a world location (mm, z-y-x degrees)."""
+    z, y, x = Rotation.from_matrix(np.array(pose[:3, :3])).as_euler("ZYX", degrees=True)
+    px, py, pz = (float(v) for v in pose[:3, 3])
+    return (px, py, pz, float(z), float(y), float(x))
 
 
 def shift_location(location: Sequence[float], offset: Sequence[float]) -> Location:

@@ -364,14 +364,11 @@ class C500CServerEmulator(C500CEmulator):
     async def _move(self, request: proto.Request, answer: _Answer, arrived: float) -> None:
         assert request.offset is not None
         state = self.state
-        if request.type is proto.RequestType.MOVE_TO:
-            state.locations[TARGET_LOCATION] = request.offset  # the location itself
-        else:
-            moves_to_goal = request.type is proto.RequestType.MOVE_GOAL
-            base = self.goal_at(request.goal) if moves_to_goal else self.actual_pose()
-            assert base is not None
-            # shift_w(cur, offset): the world-frame shift of C500C.md `wshift`.
-            state.locations[TARGET_LOCATION] = self.console.shift_location(base, request.offset)
+        moves_to_goal = request.type is proto.RequestType.MOVE_GOAL
+        base = self.goal_at(request.goal) if moves_to_goal else self.actual_pose()
+        assert base is not None
+        # shift_w(cur, offset): world-frame shift of every coordinate (C500C.md `wshift`).
+        state.locations[TARGET_LOCATION] = self.console.shift_location(base, request.offset)
         # The motion starts once the request has arrived (paced line), in both arm models.
         self.console.motion_not_before = arrived
         lines = await self.console.execute(f"{'moves' if request.straight else 'move'} cur")
