@@ -166,6 +166,7 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 
 async def _run(settings: Settings, parameters: RunParameters, args: argparse.Namespace) -> int:
+    from daemon.heap import freeze_startup_heap
     from daemon.service import Daemon, RunParameterError
 
     loop = asyncio.get_running_loop()
@@ -174,6 +175,7 @@ async def _run(settings: Settings, parameters: RunParameters, args: argparse.Nam
         loop.add_signal_handler(signum, stop_requested.set)
     try:
         async with Daemon(settings) as daemon:
+            freeze_startup_heap()  # as `thermocomp serve`: no full collection in a step
             try:
                 info = await daemon.start_run(parameters)
             except RunParameterError as err:

@@ -43,7 +43,6 @@ from drivers.c500c_console import Transcript
 from drivers.c500c_link import (
     DEVICE,
     LINK_UP,
-    RECONNECT_FIRST_BACKOFF_S,
     TARGET_LOCATION,
     ConsoleLink,
 )
@@ -55,6 +54,7 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.goals import goal_variable, require_finite, rotation_zyx_deg
+from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
 

@@ -27,7 +27,7 @@ from drivers.base import (
     Vector3,
 )
 from drivers.c500c import READBACK_TOLERANCE_MM
-from drivers.c500c_server_link import DEVICE, RECONNECT_FIRST_BACKOFF_S, ServerLink
+from drivers.c500c_server_link import DEVICE, ServerLink
 from drivers.errors import (
     DeviceError,
     DeviceReportedError,
@@ -38,6 +38,7 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.goals import check_goal_name, require_finite, rotation_zyx_deg
+from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import subprocess
 from collections.abc import AsyncIterator
 from dataclasses import replace
 
@@ -32,6 +33,7 @@ from drivers.sim.joint_arm import (
     trapezoid,
 )
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
+from tests.helpers import REPO_ROOT, cli_command, run_cli
 
 A465 = load_arm("crs-a465")
 ARM = JointArmConfig(A465, speed_deg_s=60.0, acceleration_deg_s2=240.0)
@@ -194,3 +196,41 @@ async def test_fast_path_hold_stops_the_joints_mid_motion() -> None:
         assert emulator.actual_pose()[:3] == pytest.approx(stopped_at[:3], abs=1e-6)
         later = emulator.joint_sample(loop.time() + 5.0)
         assert later.q_rad == pytest.approx(halted.q_rad)  # and stays there
+
+
+# --- `thermocomp emulate c500c --arm` ---------------------------------------------------------
+
+
+def test_emulate_cli_serves_an_arm_in_joint_space() -> None:
+    process = subprocess.Popen(
+        cli_command("emulate", "c500c", "--arm", "crs-a465", "--no-pacing", "--noise-um", "0"),
+        cwd=REPO_ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        path = process.stdout.readline().strip()
+
+        async def read_table() -> console_proto.PositionTable:
+            async with C500CRobot(CONSOLE, port=path) as robot:
+                return console_proto.parse_position_table(await robot.read_position_lines())
+
+        table = asyncio.run(read_table())
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+        for stream in (process.stdout, process.stderr):
+            if stream:
+                stream.close()
+    assert process.returncode == 0
+    start = np.asarray(ARM.start_joints_deg)
+    assert table.joints == pytest.approx(start, abs=5e-4)
+    assert table.pulses == tuple(round(d * ESTIMATED_A465_PULSES_PER_DEG) for d in start)
+    assert table.world == pytest.approx(location_of(forward(A465, np.radians(start))), abs=5e-4)
+
+
+def test_emulate_cli_refuses_an_unknown_arm() -> None:
+    result = run_cli(["emulate", "c500c", "--arm", "no-such-arm"])
+    assert result.returncode == 2 and "--arm" in result.stderr

@@ -130,6 +130,9 @@ class Console:
             in_shell=config.start_in_shell,
         )
         self.question: _Question | None = None
+        #: loop time before which the next motion cannot start (the fast-path emulator sets it
+        #: to when the request's last byte arrived on the paced line); used once
+        self.motion_not_before = 0.0
         self._after_button: str | None = None  # the motion command waiting for the button
         self._button: asyncio.Event | None = None
 
@@ -323,10 +326,11 @@ class Console:
         sigma_mm = self.config.noise_um / 1000.0
         noise = self.rng.normal(0.0, sigma_mm, size=3) if sigma_mm > 0 else np.zeros(3)
         state = self.state
+        now_s = max(asyncio.get_running_loop().time(), self.motion_not_before)
+        self.motion_not_before = 0.0
         if self.joint_arm is not None:
             from drivers.sim.joint_arm import UnreachableError
 
-            now_s = asyncio.get_running_loop().time()
             try:
                 end_s = self.joint_arm.move_to(target, now_s, noise)
             except UnreachableError:
@@ -341,7 +345,7 @@ class Console:
         state.actual = as_location(
             (target[0] + noise[0], target[1] + noise[1], target[2] + noise[2], *target[3:])
         )
-        state.motion_end_s = asyncio.get_running_loop().time() + self.config.move_ms / 1000.0
+        state.motion_end_s = now_s + self.config.move_ms / 1000.0
 
     async def _finish(self) -> None:
         remaining = self.state.motion_end_s - asyncio.get_running_loop().time()

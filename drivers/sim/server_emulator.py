@@ -369,6 +369,8 @@ class C500CServerEmulator(C500CEmulator):
         assert base is not None
         # shift_w(cur, offset): world-frame shift of every coordinate (C500C.md `wshift`).
         state.locations[TARGET_LOCATION] = self.console.shift_location(base, request.offset)
+        # The motion starts once the request has arrived (paced line), in both arm models.
+        self.console.motion_not_before = arrived
         lines = await self.console.execute(f"{'moves' if request.straight else 'move'} cur")
         status: int = proto.Status.OK
         ended: float | None = None
@@ -376,8 +378,6 @@ class C500CServerEmulator(C500CEmulator):
             status = _catalogue_code(lines)
         else:
             loop = asyncio.get_running_loop()
-            # The motion starts once the request has arrived (the console model starts it now).
-            state.motion_end_s += max(arrived - loop.time(), 0.0)
             loop.call_at(arrived, self.motion_started.set)
             ended = state.motion_end_s
             # One timer to the end of the reply's line time (the reply is framed when the
