@@ -321,6 +321,100 @@ def test_markers_rendered_and_triangulated_recover_the_true_tool_within_the_nois
         measured = bench.measure_tool(0, STATION)
         error = measured.pose[:3, 3] - truth[:3, 3]
         chi2.append(float(error @ np.linalg.solve(measured.covariance[:3, :3], error)))
-        np.testing.assert_allclose(measured.markers_mm, bench.markers_world_mm(STATION), atol=0.05)
+        np.testing.assert_allclose(measured.points_mm, bench.markers_world_mm(STATION), atol=0.05)
     # chi-squared with 3 degrees of freedom per frame: mean 3
     assert 0.8 < np.mean(chi2) < 8.0
+
+
+def test_identifications_forward_model_is_the_arm_model() -> None:
+    """responses() (all inputs at once through the modes) against ArmThermalModel stepped
+    the ordinary way, across the links too: the same temperatures, link rises and gradients."""
+    from daemon.arm.description import load_arm
+    from daemon.arm.thermal import describe_arm
+
+    description = describe_arm(load_arm("crs-a465"), plus_share=0.75)
+    step, steps = 20.0, 120
+    rng = np.random.default_rng(0)
+    heat = rng.uniform(0.0, 10.0, (steps, 6))
+    ambient = 22.0 + 0.3 * np.sin(np.arange(steps) / 17.0)
+    times = np.array([0.0, 200.0, 1000.0, 2400.0])
+    run = ArmRunData(
+        step, heat, ambient, times, np.zeros(4, dtype=np.intp), np.zeros((4, 1, 3)), {}
+    )
+    scales = np.array([1.2, 0.8, 1.0, 1.1, 0.9, 1.0])
+    response = responses(description, 50.0, 0.7, run, across_link=True)
+    assert response.gradient_rows is not None
+    model = ArmThermalModel(
+        description,
+        node_spacing_mm=50.0,
+        ambient_c=lambda t: float(ambient[min(int(t // step), steps - 1)]),
+        dt_s=step,
+        convection_scale=0.7,
+        across_link=True,
+    )
+    for k, t in enumerate(times):
+        while model.time_s < t - 1e-9:
+            index = round(model.time_s / step)
+            model.advance_to(model.time_s + step, heat[index] * scales)
+        predicted = response.ambient[k] + scales @ response.per_joint[:, k]
+        np.testing.assert_allclose(predicted, model.temperatures_c, atol=1e-8)
+        states = model.link_states()
+        rise = predicted - response.reference_c
+        np.testing.assert_allclose(
+            response.link_rows @ rise, [s.mean_rise_c for s in states], atol=1e-9
+        )
+        np.testing.assert_allclose(
+            (response.gradient_rows @ rise).reshape(-1, 2),
+            [s.gradient_c_per_mm for s in states],
+            atol=1e-9,
+        )
+    assert max(abs(g) for s in model.link_states() for g in s.gradient_c_per_mm) > 1e-4
+
+
+def test_an_emulator_like_source_heats_the_truth_as_the_duty_cycle_does() -> None:
+    """A source that only answers joint_sample(t) (the C500C emulator in joint space) is
+    integrated forward on its own grid: the same heat as the periodic duty cycle, within what
+    10 ms trapezoids of a power with steps in it (the trapezoids' accelerations) can tell."""
+    periodic = DutyCycleMotion(SWING)
+
+    class Emulator:
+        def joint_sample(self, t_s: float) -> JointSample:
+            return periodic.joint_sample(t_s)
+
+    duration = 5 * SWING.period_s
+    reference = ArmBench(bench_config(), periodic)
+    reference.advance_to(duration)
+    driven = ArmBench(bench_config(), Emulator())
+    for t in np.linspace(0.0, duration, 7)[1:]:
+        driven.advance_to(float(t))
+    np.testing.assert_allclose(driven.heat_delivered_j, reference.heat_delivered_j, rtol=3e-3)
+    rise = reference.thermal.temperatures_c - 22.0
+    assert float(np.max(rise)) > 1e-3
+    np.testing.assert_allclose(driven.thermal.temperatures_c - 22.0, rise, rtol=3e-3, atol=1e-9)
+
+
+def test_a_whole_frame_has_every_marker_where_the_camera_sees_it() -> None:
+    from daemon.vision.centroid import measure_centroid
+    from daemon.vision.multiview import project
+
+    rig = CameraRig(count=2, width_px=800, height_px=600, focal_px=1500.0)
+    bench = ArmBench(bench_config(rig=rig, jitter_px=0.0))
+    frame = bench.render(1, STATION)
+    assert frame.image.shape == (600, 800) and frame.bit_depth == rig.bit_depth
+    assert (frame.sequence, bench.render(1, STATION).sequence) == (0, 1)
+    pixels = project(bench.cameras[1], bench.markers_world_mm(STATION))
+    for x, y in pixels:
+        c0, r0 = round(x) - 10, round(y) - 10
+        spot = measure_centroid(frame.image[r0 : r0 + 21, c0 : c0 + 21], bit_depth=rig.bit_depth)
+        assert abs(spot.x_px + c0 - x) < 0.05 and abs(spot.y_px + r0 - y) < 0.05
+
+
+def test_ambient_drift_warms_and_cools_a_still_arm() -> None:
+    period = 4 * 3600.0
+    bench = ArmBench(bench_config(ambient_drift_c=2.0, ambient_period_s=period))
+    bench.advance_to(period / 4)  # the air at its warmest
+    assert bench.ambient_c(period / 4) == pytest.approx(24.0)
+    warm = bench.thermal.temperatures_c.copy()
+    assert 22.2 < float(np.mean(warm)) < 24.0  # following, with its lag
+    bench.advance_to(3 * period / 4)  # the air at its coldest
+    assert float(np.mean(bench.thermal.temperatures_c)) < 22.0 < float(np.mean(warm))

@@ -22,13 +22,9 @@ identifiable from ``J`` at the solution exactly as daemon.model.identify reports
 ``_uncertainty``: normalised J^T J, near-singular directions, |correlation| > 0.995, relative
 SE > 0.5, parameters at a bound).
 
-The forward model is cheap because the arm's network is linear: for a given convection the
-node temperatures are a sum of one response per joint (times its heat factor) plus the
-response to ambient, all computed in one pass of the network's modes (the exact zero-order
-hold of :class:`daemon.model.model.NetworkModes`) over the run's heat grid; and a link's
-growth is tiny, so the tool's error is linear in the links' strains ``alpha * mean rise``:
-each measured pose carries the markers' displacement per unit strain of each link
-(:func:`marker_sensitivity`, from ``kinematics.tool_error`` of the nominal arm).
+The forward model (:mod:`daemon.arm.response`) is cheap because the arm's network is linear
+and a link's growth tiny: every input's response in one pass of the network's modes, and the
+markers' displacement linear in each link's strain and bend.
 """
 
 from __future__ import annotations
@@ -40,12 +36,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from daemon.arm import kinematics
-from daemon.arm.thermal import ArmThermalDescription, build_arm_network
-from daemon.arm.types import FloatArray, LinkThermalState
+from daemon.arm.response import (
+    SENSITIVITY_STRAIN,
+    ArmModelSpec,
+    ArmRunData,
+    Responses,
+    marker_sensitivity,
+    responses,
+)
+from daemon.arm.types import FloatArray
 from daemon.model.identify import (
     LOSS,
     LOSS_SCALE,
@@ -54,158 +55,10 @@ from daemon.model.identify import (
     Parameter,
     _uncertainty,
 )
-from daemon.model.model import NetworkModes
 
-IntArray = NDArray[np.intp]
-
-#: The strain used to read the tool's sensitivity off ``tool_error`` (dimensionless): the size
-#: of a warm link's (23e-6 /K x 5 K ~ 1e-4), small enough that the response is linear.
-SENSITIVITY_STRAIN = 1e-4
 #: Bounds (as in daemon.model.identify) of a scale factor and of an IR offset.
 SCALE_BOUNDS = (0.1, 10.0)
 OFFSET_BOUND_C = 5.0
-
-
-# -- data ----------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ArmRunData:
-    """A calibration cycle as identification sees it.
-
-    ``joint_heat_w`` (S x J): the heat the controller's motor model predicts for each joint,
-    mean over each step ``[k dt, (k+1) dt)`` of ``heat_step_s``, from the commanded motion;
-    ``ambient_c`` (S,): the air's temperature over each step. Measurements at ``time_s`` (K,
-    on the heat grid, from a cold start at ambient): ``pose_index`` (K,) says which measured
-    pose, ``marker_displacement_mm`` (K x M x 3) the markers' measured positions minus their
-    cold positions at that pose (NaN where missing), ``region_c`` each IR region's mean
-    (K,), NaN where missing."""
-
-    heat_step_s: float
-    joint_heat_w: FloatArray
-    ambient_c: FloatArray
-    time_s: FloatArray
-    pose_index: IntArray
-    marker_displacement_mm: FloatArray
-    region_c: Mapping[str, FloatArray]
-    name: str = "calibration cycle"
-
-    def __post_init__(self) -> None:
-        steps, _ = self.joint_heat_w.shape
-        if self.ambient_c.shape != (steps,):
-            raise IdentificationError(f"{self.name}: one ambient per heat step")
-        count = self.time_s.size
-        if count < 2 or self.pose_index.shape != (count,):
-            raise IdentificationError(f"{self.name}: needs two or more measurements, one pose each")
-        if self.marker_displacement_mm.shape[0] != count:
-            raise IdentificationError(f"{self.name}: one marker set per measurement")
-        for region, values in self.region_c.items():
-            if values.shape != (count,):
-                raise IdentificationError(f"{self.name}: region {region!r} has the wrong length")
-        if np.any(self.time_s < 0) or np.any(self.time_s > steps * self.heat_step_s + 1e-6):
-            raise IdentificationError(f"{self.name}: a measurement lies outside the heat record")
-
-    @property
-    def grid_index(self) -> IntArray:
-        """Each measurement's index on the heat grid (0 = the start)."""
-        return np.asarray(np.rint(self.time_s / self.heat_step_s), dtype=np.intp)
-
-
-@dataclass(frozen=True)
-class ArmModelSpec:
-    """The controller's arm model as identification sees it: its thermal description and node
-    spacing, which node(s) each IR region covers, and for each measured pose the markers'
-    displacement (M*3, flattened x, y, z per marker) per unit strain of each link
-    (:func:`marker_sensitivity`)."""
-
-    description: ArmThermalDescription
-    node_spacing_mm: float
-    regions: Mapping[str, Sequence[int]]
-    sensitivities: Sequence[FloatArray]
-
-
-def marker_sensitivity(arm: Any, q_rad: FloatArray, markers_tool_mm: FloatArray) -> FloatArray:
-    """The markers' displacement (M*3) per unit strain of each link (columns, the arm's link
-    order) at ``q_rad``: ``kinematics.tool_error`` with one link strained by
-    SENSITIVITY_STRAIN, the markers moved by the error's translation and rotation."""
-    cold = np.asarray(kinematics.forward(arm, q_rad), dtype=np.float64)
-    lever = markers_tool_mm @ cold[:3, :3].T  # each marker from the tool point, world axes
-    names = arm.link_names
-    columns = []
-    for strained in names:
-        states = [
-            LinkThermalState(name, 1.0 if name == strained else 0.0, SENSITIVITY_STRAIN)
-            for name in names
-        ]
-        error = kinematics.tool_error(arm, q_rad, states)
-        moved = error.translation_mm + np.cross(error.rotation_rad, lever)
-        columns.append(moved.reshape(-1) / SENSITIVITY_STRAIN)
-    return np.column_stack(columns)
-
-
-# -- the forward model ---------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Responses:
-    """Node temperatures on the measurements' grid points: ``per_joint[j]`` (K x N) for 1 W in
-    joint j (at its predicted profile), ``ambient`` (K x N) from the ambient alone, and what
-    the links' mean rises are made of (``link_rows``: L x N, weights of each link's mean)."""
-
-    per_joint: FloatArray  # J x K x N
-    ambient: FloatArray  # K x N
-    link_rows: FloatArray  # L x N
-    reference_c: float
-
-
-def responses(
-    description: ArmThermalDescription,
-    node_spacing_mm: float,
-    convection_scale: float,
-    run: ArmRunData,
-) -> Responses:
-    """The network's response to each input, on the run's grid (module docstring)."""
-    network, layout = build_arm_network(
-        description,
-        node_spacing_mm,
-        convection_scale=convection_scale,
-        ambient_c=float(run.ambient_c[0]),
-    )
-    modes = NetworkModes(network)
-    dt = run.heat_step_s
-    decay = np.exp(-modes.rates * dt)
-    gain = -np.expm1(-modes.rates * dt) / modes.rates
-    joints = run.joint_heat_w.shape[1]
-    joint_nodes = np.asarray(layout.joint_nodes, dtype=np.intp)
-    # modal forcing per unit input: each joint's heat, and the ambient through g_amb
-    channels = np.zeros((network.node_count, joints + 1))
-    channels[joint_nodes, np.arange(joints)] = 1.0
-    channels[:, joints] = network.ambient_conductance_w_per_c
-    forcing = modes.vectors.T @ (channels / modes.root_c[:, None])  # N x (J+1)
-    inputs = np.column_stack([run.joint_heat_w, run.ambient_c])  # S x (J+1)
-    wanted = run.grid_index
-    last = int(wanted.max())
-    z = np.zeros((network.node_count, joints + 1))
-    start = np.full(network.node_count, float(run.ambient_c[0]))
-    z[:, joints] = modes.vectors.T @ (modes.root_c * start)
-    states = np.empty((last + 1, network.node_count, joints + 1))
-    states[0] = z
-    for k in range(last):
-        z = decay[:, None] * z + gain[:, None] * forcing * inputs[k][None, :]
-        states[k + 1] = z
-    chosen = states[wanted]  # K x N(modes) x (J+1)
-    temperatures = np.einsum("nm,kmc->ckn", modes.vectors, chosen) / modes.root_c
-    rows = np.zeros((len(layout.link_nodes), network.node_count))
-    for link, (nodes, lengths) in enumerate(
-        zip(layout.link_nodes, layout.link_lengths, strict=True)
-    ):
-        rows[link, np.asarray(nodes, dtype=np.intp)] = lengths / lengths.sum()
-    return Responses(
-        per_joint=temperatures[:joints],
-        ambient=temperatures[joints],
-        link_rows=rows,
-        reference_c=float(run.ambient_c[0]),
-    )
 
 
 # -- parameters ----------------------------------------------------------------------------------
@@ -357,7 +210,11 @@ class _ArmProblem:
             if len(self._cache) > 64:
                 self._cache.clear()
             cached = responses(
-                self.model.description, self.model.node_spacing_mm, convection, self.run
+                self.model.description,
+                self.model.node_spacing_mm,
+                convection,
+                self.run,
+                self.model.across_link,
             )
             self._cache[key] = cached
         return cached
@@ -366,9 +223,16 @@ class _ArmProblem:
         scales = apply_values(self.specs, values, self.joints, self.region_names)
         response = self._responses(scales.convection)
         temperatures = response.ambient + np.einsum("j,jkn->kn", scales.heat, response.per_joint)
-        rises = (temperatures - response.reference_c) @ response.link_rows.T  # K x L
-        alphas = np.array([link.alpha_per_c for link in self.model.description.links])
-        strains = scales.alpha * rises * alphas
+        rise = temperatures - response.reference_c
+        alphas = scales.alpha * np.array(
+            [link.alpha_per_c for link in self.model.description.links]
+        )
+        strains = rise @ response.link_rows.T * alphas  # K x L
+        if response.gradient_rows is not None:  # strain, alpha g_y, alpha g_z per link
+            bends = (rise @ response.gradient_rows.T).reshape(rise.shape[0], -1, 2)
+            strains = np.concatenate(
+                [strains[:, :, None], bends * alphas[None, :, None]], axis=2
+            ).reshape(rise.shape[0], -1)
         markers = np.einsum("kml,kl->km", self.sensitivity, strains)
         regions = {
             name: temperatures[:, list(self.model.regions[name])].mean(axis=1)

@@ -9,7 +9,9 @@ What is true here and what the controller believes differ, as on a real arm:
   (an arm's absolute accuracy is "an order of magnitude worse than its repeatability",
   thesis 2.2; the A465's repeatability is +-50 um). The controller keeps the nominal table.
 - Thermal: the true model is the preset's :class:`~daemon.arm.thermal.ArmThermalModel` at
-  ``node_spacing_mm`` (10 mm, five times finer than the controller's 50 mm default), with the
+  ``node_spacing_mm`` (10 mm, five times finer than the controller's 50 mm default), two rows
+  of nodes per link (``across_link``: the temperature across a link bends it, and the tool
+  turns), with the
   still-air convection times ``convection_scale``, the links' expansion coefficient times
   ``alpha_scale`` (6061-T6 is 23.6e-6 /K in one handbook, 23.4 in another; the truth is
   also its temper and its anodising) and each joint's heat capacity times ``capacity_scale``.
@@ -44,20 +46,26 @@ import numpy as np
 
 from daemon.arm import kinematics
 from daemon.arm.description import Arm, load_arm
-from daemon.arm.motors import arm_motors, joint_heat_w
+from daemon.arm.motors import arm_motors, joint_heat_batch_w, joint_heat_w
 from daemon.arm.thermal import ArmThermalDescription, ArmThermalModel, describe_arm
 from daemon.arm.types import FloatArray, JointSample, LinkThermalState
 from daemon.vision.multiview import CameraModel
+from daemon.vision.tool_pose import ToolMeasurement
 from drivers.base import Frame
 from drivers.sim.arm_markers import (
     CameraRig,
     MarkerRenderer,
     MarkerWindow,
-    ToolMeasurement,
     markers_world_mm,
     measure_tool,
 )
-from drivers.sim.arm_motion import JointMotionSource, MotorEnergy, PowerFunction, StillMotion
+from drivers.sim.arm_motion import (
+    BatchPowerFunction,
+    JointMotionSource,
+    MotorEnergy,
+    PowerFunction,
+    StillMotion,
+)
 
 #: Default markers on the tool (tool frame, mm): four LEDs on a 120 mm cross plate, two raised,
 #: so that no three are on a line and the rotation is seen about every axis.
@@ -86,6 +94,12 @@ class ArmBenchConfig:
     dh_angle_sigma_rad: float = 2e-4
     # truth: thermal
     node_spacing_mm: float = 10.0
+    #: two rows of nodes per link (daemon.arm.thermal ``across_link``): the temperature across
+    #: each link, which bends it (kinematics.warm_arm ``bending``)
+    across_link: bool = True
+    #: share of each joint flange's conductance that reaches the link's "+" side (the motor
+    #: housing sits on one side of the link: its heat warms that side first and bends the link)
+    plus_share: float = 0.75
     truth_step_s: float = 2.0
     convection_scale: float = 0.8
     alpha_scale: float = 1.05
@@ -97,6 +111,8 @@ class ArmBenchConfig:
     ambient_period_s: float = 86_400.0
     # motion
     motion_step_s: float = 0.01
+    #: carried at the tool point (a duty cycle's gripper and part: DutyCycle.payload_kg)
+    payload_kg: float = 0.0
     # cameras and markers
     rig: CameraRig = field(default_factory=CameraRig)
     markers_tool_mm: tuple[tuple[float, float, float], ...] = DEFAULT_MARKERS_MM
@@ -147,9 +163,12 @@ def true_arm(
     return dataclasses.replace(arm, name=f"{arm.name} (true)", joints=tuple(rows))
 
 
-def true_description(arm: Arm, alpha_scale: float, capacity_scale: float) -> ArmThermalDescription:
-    """The thermal description of the true arm (its links' alpha and joints' capacity)."""
-    description = describe_arm(arm)
+def true_description(
+    arm: Arm, alpha_scale: float, capacity_scale: float, plus_share: float = 0.5
+) -> ArmThermalDescription:
+    """The thermal description of the true arm: its links' alpha and joints' capacity scaled,
+    ``plus_share`` of each joint flange's conductance on the links' "+" side."""
+    description = describe_arm(arm, plus_share=plus_share)
     return dataclasses.replace(
         description,
         links=tuple(
@@ -165,13 +184,30 @@ def true_description(arm: Arm, alpha_scale: float, capacity_scale: float) -> Arm
     )
 
 
-def motion_power(arm: Arm) -> PowerFunction:
+def motion_power(arm: Arm, payload_kg: float = 0.0) -> PowerFunction:
     """The heat of every joint (W) for a motion sample: :func:`daemon.arm.motors.joint_heat_w`
-    (the motors' losses at the torque the sample takes, with the arm's own motors)."""
+    (the motors' losses at the torque the sample takes, with the arm's own motors, carrying
+    ``payload_kg`` at the tool point)."""
     motors = arm_motors(arm)
 
     def power(sample: JointSample) -> FloatArray:
-        heat: FloatArray = np.asarray(joint_heat_w(arm, sample, motors=motors), dtype=np.float64)
+        heat: FloatArray = np.asarray(
+            joint_heat_w(arm, sample, motors=motors, payload_kg=payload_kg), dtype=np.float64
+        )
+        return heat
+
+    return power
+
+
+def motion_power_batch(arm: Arm, payload_kg: float = 0.0) -> BatchPowerFunction:
+    """:func:`motion_power` for many samples at once (``joint_heat_batch_w``)."""
+    motors = arm_motors(arm)
+
+    def power(q: FloatArray, qd: FloatArray, qdd: FloatArray) -> FloatArray:
+        heat: FloatArray = np.asarray(
+            joint_heat_batch_w(arm, q, qd, qdd, motors=motors, payload_kg=payload_kg),
+            dtype=np.float64,
+        )
         return heat
 
     return power
@@ -195,10 +231,9 @@ class ArmBench:
         truth_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(1)[0])
         noise_seed = config.seed if config.noise_seed is None else config.noise_seed
         streams = np.random.SeedSequence([noise_seed, 1]).spawn(
-            2 + config.rig.count * len(stations)
+            1 + config.rig.count * len(stations)
         )
         self.ir_rng = np.random.default_rng(streams[0])
-        self.robot_rng = np.random.default_rng(streams[1])
         if config.heat_scales is not None:
             if len(config.heat_scales) != joints:
                 raise ValueError(f"heat_scales: {joints} joints, {len(config.heat_scales)} given")
@@ -213,13 +248,16 @@ class ArmBench:
             config.dh_angle_sigma_rad,
             self.heat_scales,
         )
-        self.power = motion_power(self.true_arm)
+        self.power = motion_power(self.true_arm, config.payload_kg)
         self.thermal = ArmThermalModel(
-            true_description(self.true_arm, config.alpha_scale, config.capacity_scale),
+            true_description(
+                self.true_arm, config.alpha_scale, config.capacity_scale, config.plus_share
+            ),
             node_spacing_mm=config.node_spacing_mm,
             ambient_c=self.ambient_c,
             dt_s=config.truth_step_s,
             convection_scale=config.convection_scale,
+            across_link=config.across_link,
         )
         self.ir_offsets_c = {
             name: float(truth_rng.normal(0.0, config.ir_offset_sigma_c))
@@ -241,7 +279,7 @@ class ArmBench:
         )
         self._renderers = [
             MarkerRenderer(camera, config.rig, np.random.default_rng(stream))
-            for camera, stream in zip(self.cameras, streams[2:], strict=True)
+            for camera, stream in zip(self.cameras, streams[1:], strict=True)
         ]
         self._sequences = [0] * len(self.cameras)
         self.time_s = 0.0
@@ -249,7 +287,13 @@ class ArmBench:
         self.motion: JointMotionSource = motion or StillMotion(
             self.stations_q_rad[0], holding=False
         )
-        self.energy = MotorEnergy(self.motion, self.power, joints, config.motion_step_s)
+        self.energy = MotorEnergy(
+            self.motion,
+            self.power,
+            joints,
+            config.motion_step_s,
+            motion_power_batch(self.true_arm, config.payload_kg),
+        )
         self.heat_delivered_j = np.zeros(joints)
 
     def station_camera_indices(self, station: int) -> range:
@@ -296,7 +340,9 @@ class ArmBench:
     def tool_pose_true(self, q_rad: Sequence[float] | FloatArray) -> FloatArray:
         """The tool's true pose (4x4, base frame) at ``q_rad`` and the bench's current
         temperatures."""
-        warm = kinematics.warm_arm(self.true_arm, self.link_states(), bending=False)
+        warm = kinematics.warm_arm(
+            self.true_arm, self.link_states(), bending=self.config.across_link
+        )
         pose: FloatArray = np.asarray(kinematics.forward(warm, np.asarray(q_rad)))
         return pose
 
@@ -385,6 +431,7 @@ __all__ = [
     "ArmBench",
     "ArmBenchConfig",
     "motion_power",
+    "motion_power_batch",
     "true_arm",
     "true_description",
 ]

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from daemon.arm.types import FloatArray
 from daemon.vision.multiview import CameraModel, intrinsic_matrix, look_at, project
 from daemon.vision.synthetic import render_spot
+from daemon.vision.tool_pose import ToolMeasurement, measure_tool_pose
 
 #: Windows rendered fresh around a spot: at least this many px either side, or this many sigmas.
 WINDOW_MIN_PX = 8
@@ -174,35 +175,17 @@ class MarkerRenderer:
         return frame
 
 
-class MarkerMeasurementError(ValueError):
-    """Too few markers or cameras to measure the tool's pose."""
-
-
-@dataclass(frozen=True)
-class ToolMeasurement:
-    """The tool's measured pose (4x4, world) and its 6x6 covariance (translation mm, rotation
-    rad; daemon.vision.multiview), with each marker's triangulated position (M x 3, NaN where
-    it was not seen by two cameras)."""
-
-    pose: FloatArray
-    covariance: FloatArray
-    markers_mm: FloatArray
-
-
-def measure_tool(
-    cameras: Sequence[CameraModel],
-    windows: Sequence[Sequence[MarkerWindow]],
-    markers_tool_mm: FloatArray,
-    rig: CameraRig,
-    jitter_px: float = 0.0,
-) -> ToolMeasurement:
-    """The tool's pose from each camera's marker windows: every spot's centroid (the robust
-    method of daemon.vision.centroid, with its own 1-sigma, widened by the jitter), every
-    marker triangulated from the cameras that saw it, the pose fitted to them."""
+def marker_pixels(
+    windows: Sequence[Sequence[MarkerWindow]], markers: int, rig: CameraRig, jitter_px: float = 0.0
+) -> tuple[FloatArray, FloatArray]:
+    """Each marker's centroid in each camera (cameras x markers x 2, NaN where a camera has no
+    usable spot of it) and its 1-sigma (the robust method of daemon.vision.centroid, its own
+    sigma widened by the image-plane jitter): what
+    :func:`daemon.vision.tool_pose.measure_tool_pose` takes."""
     from daemon.vision.centroid import CentroidError, measure_centroid
-    from daemon.vision.multiview import rigid_pose_from_markers, triangulate
 
-    seen: dict[int, list[tuple[int, tuple[float, float], tuple[float, float]]]] = {}
+    pixels = np.full((len(windows), markers, 2), np.nan)
+    sigmas = np.ones((len(windows), markers, 2))
     for index, camera_windows in enumerate(windows):
         for window in camera_windows:
             try:
@@ -215,36 +198,32 @@ def measure_tool(
                 )
             except CentroidError:
                 continue
-            sigma = (math.hypot(spot.sigma_x_px, jitter_px), math.hypot(spot.sigma_y_px, jitter_px))
-            pixel = (spot.x_px + window.column0, spot.y_px + window.row0)
-            seen.setdefault(window.marker, []).append((index, pixel, sigma))
-    count = markers_tool_mm.shape[0]
-    points = np.full((count, 3), np.nan)
-    covariances = np.zeros((count, 3, 3))
-    for marker, observations in seen.items():
-        if len(observations) < 2:
-            continue
-        point, covariance = triangulate(
-            [cameras[i] for i, _, _ in observations],
-            [pixel for _, pixel, _ in observations],
-            [sigma for _, _, sigma in observations],
-        )
-        points[marker], covariances[marker] = point, covariance
-    used = np.all(np.isfinite(points), axis=1)
-    if used.sum() < 3:
-        raise MarkerMeasurementError(f"{int(used.sum())} marker(s) measured: the pose needs 3")
-    pose, covariance = rigid_pose_from_markers(
-        markers_tool_mm[used], points[used], covariances[used]
-    )
-    return ToolMeasurement(pose, covariance, points)
+            pixels[index, window.marker] = (spot.x_px + window.column0, spot.y_px + window.row0)
+            sigmas[index, window.marker] = (
+                math.hypot(spot.sigma_x_px, jitter_px),
+                math.hypot(spot.sigma_y_px, jitter_px),
+            )
+    return pixels, sigmas
+
+
+def measure_tool(
+    cameras: Sequence[CameraModel],
+    windows: Sequence[Sequence[MarkerWindow]],
+    markers_tool_mm: FloatArray,
+    rig: CameraRig,
+    jitter_px: float = 0.0,
+) -> ToolMeasurement:
+    """The tool's pose from each camera's marker windows: centroids (:func:`marker_pixels`),
+    then daemon.vision.tool_pose.measure_tool_pose (triangulation, pose fit)."""
+    pixels, sigmas = marker_pixels(windows, markers_tool_mm.shape[0], rig, jitter_px)
+    return measure_tool_pose(tuple(cameras), markers_tool_mm, pixels, sigmas)
 
 
 __all__ = [
     "CameraRig",
-    "MarkerMeasurementError",
     "MarkerRenderer",
     "MarkerWindow",
-    "ToolMeasurement",
+    "marker_pixels",
     "markers_world_mm",
     "measure_tool",
 ]
