@@ -604,3 +604,36 @@ async def test_arm_run_through_the_api_exports_and_report(tmp_path: Path) -> Non
     assert report["arm"]["drift_3d_max_um"] == pytest.approx(summary["drift_3d_max_um"])
     assert "arm_drift" in files.plots and files.plots["arm_drift"].stat().st_size > 0
     assert "Whole arm: 3-D drift and rotation error" in files.html.read_text()
+
+
+def test_a_database_without_the_arm_columns_is_read_and_exported_with_them(
+    tmp_path: Path,
+) -> None:
+    """The 6-DOF columns are an additive change: a database of the version before them opens,
+    its steps read back (the new columns empty), new arm steps are written beside them, and the
+    export carries the new columns."""
+    import csv
+    import io
+    import sqlite3
+
+    from daemon.analysis.steps import ARM_COLUMNS
+    from daemon.recorder import DATABASE_NAME, STEP_COLUMNS, Recorder, StepRecord
+
+    arm_columns = STEP_COLUMNS[STEP_COLUMNS.index("arm_pose") :]
+    assert set(ARM_COLUMNS) <= set(arm_columns)
+    with Recorder(tmp_path) as recorder:
+        run_id = recorder.create_run({}, {}, None, "0.9")
+        recorder.write_step(StepRecord(run_id, 0, 0.0, 0.0, 0.0, residual_um=1.5))
+    with sqlite3.connect(tmp_path / DATABASE_NAME) as db:  # the schema before issue 20
+        for column in arm_columns:
+            db.execute(f"ALTER TABLE steps DROP COLUMN {column}")
+        present = {row[1] for row in db.execute("PRAGMA table_info(steps)")}
+    assert not present & set(arm_columns)
+    with Recorder(tmp_path) as reopened:
+        (old,) = reopened.steps(run_id)
+        assert old.residual_um == 1.5 and old.drift_3d_um is None and old.arm_pose is None
+        reopened.write_step(StepRecord(run_id, 1, 1.0, 1.0, 0.0, arm_pose="pick", drift_3d_um=12.5))
+        rows = list(csv.DictReader(io.StringIO(reopened.export_csv(run_id))))
+    assert list(rows[0]) == list(STEP_COLUMNS)
+    assert rows[0]["drift_3d_um"] == "" and rows[1]["drift_3d_um"] == "12.5"
+    assert rows[1]["arm_pose"] == "pick"
