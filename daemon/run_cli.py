@@ -238,15 +238,19 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
     print(
         f"run {final['id']} {final['state']}" + (f": {final['reason']}" if final["reason"] else "")
     )
-    rows = [
-        ("steps with a residual (N)", summary.get("n"), ""),
-        ("residual max |x|", summary.get("residual_max_um"), "um"),
-        ("residual mean x-bar", summary.get("residual_mean_um"), "um"),
-        ("residual std S_x", summary.get("residual_std_um"), "um"),
-        ("std of the mean S_x-bar", summary.get("residual_std_mean_um"), "um"),
-        *_reduction_rows(summary),
-        ("overruns", summary.get("overruns"), ""),
-    ]
+    rows = (
+        _arm_rows(summary)
+        if "drift_3d_max_um" in summary
+        else [
+            ("steps with a residual (N)", summary.get("n"), ""),
+            ("residual max |x|", summary.get("residual_max_um"), "um"),
+            ("residual mean x-bar", summary.get("residual_mean_um"), "um"),
+            ("residual std S_x", summary.get("residual_std_um"), "um"),
+            ("std of the mean S_x-bar", summary.get("residual_std_mean_um"), "um"),
+            *_reduction_rows(summary),
+            ("overruns", summary.get("overruns"), ""),
+        ]
+    )
     for label, value, unit in rows:
         print(f"  {label:<28} {_format(value)} {unit}".rstrip())
     lateness = (summary.get("timing") or {}).get("lateness_s") or {}
@@ -255,6 +259,26 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
         print(f"  {'lateness p50/p99/max':<28} {values} ms")
     if final.get("report"):
         print(f"  {'report':<28} {final['report']}")
+
+
+def _arm_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:
+    """An arm run's figures (issue 20): the tool's 3-D drift and rotation error."""
+    rows: list[tuple[str, object, str]] = [
+        ("steps measured in 3-D (N)", summary.get("arm_n"), ""),
+        ("3-D drift max", summary.get("drift_3d_max_um"), "um"),
+        ("3-D drift RMS", summary.get("drift_3d_rms_um"), "um"),
+        ("rotation error max", summary.get("rotation_error_max_urad"), "urad"),
+        ("rotation error RMS", summary.get("rotation_error_rms_urad"), "urad"),
+        ("predicted tool error max", summary.get("predicted_3d_max_um"), "um"),
+        ("3-D measurement 1-sigma", summary.get("measurement_sigma_um"), "um"),
+    ]
+    if summary.get("reduction_basis") == "reference":
+        reference = summary.get("reference_run")
+        rows += [
+            (f"3-D reduction vs run {reference}", summary.get("reduction_3d_percent"), "%"),
+            (f"rotation red. vs run {reference}", summary.get("reduction_rotation_percent"), "%"),
+        ]
+    return [*rows, ("overruns", summary.get("overruns"), "")]
 
 
 def _reduction_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:

@@ -637,3 +637,30 @@ def test_a_database_without_the_arm_columns_is_read_and_exported_with_them(
     assert list(rows[0]) == list(STEP_COLUMNS)
     assert rows[0]["drift_3d_um"] == "" and rows[1]["drift_3d_um"] == "12.5"
     assert rows[1]["arm_pose"] == "pick"
+
+
+def test_thermocomp_run_prints_an_arm_runs_figures(capsys: pytest.CaptureFixture[str]) -> None:
+    from daemon.run_cli import _print_result
+
+    summary = {
+        "arm_n": 12,
+        "drift_3d_max_um": 66.5,
+        "drift_3d_rms_um": 56.0,
+        "rotation_error_max_urad": 119.9,
+        "rotation_error_rms_urad": 87.3,
+        "predicted_3d_max_um": 180.1,
+        "measurement_sigma_um": 4.7,
+        "reduction_basis": "reference",
+        "reference_run": 1,
+        "reduction_3d_percent": 44.2,
+        "reduction_rotation_percent": 15.1,
+        "overruns": 0,
+    }
+    _print_result({"id": 2, "state": "finished", "reason": None, "summary": summary}, False)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "run 2 finished"
+    assert "3-D drift max" in lines[2] and lines[2].endswith("66.500 um")
+    assert any(
+        line.strip().startswith("3-D reduction vs run 1") and "44.200 %" in line for line in lines
+    )
+    assert not any("residual" in line for line in lines)  # not the two-link table
