@@ -296,10 +296,16 @@ class RunSession:
         return arm
 
     async def _start_arm_bench(self) -> None:
-        """The simulated arm (drivers/sim/arm_bench.py) starts cold with this run."""
+        """The simulated arm (drivers/sim/arm_bench.py) starts cold with this run (built on a
+        worker thread: it takes a second)."""
         start = getattr(self._services.bench, "start_arm_run", None)
         if start is not None:
-            start(self._services.clock.now(), duty_cycle=self.work.parameters.duty_cycle)
+            services = self._services
+            await services.workers.step(
+                functools.partial(
+                    start, services.clock.now(), duty_cycle=self.work.parameters.duty_cycle
+                )
+            )
 
     async def _arm_references(self, work: ArmRunWork) -> bool:
         """Each pose's zero, measured at its taught goal; a robot fault meanwhile parks the

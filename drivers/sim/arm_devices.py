@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import threading
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from typing import Self
@@ -106,6 +107,7 @@ class ArmBenchControl:
         self._arm = arm
         self._time_scale = settings.compensation.time_scale
         self._duty = duty
+        self._lock = threading.Lock()
         self.truth = self._new_truth(duty)
         self.start_s: float | None = None
 
@@ -123,15 +125,20 @@ class ArmBenchControl:
 
     def start_arm_run(self, t_s: float, *, duty_cycle: str | None) -> None:
         """An arm run starts: the arm is cold now and follows ``duty_cycle`` (else the
-        settings' one)."""
+        settings' one). Blocking (a second): the session calls it on a worker thread."""
         duty = self._duty if duty_cycle is None else load_duty_cycle(duty_cycle)
-        self.truth = self._new_truth(duty)
-        self.start_s = t_s
+        truth = self._new_truth(duty)
+        with self._lock:
+            self.truth = truth
+            self.start_s = t_s
 
-    def sync(self) -> None:
-        """The truth at the run clock (nothing moves before a run starts it)."""
-        if self.start_s is not None:
-            self.truth.advance_to((self._clock.now() - self.start_s) * self._time_scale)
+    def sync(self, now_s: float) -> ArmBench:
+        """The truth at run clock ``now_s`` (nothing moves before a run starts it). Called from
+        worker threads (the cameras grab together): one at a time."""
+        with self._lock:
+            if self.start_s is not None:
+                self.truth.advance_to((now_s - self.start_s) * self._time_scale)
+            return self.truth
 
     def joints(self) -> np.ndarray:
         """Where the emulated arm's joints are now (its own loop's clock)."""
@@ -156,20 +163,23 @@ class SimArmCamera:
         return None
 
     async def grab(self) -> Frame:
-        control = self._control
-        control.sync()
-        q = control.joints()
-        truth = control.truth
+        now = self._clock.now()
+        q = self._control.joints()
+        self._sequence += 1
+        image, bit_depth = await asyncio.to_thread(self._render, now, q)
+        return Frame(image, bit_depth, now, self._sequence, "camera")
+
+    def _render(self, now_s: float, q: np.ndarray) -> tuple[np.ndarray, int]:
+        """On a worker thread: the truth at ``now_s``, the markers at joints ``q``."""
+        truth = self._control.sync(now_s)
         model = truth.cameras[self.index]
         _, visible = marker_pixels(model, truth.markers_world_mm(q))
-        self._sequence += 1
         if not visible.any():
             # the tool is at another station: a dark frame, not 5 MP of rendered noise
             width, height = model.image_size_px
-            dark = np.zeros((height, width), dtype=np.uint16)
-            return Frame(dark, truth.config.rig.bit_depth, self._clock.now(), self._sequence)
-        frame = await asyncio.to_thread(truth.render, self.index, q)
-        return Frame(frame.image, frame.bit_depth, self._clock.now(), self._sequence, "camera")
+            return np.zeros((height, width), dtype=np.uint16), truth.config.rig.bit_depth
+        frame = truth.render(self.index, q)
+        return np.asarray(frame.image), frame.bit_depth
 
 
 class SimArmIr:
@@ -187,13 +197,16 @@ class SimArmIr:
         return None
 
     async def read(self) -> IrReading:
-        self._control.sync()
-        values = self._control.truth.ir_read()
+        now = self._clock.now()
+        values = await asyncio.to_thread(self._read, now)
         self._sequence += 1
         regions = {
             name: RegionTemperature(name, value, value, None) for name, value in values.items()
         }
-        return IrReading(regions, self._clock.now(), self._sequence)
+        return IrReading(regions, now, self._sequence)
+
+    def _read(self, now_s: float) -> dict[str, float]:
+        return self._control.sync(now_s).ir_read()
 
 
 @contextlib.asynccontextmanager
