@@ -664,3 +664,67 @@ def test_thermocomp_run_prints_an_arm_runs_figures(capsys: pytest.CaptureFixture
         line.strip().startswith("3-D reduction vs run 1") and "44.200 %" in line for line in lines
     )
     assert not any("residual" in line for line in lines)  # not the two-link table
+
+
+# --- the tool's 3-D measurement (daemon/arm_measure.py) ----------------------------------------
+
+
+class _MarkerCamera:
+    """A camera that renders the markers of ``pose`` (seeded noise)."""
+
+    def __init__(self, model: Any, points: np.ndarray, seed: int) -> None:
+        self.model, self.points = model, points
+        self.rng = np.random.default_rng(seed)
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def grab(self) -> Any:
+        from daemon.vision.markers import render_markers
+        from drivers.base import Frame
+
+        image = render_markers(self.model, self.points, rng=self.rng, sigma_px=2.0, bit_depth=12)
+        return Frame(image, 12, 0.0, 0, "camera")  # type: ignore[arg-type]
+
+
+async def test_the_meter_measures_a_known_displacement_of_the_tool() -> None:
+    from daemon.arm.run import MeasurementError
+    from daemon.arm_measure import MultiCameraMeter
+    from daemon.vision.multiview import pose_difference
+    from drivers.sim.arm_markers import CameraRig
+
+    settings = Settings.model_validate({"camera": {"bit_depth": 12}})
+    nominal = POSES[0].tool_pose
+    shift = pose6((0.080, -0.050, 0.030), (2e-4, -1e-4, 3e-4))  # 100 um, 0.02 deg
+    true_pose = displaced(nominal, shift)
+    markers = np.array(settings.arm.markers_mm)
+    world = markers @ true_pose[:3, :3].T + true_pose[:3, 3]
+    models = CameraRig(width_px=1024, height_px=768, focal_px=2000.0).cameras(nominal[:3, 3])
+    workers = Workers()
+    try:
+        meter = MultiCameraMeter(
+            settings,
+            [_MarkerCamera(m, world, k) for k, m in enumerate(models)],
+            models,
+            workers,
+        )
+        measured = await meter.measure(nominal)
+        assert measured.oriented and len(measured.centroids_px) == len(models)
+        error = pose_difference(true_pose, measured.pose)
+        # within its own uncertainty (1.5 um off at a 10.9 um 1-sigma here; the shift is 100 um)
+        assert error.translation_norm_mm * 1000 < 3 * measured.sigma_mm * 1000
+        assert measured.sigma_mm * 1000 < 20.0
+        assert error.rotation_angle_rad < 1e-4  # 37 urad here; the shift turns by 374 urad
+        found = pose_difference(nominal, measured.pose)
+        np.testing.assert_allclose(found.translation_mm, shift.translation_mm, atol=0.01)
+        # one camera sees no depth: no marker is triangulated
+        alone = MultiCameraMeter(
+            settings, [_MarkerCamera(models[0], world, 9)], models[:1], workers
+        )
+        with pytest.raises(MeasurementError, match="2 cameras"):
+            await alone.measure(nominal)
+    finally:
+        workers.shutdown()
