@@ -11,8 +11,8 @@ What is true here and what the controller believes differ, as on a real arm:
 - Thermal: the true model is the preset's :class:`~daemon.arm.thermal.ArmThermalModel` at
   ``node_spacing_mm`` (10 mm, five times finer than the controller's 50 mm default), two rows
   of nodes per link (``across_link``: the temperature across a link bends it, and the tool
-  turns), with the
-  still-air convection times ``convection_scale``, the links' expansion coefficient times
+  turns; the motor housings on the "+" side, ``plus_share``), with the still-air convection
+  times ``convection_scale``, the links' expansion coefficient times
   ``alpha_scale`` (6061-T6 is 23.6e-6 /K in one handbook, 23.4 in another; the truth is
   also its temper and its anodising) and each joint's heat capacity times ``capacity_scale``.
 - Motors: each joint's winding resistance and friction are the preset's times a seeded factor
@@ -22,12 +22,14 @@ What is true here and what the controller believes differ, as on a real arm:
 - Ambient: ``ambient_c`` plus an optional sinusoidal drift (``ambient_drift_c`` amplitude over
   ``ambient_period_s``; a lab's day), the same air for the arm and its heat loss.
 
-Measurements (everything random from generators spawned from ``seed``, one per device:
-one per camera, one for the IR reader, one for the truth's parameters; one device's extra
-draws never change another's):
+Everything random comes from seeded generators: the truth's parameters from ``seed``, the
+measurements' noise from ``noise_seed`` (default ``seed``), one generator per device (each
+camera, the IR reader), so one device's extra draws never change another's, and one arm can be
+measured twice with other noise (a calibration cycle, then a run).
 
-- Cameras: ``rig`` (drivers.sim.arm_markers) around the tool at the reference configuration
-  ``reference_q_rad``; each marker's spot is rendered with photon and read noise, its centre
+- Cameras: ``rig`` (drivers.sim.arm_markers) around the tool at each station
+  (``stations_q_rad``, a measured pose of the cycle); each marker's spot is rendered with
+  photon and read noise, its centre
   moved by a seeded image-plane jitter of 1-sigma ``jitter_px`` (air turbulence and stand
   vibration: what limits a photogrammetric system at a metre, not the centroid).
 - IR regions: the mean of the true nodes within ``ir_half_width_mm`` of a point at a fraction
