@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import threading
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
@@ -112,8 +113,12 @@ class ArmBenchControl:
         self.start_s: float | None = None
 
     def _new_truth(self, duty: DutyCycle | None) -> ArmBench:
-        motion = None if duty is None else DutyCycleMotion(duty)
-        return ArmBench(self._config, motion, arm=self._arm)
+        """A cold truth following ``duty`` with its payload at the tool (as the controller's
+        model has it: daemon/arm/heat.py JointHeatProfile.from_duty)."""
+        if duty is None:
+            return ArmBench(self._config, None, arm=self._arm)
+        config = dataclasses.replace(self._config, payload_kg=duty.payload_kg)
+        return ArmBench(config, DutyCycleMotion(duty), arm=self._arm)
 
     @property
     def cameras(self) -> tuple[CameraModel, ...]:
