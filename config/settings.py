@@ -635,7 +635,9 @@ class ArmSettings(_Section):
         None, description="Camera models (intrinsics, distortion, pose) TOML; none: the bench's."
     )
     cameras: Annotated[int, Field(ge=1, le=MAX_ARM_CAMERAS)] = Field(
-        3, description="Simulated cameras of the arm bench (when no cameras file)."
+        3,
+        description="Arm bench: cameras at each measured pose (simulated; their models "
+        "are the bench's unless arm.cameras_file is set).",
     )
     markers_mm: Annotated[
         tuple[tuple[float, float, float], ...], Field(min_length=1, max_length=MAX_MARKERS)

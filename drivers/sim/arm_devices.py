@@ -34,6 +34,7 @@ from drivers.base import Frame, IrReading, RegionTemperature
 from drivers.c500c import C500CRobot
 from drivers.clock import Clock
 from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
+from drivers.sim.arm_markers import CameraRig
 from drivers.sim.arm_motion import DutyCycleMotion
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.joint_arm import DEFAULT_ACCELERATION_DEG_S2, DEFAULT_SPEED_DEG_S, JointArmConfig
@@ -70,9 +71,9 @@ def speed_factor(settings: Settings) -> float:
 
 
 def bench_config(settings: Settings, arm: Arm, duty: DutyCycle | None, seed: int) -> ArmBenchConfig:
-    """The arm bench's make-up from the settings: the arm file, a camera station at each
-    measured pose of the default duty cycle (else at the zero configuration), the tool's
-    markers, IR regions in the middle of IR_LINKS."""
+    """The arm bench's make-up from the settings: the arm file, a camera station of
+    ``arm.cameras`` cameras at each measured pose of the default duty cycle (else at the zero
+    configuration), the tool's markers, IR regions in the middle of IR_LINKS."""
     stations: tuple[tuple[float, ...], ...] = ()
     if duty is not None:
         stations = tuple(tuple(pose.q_rad) for pose in duty.measured_poses())
@@ -84,6 +85,7 @@ def bench_config(settings: Settings, arm: Arm, duty: DutyCycle | None, seed: int
         seed=seed,
         stations_q_rad=stations,
         markers_tool_mm=settings.arm.markers_mm,
+        rig=CameraRig(count=settings.arm.cameras),
         ir_regions=regions,
     )
 
