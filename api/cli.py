@@ -53,7 +53,7 @@ COMMANDS: tuple[Command, ...] = (
     Command(
         "calibrate",
         "daemon.calibrate_cli",
-        "calibrate with the robot: the camera (um per pixel, rotation), several cameras in 3-D, or the model",
+        "calibrate with the robot: the camera, several cameras in 3-D, or the model",
     ),
     Command("model", "daemon.model.cli", "simulate a thermal network or report its facts"),
     Command(

@@ -677,6 +677,63 @@ class ApiSettings(_Section):
         return self
 
 
+#: Markers on the tool (issue 20): at most this many, each a point in the tool frame (mm).
+MAX_MARKERS = 32
+#: Arm-run correction limits admit at most this much (a correction is a few tenths of a mm).
+MAX_ARM_TRANSLATION_MM = 100.0
+MAX_ARM_ROTATION_DEG = 10.0
+MAX_ARM_CAMERAS = 16
+
+
+class ArmSettings(_Section):
+    """The whole arm (issue 20): a run that names a duty cycle corrects the tool in 6-DOF at
+    its measured poses. Disabled (the default), thermocomp is the two-link bench."""
+
+    enabled: bool = Field(
+        False, description="Arm runs allowed and, on the bench, the arm bench's devices."
+    )
+    arm_file: str = Field(
+        "crs-a465", description="Arm description: preset name in config/arms or a file path."
+    )
+    duty_cycle: str | None = Field(
+        None, description="Default duty cycle file of arm runs (a run may name its own)."
+    )
+    cameras_file: str | None = Field(
+        None, description="Camera models (intrinsics, distortion, pose) TOML; none: the bench's."
+    )
+    cameras: Annotated[int, Field(ge=1, le=MAX_ARM_CAMERAS)] = Field(
+        3,
+        description="Arm bench: cameras at each measured pose (simulated; their models "
+        "are the bench's unless arm.cameras_file is set).",
+    )
+    markers_mm: Annotated[
+        tuple[tuple[float, float, float], ...], Field(min_length=1, max_length=MAX_MARKERS)
+    ] = Field(
+        ((60.0, 0.0, 0.0), (0.0, 60.0, 0.0), (-60.0, 0.0, 15.0), (0.0, -60.0, 30.0)),
+        description="Markers on the tool, tool frame (mm); >= 3 not in a line give the "
+        "orientation (default: a 120 mm cross, two raised).",
+    )
+    measured_poses: Annotated[tuple[str, ...], Field(max_length=100)] = Field(
+        (), description="Duty-cycle poses measured and corrected; empty: those it marks measured."
+    )
+    max_translation_mm: Annotated[float, Field(gt=0, le=MAX_ARM_TRANSLATION_MM)] = Field(
+        2.0, description="Largest translation of a pose's correction (mm)."
+    )
+    max_rotation_deg: Annotated[float, Field(gt=0, le=MAX_ARM_ROTATION_DEG)] = Field(
+        0.2, description="Largest rotation of a pose's correction (deg)."
+    )
+    max_step_translation_mm: Annotated[float, Field(gt=0, le=MAX_ARM_TRANSLATION_MM)] = Field(
+        0.5, description="Largest change of a pose's translation between its corrections (mm)."
+    )
+    max_step_rotation_deg: Annotated[float, Field(gt=0, le=MAX_ARM_ROTATION_DEG)] = Field(
+        0.05, description="Largest change of a pose's rotation between its corrections (deg)."
+    )
+    motion_dt_s: Annotated[float, Field(gt=0, le=10)] = Field(
+        0.05, description="Time step of the duty cycle's motion samples for motor heat (s)."
+    )
+    bending: bool = Field(False, description="Links bend from a temperature gradient across them.")
+
+
 class Settings(_Section):
     """Everything thermocomp can be told, one section per part of the product."""
 
@@ -689,6 +746,7 @@ class Settings(_Section):
     scheduler: SchedulerSettings = SchedulerSettings()
     storage: StorageSettings = StorageSettings()
     api: ApiSettings = ApiSettings()
+    arm: ArmSettings = ArmSettings()
 
 
 #: Setting names whose value is a secret: never stored (run rows) nor served (GET /config),

@@ -1,7 +1,7 @@
 ;; thermocomp_server.r3 -- the thermocomp fast path on the CRS C500C (RAPL-3).
 ;;
 ;; Serves the binary protocol of controller/PROTOCOL.md on the second serial port: one frame
-;; per compensation step (goal + offset, move, wait, answer the actual pose) instead of five
+;; per compensation step (goal k + offset, move, wait, answer the actual pose) instead of five
 ;; console commands and a `w2` table (C500C.md "The fast path"). The absolute location command
 ;; of the thesis (6.4.4): every target is the taught goal plus an offset, so an error in one
 ;; step is corrected by the next. HOLD halt()s a motion in progress; so does host silence.
@@ -24,6 +24,8 @@
 const SILENCE_MS = 1000        ;; PROTOCOL.md "Silence": halt and hold after this long unheard
 const POLL_MS = 1              ;; msleep between polls; the CROS tick is 5 ms (doc/Notes.rst)
 const MAX_BODY = 32
+const MAX_GOALS = 16           ;; PROTOCOL.md "Goals": taught goals, indices 0 .. MAX_GOALS - 1
+const MOVE_LEN = 25            ;; offset (6 x int32) + mode; + 1 goal byte for goal k > 0
 ;; Receive fifo size: a preprocessor define, as rosserial.r3 sizes its 512-byte fifo [ros].
 .define RX_SIZE 512
 
@@ -64,9 +66,11 @@ end union
 int g_fd = -1
 string[RX_SIZE] g_rx = ""
 string[64] g_tx = ""
-wloc_t g_goal
+;; Arrays of a struct/union type: UNCONFIRMED (arrays of int [main] and of char are confirmed).
+wloc_t[MAX_GOALS] g_goal
 wloc_t g_cur
-int g_goal_taught = 0
+int[MAX_GOALS] g_goal_taught   ;; 1 once goal k is taught; module-level ints start at 0 [ros]
+int g_goals_taught = 0         ;; how many goals are taught (flags bit 0)
 int g_control = 0
 int g_held = 0
 int g_silence = 0
@@ -139,7 +143,7 @@ end func
 
 func int flags()
     int f = 0
-    if g_goal_taught != 0 then
+    if g_goals_taught != 0 then
         f |= F_GOAL
     end if
     if g_held != 0 then
@@ -205,9 +209,10 @@ sub hold(int silence)
     end if
 end sub
 
-;; MOVE_GOAL / MOVE_RELATIVE: cur = base shifted by the offset in world coordinates, then
-;; move; the reply waits for the end of the motion (poll_move).
-sub start_move(int seq, int type, int body)
+;; MOVE_GOAL / MOVE_RELATIVE: cur = base (goal k or the actual pose) shifted by the offset's
+;; six values (x, y, z mm; z-rot, y-rot, x-rot degrees) in world coordinates, then move; the
+;; reply waits for the end of the motion (poll_move).
+sub start_move(int seq, int type, int body, int goal)
     wloc_t offset
     int i, status
     if g_held != 0 then
@@ -219,13 +224,13 @@ sub start_move(int seq, int type, int body)
     elseif g_control == 0 then
         reply(seq, type, S_NO_CONTROL)
         return
-    elseif type == T_MOVE_GOAL and g_goal_taught == 0 then
+    elseif type == T_MOVE_GOAL and g_goal_taught[goal] == 0 then
         reply(seq, type, S_NO_GOAL)
         return
     end if
     if type == T_MOVE_GOAL then
         for i = 0 to 8
-            g_cur.w[i] = g_goal.w[i]                ;; a word copy: no struct assignment seen
+            g_cur.w[i] = g_goal[goal].w[i]          ;; a word copy: no struct assignment seen
         end for
     else
         here(g_cur.c)                               ;; [st]
@@ -266,13 +271,48 @@ end sub
 
 ;; --- requests --------------------------------------------------------------------------------
 
+;; The goal index of a TEACH_GOAL (body: 0 or 1 byte) or a MOVE_GOAL (after the 25 bytes);
+;; -1 when it is out of range (a bad request).
+func int goal_of(int len, int bare)
+    int goal = 0
+    if len == bare + 1 then
+        goal = str_chr_get(g_rx, 6 + bare)
+    end if
+    if goal >= MAX_GOALS then
+        return -1
+    end if
+    return goal
+end func
+
 sub serve(int seq, int type, int len)
     int body = 6
+    int goal = 0
     if type == T_MOVE_GOAL or type == T_MOVE_REL then
-        if len != 25 then
+        if len == MOVE_LEN + 1 and type == T_MOVE_GOAL then
+            goal = goal_of(len, MOVE_LEN)
+        elseif len != MOVE_LEN then
+            goal = -1
+        end if
+        if goal < 0 then
             reply(seq, type, S_BAD)
         else
-            start_move(seq, type, body)
+            start_move(seq, type, body, goal)
+        end if
+        return
+    end if
+    if type == T_TEACH and len <= 1 then
+        goal = goal_of(len, 0)
+        if goal < 0 then
+            reply(seq, type, S_BAD)
+        elseif g_moving != 0 then
+            reply(seq, type, S_BUSY)
+        else
+            here(g_goal[goal].c)                    ;; here(goal k) [st]
+            if g_goal_taught[goal] == 0 then
+                g_goal_taught[goal] = 1
+                g_goals_taught = g_goals_taught + 1
+            end if
+            reply(seq, type, S_OK)
         end if
         return
     end if
@@ -280,14 +320,6 @@ sub serve(int seq, int type, int len)
         reply(seq, type, S_BAD)
     elseif type == T_HEARTBEAT or type == T_READ then
         reply(seq, type, S_OK)
-    elseif type == T_TEACH then
-        if g_moving != 0 then
-            reply(seq, type, S_BUSY)
-        else
-            here(g_goal.c)                          ;; here(opgoal) [st]
-            g_goal_taught = 1
-            reply(seq, type, S_OK)
-        end if
     elseif type == T_HOLD then
         hold(0)
         reply(seq, type, S_OK)

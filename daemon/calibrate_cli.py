@@ -55,7 +55,7 @@ class SpotLostError(Exception):
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "calibrate",
-        help="calibrate with the robot: the camera (um per pixel, rotation), several cameras in 3-D, or the model",
+        help="calibrate with the robot: the camera, several cameras in 3-D, or the model",
         description="Calibrate with the robot itself. `calibrate camera`: with the robot at "
         "the goal (spot near the chip's centre), move it through a square grid of known "
         "offsets in the camera plane, measure the spot at each, and fit the micrometres per "

@@ -86,6 +86,29 @@ class StepRecord:
     stage_ms_json: str | None = None  # {"model": ms, "move": ms, ...} wall time per stage
     deformation_sigma_um: float | None = None  # 1-sigma of the prediction (model+ir)
     innovation_nis: float | None = None  # normalised innovation squared of the IR update
+    # --- arm runs (issue 20): 6-DOF in the arm's base frame; empty on a two-link run ---
+    arm_pose: str | None = None  # the duty cycle's measured pose of this step
+    predicted_tx_um: float | None = None  # predicted tool error: translation (um)
+    predicted_ty_um: float | None = None
+    predicted_tz_um: float | None = None
+    predicted_rx_urad: float | None = None  # ... and rotation vector (urad)
+    predicted_ry_urad: float | None = None
+    predicted_rz_urad: float | None = None
+    correction_tx_mm: float | None = None  # commanded correction from the taught pose (mm)
+    correction_ty_mm: float | None = None
+    correction_tz_mm: float | None = None
+    correction_rx_urad: float | None = None  # ... and its rotation vector (urad)
+    correction_ry_urad: float | None = None
+    correction_rz_urad: float | None = None
+    measured_tx_um: float | None = None  # measured tool pose less its reference: translation
+    measured_ty_um: float | None = None
+    measured_tz_um: float | None = None
+    measured_rx_urad: float | None = None  # ... and rotation vector (urad; >= 3 markers)
+    measured_ry_urad: float | None = None
+    measured_rz_urad: float | None = None
+    drift_3d_um: float | None = None  # |measured translation|: the 3-D drift (the residual)
+    rotation_error_urad: float | None = None  # |measured rotation|: the rotation error
+    measured_sigma_um: float | None = None  # 1-sigma of the 3-D position (sqrt trace cov)
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -332,6 +355,15 @@ class Recorder:
         ``columns`` limits what is read (the JSON columns cost the most to parse)."""
         with self._read() as db:
             return steps_from_rows(step_rows(db, run_id, columns))
+
+    def arm_poses(self, run_id: int) -> list[str | None]:
+        """The measured pose of each step of an arm run, in step order (None: a two-link
+        run's step)."""
+        with self._read() as db:
+            rows = db.execute(
+                "SELECT arm_pose FROM steps WHERE run_id = ? ORDER BY step", (run_id,)
+            ).fetchall()
+        return [row[0] for row in rows]
 
     def export_csv(self, run_id: int, path: Path | None = None) -> str:
         """The run's steps as CSV (header = STEP_COLUMNS, empty cell = missing); written to

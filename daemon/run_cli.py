@@ -92,6 +92,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "against the model's prediction)",
     )
     parser.add_argument(
+        "--duty-cycle",
+        metavar="NAME|PATH",
+        help="an arm run (issue 20): the duty cycle (preset in config/duty or TOML file) to "
+        "follow, its measured poses corrected in 6-DOF; sets arm.duty_cycle and arm.enabled",
+    )
+    parser.add_argument(
         "--data-dir", type=Path, help="folder of the run database (default: storage.data_dir)"
     )
     parser.add_argument("--csv", type=Path, help="also export the run's steps to this CSV file")
@@ -156,6 +162,10 @@ def _settings(args: argparse.Namespace) -> Settings:
             "prediction": args.prediction,
         },
         "storage": {"data_dir": args.data_dir},
+        "arm": {
+            "duty_cycle": args.duty_cycle,
+            "enabled": True if args.duty_cycle is not None else None,
+        },
     }
     data = settings.model_dump()
     for section, values in overrides.items():
@@ -164,6 +174,7 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 
 async def _run(settings: Settings, parameters: RunParameters, args: argparse.Namespace) -> int:
+    from daemon.heap import freeze_startup_heap
     from daemon.service import Daemon, RunParameterError
 
     loop = asyncio.get_running_loop()
@@ -172,6 +183,7 @@ async def _run(settings: Settings, parameters: RunParameters, args: argparse.Nam
         loop.add_signal_handler(signum, stop_requested.set)
     try:
         async with Daemon(settings) as daemon:
+            freeze_startup_heap()  # as `thermocomp serve`: no full collection in a step
             try:
                 info = await daemon.start_run(parameters)
             except RunParameterError as err:
@@ -234,15 +246,19 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
     print(
         f"run {final['id']} {final['state']}" + (f": {final['reason']}" if final["reason"] else "")
     )
-    rows = [
-        ("steps with a residual (N)", summary.get("n"), ""),
-        ("residual max |x|", summary.get("residual_max_um"), "um"),
-        ("residual mean x-bar", summary.get("residual_mean_um"), "um"),
-        ("residual std S_x", summary.get("residual_std_um"), "um"),
-        ("std of the mean S_x-bar", summary.get("residual_std_mean_um"), "um"),
-        *_reduction_rows(summary),
-        ("overruns", summary.get("overruns"), ""),
-    ]
+    rows = (
+        _arm_rows(summary)
+        if "drift_3d_max_um" in summary
+        else [
+            ("steps with a residual (N)", summary.get("n"), ""),
+            ("residual max |x|", summary.get("residual_max_um"), "um"),
+            ("residual mean x-bar", summary.get("residual_mean_um"), "um"),
+            ("residual std S_x", summary.get("residual_std_um"), "um"),
+            ("std of the mean S_x-bar", summary.get("residual_std_mean_um"), "um"),
+            *_reduction_rows(summary),
+            ("overruns", summary.get("overruns"), ""),
+        ]
+    )
     for label, value, unit in rows:
         print(f"  {label:<28} {_format(value)} {unit}".rstrip())
     lateness = (summary.get("timing") or {}).get("lateness_s") or {}
@@ -251,6 +267,26 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
         print(f"  {'lateness p50/p99/max':<28} {values} ms")
     if final.get("report"):
         print(f"  {'report':<28} {final['report']}")
+
+
+def _arm_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:
+    """An arm run's figures (issue 20): the tool's 3-D drift and rotation error."""
+    rows: list[tuple[str, object, str]] = [
+        ("steps measured in 3-D (N)", summary.get("arm_n"), ""),
+        ("3-D drift max", summary.get("drift_3d_max_um"), "um"),
+        ("3-D drift RMS", summary.get("drift_3d_rms_um"), "um"),
+        ("rotation error max", summary.get("rotation_error_max_urad"), "urad"),
+        ("rotation error RMS", summary.get("rotation_error_rms_urad"), "urad"),
+        ("predicted tool error max", summary.get("predicted_3d_max_um"), "um"),
+        ("3-D measurement 1-sigma", summary.get("measurement_sigma_um"), "um"),
+    ]
+    if summary.get("reduction_basis") == "reference":
+        reference = summary.get("reference_run")
+        rows += [
+            (f"3-D reduction vs run {reference}", summary.get("reduction_3d_percent"), "%"),
+            (f"rotation red. vs run {reference}", summary.get("reduction_rotation_percent"), "%"),
+        ]
+    return [*rows, ("overruns", summary.get("overruns"), "")]
 
 
 def _reduction_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:

@@ -154,6 +154,11 @@ class RunParameters(BaseModel):
         "measured drift the summary's reduction is computed against; none: the reduction is "
         "only stated against the model's prediction.",
     )
+    duty_cycle: Annotated[str, Field(min_length=1, max_length=4096)] | None = Field(
+        None,
+        description="An arm run (issue 20, needs arm.enabled): the duty cycle file it follows; "
+        "its measured poses are corrected in 6-DOF (compensation off or absolute).",
+    )
     # moving procedure (thesis 3.2.4): a wiper arc about the goal, back home to capture
     arc_amplitude_deg: Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)] = 15.0
     arc_radius_mm: Annotated[float, Field(ge=0, le=MAX_OFFSET_MM, allow_inf_nan=False)] = 10.0
@@ -170,6 +175,10 @@ class RunParameters(BaseModel):
             raise ValueError("step_s must not exceed duration_s")
         if self.prediction == "model+ir" and self.time_scale != 1.0:
             raise ValueError("prediction model+ir needs time_scale 1: the IR sees real time")
+        if self.duty_cycle is not None and self.compensation == "incremental":
+            raise ValueError("an arm run corrects absolutely: compensation off or absolute")
+        if self.duty_cycle is not None and self.procedure != "stationary":
+            raise ValueError("an arm run follows its duty cycle: procedure must be stationary")
         if self.procedure == "repeatability" and len(self.poses_mm) < 2:
             raise ValueError("the repeatability procedure needs at least two poses")
         return self
@@ -188,6 +197,7 @@ class RunParameters(BaseModel):
             "prediction": settings.model.prediction,
             "warmup_wait_s": settings.scheduler.warmup_wait_s,
             "heater_off_s": settings.bench.heater_off_s,
+            "duty_cycle": settings.arm.duty_cycle if settings.arm.enabled else None,
         }
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls.model_validate(values)

@@ -28,6 +28,17 @@ from typing import Any, TypeVar
 
 from config import Settings
 from daemon import __version__
+from daemon.arm_prepare import ArmServices
+from daemon.arm_setup import (
+    ArmMeterFactory,
+    ArmSetup,
+    ArmSetupError,
+    arm_robot,
+    check_arm_run,
+    default_arm_meter,
+    default_arm_setup,
+)
+from daemon.arm_step import ArmRunWork, ArmStepPipeline
 from daemon.devices_check import DeviceCheck, Devices, check_devices
 from daemon.events import (
     ERROR_HISTORY,
@@ -92,10 +103,14 @@ class Daemon:
         clock: Clock | None = None,
         open_devices: DeviceOpener | None = None,
         event_queue_size: int = EVENT_QUEUE_DEFAULT,
+        arm_setup: ArmSetup = default_arm_setup,
+        arm_meter: ArmMeterFactory = default_arm_meter,
     ) -> None:
         self.settings = settings
         self.clock: Clock = clock or make_clock(settings.bench.clock, settings.bench.time_factor)
         self._open_devices = open_devices
+        self._arm_setup = arm_setup  # an arm run's model and poses (issue 20)
+        self._arm_meter = arm_meter  # ... and its tool measurement
         self._exit_stack = contextlib.AsyncExitStack()
         self._devices: Devices | None = None
         self._sensors: Sensors | None = None
@@ -191,33 +206,76 @@ class Daemon:
                     f"run {session.id} is {session.state.value}: one run at a time"
                 )
             await self._record_unrecorded_end(raise_on_failure=True)
-            workers, recorder = self._workers_(), self._recorder()
-            built = await workers.step(build_model, self.settings, parameters)
-            parameters, network, model = built.parameters, built.network, built.model
-            logger.info("run heat: %s (from %s)", parameters.heat_w, built.heat_source)
-            direction = unit_vector(self.settings.model.direction)
-            await workers.step(
-                check_admissible_scale, self.settings, parameters, network, direction
-            )
-            await workers.db(check_reference_run, recorder, parameters)
-            observer = None
-            if parameters.prediction == "model+ir":
-                reader_regions = tuple(getattr(self.devices.ir, "regions", ()) or ())
-                observer = build_observer(self.settings, model, reader_regions)
-            run_id = await workers.db(
-                recorder.create_run,
-                parameters.model_dump(mode="json"),
-                self.settings.model_dump(mode="json"),
-                network_snapshot(network, built.heat_source),
-                __version__,
-            )
-            work = RunWork(run_id, parameters, model, direction, observer)
+            work: RunWork | ArmRunWork
+            arm: ArmServices | None = None
+            if parameters.duty_cycle is not None:
+                work, arm = await self._arm_work(parameters)
+            else:
+                work = await self._two_link_work(parameters)
             self.timing = TimingStats()
-            session = RunSession(work, self._services())
+            session = RunSession(work, self._services(arm))
             self._session = session
             session.start()
-            logger.info("run %d started: %s", run_id, parameters.model_dump())
+            logger.info("run %d started: %s", work.run_id, parameters.model_dump())
             return session.view().info(self.clock.now())
+
+    async def _two_link_work(self, parameters: RunParameters) -> RunWork:
+        workers, recorder = self._workers_(), self._recorder()
+        built = await workers.step(build_model, self.settings, parameters)
+        parameters, network, model = built.parameters, built.network, built.model
+        logger.info("run heat: %s (from %s)", parameters.heat_w, built.heat_source)
+        direction = unit_vector(self.settings.model.direction)
+        await workers.step(check_admissible_scale, self.settings, parameters, network, direction)
+        await workers.db(check_reference_run, recorder, parameters)
+        observer = None
+        if parameters.prediction == "model+ir":
+            reader_regions = tuple(getattr(self.devices.ir, "regions", ()) or ())
+            observer = build_observer(self.settings, model, reader_regions)
+        run_id = await workers.db(
+            recorder.create_run,
+            parameters.model_dump(mode="json"),
+            self.settings.model_dump(mode="json"),
+            network_snapshot(network, built.heat_source),
+            __version__,
+        )
+        return RunWork(run_id, parameters, model, direction, observer)
+
+    async def _arm_work(self, parameters: RunParameters) -> tuple[ArmRunWork, ArmServices]:
+        """An arm run (issue 20): the arm's model and poses, its robot face, tool meter and
+        step pipeline; RunParameterError when the arm run cannot be built."""
+        workers, recorder = self._workers_(), self._recorder()
+        try:
+            check_arm_run(self.settings, parameters.duty_cycle)
+            assert parameters.duty_cycle is not None
+            plan = await workers.step(self._arm_setup, self.settings, parameters)
+            robot = arm_robot(self.devices.robot)
+            meter = self._arm_meter(self.settings, self.devices, workers)
+        except (ArmSetupError, ValueError, OSError) as err:
+            raise RunParameterError(f"arm run: {err}") from err
+        if not plan.poses:
+            raise RunParameterError("arm run: the duty cycle has no measured pose")
+        await workers.db(check_reference_run, recorder, parameters)
+        run_id = await workers.db(
+            recorder.create_run,
+            parameters.model_dump(mode="json"),
+            self.settings.model_dump(mode="json"),
+            plan.snapshot,
+            __version__,
+        )
+        sensors = self._sensors
+        assert sensors is not None
+        pipeline = ArmStepPipeline(
+            self.settings,
+            robot=robot,
+            meter=meter,
+            sensors=sensors,
+            recorder=recorder,
+            workers=workers,
+            errors=self.error_log,
+            clock_now=self.clock.now,
+        )
+        work = ArmRunWork(run_id, parameters, plan.predictor, plan.poses)
+        return work, ArmServices(robot, meter, pipeline)
 
     async def pause(self, reason: str = "paused by request") -> None:
         async with self._requests:
@@ -360,7 +418,7 @@ class Daemon:
 
     # --- internals ---------------------------------------------------------------------
 
-    def _services(self) -> SessionServices:
+    def _services(self, arm: ArmServices | None = None) -> SessionServices:
         devices, sensors = self.devices, self._sensors
         assert sensors is not None
         workers, recorder = self._workers_(), self._recorder()
@@ -374,6 +432,8 @@ class Daemon:
             clock_now=self.clock.now,
         )
         bench: BenchControl | None = getattr(devices, "bench", None)
+        if arm is not None:  # an arm run starts the arm bench's truth, when there is one
+            bench = getattr(devices, "arm_bench", None) or bench
         return SessionServices(
             settings=self.settings,
             clock=self.clock,
@@ -391,6 +451,7 @@ class Daemon:
             on_view=self._set_view,
             on_progress=self._progress,
             on_unrecorded_end=self._remember_unrecorded_end,
+            arm=arm,
         )
 
     def _set_view(self, view: RunView) -> None:

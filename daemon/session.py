@@ -26,6 +26,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from config import Settings
+from daemon.arm_prepare import ArmServices, measure_references, teach_poses
+from daemon.arm_step import ArmRunWork
 from daemon.events import ErrorLog, Event, EventBus
 from daemon.readmodel import RunView
 from daemon.recorder import Recorder, RecorderError
@@ -81,10 +83,11 @@ class SessionServices:
     on_view: Callable[[RunView], None]  # the daemon's read model
     on_progress: Callable[[], None]  # the control loop is alive (systemd watchdog)
     on_unrecorded_end: Callable[[int, str, dict[str, Any] | None, str | None], None]
+    arm: ArmServices | None = None  # an arm run's robot, tool meter and step (issue 20)
 
 
 class RunSession:
-    def __init__(self, work: RunWork, services: SessionServices) -> None:
+    def __init__(self, work: RunWork | ArmRunWork, services: SessionServices) -> None:
         self.work = work
         self.id = work.run_id
         self._services = services
@@ -153,7 +156,7 @@ class RunSession:
         ):
             await self._hold_quietly()  # re-assert: the resume must not undo a later hold
             raise RunStateError(f"run {self.id}: a hold or stop came during the resume")
-        if self.work.goal is not None:
+        if isinstance(self.work, RunWork) and self.work.goal is not None:
             # the incremental mode continues from where the robot really is
             self.work.last_target_mm = np.subtract(pose.position, self.work.goal.position)
         self._go(RunState.RUNNING, None)
@@ -227,7 +230,7 @@ class RunSession:
             # 6.4.3: every offset is from the goal taught here. Taught first, while still held:
             # a resume checks the goal the controller holds, and after a controller restart the
             # previous run's goal is gone (C500C.md), which must not refuse a new run.
-            self.work.goal = await robot.teach_goal()
+            await self._teach(moving=False)
             if robot.status().motion_held:
                 # the previous run ended with the robot held; starting is an explicit request to
                 # move again -- unless a hold came after that request (it wins)
@@ -236,18 +239,22 @@ class RunSession:
                 await robot.resume()
             if self._hold_since_start():
                 return False
+            await self._teach(moving=True)
         except DeviceError as err:
             services.errors.note(err)
             await self._fault(f"cannot teach the operational goal: {err}")
             if not await self._wait_while_held():
                 return False
-            self.work.goal = await robot.teach_goal()
+            await self._teach(moving=False)
+            await self._teach(moving=True)
         if parameters.warmup_wait_s > 0:
             logger.info("run %d: camera warm-up wait %.0f s", self.id, parameters.warmup_wait_s)
             await self._sleep_until(services.clock.now() + parameters.warmup_wait_s)
         if self.stop_requested:
             return False
-        if services.bench is not None:
+        if isinstance(self.work, ArmRunWork):
+            await self._start_arm_bench()
+        elif services.bench is not None:
             # the simulated links start cold with this run, at its scale and procedure
             services.bench.start_run(
                 services.clock.now(),
@@ -255,7 +262,11 @@ class RunSession:
                 procedure=parameters.procedure,
                 heater_off_s=parameters.heater_off_s,
             )
-        await self._capture_reference()
+        if isinstance(self.work, ArmRunWork):
+            if not await self._arm_references(self.work):
+                return False
+        else:
+            await self._capture_reference()
         self.work.start_s = services.clock.now()
         self.timer = FixedStepTimer(
             services.clock,
@@ -265,6 +276,46 @@ class RunSession:
         )
         if self.state is RunState.STARTING:
             self._go(RunState.RUNNING, None)
+        return not self.stop_requested
+
+    async def _teach(self, *, moving: bool) -> None:
+        """Teach the run's goals: the two-link bench's goal where the robot stands (no motion:
+        before the start's resume); an arm run's measured poses, each reached by a move (so
+        after the resume, and refused by the driver after any hold)."""
+        work = self.work
+        if isinstance(work, ArmRunWork):
+            if moving:
+                await teach_poses(work, self._arm().robot)
+        elif not moving:
+            work.goal = await self._services.robot.teach_goal()
+
+    def _arm(self) -> ArmServices:
+        arm = self._services.arm
+        if arm is None:
+            raise RuntimeError("an arm run without the arm's services")
+        return arm
+
+    async def _start_arm_bench(self) -> None:
+        """The simulated arm (drivers/sim/arm_bench.py) starts cold with this run (built on a
+        worker thread: it takes a second)."""
+        start = getattr(self._services.bench, "start_arm_run", None)
+        if start is not None:
+            services = self._services
+            await services.workers.step(
+                functools.partial(
+                    start, services.clock.now(), duty_cycle=self.work.parameters.duty_cycle
+                )
+            )
+
+    async def _arm_references(self, work: ArmRunWork) -> bool:
+        """Each pose's zero, measured at its taught goal; a robot fault meanwhile parks the
+        run in fault (the poses' first steps are then their references). False if stopped."""
+        try:
+            await measure_references(work, self._arm(), self._services.errors)
+        except DeviceError as err:
+            await self._fault(f"cannot measure the taught poses: {err}")
+            if not await self._wait_while_held():
+                return False
         return not self.stop_requested
 
     def _hold_since_start(self) -> bool:
@@ -290,6 +341,7 @@ class RunSession:
                 services.errors.note(err)
             logger.warning("run %d: no reference frame (%s): step 0 is the reference", self.id, err)
             return
+        assert isinstance(self.work, RunWork)
         self.work.reference_um[0] = (result.x_um, result.y_um)
         self.work.reference_source = "goal before the first move"
 
@@ -313,7 +365,10 @@ class RunSession:
             # a request that lands during the last yield before the deadline finds this step
             # under way (it completes): skipping it would leave a gap in the step numbers
             tick = await timer.wait()
-            outcome = await self._services.pipeline.run(self.work, tick)
+            if isinstance(self.work, ArmRunWork):
+                outcome = await self._arm().pipeline.run(self.work, tick)
+            else:
+                outcome = await self._services.pipeline.run(self.work, tick)
             self._recorded(outcome)
             await self._judge(tick.step, outcome.verdict)
             timer.step_done()

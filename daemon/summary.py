@@ -7,6 +7,8 @@ from typing import Any
 import numpy as np
 
 from daemon.analysis import NUMERIC_COLUMNS, RunSteps, summarize_run
+from daemon.analysis.arm import summarize_arm_run
+from daemon.arm_step import ArmRunWork
 from daemon.recorder import Recorder
 from daemon.scheduler import percentiles
 from daemon.step import RunWork
@@ -18,7 +20,7 @@ SUMMARY_COLUMNS = (*NUMERIC_COLUMNS, "run_id", "flags", "error")
 
 def run_summary(
     recorder: Recorder,
-    work: RunWork,
+    work: RunWork | ArmRunWork,
     *,
     overruns: int,
     skipped: int,
@@ -27,6 +29,8 @@ def run_summary(
     """Table 6.1's figures and the run's timing. The steps are series streamed from the
     database, never one record object per step: an hour at a 20 ms step is 180,000 steps
     (benchmarks/bench_run_end.py)."""
+    if isinstance(work, ArmRunWork):
+        return arm_summary(recorder, work, overruns=overruns, skipped=skipped, timing=timing)
     steps = recorder.run_steps(work.run_id, SUMMARY_COLUMNS)
     parameters = work.parameters
     reference = work.reference_um.get(0, (None, None))
@@ -77,3 +81,46 @@ def measured_uncompensated_max_um(work: RunWork, steps: RunSteps) -> float | Non
     values = steps.residual_um - displacement_um
     values = values[np.isfinite(values)]  # steps with no residual or no pose read back
     return float(np.abs(values).max()) if values.size else None
+
+
+def arm_summary(
+    recorder: Recorder,
+    work: ArmRunWork,
+    *,
+    overruns: int,
+    skipped: int,
+    timing: dict[str, Any],
+) -> dict[str, Any]:
+    """An arm run's summary (issue 20): the 3-D drift and the rotation error (largest, RMS),
+    overall and per measured pose, the largest predicted tool error, and the reduction of the
+    3-D drift against a named uncompensated run of the same duty cycle."""
+    steps = recorder.run_steps(work.run_id, SUMMARY_COLUMNS)
+    parameters = work.parameters
+    drift_run = parameters.reference_run
+    summary: dict[str, Any] = dict(
+        summarize_arm_run(
+            steps,
+            recorder.arm_poses(work.run_id),
+            compensation=parameters.compensation,
+            reference=None if drift_run is None else recorder.run_steps(drift_run, SUMMARY_COLUMNS),
+            reference_run=drift_run,
+        )
+    )
+    summary.update(
+        {
+            "steps": steps.n_steps,
+            "deformation_scale": parameters.deformation_scale,
+            "compensation": parameters.compensation,
+            "duty_cycle": parameters.duty_cycle,
+            "measured_poses": [pose.name for pose in work.poses],
+            "step_s": parameters.step_s,
+            "overruns": overruns,
+            "skipped_deadlines": skipped,
+            "reference": {"source": work.reference_source},
+            "timing": {
+                **timing,
+                "lateness_s": percentiles(steps.numeric.get("lateness_s", ())),
+            },
+        }
+    )
+    return summary

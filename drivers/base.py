@@ -95,6 +95,13 @@ class Pose:
         return (self.x, self.y, self.z)
 
 
+#: The goal of a run that teaches one (every run before issue 20): the console's `opgoal`, the
+#: fast path's goal 0.
+DEFAULT_GOAL = "opgoal"
+#: No rotation: a rotation vector (rad, base frame) of zero.
+ZERO_ROTATION: Vector3 = (0.0, 0.0, 0.0)
+
+
 @dataclass(frozen=True, slots=True)
 class MoveResult:
     requested_mm: Vector3  # the offset (or increment) asked for
@@ -106,6 +113,10 @@ class MoveResult:
     bytes_received: int = 0
     #: each console command's time from being written to its prompt coming back (s)
     round_trips_s: tuple[float, ...] = ()
+    #: the rotation sent with the move as the controller's z-rot, y-rot, x-rot (degrees, rounded
+    #: as sent: 0.001 on the console, 0.0001 on the fast path); zeros for a translation only
+    commanded_rotation_deg: Vector3 = (0.0, 0.0, 0.0)
+    goal: str = DEFAULT_GOAL  # the taught goal the move was relative to (absolute moves)
 
     @property
     def read_back(self) -> bool:
@@ -182,3 +193,31 @@ class Robot(AsyncDevice, Protocol):
         ...
 
     def status(self) -> RobotStatus: ...
+
+
+class GoalRobot(Robot, Protocol):
+    """A robot with several named taught goals and 6-DOF absolute moves (issue 20: an arm's
+    duty cycle teaches each of its poses once, then moves each time to "goal k + its own
+    correction"). Both C500C drivers are one; the defaults give :class:`Robot`'s behaviour.
+    The hold contract is Robot's: a hold refuses every motion, whatever the goal."""
+
+    async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
+        """Remember the current pose as the taught goal ``goal`` (valid names:
+        drivers/goals.py); teaching a name again replaces that goal only."""
+        ...
+
+    async def move_absolute(
+        self,
+        offset_mm: Vector3,
+        rotation_rad: Vector3 = ZERO_ROTATION,
+        *,
+        goal: str = DEFAULT_GOAL,
+    ) -> MoveResult:
+        """Move to the taught ``goal`` shifted by ``offset_mm`` and turned by ``rotation_rad``
+        (a rotation vector in the base frame, as daemon.arm.types.Pose6.rotation_rad; sent as
+        the controller's z-y-x angles, Pose6.zyx_deg). Non-finite values are refused."""
+        ...
+
+    def taught_goals(self) -> dict[str, Pose]:
+        """The goals taught on this connection's controller, by name."""
+        ...

@@ -25,19 +25,24 @@ explicitly resumes (a robot must never move on its own after something went wron
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Coroutine
 from typing import Any
 
 from config.settings import RobotSettings
 from drivers import c500c_protocol as proto
-from drivers.base import LinkState, MoveResult, Pose, RobotStatus, Vector3
+from drivers.base import (
+    DEFAULT_GOAL,
+    ZERO_ROTATION,
+    LinkState,
+    MoveResult,
+    Pose,
+    RobotStatus,
+    Vector3,
+)
 from drivers.c500c_console import Transcript
 from drivers.c500c_link import (
     DEVICE,
-    GOAL_LOCATION,
     LINK_UP,
-    RECONNECT_FIRST_BACKOFF_S,
     TARGET_LOCATION,
     ConsoleLink,
 )
@@ -48,6 +53,8 @@ from drivers.errors import (
     NotConnectedError,
     ProtocolError,
 )
+from drivers.goals import goal_variable, require_finite, rotation_zyx_deg
+from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
 
@@ -81,7 +88,7 @@ class C500CRobot(ConsoleLink):
         )
         if not prepare:  # a check: nothing may move (silently: nothing went wrong)
             self._motion_held, self._hold_reason = True, "connected to check only"
-        self._goal: Pose | None = None
+        self._goals: dict[str, Pose] = {}  # taught goals by name (drivers/goals.py)
         self._moves = 0  # moves since the goal was taught (robot.readback_every counts them)
 
     async def _read_pose(self) -> Pose:
@@ -101,15 +108,22 @@ class C500CRobot(ConsoleLink):
         if self._link not in (LinkState.CONNECTED, LinkState.RESYNCHRONISING):
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
 
-    async def teach_goal(self) -> Pose:
-        """`new opgoal`, `here opgoal`, then `w2`: moves nothing, so it is allowed while held."""
+    async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
+        """`new <var>`, `here <var>`, then `w2`, with <var> the goal's location variable
+        (`opgoal` for the default goal, `g_<name>` for the others: drivers/goals.py): moves
+        nothing, so it is allowed while held. The variable is made with `new` the first time
+        it is taught (C500C.md "Questions": `here` to an unknown name would ask)."""
+        variable = goal_variable(goal, DEVICE)
         async with self._lock:
-            await self._create_variable(GOAL_LOCATION)
-            await self._command(f"here {GOAL_LOCATION}", self.settings.command_timeout_s)
-            self._goal = await self._read_pose()
+            await self._create_variable(variable)
+            await self._command(f"here {variable}", self.settings.command_timeout_s)
+            pose = self._goals[goal] = await self._read_pose()
             self._moves = 0
-        logger.info("operational goal taught at %s", self._goal)
-        return self._goal
+        logger.info("goal %s taught at %s", goal, pose)
+        return pose
+
+    def taught_goals(self) -> dict[str, Pose]:
+        return dict(self._goals)
 
     def _readback_due(self) -> bool:
         return self._moves % self.settings.readback_every == 0
@@ -120,6 +134,9 @@ class C500CRobot(ConsoleLink):
         requested: Vector3,
         commanded: Vector3,
         expected: Vector3 | None,
+        *,
+        rotation_deg: Vector3 = (0.0, 0.0, 0.0),
+        goal: str = DEFAULT_GOAL,
     ) -> MoveResult:
         """The writes of one move (the last is the `w2` read-back when ``expected`` is given);
         called with the lock held."""
@@ -161,22 +178,35 @@ class C500CRobot(ConsoleLink):
             bytes_sent=self.counters.sent - sent0,
             bytes_received=self.counters.received - received0,
             round_trips_s=tuple(round_trips_s),
+            commanded_rotation_deg=rotation_deg,
+            goal=goal,
         )
 
     @staticmethod
     def _require_finite(values_mm: Vector3) -> None:
         """Last guard before the serial writer (issue 10): the daemon checks every target, but
         a NaN or an infinity would otherwise be printed into a console command as "nan"."""
-        if not all(math.isfinite(v) for v in values_mm):
-            raise DeviceError(DEVICE, f"refused a non-finite motion target {values_mm}")
+        require_finite(values_mm, "motion target", DEVICE)
 
-    async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
-        """Goal + offset (thesis 6.4.4): `set cur = opgoal` and `wshift` in one write, `moves`,
-        `finish`, and the `w2` read-back every robot.readback_every-th move."""
+    async def move_absolute(
+        self,
+        offset_mm: Vector3,
+        rotation_rad: Vector3 = ZERO_ROTATION,
+        *,
+        goal: str = DEFAULT_GOAL,
+    ) -> MoveResult:
+        """Goal + offset (thesis 6.4.4): `set cur = <goal>` and `wshift cur,dx,dy,dz,zrot,yrot,
+        xrot` in one write, `moves`, `finish`, and the `w2` read-back every
+        robot.readback_every-th move. ``rotation_rad``: a rotation vector in the base frame
+        (daemon.arm.types.Pose6), sent as its z-y-x angles in degrees with 3 decimals (C500C.md;
+        drivers/goals.py). The read-back is checked on the position only: how the controller
+        composes wshift's angles with the goal's is not documented (C500C.md)."""
         self._require_finite(offset_mm)
-        goal = self._goal
-        if goal is None:
-            raise DeviceError(DEVICE, "no operational goal: call teach_goal() first")
+        rotation_deg = rotation_zyx_deg(rotation_rad, DEVICE)
+        variable = goal_variable(goal, DEVICE)
+        taught = self._goals.get(goal)
+        if taught is None:
+            raise DeviceError(DEVICE, f"no goal {goal!r} taught: call teach_goal() first")
         self._require_motion_allowed()
         async with self._lock:
             # again under the lock: a hold that came while this waited sends nothing of the move
@@ -185,12 +215,24 @@ class C500CRobot(ConsoleLink):
             writes, commanded = proto.absolute_move_commands(
                 offset_mm,
                 online=self.settings.online,
-                goal=GOAL_LOCATION,
+                goal=variable,
                 target=TARGET_LOCATION,
                 readback=readback,
+                rotation_deg=rotation_deg,
             )
-            expected = (goal.x + commanded[0], goal.y + commanded[1], goal.z + commanded[2])
-            return await self._run_motion(writes, offset_mm, commanded, expected)
+            expected = (taught.x + commanded[0], taught.y + commanded[1], taught.z + commanded[2])
+            return await self._run_motion(
+                writes,
+                offset_mm,
+                commanded,
+                expected,
+                rotation_deg=(
+                    proto.round_deg(rotation_deg[0]),
+                    proto.round_deg(rotation_deg[1]),
+                    proto.round_deg(rotation_deg[2]),
+                ),
+                goal=goal,
+            )
 
     async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
         """Relative `wx`/`wy`/`wz` moves (only to reproduce the thesis's comparison)."""
@@ -226,9 +268,9 @@ class C500CRobot(ConsoleLink):
         return _done()
 
     async def resume(self) -> None:
-        """Allow motion again. The link must be up; the console is checked first: the taught
-        goal must still exist on the controller (`set cur = opgoal`), else GoalLostError and the
-        hold stays; then a `w2`.
+        """Allow motion again. The link must be up; the console is checked first: every taught
+        goal must still exist on the controller (`set cur = <goal>` each), else GoalLostError
+        and the hold stays; then a `w2`.
 
         A lost goal is not re-created from the recorded pose: the console's read-out has only
         0.001 mm and no arm configuration (stance) for it, and after a restart the calibration
@@ -240,10 +282,11 @@ class C500CRobot(ConsoleLink):
         async with self._lock:
             if self._link not in LINK_UP:
                 raise NotConnectedError(DEVICE, f"cannot resume while {self._link.value}")
-            if self._goal is not None:
+            for goal in self._goals:
                 try:
                     await self._command(
-                        f"set {TARGET_LOCATION} = {GOAL_LOCATION}", self.settings.command_timeout_s
+                        f"set {TARGET_LOCATION} = {goal_variable(goal, DEVICE)}",
+                        self.settings.command_timeout_s,
                     )
                 except GoalLostError as err:
                     self._last_error = str(err)
@@ -293,4 +336,5 @@ class C500CRobot(ConsoleLink):
 
     @property
     def goal(self) -> Pose | None:
-        return self._goal
+        """The default goal (`opgoal`), if taught."""
+        return self._goals.get(DEFAULT_GOAL)

@@ -58,14 +58,11 @@ from drivers.errors import (
     PointOfControlError,
     ProtocolError,
 )
+from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 
 logger = logging.getLogger(__name__)
 
 DEVICE = proto.DEVICE
-#: First wait before a reconnection attempt (s); doubles per failed attempt up to the
-#: configured cap (robot.reconnect_max_backoff_s).
-RECONNECT_FIRST_BACKOFF_S = 0.5
-RECONNECT_BACKOFF_FACTOR = 2.0
 #: Probe lines tried before synchronisation gives up (each waits robot.command_timeout_s).
 SYNC_ATTEMPTS = 3
 #: Name of the taught operational goal and of the per-step target on the controller.
@@ -148,9 +145,19 @@ class ConsoleLink:
         self._homed: bool | None = None
         self._online: bool | None = None
         self._point_of_control: bool | None = None
-        self._reconnect_task: asyncio.Task[None] | None = None
+        # the reconnection (drivers/reconnect.py): attempts under the lock, so no command
+        # interleaves with a reconnection
+        self._reconnector = Reconnector(
+            DEVICE,
+            self._connect,
+            first_backoff_s=lambda: self.first_backoff_s,
+            max_backoff_s=lambda: self.settings.reconnect_max_backoff_s,
+            lock=self._lock,
+            on_failure=lambda _: self._enter(LinkState.RECONNECTING),
+            on_success=lambda: logger.info("reconnected; motion stays held until resume()"),
+            task_name="c500c-reconnect",
+        )
         self._resync_task: asyncio.Task[None] | None = None
-        self._reconnect_attempts = 0
         self._resyncs = 0
         self._sync_counter = 0
         self._last_prompt = ""
@@ -190,14 +197,17 @@ class ConsoleLink:
     ) -> None:
         await self._close()
 
+    @property
+    def _reconnect_attempts(self) -> int:
+        return self._reconnector.attempts
+
     async def _close(self) -> None:
-        for name in ("_reconnect_task", "_resync_task"):
-            task: asyncio.Task[None] | None = getattr(self, name)
-            setattr(self, name, None)
-            if task is not None:
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
+        await self._reconnector.cancel()
+        task, self._resync_task = self._resync_task, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
         self._drop_connection()
         self._enter(LinkState.DISCONNECTED)
         self._connected_event.clear()
@@ -436,33 +446,7 @@ class ConsoleLink:
         if self._link in (LinkState.DISCONNECTED, LinkState.CONNECTING):
             return
         self._enter(LinkState.RECONNECTING)
-        if self._reconnect_task is None or self._reconnect_task.done():
-            self._reconnect_task = asyncio.get_running_loop().create_task(
-                self._reconnect(), name="c500c-reconnect"
-            )
-
-    async def _reconnect(self) -> None:
-        backoff_s = self.first_backoff_s
-        while True:
-            self._reconnect_attempts += 1
-            try:
-                async with self._lock:
-                    await self._connect()
-            except DeviceError as err:
-                logger.warning(
-                    "reconnection attempt %d failed (%s); next in %.2f s",
-                    self._reconnect_attempts,
-                    err,
-                    backoff_s,
-                )
-                self._enter(LinkState.RECONNECTING)
-                await asyncio.sleep(backoff_s)
-                backoff_s = min(
-                    backoff_s * RECONNECT_BACKOFF_FACTOR, self.settings.reconnect_max_backoff_s
-                )
-                continue
-            logger.info("reconnected; motion stays held until resume()")
-            return
+        self._reconnector.start()
 
     async def wait_link(self, state: LinkState, timeout_s: float) -> None:
         """Wait until the link is in ``state``; DeviceTimeoutError otherwise."""
@@ -532,7 +516,9 @@ class ConsoleLink:
             error = proto.first_error(lines)
             if error is not None:
                 self._note_device_error(error.code)
-                if error.text == VARIABLE_NOT_FOUND and command.endswith(f"= {GOAL_LOCATION}"):
+                if error.text == VARIABLE_NOT_FOUND and command.startswith(
+                    f"set {TARGET_LOCATION} = "
+                ):  # the target is set only from a taught goal: that goal is gone
                     raise GoalLostError(DEVICE, f"{command!r} answered {error.text!r}")
                 raise DeviceReportedError(DEVICE, error.code, error.text)
             blocked = proto.blocking_message(lines)

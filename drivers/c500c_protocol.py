@@ -68,6 +68,8 @@ BLOCKING_MESSAGES: tuple[str, ...] = (
 )
 #: `w0`/`w2` print positions as `%+10.3f` [firmware]: 0.001 mm is the finest the console shows.
 POSITION_DECIMALS = 3
+#: Decimals of the angles `wshift` is given (C500C.md "The absolute-move sequence": 3).
+ANGLE_DECIMALS = 3
 #: The read-out's fixed texts [firmware].
 ACTUAL_TITLE = "Actual Position :"
 COMMANDED_TITLE = "Commanded Position :"
@@ -503,6 +505,15 @@ def format_mm(value_mm: float) -> str:
     return f"{round_mm(value_mm):.{POSITION_DECIMALS}f}"
 
 
+def round_deg(value_deg: float) -> float:
+    """An angle as `wshift` takes it: 0.001 degree (C500C.md: mm and degrees, 3 decimals)."""
+    return float(f"{value_deg:.{ANGLE_DECIMALS}f}") + 0.0
+
+
+def format_deg(value_deg: float) -> str:
+    return f"{round_deg(value_deg):.{ANGLE_DECIMALS}f}"
+
+
 #: One write to the console: the commands sent together (C500C.md: `set` and `wshift` may go in
 #: one write, the 1,024-byte kernel FIFO holds them), each answered by its own prompt.
 Write = tuple[str, ...]
@@ -515,14 +526,19 @@ def absolute_move_commands(
     goal: str = "opgoal",
     target: str = "cur",
     readback: bool = True,
+    rotation_deg: Vector3 = (0.0, 0.0, 0.0),
 ) -> tuple[list[Write], Vector3]:
     """The absolute-move sequence of C500C.md (thesis 6.4.4: every goal is defined from the
     operational goal), as writes, and the offset actually commanded after rounding to 0.001 mm.
-    Without ``readback`` the `w2` at the end is left out."""
+    ``rotation_deg``: the wshift angles z-rot, y-rot, x-rot (degrees, sent with 0.001 degree:
+    :func:`round_deg`); zeros print as `0,0,0`, the bytes of a translation-only step. Without
+    ``readback`` the `w2` at the end is left out."""
     commanded = (round_mm(offset_mm[0]), round_mm(offset_mm[1]), round_mm(offset_mm[2]))
     dx, dy, dz = (format_mm(v) for v in commanded)
+    angles = [round_deg(v) for v in rotation_deg]
+    rotation = ",".join(format_deg(v) for v in angles) if any(angles) else "0,0,0"
     writes: list[Write] = [
-        (f"set {target} = {goal}", f"wshift {target},{dx},{dy},{dz},0,0,0"),
+        (f"set {target} = {goal}", f"wshift {target},{dx},{dy},{dz},{rotation}"),
         (f"{'moves' if online else 'move'} {target}",),
         ("finish",),
     ]

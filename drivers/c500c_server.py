@@ -12,15 +12,22 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import time
 
 from config.settings import RobotSettings
 from drivers import c500c_protocol as console_proto
 from drivers import c500c_server_protocol as proto
-from drivers.base import LinkState, MoveResult, Pose, RobotStatus, Vector3
+from drivers.base import (
+    DEFAULT_GOAL,
+    ZERO_ROTATION,
+    LinkState,
+    MoveResult,
+    Pose,
+    RobotStatus,
+    Vector3,
+)
 from drivers.c500c import READBACK_TOLERANCE_MM
-from drivers.c500c_server_link import DEVICE, RECONNECT_FIRST_BACKOFF_S, ServerLink
+from drivers.c500c_server_link import DEVICE, ServerLink
 from drivers.errors import (
     DeviceError,
     DeviceReportedError,
@@ -30,6 +37,8 @@ from drivers.errors import (
     PointOfControlError,
     ProtocolError,
 )
+from drivers.goals import check_goal_name, require_finite, rotation_zyx_deg
+from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
 
@@ -61,7 +70,8 @@ class C500CServerRobot(ServerLink):
     ) -> None:
         super().__init__(settings, port=port, first_backoff_s=first_backoff_s)
         self._motion_lock = asyncio.Lock()  # one motion at a time (the program refuses two)
-        self._goal: Pose | None = None
+        # taught goals by name, each with its index in the program (the default goal is 0)
+        self._goals: dict[str, tuple[int, Pose]] = {}
         self._arm_power: bool | None = None
         self._homed: bool | None = None
 
@@ -88,13 +98,34 @@ class C500CServerRobot(ServerLink):
 
     # --- the Robot protocol ---
 
-    async def teach_goal(self) -> Pose:
+    def _goal_index(self, goal: str) -> int:
+        """The program's index of ``goal``: the default goal is 0 (a single goal's frames are
+        those of before issue 20), the others get 1, 2 ... in the order first taught."""
+        check_goal_name(goal, DEVICE)
+        known = self._goals.get(goal)
+        if known is not None:
+            return known[0]
+        if goal == DEFAULT_GOAL:
+            return 0
+        used = {index for index, _ in self._goals.values()}
+        free = [i for i in range(1, proto.MAX_GOALS) if i not in used]
+        if not free:
+            raise DeviceError(DEVICE, f"the program holds {proto.MAX_GOALS} goals at most")
+        return free[0]
+
+    async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
+        """TEACH_GOAL with the goal's index: the program does here() into that goal."""
+        index = self._goal_index(goal)
         reply = await self._request(
-            proto.RequestType.TEACH_GOAL, timeout_s=self.settings.command_timeout_s
+            proto.RequestType.TEACH_GOAL, timeout_s=self.settings.command_timeout_s, goal=index
         )
-        self._goal = _pose(self._check(reply, motion=False).pose)
-        logger.info("operational goal taught at %s", self._goal)
-        return self._goal
+        pose = _pose(self._check(reply, motion=False).pose)
+        self._goals[goal] = (index, pose)
+        logger.info("goal %s (#%d) taught at %s", goal, index, pose)
+        return pose
+
+    def taught_goals(self) -> dict[str, Pose]:
+        return {name: pose for name, (_, pose) in self._goals.items()}
 
     async def _move(
         self,
@@ -102,20 +133,26 @@ class C500CServerRobot(ServerLink):
         offset: Vector3,
         expected_from: Pose,
         exchanges_before: int = 0,
+        *,
+        rotation_deg: Vector3 = (0.0, 0.0, 0.0),
+        goal: str = DEFAULT_GOAL,
+        goal_index: int = 0,
     ) -> MoveResult:
         """One motion frame and its reply; ``exchanges_before``: plain requests this step
         made first (counted in the step's bytes: other traffic such as heartbeats is not)."""
-        if not all(math.isfinite(v) for v in offset):
-            raise DeviceError(DEVICE, f"refused a non-finite motion target {offset}")
+        require_finite(offset, "motion target", DEVICE)
         self._require_motion_allowed()
-        offset6 = proto.quantise((*offset, 0.0, 0.0, 0.0))
+        offset6 = proto.quantise((*offset, *rotation_deg))
         commanded = (offset6[0], offset6[1], offset6[2])
         async with self._motion_lock:
             started = time.perf_counter()
             try:
                 reply = self._check(
                     await self._request(
-                        request_type, offset6, timeout_s=self.settings.move_timeout_s
+                        request_type,
+                        offset6,
+                        timeout_s=self.settings.move_timeout_s,
+                        goal=goal_index,
                     ),
                     motion=True,
                 )
@@ -136,18 +173,41 @@ class C500CServerRobot(ServerLink):
             offset,
             commanded,
             actual,  # every reply carries the pose: the fast path reads back every step
-            bytes_sent=proto.MOVE_REQUEST_BYTES + exchanges_before * proto.REQUEST_BYTES,
+            bytes_sent=proto.MOVE_REQUEST_BYTES
+            + (proto.GOAL_INDEX.size if goal_index else 0)
+            + exchanges_before * proto.REQUEST_BYTES,
             bytes_received=(1 + exchanges_before) * proto.REPLY_BYTES,
             round_trips_s=(round_trip_s,),
+            commanded_rotation_deg=(offset6[3], offset6[4], offset6[5]),
+            goal=goal,
         )
 
-    async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
-        """Goal + offset in one frame (thesis 6.4.4): the program shifts `opgoal`, moves,
-        waits for the end of the motion and answers the actual pose."""
-        goal = self._goal
-        if goal is None:
-            raise DeviceError(DEVICE, "no operational goal: call teach_goal() first")
-        return await self._move(proto.RequestType.MOVE_GOAL, offset_mm, goal)
+    async def move_absolute(
+        self,
+        offset_mm: Vector3,
+        rotation_rad: Vector3 = ZERO_ROTATION,
+        *,
+        goal: str = DEFAULT_GOAL,
+    ) -> MoveResult:
+        """Goal + offset in one frame (thesis 6.4.4): the program shifts the goal by the six
+        values (x, y, z mm; z-rot, y-rot, x-rot degrees: ``rotation_rad``, a rotation vector in
+        the base frame, as its z-y-x angles, drivers/goals.py), moves, waits for the end of the
+        motion and answers the actual pose. The read-back is checked on the position."""
+        require_finite(offset_mm, "motion target", DEVICE)
+        rotation_deg = rotation_zyx_deg(rotation_rad, DEVICE)
+        check_goal_name(goal, DEVICE)
+        taught = self._goals.get(goal)
+        if taught is None:
+            raise DeviceError(DEVICE, f"no goal {goal!r} taught: call teach_goal() first")
+        index, pose = taught
+        return await self._move(
+            proto.RequestType.MOVE_GOAL,
+            offset_mm,
+            pose,
+            rotation_deg=rotation_deg,
+            goal=goal,
+            goal_index=index,
+        )
 
     async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
         """The actual pose + delta (only to reproduce the thesis's comparison)."""
@@ -188,7 +248,7 @@ class C500CServerRobot(ServerLink):
             ),
             motion=False,
         )
-        if self._goal is not None and not reply.flags & proto.Flag.GOAL_TAUGHT:
+        if self._goals and not reply.flags & proto.Flag.GOAL_TAUGHT:
             raise GoalLostError(DEVICE, "program restarted?")
         self._check(
             await self._request(
@@ -223,4 +283,6 @@ class C500CServerRobot(ServerLink):
 
     @property
     def goal(self) -> Pose | None:
-        return self._goal
+        """The default goal, if taught."""
+        taught = self._goals.get(DEFAULT_GOAL)
+        return None if taught is None else taught[1]

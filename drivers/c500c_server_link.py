@@ -37,14 +37,11 @@ from drivers.errors import (
     NotConnectedError,
     ProtocolError,
 )
+from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 
 logger = logging.getLogger(__name__)
 
 DEVICE = proto.DEVICE
-#: First wait before a reconnection attempt (s); doubles per failed attempt up to the
-#: configured cap (robot.reconnect_max_backoff_s), as the console driver.
-RECONNECT_FIRST_BACKOFF_S = 0.5
-RECONNECT_BACKOFF_FACTOR = 2.0
 #: Cancelled requests whose replies may still arrive are remembered this many at most.
 ABANDONED_LIMIT = 1024
 
@@ -104,9 +101,16 @@ class ServerLink:
         self._motion_held = False
         self._last_error: str | None = None
         self._flags: proto.Flag | None = None  # of the latest reply
-        self._reconnect_task: asyncio.Task[None] | None = None
+        self._reconnector = Reconnector(  # drivers/reconnect.py, as the console driver's
+            DEVICE,
+            self._connect,
+            first_backoff_s=lambda: self.first_backoff_s,
+            max_backoff_s=lambda: self.settings.reconnect_max_backoff_s,
+            on_failure=lambda _: self._enter(LinkState.RECONNECTING),
+            on_success=lambda: logger.info("reconnected; motion stays held until resume()"),
+            task_name="c500c-server-reconnect",
+        )
         self._heartbeat_task: asyncio.Task[None] | None = None
-        self._reconnect_attempts = 0
         self._connected_event = asyncio.Event()
         self._last_write = 0.0  # loop time of the latest frame written
         self._bytes_sent = 0
@@ -149,14 +153,17 @@ class ServerLink:
     ) -> None:
         await self._close()
 
+    @property
+    def _reconnect_attempts(self) -> int:
+        return self._reconnector.attempts
+
     async def _close(self) -> None:
-        for name in ("_heartbeat_task", "_reconnect_task"):
-            task = getattr(self, name)
-            setattr(self, name, None)
-            if task is not None:
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
+        task, self._heartbeat_task = self._heartbeat_task, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        await self._reconnector.cancel()
         self._drop_connection(NotConnectedError(DEVICE, "closed"))
         if self._link is not LinkState.DISCONNECTED:
             self._enter(LinkState.DISCONNECTED)
@@ -313,33 +320,7 @@ class ServerLink:
         if self._link is not LinkState.CONNECTED:
             return  # connecting: the handshake fails with the error; closed: nothing to do
         self._enter(LinkState.RECONNECTING)
-        if self._reconnect_task is None or self._reconnect_task.done():
-            self._reconnect_task = asyncio.get_running_loop().create_task(
-                self._reconnect(), name="c500c-server-reconnect"
-            )
-
-    async def _reconnect(self) -> None:
-        backoff_s = self.first_backoff_s
-        while True:
-            self._reconnect_attempts += 1
-            try:
-                await self._connect()
-            except DeviceError as err:
-                logger.warning(
-                    "reconnection attempt %d failed (%s); next in %.2f s",
-                    self._reconnect_attempts,
-                    err,
-                    backoff_s,
-                )
-                if self._link is not LinkState.RECONNECTING:
-                    self._enter(LinkState.RECONNECTING)
-                await asyncio.sleep(backoff_s)
-                backoff_s = min(
-                    backoff_s * RECONNECT_BACKOFF_FACTOR, self.settings.reconnect_max_backoff_s
-                )
-                continue
-            logger.info("reconnected; motion stays held until resume()")
-            return
+        self._reconnector.start()
 
     async def wait_connected(self, timeout_s: float) -> None:
         """Wait until the link is up (after a reconnection); DeviceTimeoutError otherwise."""
@@ -363,6 +344,7 @@ class ServerLink:
         *,
         timeout_s: float,
         handshake: bool = False,
+        goal: int = 0,
     ) -> proto.Reply:
         """Write one request and await its reply (other requests may be outstanding). A timeout
         or a garbled link is a link fault (the handshake's failure is its caller's). A cancelled
@@ -372,7 +354,9 @@ class ServerLink:
         if connection is None or not ready:
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
         sequence = self._next_sequence()
-        data = proto.encode_request(sequence, request_type, offset, straight=self.settings.online)
+        data = proto.encode_request(
+            sequence, request_type, offset, straight=self.settings.online, goal=goal
+        )
         future: asyncio.Future[proto.Reply] = asyncio.get_running_loop().create_future()
         written = False
         try:

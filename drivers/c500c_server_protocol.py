@@ -51,8 +51,8 @@ CRC_POLY = 0x1021
 
 class RequestType(enum.IntEnum):
     HEARTBEAT = 0x01
-    TEACH_GOAL = 0x02  # here(opgoal): the operational goal is the pose now
-    MOVE_GOAL = 0x03  # opgoal shifted by the offset, in world coordinates (thesis 6.4.4)
+    TEACH_GOAL = 0x02  # here(goal k): goal k (0 if no body) is the pose now
+    MOVE_GOAL = 0x03  # goal k shifted by the offset, in world coordinates (thesis 6.4.4)
     MOVE_RELATIVE = 0x04  # the actual pose shifted by the offset (incremental, thesis 6.4.4)
     READ_POSE = 0x05
     HOLD = 0x06  # halt() a motion in progress; refuse motion until RELEASE
@@ -65,7 +65,7 @@ class Status(enum.IntEnum):
 
     OK = 0
     HALTED = 44  # catalogue 044 `Halt() command invoked`: a hold or the silence timeout
-    NO_GOAL = 1001  # a move to the goal before any TEACH_GOAL
+    NO_GOAL = 1001  # a move to a goal never taught
     HELD = 1002  # motion refused: held (HOLD or silence) until RELEASE
     BAD_REQUEST = 1003  # unknown type or wrong body length
     NO_CONTROL = 1004  # the program could not take the point of control
@@ -74,7 +74,7 @@ class Status(enum.IntEnum):
 
 #: Texts of the program's own codes (catalogue texts are in drivers/c500c_protocol.py).
 STATUS_TEXTS: dict[int, str] = {
-    Status.NO_GOAL: "no operational goal taught",
+    Status.NO_GOAL: "that goal was never taught",
     Status.HELD: "motion held until release",
     Status.BAD_REQUEST: "bad request",
     Status.NO_CONTROL: "the program has no point of control",
@@ -85,7 +85,7 @@ STATUS_TEXTS: dict[int, str] = {
 class Flag(enum.IntFlag):
     """State bits in every reply."""
 
-    GOAL_TAUGHT = 0x01
+    GOAL_TAUGHT = 0x01  # at least one goal is taught (a restarted program has none)
     HELD = 0x02
     MOVING = 0x04
     POINT_OF_CONTROL = 0x08
@@ -94,6 +94,11 @@ class Flag(enum.IntFlag):
 
 #: Body layouts (after SEQ and TYPE).
 MOVE_BODY = struct.Struct("<6iB")  # offset x, y, z (0.1 um), z-rot, y-rot, x-rot (1e-4 deg), mode
+#: The goal index that may follow a MOVE_GOAL body or be a TEACH_GOAL's body (PROTOCOL.md
+#: "Goals"): absent, the goal is 0, so the default goal's frames are those of a single goal.
+GOAL_INDEX = struct.Struct("<B")
+#: Goals the program holds: indices 0 .. MAX_GOALS - 1 (thermocomp_server.r3 MAX_GOALS).
+MAX_GOALS = 16
 REPLY_BODY = struct.Struct("<HB6i")  # status, flags, actual pose x..x-rot
 _HEADER = struct.Struct("<2sBHB")
 _CRC = struct.Struct("<H")
@@ -284,6 +289,7 @@ class Request:
     type: RequestType
     offset: Pose6 | None = None  # MOVE_GOAL / MOVE_RELATIVE only
     straight: bool = True
+    goal: int = 0  # TEACH_GOAL / MOVE_GOAL: which taught goal
 
 
 def encode_request(
@@ -292,15 +298,31 @@ def encode_request(
     offset: Sequence[float] | None = None,
     *,
     straight: bool = True,
+    goal: int = 0,
 ) -> bytes:
     moves = request_type in (RequestType.MOVE_GOAL, RequestType.MOVE_RELATIVE)
     if moves != (offset is not None):
         raise ValueError(f"{request_type.name} {'needs' if moves else 'takes no'} offset")
+    if not 0 <= goal < MAX_GOALS:
+        raise ValueError(f"goal {goal} outside 0..{MAX_GOALS - 1}")
+    if goal and request_type not in (RequestType.TEACH_GOAL, RequestType.MOVE_GOAL):
+        raise ValueError(f"{request_type.name} takes no goal")
     body = b""
     if offset is not None:
         mode = MODE_STRAIGHT if straight else MODE_JOINT
         body = MOVE_BODY.pack(*pose_to_counts(offset), mode)
+    if goal:  # goal 0 is the absent byte: the frame of a single goal
+        body += GOAL_INDEX.pack(goal)
     return encode_frame(sequence, request_type, body)
+
+
+def _goal_index(request_type: RequestType, data: bytes) -> int:
+    if not data:
+        return 0
+    (goal,) = GOAL_INDEX.unpack(data)
+    if goal >= MAX_GOALS:
+        raise ProtocolError(DEVICE, f"{request_type.name}: goal {goal} >= {MAX_GOALS}")
+    return int(goal)
 
 
 def parse_request(frame: Frame) -> Request:
@@ -310,13 +332,19 @@ def parse_request(frame: Frame) -> Request:
         request_type = RequestType(frame.type)
     except ValueError:
         raise ProtocolError(DEVICE, f"unknown request type 0x{frame.type:02x}") from None
+    body = frame.body
     if request_type in (RequestType.MOVE_GOAL, RequestType.MOVE_RELATIVE):
-        if len(frame.body) != MOVE_BODY.size:
-            raise ProtocolError(DEVICE, f"{request_type.name}: body of {len(frame.body)} bytes")
-        *counts, mode = MOVE_BODY.unpack(frame.body)
+        sizes = (MOVE_BODY.size, MOVE_BODY.size + GOAL_INDEX.size)
+        if len(body) not in sizes[: 2 if request_type is RequestType.MOVE_GOAL else 1]:
+            raise ProtocolError(DEVICE, f"{request_type.name}: body of {len(body)} bytes")
+        *counts, mode = MOVE_BODY.unpack_from(body)
         if mode not in (MODE_STRAIGHT, MODE_JOINT):
             raise ProtocolError(DEVICE, f"{request_type.name}: unknown mode {mode}")
-        return Request(frame.sequence, request_type, counts_to_pose(counts), mode == MODE_STRAIGHT)
+        goal = _goal_index(request_type, body[MOVE_BODY.size :])
+        offset = counts_to_pose(counts)
+        return Request(frame.sequence, request_type, offset, mode == MODE_STRAIGHT, goal)
+    if request_type is RequestType.TEACH_GOAL and len(body) <= GOAL_INDEX.size:
+        return Request(frame.sequence, request_type, goal=_goal_index(request_type, body))
     if frame.body:
         raise ProtocolError(DEVICE, f"{request_type.name}: unexpected body of {len(frame.body)}")
     return Request(frame.sequence, request_type)

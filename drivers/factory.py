@@ -16,6 +16,7 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass
 
 from config import ConfigError, Settings
+from daemon.vision.multiview import CameraModel
 from drivers.base import Camera, IrReader, Robot
 from drivers.c500c import C500CRobot
 from drivers.c500c_server import C500CServerRobot
@@ -24,6 +25,7 @@ from drivers.clock import Clock
 from drivers.genicam_camera import GenICamCamera
 from drivers.ir import OpenCvIrReader, ReplayIrReader
 from drivers.radiometric import GenICamRadiometricIrReader
+from drivers.sim.arm_devices import ArmBenchControl, open_arm_bench
 from drivers.sim.bench import Bench
 from drivers.sim.devices import SimCamera, SimIrReader
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
@@ -39,6 +41,16 @@ class Devices:
     robot: Robot
     bench: Bench | None = None  # the simulated bench's truth; None on hardware
     emulator: C500CEmulator | None = None  # the emulated controller behind the sim robot
+    # the arm bench (issue 20, arm.enabled): the cameras watching the tool, their models,
+    # and the truth an arm run starts (drivers/sim/arm_devices.py)
+    cameras: tuple[Camera, ...] = ()
+    camera_models: tuple[CameraModel, ...] = ()
+    arm_bench: ArmBenchControl | None = None
+
+
+def _arm_bench(settings: Settings) -> bool:
+    """The arm bench replaces the two-link bench when the arm is enabled on the bench."""
+    return settings.arm.enabled and settings.bench.enabled and settings.robot.driver == "sim"
 
 
 def _simulated(settings: Settings) -> list[str]:
@@ -82,6 +94,19 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             f"bench.enabled is false but {', '.join(f'{n}.driver' for n in simulated)} "
             "is 'sim': choose real drivers or enable the bench"
         )
+    if _arm_bench(settings):
+        async with open_arm_bench(settings, clock, settings.bench.seed) as arm:
+            logger.info("devices open: the arm bench, %d cameras", len(arm.cameras))
+            yield Devices(
+                camera=arm.camera,
+                ir=arm.ir,
+                robot=arm.robot,
+                emulator=arm.emulator,
+                cameras=arm.cameras,
+                camera_models=arm.camera_models,
+                arm_bench=arm.bench,
+            )
+        return
     async with contextlib.AsyncExitStack() as stack:
         bench = Bench(settings, clock) if simulated or _emulated_server(settings) else None
         emulator: C500CEmulator | None = None

@@ -17,9 +17,9 @@ what the test suite drives.
   software trigger, the run clock just before the trigger plus the exposure; else the dequeue
   time, which is late by the readout and transfer. ``Frame.timestamp_source`` says which.
 - Unplug: a failed grab on a removed device drops it (state RECONNECTING, the error kept) and
-  reconnects in the background, first after RECONNECT_FIRST_BACKOFF_S, doubling up to
-  ``reconnect_max_backoff_s``, like the robot link (drivers/c500c.py); grabs meanwhile fail at
-  once with NotConnectedError.
+  reconnects in the background (drivers/reconnect.py, as the robot links), first after
+  RECONNECT_FIRST_BACKOFF_S, doubling up to ``reconnect_max_backoff_s``; grabs meanwhile fail
+  at once with NotConnectedError.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 from drivers.base import LinkState
 from drivers.clock import Clock
 from drivers.errors import DeviceError, DeviceTimeoutError, NotConnectedError, ProtocolError
+from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 
 logger = logging.getLogger(__name__)
 
@@ -51,9 +52,6 @@ INSTALL_HINT = "install the genicam extra: pip install 'thermocomp[genicam]' (py
 #: Pixel formats the drivers read, and their significant bits: unpacked mono only, which pylon
 #: hands over as uint8 / uint16 arrays.
 MONO_FORMATS = {"Mono8": 8, "Mono10": 10, "Mono12": 12, "Mono14": 14, "Mono16": 16}
-#: Reconnection back-off: first wait (s), then doubled up to the configured cap.
-RECONNECT_FIRST_BACKOFF_S = 0.5
-RECONNECT_BACKOFF_FACTOR = 2.0
 #: Re-latch the camera's counter against the run clock this often (s): two crystals drift
 #: apart by tens of ppm, i.e. under 1 ms in this time.
 CLOCK_RESYNC_S = 30.0
@@ -208,8 +206,18 @@ class GenICamTransport:
         self._exposure_s = 0.0
         self.link = LinkState.DISCONNECTED
         self.last_error: str | None = None
-        self.reconnect_attempts = 0
-        self._reconnect_task: asyncio.Task[None] | None = None
+        # drivers/reconnect.py: close what is left, wait one back-off (a camera just pulled is
+        # not back at once), then open again until it works
+        self._reconnector = Reconnector(
+            self.device,
+            self._reopen,
+            first_backoff_s=lambda: self.first_backoff_s,
+            max_backoff_s=lambda: self.selection.reconnect_max_backoff_s,
+            wait_first=True,
+            before=lambda: self._run(self._close_blocking),
+            on_failure=self._note_failure,
+            task_name=f"genicam-{self.device}-reconnect",
+        )
         self.description = ""  # model and serial of the opened camera
 
     # --- the worker thread's side --------------------------------------------------------
@@ -415,11 +423,16 @@ class GenICamTransport:
             "the camera's clock" if self._clock_map else "the run clock",
         )
 
+    @property
+    def reconnect_attempts(self) -> int:
+        return self._reconnector.attempts
+
+    @property
+    def _reconnect_task(self) -> asyncio.Task[None] | None:
+        return self._reconnector.task
+
     async def close(self) -> None:
-        if self._reconnect_task is not None:
-            self._reconnect_task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._reconnect_task
+        await self._reconnector.cancel()
         self.link = LinkState.DISCONNECTED
         executor, self._executor = self._executor, None
         if executor is None:
@@ -458,35 +471,15 @@ class GenICamTransport:
         self.last_error = error
         logger.warning("%s: link lost (%s); reconnecting", self.device, error)
         self.link = LinkState.RECONNECTING
-        if self._reconnect_task is None or self._reconnect_task.done():
-            self._reconnect_task = asyncio.get_running_loop().create_task(
-                self._reconnect(), name=f"genicam-{self.device}-reconnect"
-            )
+        self._reconnector.start()
 
-    async def _reconnect(self) -> None:
-        backoff_s = self.first_backoff_s
-        await self._run(self._close_blocking)
-        while True:
-            await asyncio.sleep(backoff_s)
-            self.reconnect_attempts += 1
-            try:
-                await self._run(self._open_blocking)
-            except DeviceError as err:
-                self.last_error = str(err)
-                backoff_s = min(
-                    backoff_s * RECONNECT_BACKOFF_FACTOR, self.selection.reconnect_max_backoff_s
-                )
-                logger.warning(
-                    "%s: reconnection attempt %d failed (%s); next in %.2f s",
-                    self.device,
-                    self.reconnect_attempts,
-                    err,
-                    backoff_s,
-                )
-                continue
-            self.link = LinkState.CONNECTED
-            logger.info("%s: %s reconnected", self.device, self.description)
-            return
+    def _note_failure(self, error: DeviceError) -> None:
+        self.last_error = str(error)
+
+    async def _reopen(self) -> None:
+        await self._run(self._open_blocking)
+        self.link = LinkState.CONNECTED
+        logger.info("%s: %s reconnected", self.device, self.description)
 
 
 class _Unplugged(DeviceError):

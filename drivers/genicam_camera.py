@@ -13,13 +13,13 @@ from drivers.base import Frame, LinkState
 from drivers.clock import Clock
 from drivers.errors import ProtocolError
 from drivers.genicam import (
-    RECONNECT_FIRST_BACKOFF_S,
     GenICamSelection,
     GenICamTransport,
     choose_pixel_format,
     has_node,
     set_node,
 )
+from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 
 def configure_image(

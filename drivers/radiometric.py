@@ -45,7 +45,6 @@ from drivers.base import IrReading, LinkState
 from drivers.clock import Clock
 from drivers.errors import ProtocolError
 from drivers.genicam import (
-    RECONNECT_FIRST_BACKOFF_S,
     GenICamSelection,
     GenICamTransport,
     choose_pixel_format,
@@ -53,6 +52,7 @@ from drivers.genicam import (
     set_node,
 )
 from drivers.ir import finite_thermal_frame, region_temperatures
+from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
 

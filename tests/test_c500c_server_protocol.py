@@ -195,7 +195,7 @@ def test_the_controller_program_uses_the_same_numbers() -> None:
         name: int(value, 0)
         for name, value in re.findall(r"^const (\w+) = (0x[0-9A-Fa-f]+|\d+)", program, re.M)
     }
-    types = {
+    types: dict[str, int] = {
         "T_HEARTBEAT": proto.RequestType.HEARTBEAT,
         "T_TEACH": proto.RequestType.TEACH_GOAL,
         "T_MOVE_GOAL": proto.RequestType.MOVE_GOAL,
@@ -216,13 +216,16 @@ def test_the_controller_program_uses_the_same_numbers() -> None:
         "F_CONTROL": proto.Flag.POINT_OF_CONTROL,
         "F_SILENCE": proto.Flag.SILENCE_HALTED,
         "MAX_BODY": proto.MAX_BODY_BYTES,
+        "MAX_GOALS": proto.MAX_GOALS,
+        "MOVE_LEN": proto.MOVE_BODY.size,
         "SILENCE_MS": round(RobotSettings().server_silence_s * 1000),
     }
     assert {name: consts.get(name) for name in types} == {k: int(v) for k, v in types.items()}
     # Frame sizes and fields as the program writes and reads them.
     assert f"str_len_set(g_tx, {proto.REPLY_BYTES})" in program
     assert f"str_chr_set(g_tx, 2, {proto.REPLY_BODY.size})" in program
-    assert f"if len != {proto.MOVE_BODY.size} then" in program
+    assert "if len == MOVE_LEN + 1 and type == T_MOVE_GOAL then" in program  # the goal byte
+    assert "elseif len != MOVE_LEN then" in program
     assert "0x1021" in program and "0xFFFF" in program  # CRC-16/CCITT-FALSE
     assert "0xA5" in program and "0x5A" in program
     assert f"* {proto.COUNTS_PER_MM}.0" in program  # 0.1 um counts

@@ -398,3 +398,42 @@ def test_the_api_description_runs_under_its_own_csp(browser: Browser, server: st
     page.wait_for_selector(".swagger-ui .info .title")
     assert violations == []
     page.close()
+
+
+def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """Issue 20: on the arm bench an arm run's steps draw the tool's 3-D drift and rotation
+    error (norm and components), and its history row gives the 3-D figures."""
+    env = {
+        "THERMOCOMP_API__CONTROL_TOKEN": CONTROL,
+        "THERMOCOMP_STORAGE__DATA_DIR": str(tmp_path / "data"),
+    }
+    steps = 12  # config/arm-sim.toml: 120 s at a 10 s step
+    with running_server(["--config", "config/arm-sim.toml"], env=env) as server:
+        page, page_errors = open_dashboard(browser, server)
+        assert page.locator("#arm-drift").is_hidden()  # a two-link page until an arm step
+        page.fill("#token", CONTROL)
+        page.click("#token-form button")
+        page.wait_for_selector("#stream-state.open")
+        page.fill("input[name=duration_s]", "120")
+        page.fill("input[name=step_s]", "10")
+        page.click("#btn-start")
+        page.wait_for_function(
+            f"window.thermocomp.plots.drift3d && "
+            f"window.thermocomp.plots.drift3d.data[0].length >= {steps}",
+            timeout=120_000,
+        )
+        assert page.locator("#arm-drift").is_visible()
+        assert page.locator("#arm-rotation").is_visible()
+        names = page.evaluate("window.thermocomp.plots.drift3d.names")
+        assert names == ["|drift|", "x", "y", "z"]
+        norm, x, y, z = page.evaluate("window.thermocomp.plots.drift3d.data.slice(1)")
+        assert all(value is not None and value >= 0 for value in norm)
+        for k in range(len(norm)):  # the norm is of the components it is drawn with
+            assert math.isclose(norm[k], math.hypot(x[k], y[k], z[k]), rel_tol=1e-9)
+        rotation = page.evaluate("window.thermocomp.plots.rotation.data[1]")
+        assert len(rotation) == len(norm) and all(r is not None for r in rotation)
+        # the history row of the ended run states its 3-D drift and rotation error
+        page.locator("#run-history tr td", has_text="3-D").first.wait_for(timeout=60_000)
+        assert not page_errors

@@ -28,6 +28,7 @@ from pydantic_core import CoreSchema
 from api.broadcast import json_safe
 from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
+from daemon.arm.duty import available_duty_cycles
 from daemon.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
 from daemon.model import available_presets
 from daemon.model.presets import NETWORK_NAME, NetworkNotFoundError, named_network_path
@@ -80,7 +81,9 @@ def _optional_fields() -> dict[str, Any]:
                 ),
             )
             continue
-        if info.metadata:
+        if name == "duty_cycle":  # likewise a preset (config/duty), never a path
+            annotation = Literal[tuple(available_duty_cycles()) or ("",)]
+        elif info.metadata:
             annotation = Annotated[(annotation, *info.metadata)]
         fields[name] = (annotation | None, Field(None, description=info.description))
     return fields

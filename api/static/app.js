@@ -209,7 +209,21 @@
     offset: makePlot("plot-offset", xyzSeries()),
     residual: makePlot("plot-residual", [{ name: "residual", colour: "#c62828" }]),
     temperature: null, // built on the first step, when the node names are known
+    // arm runs (issue 20): the tool's measured 3-D drift and rotation error, norm and
+    // components (base frame); built and shown on an arm run's first step
+    drift3d: null,
+    rotation: null,
   };
+
+  function normSeries(norm) {
+    const colours = palette(4);
+    return [{ name: norm, colour: "#c62828", width: 2.5 },
+      ...["x", "y", "z"].map((name, i) => ({ name, colour: colours[i + 1] }))];
+  }
+
+  function isArmStep(step) {
+    return num(step.predicted_tx_um) !== null || num(step.drift_3d_um) !== null;
+  }
 
   function num(value) {
     return value === null || value === undefined || value === "" ? null : Number(value);
@@ -254,10 +268,14 @@
     for (const key of ["predicted", "offset", "residual"]) {
       plots[key].data.forEach((column) => { column.length = 0; });
     }
-    if (plots.temperature) {
-      plots.temperature.plot.destroy();
-      plots.temperature = null;
+    for (const key of ["temperature", "drift3d", "rotation"]) {
+      if (plots[key]) {
+        plots[key].plot.destroy();
+        plots[key] = null;
+      }
     }
+    $("arm-drift").hidden = true;
+    $("arm-rotation").hidden = true;
     state.steps = 0;
     state.dirty = true;
   }
@@ -275,11 +293,25 @@
       resetPlots();
     }
     const t = num(step.scheduled_s);
-    push(plots.predicted, t, [num(step.predicted_x_um), num(step.predicted_y_um),
-      num(step.predicted_z_um)]);
+    const arm = isArmStep(step);
+    push(plots.predicted, t, arm
+      ? [num(step.predicted_tx_um), num(step.predicted_ty_um), num(step.predicted_tz_um)]
+      : [num(step.predicted_x_um), num(step.predicted_y_um), num(step.predicted_z_um)]);
     push(plots.offset, t, [scaled(step.offset_x_mm, 1000), scaled(step.offset_y_mm, 1000),
       scaled(step.offset_z_mm, 1000)]);
-    push(plots.residual, t, [num(step.residual_um)]);
+    push(plots.residual, t, [arm ? num(step.drift_3d_um) : num(step.residual_um)]);
+    if (arm && !plots.drift3d) {
+      $("arm-drift").hidden = false;
+      $("arm-rotation").hidden = false;
+      plots.drift3d = makePlot("plot-drift3d", normSeries("|drift|"));
+      plots.rotation = makePlot("plot-rotation", normSeries("|rotation|"));
+    }
+    if (plots.drift3d) {
+      push(plots.drift3d, t, [num(step.drift_3d_um), num(step.measured_tx_um),
+        num(step.measured_ty_um), num(step.measured_tz_um)]);
+      push(plots.rotation, t, [num(step.rotation_error_urad), num(step.measured_rx_urad),
+        num(step.measured_ry_urad), num(step.measured_rz_urad)]);
+    }
     if (!plots.temperature) {
       const series = temperatureSeries(step);
       if (series.length) plots.temperature = makePlot("plot-temperature", series);
@@ -463,6 +495,13 @@
   function reductionText(summary) {
     const number = (value, digits) =>
       value === undefined || value === null ? null : Number(value).toFixed(digits);
+    if (summary.drift_3d_max_um !== undefined) { // an arm run: the 3-D drift and rotation
+      const drift = number(summary.drift_3d_max_um, 2);
+      const rotation = number(summary.rotation_error_max_urad, 1);
+      const reduction = number(summary.reduction_3d_percent, 1);
+      const text = `3-D ${drift === null ? "–" : drift} µm, rot ${rotation === null ? "–" : rotation} µrad`;
+      return reduction === null ? text : `${text}, ${reduction} % vs run ${summary.reference_run}`;
+    }
     if (summary.reduction_basis === "drift") {
       const drift = number(summary.measured_drift_max_um, 2);
       return drift === null ? "–" : `drift ${drift} µm (off)`;
@@ -478,6 +517,12 @@
     return predicted === null ? "–" : `${predicted} % vs model`;
   }
 
+  function residualText(summary) {
+    const value = summary.drift_3d_max_um !== undefined
+      ? summary.drift_3d_max_um : summary.residual_max_um; // an arm run: its 3-D residual
+    return value === undefined || value === null ? "–" : Number(value).toFixed(2);
+  }
+
   function historyRow(run) {
     const row = document.createElement("tr");
     const summary = run.summary || {};
@@ -486,8 +531,7 @@
       null, // the state: its word, with its reason on hover and click
       new Date(run.started_at * 1000).toLocaleString(),
       String(run.steps_recorded),
-      summary.residual_max_um === undefined || summary.residual_max_um === null
-        ? "–" : Number(summary.residual_max_um).toFixed(2),
+      residualText(summary),
       reductionText(summary),
     ];
     for (const text of cells) {

@@ -19,6 +19,13 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from daemon.analysis.arm import (
+    ARM_FIGURE,
+    ARM_LABELS,
+    draw_arm_figure,
+    is_arm_run,
+    summarize_arm_run,
+)
 from daemon.analysis.fits import FitError, direction_of, fit_exponential
 from daemon.analysis.plots import (
     plot_compensated_vs_uncompensated,
@@ -286,6 +293,19 @@ def _html_page(
         ),
         f'<p class="note">{html.escape(reduction_note(run_summary))}</p>',
     ]
+    arm = summary.get("arm")
+    if isinstance(arm, dict):
+        parts += [
+            "<h2>Whole arm: 3-D drift and rotation error of the tool</h2>",
+            _table(
+                ("quantity", "value", "unit"),
+                ((label, arm.get(key), unit) for key, (label, unit) in ARM_LABELS.items()),
+            ),
+            f'<figure><img src="{html.escape(images[ARM_FIGURE])}" alt="{ARM_FIGURE}">'
+            "<figcaption>The tool's measured drift from its pose at the start (norm and "
+            "components, base frame) and the predicted tool error (dashed).</figcaption>"
+            "</figure>",
+        ]
     if stats is not None and stats.chi_squared is not None:
         test = stats.chi_squared
         parts += [
@@ -427,6 +447,19 @@ def write_report(
             images[plot.name] = f"data:image/png;base64,{encoded}"
         else:
             images[plot.name] = path.name
+    if is_arm_run(steps):  # issue 20: the tool's 3-D drift and rotation error
+        summary["arm"] = summarize_arm_run(
+            steps, compensation=compensation, reference=reference, reference_run=reference_run
+        )
+        arm_figure = draw_arm_figure(steps)
+        path = out_dir / f"{ARM_FIGURE}.png"
+        arm_figure.savefig(path, dpi=DPI)
+        plots[ARM_FIGURE] = path
+        images[ARM_FIGURE] = (
+            f"data:image/png;base64,{base64.b64encode(path.read_bytes()).decode('ascii')}"
+            if embed_images
+            else path.name
+        )
     summary["plots"] = {name: path.name for name, path in plots.items()}
     summary["notes"] = notes
     summary_path = out_dir / SUMMARY_FILE

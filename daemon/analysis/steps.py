@@ -48,7 +48,22 @@ NUMERIC_COLUMNS: tuple[str, ...] = (
     "residual_um",
     "deformation_scale",
     "deformation_sigma_um",
+    *(
+        f"{kind}_{axis}_{unit}"
+        for kind, unit in (("predicted", "um"), ("correction", "mm"), ("measured", "um"))
+        for axis in ("tx", "ty", "tz")
+    ),
+    *(
+        f"{kind}_{axis}_urad"
+        for kind in ("predicted", "correction", "measured")
+        for axis in ("rx", "ry", "rz")
+    ),
+    "drift_3d_um",
+    "rotation_error_urad",
+    "measured_sigma_um",
 )
+#: The 6-DOF columns of an arm run (issue 20); a two-link run leaves them empty.
+ARM_COLUMNS: tuple[str, ...] = NUMERIC_COLUMNS[NUMERIC_COLUMNS.index("deformation_sigma_um") + 1 :]
 
 #: The measured compensation error along the link axis: what Table 6.1 summarises.
 RESIDUAL_COLUMN = "residual_um"

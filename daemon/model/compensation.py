@@ -43,36 +43,69 @@ def compensation_offset_mm(
     return -deformation_scale * predicted / UM_PER_MM
 
 
+@dataclass(frozen=True, slots=True)
+class VectorLimit:
+    """The bounds of one commanded vector (an offset in mm, a rotation vector in degrees): its
+    change between two commands and its size, with the setting names a refusal cites."""
+
+    what: str  # "offset", "rotation" ... (the refusal's subject)
+    unit: str  # "mm", "deg"
+    max_step_change: float
+    max_total: float
+    step_setting: str  # the setting that bounds the change, named in the refusal
+    total_setting: str  # the setting that bounds the size
+
+
+def check_vector(value: ArrayLike, previous: ArrayLike, limit: VectorLimit) -> NDArray[np.float64]:
+    """Return ``value`` as an array when it is safe to send; raise UnsafeTargetError if not.
+
+    Checks, in order: three components, every component finite (NaN and inf never reach the
+    serial writer), the change from the previous commanded value within
+    ``limit.max_step_change`` (Euclidean), and the value itself within ``limit.max_total`` of
+    the goal. The 1-D offset (:func:`check_offset`) and the arm's 6-DOF correction
+    (daemon/arm/correction.py: translation and rotation) are both checked here.
+    """
+    vector = np.asarray(value, dtype=np.float64)
+    before = np.asarray(previous, dtype=np.float64)
+    what, unit = limit.what, limit.unit
+    if vector.shape != (3,):
+        raise UnsafeTargetError(f"{what} must have 3 components, not shape {vector.shape}")
+    if not np.all(np.isfinite(vector)):
+        raise UnsafeTargetError(f"{what} is not finite: {_fmt(vector)} {unit}")
+    if not np.all(np.isfinite(before)):
+        raise UnsafeTargetError(f"previous {what} is not finite: {_fmt(before)} {unit}")
+    change = math.hypot(*(vector - before).tolist())  # hypot: no overflow warning
+    if change > limit.max_step_change:
+        raise UnsafeTargetError(
+            f"{what} change {change:.4f} {unit} exceeds {limit.step_setting} "
+            f"{limit.max_step_change} (from {_fmt(before)} to {_fmt(vector)} {unit})"
+        )
+    total = math.hypot(*vector.tolist())
+    if total > limit.max_total:
+        raise UnsafeTargetError(
+            f"{what} {total:.4f} {unit} from the goal exceeds {limit.total_setting} "
+            f"{limit.max_total} ({_fmt(vector)} {unit})"
+        )
+    return vector
+
+
 def check_offset(
     offset_mm: ArrayLike, previous_offset_mm: ArrayLike, limits: CompensationLimits
 ) -> NDArray[np.float64]:
-    """Return ``offset_mm`` as an array when it is safe to send; raise UnsafeTargetError if not.
-
-    Checks, in order: every component finite (NaN and inf never reach the serial writer), the
-    change from the previous commanded offset within ``max_step_change_mm`` (Euclidean), and
-    the offset itself within ``max_total_offset_mm`` of the operational goal.
-    """
-    offset = np.asarray(offset_mm, dtype=np.float64)
-    previous = np.asarray(previous_offset_mm, dtype=np.float64)
-    if offset.shape != (3,):
-        raise UnsafeTargetError(f"offset must have 3 components, not shape {offset.shape}")
-    if not np.all(np.isfinite(offset)):
-        raise UnsafeTargetError(f"offset is not finite: {_fmt(offset)} mm")
-    if not np.all(np.isfinite(previous)):
-        raise UnsafeTargetError(f"previous offset is not finite: {_fmt(previous)} mm")
-    change = math.hypot(*(offset - previous).tolist())  # hypot: no overflow warning
-    if change > limits.max_step_change_mm:
-        raise UnsafeTargetError(
-            f"offset change {change:.4f} mm exceeds max_step_change_mm "
-            f"{limits.max_step_change_mm} (from {_fmt(previous)} to {_fmt(offset)} mm)"
-        )
-    total = math.hypot(*offset.tolist())
-    if total > limits.max_total_offset_mm:
-        raise UnsafeTargetError(
-            f"offset {total:.4f} mm from the goal exceeds max_total_offset_mm "
-            f"{limits.max_total_offset_mm} ({_fmt(offset)} mm)"
-        )
-    return offset
+    """Return ``offset_mm`` as an array when it is safe to send; raise UnsafeTargetError if not
+    (:func:`check_vector` with the ``compensation.*`` limits)."""
+    return check_vector(
+        offset_mm,
+        previous_offset_mm,
+        VectorLimit(
+            "offset",
+            "mm",
+            limits.max_step_change_mm,
+            limits.max_total_offset_mm,
+            "max_step_change_mm",
+            "max_total_offset_mm",
+        ),
+    )
 
 
 def max_admissible_scale(

@@ -2,10 +2,13 @@
 
 drivers/sim/emulator.py serves it on a pty or a TCP port. It follows the firmware's texts and
 layouts of C500C.md through drivers/c500c_protocol.py; what no source confirms is that module's
-``ASSUMED`` block. Emulator-only simplifications (not protocol assumptions): there are no A465
-kinematics (the PULSES and JOINTS rows are zeros), the reach check is a sphere of ``REACH_MM``
-around the base, relative `w*` moves start from the actual (not the commanded) pose, so their
-positioning errors accumulate as the thesis's incremental commands did (6.4.4).
+``ASSUMED`` block. Emulator-only simplifications (not protocol assumptions): without an arm
+(EmulatorConfig.joint_arm) there are no kinematics (the PULSES and JOINTS rows are zeros), the
+reach check is a sphere of ``REACH_MM`` around the base and `wshift` adds its angles; with one,
+the arm lives in joint space (drivers/sim/joint_arm.py: inverse kinematics, trapezoidal
+profiles, JOINTS and PULSES from the joints). Relative `w*` moves start from the actual (not the
+commanded) pose, so their positioning errors accumulate as the thesis's incremental commands
+did (6.4.4).
 """
 
 from __future__ import annotations
@@ -19,11 +22,13 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 from drivers import c500c_protocol as proto
 
 if TYPE_CHECKING:
     from drivers.sim.emulator import EmulatorConfig
+    from drivers.sim.joint_arm import JointArm
 
 #: Emulator simplification: a location farther than this from the base is out of reach (mm).
 REACH_MM = 900.0
@@ -104,7 +109,14 @@ class Console:
     """The `ash` command interpreter: one line in, answer lines out (no I/O)."""
 
     def __init__(self, config: EmulatorConfig, rng: np.random.Generator) -> None:
+        self.joint_arm: JointArm | None = None
         start = as_location(config.start_pose)
+        if config.joint_arm is not None:
+            # imported here: the kinematics (SciPy) load only for an emulator with an arm
+            from drivers.sim.joint_arm import JointArm
+
+            self.joint_arm = JointArm(config.joint_arm)
+            start = as_location(self.joint_arm.location_at(0.0))
         self.config = config
         self.rng = rng
         self.state = ConsoleState(
@@ -118,6 +130,9 @@ class Console:
             in_shell=config.start_in_shell,
         )
         self.question: _Question | None = None
+        #: loop time before which the next motion cannot start (the fast-path emulator sets it
+        #: to when the request's last byte arrived on the paced line); used once
+        self.motion_not_before = 0.0
         self._after_button: str | None = None  # the motion command waiting for the button
         self._button: asyncio.Event | None = None
 
@@ -180,8 +195,32 @@ class Console:
 
     def actual_pose(self, now_s: float) -> Location:
         """Where the arm really is at loop time ``now_s`` (the start pose while moving)."""
+        if self.joint_arm is not None:  # where the joints are on their profile
+            return as_location(self.joint_arm.location_at(now_s))
         state = self.state
         return state.actual if now_s >= state.motion_end_s else state.previous_actual
+
+    def halt_motion(self, now_s: float) -> None:
+        """RAPL-3 `halt()` (the fast-path program): the motion in progress stops now. Without
+        an arm the emulated arm is back where the motion started (the emulator's arm jumps to
+        its target at the end of the move); with one it stays where its joints are."""
+        state = self.state
+        if self.joint_arm is not None:
+            self.joint_arm.halt(now_s)
+            state.actual = state.commanded = self.actual_pose(now_s)
+        else:
+            state.actual = state.commanded = state.previous_actual
+        state.motion_end_s = now_s
+
+    def shift_location(self, base: Sequence[float], offset: Sequence[float]) -> Location:
+        """`wshift`'s arithmetic (the fast-path program's `shift_w` too): with an arm, a
+        rotation in the world frame about the location's position (drivers/sim/joint_arm.py);
+        without, every value added (the emulator's simplification)."""
+        if self.joint_arm is not None:
+            from drivers.sim.joint_arm import shift_location
+
+            return as_location(shift_location(base, offset))
+        return as_location([b + o for b, o in zip(base, offset, strict=True)])
 
     async def execute(self, line: str) -> list[str]:
         """Run one command line; return the answer lines (errors included). A motion command
@@ -282,40 +321,63 @@ class Console:
         return None
 
     def _start_motion(self, target: Location) -> None:
-        if math.dist((0.0, 0.0, 0.0), target[:3]) > REACH_MM:
+        if self.joint_arm is None and math.dist((0.0, 0.0, 0.0), target[:3]) > REACH_MM:
             raise ConsoleCommandError(proto.format_error(3))
         sigma_mm = self.config.noise_um / 1000.0
         noise = self.rng.normal(0.0, sigma_mm, size=3) if sigma_mm > 0 else np.zeros(3)
         state = self.state
+        now_s = max(asyncio.get_running_loop().time(), self.motion_not_before)
+        self.motion_not_before = 0.0
+        if self.joint_arm is not None:
+            from drivers.sim.joint_arm import UnreachableError
+
+            try:
+                end_s = self.joint_arm.move_to(target, now_s, noise)
+            except UnreachableError:
+                raise ConsoleCommandError(proto.format_error(3)) from None
+            state.previous_actual = self.actual_pose(now_s)
+            state.commanded = target
+            state.actual = self.actual_pose(end_s)
+            state.motion_end_s = end_s
+            return
         state.previous_actual = state.actual
         state.commanded = target
         state.actual = as_location(
             (target[0] + noise[0], target[1] + noise[1], target[2] + noise[2], *target[3:])
         )
-        state.motion_end_s = asyncio.get_running_loop().time() + self.config.move_ms / 1000.0
+        state.motion_end_s = now_s + self.config.move_ms / 1000.0
 
     async def _finish(self) -> None:
         remaining = self.state.motion_end_s - asyncio.get_running_loop().time()
         if remaining > 0:
             await asyncio.sleep(remaining)
 
-    def _table(self, pose: Location, title: str) -> list[str]:
-        # emulator simplification: no kinematics, so PULSES and JOINTS are zeros
-        return proto.format_w_table(
-            pose, (0.0,) * 6, (0,) * 6, title=title, layout=self.config.layout
-        )
+    def _table(
+        self, pose: Location, title: str, joints_rad: NDArray[np.float64] | None
+    ) -> list[str]:
+        """A `w0`/`w2` table; ``joints_rad`` of an arm fill JOINTS and PULSES (without an arm
+        they are zeros: the emulator's simplification)."""
+        joints: tuple[float, ...] = (0.0,) * 6
+        pulses: tuple[int, ...] = (0,) * 6
+        if self.joint_arm is not None and joints_rad is not None:
+            joints = tuple(math.degrees(v) for v in joints_rad)
+            pulses = self.joint_arm.pulses(joints_rad)
+        return proto.format_w_table(pose, joints, pulses, title=title, layout=self.config.layout)
 
     # --- commands (ash) ---
 
     def _cmd_w0(self, rest: str) -> list[str]:
         if rest:
             raise ConsoleCommandError(_shell_error("too many arguments."))
-        return self._table(self.state.commanded, proto.COMMANDED_TITLE)
+        commanded = None if self.joint_arm is None else self.joint_arm.commanded_joints
+        return self._table(self.state.commanded, proto.COMMANDED_TITLE, commanded)
 
     def _cmd_w2(self, rest: str) -> list[str]:
         if rest:
             raise ConsoleCommandError(_shell_error("too many arguments."))
-        return self._table(self.actual_pose(asyncio.get_running_loop().time()), proto.ACTUAL_TITLE)
+        now_s = asyncio.get_running_loop().time()
+        joints = None if self.joint_arm is None else self.joint_arm.joints_at(now_s)
+        return self._table(self.actual_pose(now_s), proto.ACTUAL_TITLE, joints)
 
     def _cmd_new(self, rest: str) -> list[str]:
         """`new <name>` makes a location (C500C.md: `help new`); ASSUMED 7: silent, and an
@@ -359,15 +421,8 @@ class Console:
     def _cmd_wshift(self, rest: str) -> list[str]:
         parts = self._arguments(rest, 7)
         base = self._location(parts[0])
-        dx, dy, dz, zr, yr, xr = (self._number(p) for p in parts[1:])
-        self.state.locations[parts[0]] = (
-            base[0] + dx,
-            base[1] + dy,
-            base[2] + dz,
-            base[3] + zr,
-            base[4] + yr,
-            base[5] + xr,
-        )
+        offset = [self._number(p) for p in parts[1:]]
+        self.state.locations[parts[0]] = self.shift_location(base, offset)
         return []
 
     def _move_to(self, rest: str, straight: bool) -> list[str]:

@@ -12,7 +12,9 @@ import asyncio
 import gc
 import signal
 import sys
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from config.cli import non_negative_float, non_negative_int, port_number
 from config.faults import Fault
@@ -23,6 +25,9 @@ from drivers.sim.server_emulator import (
     C500CServerEmulator,
     server_emulator_config,
 )
+
+if TYPE_CHECKING:
+    from drivers.sim.joint_arm import JointArmConfig
 
 
 def _faults(text: str) -> tuple[Fault[FaultKind], ...]:
@@ -93,6 +98,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="start without the point of control: a motion waits for SIGUSR1 (the button)",
     )
     parser.add_argument(
+        "--arm",
+        metavar="ARM",
+        help="emulate the arm in joint space: a preset name (crs-a465) or an arm file "
+        "(inverse kinematics, trapezoidal joint motion, JOINTS and PULSES in w2)",
+    )
+    parser.add_argument(
         "--layout",
         choices=["firmware", "single-line"],
         default="firmware",
@@ -108,14 +119,38 @@ async def _serve(emulator: C500CEmulator) -> None:
         loop.add_signal_handler(signum, stop.set)
     loop.add_signal_handler(signal.SIGUSR1, emulator.press_pause_continue)
     async with emulator:
+        # The emulator stands in for another machine: a full collection of the heap this
+        # process imported (the whole stack, ~10-15 ms in CPython 3.11) would delay its paced
+        # replies as no controller does. Freeze it once started, as the daemon does its own
+        # (daemon/heap.py; issue 17).
+        gc.collect()
+        gc.freeze()
         print(emulator.device_path, flush=True)
         await stop.wait()
     print("thermocomp emulate: stopped", flush=True)
 
 
+def _joint_arm(args: argparse.Namespace) -> JointArmConfig | None:
+    """The --arm option's arm; ArmError (a bad name or file) is the caller's."""
+    if args.arm is None:
+        return None
+    # imported here: the kinematics (SciPy) load only for an emulator with an arm
+    from daemon.arm.description import load_arm
+    from drivers.sim.joint_arm import JointArmConfig
+
+    return JointArmConfig(load_arm(args.arm))
+
+
 def run(args: argparse.Namespace) -> int:
+    from daemon.arm.description import ArmError
+
+    try:
+        joint_arm = _joint_arm(args)
+    except ArmError as err:
+        print(f"thermocomp emulate: --arm: {err}", file=sys.stderr)
+        return 2
     if args.server:
-        return _run_server(args)
+        return _run_server(args, joint_arm)
     config = EmulatorConfig(
         seed=args.seed,
         noise_um=args.noise_um,
@@ -127,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         application=args.application,
         point_of_control=not args.no_point_of_control,
         layout=args.layout,
+        joint_arm=joint_arm,
     )
     emulator = C500CEmulator(
         config,
@@ -147,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_server(args: argparse.Namespace) -> int:
+def _run_server(args: argparse.Namespace, joint_arm: JointArmConfig | None) -> int:
     if args.faults or args.shell:
         print("thermocomp emulate: --faults and --shell are the console's", file=sys.stderr)
         return 2
@@ -158,6 +194,7 @@ def _run_server(args: argparse.Namespace) -> int:
         baudrate=args.baud or SERVER_BAUDRATE,
         paced=not args.no_pacing,
     )
+    config = replace(config, console=replace(config.console, joint_arm=joint_arm))
     emulator = C500CServerEmulator(
         config,
         transport="tcp" if args.tcp is not None else "pty",

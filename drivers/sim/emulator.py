@@ -37,12 +37,13 @@ from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Literal, Protocol, Self
+from typing import TYPE_CHECKING, Any, Literal, Protocol, Self
 
 import numpy as np
 
 from config import faults as fault_specs
 from config.faults import Fault
+from daemon.arm.types import JointSample
 from drivers import c500c_protocol as proto
 from drivers.sim.ash import (
     COMMAND_LOG_LINES,
@@ -78,6 +79,9 @@ __all__ = [
     "emulator_config",
     "parse_faults",
 ]
+
+if TYPE_CHECKING:
+    from drivers.sim.joint_arm import JointArmConfig
 
 logger = logging.getLogger(__name__)
 
@@ -129,6 +133,10 @@ class EmulatorConfig:
     #: older layout, kept only for the driver's compatibility test
     layout: proto.Layout = "firmware"
     faults: tuple[Fault[FaultKind], ...] = ()
+    #: an arm in joint space (issue 20; drivers/sim/joint_arm.py): its pose is its joints, world
+    #: moves go through its inverse kinematics, `w2` prints its JOINTS and PULSES; None: the
+    #: emulator of before (no kinematics), and start_pose is where it starts
+    joint_arm: JointArmConfig | None = None
 
 
 class _Link(Protocol):
@@ -308,6 +316,14 @@ class C500CEmulator:
 
     def actual_pose(self) -> Location:
         return self.console.actual_pose(asyncio.get_running_loop().time())
+
+    def joint_sample(self, t_s: float) -> JointSample:
+        """The emulated arm's joint positions, speeds and accelerations at ``t_s`` on the
+        emulator's clock (the serving event loop's ``time()``): the motion it really performed,
+        for the arm bench's motor heat. Only for an emulator with an arm (config.joint_arm)."""
+        if self.console.joint_arm is None:
+            raise RuntimeError("this emulator has no arm (EmulatorConfig.joint_arm)")
+        return self.console.joint_arm.sample(t_s)
 
     # --- lifecycle ---
 

@@ -11,8 +11,9 @@ checks), so a HOLD halts the move: the move is answered with catalogue 044 `Halt
 invoked`. If the host is silent longer than ``silence_timeout_s`` it halts and holds until a
 RELEASE.
 
-Emulator simplification (as the console emulator's): a halted move leaves the arm where it
-started (the emulated arm jumps to its target when the move time has passed).
+Emulator simplification (as the console emulator's): without an arm a halted move leaves the
+arm where it started (the emulated arm jumps to its target when the move time has passed); with
+one (joint space, drivers/sim/joint_arm.py) the arm stops where its joints are.
 
 Faults (strike the reply of the N-th non-heartbeat request, or ``inject()`` for the next
 request of any type): crc (one CRC byte flipped), short (only the first half of the reply,
@@ -88,9 +89,9 @@ class ServerEmulatorConfig:
     faults: tuple[Fault[ServerFaultKind], ...] = ()
 
 
-def _shifted(base: proto.Pose6, offset: proto.Pose6) -> proto.Pose6:
-    x, y, z, zr, yr, xr = (b + o for b, o in zip(base, offset, strict=True))
-    return (x, y, z, zr, yr, xr)
+def goal_location(index: int) -> str:
+    """The console location the program's goal ``index`` is kept in (goal 0: `opgoal`)."""
+    return GOAL_LOCATION if index == 0 else f"{GOAL_LOCATION}{index}"
 
 
 def _catalogue_code(lines: list[str]) -> int:
@@ -149,7 +150,12 @@ class C500CServerEmulator(C500CEmulator):
 
     @property
     def goal(self) -> proto.Pose6 | None:
+        """Goal 0 (the default goal), if taught."""
         return self.state.locations.get(GOAL_LOCATION)
+
+    def goal_at(self, index: int) -> proto.Pose6 | None:
+        """Goal ``index`` (PROTOCOL.md "Goals"), if taught."""
+        return self.state.locations.get(goal_location(index))
 
     # --- lifecycle ---
 
@@ -193,7 +199,7 @@ class C500CServerEmulator(C500CEmulator):
 
     def _flags(self) -> proto.Flag:
         flags = proto.Flag(0)
-        if self.goal is not None:
+        if any(goal_location(i) in self.state.locations for i in range(proto.MAX_GOALS)):
             flags |= proto.Flag.GOAL_TAUGHT
         if self.held:
             flags |= proto.Flag.HELD
@@ -320,7 +326,7 @@ class C500CServerEmulator(C500CEmulator):
             # here(opgoal): the goal is where the arm is now (a move in progress is refused).
             status = proto.Status.BUSY if self.moving else proto.Status.OK
             if status == proto.Status.OK:
-                self.state.locations[GOAL_LOCATION] = self.actual_pose()
+                self.state.locations[goal_location(request.goal)] = self.actual_pose()
             await answer(self._reply(seq, request_type, status))
         elif request_type is kind.HOLD:
             early_s = arrived - asyncio.get_running_loop().time()
@@ -349,7 +355,7 @@ class C500CServerEmulator(C500CEmulator):
             return proto.Status.HELD
         if self.moving:
             return proto.Status.BUSY
-        if request.type is proto.RequestType.MOVE_GOAL and self.goal is None:
+        if request.type is proto.RequestType.MOVE_GOAL and self.goal_at(request.goal) is None:
             return proto.Status.NO_GOAL
         if not self.state.point_of_control:
             return proto.Status.NO_CONTROL
@@ -358,10 +364,13 @@ class C500CServerEmulator(C500CEmulator):
     async def _move(self, request: proto.Request, answer: _Answer, arrived: float) -> None:
         assert request.offset is not None
         state = self.state
-        base = self.goal if request.type is proto.RequestType.MOVE_GOAL else self.actual_pose()
+        moves_to_goal = request.type is proto.RequestType.MOVE_GOAL
+        base = self.goal_at(request.goal) if moves_to_goal else self.actual_pose()
         assert base is not None
         # shift_w(cur, offset): world-frame shift of every coordinate (C500C.md `wshift`).
-        state.locations[TARGET_LOCATION] = _shifted(base, request.offset)
+        state.locations[TARGET_LOCATION] = self.console.shift_location(base, request.offset)
+        # The motion starts once the request has arrived (paced line), in both arm models.
+        self.console.motion_not_before = arrived
         lines = await self.console.execute(f"{'moves' if request.straight else 'move'} cur")
         status: int = proto.Status.OK
         ended: float | None = None
@@ -369,8 +378,6 @@ class C500CServerEmulator(C500CEmulator):
             status = _catalogue_code(lines)
         else:
             loop = asyncio.get_running_loop()
-            # The motion starts once the request has arrived (the console model starts it now).
-            state.motion_end_s += max(arrived - loop.time(), 0.0)
             loop.call_at(arrived, self.motion_started.set)
             ended = state.motion_end_s
             # One timer to the end of the reply's line time (the reply is framed when the
@@ -380,9 +387,10 @@ class C500CServerEmulator(C500CEmulator):
                 async with asyncio.timeout_at(ended + (reply_s if self.config.paced else 0.0)):
                     await self._halt.wait()
             if self._halt.is_set() and loop.time() < ended:
-                # halt(): the arm stops where it is (emulator: where the move started).
-                state.actual = state.commanded = state.previous_actual
-                state.motion_end_s = ended = loop.time()
+                # halt(): the arm stops where it is (an emulator without an arm: where the
+                # move started; with one: where its joints are, drivers/sim/joint_arm.py).
+                ended = loop.time()
+                self.console.halt_motion(ended)
                 self.halts += 1
                 self.motion_halted.set()
                 status = proto.Status.HALTED

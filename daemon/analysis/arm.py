@@ -1,0 +1,179 @@
+"""An arm run's figures (issue 20): the 3-D drift and the rotation error of the tool, overall
+and per measured pose, and their reduction against an uncompensated run. Pure.
+
+The drift of a step is its measured tool pose less the one measured at the same taught goal
+before the first correction (daemon/arm_step.py): in a compensated run it is the residual of
+the compensation, in an uncompensated one the arm's thermal drift. The reduction is the
+thesis's (6.7: ``100 (1 - max error / max uncompensated)``) on the 3-D norms, over the time
+both runs cover, and likewise for the rotation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from daemon.analysis.steps import FloatArray, RunSteps
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+#: The arm summary's keys (each None when it cannot be computed).
+ARM_SUMMARY_KEYS: tuple[str, ...] = (
+    "arm_n",
+    "drift_3d_max_um",
+    "drift_3d_rms_um",
+    "rotation_error_max_urad",
+    "rotation_error_rms_urad",
+    "predicted_3d_max_um",
+    "predicted_rotation_max_urad",
+    "reference_drift_3d_max_um",
+    "reference_rotation_max_urad",
+    "reference_span_s",
+    "reduction_3d_percent",
+    "reduction_rotation_percent",
+    "measurement_sigma_um",
+)
+
+
+def is_arm_run(steps: RunSteps) -> bool:
+    """Whether the steps are an arm run's: some step carries a 6-DOF prediction."""
+    column = steps.numeric.get("predicted_tx_um")
+    return column is not None and bool(np.isfinite(column).any())
+
+
+def _finite(values: FloatArray) -> FloatArray:
+    finite: FloatArray = values[np.isfinite(values)]
+    return finite
+
+
+def _max(values: FloatArray) -> float | None:
+    finite = _finite(values)
+    return float(np.abs(finite).max()) if finite.size else None
+
+
+def _rms(values: FloatArray) -> float | None:
+    finite = _finite(values)
+    return float(math.sqrt(np.mean(finite**2))) if finite.size else None
+
+
+def _norms(steps: RunSteps, prefix: str, unit: str, axes: Sequence[str]) -> FloatArray:
+    columns = [steps.numeric.get(f"{prefix}_{axis}_{unit}") for axis in axes]
+    if any(column is None for column in columns):
+        return np.full(steps.n_steps, np.nan)
+    stacked = np.column_stack([c for c in columns if c is not None])
+    norms: FloatArray = np.linalg.norm(stacked, axis=1)
+    return norms
+
+
+def _column(steps: RunSteps, name: str) -> FloatArray:
+    return steps.numeric.get(name, np.full(steps.n_steps, np.nan))
+
+
+def _reduction(ours: float | None, theirs: float | None) -> float | None:
+    if ours is None or theirs is None or theirs <= 0:
+        return None
+    return 100.0 * (1.0 - ours / theirs)
+
+
+def summarize_arm_run(
+    steps: RunSteps,
+    poses: Sequence[str | None] = (),
+    *,
+    compensation: str | None = None,
+    reference: RunSteps | None = None,
+    reference_run: int | str | None = None,
+) -> dict[str, object]:
+    """The arm run's figures (ARM_SUMMARY_KEYS), ``per_pose`` (pose -> n, largest and RMS
+    3-D drift and rotation error) when ``poses`` names each step's pose, and the
+    ``reduction_basis``: "reference" (against ``reference``, an uncompensated run), "drift"
+    (this run is uncompensated: its figures are the drift) or "none"."""
+    summary: dict[str, object] = dict.fromkeys(ARM_SUMMARY_KEYS)
+    drift = _column(steps, "drift_3d_um")
+    rotation = _column(steps, "rotation_error_urad")
+    summary["arm_n"] = int(np.isfinite(drift).sum())
+    summary["drift_3d_max_um"] = _max(drift)
+    summary["drift_3d_rms_um"] = _rms(drift)
+    summary["rotation_error_max_urad"] = _max(rotation)
+    summary["rotation_error_rms_urad"] = _rms(rotation)
+    summary["predicted_3d_max_um"] = _max(_norms(steps, "predicted", "um", ("tx", "ty", "tz")))
+    summary["predicted_rotation_max_urad"] = _max(
+        _norms(steps, "predicted", "urad", ("rx", "ry", "rz"))
+    )
+    sigma = _finite(_column(steps, "measured_sigma_um"))
+    summary["measurement_sigma_um"] = float(np.median(sigma)) if sigma.size else None
+    summary["reference_run"] = None
+    summary["reduction_basis"] = "drift" if compensation == "off" else "none"
+    if reference is not None and compensation != "off":
+        summary["reduction_basis"] = "reference"
+        summary["reference_run"] = reference_run if reference_run is not None else reference.run_id
+        span = float(min(np.nanmax(steps.time_s), np.nanmax(reference.time_s)))
+        summary["reference_span_s"] = span
+        ours, theirs = steps.time_s <= span, reference.time_s <= span
+        reference_drift = _max(_column(reference, "drift_3d_um")[theirs])
+        reference_rotation = _max(_column(reference, "rotation_error_urad")[theirs])
+        summary["reference_drift_3d_max_um"] = reference_drift
+        summary["reference_rotation_max_urad"] = reference_rotation
+        summary["reduction_3d_percent"] = _reduction(_max(drift[ours]), reference_drift)
+        summary["reduction_rotation_percent"] = _reduction(_max(rotation[ours]), reference_rotation)
+    if len(poses) == steps.n_steps and steps.n_steps:
+        names = np.array([name or "" for name in poses])
+        summary["per_pose"] = {
+            str(name): {
+                "n": int(np.isfinite(drift[names == name]).sum()),
+                "drift_3d_max_um": _max(drift[names == name]),
+                "drift_3d_rms_um": _rms(drift[names == name]),
+                "rotation_error_max_urad": _max(rotation[names == name]),
+                "rotation_error_rms_urad": _rms(rotation[names == name]),
+            }
+            for name in dict.fromkeys(names.tolist())
+            if name
+        }
+    return summary
+
+
+#: The arm figure's file stem in a report (daemon/analysis/report.py).
+ARM_FIGURE = "arm_drift"
+ARM_LABELS: dict[str, tuple[str, str]] = {
+    "arm_n": ("steps with a 3-D measurement", ""),
+    "drift_3d_max_um": ("largest 3-D drift (residual when compensated)", "µm"),
+    "drift_3d_rms_um": ("RMS 3-D drift", "µm"),
+    "rotation_error_max_urad": ("largest rotation error", "µrad"),
+    "rotation_error_rms_urad": ("RMS rotation error", "µrad"),
+    "predicted_3d_max_um": ("largest predicted tool error (translation)", "µm"),
+    "predicted_rotation_max_urad": ("largest predicted tool error (rotation)", "µrad"),
+    "reference_drift_3d_max_um": ("reference run: largest 3-D drift", "µm"),
+    "reference_rotation_max_urad": ("reference run: largest rotation error", "µrad"),
+    "reference_span_s": ("time both runs cover", "s"),
+    "reduction_3d_percent": ("reduction of the 3-D drift", "%"),
+    "reduction_rotation_percent": ("reduction of the rotation error", "%"),
+    "measurement_sigma_um": ("3-D measurement 1-sigma (median)", "µm"),
+}
+
+
+def draw_arm_figure(steps: RunSteps) -> Figure:
+    """The tool's measured 3-D drift and rotation error over time (norm and components,
+    base frame), with the predicted tool error's norms dashed."""
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(10.0, 6.0), layout="constrained")
+    time_s = steps.time_s
+    panels = (
+        ("drift", "um", ("tx", "ty", "tz"), "drift_3d_um", "3-D drift (µm)"),
+        ("rotation", "urad", ("rx", "ry", "rz"), "rotation_error_urad", "rotation error (µrad)"),
+    )
+    for row, (what, unit, axes, norm_column, label) in enumerate(panels):
+        ax = figure.add_subplot(2, 1, row + 1)
+        ax.grid(True, color="#dddddd", linewidth=0.8)
+        ax.plot(time_s, _column(steps, norm_column), ".", color="#c62828", label=f"|{what}|")
+        for axis in axes:
+            ax.plot(time_s, _column(steps, f"measured_{axis}_{unit}"), ".", ms=2, label=axis)
+        predicted = _norms(steps, "predicted", unit, axes)
+        ax.plot(time_s, predicted, "--", color="#444444", label="|predicted|")
+        ax.set_ylabel(label)
+        ax.legend(loc="upper left", fontsize=8, ncols=5)
+    figure.axes[-1].set_xlabel("time since start (s)")
+    return figure

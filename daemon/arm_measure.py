@@ -1,0 +1,174 @@
+"""The tool's 3-D measurement in an arm run (issue 20; thesis 7.2.2, several cameras): one
+frame from every camera, each marker's centroid in a window around where the expected tool
+pose puts it, each marker triangulated from the cameras that see it, and the tool's pose from
+the markers (orientation from three or more: daemon/vision/multiview.py).
+
+The centroid is the thesis's robust spot centroid (daemon/vision/centroid.py) on a window of
+the frame: the markers are tens of pixels apart on the chip, the window is a few spot widths,
+so each window holds one marker (the expected pose is the taught pose: the drift is a fraction
+of a millimetre, a pixel or two).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from config import Settings
+from daemon.arm.run import FloatArray, MeasurementError, ToolMeasurement
+from daemon.vision import CentroidError
+from daemon.vision.centroid import measure_centroid
+from daemon.vision.multiview import (
+    CameraModel,
+    MultiviewError,
+    project,
+    rigid_pose_from_markers,
+    triangulate,
+)
+from daemon.workers import Workers
+from drivers.base import Camera, Frame
+from drivers.errors import DeviceTimeoutError
+
+#: Half-width of the window a marker's centroid is measured in (px): 8 spot sigmas of the
+#: bench's 3 px spots (daemon/vision/markers.py WINDOW_SIGMAS), room for the drift.
+WINDOW_HALF_PX = 24
+#: A marker is triangulated from at least this many cameras (one camera sees no depth).
+MIN_VIEWS = 2
+
+
+@dataclass(frozen=True, slots=True)
+class MarkerView:
+    camera: str
+    marker: int
+    x_px: float
+    y_px: float
+    sigma_px: float
+
+
+def marker_views(
+    cameras: Sequence[CameraModel],
+    frames: Sequence[Frame],
+    markers_world: FloatArray,
+    *,
+    bit_depth: int,
+    window_half_px: int = WINDOW_HALF_PX,
+) -> list[MarkerView]:
+    """Every marker's centroid in every camera whose frame shows it near its expected pixel."""
+    views: list[MarkerView] = []
+    for camera, frame in zip(cameras, frames, strict=True):
+        image = np.asarray(frame.image)
+        height, width = image.shape[:2]
+        for marker, (x, y) in enumerate(project(camera, markers_world)):
+            if not (math.isfinite(x) and math.isfinite(y)):
+                continue
+            c0, r0 = max(0, int(x) - window_half_px), max(0, int(y) - window_half_px)
+            c1 = min(width, int(x) + window_half_px + 1)
+            r1 = min(height, int(y) + window_half_px + 1)
+            if c1 - c0 < window_half_px or r1 - r0 < window_half_px:
+                continue  # off the chip
+            try:
+                result = measure_centroid(image[r0:r1, c0:c1], bit_depth=bit_depth)
+            except CentroidError:
+                continue
+            sigma = max(result.sigma_x_px, result.sigma_y_px, camera.pixel_sigma_px)
+            views.append(MarkerView(camera.name, marker, result.x_px + c0, result.y_px + r0, sigma))
+    return views
+
+
+def tool_pose(
+    cameras: Sequence[CameraModel],
+    views: Sequence[MarkerView],
+    markers_tool: FloatArray,
+    expected_pose: FloatArray,
+) -> ToolMeasurement:
+    """The tool's pose from the marker views; raises MeasurementError when no marker is seen
+    by two cameras. With fewer than three triangulated markers the orientation is the
+    expected one and only the position is measured (``oriented`` False)."""
+    by_name = {camera.name: camera for camera in cameras}
+    points: list[FloatArray] = []
+    covariances: list[FloatArray] = []
+    seen: list[int] = []
+    for marker in range(markers_tool.shape[0]):
+        mine = [view for view in views if view.marker == marker]
+        if len(mine) < MIN_VIEWS:
+            continue
+        try:
+            point, covariance = triangulate(
+                [by_name[view.camera] for view in mine],
+                [(view.x_px, view.y_px) for view in mine],
+                [view.sigma_px for view in mine],
+            )
+        except MultiviewError:
+            continue
+        points.append(point)
+        covariances.append(covariance)
+        seen.append(marker)
+    if not seen:
+        raise MeasurementError(f"no marker seen by {MIN_VIEWS} cameras")
+    centroids: dict[str, list[tuple[float, float]]] = {}
+    for view in views:
+        centroids.setdefault(view.camera, []).append((view.x_px, view.y_px))
+    frozen = {name: tuple(values) for name, values in centroids.items()}
+    if len(seen) >= 3:
+        try:
+            pose, covariance6 = rigid_pose_from_markers(
+                markers_tool[seen], np.array(points), np.array(covariances)
+            )
+            sigma = math.sqrt(float(np.trace(covariance6[:3, :3])))
+            return ToolMeasurement(pose, sigma, True, frozen)
+        except MultiviewError:
+            pass  # markers in a line: position only
+    rotation = np.asarray(expected_pose, dtype=np.float64)[:3, :3]
+    translations = [p - rotation @ markers_tool[m] for p, m in zip(points, seen, strict=True)]
+    pose = np.eye(4)
+    pose[:3, :3] = rotation
+    pose[:3, 3] = np.mean(translations, axis=0)
+    variance = float(np.mean([np.trace(c) for c in covariances])) / len(seen)
+    return ToolMeasurement(pose, math.sqrt(variance), False, frozen)
+
+
+class MultiCameraMeter:
+    """The ToolMeter of an arm run: ``cameras`` are the devices, ``models`` their calibrated
+    CameraModels (same order), ``markers_mm`` the markers in the tool frame."""
+
+    def __init__(
+        self,
+        settings: Settings,
+        cameras: Sequence[Camera],
+        models: Sequence[CameraModel],
+        workers: Workers,
+    ) -> None:
+        if len(cameras) != len(models):
+            raise ValueError(f"{len(cameras)} cameras but {len(models)} camera models")
+        self._settings = settings
+        self._cameras = tuple(cameras)
+        self._models = tuple(models)
+        self._workers = workers
+        self._markers: NDArray[np.float64] = np.array(settings.arm.markers_mm, dtype=np.float64)
+
+    async def measure(self, expected_pose: FloatArray) -> ToolMeasurement:
+        frames = await asyncio.gather(*(self._grab(camera) for camera in self._cameras))
+        return await self._workers.step(self._solve, frames, expected_pose)
+
+    def _solve(self, frames: Sequence[Frame], expected_pose: FloatArray) -> ToolMeasurement:
+        expected = np.asarray(expected_pose, dtype=np.float64)
+        markers_world = self._markers @ expected[:3, :3].T + expected[:3, 3]
+        views = marker_views(
+            self._models, frames, markers_world, bit_depth=self._settings.camera.bit_depth
+        )
+        return tool_pose(self._models, views, self._markers, expected)
+
+    async def _grab(self, camera: Camera) -> Frame:
+        timeout_s = self._settings.camera.grab_timeout_s
+        try:
+            async with asyncio.timeout(timeout_s) as scope:
+                return await camera.grab()
+        except TimeoutError as err:
+            if not scope.expired():
+                raise  # the camera's own timeout (a DeviceTimeoutError): as it is
+            raise DeviceTimeoutError("camera", f"no frame within {timeout_s:g} s") from err

@@ -1,0 +1,63 @@
+"""Before an arm run's first step (issue 20): teach every measured pose of the duty cycle as a
+named goal, then measure the tool at each goal before any correction: the zero of each pose's
+drift (thesis 6.2's reference "at the start at the operational goal", one per pose).
+
+Teaching an arm pose moves the robot (to the pose's joint angles), unlike the two-link bench's
+``here opgoal``: daemon/session.py calls this only once motion is allowed (after the start's
+resume, and again after a resume from a fault), and the driver refuses every move after a
+hold. Nothing here changes the run's state; errors go back to the session.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+from daemon.arm.run import MeasurementError
+from daemon.arm.types import Pose6
+from daemon.arm_step import ArmRobot, ArmRunWork, ArmStepPipeline, ToolMeter
+from daemon.events import ErrorLog
+from drivers.errors import DeviceError
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class ArmServices:
+    """What an arm run uses beside the two-link bench's services."""
+
+    robot: ArmRobot
+    meter: ToolMeter
+    pipeline: ArmStepPipeline
+
+
+async def teach_poses(work: ArmRunWork, robot: ArmRobot) -> None:
+    """Teach each measured pose as the goal of its name (raises DeviceError)."""
+    for pose in work.poses:
+        work.taught[pose.name] = await robot.teach_pose(pose)
+        logger.info("run %d: taught pose %r", work.run_id, pose.name)
+
+
+async def measure_references(work: ArmRunWork, services: ArmServices, errors: ErrorLog) -> None:
+    """The tool at each taught goal, uncorrected, before the first step. A pose whose markers
+    cannot be measured now takes its first step's measurement as its zero instead."""
+    measured = 0
+    for pose in work.poses:
+        try:
+            await services.robot.move_to_goal(pose.name, Pose6.zero())
+            measurement = await services.meter.measure(pose.tool_pose)
+        except MeasurementError as err:
+            logger.warning("run %d: no reference at %r (%s)", work.run_id, pose.name, err)
+            continue
+        except DeviceError as err:
+            errors.note(err)
+            logger.warning("run %d: no reference at %r (%s)", work.run_id, pose.name, err)
+            if err.device == "robot":  # the robot cannot go on: the session faults
+                raise
+            continue
+        work.reference[pose.name] = measurement.pose
+        measured += 1
+    if measured == len(work.poses):
+        work.reference_source = "each taught goal before the first correction"
+    elif measured:
+        work.reference_source = "taught goals before the first correction, else first steps"

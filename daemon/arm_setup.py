@@ -1,0 +1,119 @@
+"""What an arm run (issue 20) is built from before its first step: the controller's model of
+the arm (arm description, duty cycle, thermal model: daemon/arm), its measured poses, the
+robot's arm face and the tool's 3-D measurement over the open devices.
+
+The daemon takes these as replaceable callables (``Daemon(arm_setup=..., arm_meter=...)``) so
+that its tests can run an arm run on exact fakes; the defaults here build the real ones.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, cast
+
+from config import CONFIG_DIR, Settings
+from daemon.arm.run import ArmPredictor, MeasuredPose
+from daemon.arm_step import ArmRobot, ToolMeter
+from daemon.devices_check import Devices
+from daemon.runs import RunParameters
+from daemon.workers import Workers
+from drivers.base import GoalRobot, Robot
+
+
+class ArmSetupError(ValueError):
+    """The arm run cannot be built (no arm section, a file that does not load)."""
+
+
+@dataclass(frozen=True, eq=False)
+class ArmPlan:
+    """The controller's side of an arm run: its model, the poses it corrects, and what is
+    recorded with the run of the model it used."""
+
+    predictor: ArmPredictor
+    poses: tuple[MeasuredPose, ...]
+    snapshot: dict[str, Any] = field(default_factory=dict)
+
+
+ArmSetup = Callable[[Settings, RunParameters], ArmPlan]
+ArmMeterFactory = Callable[[Settings, Devices, Workers], ToolMeter]
+
+#: Preset arm descriptions (wt-kin: config/arms/<name>.toml).
+ARMS_DIR = CONFIG_DIR / "arms"
+
+
+def arm_file(settings: Settings) -> Path:
+    """The arm description file: a preset name in config/arms or a path."""
+    name = settings.arm.arm_file
+    preset = ARMS_DIR / f"{name}.toml"
+    return preset if preset.exists() else Path(name)
+
+
+def check_arm_run(settings: Settings, duty_cycle: str | None) -> None:
+    """An arm run needs ``arm.enabled`` and a duty cycle."""
+    if not settings.arm.enabled:
+        raise ArmSetupError("an arm run (duty_cycle) needs the arm section: set arm.enabled")
+    if duty_cycle is None:
+        raise ArmSetupError("an arm run needs a duty cycle (run duty_cycle or arm.duty_cycle)")
+
+
+def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
+    """The controller's model of the arm from the arm file and the run's duty cycle
+    (daemon/arm/controller.py), stepped at the run's step in model time."""
+    from daemon.arm.controller import ArmModelOptions, load_controller
+
+    arm_settings = settings.arm
+    assert parameters.duty_cycle is not None
+    options = ArmModelOptions(
+        motion_dt_s=arm_settings.motion_dt_s,
+        ambient_c=settings.model.ambient_c,
+        bending=arm_settings.bending,
+        model_dt_s=parameters.step_s * parameters.time_scale,
+    )
+    controller = load_controller(arm_file(settings), parameters.duty_cycle, options)
+    poses = controller.measured_poses(arm_settings.measured_poses)
+    snapshot = {
+        "arm": controller.arm.name,
+        "arm_file": str(arm_file(settings)),
+        "duty_cycle": controller.duty.name,
+        "period_s": controller.duty.period_s,
+        "measured_poses": [pose.name for pose in poses],
+        "node_names": list(controller.thermal.node_names),
+        "mean_joint_heat_w": controller.heat.mean_power_w.tolist(),
+    }
+    return ArmPlan(controller, poses, snapshot)
+
+
+def default_arm_meter(settings: Settings, devices: Devices, workers: Workers) -> ToolMeter:
+    """The tool's measurement from the devices' cameras and their calibrated models (the
+    arm's camera file, else the bench's own models)."""
+    from daemon.arm_measure import MultiCameraMeter
+    from daemon.vision.multiview import load_cameras
+
+    cameras = tuple(getattr(devices, "cameras", ()) or ())
+    if not cameras:
+        raise ArmSetupError("an arm run needs the arm's cameras (drivers.factory: arm.enabled)")
+    cameras_file = settings.arm.cameras_file
+    if cameras_file is not None:
+        models = tuple(load_cameras(Path(cameras_file)))
+    else:
+        models = tuple(getattr(devices, "camera_models", ()) or ())
+    if len(models) != len(cameras):
+        raise ArmSetupError(
+            f"{len(cameras)} cameras but {len(models)} camera models: set arm.cameras_file"
+        )
+    return MultiCameraMeter(settings, cameras, models, workers)
+
+
+def arm_robot(robot: Robot) -> ArmRobot:
+    """The robot's arm face (daemon/arm_robot.py) over a driver with named taught goals and
+    rotated absolute moves; ArmSetupError when the driver has none."""
+    from daemon.arm_robot import GoalRobotArm
+
+    if not callable(getattr(robot, "taught_goals", None)):
+        raise ArmSetupError(
+            f"the robot driver {type(robot).__name__} cannot run an arm duty cycle "
+            "(no named taught goals)"
+        )
+    return GoalRobotArm(cast(GoalRobot, robot))

@@ -1,0 +1,353 @@
+"""One step of an arm run (issue 20), top to bottom, like daemon/step.py's StepPipeline:
+model -> correction check -> move -> measure -> record.
+
+Each fixed step advances the controller's arm model (motor heat from the duty cycle's
+commanded motion) to the step's time, takes the duty cycle's next measured pose, predicts the
+tool error at that pose's configuration, checks the correction (``-error``: translation and
+rotation, daemon/arm/correction.py) before anything reaches the robot, moves to the taught
+goal of that pose plus the correction, measures the tool in every camera (markers ->
+triangulation -> pose) and records the 6-DOF prediction, correction and measurement. It
+returns a StepOutcome with a verdict and never changes the run's state: what a verdict does is
+decided in daemon/session.py, as for the two-link bench.
+
+A refused correction (a limit, a non-finite value) is never sent: the step records it with the
+flag ``unsafe-target`` and asks for a pause, as the 1-D path. A hold that comes at any point
+of the step is enforced by the driver, which refuses the move under its lock right before the
+bytes are written (drivers/base.py Robot.stop).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from config import Settings
+from daemon.arm.correction import CorrectionLimits, check_correction, correction_for
+from daemon.arm.run import (
+    ArmPredictor,
+    FloatArray,
+    MeasuredPose,
+    MeasurementError,
+    ToolMeasurement,
+    angle_urad,
+    norm_um,
+    pose_difference,
+    rotation_urad,
+    translation_um,
+)
+from daemon.arm.types import Pose6
+from daemon.events import ErrorLog
+from daemon.model.compensation import UnsafeTargetError
+from daemon.recorder import Recorder, StepRecord
+from daemon.runs import RunParameters
+from daemon.scheduler import Tick
+from daemon.sensors import Sensors
+from daemon.step import LATE_FRACTION, OK, SENSOR_ERROR_FLAGS, StepOutcome, Verdict
+from daemon.workers import Workers
+from drivers.base import MoveResult, Pose, RobotStatus
+from drivers.errors import DeviceError
+
+logger = logging.getLogger(__name__)
+
+#: The flag of a step whose markers could not give a tool pose (a sensor error, like a
+#: centroid error of the two-link bench).
+MARKER_ERROR = "marker-error"
+ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR}
+
+
+class ArmRobot(Protocol):
+    """What an arm run needs of the robot (daemon/arm_robot.py over a driver with named taught
+    goals and rotated absolute moves, drivers/base.py GoalRobot). The hold contract is
+    drivers/base.py Robot's: after ``stop()`` every motion command is refused right before its
+    bytes are written."""
+
+    async def teach_pose(self, pose: MeasuredPose) -> Pose:
+        """Bring the tool to ``pose`` and teach it there as the goal ``pose.name``."""
+        ...
+
+    async def move_to_goal(self, goal: str, correction: Pose6) -> MoveResult:
+        """Move to the taught goal ``goal`` shifted by ``correction`` (base frame)."""
+        ...
+
+    async def stop(self) -> None: ...
+
+    async def resume(self) -> None: ...
+
+    async def actual_pose(self) -> Pose: ...
+
+    def status(self) -> RobotStatus: ...
+
+
+class ToolMeter(Protocol):
+    """The tool's 3-D measurement: every camera's frame -> marker centroids -> triangulated
+    markers -> tool pose (daemon/arm_measure.py). Raises DeviceError (a camera) or
+    MeasurementError (the markers)."""
+
+    async def measure(self, expected_pose: FloatArray) -> ToolMeasurement: ...
+
+
+@dataclass(eq=False)
+class ArmRunWork:
+    """What an arm run's steps carry from one to the next (the arm's RunWork)."""
+
+    run_id: int
+    parameters: RunParameters
+    predictor: ArmPredictor
+    poses: tuple[MeasuredPose, ...]
+    start_s: float = float("nan")  # run clock at step 0
+    taught: dict[str, Pose] = field(default_factory=dict)  # goal name -> pose read back
+    #: the last correction sent for each pose: the step limits apply per pose
+    last_correction: dict[str, Pose6] = field(default_factory=dict)
+    #: the tool pose measured at each taught goal before the first move: the drift's zero
+    reference: dict[str, FloatArray] = field(default_factory=dict)
+    reference_source: str = "each pose's first step"
+
+    def pose_at(self, step: int) -> MeasuredPose:
+        """The measured poses in turn, one per step (the duty cycle's order)."""
+        return self.poses[step % len(self.poses)]
+
+    def previous(self, pose: MeasuredPose) -> Pose6:
+        return self.last_correction.get(pose.name, Pose6.zero())
+
+
+def correction_limits(settings: Settings) -> CorrectionLimits:
+    arm = settings.arm
+    return CorrectionLimits(
+        arm.max_translation_mm,
+        arm.max_rotation_deg,
+        arm.max_step_translation_mm,
+        arm.max_step_rotation_deg,
+    )
+
+
+class ArmStepPipeline:
+    def __init__(
+        self,
+        settings: Settings,
+        *,
+        robot: ArmRobot,
+        meter: ToolMeter,
+        sensors: Sensors,
+        recorder: Recorder,
+        workers: Workers,
+        errors: ErrorLog,
+        clock_now: Callable[[], float],
+    ) -> None:
+        self._settings = settings
+        self._robot = robot
+        self._meter = meter
+        self._sensors = sensors
+        self._recorder = recorder
+        self._workers = workers
+        self._errors = errors
+        self._now = clock_now
+        self._limits = correction_limits(settings)
+
+    async def run(self, work: ArmRunWork, tick: Tick) -> StepOutcome:
+        parameters = work.parameters
+        run_time_s = tick.scheduled_s - work.start_s
+        record = StepRecord(
+            run_id=work.run_id,
+            step=tick.step,
+            scheduled_s=run_time_s,
+            actual_s=tick.actual_s - work.start_s,
+            lateness_s=tick.actual_s - tick.scheduled_s,
+            deformation_scale=parameters.deformation_scale,
+        )
+        flags: list[str] = []
+        errors: list[str] = []
+        stages: dict[str, float] = {}
+        if record.lateness_s > LATE_FRACTION * parameters.step_s:
+            flags.append("late")
+        pose = work.pose_at(tick.step)
+        record.arm_pose = pose.name
+
+        # 1. the model to the time the move is expected to execute, then the tool error there
+        started = time.perf_counter()
+        model_s = (run_time_s + self._settings.compensation.latency_s) * parameters.time_scale
+        error = await self._workers.step(self._predict, work, model_s, pose)
+        self._record_model(work, record, error)
+        stages["model"] = time.perf_counter() - started
+
+        # 2. the correction, checked before anything reaches the robot
+        started = time.perf_counter()
+        correction, unsafe = self._correction(work, pose, error)
+        self._record_correction(record, correction)
+
+        # 3. the move to the pose's taught goal + the correction
+        device_fault: str | None = None
+        round_trips_s: tuple[float, ...] = ()
+        if unsafe is not None:
+            flags.append("unsafe-target")
+            errors.append(unsafe)
+        else:
+            try:
+                result = await self._robot.move_to_goal(pose.name, correction)
+                work.last_correction[pose.name] = correction
+                round_trips_s = result.round_trips_s
+                if result.pose is None:
+                    flags.append("no-readback")
+                else:
+                    record.pose_x_mm, record.pose_y_mm, record.pose_z_mm = result.pose.position
+            except DeviceError as err:
+                self._errors.note(err)
+                flags.append("robot-error")
+                errors.append(str(err))
+                device_fault = str(err)
+        stages["move"] = time.perf_counter() - started
+
+        # 4. measure the tool in every camera, and the IR regions
+        if device_fault is None and unsafe is None:
+            await self._measure(
+                work, pose=pose, record=record, flags=flags, errors=errors, stages=stages
+            )
+
+        # 5. record, committed before the next step begins
+        record.flags = ",".join(flags)
+        record.error = "; ".join(errors)
+        record.stage_ms_json = json.dumps({k: round(v * 1e3, 3) for k, v in stages.items()})
+        started = time.perf_counter()
+        await self._workers.db(self._recorder.write_step, record)
+        stages["record"] = time.perf_counter() - started
+        return StepOutcome(
+            record, None, self._verdict(unsafe, device_fault, flags, record), round_trips_s, stages
+        )
+
+    def _verdict(
+        self, unsafe: str | None, device_fault: str | None, flags: list[str], record: StepRecord
+    ) -> Verdict:
+        if unsafe is not None:
+            return Verdict("pause", unsafe)
+        if device_fault is not None:
+            return Verdict("fault", device_fault)
+        if self._settings.scheduler.sensor_error_policy == "pause" and (
+            set(flags) & ARM_SENSOR_ERROR_FLAGS
+        ):
+            return Verdict("pause", f"sensor error: {record.error}")
+        return OK
+
+    # --- 1. the model ------------------------------------------------------------------
+
+    @staticmethod
+    def _predict(work: ArmRunWork, model_s: float, pose: MeasuredPose) -> Pose6:
+        """On the step's worker thread: the arm's model is tens of nodes per link and the
+        motor heat integrates the duty cycle's motion over the step."""
+        predictor = work.predictor
+        if model_s > predictor.time_s:
+            predictor.advance_to(model_s)
+        return predictor.tool_error(pose)
+
+    @staticmethod
+    def _record_model(work: ArmRunWork, record: StepRecord, error: Pose6) -> None:
+        record.model_time_s = work.predictor.time_s
+        record.predicted_tx_um, record.predicted_ty_um, record.predicted_tz_um = translation_um(
+            error
+        )
+        record.predicted_rx_urad, record.predicted_ry_urad, record.predicted_rz_urad = (
+            rotation_urad(error)
+        )
+        temperatures = work.predictor.temperatures_c()
+        record.model_temperatures_json = json.dumps(
+            {name: round(float(value), 4) for name, value in temperatures.items()}
+        )
+
+    # --- 2. the correction ---------------------------------------------------------------
+
+    def _correction(
+        self, work: ArmRunWork, pose: MeasuredPose, error: Pose6
+    ) -> tuple[Pose6, str | None]:
+        """The correction of this step (zero when the run is not compensated) and why it is
+        refused, or None."""
+        if work.parameters.compensation == "off":
+            return Pose6.zero(), None
+        try:
+            correction = correction_for(error, work.parameters.deformation_scale)
+            return check_correction(correction, work.previous(pose), self._limits), None
+        except UnsafeTargetError as err:
+            return Pose6.zero(), f"correction of pose {pose.name!r} refused: {err}"
+
+    @staticmethod
+    def _record_correction(record: StepRecord, correction: Pose6) -> None:
+        record.correction_tx_mm, record.correction_ty_mm, record.correction_tz_mm = (
+            float(v) for v in correction.translation_mm
+        )
+        record.correction_rx_urad, record.correction_ry_urad, record.correction_rz_urad = (
+            rotation_urad(correction)
+        )
+        # the two-link columns carry the translation too, so 1-D tools still see the offset
+        record.offset_x_mm = record.correction_tx_mm
+        record.offset_y_mm = record.correction_ty_mm
+        record.offset_z_mm = record.correction_tz_mm
+
+    # --- 4. measure ----------------------------------------------------------------------
+
+    async def _measure(
+        self,
+        work: ArmRunWork,
+        *,
+        pose: MeasuredPose,
+        record: StepRecord,
+        flags: list[str],
+        errors: list[str],
+        stages: dict[str, float],
+    ) -> None:
+        started = time.perf_counter()
+        measurement: ToolMeasurement | None = None
+        try:
+            measurement = await self._meter.measure(pose.tool_pose)
+        except DeviceError as err:
+            self._errors.note(err)
+            flags.append("camera-error")
+            errors.append(str(err))
+        except MeasurementError as err:
+            flags.append(MARKER_ERROR)
+            errors.append(f"markers: {err}")
+        stages["frame"] = time.perf_counter() - started
+        if measurement is not None:
+            record_measurement(work, pose, measurement, record)
+        started = time.perf_counter()
+        await self._infrared(record, flags, errors)
+        stages["ir"] = time.perf_counter() - started
+
+    async def _infrared(self, record: StepRecord, flags: list[str], errors: list[str]) -> None:
+        """The IR regions on the links, recorded (the arm's observer is not part of a run yet:
+        its identification is benchmarks/bench_arm.py's)."""
+        try:
+            reading = await self._sensors.read_ir()
+        except DeviceError as err:
+            self._errors.note(err)
+            flags.append("ir-error")
+            errors.append(str(err))
+            return
+        age_s = self._now() - reading.timestamp_s
+        if age_s > self._settings.ir.max_age_s:
+            flags.append("stale-ir")
+            errors.append(self._sensors.stale("ir", "reading", age_s))
+        record.ir_json = json.dumps(
+            {
+                name: {"mean_c": region.mean_c, "max_c": region.max_c}
+                for name, region in reading.regions.items()
+            }
+        )
+
+
+def record_measurement(
+    work: ArmRunWork, pose: MeasuredPose, measurement: ToolMeasurement, record: StepRecord
+) -> None:
+    """The measured drift of the tool at ``pose``: its measured pose relative to the one
+    measured at the same taught goal before the first move (the first measurement when there
+    was none), in µm and µrad; orientation only from >= 3 markers."""
+    reference = work.reference.setdefault(pose.name, measurement.pose)
+    drift = pose_difference(reference, measurement.pose)
+    record.measured_tx_um, record.measured_ty_um, record.measured_tz_um = translation_um(drift)
+    record.drift_3d_um = norm_um(drift)
+    record.measured_sigma_um = measurement.sigma_mm * 1000.0
+    if measurement.oriented:
+        record.measured_rx_urad, record.measured_ry_urad, record.measured_rz_urad = rotation_urad(
+            drift
+        )
+        record.rotation_error_urad = angle_urad(drift)

@@ -1,0 +1,265 @@
+"""The arm bench's devices (issue 20), opened by drivers/factory.py when ``arm.enabled`` and
+the robot is simulated: the C500C emulator in joint space (drivers/sim/joint_arm.py) on a real
+pty behind the real console driver, the arm bench's truth (drivers/sim/arm_bench.py), one
+simulated camera per bench camera rendering the tool's markers where the truth puts them, and
+an IR reader of the bench's regions on several links.
+
+Time: the truth's arm warms up on the run clock times ``compensation.time_scale`` from the
+moment an arm run starts it (``start_arm_run``: the arm is cold then), heated by the duty cycle
+played in process (drivers/sim/arm_motion.py DutyCycleMotion): on a virtual or accelerated
+clock the hours of a duty cycle pass in seconds, which the emulated robot's moves over the pty
+cannot, so the emulator performs the run's own moves (to each measured pose and its
+correction) and the truth reads the arm's joints from it at every frame. Every camera and the
+IR reader advance the truth to the run clock before they measure.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import threading
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from typing import Self
+
+import numpy as np
+
+from config import Settings
+from daemon.arm.description import Arm, load_arm
+from daemon.arm.duty import DutyCycle, load_duty_cycle
+from daemon.vision.markers import marker_pixels
+from daemon.vision.multiview import CameraModel
+from drivers.base import Frame, IrReading, RegionTemperature
+from drivers.c500c import C500CRobot
+from drivers.clock import Clock
+from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
+from drivers.sim.arm_markers import CameraRig
+from drivers.sim.arm_motion import DutyCycleMotion
+from drivers.sim.emulator import C500CEmulator, EmulatorConfig
+from drivers.sim.joint_arm import DEFAULT_ACCELERATION_DEG_S2, DEFAULT_SPEED_DEG_S, JointArmConfig
+
+#: The emulated arm's joint speed is its real one times this on a virtual clock (a virtual run
+#: jumps from deadline to deadline, a move over the pty takes loop time: keep it short).
+VIRTUAL_SPEED_FACTOR = 1000.0
+#: IR regions of the arm bench: the middle of each of these links (by index; thesis 3.2.2's
+#: regions along the bar, one per link here).
+IR_LINKS = (1, 2)
+
+
+@dataclass(frozen=True, slots=True)
+class ArmBenchDevices:
+    """What drivers/factory.py yields for the arm bench (its Devices, with the arm's extras)."""
+
+    camera: SimArmCamera
+    ir: SimArmIr
+    robot: C500CRobot
+    bench: ArmBenchControl
+    emulator: C500CEmulator
+    cameras: tuple[SimArmCamera, ...]
+    camera_models: tuple[CameraModel, ...]
+
+
+def speed_factor(settings: Settings) -> float:
+    """How much faster than a real arm the emulated one moves, for the bench's clock."""
+    bench = settings.bench
+    if bench.clock == "virtual":
+        return VIRTUAL_SPEED_FACTOR
+    if bench.clock == "accelerated":
+        return bench.time_factor
+    return 1.0
+
+
+def bench_config(settings: Settings, arm: Arm, duty: DutyCycle | None, seed: int) -> ArmBenchConfig:
+    """The arm bench's make-up from the settings: the arm file, a camera station of
+    ``arm.cameras`` cameras at each measured pose of the default duty cycle (else at the zero
+    configuration), the tool's markers, IR regions in the middle of IR_LINKS."""
+    stations: tuple[tuple[float, ...], ...] = ()
+    if duty is not None:
+        stations = tuple(tuple(pose.q_rad) for pose in duty.measured_poses())
+    regions = tuple(
+        (f"{arm.links[i].name}-mid", arm.links[i].name, 0.5) for i in IR_LINKS if i < arm.dof
+    )
+    return ArmBenchConfig(
+        arm=settings.arm.arm_file,
+        seed=seed,
+        stations_q_rad=stations,
+        markers_tool_mm=settings.arm.markers_mm,
+        rig=CameraRig(count=settings.arm.cameras),
+        ir_regions=regions,
+    )
+
+
+class ArmBenchControl:
+    """The arm bench as an arm run drives it: cold at the run's start, then on the run clock
+    (module docstring); the truth is rebuilt cold for each run (same seed: the same arm)."""
+
+    def __init__(
+        self,
+        settings: Settings,
+        clock: Clock,
+        emulator: C500CEmulator,
+        *,
+        config: ArmBenchConfig,
+        arm: Arm,
+        duty: DutyCycle | None,
+    ) -> None:
+        self._clock = clock
+        self._emulator = emulator
+        self._config = config
+        self._arm = arm
+        self._time_scale = settings.compensation.time_scale
+        self._duty = duty
+        self._lock = threading.Lock()
+        self.truth = self._new_truth(duty)
+        self.start_s: float | None = None
+
+    def _new_truth(self, duty: DutyCycle | None) -> ArmBench:
+        """A cold truth following ``duty`` with its payload at the tool (as the controller's
+        model has it: daemon/arm/heat.py JointHeatProfile.from_duty)."""
+        if duty is None:
+            return ArmBench(self._config, None, arm=self._arm)
+        config = dataclasses.replace(self._config, payload_kg=duty.payload_kg)
+        return ArmBench(config, DutyCycleMotion(duty), arm=self._arm)
+
+    @property
+    def cameras(self) -> tuple[CameraModel, ...]:
+        return self.truth.cameras
+
+    def start_run(self, t_s: float, **_: object) -> None:
+        """A two-link run on the arm bench: it has no spot camera to measure it with."""
+        raise RuntimeError("the arm bench runs arm runs only: name a duty cycle")
+
+    def start_arm_run(self, t_s: float, *, duty_cycle: str | None) -> None:
+        """An arm run starts: the arm is cold now and follows ``duty_cycle`` (else the
+        settings' one). Blocking (a second): the session calls it on a worker thread."""
+        duty = self._duty if duty_cycle is None else load_duty_cycle(duty_cycle)
+        truth = self._new_truth(duty)
+        with self._lock:
+            self.truth = truth
+            self.start_s = t_s
+
+    def sync(self, now_s: float) -> ArmBench:
+        """The truth at run clock ``now_s`` (nothing moves before a run starts it). Called from
+        worker threads (the cameras grab together): one at a time."""
+        with self._lock:
+            if self.start_s is not None:
+                self.truth.advance_to((now_s - self.start_s) * self._time_scale)
+            return self.truth
+
+    def joints(self) -> np.ndarray:
+        """Where the emulated arm's joints are now (its own loop's clock)."""
+        now = asyncio.get_running_loop().time()
+        return np.asarray(self._emulator.joint_sample(now).q_rad, dtype=np.float64)
+
+
+class SimArmCamera:
+    """One of the arm bench's cameras: a whole frame of the tool's markers (rendered in a
+    worker thread: a 5 MP frame)."""
+
+    def __init__(self, control: ArmBenchControl, index: int, clock: Clock) -> None:
+        self._control = control
+        self.index = index
+        self._clock = clock
+        self._sequence = 0
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def grab(self) -> Frame:
+        now = self._clock.now()
+        q = self._control.joints()
+        self._sequence += 1
+        image, bit_depth = await asyncio.to_thread(self._render, now, q)
+        return Frame(image, bit_depth, now, self._sequence, "camera")
+
+    def _render(self, now_s: float, q: np.ndarray) -> tuple[np.ndarray, int]:
+        """On a worker thread: the truth at ``now_s``, the markers at joints ``q``."""
+        truth = self._control.sync(now_s)
+        model = truth.cameras[self.index]
+        _, visible = marker_pixels(model, truth.markers_world_mm(q))
+        if not visible.any():
+            # the tool is at another station: a dark frame, not 5 MP of rendered noise
+            width, height = model.image_size_px
+            return np.zeros((height, width), dtype=np.uint16), truth.config.rig.bit_depth
+        frame = truth.render(self.index, q)
+        return np.asarray(frame.image), frame.bit_depth
+
+
+class SimArmIr:
+    """The IR regions of the arm bench (mean of the true nodes there, offset and noise)."""
+
+    def __init__(self, control: ArmBenchControl, clock: Clock) -> None:
+        self._control = control
+        self._clock = clock
+        self._sequence = 0
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def read(self) -> IrReading:
+        now = self._clock.now()
+        values = await asyncio.to_thread(self._read, now)
+        self._sequence += 1
+        regions = {
+            name: RegionTemperature(name, value, value, None) for name, value in values.items()
+        }
+        return IrReading(regions, now, self._sequence)
+
+    def _read(self, now_s: float) -> dict[str, float]:
+        return self._control.sync(now_s).ir_read()
+
+
+@contextlib.asynccontextmanager
+async def open_arm_bench(
+    settings: Settings, clock: Clock, seed: int
+) -> AsyncIterator[ArmBenchDevices]:
+    """The arm bench's devices, opened together and closed together."""
+    arm = load_arm(settings.arm.arm_file)
+    duty = None if settings.arm.duty_cycle is None else load_duty_cycle(settings.arm.duty_cycle)
+    factor = speed_factor(settings)
+    robot_settings = settings.robot
+    async with contextlib.AsyncExitStack() as stack:
+        emulator = C500CEmulator(
+            EmulatorConfig(
+                application=robot_settings.application,
+                seed=seed,
+                noise_um=settings.bench.robot_noise_um,
+                move_ms=robot_settings.emulator_move_ms,
+                baudrate=robot_settings.baudrate,
+                paced=robot_settings.emulator_paced,
+                joint_arm=JointArmConfig(
+                    arm=arm,
+                    speed_deg_s=DEFAULT_SPEED_DEG_S * factor,
+                    acceleration_deg_s2=DEFAULT_ACCELERATION_DEG_S2 * factor * factor,
+                ),
+            )
+        )
+        await stack.enter_async_context(emulator)
+        control = ArmBenchControl(
+            settings,
+            clock,
+            emulator,
+            config=bench_config(settings, arm, duty, seed),
+            arm=arm,
+            duty=duty,
+        )
+        robot = C500CRobot(robot_settings, port=emulator.device_path)
+        cameras = tuple(SimArmCamera(control, k, clock) for k in range(len(control.cameras)))
+        ir = SimArmIr(control, clock)
+        await stack.enter_async_context(robot)
+        yield ArmBenchDevices(
+            camera=cameras[0],
+            ir=ir,
+            robot=robot,
+            bench=control,
+            emulator=emulator,
+            cameras=cameras,
+            camera_models=control.cameras,
+        )

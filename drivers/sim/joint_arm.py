@@ -1,0 +1,251 @@
+"""The emulated C500C's arm in joint space (issue 20): the arm's pose IS its joint vector, world
+moves go through the inverse kinematics of daemon.arm.kinematics, and every motion is a
+synchronised trapezoidal joint-space profile timed by the emulator's clock (the asyncio loop's
+time of the loop serving the emulator). ``sample(t_s)`` gives the positions, speeds and
+accelerations the emulated arm really had at ``t_s``, so the arm bench's truth can compute motor
+heat from the motion the emulator performed (drivers/sim/arm_bench.py, wt-armbench).
+
+No I/O here: drivers/sim/ash.py (the console) uses it when its EmulatorConfig has an arm.
+
+Conventions (ASSUMED where C500C.md is silent):
+- A world location is x, y, z (mm) and z-rot, y-rot, x-rot (degrees): the tool's position
+  and its rotation as intrinsic z-y-x angles (daemon.arm.types.Pose6.zyx_deg's convention).
+- `wshift loc,dx,dy,dz,zr,yr,xr` turns the location by the z-y-x rotation (zr, yr, xr) in the
+  world frame about its own position and moves it by (dx, dy, dz) (C500C.md: "shifts a location
+  in world coordinates").
+- A location the inverse kinematics cannot reach from the current joints within the joint
+  limits (no change of branch: the controller keeps its stance) is catalogue 003.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from daemon.arm.description import Arm, ArmError
+from daemon.arm.kinematics import forward, inverse, jacobian
+from daemon.arm.types import JointSample
+
+FloatArray = NDArray[np.float64]
+Location = tuple[float, float, float, float, float, float]
+
+#: Where the emulated arm starts (degrees): elbow up, wrist bent, away from the singularities of
+#: a 6-axis elbow arm (shoulder, elbow and wrist pitch all non-zero).
+DEFAULT_START_JOINTS_DEG: tuple[float, ...] = (0.0, 30.0, 60.0, 0.0, 30.0, 0.0)
+#: Joint speed and acceleration of every motion (deg/s, deg/s^2): emulator values of the order
+#: of the A465's at a moderate speed setting (its published maximum joint speeds are ~180 deg/s).
+DEFAULT_SPEED_DEG_S = 60.0
+DEFAULT_ACCELERATION_DEG_S2 = 240.0
+#: Encoder pulses per joint degree for the `PULSES` row. ESTIMATED: no public figure for the
+#: A465 was found; the order of a 1,000-line quadrature encoder (4,000 counts per motor turn)
+#: on a 100:1 harmonic drive: 4,000 x 100 / 360 = 1,111 per degree.
+ESTIMATED_A465_PULSES_PER_DEG = 1111.0
+#: Motions kept for ``sample()`` of past times (a run's bench samples between its steps).
+MOTION_HISTORY = 4096
+
+
+class UnreachableError(Exception):
+    """The location is out of reach from the arm's current joints (catalogue 003)."""
+
+
+@dataclass(frozen=True, eq=False)
+class JointArmConfig:
+    """The arm of a joint-space emulator and how it moves."""
+
+    arm: Arm
+    start_joints_deg: tuple[float, ...] = DEFAULT_START_JOINTS_DEG
+    speed_deg_s: float = DEFAULT_SPEED_DEG_S
+    acceleration_deg_s2: float = DEFAULT_ACCELERATION_DEG_S2
+    #: per joint; None: ESTIMATED_A465_PULSES_PER_DEG for every joint
+    pulses_per_deg: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        joints = len(self.arm.joints)
+        if len(self.start_joints_deg) != joints:
+            raise ValueError(f"{joints} start joint angles expected")
+        if not (self.speed_deg_s > 0 and self.acceleration_deg_s2 > 0):
+            raise ValueError("joint speed and acceleration must be positive")
+        if self.pulses_per_deg is not None and len(self.pulses_per_deg) != joints:
+            raise ValueError(f"{joints} pulses-per-degree values expected")
+
+
+@dataclass(frozen=True, eq=False)
+class _Motion:
+    """One synchronised trapezoidal profile: every joint follows ``q0 + (q1 - q0) * s(t)``
+    with s the trapezoid of the joint that moves farthest (the others are slower in
+    proportion, so none exceeds the speed and acceleration limits)."""
+
+    start_s: float
+    q0: FloatArray
+    q1: FloatArray
+    distance_rad: float  # of the joint that moves farthest
+    acceleration: float  # rad/s^2 of that joint
+    ramp_s: float  # time accelerating (= decelerating)
+    duration_s: float
+
+    @property
+    def end_s(self) -> float:
+        return self.start_s + self.duration_s
+
+    def along(self, t_s: float) -> tuple[float, float, float]:
+        """Distance (rad), speed and acceleration of the farthest joint at ``t_s``."""
+        t = t_s - self.start_s
+        a, ramp, total, dist = self.acceleration, self.ramp_s, self.duration_s, self.distance_rad
+        if t <= 0.0 or total == 0.0:
+            return 0.0, 0.0, 0.0
+        if t >= total:
+            return dist, 0.0, 0.0
+        peak = a * ramp
+        if t < ramp:
+            return 0.5 * a * t * t, a * t, a
+        if t <= total - ramp:
+            return 0.5 * a * ramp * ramp + peak * (t - ramp), peak, 0.0
+        left = total - t
+        return dist - 0.5 * a * left * left, a * left, -a
+
+    def sample(self, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        s, v, acc = self.along(t_s)
+        if self.distance_rad == 0.0:
+            zero = np.zeros_like(self.q0)
+            return self.q0.copy(), zero, zero.copy()
+        scale = (self.q1 - self.q0) / self.distance_rad
+        return self.q0 + scale * s, scale * v, scale * acc
+
+    def halted_at(self, t_s: float) -> _Motion:
+        """This motion cut at ``t_s``: the arm stays where it was then (the emulator's halt
+        stops at once; a real halt decelerates)."""
+        q, _, _ = self.sample(t_s)
+        return _Motion(t_s, q, q, 0.0, self.acceleration, 0.0, 0.0)
+
+
+def trapezoid(
+    q0: FloatArray, q1: FloatArray, start_s: float, speed: float, acceleration: float
+) -> _Motion:
+    """The time-optimal synchronised profile from ``q0`` to ``q1`` (rad) under one joint speed
+    and acceleration limit (rad/s, rad/s^2): trapezoidal when the farthest joint reaches the
+    speed limit, triangular otherwise."""
+    distance = float(np.max(np.abs(q1 - q0))) if q0.size else 0.0
+    if distance == 0.0:
+        return _Motion(start_s, q0, q1, 0.0, acceleration, 0.0, 0.0)
+    if distance >= speed * speed / acceleration:
+        ramp = speed / acceleration
+        duration = distance / speed + ramp
+    else:
+        ramp = math.sqrt(distance / acceleration)
+        duration = 2.0 * ramp
+    return _Motion(start_s, q0, q1, distance, acceleration, ramp, duration)
+
+
+def pose_of(location: Sequence[float]) -> FloatArray:
+    """A world location (mm, z-y-x degrees) as a 4x4 transform."""
+    pose = np.eye(4)
+    pose[:3, :3] = Rotation.from_euler("ZYX", list(location[3:6]), degrees=True).as_matrix()
+    pose[:3, 3] = location[:3]
+    return pose
+
+
+def location_of(pose: FloatArray) -> Location:
+    """A 4x4 transform as a world location (mm, z-y-x degrees)."""
+    z, y, x = Rotation.from_matrix(np.array(pose[:3, :3])).as_euler("ZYX", degrees=True)
+    px, py, pz = (float(v) for v in pose[:3, 3])
+    return (px, py, pz, float(z), float(y), float(x))
+
+
+def shift_location(location: Sequence[float], offset: Sequence[float]) -> Location:
+    """`wshift` (module docstring): turned by the offset's z-y-x rotation in the world frame
+    about the location's own position, then moved by its translation."""
+    pose = pose_of(location)
+    turn = Rotation.from_euler("ZYX", list(offset[3:6]), degrees=True).as_matrix()
+    pose[:3, :3] = turn @ pose[:3, :3]
+    pose[:3, 3] += np.asarray(offset[:3], dtype=np.float64)
+    return location_of(pose)
+
+
+@dataclass(eq=False)
+class JointArm:
+    """The emulated arm: its motions and where its joints are at any time of the clock."""
+
+    config: JointArmConfig
+    _history: deque[_Motion] = field(init=False)
+    _commanded_q: FloatArray = field(init=False)
+
+    def __post_init__(self) -> None:
+        q = np.radians(np.asarray(self.config.start_joints_deg, dtype=np.float64))
+        self._history = deque([trapezoid(q, q, 0.0, 1.0, 1.0)], maxlen=MOTION_HISTORY)
+        self._commanded_q = q.copy()
+
+    @property
+    def arm(self) -> Arm:
+        return self.config.arm
+
+    @property
+    def _last(self) -> _Motion:
+        return self._history[-1]
+
+    def joints_at(self, t_s: float) -> FloatArray:
+        return self._motion_at(t_s).sample(t_s)[0]
+
+    def _motion_at(self, t_s: float) -> _Motion:
+        for motion in reversed(self._history):
+            if motion.start_s <= t_s:
+                return motion
+        return self._history[0]
+
+    def sample(self, t_s: float) -> JointSample:
+        """Joint positions (rad), speeds (rad/s) and accelerations (rad/s^2) at ``t_s``."""
+        q, qd, qdd = self._motion_at(t_s).sample(t_s)
+        return JointSample(time_s=t_s, q_rad=q, qd_rad_s=qd, qdd_rad_s2=qdd)
+
+    def location_at(self, t_s: float) -> Location:
+        return location_of(forward(self.arm, self.joints_at(t_s)))
+
+    @property
+    def commanded_joints(self) -> FloatArray:
+        """The joints the latest motion was commanded to (before positioning noise)."""
+        return self._commanded_q.copy()
+
+    def end_s(self) -> float:
+        return self._last.end_s
+
+    def move_to(self, target: Sequence[float], now_s: float, noise_mm: FloatArray) -> float:
+        """Start a motion to the world location ``target`` at ``now_s`` (after the current one
+        has ended: callers `finish` first); the arm arrives off the target by ``noise_mm`` in
+        world x, y, z (repeatability), turned into joint angles through the Jacobian's
+        pseudo-inverse. Returns when the motion ends; UnreachableError when it cannot."""
+        start_s = max(now_s, self._last.end_s)
+        q_now = self.joints_at(start_s)
+        try:
+            q_target = inverse(self.arm, pose_of(target), q_now, restarts=0)
+        except ArmError as err:
+            raise UnreachableError(str(err)) from err
+        q_actual = q_target
+        if np.any(noise_mm):
+            dq = np.linalg.pinv(jacobian(self.arm, q_target)[:3]) @ noise_mm
+            q_actual = np.clip(q_target + dq, self.arm.lower_rad, self.arm.upper_rad)
+        config = self.config
+        motion = trapezoid(
+            q_now,
+            q_actual,
+            start_s,
+            math.radians(config.speed_deg_s),
+            math.radians(config.acceleration_deg_s2),
+        )
+        self._history.append(motion)
+        self._commanded_q = q_target
+        return motion.end_s
+
+    def halt(self, now_s: float) -> None:
+        """Stop the motion in progress where the arm is at ``now_s``."""
+        if now_s < self._last.end_s:
+            self._history.append(self._motion_at(now_s).halted_at(now_s))
+
+    def pulses(self, q_rad: FloatArray) -> tuple[int, ...]:
+        """The `PULSES` row: joint degrees x pulses per degree (ESTIMATED, see the constant)."""
+        per_deg = self.config.pulses_per_deg or (ESTIMATED_A465_PULSES_PER_DEG,) * q_rad.size
+        return tuple(round(math.degrees(q) * p) for q, p in zip(q_rad, per_deg, strict=True))

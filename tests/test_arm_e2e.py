@@ -1,0 +1,124 @@
+"""End to end (issue 20): an arm run on the arm bench through the daemon, the console driver
+and the C500C emulator in joint space over a real pty, with compensation on: the recorded 3-D
+residual must be smaller than the uncompensated drift of a same-seed run.
+
+The devices are the factory's (drivers/factory.py -> drivers/sim/arm_devices.py): the arm
+bench's truth (drivers/sim/arm_bench.py: perturbed kinematics, a finer thermal network, other
+motors, heated by the duty cycle), its cameras rendering the tool's markers, its IR regions.
+Virtual clock; the duty cycle's hours pass in model time (``time_scale``): 12 steps of 10 s of
+run clock at x240 are 8 h of the arm warming up. The controller's model is the presets'
+(daemon/arm/controller.py through the daemon's default arm setup), so the residual is the
+model's error plus the 3-D measurement's noise.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from config import Settings
+from daemon.arm.duty import duty_dir
+from daemon.runs import RunParameters
+from daemon.service import Daemon
+from drivers.clock import make_clock
+from drivers.factory import Devices
+
+STEPS = 12
+PRESET_DUTY = "a465-pick-and-place"
+#: The preset's camera station points the tool straight down (joints 2 + 3 + 5 = 90 deg):
+#: z-y-x angles (0, 90, 0), the console's gimbal lock, where the joint-space emulator's `w2`
+#: fails (its location_of warns, and the suite's warnings are errors); the bench's copy of the
+#: duty cycle measures there with the wrist turned a little.
+CAMERA_JOINTS_DEG = (0.0, 20.0, 70.0, 10.0, 20.0, 10.0)
+WAIT_S = 90.0
+
+RunResult = tuple[dict[str, Any], list[dict[str, Any]], list[str]]
+
+
+def write_duty_cycle(folder: Path) -> Path:
+    """The preset duty cycle with its camera station at CAMERA_JOINTS_DEG (see there)."""
+    text = (duty_dir() / f"{PRESET_DUTY}.toml").read_text(encoding="utf-8")
+    station = re.compile(r'(name = "camera".*?\njoints_deg = )\[[^\]]*\]', re.S)
+    text, count = station.subn(rf"\g<1>{list(CAMERA_JOINTS_DEG)}", text, count=1)
+    assert count == 1, "the preset has no camera station"
+    path = folder / "bench-pick-and-place.toml"
+    path.write_text(text, "utf-8")
+    return path
+
+
+def settings_for(tmp_path: Path) -> Settings:
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    duty = str(write_duty_cycle(tmp_path))
+    return Settings.model_validate(
+        {
+            "bench": {"seed": 7},
+            "storage": {"data_dir": str(tmp_path), "report_at_end": False},
+            "scheduler": {"duration_s": 10.0 * STEPS, "step_s": 10.0},
+            "compensation": {"time_scale": 240.0},
+            "robot": {"driver": "sim", "readback_every": 1},
+            "camera": {"bit_depth": 12, "grab_timeout_s": 30.0},
+            "ir": {"driver": "sim"},
+            "arm": {"enabled": True, "duty_cycle": duty},
+        }
+    )
+
+
+async def one_run(tmp_path: Path, **overrides: Any) -> RunResult:
+    """One run on the arm bench as the factory opens it."""
+    settings = settings_for(tmp_path)
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        devices = daemon.devices
+        assert isinstance(devices, Devices) and devices.arm_bench is not None
+        assert devices.emulator is not None
+        info = await daemon.start_run(RunParameters.from_settings(settings, **overrides))
+        async with asyncio.timeout(WAIT_S):
+            final = await daemon.wait_run()
+        assert daemon.recorder is not None
+        steps = [record.as_dict() for record in daemon.recorder.steps(info["id"])]
+        commands = list(devices.emulator.state.commands)
+    return final, steps, commands
+
+
+async def test_compensated_arm_run_beats_the_uncompensated_drift(tmp_path: Path) -> None:
+    off, off_steps, _ = await one_run(tmp_path / "off", compensation="off")
+    on, on_steps, commands = await one_run(tmp_path / "on", compensation="absolute")
+    for final, steps in ((off, off_steps), (on, on_steps)):
+        assert final["state"] == "finished", final
+        assert len(steps) == STEPS
+        assert all(s["flags"] == "" for s in steps), [s["error"] for s in steps]
+        assert all(s["drift_3d_um"] is not None for s in steps)
+        assert all(s["ir_json"] for s in steps)  # the bench's IR regions on the links
+    # the robot was taught each measured pose and moved to goal + correction through the pty
+    assert any(c.startswith("here g_camera") for c in commands)
+    assert any(c.startswith("here g_place") for c in commands)
+    # two teaching moves, the two references, then one move per step: each `wshift cur,...`
+    shifts = [c for c in commands if c.startswith("wshift cur,")]
+    assert len(shifts) == 2 + 2 + STEPS, commands[-20:]
+    drift = np.array([s["drift_3d_um"] for s in off_steps])
+    residual = np.array([s["drift_3d_um"] for s in on_steps])
+    # uncompensated: the arm drifts by ~100 um in 8 h (seed 7: 101 um)
+    assert drift.max() > 80.0
+    # compensated: what is left is the model's error and the measurement's noise; the preset
+    # model predicts ~1.6 x this truth's drift (seed 7: 167 um), so it over-corrects and
+    # leaves ~66 um, i.e. 2/3 of the drift (README "Running a duty cycle on an arm")
+    # uncompensated: the arm drifts by well over 100 um in 8 h (seed 7: 159 um)
+    assert drift.max() > 100.0
+    # compensated with the presets' model: what is left is the model's error (the truth's
+    # kinematics, network, motors, convection and alpha differ) and the measurement's noise
+    # (seed 7: 33 um at most, 25-30 um at the end, ~5 um 1-sigma): at most a third of the drift
+    assert residual.max() < drift.max() / 3
+    last = STEPS // 3
+    assert np.sqrt(np.mean(residual[-last:] ** 2)) < np.sqrt(np.mean(drift[-last:] ** 2)) / 3
+    corrections = np.array([[s[f"correction_t{a}_mm"] for a in "xyz"] for s in on_steps])
+    np.testing.assert_allclose(
+        corrections * 1000.0,
+        -np.array([[s[f"predicted_t{a}_um"] for a in "xyz"] for s in on_steps]),
+        atol=1e-6,
+    )
+    summary = on["summary"]
+    assert summary["drift_3d_max_um"] == pytest.approx(residual.max())
