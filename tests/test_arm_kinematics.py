@@ -20,12 +20,11 @@ from daemon.arm.kinematics import (
     jacobian,
     joint_axes,
     link_frames,
-    pose_difference,
     tool_error,
     tool_errors,
     warm_arm,
 )
-from daemon.arm.types import LinkThermalState
+from daemon.arm.types import LinkThermalState, pose_difference
 from tests.helpers import REPO_ROOT
 
 ARMS = REPO_ROOT / "config" / "arms"
@@ -108,7 +107,7 @@ def test_dh_table_agrees_with_the_urdf_of_ur_description() -> None:
     rng = np.random.default_rng(1)
     for _ in range(20):
         q = rng.uniform(-math.pi, math.pi, 6)
-        difference = pose_difference(forward(urdf, q), forward(dh, q))
+        difference = pose_difference(forward(dh, q), forward(urdf, q))
         assert difference.translation_norm_mm < 1e-5
         assert difference.rotation_angle_rad < 1e-8
 
@@ -185,7 +184,7 @@ def test_inverse_round_trip(name: str) -> None:
         q = rng.uniform(lower, upper)
         target = forward(arm, q)
         solution = inverse(arm, target, q + rng.normal(0.0, 0.15, arm.dof))
-        error = pose_difference(forward(arm, solution), target)
+        error = pose_difference(target, forward(arm, solution))
         assert error.translation_norm_mm < 1e-6
         assert error.rotation_angle_rad < 1e-9
         assert np.all(solution >= arm.lower_rad) and np.all(solution <= arm.upper_rad)
@@ -373,7 +372,7 @@ def test_inverse_without_restarts_stays_on_the_seeds_branch() -> None:
     q = np.array([0.4, -1.2, 1.0, -0.8, 1.3, 0.3])
     target = forward(arm, q)
     solution = inverse(arm, target, q + 0.05, restarts=0)
-    assert pose_difference(forward(arm, solution), target).translation_norm_mm < 1e-6
+    assert pose_difference(target, forward(arm, solution)).translation_norm_mm < 1e-6
     np.testing.assert_allclose(solution, q, atol=1e-7)  # the seed's branch, not another
 
 

@@ -31,7 +31,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from daemon.arm.description import Arm, ArmError, FloatArray, rot_axis, rot_z
-from daemon.arm.types import LinkThermalState, Pose6
+from daemon.arm.types import LinkThermalState, Pose6, pose_difference
 
 #: ``inverse`` accepts a solution within these of the target pose (far below the A465's
 #: ±50 µm repeatability, thesis 3.2.1, and the µm-scale thermal errors it corrects).
@@ -111,13 +111,6 @@ def jacobian(arm: Arm, q_rad: Sequence[float] | FloatArray) -> FloatArray:
     return out
 
 
-def pose_difference(pose: FloatArray, reference: FloatArray) -> Pose6:
-    """``pose`` relative to ``reference`` in the base frame: translation ``p - p_ref`` and the
-    rotation vector of ``R · R_ref^T``."""
-    rotation = pose[:3, :3] @ reference[:3, :3].T
-    return Pose6(pose[:3, 3] - reference[:3, 3], Rotation.from_matrix(rotation).as_rotvec())
-
-
 def inverse(
     arm: Arm,
     pose: FloatArray,
@@ -168,7 +161,7 @@ def inverse(
             max_nfev=200,
         )
         q = np.clip(result.x, lower, upper)
-        error = pose_difference(forward(arm, q), target)
+        error = pose_difference(target, forward(arm, q))
         return q, error.translation_norm_mm, error.rotation_angle_rad
 
     rng = np.random.default_rng(_IK_RNG_SEED)
@@ -269,7 +262,7 @@ def tool_error(
     translation (mm) and rotation vector (rad). Its negative is the 6-DOF correction."""
     cold = forward(arm, q_rad)
     warm = forward(warm_arm(arm, states, bending=bending), q_rad)
-    return pose_difference(warm, cold)
+    return pose_difference(cold, warm)
 
 
 def tool_errors(
@@ -281,4 +274,4 @@ def tool_errors(
     """``tool_error`` at several configurations (a duty cycle's measured poses) for one thermal
     state: the arm is warmed once."""
     warm = warm_arm(arm, states, bending=bending)
-    return [pose_difference(forward(warm, q), forward(arm, q)) for q in qs_rad]
+    return [pose_difference(forward(arm, q), forward(warm, q)) for q in qs_rad]

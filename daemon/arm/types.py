@@ -101,3 +101,23 @@ class JointSample:
     q_rad: FloatArray
     qd_rad_s: FloatArray
     qdd_rad_s2: FloatArray
+
+
+def pose_difference(reference: object, current: object) -> Pose6:
+    """``current`` relative to ``reference`` (both 4×4 poses in the base frame): the tool
+    point's displacement ``t_cur - t_ref`` (mm) and the rotation vector of ``R_cur R_ref^T``
+    (rad). A tool error is ``pose_difference(cold, warm)``; the correction that cancels it is its
+    negative. The one implementation for kinematics and vision (reference first, always)."""
+    from scipy.spatial.transform import Rotation
+
+    poses = []
+    for pose, what in ((reference, "reference"), (current, "current")):
+        transform = np.asarray(pose, dtype=np.float64)
+        if transform.shape != (4, 4) or not np.all(np.isfinite(transform)):
+            raise ValueError(
+                f"{what} pose: expected a finite 4x4 pose, got shape {transform.shape}"
+            )
+        poses.append(transform)
+    ref, cur = poses
+    rotvec = Rotation.from_matrix(cur[:3, :3] @ ref[:3, :3].T).as_rotvec()
+    return Pose6(cur[:3, 3] - ref[:3, 3], rotvec)

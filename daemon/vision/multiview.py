@@ -37,6 +37,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from daemon.arm.types import Pose6
+from daemon.arm.types import pose_difference as arm_pose_difference
 from daemon.vision.cameras import (
     CameraFileError,
     CameraModel,
@@ -470,17 +471,12 @@ def _pose_parts(pose: ArrayLike) -> tuple[FloatArray, FloatArray]:
 
 
 def pose_difference(reference: ArrayLike, current: ArrayLike) -> Pose6:
-    """``current`` relative to ``reference`` in the world frame: the tool point's displacement
-    ``t_cur - t_ref`` (mm) and the rotation vector of ``R_cur R_ref^T`` (rad). A tool error is
-    ``pose_difference(cold, warm)``; the correction that cancels it is its negative.
-
-    Mind the order: the reference comes first here, while
-    ``daemon.arm.kinematics.pose_difference(pose, reference)`` takes it second (same result
-    for the same roles); pass keywords where both are in reach."""
-    rotation_ref, translation_ref = _pose_parts(reference)
-    rotation_cur, translation_cur = _pose_parts(current)
-    rotvec = Rotation.from_matrix(rotation_cur @ rotation_ref.T).as_rotvec()
-    return Pose6(translation_cur - translation_ref, rotvec)
+    """``current`` relative to ``reference`` in the world frame
+    (:func:`daemon.arm.types.pose_difference`, the one implementation, reference first);
+    a malformed pose is a :class:`MultiviewError`."""
+    _pose_parts(reference)
+    _pose_parts(current)
+    return arm_pose_difference(reference, current)
 
 
 def pose_covariance_difference(
