@@ -92,7 +92,9 @@ include-name = "POST /api/v1/runs"
 # they are not admissible (an unknown heater node, step_s over duration_s, a deformation scale
 # that would carry the spot off the camera chip: thesis 6.3), and 404 when the network they
 # name (a well-formed name) is neither a preset nor a network saved in the data directory.
-checks.positive_data_acceptance.expected-statuses = ["2xx", "401", "403", "404", "409", "422", "429"]
+checks.positive_data_acceptance.expected-statuses = [
+    "2xx", "401", "403", "404", "409", "422", "429"
+]
 """
 
 
