@@ -477,6 +477,33 @@ class ModelSettings(_Section):
     )
 
 
+class ObserverSettings(_Section):
+    """The IR observer of prediction model+ir (daemon.model.observer) and its online
+    adaptation (issue 19, daemon.model.adaptation)."""
+
+    adapt: bool = Field(
+        False,
+        description="model+ir: also estimate the adapt_parameters scale factors online with the "
+        "temperatures (augmented-state EKF), so a wrong model converges without a calibration "
+        "run; an identified network's values and errors are the priors.",
+    )
+    adapt_parameters: tuple[str, ...] = Field(
+        ("heat", "convection"),
+        description="What adaptation estimates: heat (every heat input x one factor), "
+        "heat:NODE (that node's), convection (every node's conductance to ambient).",
+    )
+    prior_sigma: Annotated[float, Field(gt=0, le=3)] = Field(
+        0.5,
+        description="1-sigma of the log of an adapted factor that no identification gave "
+        "(0.5: a factor 1.65 either way).",
+    )
+    random_walk_per_hour: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.05,
+        description="How far an adapted factor's log may wander per hour (1-sigma): the "
+        "factors of a coarse model are effective values, nearly constant.",
+    )
+
+
 class CompensationSettings(_Section):
     """How a predicted deformation becomes a robot move (thesis 6.3, 6.4.4)."""
 
@@ -618,6 +645,7 @@ class Settings(_Section):
     ir: IrSettings = IrSettings()
     robot: RobotSettings = RobotSettings()
     model: ModelSettings = ModelSettings()
+    observer: ObserverSettings = ObserverSettings()
     compensation: CompensationSettings = CompensationSettings()
     scheduler: SchedulerSettings = SchedulerSettings()
     storage: StorageSettings = StorageSettings()

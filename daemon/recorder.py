@@ -86,6 +86,9 @@ class StepRecord:
     stage_ms_json: str | None = None  # {"model": ms, "move": ms, ...} wall time per stage
     deformation_sigma_um: float | None = None  # 1-sigma of the prediction (model+ir)
     innovation_nis: float | None = None  # normalised innovation squared of the IR update
+    # the observer's estimates after the IR update: {"heat": [factor, 1-sigma], ...,
+    # "offset:REGION": [degC, 1-sigma]} (model+ir; the factors with observer.adapt, issue 19)
+    observer_json: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

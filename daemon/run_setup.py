@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from config import Settings
 from config.settings import IrRegion
 from daemon.model import ThermalModel, ThermalNetwork, load_network
+from daemon.model.adaptation import adapted_parameters
 from daemon.model.compensation import (
     CONSOLE_RESOLUTION_MM,
     MAX_INCREMENT_LOSS_FRACTION,
@@ -29,6 +30,7 @@ from daemon.runs import RunParameters, heat_at
 #: Final states of a run whose recorded drift can serve as a reference (it ran, in part or
 #: whole, and its steps are committed).
 REFERENCE_STATES = ("finished", "stopped")
+SECONDS_PER_HOUR = 3600.0
 #: The incremental-mode check follows at most this many steps (a few seconds of model steps).
 MAX_CHECKED_STEPS = 200_000
 
@@ -85,7 +87,24 @@ def build_observer(
     if not tied:
         raise RunParameterError("prediction model+ir needs IR regions tied to model nodes")
     noise = {r.name: ir_settings.noise_c / math.sqrt(r.width * r.height) for r in tied}
-    return IrObserver(model, regions_to_nodes(tied), noise)
+    observer = settings.observer
+    if not observer.adapt:
+        return IrObserver(model, regions_to_nodes(tied), noise)
+    try:
+        adapted = adapted_parameters(
+            model.network,
+            observer.adapt_parameters,
+            {name: (1.0, observer.prior_sigma) for name in observer.adapt_parameters},
+        )
+    except ValueError as err:
+        raise RunParameterError(f"observer.adapt_parameters: {err}") from err
+    return IrObserver(
+        model,
+        regions_to_nodes(tied),
+        noise,
+        adapt=adapted,
+        parameter_random_walk=observer.random_walk_per_hour**2 / SECONDS_PER_HOUR,
+    )
 
 
 def check_admissible_scale(

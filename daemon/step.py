@@ -212,6 +212,8 @@ class StepPipeline:
             switch_s = parameters.heater_off_s * scale
             if model.time_s < switch_s <= target_model_s:
                 await self._advance_to(work, switch_s)
+                if work.observer is not None:  # adaptation scales the heat of each interval
+                    work.observer.predict(model.time_s)
         if target_model_s > model.time_s:
             await self._advance_to(work, target_model_s)
         if work.observer is not None:
@@ -386,6 +388,12 @@ class StepPipeline:
             )
             if innovation is not None:
                 record.innovation_nis = innovation.nis
+            record.observer_json = json.dumps(
+                {
+                    name: [round(value, 6), round(sigma, 6)]
+                    for name, (value, sigma) in work.observer.parameter_estimates().items()
+                }
+            )
             if work.observer.drifting:
                 flags.append("model-drifting")
         record.ir_json = json.dumps(

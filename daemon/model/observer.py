@@ -15,6 +15,11 @@ Deformation is linear in T, ``d = w^T (T - T_ref)``, so its variance is ``w^T P_
 The normalised innovation squared (NIS, chi-squared with one degree per region when the model
 is right) and a moving mean of each region's normalised innovation detect a persistent bias:
 "model drifting: consider identification".
+
+With ``adapt`` (issue 19, :mod:`daemon.model.adaptation`) the state also carries the log of a few
+scale factors of the model (heat input, convection), estimated online with the temperatures by
+an augmented-state extended Kalman filter: a run with a wrong model converges without a
+calibration run, and the factors' 1-sigma comes from the same covariance.
 """
 
 from __future__ import annotations
@@ -28,6 +33,12 @@ from typing import Protocol
 
 import numpy as np
 
+from daemon.model.adaptation import (
+    LOG_BOUNDS,
+    RANDOM_WALK_LOG2_PER_S,
+    AdaptedParameter,
+    ParameterResponse,
+)
 from daemon.model.identify import observation_matrix
 from daemon.model.model import ModelError, NetworkModes, ThermalModel
 from daemon.model.network import FloatArray
@@ -81,6 +92,9 @@ class IrObserver:
     ``inf`` ignores the region); ``offsets_c`` are the known IR offsets (e.g. identified) and
     ``offset_sigma_c`` their prior uncertainty (0: trust them; the offsets are then fixed).
     ``reference_nodes`` must be the model's (ThermalModel's argument; default the network's).
+    ``adapt``: the scale factors estimated online with their priors
+    (:func:`daemon.model.adaptation.adapted_parameters`; empty: none, the plain filter), each
+    a random walk of ``parameter_random_walk`` (log^2 / s).
     The model is corrected in place: after ``update`` its temperatures are the estimate.
     """
 
@@ -97,6 +111,8 @@ class IrObserver:
         bias_window: int = BIAS_WINDOW,
         bias_threshold_sigma: float = BIAS_THRESHOLD_SIGMA,
         reference_nodes: Sequence[str] | None = None,
+        adapt: Sequence[AdaptedParameter] = (),
+        parameter_random_walk: float = RANDOM_WALK_LOG2_PER_S,
     ) -> None:
         network = model.network
         self.model = model
@@ -105,8 +121,15 @@ class IrObserver:
         rows = observation_matrix(network, self.regions)
         count, measured = network.node_count, len(self._region_names)
         self._nodes = count
-        # State: node temperatures, then one offset per region.
-        self._h = np.zeros((measured, count + measured))
+        self._modes = NetworkModes(network)
+        self._response = ParameterResponse(network, self._modes, adapt) if adapt else None
+        self._theta = np.array([p.prior_log for p in adapt], dtype=np.float64)
+        if not (math.isfinite(parameter_random_walk) and parameter_random_walk >= 0):
+            raise ModelError("the parameters' random walk must be finite and >= 0")
+        self._theta_walk = float(parameter_random_walk)
+        size = count + measured + len(adapt)
+        # State: node temperatures, one offset per region, then the adapted log scales.
+        self._h = np.zeros((measured, size))
         for k, name in enumerate(self._region_names):
             self._h[k, :count] = rows[name]
             self._h[k, count + k] = 1.0
@@ -120,10 +143,13 @@ class IrObserver:
         if not np.all(np.isfinite(q)) or np.any(q < 0):
             raise ModelError("process noise must be finite and >= 0")
         self._q = q.copy()
-        self._p = np.zeros((count + measured, count + measured))
+        self._p = np.zeros((size, size))
         self._p[:count, :count] = np.eye(count) * initial_sigma_c**2
-        self._p[count:, count:] = np.eye(measured) * offset_sigma_c**2
-        self._modes = NetworkModes(network)
+        offsets = slice(count, count + measured)
+        self._p[offsets, offsets] = np.eye(measured) * offset_sigma_c**2
+        tail = count + measured
+        self._p[tail:, tail:] = np.diag([p.prior_log_sigma**2 for p in adapt])
+        self._start_c = model.temperatures_c  # the mean at the covariance's time
         self._covariance_time_s = model.time_s
         self._transitions: dict[float, FloatArray] = {}
         # The model's own deformation weights (its reference nodes): d = w^T (T - T_ref).
@@ -152,6 +178,29 @@ class IrObserver:
         """Covariance of the node temperatures (degC^2)."""
         covariance: FloatArray = self._p[: self._nodes, : self._nodes].copy()
         return covariance
+
+    @property
+    def adapted(self) -> tuple[AdaptedParameter, ...]:
+        return () if self._response is None else self._response.parameters
+
+    def parameter_estimates(self) -> dict[str, tuple[float, float]]:
+        """Each adapted factor's estimate and 1-sigma (``s = e^theta``, sigma ``s sigma_theta``
+        to first order), and each IR offset's (degC) and 1-sigma."""
+        estimates: dict[str, tuple[float, float]] = {}
+        tail = self._nodes + len(self._region_names)
+        for k, parameter in enumerate(self.adapted):
+            scale = math.exp(float(self._theta[k]))
+            estimates[parameter.name] = (
+                scale,
+                scale * math.sqrt(max(self._p[tail + k, tail + k], 0)),
+            )
+        for k, name in enumerate(self._region_names):
+            index = self._nodes + k
+            estimates[f"offset:{name}"] = (
+                float(self._offsets[k]),
+                math.sqrt(max(float(self._p[index, index]), 0.0)),
+            )
+        return estimates
 
     @property
     def offsets_c(self) -> dict[str, float]:
@@ -195,10 +244,35 @@ class IrObserver:
             return
         n = self._nodes
         transition = self._transition(tau)
+        if self._response is not None:
+            self._predict_adapted(tau, transition)
+            self._start_c = self.model.temperatures_c
+            return
         p = self._p
         p[:n, :n] = transition @ p[:n, :n] @ transition.T + np.diag(self._q * tau)
         p[:n, n:] = transition @ p[:n, n:]
         p[n:, :n] = p[:n, n:].T
+        self._start_c = self.model.temperatures_c
+
+    def _predict_adapted(self, tau: float, transition: FloatArray) -> None:
+        """The adapted step (module docstring of daemon.model.adaptation): the model's nominal
+        step, corrected by ``Gamma db``; the covariance by the EKF's Jacobian."""
+        assert self._response is not None
+        n, tail = self._nodes, self._nodes + len(self._region_names)
+        model = self.model
+        nominal = model.temperatures_c
+        gain = self._response.gain(tau)
+        drive, columns, d_temperature = self._response.drive(
+            self._theta, model.heat_w, model.ambient_c, 0.5 * (self._start_c + nominal)
+        )
+        model.set_temperatures(nominal + gain @ drive)
+        jacobian = np.eye(self._p.shape[0])
+        jacobian[:n, :n] = transition + gain * d_temperature  # Gamma diag(d db / dT)
+        jacobian[:n, tail:] = gain @ columns
+        noise = np.zeros(self._p.shape[0])
+        noise[:n] = self._q * tau
+        noise[tail:] = self._theta_walk * tau
+        self._p = jacobian @ self._p @ jacobian.T + np.diag(noise)
 
     def update(self, measurements_c: Mapping[str, float]) -> Innovation | None:
         """Fuse one IR reading (region -> mean degC; unknown regions, NaN values and regions of
@@ -214,7 +288,7 @@ class IrObserver:
             return None
         n = self._nodes
         h = self._h[used]
-        state = np.concatenate([self.model.temperatures_c, self._offsets])
+        state = np.concatenate([self.model.temperatures_c, self._offsets, self._theta])
         z = np.array([measurements_c[self._region_names[k]] for k in used])
         innovation = z - h @ state
         s = h @ self._p @ h.T + np.diag(self._noise_c2[used])
@@ -226,8 +300,13 @@ class IrObserver:
             identity_minus @ self._p @ identity_minus.T
             + gain @ np.diag(self._noise_c2[used]) @ gain.T
         )
+        measured = len(self._region_names)
         self.model.set_temperatures(state[:n])
-        self._offsets = state[n:]
+        self._start_c = state[:n].copy()
+        self._offsets = state[n : n + measured]
+        # a factor's log stays within identification's bounds (1/10 .. 10): a wild first
+        # innovation must not send the model somewhere it cannot come back from
+        self._theta = np.clip(state[n + measured :], *LOG_BOUNDS)
         nis = float(innovation @ np.linalg.solve(s, innovation))
         variances = np.diag(s)
         names = [self._region_names[k] for k in used]
