@@ -11,9 +11,9 @@ predicting the deformation, compensation absolute:
 * ``model+ir``: the preset corrected from the IR regions (Kalman filter, issue 9);
 * ``model+ir adapt``: the same with ``observer.adapt = true``: heat and convection factors
   estimated online with the temperatures (augmented-state EKF, daemon.model.adaptation);
-* ``identified``: ``identify`` (as ``thermocomp identify`` does) from a SEPARATE uncompensated
-  calibration run (deformation scale 20, another seed), then a run with the identified
-  network and its identified heat, prediction ``model``;
+* ``identified``: ``thermocomp identify RUN --out FILE`` on a SEPARATE uncompensated
+  calibration run (deformation scale 20, another seed), then a run with ``--network FILE``
+  alone (the file carries the identified heat and IR offsets), prediction ``model``;
 * ``identified+ir``: the same with ``model+ir``.
 
 Residual RMS / max / mean over the whole run and over its second half (the target of issue 19:
@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import io
 import json
 import math
 import os
@@ -134,11 +136,10 @@ def run_way(
 def calibrate(
     truth: dict[str, Any], duration_s: float, step_s: float, network_file: Path
 ) -> dict[str, Any]:
-    """The uncompensated calibration run, identified; the network written to
-    ``network_file``. Returns the run parameters of the identified ways."""
-    from daemon.identify_cli import load_run
-    from daemon.model import load_network
-    from daemon.model.identify import identify, network_toml
+    """The uncompensated calibration run, then ``thermocomp identify RUN --data-dir DIR --out
+    FILE`` (the user's path, issue 19): the identified network file carries its heat and IR
+    offsets. Returns the run parameters of the identified ways and what identify reported."""
+    from api.cli import main as thermocomp
 
     with tempfile.TemporaryDirectory() as folder:
         settings = settings_for(
@@ -151,14 +152,20 @@ def calibrate(
         )
         parameters = {"compensation": "off", "deformation_scale": CALIBRATION_SCALE}
         steps = asyncio.run(_one_run(settings, parameters))
-        run_id = steps[0]["run_id"]
-        calibration = load_run(str(run_id), settings, None)
-    result = identify(calibration.data, load_network(PRESET), calibration.regions, None)
-    network_file.write_text(network_toml(result.network, header="bench_adaptation"))
+        words = ["identify", str(steps[0]["run_id"]), "--data-dir", folder]
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed):
+            status = thermocomp([*words, "--out", str(network_file), "--json"])
+    if status != 0:
+        raise RuntimeError(f"thermocomp identify failed ({status}): {printed.getvalue()}")
+    report = json.loads(printed.getvalue())
     return {
         "network": str(network_file),
-        "heat_w": dict(result.heat_w),
-        "fitted": {p.name: [p.value, p.standard_error, p.identifiable] for p in result.parameters},
+        "heat_w": report.get("heat_w"),
+        "fitted": {
+            p["name"]: [p["value"], p["standard_error"], p["identifiable"]]
+            for p in report["parameters"]
+        },
     }
 
 
@@ -183,7 +190,7 @@ def compare(duration_s: float, step_s: float, jobs: int, folder: Path) -> dict[s
                     results[name][way] = outcome
                     continue
                 identified[name] = outcome
-                parameters = {"network": outcome["network"], "heat_w": outcome["heat_w"]}
+                parameters = {"network": outcome["network"]}  # the file carries its heat
                 for later in WAYS[3:]:
                     submitted = pool.submit(
                         run_way, SCENARIOS[name], later, duration_s, step_s, parameters

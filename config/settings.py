@@ -460,9 +460,15 @@ class ModelSettings(_Section):
         22.0, description="Ambient temperature (degC)."
     )
     heat_w: dict[str, Annotated[float, Field(ge=0, le=MAX_HEAT_W)]] = Field(
-        default_factory=lambda: {"2": 0.5, "9": 0.5},
-        description="Heat input per node (1-based thesis number or name) in W; a key naming "
-        "no node of the run's network refuses the run at its start.",
+        default_factory=dict,
+        description="Heat input per node NAME (W) for a network that carries no heat of its "
+        "own; a key naming no node of the run's network refuses the run. Precedence: the "
+        "run's heat_w (--heat) > the network file's heat > this > heater_power_w.",
+    )
+    heater_power_w: Annotated[float, Field(ge=0, le=MAX_HEAT_W)] = Field(
+        0.5,
+        description="The controller's belief of each heater pad's power (W): the heat of "
+        "every heater node of a network with no heat of its own when heat_w is empty.",
     )
     reference_nodes: tuple[str, str] | None = Field(
         None, description="Deformation between these nodes; none: the network's default."

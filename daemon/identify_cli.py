@@ -10,6 +10,7 @@ recorded parameters and settings; or from an exported CSV, with the heat and reg
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -18,18 +19,20 @@ import sys
 from collections.abc import Mapping, Sequence
 from contextlib import closing
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument, non_negative_float
 from daemon.analysis import cli as analysis_cli
-from daemon.analysis.steps import steps_from_rows
-from daemon.model import NetworkError, load_network
+from daemon.analysis.steps import RunSteps, steps_from_rows
+from daemon.model import NetworkError, ThermalNetwork, available_presets, load_network
 from daemon.model.identify import (
     IdentificationError,
     IdentificationResult,
     RunData,
+    calibration_of,
     heat_schedule,
     identify,
     network_toml,
@@ -37,8 +40,10 @@ from daemon.model.identify import (
     validate,
 )
 from daemon.model.observer import regions_to_nodes
+from daemon.model.presets import check_network_name, saved_networks_dir
 from daemon.recorder import DATABASE_NAME
 from daemon.reports import ReportError, read_run
+from daemon.run_setup import RunParameterError, resolve_heat
 
 logger = logging.getLogger(__name__)
 
@@ -52,9 +57,26 @@ class RunInputError(Exception):
 
 @dataclass(frozen=True)
 class LoadedRun:
-    data: RunData
+    steps: RunSteps
+    heat_w: dict[str, float] | None  # the heat the run used (recorded), None: not known
+    heater_off_s: float | None
+    ambient_c: float
     regions: dict[str, tuple[str, ...]]
+    name: str
+    settings: Settings  # the run's own (recorded) settings, else --config's
     network: str | None = None  # the network the run's controller used, if recorded
+
+    def data(self, network: ThermalNetwork) -> RunData:
+        """The run as identification sees it, against ``network``: a run that recorded no
+        heat (an exported CSV) gets the heat a run on ``network`` would (resolve_heat)."""
+        heat = self.heat_w
+        if heat is None:
+            try:
+                heat, _ = resolve_heat(self.settings, None, network)
+            except RunParameterError as err:
+                raise RunInputError(str(err)) from err
+        schedule = heat_schedule(heat, self.heater_off_s)
+        return run_data_from_steps(self.steps, schedule, ambient_c=self.ambient_c, name=self.name)
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -83,6 +105,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "alpha, offset, offset:REGION (default: convection, heat per heater, alpha, offset)",
     )
     parser.add_argument("--out", type=Path, help="write the identified network here (TOML)")
+    parser.add_argument(
+        "--save",
+        metavar="NAME",
+        help="save the identified network in the data directory's networks/ folder as NAME: "
+        "`thermocomp run --network NAME` and POST /runs use it by name, GET /networks lists it",
+    )
     parser.add_argument(
         "--validate", metavar="RUN_ID|FILE", help="a second run to check the fit on"
     )
@@ -135,14 +163,14 @@ def _regions(
 def load_run(target: str, settings: Settings, heater_off_s: float | None) -> LoadedRun:
     """A run from the database (by number) or an exported CSV file."""
     path = Path(target)
+    heat: dict[str, float] | None
     if path.is_file():
         try:
             steps = steps_from_rows(analysis_cli.read_table(path))
         except analysis_cli.InputError as err:
             raise RunInputError(str(err)) from err
-        heat = dict(settings.model.heat_w)
+        heat, recorded = None, settings
         off = heater_off_s if heater_off_s is not None else settings.bench.heater_off_s
-        ambient, configured = settings.model.ambient_c, regions_to_nodes(settings.ir.regions)
         name, network = path.name, None
     elif target.isdigit():
         data_dir = settings.storage.data_dir
@@ -152,16 +180,16 @@ def load_run(target: str, settings: Settings, heater_off_s: float | None) -> Loa
             raise RunInputError(str(err)) from err
         parameters, config = _recorded_parameters(data_dir, int(target))
         recorded = Settings.model_validate(config) if config else settings
-        heat = dict(parameters.get("heat_w") or recorded.model.heat_w)
+        recorded_heat = parameters.get("heat_w")
+        heat = None if recorded_heat is None else dict(recorded_heat)
         off = parameters.get("heater_off_s") if heater_off_s is None else heater_off_s
-        ambient, configured = recorded.model.ambient_c, regions_to_nodes(recorded.ir.regions)
         name, network = f"run {target}", parameters.get("network")
     else:
         raise RunInputError(f"{target!r} is neither a file nor a run number")
     if steps.n_steps == 0:
         raise RunInputError(f"{name} has no steps")
-    data = run_data_from_steps(steps, heat_schedule(heat, off), ambient_c=ambient, name=name)
-    return LoadedRun(data, _regions(configured, list(steps.ir_mean_c)), network)
+    regions = _regions(regions_to_nodes(recorded.ir.regions), list(steps.ir_mean_c))
+    return LoadedRun(steps, heat, off, recorded.model.ambient_c, regions, name, recorded, network)
 
 
 def format_result(result: IdentificationResult, out: Path | None) -> str:
@@ -185,9 +213,16 @@ def format_result(result: IdentificationResult, out: Path | None) -> str:
             f"deformation RMS {_number(check.deformation_rms_um)} um"
         )
     lines.append(
-        "identified heat input (set model.heat_w to use it): "
+        "identified heat input (carried by the network file; a run's --heat overrides it): "
         + ", ".join(f"{node} = {watts:.4g} W" for node, watts in result.heat_w.items())
     )
+    if result.offsets_c:
+        lines.append(
+            "identified IR offsets (the observer starts from them): "
+            + ", ".join(
+                f"{region} = {value:+.3f} degC" for region, value in result.offsets_c.items()
+            )
+        )
     lines += [f"warning: {warning}" for warning in result.warnings]
     if not result.success:
         lines.append(f"warning: the optimiser stopped early: {result.message}")
@@ -206,24 +241,41 @@ def run_identify(args: argparse.Namespace) -> int:
         settings = settings.model_copy(
             update={"storage": settings.storage.model_copy(update={"data_dir": args.data_dir})}
         )
+    saved = None
     try:
+        if args.save is not None:
+            saved = _saved_path(args.save, settings.storage.data_dir)
         run = load_run(args.target, settings, args.heater_off)
     except (RunInputError, OSError, ValueError) as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
-        return EXIT_FAILURE
+        return EXIT_FAILURE if isinstance(err, RunInputError | OSError) else EXIT_USAGE
     try:
-        network = load_network(args.network or run.network or settings.model.network)
+        base = args.network or run.network or settings.model.network
+        network = load_network(base, settings.storage.data_dir)
     except NetworkError as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_USAGE
     try:
-        result = identify(run.data, network, run.regions, args.params)
+        result = identify(run.data(network), network, run.regions, args.params)
+        validation_runs: list[str] = []
         if args.validate:
             other = load_run(args.validate, settings, args.heater_off)
-            result = validate(result, other.data, network, other.regions)
-        if args.out is not None:
-            header = f"identified by thermocomp identify {args.target} from {network.name}"
-            args.out.write_text(network_toml(result.network, header=header), encoding="utf-8")
+            result = validate(result, other.data(network), network, other.regions)
+            validation_runs.append(other.name)
+        calibration = calibration_of(
+            result,
+            network.name,
+            [run.name],
+            datetime.now(UTC).isoformat(timespec="seconds"),
+            validation_runs,
+        )
+        identified = dataclasses.replace(result.network, calibration=calibration)
+        header = f"identified by thermocomp identify {args.target} from {network.name}"
+        text = network_toml(identified, header=header)
+        written = [path for path in (args.out, saved) if path is not None]
+        for path in written:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text, encoding="utf-8")
     except (IdentificationError, NetworkError) as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -233,10 +285,27 @@ def run_identify(args: argparse.Namespace) -> int:
     if args.json:
         document = result.to_dict()
         document["network_file"] = None if args.out is None else str(args.out)
+        document["saved_network"] = args.save
         print(json.dumps(_finite(document), indent=2, allow_nan=False))
     else:
         print(format_result(result, args.out))
+        if saved is not None:
+            print(
+                f"saved as network {args.save!r} ({saved}): `thermocomp run --network "
+                f'{args.save}`, or "network": "{args.save}" in POST /runs'
+            )
     return EXIT_OK
+
+
+def _saved_path(name: str, data_dir: Path) -> Path:
+    """Where ``--save NAME`` writes: a valid name, no preset's, not yet taken (ValueError)."""
+    check_network_name(name)
+    if name in available_presets():
+        raise ValueError(f"--save {name!r}: a preset has that name; choose another")
+    path = saved_networks_dir(data_dir) / f"{name}.toml"
+    if path.exists():
+        raise ValueError(f"--save {name!r}: {path} exists; choose another name")
+    return path
 
 
 def _finite(value: object) -> object:

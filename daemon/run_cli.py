@@ -63,7 +63,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     parser.add_argument("--scale", type=positive_float, help="deformation scale (thesis 6.3)")
     parser.add_argument("--time-scale", type=positive_float, help="model s per run s (thesis 6.3)")
-    parser.add_argument("--network", help="network preset name or TOML file")
+    parser.add_argument(
+        "--network",
+        help="network: a preset name, an identified network saved in the data directory "
+        "(identify --save NAME), or a TOML file",
+    )
     parser.add_argument(
         "--prediction",
         choices=["model", "model+ir"],
@@ -75,8 +79,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         nargs="+",
         action="extend",
         metavar="NODE=WATTS",
-        help="heat input per model node while the heaters are on, replacing model.heat_w "
-        "(several after one --heat, or --heat repeated); a node the network lacks is refused",
+        help="heat input per model node NAME while the heaters are on, overriding the "
+        "network's own heat and model.heat_w (several after one --heat, or --heat repeated); "
+        "a name the network lacks is refused",
     )
     parser.add_argument(
         "--reference-run",
@@ -115,7 +120,11 @@ def _heat_map(pairs: list[tuple[str, float]]) -> dict[str, float]:
 def run_command(args: argparse.Namespace) -> int:
     try:
         settings = _settings(args)
-        parameters = RunParameters.from_settings(settings, reference_run=args.reference_run)
+        parameters = RunParameters.from_settings(
+            settings,
+            reference_run=args.reference_run,
+            heat_w=_heat_map(args.heat) if args.heat else None,
+        )
     except ValidationError as err:
         print(f"thermocomp run: invalid run parameters:\n{_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
@@ -145,7 +154,6 @@ def _settings(args: argparse.Namespace) -> Settings:
         "model": {
             "network": args.network,
             "prediction": args.prediction,
-            "heat_w": _heat_map(args.heat) if args.heat else None,
         },
         "storage": {"data_dir": args.data_dir},
     }

@@ -3,8 +3,10 @@ admissible-scale check (thesis 6.3) and the network snapshot recorded with the r
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -13,7 +15,8 @@ from numpy.typing import NDArray
 from config import Settings
 from config.settings import IrRegion
 from daemon.model import ThermalModel, ThermalNetwork, load_network
-from daemon.model.adaptation import adapted_parameters
+from daemon.model.adaptation import adaptation_priors, adapted_parameters
+from daemon.model.calibration import Calibration
 from daemon.model.compensation import (
     CONSOLE_RESOLUTION_MM,
     MAX_INCREMENT_LOSS_FRACTION,
@@ -23,9 +26,11 @@ from daemon.model.compensation import (
     smallest_working_scale,
 )
 from daemon.model.model import EXACT_NODE_LIMIT
-from daemon.model.observer import IrObserver, regions_to_nodes
+from daemon.model.observer import OFFSET_SIGMA_C, IrObserver, regions_to_nodes
 from daemon.recorder import Recorder
 from daemon.runs import RunParameters, heat_at
+
+logger = logging.getLogger(__name__)
 
 #: Final states of a run whose recorded drift can serve as a reference (it ran, in part or
 #: whole, and its steps are committed).
@@ -39,16 +44,33 @@ class RunParameterError(ValueError):
     """The run's parameters are not admissible (e.g. scale pushes the spot off the chip)."""
 
 
-def build_model(
-    settings: Settings, parameters: RunParameters
-) -> tuple[ThermalNetwork, ThermalModel]:
-    """The controller's thermal model of the run's network (thesis 5.4), stepped at the run's
-    step in model time."""
+@dataclass(frozen=True)
+class BuiltModel:
+    """What :func:`build_model` prepares: the parameters with the heat resolved, the network,
+    the controller's model, and where the heat came from (recorded with the run)."""
+
+    parameters: RunParameters
+    network: ThermalNetwork
+    model: ThermalModel
+    heat_source: str
+
+
+def run_network(settings: Settings, name_or_path: str) -> ThermalNetwork:
+    """The run's network: a preset, an identified network saved in the data directory (by
+    name), or (command line) a file."""
     try:
-        network = load_network(parameters.network)
+        return load_network(name_or_path, settings.storage.data_dir)
     except (ValueError, OSError) as err:
-        raise RunParameterError(f"network {parameters.network!r}: {err}") from err
-    check_heat_nodes(parameters.heat_w, network)
+        raise RunParameterError(f"network {name_or_path!r}: {err}") from err
+
+
+def build_model(settings: Settings, parameters: RunParameters) -> BuiltModel:
+    """The controller's thermal model of the run's network (thesis 5.4), stepped at the run's
+    step in model time, and the run's parameters with its heat resolved (:func:`resolve_heat`)."""
+    network = run_network(settings, parameters.network)
+    heat, source = resolve_heat(settings, parameters.heat_w, network)
+    if heat != parameters.heat_w:
+        parameters = parameters.model_copy(update={"heat_w": heat})
     model_settings = settings.model
     try:
         model = ThermalModel(
@@ -62,18 +84,45 @@ def build_model(
         )
     except ValueError as err:
         raise RunParameterError(f"network {parameters.network!r}: {err}") from err
-    return network, model
+    return BuiltModel(parameters, network, model, source)
 
 
-def check_heat_nodes(heat_w: Mapping[str, float], network: ThermalNetwork) -> None:
-    """Every heat input must name a node of the run's network (by name, or by its 1-based
-    number): a key naming no node would otherwise fail the run at its first step, after the
-    goal was taught (issue 19)."""
-    for node in heat_w:
-        try:
-            network.node_index(node)
-        except ValueError as err:
-            raise RunParameterError(f"heat_w: {err}") from err
+def resolve_heat(
+    settings: Settings, override: Mapping[str, float] | None, network: ThermalNetwork
+) -> tuple[dict[str, float], str]:
+    """The heat a run's model gets while the heaters are on, by node name, and its source
+    (issue 19). Precedence: the run's explicit ``heat_w`` (``--heat``, ``"heat_w"`` of
+    ``POST /runs``) > the network file's own heat (an identified network's) > the setting
+    ``model.heat_w`` > ``model.heater_power_w`` on each of the network's heater nodes. A key
+    naming no node of the network refuses the run (one line naming the key and the nodes)."""
+    model_settings = settings.model
+    own = network.own_heat_w()
+    if override is not None:
+        heat, source = dict(override), "the run's heat_w"
+    elif own:
+        heat, source = own, f"network {network.name!r}"
+        if model_settings.heat_w:
+            logger.warning(
+                "model.heat_w (%s) not used: network %r carries its own heat (%s); give the "
+                "run's heat_w (--heat) to override it",
+                _listed(model_settings.heat_w),
+                network.name,
+                _listed(own),
+            )
+    elif model_settings.heat_w:
+        heat, source = dict(model_settings.heat_w), "setting model.heat_w"
+    else:
+        heat = dict.fromkeys(network.heater_nodes, model_settings.heater_power_w)
+        source = "setting model.heater_power_w on the heater nodes"
+    try:
+        network.heat_by_name(heat)
+    except ValueError as err:
+        raise RunParameterError(f"{err}; heat from {source}") from err
+    return heat, source
+
+
+def _listed(heat: Mapping[str, float]) -> str:
+    return ", ".join(f"{node} = {watts:g} W" for node, watts in heat.items()) or "none"
 
 
 def build_observer(
@@ -87,15 +136,30 @@ def build_observer(
     if not tied:
         raise RunParameterError("prediction model+ir needs IR regions tied to model nodes")
     noise = {r.name: ir_settings.noise_c / math.sqrt(r.width * r.height) for r in tied}
+    calibration = model.network.calibration
+    offsets: dict[str, Any] = {}
+    if calibration is not None and calibration.ir_offsets_c:
+        # An identified network: the filter starts from the identified IR offsets, with their
+        # identified uncertainty as prior (issue 19), instead of 0 +- the FLIR's 2 degC.
+        offsets = {
+            "offsets_c": calibration.ir_offsets_c,
+            "offset_sigma_c": offset_prior_sigma_c(calibration, [r.name for r in tied]),
+        }
     observer = settings.observer
     if not observer.adapt:
-        return IrObserver(model, regions_to_nodes(tied), noise)
-    try:
-        adapted = adapted_parameters(
-            model.network,
-            observer.adapt_parameters,
-            {name: (1.0, observer.prior_sigma) for name in observer.adapt_parameters},
+        return IrObserver(model, regions_to_nodes(tied), noise, **offsets)
+    # Online adaptation (issue 19): an identified network's factors are the priors, and the
+    # ones its identification could not identify stay as the file has them.
+    names, priors = adaptation_priors(calibration, observer.adapt_parameters, observer.prior_sigma)
+    skipped = [name for name in observer.adapt_parameters if name not in names]
+    if skipped:
+        logger.info(
+            "observer.adapt: %s not identifiable in network %r, not adapted",
+            ", ".join(skipped),
+            model.network.name,
         )
+    try:
+        adapted = adapted_parameters(model.network, names, priors)
     except ValueError as err:
         raise RunParameterError(f"observer.adapt_parameters: {err}") from err
     return IrObserver(
@@ -104,7 +168,17 @@ def build_observer(
         noise,
         adapt=adapted,
         parameter_random_walk=observer.random_walk_per_hour**2 / SECONDS_PER_HOUR,
+        **offsets,
     )
+
+
+def offset_prior_sigma_c(calibration: Calibration, regions: Sequence[str]) -> float:
+    """The observer's prior 1-sigma of the IR offsets (one value for every region): the
+    largest identified one over ``regions``; the FLIR's +-2 degC (OFFSET_SIGMA_C) when a region
+    was not identified or its offset was not identifiable (an unbounded error)."""
+    sigmas = [calibration.ir_offset_sigma_c.get(region, math.inf) for region in regions]
+    finite = all(math.isfinite(sigma) for sigma in sigmas)
+    return max(sigmas) if sigmas and finite else OFFSET_SIGMA_C
 
 
 def check_admissible_scale(
@@ -245,9 +319,21 @@ def unit_vector(vector: tuple[float, float, float]) -> NDArray[np.float64]:
     return array / norm
 
 
-def network_snapshot(network: ThermalNetwork) -> dict[str, Any]:
-    """The network as recorded with the run (the model it was compensated with)."""
+def network_snapshot(network: ThermalNetwork, heat_source: str | None = None) -> dict[str, Any]:
+    """The network as recorded with the run (the model it was compensated with), where its
+    heat came from, and what identified it (if anything did)."""
+    calibration = network.calibration
     return {
+        "heat_source": heat_source,
+        "identification": None
+        if calibration is None
+        else {
+            "base_network": calibration.base_network,
+            "source_runs": list(calibration.source_runs),
+            "identified_at": calibration.identified_at,
+            "identifiable": calibration.identifiable,
+            "ir_offsets_c": dict(calibration.ir_offsets_c),
+        },
         "name": network.name,
         "node_names": list(network.node_names),
         "positions_mm": network.positions_mm.tolist(),

@@ -139,9 +139,11 @@ class RunParameters(BaseModel):
     warmup_wait_s: Annotated[float, Field(ge=0, le=MAX_WARMUP_WAIT_S, allow_inf_nan=False)] = Field(
         0.0, description="Camera warm-up wait before the first step (s), at most a day."
     )
-    heat_w: Annotated[dict[str, HeatW], Field(max_length=MAX_HEAT_INPUTS)] = Field(
-        default_factory=lambda: {"2": 0.5, "9": 0.5},
-        description="Heater power per model node while the heaters are on (W, 0 to 1000).",
+    heat_w: Annotated[dict[str, HeatW], Field(max_length=MAX_HEAT_INPUTS)] | None = Field(
+        None,
+        description="Heater power per model node NAME while the heaters are on (W, 0 to 1000), "
+        "overriding the network's own heat; none: the network's heat, else model.heat_w, else "
+        "model.heater_power_w on each heater node. A recorded run holds the heat it used.",
     )
     heater_off_s: Annotated[float, Field(ge=0, le=MAX_DURATION_S, allow_inf_nan=False)] | None = (
         Field(None, description="Run time at which the heaters switch off; none: stay on.")
@@ -185,7 +187,6 @@ class RunParameters(BaseModel):
             "network": settings.model.network,
             "prediction": settings.model.prediction,
             "warmup_wait_s": settings.scheduler.warmup_wait_s,
-            "heat_w": dict(settings.model.heat_w),
             "heater_off_s": settings.bench.heater_off_s,
         }
         values.update({k: v for k, v in overrides.items() if v is not None})
@@ -234,6 +235,7 @@ def procedure_point(parameters: RunParameters, step: int, run_time_s: float) -> 
 
 def heat_at(parameters: RunParameters, run_time_s: float) -> dict[str, float]:
     """The heater inputs of the procedure at ``run_time_s`` (heaters on, then off)."""
+    heat = parameters.heat_w or {}  # resolved at the run's start (daemon.run_setup)
     if parameters.heater_off_s is not None and run_time_s >= parameters.heater_off_s:
-        return dict.fromkeys(parameters.heat_w, 0.0)
-    return dict(parameters.heat_w)
+        return dict.fromkeys(heat, 0.0)
+    return dict(heat)

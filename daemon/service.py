@@ -192,7 +192,9 @@ class Daemon:
                 )
             await self._record_unrecorded_end(raise_on_failure=True)
             workers, recorder = self._workers_(), self._recorder()
-            network, model = await workers.step(build_model, self.settings, parameters)
+            built = await workers.step(build_model, self.settings, parameters)
+            parameters, network, model = built.parameters, built.network, built.model
+            logger.info("run heat: %s (from %s)", parameters.heat_w, built.heat_source)
             direction = unit_vector(self.settings.model.direction)
             await workers.step(
                 check_admissible_scale, self.settings, parameters, network, direction
@@ -206,7 +208,7 @@ class Daemon:
                 recorder.create_run,
                 parameters.model_dump(mode="json"),
                 self.settings.model_dump(mode="json"),
-                network_snapshot(network),
+                network_snapshot(network, built.heat_source),
                 __version__,
             )
             work = RunWork(run_id, parameters, model, direction, observer)

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from daemon.model import ThermalModel, ThermalNetwork, load_network
-from daemon.model.adaptation import adapted_parameters
+from daemon.model.adaptation import adaptation_priors, adapted_parameters
+from daemon.model.calibration import CalibratedParameter, Calibration
 from daemon.model.identify import apply_parameters, parse_parameters
 from daemon.model.model import ModelError
 from daemon.model.observer import IrObserver
@@ -193,3 +194,35 @@ def test_adapted_parameters_are_checked(preset: ThermalNetwork) -> None:
         adapted_parameters(preset, ["heat", "heat"])
     with pytest.raises(ModelError, match="prior"):
         adapted_parameters(preset, ["heat"], {"heat": (0.0, 0.1)})
+
+
+def calibration(*parameters: CalibratedParameter) -> Calibration:
+    return Calibration("thesis-two-link", ("1",), "2026-11-23T00:00:00Z", parameters=parameters)
+
+
+def test_an_identified_network_gives_the_priors_and_what_not_to_adapt() -> None:
+    names = ("heat", "heat:9", "convection")
+    assert adaptation_priors(None, names, 0.4) == (names, dict.fromkeys(names, (1.0, 0.4)))
+    identified = calibration(
+        CalibratedParameter("heat:2", 1.21, 0.024, 0.02),
+        CalibratedParameter("heat:9", 1.19, 0.036, 0.03),
+        CalibratedParameter("convection", 0.72, 0.036, 0.05),
+        CalibratedParameter("alpha", 1.0, None, None, identifiable=False, reason="unseen"),
+    )
+    # the file holds the identified values: prior 1 with identification's relative error;
+    # one heat factor over both heaters takes the larger error
+    assert adaptation_priors(identified, names, 0.4) == (
+        names,
+        {"heat": (1.0, 0.03), "heat:9": (1.0, 0.03), "convection": (1.0, 0.05)},
+    )
+    unidentifiable = calibration(
+        CalibratedParameter("heat", 1.2, 0.02, 0.017),
+        CalibratedParameter("convection", 0.7, 2.0, 3.0, identifiable=False, reason="SE"),
+    )
+    assert adaptation_priors(unidentifiable, names, 0.4) == (
+        ("heat", "heat:9"),
+        {"heat": (1.0, 0.017), "heat:9": (1.0, 0.017)},
+    )
+    # what identification did not fit keeps the default prior
+    only_alpha = calibration(CalibratedParameter("alpha", 1.1, 0.01, 0.01))
+    assert adaptation_priors(only_alpha, ("heat",), 0.4) == (("heat",), {"heat": (1.0, 0.4)})

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import importlib.util
 import io
+import re
 import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
@@ -371,12 +372,18 @@ async def test_parquet_export_without_and_with_pyarrow(
         assert steps == list(range(6))
 
 
-def test_run_networks_are_described_as_the_presets() -> None:
+def test_run_networks_are_described_as_names() -> None:
     """The description said ``network`` was any string, the server refused all but the presets
-    with a 422: schema-valid requests rejected. The presets are now the schema's enum."""
+    with a 422: schema-valid requests rejected. Since identified networks saved in the data
+    directory are run networks too (issue 19), the schema gives the name's pattern (no path
+    matches it) with the presets as examples."""
     description = create_app(Settings()).openapi()
     network = description["components"]["schemas"]["RunRequest"]["properties"]["network"]
-    assert network["anyOf"][0]["enum"] == available_presets()
+    named = network["anyOf"][0]
+    assert named["examples"] == available_presets()
+    pattern = re.compile(named["pattern"])
+    assert all(pattern.match(name) for name in available_presets())
+    assert not any(pattern.match(bad) for bad in ("../../etc/passwd", "/tmp/x.toml", "a/b", ""))
 
 
 async def test_an_unreadable_body_is_a_documented_400() -> None:

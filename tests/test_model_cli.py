@@ -94,7 +94,7 @@ def test_simulate_table_is_readable(capsys: pytest.CaptureFixture[str]) -> None:
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--heat", "42=1"], "unknown node '42'"),
+        (["--heat", "42=1"], "heat input '42' names no node of network 'thesis-two-link'"),
         (["--heat", "2:1"], "NODE=WATTS"),
         (["--heat", "2=hot"], "not a number of watts"),
         (["--network", "nonesuch"], "no network preset 'nonesuch'"),

@@ -83,7 +83,9 @@ def test_exact_stepper_matches_the_exponential_for_any_dt(dt_s: float) -> None:
 def test_explicit_stepper_is_eq_5_1_on_one_node() -> None:
     capacitance, resistance, heat, dt_s = 10.0, 5.0, 2.0, 3.0
     model = ThermalModel(lumped(capacitance, resistance), "explicit", dt_s, AMBIENT_C)
-    model.set_heat({"1": heat})  # by 1-based number
+    with pytest.raises(ValueError, match="heat input '1' names no node of network"):
+        model.set_heat({"1": heat})  # never by number (issue 19): by name only
+    model.set_heat({"only": heat})
     temperature = AMBIENT_C
     for step in range(1, 20):
         temperature += dt_s / capacitance * (heat + (AMBIENT_C - temperature) / resistance)

@@ -44,7 +44,8 @@ def test_a_heat_input_naming_no_node_is_refused_before_the_run(tmp_path: Path) -
         env={"THERMOCOMP_MODEL__HEAT_W": '{"99": 0.5}'},
     )
     assert result.returncode == 2
-    assert "heat_w: unknown node '99'" in result.stderr and "Traceback" not in result.stderr
+    assert "heat input '99' names no node of network 'thesis-two-link'" in result.stderr
+    assert "heat from setting model.heat_w" in result.stderr and "Traceback" not in result.stderr
 
 
 def test_heat_inputs_on_the_command_line_replace_the_settings(tmp_path: Path) -> None:
@@ -55,7 +56,7 @@ def test_heat_inputs_on_the_command_line_replace_the_settings(tmp_path: Path) ->
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["parameters"]["heat_w"] == {"2": 0.7, "9": 0.3}
     for bad, message in (
-        (["--heat", "17=1", "99=1"], "unknown node '99'"),
+        (["--heat", "17=1", "99=1"], "heat input '99' names no node"),
         (["--heat", "2=hot"], "NODE=WATTS"),
     ):
         refused = run_cli(["run", "--config", SIM, *options, *bad])

@@ -30,6 +30,7 @@ from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
 from daemon.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
 from daemon.model import available_presets
+from daemon.model.presets import NETWORK_NAME, NetworkNotFoundError, named_network_path
 from daemon.recorder import Recorder, RecorderError, RunRow
 from daemon.report_queue import ReportStatus
 from daemon.runs import RunParameters, RunState, RunStateError
@@ -54,14 +55,32 @@ RunId = Annotated[int, PathParam(ge=1, le=2**62, description="Run id.")]
 def _optional_fields() -> dict[str, Any]:
     """RunParameters' fields, each optional: what a request leaves out comes from the config.
 
-    Over the API ``network`` is one of the installed presets, never a path (a path would let a
-    client make the daemon read any file), so the schema lists them."""
+    Over the API ``network`` is a NAME, never a path (a path would let a client make the
+    daemon read any file): an installed preset or an identified network saved in the data
+    directory (GET /networks lists both); the schema gives the name's pattern and the presets
+    as examples. A malformed name is a 422, an unknown one a 404."""
     fields: dict[str, Any] = {}
     for name, info in RunParameters.model_fields.items():
         annotation: Any = info.annotation
         if name == "network":
-            annotation = Literal[tuple(available_presets())]
-        elif info.metadata:
+            annotation = Annotated[
+                str,
+                Field(
+                    pattern=f"^{NETWORK_NAME.pattern}$",
+                    max_length=64,
+                    examples=available_presets(),
+                ),
+            ]
+            fields[name] = (
+                annotation | None,
+                Field(
+                    None,
+                    description="A preset or an identified network saved in the data "
+                    "directory, by name (GET /networks); never a path.",
+                ),
+            )
+            continue
+        if info.metadata:
             annotation = Annotated[(annotation, *info.metadata)]
         fields[name] = (annotation | None, Field(None, description=info.description))
     return fields
@@ -186,6 +205,7 @@ def _validation_details(err: ValidationError) -> list[dict[str, str]]:
     status_code=201,
     responses={
         400: {"model": ErrorBody, "description": "the body is not readable (e.g. not UTF-8)"},
+        404: {"model": ErrorBody, "description": "no network of that name"},
         422: {"model": ErrorBody, "description": "parameters not admissible"},
     },
 )
@@ -197,6 +217,14 @@ async def start_run(
     """Start a run; 409 while another one is active; 422 with field-level messages when the
     parameters are invalid or not admissible (e.g. the scaled deformation leaves the chip)."""
     given = {} if request is None else request.model_dump(exclude_none=True)
+    if "network" in given:
+        try:
+            named_network_path(given["network"], settings.storage.data_dir)
+        except NetworkNotFoundError as err:
+            raise ApiError(404, "not-found", str(err)) from err
+        except ValueError as err:
+            details = [{"field": "body.network", "message": str(err), "type": "value_error"}]
+            raise ApiError(422, "validation", str(err), details) from err
     try:
         parameters = RunParameters.from_settings(settings, **given)
     except ValidationError as err:

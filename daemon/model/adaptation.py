@@ -41,6 +41,7 @@ from typing import Literal
 
 import numpy as np
 
+from daemon.model.calibration import Calibration
 from daemon.model.model import ModelError, NetworkModes
 from daemon.model.network import FloatArray, NetworkError, ThermalNetwork
 
@@ -90,9 +91,13 @@ def adapted_parameters(
         elif head == "heat":
             kind = "heat"
             try:
-                nodes = (network.node_index(argument),) if argument else every
-            except (NetworkError, ValueError) as err:
-                raise ModelError(f"adapted parameter {name!r}: {err}") from err
+                nodes = (
+                    (network.node_named(argument, f"adapted parameter {name!r}: node"),)
+                    if argument
+                    else every
+                )
+            except NetworkError as err:
+                raise ModelError(str(err)) from err
         else:
             raise ModelError(f"unknown adapted parameter {name!r}: heat, heat:NODE or convection")
         scale, sigma = (priors or {}).get(name, (1.0, PRIOR_LOG_SIGMA))
@@ -102,6 +107,41 @@ def adapted_parameters(
     if len({p.name for p in parsed}) != len(parsed):
         raise ModelError(f"an adapted parameter is given twice: {', '.join(names)}")
     return parsed
+
+
+def adaptation_priors(
+    calibration: Calibration | None, names: Sequence[str], prior_sigma: float = PRIOR_LOG_SIGMA
+) -> tuple[tuple[str, ...], dict[str, tuple[float, float]]]:
+    """Which of ``names`` to adapt, and their priors for :func:`adapted_parameters`.
+
+    With no identification, every one, ``1 +- prior_sigma`` (relative). An identified network
+    already holds its identified values (its nodes' convection, its own heat), so a factor's
+    prior is 1 with identification's relative standard error (``heat`` takes the largest of
+    the heat parameters it covers); a factor identification flagged as not identifiable (or
+    with an unbounded error) is left out: it stays as the file has it, since the same kind of
+    data did not determine it (issue 19). A factor identification did not fit keeps the
+    default prior."""
+    chosen: list[str] = []
+    priors: dict[str, tuple[float, float]] = {}
+    fitted = {p.name: p for p in calibration.parameters} if calibration is not None else {}
+    for name in names:
+        kind, _, argument = name.partition(":")
+        if kind == "heat" and not argument:
+            matching = [p for n, p in fitted.items() if n == "heat" or n.startswith("heat:")]
+        else:
+            matching = [p for n, p in fitted.items() if n in (name, kind)]
+        if not matching:
+            chosen.append(name)
+            priors[name] = (1.0, prior_sigma)
+            continue
+        errors = [p.relative_error for p in matching]
+        if not all(p.identifiable for p in matching) or any(
+            e is None or not math.isfinite(e) for e in errors
+        ):
+            continue
+        chosen.append(name)
+        priors[name] = (1.0, max(e for e in errors if e is not None))
+    return tuple(chosen), priors
 
 
 class ParameterResponse:
@@ -163,5 +203,6 @@ __all__ = [
     "RANDOM_WALK_LOG2_PER_S",
     "AdaptedParameter",
     "ParameterResponse",
+    "adaptation_priors",
     "adapted_parameters",
 ]

@@ -36,6 +36,12 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from daemon.analysis.steps import RunSteps
+from daemon.model.calibration import (
+    CALIBRATION_TABLE,
+    CalibratedParameter,
+    Calibration,
+    offset_sigmas_c,
+)
 from daemon.model.model import NetworkModes
 from daemon.model.network import FloatArray, NetworkError, ThermalNetwork
 
@@ -146,10 +152,8 @@ def _drive_w(network: ThermalNetwork, heat_w: FloatArray, ambient_c: float) -> F
 
 
 def heat_vector(network: ThermalNetwork, heat_w: Mapping[str, float]) -> FloatArray:
-    vector = np.zeros(network.node_count)
-    for node, watts in heat_w.items():
-        vector[network.node_index(node)] += watts
-    return vector
+    """Heat inputs keyed by node name as a vector (a key naming no node: NetworkError)."""
+    return network.heat_by_name(heat_w)
 
 
 def simulate_temperatures(
@@ -682,6 +686,94 @@ def validate(
 # -- the network file ---------------------------------------------------------------------------
 
 
+def calibration_of(
+    result: IdentificationResult,
+    base_network: str,
+    source_runs: Sequence[str],
+    identified_at: str,
+    validation_runs: Sequence[str] = (),
+) -> Calibration:
+    """What the identified network file records besides its node values (issue 19): the
+    provenance, every fitted parameter with its error and identifiability, and the IR offsets
+    with their uncertainty (the observer's starting point)."""
+    errors = {
+        p.name: (p.standard_error if math.isfinite(p.standard_error) else None)
+        for p in result.parameters
+    }
+    offsets = {spec.name: spec.targets for spec in result.specs if spec.kind == "offset"}
+    validation = result.validation
+    return Calibration(
+        base_network=base_network,
+        source_runs=tuple(source_runs),
+        identified_at=identified_at,
+        parameters=tuple(
+            CalibratedParameter(
+                name=p.name,
+                value=p.value,
+                standard_error=errors[p.name],
+                relative_error=p.relative_error
+                if p.relative_error is None or math.isfinite(p.relative_error)
+                else None,
+                identifiable=p.identifiable,
+                reason=p.reason,
+            )
+            for p in result.parameters
+        ),
+        ir_offsets_c={
+            r: v
+            for r, v in result.offsets_c.items()
+            if any(r in regions for regions in offsets.values())
+        },
+        ir_offset_sigma_c=offset_sigmas_c(offsets, errors),
+        temperature_rms_c=result.fit.temperature_rms_c,
+        deformation_rms_um=result.fit.deformation_rms_um,
+        validation_runs=tuple(validation_runs),
+        validation_deformation_rms_um=None if validation is None else validation.deformation_rms_um,
+    )
+
+
+def _calibration_toml(calibration: Calibration) -> list[str]:
+    lines = [
+        "",
+        "# Where this network came from and how sure identification is (daemon.model.calibration)",
+        f"[{CALIBRATION_TABLE}]",
+        f"base_network = {_toml_value(calibration.base_network)}",
+        f"source_runs = {_toml_value(list(calibration.source_runs))}",
+        f"identified_at = {_toml_value(calibration.identified_at)}",
+        f"validation_runs = {_toml_value(list(calibration.validation_runs))}",
+    ]
+    for key, number in (
+        ("temperature_rms_c", calibration.temperature_rms_c),
+        ("deformation_rms_um", calibration.deformation_rms_um),
+        ("validation_deformation_rms_um", calibration.validation_deformation_rms_um),
+    ):
+        if number is not None and math.isfinite(number):
+            lines.append(f"{key} = {_toml_value(number)}")
+    for table, values in (
+        ("ir_offsets_c", calibration.ir_offsets_c),
+        ("ir_offset_sigma_c", calibration.ir_offset_sigma_c),
+    ):
+        lines += ["", f"[{CALIBRATION_TABLE}.{table}]"]
+        lines += [f"{_toml_value(r)} = {_toml_value(float(v))}" for r, v in values.items()]
+    for parameter in calibration.parameters:
+        lines += [
+            "",
+            f"[[{CALIBRATION_TABLE}.parameters]]",
+            f"name = {_toml_value(parameter.name)}",
+            f"value = {_toml_value(parameter.value)}",
+        ]
+        for key, error in (
+            ("standard_error", parameter.standard_error),
+            ("relative_error", parameter.relative_error),
+        ):
+            if error is not None and math.isfinite(error):
+                lines.append(f"{key} = {_toml_value(error)}")
+        lines.append(f"identifiable = {'true' if parameter.identifiable else 'false'}")
+        if parameter.reason:
+            lines.append(f"reason = {_toml_value(parameter.reason)}")
+    return lines
+
+
 def _toml_value(value: float | str | Sequence[float] | Sequence[str]) -> str:
     if isinstance(value, str):
         return json.dumps(value)  # a JSON string is a valid TOML basic string
@@ -732,6 +824,8 @@ def network_toml(network: ThermalNetwork, header: str = "") -> str:
             f"between = {_toml_value(between)}",
             f"r_c_per_w = {_toml_value(resistance.r_c_per_w)}",
         ]
+    if network.calibration is not None:
+        lines += _calibration_toml(network.calibration)
     return "\n".join(lines) + "\n"
 
 
@@ -743,6 +837,7 @@ __all__ = [
     "IdentificationResult",
     "Parameter",
     "RunData",
+    "calibration_of",
     "default_parameters",
     "evaluate",
     "heat_schedule",

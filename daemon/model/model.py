@@ -238,14 +238,12 @@ class ThermalModel:
         return self._positivity_bound_s
 
     def set_heat(self, heat_w: Mapping[str, float]) -> None:
-        """Heat input per node in W (node name or 1-based number); replaces all inputs,
-        effective from the current time on (zero-order hold)."""
-        heat = np.zeros(self.network.node_count)
+        """Heat input per node in W, keyed by node NAME (issue 19: never by number); replaces
+        all inputs, effective from the current time on (zero-order hold)."""
         for node, watts in heat_w.items():
             if not math.isfinite(watts):
                 raise ModelError(f"node {node!r}: heat input must be finite, got {watts}")
-            heat[self.network.node_index(node)] += watts
-        self._set_heat_vector(heat)
+        self._set_heat_vector(self.network.heat_by_name(heat_w))
 
     def set_heat_at_position(self, heat_w_by_position_mm: Mapping[float, float]) -> None:
         """Heat inputs given where they enter the link (mm); replaces all inputs.

@@ -11,7 +11,7 @@ matrix (the graph Laplacian of ``1/R_ij`` plus ``g_amb`` on the diagonal).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -20,12 +20,17 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse.csgraph import connected_components
 
+from daemon.model.calibration import Calibration
+
 FloatArray = NDArray[np.float64]
 
 UM_PER_MM = 1000.0
 
 #: Up to this many nodes the dense eigen-solver gives the network facts.
 DENSE_LIMIT = 2000
+#: An error naming a network's nodes lists at most this many of them (a 2 mm geometry network
+#: has ~300), then the count.
+LISTED_NODES = 24
 
 
 class NetworkError(ValueError):
@@ -73,6 +78,9 @@ class ThermalNetwork:
     bar_ends_mm: tuple[float, float] | None = None
     description: str = ""
     heat_w: FloatArray = field(default_factory=lambda: np.zeros(0))  # q_i (W); empty: zero
+    #: What identification found beyond the node values (daemon.model.calibration.Calibration:
+    #: source runs, parameter uncertainties, IR offsets); None for a network nobody identified.
+    calibration: Calibration | None = None
     _index: dict[str, int] = field(init=False, repr=False, default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -180,6 +188,40 @@ class ThermalNetwork:
         raise NetworkError(
             f"unknown node {key!r} in network {self.name!r} (names or numbers 1..{self.node_count})"
         )
+
+    def node_named(self, name: str, what: str = "heat input") -> int:
+        """0-based index of the node called ``name``, by name only (issue 19: a heat input
+        "2" must not heat whatever node happens to be the second); a name naming no node is a
+        :class:`NetworkError` of one line naming ``what``, the key and the network's nodes."""
+        key = str(name).strip()
+        if key in self._index:
+            return self._index[key]
+        raise NetworkError(
+            f"{what} {key!r} names no node of network {self.name!r} "
+            f"(its nodes: {self.listed_node_names()})"
+        )
+
+    def listed_node_names(self) -> str:
+        """The node names, comma-separated; at most LISTED_NODES of them and the count."""
+        names = self.node_names
+        if len(names) <= LISTED_NODES:
+            return ", ".join(names)
+        return ", ".join(names[:LISTED_NODES]) + f", ... ({len(names)} nodes)"
+
+    def heat_by_name(self, heat_w: Mapping[str, float]) -> FloatArray:
+        """The heat vector (W per node) of inputs keyed by node name (see :meth:`node_named`)."""
+        vector = np.zeros(self.node_count)
+        for node, watts in heat_w.items():
+            vector[self.node_named(node)] += watts
+        return vector
+
+    def own_heat_w(self) -> dict[str, float]:
+        """The network's own heat inputs (file ``heat_w`` of its nodes), by node name."""
+        return {
+            name: float(watts)
+            for name, watts in zip(self.node_names, self.heat_w, strict=True)
+            if watts != 0.0
+        }
 
     # -- matrices -----------------------------------------------------------------------------
 

@@ -3,13 +3,22 @@
 A file lists either the network itself (``[[nodes]]`` and ``[[resistances]]`` tables) or a
 geometry (``[[segments]]`` and ``[[holes]]``) that :mod:`daemon.model.geometry` turns into
 one. ``config/networks/thesis-two-link.toml`` shows the first form, ``thesis-single-link.toml``
-the second.
+the second. An identified network (``thermocomp identify --out/--save``) adds an
+``[identification]`` table (daemon.model.calibration): its source runs, date, parameter
+uncertainties and IR offsets.
+
+Networks are found by name among the presets and, when a run's data directory is given, among
+the identified networks saved in its ``networks/`` folder (``identify --save NAME``); a name is
+never a path there (:func:`check_network_name`), so an API client cannot make the daemon read
+an arbitrary file. A path (``*.toml``) is for the command line only.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
+import re
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -18,12 +27,21 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from config.settings import read_toml
+from daemon.model.calibration import CalibratedParameter, Calibration
 from daemon.model.geometry import Hole, Segment, build_geometry_network
 from daemon.model.materials import Material, material, rule_of_mixtures
 from daemon.model.network import NetworkError, Resistance, ThermalNetwork
 
 PRESET_PACKAGE = "config"
 PRESET_FOLDER = "networks"
+#: Identified networks saved by ``identify --save`` live in this folder of the data directory.
+SAVED_FOLDER = "networks"
+#: A network name (preset or saved): letters, digits, '.', '_', '-'; no path, at most 64.
+NETWORK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+
+
+class NetworkNotFoundError(LookupError):
+    """A well-formed network name that names no preset and no saved network."""
 
 
 class _Strict(BaseModel):
@@ -68,6 +86,42 @@ class _Hole(_Strict):
     insert_length_mm: float | None = None
 
 
+class _Parameter(_Strict):
+    name: str
+    value: float
+    standard_error: float | None = None
+    relative_error: float | None = None
+    identifiable: bool = True
+    reason: str = ""
+
+
+class _Identification(_Strict):
+    base_network: str
+    source_runs: tuple[str, ...]
+    identified_at: str
+    parameters: tuple[_Parameter, ...] = ()
+    ir_offsets_c: dict[str, float] = Field(default_factory=dict)
+    ir_offset_sigma_c: dict[str, float] = Field(default_factory=dict)
+    temperature_rms_c: float | None = None
+    deformation_rms_um: float | None = None
+    validation_runs: tuple[str, ...] = ()
+    validation_deformation_rms_um: float | None = None
+
+    def calibration(self) -> Calibration:
+        return Calibration(
+            base_network=self.base_network,
+            source_runs=self.source_runs,
+            identified_at=self.identified_at,
+            parameters=tuple(CalibratedParameter(**p.model_dump()) for p in self.parameters),
+            ir_offsets_c=dict(self.ir_offsets_c),
+            ir_offset_sigma_c=dict(self.ir_offset_sigma_c),
+            temperature_rms_c=self.temperature_rms_c,
+            deformation_rms_um=self.deformation_rms_um,
+            validation_runs=self.validation_runs,
+            validation_deformation_rms_um=self.validation_deformation_rms_um,
+        )
+
+
 class _NetworkFile(_Strict):
     name: str | None = None
     description: str = ""
@@ -81,6 +135,7 @@ class _NetworkFile(_Strict):
     segments: tuple[_Segment, ...] = ()
     holes: tuple[_Hole, ...] = ()
     convection_scale: float = 1.0
+    identification: _Identification | None = None
 
 
 def networks_dir() -> Path:
@@ -92,18 +147,63 @@ def available_presets() -> list[str]:
     return sorted(path.stem for path in networks_dir().glob("*.toml"))
 
 
-def load_network(name_or_path: str | Path) -> ThermalNetwork:
-    """A preset by name (``"thesis-two-link"``) or a TOML file by path; raises
-    :class:`NetworkError` with a message naming the file and the faulty node or key."""
+def check_network_name(name: str) -> str:
+    """``name`` if it can name a preset or a saved network (never a path), else ValueError."""
+    if not NETWORK_NAME.fullmatch(name) or name.endswith(".toml"):
+        raise ValueError(
+            f"network {name!r} is not a network name (letters, digits, '.', '_', '-', at most "
+            "64, no path): give a preset or an identified network saved in the data directory"
+        )
+    return name
+
+
+def saved_networks_dir(data_dir: Path) -> Path:
+    """Where ``identify --save`` keeps the identified networks of a data directory."""
+    return Path(data_dir) / SAVED_FOLDER
+
+
+def available_saved(data_dir: Path | None) -> list[str]:
+    """Names of the identified networks saved in ``data_dir`` (none: no data directory)."""
+    if data_dir is None:
+        return []
+    folder = saved_networks_dir(data_dir)
+    if not folder.is_dir():
+        return []
+    return sorted(p.stem for p in folder.glob("*.toml") if NETWORK_NAME.fullmatch(p.stem))
+
+
+def named_network_path(name: str, data_dir: Path | None = None) -> Path:
+    """The file of a preset or (with ``data_dir``) a saved network called ``name``: a preset
+    wins; ValueError for a malformed name, NetworkNotFoundError for an unknown one."""
+    check_network_name(name)
+    preset = networks_dir() / f"{name}.toml"
+    if preset.is_file():
+        return preset
+    if data_dir is not None:
+        saved = saved_networks_dir(data_dir) / f"{name}.toml"
+        if saved.is_file():
+            return saved
+    listed = f"presets: {', '.join(available_presets())}"
+    if data_dir is None:
+        raise NetworkNotFoundError(f"no network preset {name!r} ({listed})")
+    names = ", ".join(available_saved(data_dir)) or "none"
+    raise NetworkNotFoundError(
+        f"no network preset or saved network {name!r} ({listed}; saved in "
+        f"{saved_networks_dir(data_dir)}: {names})"
+    )
+
+
+def load_network(name_or_path: str | Path, data_dir: Path | None = None) -> ThermalNetwork:
+    """A preset by name (``"thesis-two-link"``), an identified network saved in ``data_dir``
+    by name, or a TOML file by path; raises :class:`NetworkError` with a message naming the
+    file and the faulty node or key."""
     text = str(name_or_path)
     path = Path(text)
     if not (text.endswith(".toml") or path.is_file()):
-        path = networks_dir() / f"{text}.toml"
-        if not path.is_file():
-            raise NetworkError(
-                f"no network preset {text!r} (presets: {', '.join(available_presets())}) "
-                "and no such file"
-            )
+        try:
+            path = named_network_path(text, data_dir)
+        except (ValueError, NetworkNotFoundError) as err:
+            raise NetworkError(f"{err} and no such file") from err
     data = read_toml(path, NetworkError)
     try:
         return network_from_mapping(data, default_name=path.stem)
@@ -138,6 +238,7 @@ def network_from_mapping(data: dict[str, Any], default_name: str = "network") ->
     except ValidationError as err:
         raise NetworkError(_describe(err, data)) from err
     name = spec.name or default_name
+    calibration = spec.identification.calibration() if spec.identification else None
     if spec.segments and spec.nodes:
         raise NetworkError("give either [[nodes]] or [[segments]], not both")
     if spec.segments:
@@ -165,7 +266,7 @@ def network_from_mapping(data: dict[str, Any], default_name: str = "network") ->
             ]
         except ValueError as err:
             raise NetworkError(str(err)) from err
-        return build_geometry_network(
+        built = build_geometry_network(
             name,
             segments,
             holes,
@@ -175,6 +276,7 @@ def network_from_mapping(data: dict[str, Any], default_name: str = "network") ->
             convection_scale=spec.convection_scale,
             description=spec.description,
         )
+        return dataclasses.replace(built, calibration=calibration) if calibration else built
     if not spec.nodes:
         raise NetworkError("a network needs [[nodes]] (or a geometry of [[segments]])")
     index = {node.name: i for i, node in enumerate(spec.nodes)}
@@ -208,4 +310,5 @@ def network_from_mapping(data: dict[str, Any], default_name: str = "network") ->
         direction=np.array(spec.direction),
         bar_ends_mm=spec.bar_ends_mm,
         description=spec.description,
+        calibration=calibration,
     )
