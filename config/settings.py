@@ -494,9 +494,16 @@ class ObserverSettings(_Section):
         "run; an identified network's values and errors are the priors.",
     )
     adapt_parameters: tuple[str, ...] = Field(
-        ("heat", "convection"),
+        ("heat", "convection", "alpha"),
         description="What adaptation estimates: heat (every heat input x one factor), "
-        "heat:NODE (that node's), convection (every node's conductance to ambient).",
+        "heat:NODE (that node's), convection (every node's conductance to ambient), from the IR "
+        "regions; alpha (the predicted deformation x one factor), from the measured spot drift "
+        "alone.",
+    )
+    deformation_noise_um: Annotated[float, Field(gt=0, le=1000)] = Field(
+        1.0,
+        description="1-sigma of one measured residual (um, scaled) as adaptation of alpha "
+        "weighs it: the robot's repeatability and the centroid (thesis Table 6.1: S_x 0.92).",
     )
     prior_sigma: Annotated[float, Field(gt=0, le=3)] = Field(
         0.5,

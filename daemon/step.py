@@ -27,6 +27,7 @@ from daemon.model.compensation import (
     check_offset,
     compensation_offset_mm,
 )
+from daemon.model.network import UM_PER_MM
 from daemon.model.observer import IrObserver
 from daemon.recorder import Recorder, StepRecord
 from daemon.runs import ProcedurePoint, RunParameters, heat_at, procedure_point
@@ -218,6 +219,8 @@ class StepPipeline:
             await self._advance_to(work, target_model_s)
         if work.observer is not None:
             work.observer.predict(model.time_s)  # the covariance follows the model's mean
+            # an adapted expansion factor (observer.adapt, "alpha") scales the prediction
+            return model.deformation_um() * work.observer.deformation_gain
         return model.deformation_um()
 
     async def _advance_to(self, work: RunWork, model_s: float) -> None:
@@ -367,6 +370,15 @@ class StepPipeline:
             (record.drift_x_um, record.drift_y_um), self._settings.camera.rotation_deg
         )
         record.residual_um = float(np.dot(world_um, work.direction))
+        if work.observer is not None:
+            # the link's own deformation: the drift with the commanded compensation taken out
+            # (daemon.model.identify.measured_deformation_um), for an adapted "alpha" only
+            scale = work.parameters.deformation_scale
+            offset_um = float(np.dot(work.last_offset_mm, work.direction)) * UM_PER_MM
+            work.observer.update_deformation(
+                (record.residual_um - offset_um) / scale,
+                self._settings.observer.deformation_noise_um / scale,
+            )
 
     async def _infrared(
         self, work: RunWork, record: StepRecord, flags: list[str], errors: list[str]

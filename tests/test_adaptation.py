@@ -134,6 +134,48 @@ def test_right_model_adaptation_changes_nothing_beyond_noise(preset: ThermalNetw
     assert adapted_rms <= 2 * plain_rms + 0.02
 
 
+def test_the_measured_deformation_teaches_alpha_alone(preset: ThermalNetwork) -> None:
+    """A truth expanding 1.2x what the model believes: the measured deformation teaches the
+    ``alpha`` factor (within its 1-sigma) and the corrected deformation follows, while the
+    temperatures are exactly those of a filter that never saw the camera."""
+    dt_s, true_alpha = 5.0, 1.2
+    specs = parse_parameters(["alpha"], preset, REGIONS)
+    expanding = apply_parameters(preset, specs, np.array([math.log(true_alpha)]), REGIONS)
+    truth = ThermalModel(expanding.network, dt_s=dt_s)
+    truth.set_heat(HEAT)
+    observers = []
+    for _ in range(2):
+        model = ThermalModel(preset, dt_s=dt_s)
+        model.set_heat(HEAT)
+        observers.append(IrObserver(model, REGIONS, IR_NOISE_C, adapt=adapted_parameters(preset)))
+    with_camera, without = observers
+    rng = np.random.default_rng(11)
+    errors: dict[int, list[float]] = {0: [], 1: []}
+    for k in range(1, 721):
+        t = k * dt_s
+        truth.advance_to(t)
+        readings = {
+            region: float(truth.temperatures_c[preset.node_index(nodes[0])])
+            + float(rng.normal(0.0, IR_NOISE_C))
+            for region, nodes in REGIONS.items()
+        }
+        for observer in observers:
+            observer.step(t, readings)
+        measured = truth.deformation_um_scalar() + float(rng.normal(0.0, 0.2))
+        assert with_camera.update_deformation(measured, 0.2) is not None
+        assert without.update_deformation(math.nan, 0.2) is None
+        for n, observer in enumerate(observers):
+            errors[n].append(observer.corrected_deformation_um()[0] - truth.deformation_um_scalar())
+        np.testing.assert_allclose(with_camera.temperatures_c, without.temperatures_c, atol=1e-9)
+    value, sigma = with_camera.parameter_estimates()["alpha"]
+    assert 0 < sigma < 0.02
+    assert abs(value - true_alpha) <= 3 * sigma
+    assert without.parameter_estimates()["alpha"][0] == 1.0
+    rms = [float(np.sqrt(np.mean(np.square(errors[n][360:])))) for n in (0, 1)]
+    assert rms[0] < 0.2  # µm: the filter's noise level, where the camera-blind one is 20 % off
+    assert rms[0] < rms[1] / 10
+
+
 def test_with_infinite_ir_noise_adaptation_is_the_open_loop_model_exactly(
     preset: ThermalNetwork,
 ) -> None:
@@ -186,8 +228,10 @@ def test_adapted_parameters_are_checked(preset: ThermalNetwork) -> None:
     assert parsed[0].node_indices == (preset.node_index("9"),)
     assert parsed[0].prior_log == pytest.approx(math.log(1.2))
     assert parsed[1].node_indices == tuple(range(preset.node_count))
-    with pytest.raises(ModelError, match="unknown adapted parameter 'alpha'"):
-        adapted_parameters(preset, ["alpha"])
+    with pytest.raises(ModelError, match="unknown adapted parameter 'contact:3'"):
+        adapted_parameters(preset, ["contact:3"])
+    with pytest.raises(ModelError, match="unknown adapted parameter 'alpha:3'"):
+        adapted_parameters(preset, ["alpha:3"])
     with pytest.raises(ModelError, match="heat:nowhere"):
         adapted_parameters(preset, ["heat:nowhere"])
     with pytest.raises(ModelError, match="given twice"):

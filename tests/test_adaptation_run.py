@@ -1,6 +1,7 @@
 """Issue 19 in the run loop: with ``observer.adapt`` a `model+ir` run on a bench whose truth
 has the controller's own network but 30 % more heat and 30 % less convection records its
-estimates of the two factors every step, and they reach the truth within their 1-sigma."""
+estimates of the factors every step, and they reach the truth within their 1-sigma (the
+expansion factor, learnt from the spot drift, stays 1)."""
 
 from __future__ import annotations
 
@@ -57,6 +58,10 @@ async def test_an_adapting_run_records_factors_that_reach_the_truth(tmp_path: Pa
         value, sigma = last[name]
         assert sigma < first[name][1] / 3  # it learnt
         assert abs(value - truth) <= 3 * sigma, (name, value, sigma)
+    # the truth expands as the model believes: the camera's alpha stays 1 within its 1-sigma
+    alpha, alpha_sigma = last["alpha"]
+    assert alpha_sigma < first["alpha"][1] / 3
+    assert abs(alpha - 1.0) <= 3 * alpha_sigma
     assert {k for k in last if k.startswith("offset:")}  # the IR offsets with their 1-sigma
 
     plain = await run_steps(bench_settings(tmp_path, adapt=False))

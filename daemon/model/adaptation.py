@@ -7,7 +7,7 @@ the node temperatures, so that a run with a wrong model converges without a cali
 Choice of estimator: an augmented-state extended Kalman filter (the unknown parameters appended
 to the state with a random-walk model; Ljung 1979, "Asymptotic behavior of the extended Kalman
 filter as a parameter estimator for linear systems", IEEE TAC 24(1); Simon 2006, *Optimal State
-Estimation*, sec. 13.4). The network is linear in the temperatures for fixed parameters and the
+Estimation*, ch. 13). The network is linear in the temperatures for fixed parameters and the
 parameters enter bilinearly, so one joint filter is the smallest change to the existing linear
 filter: its covariance already carries temperatures and IR offsets, and the joint covariance
 gives the parameters' uncertainty and their correlation with the temperatures for free. A dual
@@ -19,7 +19,11 @@ positive):
 * ``heat``: every heat input the model is given, times ``s_h = e^theta``;
 * ``heat:NODE``: the heat input of that node only;
 * ``convection``: every node's conductance to ambient ``g`` (faces and end faces) times
-  ``s_c``.
+  ``s_c``;
+* ``alpha``: the deformation the model predicts from its temperatures, times ``s_a`` (the
+  effective expansion coefficient). The IR regions cannot see it; only the measured
+  deformation (the camera's spot drift with the commanded compensation taken out) can, and it
+  teaches this factor alone (IrObserver.update_deformation).
 
 With ``C dT/dt = -K T + q + g T_amb`` the model's own nominal network, the adapted one is
 ``C dT/dt = -K T + q + g T_amb + db`` with ``db = (s_h - 1) q + (s_c - 1) g (T_amb - T)``.
@@ -45,10 +49,10 @@ from daemon.model.calibration import Calibration
 from daemon.model.model import ModelError, NetworkModes
 from daemon.model.network import FloatArray, NetworkError, ThermalNetwork
 
-AdaptedKind = Literal["heat", "convection"]
+AdaptedKind = Literal["heat", "convection", "alpha"]
 #: What adaptation estimates by default: one heat factor, one convection factor (the IR
 #: offsets are always in the observer's state).
-DEFAULT_ADAPTED: tuple[str, ...] = ("heat", "convection")
+DEFAULT_ADAPTED: tuple[str, ...] = ("heat", "convection", "alpha")
 #: Prior 1-sigma of a log scale factor with no identified value: 0.5, a factor 1.65 either
 #: way (identification's RELATIVE_SE_LIMIT; the thesis's Table 5.1 gave a 4x wrong time
 #: constant, DESIGN.md "Table 5.1", so the prior must be wide).
@@ -86,8 +90,9 @@ def adapted_parameters(
         name = raw.strip()
         head, _, argument = name.partition(":")
         kind: AdaptedKind
-        if head == "convection" and not argument:
-            kind, nodes = "convection", every
+        if head in ("convection", "alpha") and not argument:
+            kind = "alpha" if head == "alpha" else "convection"
+            nodes = every
         elif head == "heat":
             kind = "heat"
             try:
@@ -99,7 +104,9 @@ def adapted_parameters(
             except NetworkError as err:
                 raise ModelError(str(err)) from err
         else:
-            raise ModelError(f"unknown adapted parameter {name!r}: heat, heat:NODE or convection")
+            raise ModelError(
+                f"unknown adapted parameter {name!r}: heat, heat:NODE, convection or alpha"
+            )
         scale, sigma = (priors or {}).get(name, (1.0, PRIOR_LOG_SIGMA))
         if not (math.isfinite(scale) and scale > 0 and math.isfinite(sigma) and sigma >= 0):
             raise ModelError(f"adapted parameter {name!r}: prior ({scale}, {sigma}) not > 0")
@@ -184,6 +191,8 @@ class ParameterResponse:
         d_temperature = np.zeros(count)
         for k, (parameter, mask) in enumerate(zip(self.parameters, self._masks, strict=True)):
             scale = math.exp(float(log_scales[k]))
+            if parameter.kind == "alpha":  # no effect on the temperatures
+                continue
             if parameter.kind == "heat":
                 chosen = np.where(mask, heat_w, 0.0)
                 drive += (scale - 1.0) * chosen

@@ -127,6 +127,9 @@ class IrObserver:
         if not (math.isfinite(parameter_random_walk) and parameter_random_walk >= 0):
             raise ModelError("the parameters' random walk must be finite and >= 0")
         self._theta_walk = float(parameter_random_walk)
+        alpha = [k for k, p in enumerate(adapt) if p.kind == "alpha"]
+        # the state index of the deformation gain (adapted "alpha"), if any
+        self._alpha: int | None = count + measured + alpha[0] if alpha else None
         size = count + measured + len(adapt)
         # State: node temperatures, one offset per region, then the adapted log scales.
         self._h = np.zeros((measured, size))
@@ -207,11 +210,53 @@ class IrObserver:
         """The current estimate of each region's IR offset (degC)."""
         return {n: float(v) for n, v in zip(self._region_names, self._offsets, strict=True)}
 
+    @property
+    def deformation_gain(self) -> float:
+        """The adapted ``alpha`` factor applied to the model's deformation (1 without it)."""
+        if self._alpha is None:
+            return 1.0
+        return math.exp(float(self._theta[self._alpha - self._nodes - len(self._region_names)]))
+
+    def _deformation_gradient(self) -> tuple[float, FloatArray]:
+        """The corrected deformation ``s_a w^T (T - T_ref)`` and its gradient over the state."""
+        gain = self.deformation_gain
+        deformation = gain * self.model.deformation_um_scalar()
+        gradient = np.zeros(self._p.shape[0])
+        gradient[: self._nodes] = gain * self._weights
+        if self._alpha is not None:
+            gradient[self._alpha] = deformation  # d/d(log s_a)
+        return deformation, gradient
+
     def corrected_deformation_um(self) -> tuple[float, float]:
-        """The corrected deformation along the link (µm) and its 1-sigma, ``sqrt(w^T P w)``."""
-        block = self._p[: self._nodes, : self._nodes]
-        variance = float(self._weights @ block @ self._weights)
-        return self.model.deformation_um_scalar(), math.sqrt(max(variance, 0.0))
+        """The corrected deformation along the link (µm) and its 1-sigma, ``sqrt(g^T P g)``
+        (``g`` its gradient: ``w`` on the temperatures, and the deformation itself on the log
+        of an adapted ``alpha``)."""
+        deformation, gradient = self._deformation_gradient()
+        variance = float(gradient @ self._p @ gradient)
+        return deformation, math.sqrt(max(variance, 0.0))
+
+    def update_deformation(self, measured_um: float, noise_um: float) -> float | None:
+        """Fuse one measured deformation (µm along the link, unscaled: the spot drift with the
+        commanded compensation taken out, divided by the deformation scale) of 1-sigma
+        ``noise_um``, into the adapted ``alpha`` ONLY: the gain of every other state is set
+        to zero (a partial update, the "consider" idea of the Schmidt-Kalman filter), so the
+        camera calibrates the expansion factor and never steers the temperatures to the
+        measured drift, which a camera-stand drift would otherwise enter one for one. The
+        Joseph form keeps the covariance right for this suboptimal gain. Returns the
+        normalised innovation, or None when nothing was fused (no adapted alpha, a
+        non-finite value)."""
+        if self._alpha is None or not (math.isfinite(measured_um) and noise_um > 0):
+            return None
+        predicted, row = self._deformation_gradient()
+        innovation = measured_um - predicted
+        variance = float(row @ self._p @ row) + noise_um**2
+        gain = np.zeros(self._p.shape[0])
+        gain[self._alpha] = float(self._p[self._alpha] @ row) / variance
+        tail = self._nodes + len(self._region_names)
+        self._theta = np.clip(self._theta + gain[tail:] * innovation, *LOG_BOUNDS)
+        identity_minus = np.eye(gain.size) - np.outer(gain, row)
+        self._p = identity_minus @ self._p @ identity_minus.T + np.outer(gain, gain) * noise_um**2
+        return innovation / math.sqrt(variance)
 
     @property
     def warning(self) -> str | None:
@@ -272,6 +317,12 @@ class IrObserver:
         noise = np.zeros(self._p.shape[0])
         noise[:n] = self._q * tau
         noise[tail:] = self._theta_walk * tau
+        if self._alpha is not None:
+            # alpha is a constant: with a random walk the camera's every reading would move
+            # it, and it would follow the measured drift (a stand drift too) within seconds,
+            # a camera servo rather than a model; constant, it is the least-squares gain of
+            # the whole run so far
+            noise[self._alpha] = 0.0
         self._p = jacobian @ self._p @ jacobian.T + np.diag(noise)
 
     def update(self, measurements_c: Mapping[str, float]) -> Innovation | None:
