@@ -186,7 +186,14 @@ def calibrate(
         )
         parameters = {"compensation": "off", "deformation_scale": CALIBRATION_SCALE}
         steps = asyncio.run(_one_run(settings, parameters))
-        words = ["identify", str(steps[0]["run_id"]), "--data-dir", folder]
+        words = [
+            "--log-level",
+            "WARNING",
+            "identify",
+            str(steps[0]["run_id"]),
+            "--data-dir",
+            folder,
+        ]
         printed = io.StringIO()
         with contextlib.redirect_stdout(printed):
             status = thermocomp([*words, "--out", str(network_file), "--json"])

@@ -500,6 +500,12 @@ class ObserverSettings(_Section):
         "regions; alpha (the predicted deformation x one factor), from the measured spot drift "
         "alone.",
     )
+    stand_drift_tau_s: PositiveFloat | None = Field(
+        600.0,
+        description="alpha: the measured drift also carries the camera stand's warm-up, "
+        "A (1 - exp(-t / tau)) of unknown A, estimated beside alpha and never compensated "
+        "(thesis 4.8: the camera warmed up within ~25 min); none: no stand drift state.",
+    )
     deformation_noise_um: Annotated[float, Field(gt=0, le=1000)] = Field(
         1.0,
         description="1-sigma of one measured residual (um, scaled) as adaptation of alpha "

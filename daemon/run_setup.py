@@ -168,6 +168,7 @@ def build_observer(
         noise,
         adapt=adapted,
         parameter_random_walk=observer.random_walk_per_hour**2 / SECONDS_PER_HOUR,
+        stand_drift_tau_s=observer.stand_drift_tau_s,
         **offsets,
     )
 

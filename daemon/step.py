@@ -378,6 +378,7 @@ class StepPipeline:
             work.observer.update_deformation(
                 (record.residual_um - offset_um) / scale,
                 self._settings.observer.deformation_noise_um / scale,
+                scale,
             )
 
     async def _infrared(

@@ -14,7 +14,7 @@ from daemon.model.adaptation import adaptation_priors, adapted_parameters
 from daemon.model.calibration import CalibratedParameter, Calibration
 from daemon.model.identify import apply_parameters, parse_parameters
 from daemon.model.model import ModelError
-from daemon.model.observer import IrObserver
+from daemon.model.observer import STAND_DRIFT_SIGMA_UM, IrObserver
 
 AMBIENT_C = 22.0
 HEAT = {"2": 0.5, "9": 0.5}
@@ -270,3 +270,44 @@ def test_an_identified_network_gives_the_priors_and_what_not_to_adapt() -> None:
     # what identification did not fit keeps the default prior
     only_alpha = calibration(CalibratedParameter("alpha", 1.1, 0.01, 0.01))
     assert adaptation_priors(only_alpha, ("heat",), 0.4) == (("heat",), {"heat": (1.0, 0.4)})
+
+
+def test_a_stand_drift_of_known_shape_is_not_taken_for_expansion(preset: ThermalNetwork) -> None:
+    """The spot drift carries a stand warm-up A (1 - e^{-t/tau}) (thesis 4.8) besides the
+    link's 1.2x expansion: with the stand drift in the state both come out within their
+    1-sigma; without it, alpha takes in the stand and misses the truth."""
+    dt_s, true_alpha, stand_um, tau_s, scale = 5.0, 1.2, 3.0, 600.0, 2.0
+    specs = parse_parameters(["alpha"], preset, REGIONS)
+    expanding = apply_parameters(preset, specs, np.array([math.log(true_alpha)]), REGIONS)
+    truth = ThermalModel(expanding.network, dt_s=dt_s)
+    truth.set_heat(HEAT)
+    observers = []
+    for tau in (tau_s, None):
+        model = ThermalModel(preset, dt_s=dt_s)
+        model.set_heat(HEAT)
+        adapt = adapted_parameters(preset, ["alpha"])
+        observers.append(IrObserver(model, REGIONS, IR_NOISE_C, adapt=adapt, stand_drift_tau_s=tau))
+    rng = np.random.default_rng(13)
+    for k in range(1, 721):
+        t = k * dt_s
+        truth.advance_to(t)
+        readings = {
+            region: float(truth.temperatures_c[preset.node_index(nodes[0])])
+            + float(rng.normal(0.0, IR_NOISE_C))
+            for region, nodes in REGIONS.items()
+        }
+        # what the camera sees (scaled µm): the scaled link, the stand, the noise; unscaled
+        chip_um = scale * truth.deformation_um_scalar() + stand_um * (1 - math.exp(-t / tau_s))
+        measured = (chip_um + float(rng.normal(0.0, 0.2))) / scale
+        for observer in observers:
+            observer.step(t, readings)
+            observer.update_deformation(measured, 0.2 / scale, scale)
+    with_stand, without = (o.parameter_estimates() for o in observers)
+    alpha, alpha_sigma = with_stand["alpha"]
+    assert abs(alpha - true_alpha) <= 3 * alpha_sigma
+    amplitude, amplitude_sigma = with_stand["stand_drift_um"]
+    assert amplitude_sigma < STAND_DRIFT_SIGMA_UM / 3  # it learnt
+    assert abs(amplitude - stand_um) <= 3 * amplitude_sigma
+    assert "stand_drift_um" not in without
+    biased, biased_sigma = without["alpha"]
+    assert abs(biased - true_alpha) > 3 * biased_sigma

@@ -51,6 +51,9 @@ DRIFT_WARNING = "model drifting: consider identification"
 PROCESS_NOISE_C2_PER_S = 3e-4
 #: Prior standard deviation of an IR offset: the FLIR A40M's +-2 degC accuracy (thesis 3.2.2).
 OFFSET_SIGMA_C = 2.0
+#: Prior 1-sigma of the camera stand's warm-up drift amplitude (µm on the chip): the thesis
+#: measured a few µm (4.8).
+STAND_DRIFT_SIGMA_UM = 5.0
 #: Bias detector: window of normalised innovations per region, and the threshold on their
 #: mean in units of its own standard deviation 1/sqrt(window) under a right model.
 BIAS_WINDOW = 60
@@ -113,6 +116,8 @@ class IrObserver:
         reference_nodes: Sequence[str] | None = None,
         adapt: Sequence[AdaptedParameter] = (),
         parameter_random_walk: float = RANDOM_WALK_LOG2_PER_S,
+        stand_drift_tau_s: float | None = None,
+        stand_drift_sigma_um: float = STAND_DRIFT_SIGMA_UM,
     ) -> None:
         network = model.network
         self.model = model
@@ -130,8 +135,20 @@ class IrObserver:
         alpha = [k for k, p in enumerate(adapt) if p.kind == "alpha"]
         # the state index of the deformation gain (adapted "alpha"), if any
         self._alpha: int | None = count + measured + alpha[0] if alpha else None
-        size = count + measured + len(adapt)
-        # State: node temperatures, one offset per region, then the adapted log scales.
+        self._thetas = slice(count + measured, count + measured + len(adapt))
+        # With alpha, the camera stand's warm-up drift (thesis 4.8) as a known shape
+        # ``A (1 - e^{-t/tau})`` of unknown amplitude A (µm on the chip): in the measured
+        # drift, not in the link, so never compensated (update_deformation).
+        if stand_drift_tau_s is not None and not (
+            math.isfinite(stand_drift_tau_s) and stand_drift_tau_s > 0
+        ):
+            raise ModelError("the stand drift's time constant must be > 0")
+        self._stand_tau_s = stand_drift_tau_s if alpha else None
+        self._stand: int | None = self._thetas.stop if self._stand_tau_s is not None else None
+        self._stand_um = 0.0
+        size = self._thetas.stop + (self._stand is not None)
+        # State: node temperatures, one offset per region, the adapted log scales, and the
+        # stand drift's amplitude if any.
         self._h = np.zeros((measured, size))
         for k, name in enumerate(self._region_names):
             self._h[k, :count] = rows[name]
@@ -150,8 +167,10 @@ class IrObserver:
         self._p[:count, :count] = np.eye(count) * initial_sigma_c**2
         offsets = slice(count, count + measured)
         self._p[offsets, offsets] = np.eye(measured) * offset_sigma_c**2
-        tail = count + measured
-        self._p[tail:, tail:] = np.diag([p.prior_log_sigma**2 for p in adapt])
+        thetas = self._thetas
+        self._p[thetas, thetas] = np.diag([p.prior_log_sigma**2 for p in adapt])
+        if self._stand is not None:
+            self._p[self._stand, self._stand] = stand_drift_sigma_um**2
         self._start_c = model.temperatures_c  # the mean at the covariance's time
         self._covariance_time_s = model.time_s
         self._transitions: dict[float, FloatArray] = {}
@@ -197,6 +216,9 @@ class IrObserver:
                 scale,
                 scale * math.sqrt(max(self._p[tail + k, tail + k], 0)),
             )
+        if self._stand is not None:
+            variance = max(float(self._p[self._stand, self._stand]), 0.0)
+            estimates["stand_drift_um"] = (self._stand_um, math.sqrt(variance))
         for k, name in enumerate(self._region_names):
             index = self._nodes + k
             estimates[f"offset:{name}"] = (
@@ -215,7 +237,7 @@ class IrObserver:
         """The adapted ``alpha`` factor applied to the model's deformation (1 without it)."""
         if self._alpha is None:
             return 1.0
-        return math.exp(float(self._theta[self._alpha - self._nodes - len(self._region_names)]))
+        return math.exp(float(self._theta[self._alpha - self._thetas.start]))
 
     def _deformation_gradient(self) -> tuple[float, FloatArray]:
         """The corrected deformation ``s_a w^T (T - T_ref)`` and its gradient over the state."""
@@ -235,25 +257,37 @@ class IrObserver:
         variance = float(gradient @ self._p @ gradient)
         return deformation, math.sqrt(max(variance, 0.0))
 
-    def update_deformation(self, measured_um: float, noise_um: float) -> float | None:
+    def update_deformation(
+        self, measured_um: float, noise_um: float, scale: float = 1.0
+    ) -> float | None:
         """Fuse one measured deformation (µm along the link, unscaled: the spot drift with the
         commanded compensation taken out, divided by the deformation scale) of 1-sigma
         ``noise_um``, into the adapted ``alpha`` ONLY: the gain of every other state is set
         to zero (a partial update, the "consider" idea of the Schmidt-Kalman filter), so the
         camera calibrates the expansion factor and never steers the temperatures to the
         measured drift, which a camera-stand drift would otherwise enter one for one. The
-        Joseph form keeps the covariance right for this suboptimal gain. Returns the
-        normalised innovation, or None when nothing was fused (no adapted alpha, a
+        Joseph form keeps the covariance right for this suboptimal gain. With a stand drift
+        state (``stand_drift_tau_s``) the reading is ``s_a d + A (1 - e^{-t/tau}) / scale``
+        (``scale``: the run's deformation scale; the stand moves the chip, not the link) and
+        updates A too: a drift of the stand's shape is then not taken for expansion. Returns
+        the normalised innovation, or None when nothing was fused (no adapted alpha, a
         non-finite value)."""
         if self._alpha is None or not (math.isfinite(measured_um) and noise_um > 0):
             return None
         predicted, row = self._deformation_gradient()
+        chosen = [self._alpha]
+        if self._stand is not None and self._stand_tau_s is not None:
+            shape = -math.expm1(-max(self.model.time_s, 0.0) / self._stand_tau_s) / scale
+            row[self._stand] = shape
+            predicted += self._stand_um * shape
+            chosen.append(self._stand)
         innovation = measured_um - predicted
         variance = float(row @ self._p @ row) + noise_um**2
         gain = np.zeros(self._p.shape[0])
-        gain[self._alpha] = float(self._p[self._alpha] @ row) / variance
-        tail = self._nodes + len(self._region_names)
-        self._theta = np.clip(self._theta + gain[tail:] * innovation, *LOG_BOUNDS)
+        gain[chosen] = (self._p[chosen] @ row) / variance
+        self._theta = np.clip(self._theta + gain[self._thetas] * innovation, *LOG_BOUNDS)
+        if self._stand is not None:
+            self._stand_um += float(gain[self._stand]) * innovation
         identity_minus = np.eye(gain.size) - np.outer(gain, row)
         self._p = identity_minus @ self._p @ identity_minus.T + np.outer(gain, gain) * noise_um**2
         return innovation / math.sqrt(variance)
@@ -303,7 +337,7 @@ class IrObserver:
         """The adapted step (module docstring of daemon.model.adaptation): the model's nominal
         step, corrected by ``Gamma db``; the covariance by the EKF's Jacobian."""
         assert self._response is not None
-        n, tail = self._nodes, self._nodes + len(self._region_names)
+        n, thetas = self._nodes, self._thetas
         model = self.model
         nominal = model.temperatures_c
         gain = self._response.gain(tau)
@@ -313,10 +347,10 @@ class IrObserver:
         model.set_temperatures(nominal + gain @ drive)
         jacobian = np.eye(self._p.shape[0])
         jacobian[:n, :n] = transition + gain * d_temperature  # Gamma diag(d db / dT)
-        jacobian[:n, tail:] = gain @ columns
+        jacobian[:n, thetas] = gain @ columns
         noise = np.zeros(self._p.shape[0])
         noise[:n] = self._q * tau
-        noise[tail:] = self._theta_walk * tau
+        noise[thetas] = self._theta_walk * tau
         if self._alpha is not None:
             # alpha is a constant: with a random walk the camera's every reading would move
             # it, and it would follow the measured drift (a stand drift too) within seconds,
@@ -339,7 +373,8 @@ class IrObserver:
             return None
         n = self._nodes
         h = self._h[used]
-        state = np.concatenate([self.model.temperatures_c, self._offsets, self._theta])
+        stand = [self._stand_um] if self._stand is not None else []
+        state = np.concatenate([self.model.temperatures_c, self._offsets, self._theta, stand])
         z = np.array([measurements_c[self._region_names[k]] for k in used])
         innovation = z - h @ state
         s = h @ self._p @ h.T + np.diag(self._noise_c2[used])
@@ -357,7 +392,9 @@ class IrObserver:
         self._offsets = state[n : n + measured]
         # a factor's log stays within identification's bounds (1/10 .. 10): a wild first
         # innovation must not send the model somewhere it cannot come back from
-        self._theta = np.clip(state[n + measured :], *LOG_BOUNDS)
+        self._theta = np.clip(state[self._thetas], *LOG_BOUNDS)
+        if self._stand is not None:
+            self._stand_um = float(state[self._stand])
         nis = float(innovation @ np.linalg.solve(s, innovation))
         variances = np.diag(s)
         names = [self._region_names[k] for k in used]
