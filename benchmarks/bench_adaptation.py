@@ -298,9 +298,12 @@ def main() -> None:
         adapt_rms = ways["model+ir adapt"]["second_half"]["rms_um"]
         plain_rms = ways["model+ir"]["second_half"]["rms_um"]
         if name == "default bench":
+            tcp = {w: ways[w]["tcp_second_half"]["rms_um"] for w in ("model+ir adapt", "model+ir")}
             targets[name] = {
                 "adapt_over_model_ir": adapt_rms / plain_rms,
                 "met": adapt_rms <= plain_rms,
+                "tcp_adapt_over_model_ir": tcp["model+ir adapt"] / tcp["model+ir"],
+                "tcp_met": tcp["model+ir adapt"] <= tcp["model+ir"],
             }
         else:
             targets[name] = {

@@ -135,6 +135,7 @@ class IrObserver:
         alpha = [k for k, p in enumerate(adapt) if p.kind == "alpha"]
         # the state index of the deformation gain (adapted "alpha"), if any
         self._alpha: int | None = count + measured + alpha[0] if alpha else None
+        self._alpha_prior_log = adapt[alpha[0]].prior_log if alpha else 0.0
         self._thetas = slice(count + measured, count + measured + len(adapt))
         # With alpha, the camera stand's warm-up drift (thesis 4.8) as a known shape
         # ``A (1 - e^{-t/tau})`` of unknown amplitude A (µm on the chip): in the measured
@@ -234,14 +235,28 @@ class IrObserver:
 
     @property
     def deformation_gain(self) -> float:
-        """The adapted ``alpha`` factor applied to the model's deformation (1 without it)."""
+        """The ``alpha`` factor applied to the model's deformation (1 without it): the
+        estimate shrunk towards its prior by ``u^2 / (u^2 + sigma^2)`` (``u`` the estimate's
+        departure from the prior, in the log), the weight that minimises the expected squared
+        error of applying it (Wiener's); early in a run, while the camera has seen little
+        deformation and cannot yet tell the stand from the link, a barely known factor is not
+        applied. Once known (1-sigma << departure) it is the estimate."""
         if self._alpha is None:
             return 1.0
-        return math.exp(float(self._theta[self._alpha - self._thetas.start]))
+        departure = float(self._theta[self._alpha - self._thetas.start]) - self._alpha_prior_log
+        variance = max(float(self._p[self._alpha, self._alpha]), 0.0)
+        total = departure * departure + variance
+        weight = departure * departure / total if total > 0.0 else 1.0
+        return math.exp(self._alpha_prior_log + weight * departure)
 
-    def _deformation_gradient(self) -> tuple[float, FloatArray]:
-        """The corrected deformation ``s_a w^T (T - T_ref)`` and its gradient over the state."""
-        gain = self.deformation_gain
+    def _deformation_gradient(self, applied: bool = True) -> tuple[float, FloatArray]:
+        """The corrected deformation ``s_a w^T (T - T_ref)`` and its gradient over the state;
+        ``s_a``: the factor applied (:attr:`deformation_gain`), or (``applied=False``, for the
+        camera's measurement model) the estimate itself."""
+        if applied or self._alpha is None:
+            gain = self.deformation_gain
+        else:
+            gain = math.exp(float(self._theta[self._alpha - self._thetas.start]))
         deformation = gain * self.model.deformation_um_scalar()
         gradient = np.zeros(self._p.shape[0])
         gradient[: self._nodes] = gain * self._weights
@@ -274,7 +289,7 @@ class IrObserver:
         non-finite value)."""
         if self._alpha is None or not (math.isfinite(measured_um) and noise_um > 0):
             return None
-        predicted, row = self._deformation_gradient()
+        predicted, row = self._deformation_gradient(applied=False)
         chosen = [self._alpha]
         if self._stand is not None and self._stand_tau_s is not None:
             shape = -math.expm1(-max(self.model.time_s, 0.0) / self._stand_tau_s) / scale
