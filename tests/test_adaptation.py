@@ -311,3 +311,24 @@ def test_a_stand_drift_of_known_shape_is_not_taken_for_expansion(preset: Thermal
     assert "stand_drift_um" not in without
     biased, biased_sigma = without["alpha"]
     assert abs(biased - true_alpha) > 3 * biased_sigma
+
+
+def test_a_barely_known_alpha_is_applied_shrunk_towards_its_prior(
+    preset: ThermalNetwork,
+) -> None:
+    """Applied: prior + u^3 / (u^2 + sigma^2) in the log (u: the estimate's departure), so an
+    uncertain estimate moves the compensation less than it moved itself, a sure one fully."""
+    model = ThermalModel(preset, dt_s=1.0)
+    model.set_heat(HEAT)
+    prior = adapted_parameters(preset, ["alpha"], {"alpha": (1.1, 0.5)})
+    observer = IrObserver(model, REGIONS, IR_NOISE_C, adapt=prior, stand_drift_tau_s=None)
+    assert observer.deformation_gain == pytest.approx(1.1)  # no data: the prior
+    observer.step(600.0, None)
+    predicted = observer.model.deformation_um_scalar()
+    observer.update_deformation(1.3 * predicted, noise_um=0.05 * predicted)
+    estimate, sigma = observer.parameter_estimates()["alpha"]
+    departure, log_sigma = math.log(estimate / 1.1), sigma / estimate
+    applied = 1.1 * math.exp(departure**3 / (departure**2 + log_sigma**2))
+    assert observer.deformation_gain == pytest.approx(applied)
+    assert 1.1 < observer.deformation_gain < estimate
+    assert observer.corrected_deformation_um()[0] == pytest.approx(applied * predicted)
