@@ -50,8 +50,9 @@ from daemon.model.model import ModelError, NetworkModes
 from daemon.model.network import FloatArray, NetworkError, ThermalNetwork
 
 AdaptedKind = Literal["heat", "convection", "alpha"]
-#: What adaptation estimates by default: one heat factor, one convection factor (the IR
-#: offsets are always in the observer's state).
+#: What adaptation estimates by default: one heat factor and one convection factor (from the
+#: IR regions) and the expansion factor (from the measured spot drift); the IR offsets are
+#: always in the observer's state.
 DEFAULT_ADAPTED: tuple[str, ...] = ("heat", "convection", "alpha")
 #: Prior 1-sigma of a log scale factor with no identified value: 0.5, a factor 1.65 either
 #: way (identification's RELATIVE_SE_LIMIT; the thesis's Table 5.1 gave a 4x wrong time
