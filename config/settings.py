@@ -544,6 +544,46 @@ class ModelSettings(_Section):
     )
 
 
+class ObserverSettings(_Section):
+    """The IR observer of prediction model+ir (daemon.model.observer) and its online
+    adaptation (issue 19, daemon.model.adaptation)."""
+
+    adapt: bool = Field(
+        False,
+        description="model+ir: also estimate the adapt_parameters scale factors online with the "
+        "temperatures (augmented-state EKF), so a wrong model converges without a calibration "
+        "run; an identified network's values and errors are the priors.",
+    )
+    adapt_parameters: tuple[str, ...] = Field(
+        ("heat", "convection", "alpha"),
+        description="What adaptation estimates: heat (every heat input x one factor), "
+        "heat:NODE (that node's), convection (every node's conductance to ambient), from the IR "
+        "regions; alpha (the predicted deformation x one factor), from the measured spot drift "
+        "alone.",
+    )
+    stand_drift_tau_s: PositiveFloat | None = Field(
+        600.0,
+        description="alpha: the measured drift also carries the camera stand's warm-up, "
+        "A (1 - exp(-t / tau)) of unknown A, estimated beside alpha and never compensated "
+        "(thesis 4.8: the camera warmed up within ~25 min); none: no stand drift state.",
+    )
+    deformation_noise_um: Annotated[float, Field(gt=0, le=1000)] = Field(
+        1.0,
+        description="1-sigma of one measured residual (um, scaled) as adaptation of alpha "
+        "weighs it: the robot's repeatability and the centroid (thesis Table 6.1: S_x 0.92).",
+    )
+    prior_sigma: Annotated[float, Field(gt=0, le=3)] = Field(
+        0.5,
+        description="1-sigma of the log of an adapted factor that no identification gave "
+        "(0.5: a factor 1.65 either way).",
+    )
+    random_walk_per_hour: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.05,
+        description="How far an adapted factor's log may wander per hour (1-sigma): the "
+        "factors of a coarse model are effective values, nearly constant.",
+    )
+
+
 class CompensationSettings(_Section):
     """How a predicted deformation becomes a robot move (thesis 6.3, 6.4.4)."""
 
@@ -742,6 +782,7 @@ class Settings(_Section):
     ir: IrSettings = IrSettings()
     robot: RobotSettings = RobotSettings()
     model: ModelSettings = ModelSettings()
+    observer: ObserverSettings = ObserverSettings()
     compensation: CompensationSettings = CompensationSettings()
     scheduler: SchedulerSettings = SchedulerSettings()
     storage: StorageSettings = StorageSettings()

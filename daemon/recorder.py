@@ -109,6 +109,9 @@ class StepRecord:
     drift_3d_um: float | None = None  # |measured translation|: the 3-D drift (the residual)
     rotation_error_urad: float | None = None  # |measured rotation|: the rotation error
     measured_sigma_um: float | None = None  # 1-sigma of the 3-D position (sqrt trace cov)
+    # the observer's estimates after the IR update: {"heat": [factor, 1-sigma], ...,
+    # "offset:REGION": [degC, 1-sigma]} (model+ir; the factors with observer.adapt, issue 19)
+    observer_json: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -16,6 +16,7 @@ from pydantic import ValidationError
 from config import Settings
 from config.settings import IrRegion
 from daemon.model import ThermalModel, ThermalNetwork, load_network
+from daemon.model.adaptation import adaptation_priors, adapted_parameters
 from daemon.model.calibration import Calibration
 from daemon.model.compensation import (
     CONSOLE_RESOLUTION_MM,
@@ -35,6 +36,7 @@ logger = logging.getLogger(__name__)
 #: Final states of a run whose recorded drift can serve as a reference (it ran, in part or
 #: whole, and its steps are committed).
 REFERENCE_STATES = ("finished", "stopped")
+SECONDS_PER_HOUR = 3600.0
 #: The incremental-mode check follows at most this many steps (a few seconds of model steps).
 MAX_CHECKED_STEPS = 200_000
 
@@ -139,16 +141,39 @@ def build_observer(
         raise RunParameterError("prediction model+ir needs IR regions tied to model nodes")
     noise = {r.name: ir_settings.noise_c / math.sqrt(r.width * r.height) for r in tied}
     calibration = model.network.calibration
-    if calibration is None or not calibration.ir_offsets_c:
-        return IrObserver(model, regions_to_nodes(tied), noise)
-    # An identified network: the filter starts from the identified IR offsets, with their
-    # identified uncertainty as prior (issue 19), instead of 0 +- the FLIR's 2 degC.
+    offsets: dict[str, Any] = {}
+    if calibration is not None and calibration.ir_offsets_c:
+        # An identified network: the filter starts from the identified IR offsets, with their
+        # identified uncertainty as prior (issue 19), instead of 0 +- the FLIR's 2 degC.
+        offsets = {
+            "offsets_c": calibration.ir_offsets_c,
+            "offset_sigma_c": offset_prior_sigma_c(calibration, [r.name for r in tied]),
+        }
+    observer = settings.observer
+    if not observer.adapt:
+        return IrObserver(model, regions_to_nodes(tied), noise, **offsets)
+    # Online adaptation (issue 19): an identified network's factors are the priors, and the
+    # ones its identification could not identify stay as the file has them.
+    names, priors = adaptation_priors(calibration, observer.adapt_parameters, observer.prior_sigma)
+    skipped = [name for name in observer.adapt_parameters if name not in names]
+    if skipped:
+        logger.info(
+            "observer.adapt: %s not identifiable in network %r, not adapted",
+            ", ".join(skipped),
+            model.network.name,
+        )
+    try:
+        adapted = adapted_parameters(model.network, names, priors)
+    except ValueError as err:
+        raise RunParameterError(f"observer.adapt_parameters: {err}") from err
     return IrObserver(
         model,
         regions_to_nodes(tied),
         noise,
-        offsets_c=calibration.ir_offsets_c,
-        offset_sigma_c=offset_prior_sigma_c(calibration, [r.name for r in tied]),
+        adapt=adapted,
+        parameter_random_walk=observer.random_walk_per_hour**2 / SECONDS_PER_HOUR,
+        stand_drift_tau_s=observer.stand_drift_tau_s,
+        **offsets,
     )
 
 

@@ -27,6 +27,7 @@ from daemon.model.compensation import (
     check_offset,
     compensation_offset_mm,
 )
+from daemon.model.network import UM_PER_MM
 from daemon.model.observer import IrObserver
 from daemon.recorder import Recorder, StepRecord
 from daemon.runs import ProcedurePoint, RunParameters, heat_at, procedure_point
@@ -214,10 +215,14 @@ class StepPipeline:
             switch_s = parameters.heater_off_s * scale
             if model.time_s < switch_s <= target_model_s:
                 await self._advance_to(work, switch_s)
+                if work.observer is not None:  # adaptation scales the heat of each interval
+                    work.observer.predict(model.time_s)
         if target_model_s > model.time_s:
             await self._advance_to(work, target_model_s)
         if work.observer is not None:
             work.observer.predict(model.time_s)  # the covariance follows the model's mean
+            # an adapted expansion factor (observer.adapt, "alpha") scales the prediction
+            return model.deformation_um() * work.observer.deformation_gain
         return model.deformation_um()
 
     async def _advance_to(self, work: RunWork, model_s: float) -> None:
@@ -367,6 +372,16 @@ class StepPipeline:
             (record.drift_x_um, record.drift_y_um), self._settings.camera.rotation_deg
         )
         record.residual_um = float(np.dot(world_um, work.direction))
+        if work.observer is not None:
+            # the link's own deformation: the drift with the commanded compensation taken out
+            # (daemon.model.identify.measured_deformation_um), for an adapted "alpha" only
+            scale = work.parameters.deformation_scale
+            offset_um = float(np.dot(work.last_offset_mm, work.direction)) * UM_PER_MM
+            work.observer.update_deformation(
+                (record.residual_um - offset_um) / scale,
+                self._settings.observer.deformation_noise_um / scale,
+                scale,
+            )
 
     async def _infrared(
         self, work: RunWork, record: StepRecord, flags: list[str], errors: list[str]
@@ -388,6 +403,12 @@ class StepPipeline:
             )
             if innovation is not None:
                 record.innovation_nis = innovation.nis
+            record.observer_json = json.dumps(
+                {
+                    name: [round(value, 6), round(sigma, 6)]
+                    for name, (value, sigma) in work.observer.parameter_estimates().items()
+                }
+            )
             if work.observer.drifting:
                 flags.append("model-drifting")
         record.ir_json = json.dumps(

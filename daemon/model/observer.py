@@ -15,6 +15,11 @@ Deformation is linear in T, ``d = w^T (T - T_ref)``, so its variance is ``w^T P_
 The normalised innovation squared (NIS, chi-squared with one degree per region when the model
 is right) and a moving mean of each region's normalised innovation detect a persistent bias:
 "model drifting: consider identification".
+
+With ``adapt`` (issue 19, :mod:`daemon.model.adaptation`) the state also carries the log of a few
+scale factors of the model (heat input, convection), estimated online with the temperatures by
+an augmented-state extended Kalman filter: a run with a wrong model converges without a
+calibration run, and the factors' 1-sigma comes from the same covariance.
 """
 
 from __future__ import annotations
@@ -28,6 +33,12 @@ from typing import Protocol
 
 import numpy as np
 
+from daemon.model.adaptation import (
+    LOG_BOUNDS,
+    RANDOM_WALK_LOG2_PER_S,
+    AdaptedParameter,
+    ParameterResponse,
+)
 from daemon.model.identify import observation_matrix
 from daemon.model.model import ModelError, NetworkModes, ThermalModel
 from daemon.model.network import FloatArray
@@ -40,6 +51,9 @@ DRIFT_WARNING = "model drifting: consider identification"
 PROCESS_NOISE_C2_PER_S = 3e-4
 #: Prior standard deviation of an IR offset: the FLIR A40M's +-2 degC accuracy (thesis 3.2.2).
 OFFSET_SIGMA_C = 2.0
+#: Prior 1-sigma of the camera stand's warm-up drift amplitude (µm on the chip): the thesis
+#: measured a few µm (4.8).
+STAND_DRIFT_SIGMA_UM = 5.0
 #: Bias detector: window of normalised innovations per region, and the threshold on their
 #: mean in units of its own standard deviation 1/sqrt(window) under a right model.
 BIAS_WINDOW = 60
@@ -81,6 +95,9 @@ class IrObserver:
     ``inf`` ignores the region); ``offsets_c`` are the known IR offsets (e.g. identified) and
     ``offset_sigma_c`` their prior uncertainty (0: trust them; the offsets are then fixed).
     ``reference_nodes`` must be the model's (ThermalModel's argument; default the network's).
+    ``adapt``: the scale factors estimated online with their priors
+    (:func:`daemon.model.adaptation.adapted_parameters`; empty: none, the plain filter), each
+    a random walk of ``parameter_random_walk`` (log^2 / s).
     The model is corrected in place: after ``update`` its temperatures are the estimate.
     """
 
@@ -97,6 +114,10 @@ class IrObserver:
         bias_window: int = BIAS_WINDOW,
         bias_threshold_sigma: float = BIAS_THRESHOLD_SIGMA,
         reference_nodes: Sequence[str] | None = None,
+        adapt: Sequence[AdaptedParameter] = (),
+        parameter_random_walk: float = RANDOM_WALK_LOG2_PER_S,
+        stand_drift_tau_s: float | None = None,
+        stand_drift_sigma_um: float = STAND_DRIFT_SIGMA_UM,
     ) -> None:
         network = model.network
         self.model = model
@@ -105,8 +126,31 @@ class IrObserver:
         rows = observation_matrix(network, self.regions)
         count, measured = network.node_count, len(self._region_names)
         self._nodes = count
-        # State: node temperatures, then one offset per region.
-        self._h = np.zeros((measured, count + measured))
+        self._modes = NetworkModes(network)
+        self._response = ParameterResponse(network, self._modes, adapt) if adapt else None
+        self._theta = np.array([p.prior_log for p in adapt], dtype=np.float64)
+        if not (math.isfinite(parameter_random_walk) and parameter_random_walk >= 0):
+            raise ModelError("the parameters' random walk must be finite and >= 0")
+        self._theta_walk = float(parameter_random_walk)
+        alpha = [k for k, p in enumerate(adapt) if p.kind == "alpha"]
+        # the state index of the deformation gain (adapted "alpha"), if any
+        self._alpha: int | None = count + measured + alpha[0] if alpha else None
+        self._alpha_prior_log = adapt[alpha[0]].prior_log if alpha else 0.0
+        self._thetas = slice(count + measured, count + measured + len(adapt))
+        # With alpha, the camera stand's warm-up drift (thesis 4.8) as a known shape
+        # ``A (1 - e^{-t/tau})`` of unknown amplitude A (µm on the chip): in the measured
+        # drift, not in the link, so never compensated (update_deformation).
+        if stand_drift_tau_s is not None and not (
+            math.isfinite(stand_drift_tau_s) and stand_drift_tau_s > 0
+        ):
+            raise ModelError("the stand drift's time constant must be > 0")
+        self._stand_tau_s = stand_drift_tau_s if alpha else None
+        self._stand: int | None = self._thetas.stop if self._stand_tau_s is not None else None
+        self._stand_um = 0.0
+        size = self._thetas.stop + (self._stand is not None)
+        # State: node temperatures, one offset per region, the adapted log scales, and the
+        # stand drift's amplitude if any.
+        self._h = np.zeros((measured, size))
         for k, name in enumerate(self._region_names):
             self._h[k, :count] = rows[name]
             self._h[k, count + k] = 1.0
@@ -120,10 +164,15 @@ class IrObserver:
         if not np.all(np.isfinite(q)) or np.any(q < 0):
             raise ModelError("process noise must be finite and >= 0")
         self._q = q.copy()
-        self._p = np.zeros((count + measured, count + measured))
+        self._p = np.zeros((size, size))
         self._p[:count, :count] = np.eye(count) * initial_sigma_c**2
-        self._p[count:, count:] = np.eye(measured) * offset_sigma_c**2
-        self._modes = NetworkModes(network)
+        offsets = slice(count, count + measured)
+        self._p[offsets, offsets] = np.eye(measured) * offset_sigma_c**2
+        thetas = self._thetas
+        self._p[thetas, thetas] = np.diag([p.prior_log_sigma**2 for p in adapt])
+        if self._stand is not None:
+            self._p[self._stand, self._stand] = stand_drift_sigma_um**2
+        self._start_c = model.temperatures_c  # the mean at the covariance's time
         self._covariance_time_s = model.time_s
         self._transitions: dict[float, FloatArray] = {}
         # The model's own deformation weights (its reference nodes): d = w^T (T - T_ref).
@@ -154,15 +203,109 @@ class IrObserver:
         return covariance
 
     @property
+    def adapted(self) -> tuple[AdaptedParameter, ...]:
+        return () if self._response is None else self._response.parameters
+
+    def parameter_estimates(self) -> dict[str, tuple[float, float]]:
+        """Each adapted factor's estimate and 1-sigma (``s = e^theta``, sigma ``s sigma_theta``
+        to first order), and each IR offset's (degC) and 1-sigma."""
+        estimates: dict[str, tuple[float, float]] = {}
+        tail = self._nodes + len(self._region_names)
+        for k, parameter in enumerate(self.adapted):
+            scale = math.exp(float(self._theta[k]))
+            estimates[parameter.name] = (
+                scale,
+                scale * math.sqrt(max(self._p[tail + k, tail + k], 0)),
+            )
+        if self._stand is not None:
+            variance = max(float(self._p[self._stand, self._stand]), 0.0)
+            estimates["stand_drift_um"] = (self._stand_um, math.sqrt(variance))
+        for k, name in enumerate(self._region_names):
+            index = self._nodes + k
+            estimates[f"offset:{name}"] = (
+                float(self._offsets[k]),
+                math.sqrt(max(float(self._p[index, index]), 0.0)),
+            )
+        return estimates
+
+    @property
     def offsets_c(self) -> dict[str, float]:
         """The current estimate of each region's IR offset (degC)."""
         return {n: float(v) for n, v in zip(self._region_names, self._offsets, strict=True)}
 
+    @property
+    def deformation_gain(self) -> float:
+        """The ``alpha`` factor applied to the model's deformation (1 without it): the
+        estimate shrunk towards its prior by ``u^2 / (u^2 + sigma^2)`` (``u`` the estimate's
+        departure from the prior, in the log), the weight that minimises the expected squared
+        error of applying it (Wiener's); early in a run, while the camera has seen little
+        deformation and cannot yet tell the stand from the link, a barely known factor is not
+        applied. Once known (1-sigma << departure) it is the estimate."""
+        if self._alpha is None:
+            return 1.0
+        departure = float(self._theta[self._alpha - self._thetas.start]) - self._alpha_prior_log
+        variance = max(float(self._p[self._alpha, self._alpha]), 0.0)
+        total = departure * departure + variance
+        weight = departure * departure / total if total > 0.0 else 1.0
+        return math.exp(self._alpha_prior_log + weight * departure)
+
+    def _deformation_gradient(self, applied: bool = True) -> tuple[float, FloatArray]:
+        """The corrected deformation ``s_a w^T (T - T_ref)`` and its gradient over the state;
+        ``s_a``: the factor applied (:attr:`deformation_gain`), or (``applied=False``, for the
+        camera's measurement model) the estimate itself."""
+        if applied or self._alpha is None:
+            gain = self.deformation_gain
+        else:
+            gain = math.exp(float(self._theta[self._alpha - self._thetas.start]))
+        deformation = gain * self.model.deformation_um_scalar()
+        gradient = np.zeros(self._p.shape[0])
+        gradient[: self._nodes] = gain * self._weights
+        if self._alpha is not None:
+            gradient[self._alpha] = deformation  # d/d(log s_a)
+        return deformation, gradient
+
     def corrected_deformation_um(self) -> tuple[float, float]:
-        """The corrected deformation along the link (µm) and its 1-sigma, ``sqrt(w^T P w)``."""
-        block = self._p[: self._nodes, : self._nodes]
-        variance = float(self._weights @ block @ self._weights)
-        return self.model.deformation_um_scalar(), math.sqrt(max(variance, 0.0))
+        """The corrected deformation along the link (µm) and its 1-sigma, ``sqrt(g^T P g)``
+        (``g`` its gradient: ``w`` on the temperatures, and the deformation itself on the log
+        of an adapted ``alpha``)."""
+        deformation, gradient = self._deformation_gradient()
+        variance = float(gradient @ self._p @ gradient)
+        return deformation, math.sqrt(max(variance, 0.0))
+
+    def update_deformation(
+        self, measured_um: float, noise_um: float, scale: float = 1.0
+    ) -> float | None:
+        """Fuse one measured deformation (µm along the link, unscaled: the spot drift with the
+        commanded compensation taken out, divided by the deformation scale) of 1-sigma
+        ``noise_um``, into the adapted ``alpha`` ONLY: the gain of every other state is set
+        to zero (a partial update, the "consider" idea of the Schmidt-Kalman filter), so the
+        camera calibrates the expansion factor and never steers the temperatures to the
+        measured drift, which a camera-stand drift would otherwise enter one for one. The
+        Joseph form keeps the covariance right for this suboptimal gain. With a stand drift
+        state (``stand_drift_tau_s``) the reading is ``s_a d + A (1 - e^{-t/tau}) / scale``
+        (``scale``: the run's deformation scale; the stand moves the chip, not the link) and
+        updates A too: a drift of the stand's shape is then not taken for expansion. Returns
+        the normalised innovation, or None when nothing was fused (no adapted alpha, a
+        non-finite value)."""
+        if self._alpha is None or not (math.isfinite(measured_um) and noise_um > 0):
+            return None
+        predicted, row = self._deformation_gradient(applied=False)
+        chosen = [self._alpha]
+        if self._stand is not None and self._stand_tau_s is not None:
+            shape = -math.expm1(-max(self.model.time_s, 0.0) / self._stand_tau_s) / scale
+            row[self._stand] = shape
+            predicted += self._stand_um * shape
+            chosen.append(self._stand)
+        innovation = measured_um - predicted
+        variance = float(row @ self._p @ row) + noise_um**2
+        gain = np.zeros(self._p.shape[0])
+        gain[chosen] = (self._p[chosen] @ row) / variance
+        self._theta = np.clip(self._theta + gain[self._thetas] * innovation, *LOG_BOUNDS)
+        if self._stand is not None:
+            self._stand_um += float(gain[self._stand]) * innovation
+        identity_minus = np.eye(gain.size) - np.outer(gain, row)
+        self._p = identity_minus @ self._p @ identity_minus.T + np.outer(gain, gain) * noise_um**2
+        return innovation / math.sqrt(variance)
 
     @property
     def warning(self) -> str | None:
@@ -195,10 +338,41 @@ class IrObserver:
             return
         n = self._nodes
         transition = self._transition(tau)
+        if self._response is not None:
+            self._predict_adapted(tau, transition)
+            self._start_c = self.model.temperatures_c
+            return
         p = self._p
         p[:n, :n] = transition @ p[:n, :n] @ transition.T + np.diag(self._q * tau)
         p[:n, n:] = transition @ p[:n, n:]
         p[n:, :n] = p[:n, n:].T
+        self._start_c = self.model.temperatures_c
+
+    def _predict_adapted(self, tau: float, transition: FloatArray) -> None:
+        """The adapted step (module docstring of daemon.model.adaptation): the model's nominal
+        step, corrected by ``Gamma db``; the covariance by the EKF's Jacobian."""
+        assert self._response is not None
+        n, thetas = self._nodes, self._thetas
+        model = self.model
+        nominal = model.temperatures_c
+        gain = self._response.gain(tau)
+        drive, columns, d_temperature = self._response.drive(
+            self._theta, model.heat_w, model.ambient_c, 0.5 * (self._start_c + nominal)
+        )
+        model.set_temperatures(nominal + gain @ drive)
+        jacobian = np.eye(self._p.shape[0])
+        jacobian[:n, :n] = transition + gain * d_temperature  # Gamma diag(d db / dT)
+        jacobian[:n, thetas] = gain @ columns
+        noise = np.zeros(self._p.shape[0])
+        noise[:n] = self._q * tau
+        noise[thetas] = self._theta_walk * tau
+        if self._alpha is not None:
+            # alpha is a constant: with a random walk the camera's every reading would move
+            # it, and it would follow the measured drift (a stand drift too) within seconds,
+            # a camera servo rather than a model; constant, it is the least-squares gain of
+            # the whole run so far
+            noise[self._alpha] = 0.0
+        self._p = jacobian @ self._p @ jacobian.T + np.diag(noise)
 
     def update(self, measurements_c: Mapping[str, float]) -> Innovation | None:
         """Fuse one IR reading (region -> mean degC; unknown regions, NaN values and regions of
@@ -214,7 +388,8 @@ class IrObserver:
             return None
         n = self._nodes
         h = self._h[used]
-        state = np.concatenate([self.model.temperatures_c, self._offsets])
+        stand = [self._stand_um] if self._stand is not None else []
+        state = np.concatenate([self.model.temperatures_c, self._offsets, self._theta, stand])
         z = np.array([measurements_c[self._region_names[k]] for k in used])
         innovation = z - h @ state
         s = h @ self._p @ h.T + np.diag(self._noise_c2[used])
@@ -226,8 +401,15 @@ class IrObserver:
             identity_minus @ self._p @ identity_minus.T
             + gain @ np.diag(self._noise_c2[used]) @ gain.T
         )
+        measured = len(self._region_names)
         self.model.set_temperatures(state[:n])
-        self._offsets = state[n:]
+        self._start_c = state[:n].copy()
+        self._offsets = state[n : n + measured]
+        # a factor's log stays within identification's bounds (1/10 .. 10): a wild first
+        # innovation must not send the model somewhere it cannot come back from
+        self._theta = np.clip(state[self._thetas], *LOG_BOUNDS)
+        if self._stand is not None:
+            self._stand_um = float(state[self._stand])
         nis = float(innovation @ np.linalg.solve(s, innovation))
         variances = np.diag(s)
         names = [self._region_names[k] for k in used]
