@@ -14,7 +14,6 @@ model's error plus the 3-D measurement's noise.
 from __future__ import annotations
 
 import asyncio
-import re
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +21,6 @@ import numpy as np
 import pytest
 
 from config import Settings
-from daemon.arm.duty import duty_dir
 from daemon.runs import RunParameters
 from daemon.service import Daemon
 from drivers.clock import make_clock
@@ -30,30 +28,15 @@ from drivers.factory import Devices
 
 STEPS = 12
 PRESET_DUTY = "a465-pick-and-place"
-#: The preset's camera station points the tool straight down (joints 2 + 3 + 5 = 90 deg):
-#: z-y-x angles (0, 90, 0), the console's gimbal lock, where the joint-space emulator's `w2`
-#: fails (its location_of warns, and the suite's warnings are errors); the bench's copy of the
-#: duty cycle measures there with the wrist turned a little.
-CAMERA_JOINTS_DEG = (0.0, 20.0, 70.0, 10.0, 20.0, 10.0)
 WAIT_S = 90.0
 
 RunResult = tuple[dict[str, Any], list[dict[str, Any]], list[str]]
 
 
-def write_duty_cycle(folder: Path) -> Path:
-    """The preset duty cycle with its camera station at CAMERA_JOINTS_DEG (see there)."""
-    text = (duty_dir() / f"{PRESET_DUTY}.toml").read_text(encoding="utf-8")
-    station = re.compile(r'(name = "camera".*?\njoints_deg = )\[[^\]]*\]', re.S)
-    text, count = station.subn(rf"\g<1>{list(CAMERA_JOINTS_DEG)}", text, count=1)
-    assert count == 1, "the preset has no camera station"
-    path = folder / "bench-pick-and-place.toml"
-    path.write_text(text, "utf-8")
-    return path
-
-
 def settings_for(tmp_path: Path) -> Settings:
+    """The preset duty cycle: its camera station points the tool straight down, the console's
+    z-y-x gimbal lock (y = 90 deg), which the emulator's `w2` and Pose6.zyx_deg handle."""
     tmp_path.mkdir(parents=True, exist_ok=True)
-    duty = str(write_duty_cycle(tmp_path))
     return Settings.model_validate(
         {
             "bench": {"seed": 7},
@@ -63,7 +46,7 @@ def settings_for(tmp_path: Path) -> Settings:
             "robot": {"driver": "sim", "readback_every": 1},
             "camera": {"bit_depth": 12, "grab_timeout_s": 30.0},
             "ir": {"driver": "sim"},
-            "arm": {"enabled": True, "duty_cycle": duty},
+            "arm": {"enabled": True, "duty_cycle": PRESET_DUTY},
         }
     )
 
