@@ -28,6 +28,7 @@ from pydantic_core import CoreSchema
 from api.broadcast import json_safe
 from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
+from daemon.arm.arm_model import ArmModelNotFoundError, named_arm_model_path
 from daemon.arm.duty import available_duty_cycles
 from daemon.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
 from daemon.model import available_presets
@@ -79,6 +80,12 @@ def _optional_fields() -> dict[str, Any]:
                     description="A preset or an identified network saved in the data "
                     "directory, by name (GET /networks); never a path.",
                 ),
+            )
+            continue
+        if name == "arm_model":  # likewise a name (identify --save), never a path
+            fields[name] = (
+                Annotated[str, Field(pattern=f"^{NETWORK_NAME.pattern}$", max_length=64)] | None,
+                Field(None, description=info.description),
             )
             continue
         if name == "duty_cycle":  # likewise a preset (config/duty), never a path
@@ -208,7 +215,7 @@ def _validation_details(err: ValidationError) -> list[dict[str, str]]:
     status_code=201,
     responses={
         400: {"model": ErrorBody, "description": "the body is not readable (e.g. not UTF-8)"},
-        404: {"model": ErrorBody, "description": "no network of that name"},
+        404: {"model": ErrorBody, "description": "no network or arm model of that name"},
         422: {"model": ErrorBody, "description": "parameters not admissible"},
     },
 )
@@ -227,6 +234,14 @@ async def start_run(
             raise ApiError(404, "not-found", str(err)) from err
         except ValueError as err:
             details = [{"field": "body.network", "message": str(err), "type": "value_error"}]
+            raise ApiError(422, "validation", str(err), details) from err
+    if "arm_model" in given:
+        try:
+            named_arm_model_path(given["arm_model"], settings.storage.data_dir)
+        except ArmModelNotFoundError as err:
+            raise ApiError(404, "not-found", str(err)) from err
+        except ValueError as err:
+            details = [{"field": "body.arm_model", "message": str(err), "type": "value_error"}]
             raise ApiError(422, "validation", str(err), details) from err
     try:
         parameters = RunParameters.from_settings(settings, **given)
