@@ -81,6 +81,11 @@ class BenchSettings(_Section):
     seed: Annotated[int, Field(ge=0, le=2**63 - 1)] = Field(
         1, description="Seed of every random part of the bench."
     )
+    noise_seed: Annotated[int, Field(ge=0, le=2**63 - 1)] | None = Field(
+        None,
+        description="Arm bench: seed of the measurement noise only (none: bench.seed), so "
+        "one arm can be measured twice (a calibration run, then a run).",
+    )
     heater_power_w: Annotated[float, Field(ge=0, le=MAX_HEAT_W)] = Field(
         0.5,
         description="Truth: power of each heater pad on the bench (W); the controller "
