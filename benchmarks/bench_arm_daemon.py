@@ -77,7 +77,7 @@ async def one_run(settings: Settings, **overrides: Any) -> tuple[int, dict[str, 
     return int(info["id"]), final, steps
 
 
-def figures(steps: Sequence[dict[str, Any]]) -> dict[str, float]:
+def figures(steps: Sequence[dict[str, Any]]) -> dict[str, Any]:
     drift = np.array([s["drift_3d_um"] for s in steps], dtype=float)
     rotation = np.array([s["rotation_error_urad"] for s in steps], dtype=float)
     sigma = np.array([s["measured_sigma_um"] for s in steps], dtype=float)
@@ -92,6 +92,8 @@ def figures(steps: Sequence[dict[str, Any]]) -> dict[str, float]:
         "max_rotation_urad": float(np.nanmax(rotation)),
         "noise_3d_um": float(np.nanmean(sigma)),
         "predicted_max_3d_um": float(np.nanmax(np.linalg.norm(predicted, axis=1))),
+        "drift_3d_um_per_step": [round(float(v), 2) for v in drift],
+        "poses": [s["arm_pose"] for s in steps],
     }
 
 
@@ -119,13 +121,12 @@ async def bench(seed: int, data_dir: Path) -> dict[str, Any]:
         "identified": {"arm_model": MODEL_NAME},
         "identified + model+ir": {"arm_model": MODEL_NAME, "prediction": "model+ir"},
     }
-    results: dict[str, dict[str, float]] = {}
+    results: dict[str, dict[str, Any]] = {}
     reference: int | None = None
-    for name, overrides in cases.items():
+    for name, case in cases.items():
         t = time.perf_counter()
-        if reference is not None:
-            overrides = {**overrides, "reference_run": reference}
-        run_id, final, steps = await one_run(settings, **overrides)
+        given = case if reference is None else {**case, "reference_run": reference}
+        run_id, final, steps = await one_run(settings, **given)
         walls[name] = time.perf_counter() - t
         if name == "none":
             reference = run_id

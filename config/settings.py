@@ -737,6 +737,11 @@ class ArmSettings(_Section):
         0.05, description="Time step of the duty cycle's motion samples for motor heat (s)."
     )
     bending: bool = Field(False, description="Links bend from a temperature gradient across them.")
+    motor_side_share: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.5,
+        description="With arm.bending: share of each joint's flange conductance on the link's "
+        "motor-housing side (the arm's design; 0.5: symmetric, no gradient across a link).",
+    )
 
 
 class Settings(_Section):

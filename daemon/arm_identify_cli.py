@@ -128,6 +128,7 @@ def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
         motion_dt_s=settings.arm.motion_dt_s,
         ambient_c=settings.model.ambient_c,
         bending=settings.arm.bending,
+        motor_side_share=settings.arm.motor_side_share,
         model_dt_s=IDENTIFY_STEP_S,
     )
     try:

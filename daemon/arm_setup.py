@@ -69,6 +69,7 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
         motion_dt_s=arm_settings.motion_dt_s,
         ambient_c=settings.model.ambient_c,
         bending=arm_settings.bending,
+        motor_side_share=arm_settings.motor_side_share,
         model_dt_s=parameters.step_s * parameters.time_scale,
     )
     identified = None

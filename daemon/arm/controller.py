@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from daemon.arm.arm_model import ArmModel
+from daemon.arm.arm_network import describe_arm
 from daemon.arm.description import Arm, load_arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
@@ -48,6 +49,9 @@ class ArmModelOptions:
     motion_dt_s: float = 0.05  # the duty cycle's motion samples for motor heat (s)
     ambient_c: float = 22.0
     bending: bool = False
+    #: with ``bending``: the motor housings' side of each link (arm_network.describe_arm's
+    #: ``plus_share``); the model then resolves the temperature across each link
+    motor_side_share: float = 0.5
     node_spacing_mm: float = 50.0
     model_dt_s: float = 1.0  # the thermal model's step (its stepper is exact: any dt)
 
@@ -83,8 +87,10 @@ class ArmController:
             self.alpha_scale = identified.alpha_scale
             convection = identified.convection_scale
         self.heat = heat or JointHeatProfile.from_duty(arm, duty, resolution_s=options.motion_dt_s)
+        description = describe_arm(arm, plus_share=options.motor_side_share)
         self.thermal = thermal or ArmThermalModel(
-            arm,
+            description if options.bending else arm,
+            across_link=options.bending,
             node_spacing_mm=options.node_spacing_mm,
             ambient_c=options.ambient_c,
             dt_s=options.model_dt_s,
