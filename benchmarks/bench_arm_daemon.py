@@ -81,9 +81,7 @@ def figures(steps: Sequence[dict[str, Any]]) -> dict[str, Any]:
     drift = np.array([s["drift_3d_um"] for s in steps], dtype=float)
     rotation = np.array([s["rotation_error_urad"] for s in steps], dtype=float)
     sigma = np.array([s["measured_sigma_um"] for s in steps], dtype=float)
-    predicted = np.array(
-        [[s[f"predicted_t{a}_um"] for a in "xyz"] for s in steps], dtype=float
-    )
+    predicted = np.array([[s[f"predicted_t{a}_um"] for a in "xyz"] for s in steps], dtype=float)
     return {
         "rms_3d_um": float(np.sqrt(np.nanmean(drift**2))),
         "max_3d_um": float(np.nanmax(drift)),
