@@ -253,7 +253,7 @@ def format_arm_result(full: ArmIdentification, refit: ArmIdentification) -> str:
         "identifiable"
     ]
     for p in full.parameters:
-        relative = "" if p.relative_error is None else f"{100 * p.relative_error:7.2f}%"
+        relative = _percent(p.relative_error)
         verdict = "yes" if p.identifiable else f"NO: {p.reason}"
         again = f"{refitted[p.name].value:>10.4g}" if p.name in refitted else "  (preset)"
         lines.append(
@@ -272,6 +272,13 @@ def format_arm_result(full: ArmIdentification, refit: ArmIdentification) -> str:
     if not refit.success:
         lines.append(f"warning: the optimiser stopped early: {refit.message}")
     return "\n".join(lines)
+
+
+def _percent(relative: float | None) -> str:
+    """A relative standard error as a percentage; past 1000 % (nothing seen) only that."""
+    if relative is None:
+        return ""
+    return f"{100 * relative:7.2f}%" if relative <= 10.0 else "  >1000%"
 
 
 def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
