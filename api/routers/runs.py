@@ -21,6 +21,7 @@ from pydantic import (
     GetJsonSchemaHandler,
     ValidationError,
     create_model,
+    field_validator,
 )
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema
@@ -96,10 +97,19 @@ def _optional_fields() -> dict[str, Any]:
     return fields
 
 
+def _no_boolean(value: Any) -> Any:
+    """No run parameter is a boolean, and the schema says so: ``true`` for a number (which
+    pydantic's lax mode would take as 1.0) is refused, as the schema's types promise."""
+    if isinstance(value, bool):
+        raise ValueError("a boolean is not a valid value here")
+    return value
+
+
 RunRequest: type[BaseModel] = create_model(
     "RunRequest",
     __config__={"extra": "forbid", "allow_inf_nan": False},
     __doc__="Run parameters (issue 6); every field left out takes the configured default.",
+    __validators__={"no_boolean": field_validator("*", mode="before")(_no_boolean)},
     **_optional_fields(),
 )
 
