@@ -12,6 +12,7 @@ standard error. The run is the model identification assumes, so this checks the 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,8 @@ from daemon.arm_setup import ArmSetupError, arm_file, default_arm_setup
 from daemon.recorder import Recorder, StepRecord
 from daemon.runs import RunParameters
 from tests.helpers import run_in_process
+from tests.test_arm_run import ArmHarness, FakePredictor, run_to_end
+from tests.test_arm_run import arm_settings as run_arm_settings
 
 DUTY = "a465-pick-and-place"
 STEPS = 24
@@ -296,3 +299,34 @@ def test_region_names() -> None:
     assert region_point("turret@0.2", links) == ("turret", 0.2)
     assert region_point("turret@1.5", links) is None
     assert region_point("node-3", links) is None
+
+
+class ObservingPredictor(FakePredictor):
+    """The fake model of tests/test_arm_run.py, with the observer's entry point."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.readings: list[dict[str, float]] = []
+
+    def observe(self, reading_c: Mapping[str, float]) -> None:
+        self.readings.append(dict(reading_c))
+
+
+async def test_each_arm_step_feeds_its_ir_reading_to_the_model(tmp_path: Path) -> None:
+    """daemon/arm_step.py: the IR regions read at a step reach the model's observe() (the
+    arm's observer with model+ir; a no-op otherwise), as recorded in the step's ir_json."""
+    predictors: list[ObservingPredictor] = []
+
+    def make() -> ObservingPredictor:
+        predictors.append(ObservingPredictor())
+        return predictors[-1]
+
+    harness = ArmHarness(run_arm_settings(tmp_path), make)
+    async with harness.daemon:
+        final, steps = await run_to_end(harness, compensation="off")
+    assert final["state"] == "finished"
+    readings = predictors[0].readings
+    assert len(readings) == len(steps) > 0
+    for reading, step in zip(readings, steps, strict=True):
+        recorded = json.loads(step["ir_json"])
+        assert reading == {name: value["mean_c"] for name, value in recorded.items()}
