@@ -81,6 +81,11 @@ class BenchSettings(_Section):
     seed: Annotated[int, Field(ge=0, le=2**63 - 1)] = Field(
         1, description="Seed of every random part of the bench."
     )
+    noise_seed: Annotated[int, Field(ge=0, le=2**63 - 1)] | None = Field(
+        None,
+        description="Arm bench: seed of the measurement noise only (none: bench.seed), so "
+        "one arm can be measured twice (a calibration run, then a run).",
+    )
     heater_power_w: Annotated[float, Field(ge=0, le=MAX_HEAT_W)] = Field(
         0.5,
         description="Truth: power of each heater pad on the bench (W); the controller "
@@ -772,6 +777,11 @@ class ArmSettings(_Section):
         0.05, description="Time step of the duty cycle's motion samples for motor heat (s)."
     )
     bending: bool = Field(False, description="Links bend from a temperature gradient across them.")
+    motor_side_share: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.5,
+        description="With arm.bending: share of each joint's flange conductance on the link's "
+        "motor-housing side (the arm's design; 0.5: symmetric, no gradient across a link).",
+    )
 
 
 class Settings(_Section):

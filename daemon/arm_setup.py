@@ -69,9 +69,23 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
         motion_dt_s=arm_settings.motion_dt_s,
         ambient_c=settings.model.ambient_c,
         bending=arm_settings.bending,
+        motor_side_share=arm_settings.motor_side_share,
         model_dt_s=parameters.step_s * parameters.time_scale,
     )
-    controller = load_controller(arm_file(settings), parameters.duty_cycle, options)
+    identified = None
+    if parameters.arm_model is not None:
+        from daemon.arm.arm_model import load_arm_model, named_arm_model_path
+
+        path = named_arm_model_path(parameters.arm_model, settings.storage.data_dir)
+        identified = load_arm_model(path)
+    controller = load_controller(arm_file(settings), parameters.duty_cycle, options, identified)
+    if identified is not None and identified.arm != controller.arm.name:
+        raise ArmSetupError(
+            f"arm model {identified.name!r} was identified on arm {identified.arm!r}, "
+            f"this run's arm is {controller.arm.name!r}"
+        )
+    if parameters.prediction == "model+ir":
+        controller.enable_observer(settings.ir.noise_c)
     poses = controller.measured_poses(arm_settings.measured_poses)
     snapshot = {
         "arm": controller.arm.name,
@@ -81,6 +95,11 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
         "measured_poses": [pose.name for pose in poses],
         "node_names": list(controller.thermal.node_names),
         "mean_joint_heat_w": controller.heat.mean_power_w.tolist(),
+        "motion_dt_s": arm_settings.motion_dt_s,
+        "ambient_c": settings.model.ambient_c,
+        "bending": arm_settings.bending,
+        "arm_model": None if identified is None else identified.provenance(),
+        "prediction": parameters.prediction,
     }
     return ArmPlan(controller, poses, snapshot)
 

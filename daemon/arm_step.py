@@ -310,12 +310,14 @@ class ArmStepPipeline:
         if measurement is not None:
             record_measurement(work, pose, measurement, record)
         started = time.perf_counter()
-        await self._infrared(record, flags, errors)
+        await self._infrared(work, record, flags, errors)
         stages["ir"] = time.perf_counter() - started
 
-    async def _infrared(self, record: StepRecord, flags: list[str], errors: list[str]) -> None:
-        """The IR regions on the links, recorded (the arm's observer is not part of a run yet:
-        its identification is benchmarks/bench_arm.py's)."""
+    async def _infrared(
+        self, work: ArmRunWork, record: StepRecord, flags: list[str], errors: list[str]
+    ) -> None:
+        """The IR regions on the links, recorded (identification reads them back:
+        daemon/arm_identify_cli.py) and, with prediction model+ir, fused into the model."""
         try:
             reading = await self._sensors.read_ir()
         except DeviceError as err:
@@ -333,6 +335,12 @@ class ArmStepPipeline:
                 for name, region in reading.regions.items()
             }
         )
+        observe = getattr(work.predictor, "observe", None)
+        if callable(observe) and "stale-ir" not in flags:
+            # prediction model+ir: the IR regions correct the arm model's nodes, for the next
+            # step's prediction (on the step's worker: a Kalman update of tens of nodes)
+            means = {name: region.mean_c for name, region in reading.regions.items()}
+            await self._workers.step(observe, means)
 
 
 def record_measurement(

@@ -97,7 +97,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "(least squares on log-parameters, robust loss). Reports each parameter with its "
         "standard error, flags the ones the data cannot identify, and writes the identified "
         "network as a TOML file load_network reads. RUN is a run number in the run database "
-        "of --config's storage.data_dir, or an exported CSV.",
+        "of --config's storage.data_dir, or an exported CSV. An arm run (one with a duty "
+        "cycle) gives an arm model instead: each joint's heat, convection, alpha and the IR "
+        "offsets, fitted to its measured tool positions and IR regions; --save NAME keeps it "
+        "for `thermocomp run --arm-model NAME`.",
     )
     parser.add_argument("target", metavar="RUN_ID|FILE", help="run number or exported CSV")
     parser.add_argument(
@@ -249,6 +252,16 @@ def run_identify(args: argparse.Namespace) -> int:
         settings = settings.model_copy(
             update={"storage": settings.storage.model_copy(update={"data_dir": args.data_dir})}
         )
+    if args.target.isdigit() and not Path(args.target).is_file():
+        from daemon.arm_identify_cli import is_arm_run, run_arm_identify
+
+        try:
+            parameters, _ = _recorded_parameters(settings.storage.data_dir, int(args.target))
+        except RunInputError as err:
+            print(f"thermocomp identify: {err}", file=sys.stderr)
+            return EXIT_FAILURE
+        if is_arm_run(parameters):  # issue 20: an arm model (daemon/arm_identify_cli.py)
+            return run_arm_identify(args, settings)
     saved = None
     try:
         if args.save is not None:

@@ -98,6 +98,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "follow, its measured poses corrected in 6-DOF; sets arm.duty_cycle and arm.enabled",
     )
     parser.add_argument(
+        "--arm-model",
+        metavar="NAME",
+        help="an arm run: the identified arm model saved in the data directory by "
+        "`thermocomp identify RUN --save NAME` (default: the preset arm's model)",
+    )
+    parser.add_argument(
         "--data-dir", type=Path, help="folder of the run database (default: storage.data_dir)"
     )
     parser.add_argument("--csv", type=Path, help="also export the run's steps to this CSV file")
@@ -129,6 +135,7 @@ def run_command(args: argparse.Namespace) -> int:
         parameters = RunParameters.from_settings(
             settings,
             reference_run=args.reference_run,
+            arm_model=args.arm_model,
             heat_w=_heat_map(args.heat) if args.heat else None,
         )
     except ValidationError as err:

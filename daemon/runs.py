@@ -159,6 +159,11 @@ class RunParameters(BaseModel):
         description="An arm run (issue 20, needs arm.enabled): the duty cycle file it follows; "
         "its measured poses are corrected in 6-DOF (compensation off or absolute).",
     )
+    arm_model: Annotated[str, Field(min_length=1, max_length=64)] | None = Field(
+        None,
+        description="An arm run: the identified arm model saved in the data directory by "
+        "`thermocomp identify RUN --save NAME`, by name; none: the preset arm's model.",
+    )
     # moving procedure (thesis 3.2.4): a wiper arc about the goal, back home to capture
     arc_amplitude_deg: Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)] = 15.0
     arc_radius_mm: Annotated[float, Field(ge=0, le=MAX_OFFSET_MM, allow_inf_nan=False)] = 10.0
@@ -173,10 +178,13 @@ class RunParameters(BaseModel):
     def _consistent(self) -> RunParameters:
         if self.step_s > self.duration_s:
             raise ValueError("step_s must not exceed duration_s")
-        if self.prediction == "model+ir" and self.time_scale != 1.0:
+        # an arm run's IR reads the arm on the run clock times time_scale, as its model runs
+        if self.prediction == "model+ir" and self.time_scale != 1.0 and self.duty_cycle is None:
             raise ValueError("prediction model+ir needs time_scale 1: the IR sees real time")
         if self.duty_cycle is not None and self.compensation == "incremental":
             raise ValueError("an arm run corrects absolutely: compensation off or absolute")
+        if self.arm_model is not None and self.duty_cycle is None:
+            raise ValueError("arm_model is for an arm run: name a duty cycle")
         if self.duty_cycle is not None and self.procedure != "stationary":
             raise ValueError("an arm run follows its duty cycle: procedure must be stationary")
         if self.procedure == "repeatability" and len(self.poses_mm) < 2:

@@ -21,6 +21,7 @@ from pydantic import (
     GetJsonSchemaHandler,
     ValidationError,
     create_model,
+    field_validator,
 )
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema
@@ -28,6 +29,7 @@ from pydantic_core import CoreSchema
 from api.broadcast import json_safe
 from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
+from daemon.arm.arm_model import ArmModelNotFoundError, named_arm_model_path
 from daemon.arm.duty import available_duty_cycles
 from daemon.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
 from daemon.model import available_presets
@@ -81,6 +83,12 @@ def _optional_fields() -> dict[str, Any]:
                 ),
             )
             continue
+        if name == "arm_model":  # likewise a name (identify --save), never a path
+            fields[name] = (
+                Annotated[str, Field(pattern=f"^{NETWORK_NAME.pattern}$", max_length=64)] | None,
+                Field(None, description=info.description),
+            )
+            continue
         if name == "duty_cycle":  # likewise a preset (config/duty), never a path
             annotation = Literal[tuple(available_duty_cycles()) or ("",)]
         elif info.metadata:
@@ -89,10 +97,19 @@ def _optional_fields() -> dict[str, Any]:
     return fields
 
 
+def _no_boolean(value: Any) -> Any:
+    """No run parameter is a boolean, and the schema says so: ``true`` for a number (which
+    pydantic's lax mode would take as 1.0) is refused, as the schema's types promise."""
+    if isinstance(value, bool):
+        raise ValueError("a boolean is not a valid value here")
+    return value
+
+
 RunRequest: type[BaseModel] = create_model(
     "RunRequest",
     __config__={"extra": "forbid", "allow_inf_nan": False},
     __doc__="Run parameters (issue 6); every field left out takes the configured default.",
+    __validators__={"no_boolean": field_validator("*", mode="before")(_no_boolean)},
     **_optional_fields(),
 )
 
@@ -208,7 +225,7 @@ def _validation_details(err: ValidationError) -> list[dict[str, str]]:
     status_code=201,
     responses={
         400: {"model": ErrorBody, "description": "the body is not readable (e.g. not UTF-8)"},
-        404: {"model": ErrorBody, "description": "no network of that name"},
+        404: {"model": ErrorBody, "description": "no network or arm model of that name"},
         422: {"model": ErrorBody, "description": "parameters not admissible"},
     },
 )
@@ -227,6 +244,14 @@ async def start_run(
             raise ApiError(404, "not-found", str(err)) from err
         except ValueError as err:
             details = [{"field": "body.network", "message": str(err), "type": "value_error"}]
+            raise ApiError(422, "validation", str(err), details) from err
+    if "arm_model" in given:
+        try:
+            named_arm_model_path(given["arm_model"], settings.storage.data_dir)
+        except ArmModelNotFoundError as err:
+            raise ApiError(404, "not-found", str(err)) from err
+        except ValueError as err:
+            details = [{"field": "body.arm_model", "message": str(err), "type": "value_error"}]
             raise ApiError(422, "validation", str(err), details) from err
     try:
         parameters = RunParameters.from_settings(settings, **given)

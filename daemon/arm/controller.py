@@ -9,23 +9,39 @@ interval (a zero-order hold of the interval's mean: it carries the interval's en
 exactly) and advances the arm's thermal network (daemon/arm/thermal.py). The tool error at
 a measured pose is kinematics.tool_error at that pose's joint angles with the links' current
 thermal states.
+
+With an identified arm model (daemon/arm/arm_model.py, ``--arm-model NAME``) each joint's heat
+is the motor model's times its identified factor, the network's convection and the links'
+expansion coefficient are scaled (factors the calibration could not identify are 1.0: the
+preset's), and with an IR observer (:meth:`ArmController.attach_observer`, prediction
+``model+ir``) daemon.model.observer's Kalman filter corrects the arm's node temperatures from
+the IR regions each step, starting from the identified IR offsets (as benchmarks/bench_arm.py).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import dataclasses
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from daemon.arm.arm_model import ArmModel
+from daemon.arm.arm_network import describe_arm
 from daemon.arm.description import Arm, load_arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
+from daemon.arm.ir_regions import region_nodes
 from daemon.arm.kinematics import forward, inverse, tool_error
 from daemon.arm.run import FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel
 from daemon.arm.types import Pose6
+from daemon.model.observer import IrObserver
+
+#: The observer's prior on an IR offset the model file gives no uncertainty for (degC): the
+#: FLIR's +-2 degC accuracy, as the two-link observer (daemon/model/observer.py).
+DEFAULT_OFFSET_SIGMA_C = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -33,6 +49,9 @@ class ArmModelOptions:
     motion_dt_s: float = 0.05  # the duty cycle's motion samples for motor heat (s)
     ambient_c: float = 22.0
     bending: bool = False
+    #: with ``bending``: the motor housings' side of each link (arm_network.describe_arm's
+    #: ``plus_share``); the model then resolves the temperature across each link
+    motor_side_share: float = 0.5
     node_spacing_mm: float = 50.0
     model_dt_s: float = 1.0  # the thermal model's step (its stepper is exact: any dt)
 
@@ -48,18 +67,62 @@ class ArmController:
         *,
         heat: JointHeatProfile | None = None,
         thermal: ArmThermalModel | None = None,
+        identified: ArmModel | None = None,
     ) -> None:
         self.arm = arm
         self.duty = duty
         self.options = options
+        self.identified = identified
+        joints = len(arm.joints)
+        self.heat_scales: FloatArray = np.ones(joints)
+        self.alpha_scale = 1.0
+        convection = 1.0
+        if identified is not None:
+            if len(identified.heat_scales) != joints:
+                raise ValueError(
+                    f"arm model {identified.name!r} has {len(identified.heat_scales)} joint "
+                    f"heat factors, arm {arm.name!r} {joints} joints"
+                )
+            self.heat_scales = np.array(identified.heat_scales, dtype=np.float64)
+            self.alpha_scale = identified.alpha_scale
+            convection = identified.convection_scale
         self.heat = heat or JointHeatProfile.from_duty(arm, duty, resolution_s=options.motion_dt_s)
+        description = describe_arm(arm, plus_share=options.motor_side_share)
         self.thermal = thermal or ArmThermalModel(
-            arm,
+            description if options.bending else arm,
+            across_link=options.bending,
             node_spacing_mm=options.node_spacing_mm,
             ambient_c=options.ambient_c,
             dt_s=options.model_dt_s,
+            convection_scale=convection,
         )
-        self.last_heat_w: FloatArray = np.zeros(len(arm.joints))
+        self.last_heat_w: FloatArray = np.zeros(joints)
+        self.observer: IrObserver | None = None
+        self._observer_noise_c: float | None = None
+
+    def attach_observer(
+        self, regions: Mapping[str, Sequence[int]], ir_noise_c: float
+    ) -> IrObserver:
+        """A Kalman filter on the model's nodes fed by the IR regions (``regions``: each
+        region's node indices, daemon/arm/ir_regions.py), from the identified offsets with
+        their 1-sigma as prior (the largest over the regions; DEFAULT_OFFSET_SIGMA_C when the
+        model gives none)."""
+        names = self.thermal.node_names
+        offsets: Mapping[str, float] = {}
+        sigma = DEFAULT_OFFSET_SIGMA_C
+        if self.identified is not None and self.identified.ir_offsets_c:
+            offsets = self.identified.ir_offsets_c
+            sigmas = [self.identified.ir_offset_sigma_c.get(r, np.inf) for r in regions]
+            largest = max(sigmas, default=np.inf)
+            sigma = float(largest) if np.isfinite(largest) else DEFAULT_OFFSET_SIGMA_C
+        self.observer = IrObserver(
+            self.thermal.thermal_model,
+            {region: tuple(names[i] for i in group) for region, group in regions.items()},
+            ir_noise_c,
+            offsets_c=offsets,
+            offset_sigma_c=sigma,
+        )
+        return self.observer
 
     @property
     def time_s(self) -> float:
@@ -73,13 +136,32 @@ class ArmController:
         start = self.time_s
         if t_s <= start:
             return
-        self.last_heat_w = self.mean_heat_w(start, t_s)
+        self.last_heat_w = self.mean_heat_w(start, t_s) * self.heat_scales
         self.thermal.advance_to(t_s, self.last_heat_w)
+        if self.observer is not None:  # the covariance follows the model's step
+            self.observer.predict(self.thermal.time_s)
+
+    def enable_observer(self, ir_noise_c: float) -> None:
+        """Prediction ``model+ir``: the observer is attached at the first IR reading, on the
+        regions it carries that name a point of a link (daemon/arm/ir_regions.py)."""
+        self._observer_noise_c = ir_noise_c
+
+    def observe(self, reading_c: Mapping[str, float]) -> None:
+        """Fuse an IR reading (region -> mean degC) into the model (no observer: nothing)."""
+        if self.observer is None and self._observer_noise_c is not None:
+            regions = region_nodes(self.thermal, reading_c)
+            if regions:
+                self.attach_observer(regions, self._observer_noise_c)
+        if self.observer is not None:
+            self.observer.update(reading_c)
 
     def tool_error(self, pose: MeasuredPose) -> Pose6:
-        return tool_error(
-            self.arm, pose.q_rad, self.thermal.link_states(), bending=self.options.bending
-        )
+        states = self.thermal.link_states()
+        if self.alpha_scale != 1.0:
+            states = tuple(
+                dataclasses.replace(s, alpha_per_c=s.alpha_per_c * self.alpha_scale) for s in states
+            )
+        return tool_error(self.arm, pose.q_rad, states, bending=self.options.bending)
 
     def temperatures_c(self) -> Mapping[str, float]:
         return dict(zip(self.thermal.node_names, self.thermal.temperatures_c.tolist(), strict=True))
@@ -105,7 +187,10 @@ class ArmController:
 
 
 def load_controller(
-    arm_path: str | Path, duty_cycle: str | Path, options: ArmModelOptions
+    arm_path: str | Path,
+    duty_cycle: str | Path,
+    options: ArmModelOptions,
+    identified: ArmModel | None = None,
 ) -> ArmController:
     """The arm file and the duty cycle (tool poses in the file are solved on this arm)."""
     arm = load_arm(arm_path)
@@ -119,4 +204,4 @@ def load_controller(
             f"duty cycle {duty.name!r} has {duty.joint_count} joints, arm {arm.name!r} "
             f"{len(arm.joints)}"
         )
-    return ArmController(arm, duty, options)
+    return ArmController(arm, duty, options, identified=identified)

@@ -15,6 +15,7 @@ Conventions (every module of ``daemon.arm`` and ``daemon.vision.multiview`` foll
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,7 +71,11 @@ class Pose6:
 
         # a copy: SciPy's Cython rotations refuse the read-only arrays Pose6 holds
         rotvec = np.array(self.rotation_rad)
-        z, y, x = Rotation.from_rotvec(rotvec).as_euler("ZYX", degrees=True)
+        # At y = +-90 deg (gimbal lock) only z -+ x is determined: SciPy sets x to 0 and warns
+        # "Gimbal lock detected"; any split is the same rotation, so only that is silenced.
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Gimbal lock detected", category=UserWarning)
+            z, y, x = Rotation.from_rotvec(rotvec).as_euler("ZYX", degrees=True)
         return float(z), float(y), float(x)
 
 

@@ -83,6 +83,7 @@ def bench_config(settings: Settings, arm: Arm, duty: DutyCycle | None, seed: int
     return ArmBenchConfig(
         arm=settings.arm.arm_file,
         seed=seed,
+        noise_seed=settings.bench.noise_seed,
         stations_q_rad=stations,
         markers_tool_mm=settings.arm.markers_mm,
         rig=CameraRig(count=settings.arm.cameras),

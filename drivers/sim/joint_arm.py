@@ -20,6 +20,7 @@ Conventions (ASSUMED where C500C.md is silent):
 from __future__ import annotations
 
 import math
+import warnings
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -150,9 +151,25 @@ def pose_of(location: Sequence[float]) -> FloatArray:
     return pose
 
 
+#: SciPy's warning at y = +-90 deg (z-y-x gimbal lock): "Gimbal lock detected. Setting third
+#: angle to zero since it is not possible to uniquely determine all angles."
+GIMBAL_LOCK_WARNING = "Gimbal lock detected"
+
+
+def zyx_deg_of(rotation: Rotation) -> tuple[float, float, float]:
+    """Intrinsic z-y-x angles (degrees) of ``rotation``. At y = +-90 deg (a tool pointing
+    straight down or up: the A465's camera station) only z -+ x is determined; SciPy then
+    sets x to 0 and warns. Any split of z and x is the same rotation (the console and
+    pose_of rebuild the same matrix from it), so that warning, and only it, is silenced."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=GIMBAL_LOCK_WARNING, category=UserWarning)
+        z, y, x = rotation.as_euler("ZYX", degrees=True)
+    return float(z), float(y), float(x)
+
+
 def location_of(pose: FloatArray) -> Location:
     """A 4x4 transform as a world location (mm, z-y-x degrees)."""
-    z, y, x = Rotation.from_matrix(np.array(pose[:3, :3])).as_euler("ZYX", degrees=True)
+    z, y, x = zyx_deg_of(Rotation.from_matrix(np.array(pose[:3, :3])))
     px, py, pz = (float(v) for v in pose[:3, 3])
     return (px, py, pz, float(z), float(y), float(x))
 

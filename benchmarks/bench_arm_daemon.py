@@ -1,0 +1,227 @@
+"""Issue 20 through the daemon: calibration run -> identification -> compensated runs, on the
+simulated arm bench (config/arm-sim.toml: the A465's pick-and-place, 8 h of arm time in 12
+steps of 10 s at time_scale 240, virtual clock, the C500C emulator in joint space on a pty).
+
+Every run goes through the real daemon (daemon.service.Daemon: scheduler, session, arm step,
+recorder) and is read back from its database, as ``thermocomp run`` and ``thermocomp identify``
+would (in process here, to time them):
+
+1. a calibration run, compensation off, with another measurement noise (``bench.noise_seed``):
+   ``thermocomp identify`` of it (daemon/arm_identify_cli.py: every parameter, then the
+   identifiable ones refitted), saved as an arm model;
+2. uncompensated (the drift; the reference of the reductions);
+3. the preset arm model;
+4. the identified arm model (``--arm-model``);
+5. the identified arm model with the IR observer (``--prediction model+ir``).
+
+Reported per run: the measured 3-D residual (RMS and largest over the steps; the drift
+measured at each pose's taught goal relative to its cold reference), the share of the
+uncompensated RMS removed, the RMS over the 3-D measurement's own 1-sigma (the meter's
+estimate from the centroids' noise, ``measured_sigma_um``), the rotation error (RMS).
+
+    .venv/bin/python benchmarks/bench_arm_daemon.py [--seed N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import math
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from benchmarks.common import print_table, write_results
+from config import Settings, load_settings
+from daemon.arm.arm_model import arm_model_toml, new_arm_model_path
+from daemon.arm_identify_cli import arm_model_of, identify_arm_run, load_arm_run
+from daemon.runs import RunParameters
+from daemon.service import Daemon
+from drivers.clock import make_clock
+
+CONFIG = Path(__file__).resolve().parent.parent / "config" / "arm-sim.toml"
+#: The calibration run's measurement noise is drawn from this seed + the bench's seed.
+CALIBRATION_NOISE_OFFSET = 1000
+MODEL_NAME = "bench-calibration"
+
+
+def settings_for(data_dir: Path, seed: int, noise_seed: int | None) -> Settings:
+    data = load_settings(CONFIG).model_dump()
+    data["bench"].update({"seed": seed, "noise_seed": noise_seed})
+    data["storage"].update({"data_dir": str(data_dir), "report_at_end": False})
+    return Settings.model_validate(data)
+
+
+async def one_run(settings: Settings, **overrides: Any) -> tuple[int, dict[str, Any], list[Any]]:
+    """One run through the daemon on the arm bench: (run id, final info, recorded steps)."""
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        parameters = RunParameters.from_settings(settings, **overrides)
+        info = await daemon.start_run(parameters)
+        final = await daemon.wait_run()
+        assert daemon.recorder is not None
+        steps = [record.as_dict() for record in daemon.recorder.steps(info["id"])]
+    if final["state"] != "finished":
+        raise RuntimeError(f"run {info['id']} ended {final['state']}: {final.get('reason')}")
+    return int(info["id"]), final, steps
+
+
+def figures(steps: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    drift = np.array([s["drift_3d_um"] for s in steps], dtype=float)
+    rotation = np.array([s["rotation_error_urad"] for s in steps], dtype=float)
+    sigma = np.array([s["measured_sigma_um"] for s in steps], dtype=float)
+    predicted = np.array([[s[f"predicted_t{a}_um"] for a in "xyz"] for s in steps], dtype=float)
+    return {
+        "rms_3d_um": float(np.sqrt(np.nanmean(drift**2))),
+        "max_3d_um": float(np.nanmax(drift)),
+        "last_third_rms_3d_um": float(np.sqrt(np.nanmean(drift[-len(drift) // 3 :] ** 2))),
+        "rms_rotation_urad": float(np.sqrt(np.nanmean(rotation**2))),
+        "max_rotation_urad": float(np.nanmax(rotation)),
+        "noise_3d_um": float(np.nanmean(sigma)),
+        "predicted_max_3d_um": float(np.nanmax(np.linalg.norm(predicted, axis=1))),
+        "drift_3d_um_per_step": [round(float(v), 2) for v in drift],
+        "poses": [s["arm_pose"] for s in steps],
+    }
+
+
+async def bench(seed: int, data_dir: Path) -> dict[str, Any]:
+    started = time.perf_counter()
+    walls: dict[str, float] = {}
+    calibration_settings = settings_for(data_dir, seed, seed + CALIBRATION_NOISE_OFFSET)
+    settings = settings_for(data_dir, seed, None)
+
+    t = time.perf_counter()
+    calibration_id, _, calibration_steps = await one_run(calibration_settings, compensation="off")
+    walls["calibration run"] = time.perf_counter() - t
+    t = time.perf_counter()
+    run = await asyncio.to_thread(load_arm_run, data_dir, calibration_id)
+    full, refit = await asyncio.to_thread(identify_arm_run, run, None)
+    model = arm_model_of(MODEL_NAME, run, full, refit)
+    path = new_arm_model_path(MODEL_NAME, data_dir)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(arm_model_toml(model), encoding="utf-8")
+    walls["identification"] = time.perf_counter() - t
+
+    cases: dict[str, dict[str, Any]] = {
+        "none": {"compensation": "off"},
+        "preset": {},
+        "identified": {"arm_model": MODEL_NAME},
+        "identified + model+ir": {"arm_model": MODEL_NAME, "prediction": "model+ir"},
+    }
+    results: dict[str, dict[str, Any]] = {}
+    reference: int | None = None
+    for name, case in cases.items():
+        t = time.perf_counter()
+        given = case if reference is None else {**case, "reference_run": reference}
+        run_id, final, steps = await one_run(settings, **given)
+        walls[name] = time.perf_counter() - t
+        if name == "none":
+            reference = run_id
+        results[name] = {**figures(steps), "run_id": run_id}
+        summary = final.get("summary") or {}
+        results[name]["summary_reduction_3d_percent"] = summary.get("reduction_3d_percent")
+    drift = results["none"]
+    for result in results.values():
+        result["reduction_3d"] = 1.0 - result["rms_3d_um"] / drift["rms_3d_um"]
+        result["rms_over_noise"] = result["rms_3d_um"] / result["noise_3d_um"]
+    return {
+        "seed": seed,
+        "calibration": {
+            "run_id": calibration_id,
+            "noise_seed": seed + CALIBRATION_NOISE_OFFSET,
+            **figures(calibration_steps),
+            "all": full.to_dict(),
+            "refit": refit.to_dict(),
+            "arm_model": model.provenance(),
+        },
+        "runs": results,
+        "wall_s": {**walls, "total": time.perf_counter() - started},
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    with tempfile.TemporaryDirectory(prefix="bench-arm-daemon-") as folder:
+        result = asyncio.run(bench(args.seed, Path(folder)))
+    load = os.getloadavg()
+    result["load_average"] = list(load)
+    runs = result["runs"]
+    print(
+        f"A465 'a465-pick-and-place' through the daemon, config/arm-sim.toml, seed {args.seed}: "
+        "8 h of arm time, 12 steps"
+    )
+    print_table(
+        [
+            "controller",
+            "RMS 3-D um",
+            "max 3-D um",
+            "last 1/3 RMS um",
+            "3-D removed",
+            "RMS/noise",
+            "RMS rot urad",
+            "predicted max um",
+        ],
+        [
+            [
+                name,
+                r["rms_3d_um"],
+                r["max_3d_um"],
+                r["last_third_rms_3d_um"],
+                "-" if name == "none" else f"{100 * r['reduction_3d']:.1f} %",
+                r["rms_over_noise"],
+                r["rms_rotation_urad"],
+                r["predicted_max_3d_um"],
+            ]
+            for name, r in runs.items()
+        ],
+    )
+    calibration = result["calibration"]
+    print(
+        f"\n3-D measurement noise (the meter's 1-sigma per position): "
+        f"{runs['none']['noise_3d_um']:.2f} um"
+    )
+    refit = {p["name"]: p for p in calibration["refit"]["parameters"]}
+    print(
+        f"\nidentification of the calibration run (noise seed {calibration['noise_seed']}, "
+        f"drift {calibration['max_3d_um']:.1f} um max):"
+    )
+    print_table(
+        ["parameter", "all: value", "SE", "identifiable", "refit", "why not"],
+        [
+            [
+                p["name"],
+                p["value"],
+                p["standard_error"] if math.isfinite(p["standard_error"]) else "inf",
+                p["identifiable"],
+                refit[p["name"]]["value"] if p["name"] in refit else "(preset)",
+                p["reason"] or "-",
+            ]
+            for p in calibration["all"]["parameters"]
+        ],
+    )
+    walls = result["wall_s"]
+    print(
+        "\nwall time: "
+        + ", ".join(f"{name} {value:.1f} s" for name, value in walls.items())
+        + f"; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs"
+    )
+    write_results("bench_arm_daemon", result)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

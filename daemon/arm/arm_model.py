@@ -1,0 +1,247 @@
+"""An identified arm model (issue 20): what ``thermocomp identify RUN --save NAME`` keeps of
+an arm run's identification (daemon/arm/identify.py) and what ``thermocomp run --arm-model
+NAME`` (``"arm_model"`` in POST /runs) gives the controller's model (daemon/arm/controller.py).
+
+The file (``<storage.data_dir>/arm-models/NAME.toml``) carries the factors applied to the
+preset arm's model: each joint's heat per watt of the motor model, the convection and the
+expansion coefficient (1.0 where the calibration could not identify the factor: the preset's
+value stays), each IR region's offset with its 1-sigma, every fitted parameter with its
+standard error and identifiable flag, and where it came from (arm, duty cycle, source run,
+date). Names follow the saved networks' rules (daemon.model.presets.check_network_name); the
+arm presets' names (config/arms) are refused.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from daemon.arm.description import available_arms
+from daemon.model.calibration import CalibratedParameter
+from daemon.model.presets import check_network_name
+
+#: The data directory's folder of identified arm models.
+ARM_MODELS_FOLDER = "arm-models"
+#: The file format's version (a later one may add fields; this reader refuses others).
+FORMAT_VERSION = 1
+
+
+class ArmModelNotFoundError(LookupError):
+    """No saved arm model of that name (404 over the API)."""
+
+
+class ArmModelError(ValueError):
+    """An arm model file that does not load."""
+
+
+@dataclass(frozen=True)
+class ArmModel:
+    """The identified factors of an arm's model and their provenance (module docstring)."""
+
+    name: str
+    arm: str
+    heat_scales: tuple[float, ...]  # per joint, x the motor model's heat
+    convection_scale: float = 1.0
+    alpha_scale: float = 1.0
+    ir_offsets_c: Mapping[str, float] = field(default_factory=dict)
+    ir_offset_sigma_c: Mapping[str, float] = field(default_factory=dict)
+    parameters: tuple[CalibratedParameter, ...] = ()
+    duty_cycle: str = ""
+    source_runs: tuple[str, ...] = ()
+    identified_at: str = ""
+    marker_rms_um: float | None = None
+    temperature_rms_c: float | None = None
+
+    def provenance(self) -> dict[str, Any]:
+        """What a run records of the model it used."""
+        return {
+            "name": self.name,
+            "arm": self.arm,
+            "duty_cycle": self.duty_cycle,
+            "source_runs": list(self.source_runs),
+            "identified_at": self.identified_at,
+            "heat_scales": list(self.heat_scales),
+            "convection_scale": self.convection_scale,
+            "alpha_scale": self.alpha_scale,
+            "ir_offsets_c": dict(self.ir_offsets_c),
+            "identifiable": {p.name: p.identifiable for p in self.parameters},
+        }
+
+
+def saved_arm_models_dir(data_dir: Path) -> Path:
+    return Path(data_dir) / ARM_MODELS_FOLDER
+
+
+def check_arm_model_name(name: str) -> str:
+    """``name`` if it is a plain name (the saved networks' rule), else ValueError."""
+    try:
+        return check_network_name(name)
+    except ValueError as err:
+        raise ValueError(
+            f"arm model {name!r} is not a name (letters, digits, '.', '_', '-', at most 64, "
+            "no path)"
+        ) from err
+
+
+def available_saved_arm_models(data_dir: Path) -> list[str]:
+    folder = saved_arm_models_dir(data_dir)
+    return sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
+
+
+def named_arm_model_path(name: str, data_dir: Path) -> Path:
+    """The saved arm model ``name``: ValueError for a malformed name, ArmModelNotFoundError
+    for an unknown one."""
+    check_arm_model_name(name)
+    path = saved_arm_models_dir(data_dir) / f"{name}.toml"
+    if not path.is_file():
+        names = ", ".join(available_saved_arm_models(data_dir)) or "none"
+        raise ArmModelNotFoundError(
+            f"no saved arm model {name!r} (in {saved_arm_models_dir(data_dir)}: {names})"
+        )
+    return path
+
+
+def new_arm_model_path(name: str, data_dir: Path) -> Path:
+    """Where ``--save NAME`` writes an arm model: a plain name, no arm preset's, not yet
+    taken (ValueError)."""
+    check_arm_model_name(name)
+    if name in available_arms():
+        raise ValueError(f"--save {name!r}: an arm preset has that name; choose another")
+    path = saved_arm_models_dir(data_dir) / f"{name}.toml"
+    if path.exists():
+        raise ValueError(f"--save {name!r}: {path} exists; choose another name")
+    return path
+
+
+# -- TOML ----------------------------------------------------------------------------------------
+
+
+def _value(value: object) -> str:
+    """A TOML value: JSON's strings, numbers and booleans are TOML's (finite numbers only)."""
+    if isinstance(value, bool | str | int):
+        return json.dumps(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ArmModelError(f"a non-finite value {value} cannot be saved")
+        return repr(value)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_value(item) for item in value) + "]"
+    raise TypeError(f"no TOML for {value!r}")
+
+
+def arm_model_toml(model: ArmModel, header: str = "") -> str:
+    lines = [f"# {line}" for line in header.splitlines()]
+    top: dict[str, object] = {
+        "format": FORMAT_VERSION,
+        "name": model.name,
+        "arm": model.arm,
+        "duty_cycle": model.duty_cycle,
+        "source_runs": list(model.source_runs),
+        "identified_at": model.identified_at,
+        "heat_scales": list(model.heat_scales),
+        "convection_scale": model.convection_scale,
+        "alpha_scale": model.alpha_scale,
+    }
+    if model.marker_rms_um is not None:
+        top["marker_rms_um"] = model.marker_rms_um
+    if model.temperature_rms_c is not None:
+        top["temperature_rms_c"] = model.temperature_rms_c
+    lines += [f"{key} = {_value(value)}" for key, value in top.items()]
+    for table, values in (
+        ("ir_offsets_c", model.ir_offsets_c),
+        ("ir_offset_sigma_c", model.ir_offset_sigma_c),
+    ):
+        lines += ["", f"[{table}]"]
+        lines += [f"{json.dumps(k)} = {_value(float(v))}" for k, v in values.items()]
+    for p in model.parameters:
+        lines += ["", "[[parameters]]", f"name = {_value(p.name)}", f"value = {_value(p.value)}"]
+        for key, item in (
+            ("standard_error", p.standard_error),
+            ("relative_error", p.relative_error),
+        ):
+            if item is not None and math.isfinite(item):
+                lines.append(f"{key} = {_value(float(item))}")
+        lines += [f"identifiable = {_value(p.identifiable)}", f"reason = {_value(p.reason)}"]
+    return "\n".join(lines) + "\n"
+
+
+def _floats(values: object, what: str) -> tuple[float, ...]:
+    if not isinstance(values, list) or not all(isinstance(v, int | float) for v in values):
+        raise ArmModelError(f"{what} must be a list of numbers")
+    result = tuple(float(v) for v in values)
+    if not all(math.isfinite(v) and v > 0 for v in result):
+        raise ArmModelError(f"{what} must be positive")
+    return result
+
+
+def _mapping(values: object, what: str) -> dict[str, float]:
+    if not isinstance(values, dict):
+        raise ArmModelError(f"[{what}] must be a table of numbers")
+    try:
+        return {str(k): float(v) for k, v in values.items()}
+    except (TypeError, ValueError) as err:
+        raise ArmModelError(f"[{what}] must be a table of numbers") from err
+
+
+def load_arm_model(path: Path) -> ArmModel:
+    """An arm model file (ArmModelError naming the file when it does not load)."""
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as err:
+        raise ArmModelError(f"{path}: {err}") from err
+    try:
+        if data.get("format") != FORMAT_VERSION:
+            raise ArmModelError(f"format {data.get('format')!r}, expected {FORMAT_VERSION}")
+        parameters = tuple(
+            CalibratedParameter(
+                name=str(p["name"]),
+                value=float(p["value"]),
+                standard_error=p.get("standard_error"),
+                relative_error=p.get("relative_error"),
+                identifiable=bool(p.get("identifiable", True)),
+                reason=str(p.get("reason", "")),
+            )
+            for p in data.get("parameters", [])
+        )
+        scales = (float(data.get("convection_scale", 1.0)), float(data.get("alpha_scale", 1.0)))
+        if not all(math.isfinite(v) and v > 0 for v in scales):
+            raise ArmModelError("convection_scale and alpha_scale must be positive")
+        return ArmModel(
+            name=str(data["name"]),
+            arm=str(data["arm"]),
+            heat_scales=_floats(data["heat_scales"], "heat_scales"),
+            convection_scale=scales[0],
+            alpha_scale=scales[1],
+            ir_offsets_c=_mapping(data.get("ir_offsets_c", {}), "ir_offsets_c"),
+            ir_offset_sigma_c=_mapping(data.get("ir_offset_sigma_c", {}), "ir_offset_sigma_c"),
+            parameters=parameters,
+            duty_cycle=str(data.get("duty_cycle", "")),
+            source_runs=tuple(str(r) for r in data.get("source_runs", [])),
+            identified_at=str(data.get("identified_at", "")),
+            marker_rms_um=data.get("marker_rms_um"),
+            temperature_rms_c=data.get("temperature_rms_c"),
+        )
+    except ArmModelError as err:
+        raise ArmModelError(f"{path}: {err}") from err
+    except (KeyError, TypeError, ValueError) as err:
+        raise ArmModelError(f"{path}: missing or malformed {err}") from err
+
+
+__all__ = [
+    "ARM_MODELS_FOLDER",
+    "ArmModel",
+    "ArmModelError",
+    "ArmModelNotFoundError",
+    "arm_model_toml",
+    "available_saved_arm_models",
+    "check_arm_model_name",
+    "load_arm_model",
+    "named_arm_model_path",
+    "new_arm_model_path",
+    "saved_arm_models_dir",
+]

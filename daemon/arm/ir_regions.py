@@ -1,0 +1,60 @@
+"""Which nodes of the controller's arm model an IR region sees (issue 20): for identification
+(daemon/arm_identify_cli.py) and the arm's IR observer (daemon/arm/controller.py). Pure.
+
+A region is a point along a link: ``(link, fraction)`` from the link's proximal joint. The arm
+bench's IR reader names its regions ``<link>-mid`` (the middle of the link,
+drivers/sim/arm_devices.py); ``<link>@<fraction>`` names any other point. The region sees the
+model's node(s) nearest that point (both rows of a link modelled across its section: their
+mean), as benchmarks/bench_arm.py's controllers do.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from daemon.arm.thermal import ArmThermalModel
+
+#: ``<link>-mid``: the middle of the link.
+MID_SUFFIX = "-mid"
+MID_FRACTION = 0.5
+#: ``<link>@<fraction>``: a point along the link.
+AT = "@"
+
+
+def region_point(name: str, links: Iterable[str]) -> tuple[str, float] | None:
+    """The (link, fraction) a region's name says, None when it names no link of the arm."""
+    known = set(links)
+    if name.endswith(MID_SUFFIX) and name.removesuffix(MID_SUFFIX) in known:
+        return name.removesuffix(MID_SUFFIX), MID_FRACTION
+    link, at, fraction = name.rpartition(AT)
+    if at and link in known:
+        try:
+            value = float(fraction)
+        except ValueError:
+            return None
+        if 0.0 <= value <= 1.0:
+            return link, value
+    return None
+
+
+def region_nodes(model: ArmThermalModel, names: Iterable[str]) -> dict[str, tuple[int, ...]]:
+    """Each region (by name, see module docstring) that names a point of one of the model's
+    links -> the indices of the nodes nearest it; other names are left out."""
+    nodes: dict[str, tuple[int, ...]] = {}
+    positions = model.network.positions_mm
+    for name in names:
+        point = region_point(name, model.link_names)
+        if point is None:
+            continue
+        link, fraction = point
+        indices = np.asarray(model.link_node_indices(link), dtype=np.intp)
+        along = positions[indices]
+        target = along[0] + fraction * (along[-1] - along[0])
+        distance = np.abs(along - target)
+        nodes[name] = tuple(int(i) for i in indices[distance <= distance.min() + 1e-9])
+    return nodes
+
+
+__all__ = ["region_nodes", "region_point"]

@@ -1,0 +1,347 @@
+"""``thermocomp identify RUN_ID`` for an arm run (issue 20): the recorded run as
+daemon/arm/identify.py sees it, the fit, its report, and ``--save NAME`` as an arm model
+(daemon/arm/arm_model.py) that ``thermocomp run --arm-model NAME`` uses.
+
+What the run recorded, read back READ-ONLY (as daemon/identify_cli.py reads a two-link run):
+
+- its parameters (the duty cycle, ``time_scale``) and settings (the arm file, ambient, the
+  motor heat's resolution ``arm.motion_dt_s``): the controller's preset model is rebuilt from
+  them, and the heat its motor model predicts for the duty cycle's commanded motion over each
+  IDENTIFY_STEP_S of arm time (JointHeatProfile: deterministic, what the run's model used);
+- each step's measured pose (``arm_pose``), the tool's measured translation relative to the
+  pose's cold reference (``measured_t*_um``) minus the correction commanded there
+  (``correction_t*_mm``; zero in an uncompensated run): the arm's thermal displacement of the
+  tool point, at the step's arm time ``actual_s * time_scale``. Only the translation is used:
+  the preset model turns no tool (``arm.bending`` off) and the measured rotation is the 3-D
+  measurement's noise (README "Running a duty cycle on an arm");
+- each step's IR regions (``ir_json``) tied to the model's nodes by name
+  (daemon/arm/ir_regions.py: ``<link>-mid``, ``<link>@<fraction>``).
+
+The fit is benchmarks/bench_arm.py's: every parameter first (heat per joint, convection,
+alpha, one IR offset per region), reported with its standard error and whether the run
+identifies it; then the identifiable ones refitted, the others left at the preset's 1.0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sqlite3
+import sys
+from contextlib import closing
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from config import Settings
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from daemon.arm.arm_model import ArmModel, arm_model_toml, new_arm_model_path
+from daemon.arm.controller import ArmController, ArmModelOptions, load_controller
+from daemon.arm.identify import (
+    ArmIdentification,
+    ArmModelSpec,
+    ArmRunData,
+    identify_arm,
+    marker_sensitivity,
+)
+from daemon.arm.ir_regions import region_nodes
+from daemon.model.calibration import CalibratedParameter
+from daemon.model.identify import IdentificationError
+from daemon.recorder import DATABASE_NAME
+
+#: The heat record's step for identification (arm time, s): a measurement's time is rounded to
+#: it; the links' time constants are tens of minutes (benchmarks/bench_arm.py IDENTIFY_STEP_S).
+IDENTIFY_STEP_S = 20.0
+#: The tool point: identification fits the measured translation of the tool's origin.
+TOOL_POINT_MM = np.zeros((1, 3))
+
+
+class ArmRunInputError(Exception):
+    """The arm run cannot be read (exit status 1)."""
+
+
+@dataclass(frozen=True)
+class ArmRun:
+    name: str
+    controller: ArmController
+    data: ArmRunData
+    spec: ArmModelSpec
+    duty_cycle: str
+
+
+def recorded_run(data_dir: Path, run_id: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The run's parameters and settings, read-only; ArmRunInputError when there is none."""
+    path = Path(data_dir) / DATABASE_NAME
+    try:
+        with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
+            row = db.execute(
+                "SELECT parameters_json, config_json FROM runs WHERE id = ?", (run_id,)
+            ).fetchone()
+    except sqlite3.Error as err:
+        raise ArmRunInputError(f"cannot read {path}: {err}") from err
+    if row is None:
+        raise ArmRunInputError(f"no run {run_id} in {path}")
+    return json.loads(row[0] or "{}"), json.loads(row[1] or "{}")
+
+
+def is_arm_run(parameters: dict[str, Any]) -> bool:
+    return parameters.get("duty_cycle") is not None
+
+
+_STEP_COLUMNS = (
+    "actual_s, arm_pose, measured_tx_um, measured_ty_um, measured_tz_um, "
+    "correction_tx_mm, correction_ty_mm, correction_tz_mm, ir_json"
+)
+
+
+def _steps(data_dir: Path, run_id: int) -> list[tuple[Any, ...]]:
+    path = Path(data_dir) / DATABASE_NAME
+    try:
+        with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
+            return list(
+                db.execute(
+                    f"SELECT {_STEP_COLUMNS} FROM steps WHERE run_id = ? ORDER BY step",
+                    (run_id,),
+                )
+            )
+    except sqlite3.Error as err:
+        raise ArmRunInputError(f"cannot read {path}: {err}") from err
+
+
+def _number(value: object) -> float:
+    return float(value) if isinstance(value, int | float) else math.nan
+
+
+def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
+    """The recorded arm run as identification sees it (module docstring)."""
+    from daemon.arm_setup import arm_file
+
+    parameters, config = recorded_run(data_dir, run_id)
+    if not is_arm_run(parameters):
+        raise ArmRunInputError(f"run {run_id} is not an arm run (no duty cycle)")
+    settings = Settings.model_validate(config)
+    options = ArmModelOptions(
+        motion_dt_s=settings.arm.motion_dt_s,
+        ambient_c=settings.model.ambient_c,
+        bending=settings.arm.bending,
+        motor_side_share=settings.arm.motor_side_share,
+        model_dt_s=IDENTIFY_STEP_S,
+    )
+    try:
+        controller = load_controller(arm_file(settings), parameters["duty_cycle"], options)
+        poses = controller.measured_poses(settings.arm.measured_poses)
+    except (OSError, ValueError) as err:
+        raise ArmRunInputError(f"run {run_id}: its arm or duty cycle: {err}") from err
+    index = {pose.name: k for k, pose in enumerate(poses)}
+    time_scale = float(parameters.get("time_scale", 1.0))
+    times, pose_index, displacement = [], [], []
+    readings: list[dict[str, float]] = []
+    for row in _steps(data_dir, run_id):
+        actual_s, pose = row[0], row[1]
+        if pose not in index or actual_s is None:
+            continue
+        measured = np.array([_number(v) for v in row[2:5]]) / 1000.0
+        correction = np.array([_number(v) if v is not None else 0.0 for v in row[5:8]])
+        times.append(float(actual_s) * time_scale)
+        pose_index.append(index[pose])
+        displacement.append((measured - correction).reshape(1, 3))
+        regions = json.loads(row[8]) if row[8] else {}
+        readings.append({name: _number(value.get("mean_c")) for name, value in regions.items()})
+    if len(times) < 2:
+        raise ArmRunInputError(f"run {run_id} has fewer than two measured steps")
+    steps = math.ceil(max(times) / IDENTIFY_STEP_S) + 1
+    heat = np.array(
+        [
+            controller.mean_heat_w(k * IDENTIFY_STEP_S, (k + 1) * IDENTIFY_STEP_S)
+            for k in range(steps)
+        ]
+    )
+    names = sorted({name for reading in readings for name in reading})
+    nodes = region_nodes(controller.thermal, names)
+    data = ArmRunData(
+        heat_step_s=IDENTIFY_STEP_S,
+        joint_heat_w=heat,
+        ambient_c=np.full(steps, settings.model.ambient_c),
+        time_s=np.array([round(t / IDENTIFY_STEP_S) * IDENTIFY_STEP_S for t in times]),
+        pose_index=np.array(pose_index, dtype=np.intp),
+        marker_displacement_mm=np.array(displacement),
+        region_c={r: np.array([reading.get(r, math.nan) for reading in readings]) for r in nodes},
+        name=f"run {run_id}",
+    )
+    spec = ArmModelSpec(
+        description=controller.thermal.description,
+        node_spacing_mm=controller.thermal.node_spacing_mm,
+        regions=nodes,
+        sensitivities=[
+            marker_sensitivity(controller.arm, pose.q_rad, TOOL_POINT_MM, options.bending)
+            for pose in poses
+        ],
+        across_link=controller.thermal.across_link,
+    )
+    return ArmRun(f"run {run_id}", controller, data, spec, str(parameters["duty_cycle"]))
+
+
+def identify_arm_run(
+    run: ArmRun, parameters: list[str] | None
+) -> tuple[ArmIdentification, ArmIdentification]:
+    """Every parameter (``parameters``, default: each joint's heat, convection, alpha, one
+    offset per region), then the identifiable ones refitted (module docstring)."""
+    joints = run.data.joint_heat_w.shape[1]
+    names = parameters or [
+        *(f"heat:{j + 1}" for j in range(joints)),
+        "convection",
+        "alpha",
+        *(f"offset:{region}" for region in run.spec.regions),
+    ]
+    full = identify_arm(run.data, run.spec, names)
+    kept = [p.name for p in full.parameters if p.identifiable]
+    if not kept:
+        raise IdentificationError(f"{run.name} identifies none of {', '.join(names)}")
+    refit = full if len(kept) == len(names) else identify_arm(run.data, run.spec, kept)
+    return full, refit
+
+
+def arm_model_of(
+    name: str, run: ArmRun, full: ArmIdentification, refit: ArmIdentification
+) -> ArmModel:
+    """The arm model file's content: the refit's factors (1.0 where not identifiable), the
+    full fit's report of every parameter, the offsets' 1-sigma from the refit."""
+    refitted = {p.name: p for p in refit.parameters}
+    sigmas = {
+        region: float(refitted[f"offset:{region}"].standard_error)
+        for region in refit.scales.offsets_c
+        if f"offset:{region}" in refitted
+    }
+    offsets = {r: float(v) for r, v in refit.scales.offsets_c.items() if r in sigmas}
+    return ArmModel(
+        name=name,
+        arm=run.controller.arm.name,
+        heat_scales=tuple(float(v) for v in refit.scales.heat),
+        convection_scale=float(refit.scales.convection),
+        alpha_scale=float(refit.scales.alpha),
+        ir_offsets_c=offsets,
+        ir_offset_sigma_c=sigmas,
+        parameters=tuple(
+            CalibratedParameter(
+                name=p.name,
+                value=float(refitted[p.name].value) if p.name in refitted else p.value,
+                standard_error=(
+                    float(refitted[p.name].standard_error) if p.name in refitted else None
+                ),
+                relative_error=refitted[p.name].relative_error if p.name in refitted else None,
+                identifiable=p.identifiable,
+                reason=p.reason,
+            )
+            for p in full.parameters
+        ),
+        duty_cycle=run.duty_cycle,
+        source_runs=(run.name,),
+        identified_at=datetime.now(UTC).isoformat(timespec="seconds"),
+        marker_rms_um=None if refit.fit.marker_rms_mm is None else 1000 * refit.fit.marker_rms_mm,
+        temperature_rms_c=refit.fit.temperature_rms_c,
+    )
+
+
+def format_arm_result(full: ArmIdentification, refit: ArmIdentification) -> str:
+    refitted = {p.name: p for p in refit.parameters}
+    lines = [
+        f"{'parameter':<22} {'value':>10} {'std error':>10} {'rel.':>8}  {'refit':>10}  "
+        "identifiable"
+    ]
+    for p in full.parameters:
+        relative = _percent(p.relative_error)
+        verdict = "yes" if p.identifiable else f"NO: {p.reason}"
+        again = f"{refitted[p.name].value:>10.4g}" if p.name in refitted else "  (preset)"
+        lines.append(
+            f"{p.name:<22} {p.value:>10.4g} {p.standard_error:>10.3g} {relative:>8}  {again}  "
+            f"{verdict}"
+        )
+    fit = refit.fit
+    marker = "n/a" if fit.marker_rms_mm is None else f"{1000 * fit.marker_rms_mm:.3g}"
+    temperature = "n/a" if fit.temperature_rms_c is None else f"{fit.temperature_rms_c:.3g}"
+    lines.append(
+        f"fit: tool translation RMS {marker} um ({fit.marker_samples} values), IR RMS "
+        f"{temperature} degC ({fit.temperature_samples} values); conditioning "
+        f"{full.conditioning:.3g}"
+    )
+    lines += [f"warning: {warning}" for warning in full.warnings]
+    if not refit.success:
+        lines.append(f"warning: the optimiser stopped early: {refit.message}")
+    return "\n".join(lines)
+
+
+def _percent(relative: float | None) -> str:
+    """A relative standard error as a percentage; past 1000 % (nothing seen) only that."""
+    if relative is None:
+        return ""
+    return f"{100 * relative:7.2f}%" if relative <= 10.0 else "  >1000%"
+
+
+def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
+    """``thermocomp identify RUN_ID`` of an arm run (daemon/identify_cli.py delegates)."""
+    data_dir = settings.storage.data_dir
+    if args.validate or args.network or args.heater_off is not None:
+        print(
+            "thermocomp identify: --validate, --network and --heater-off are for two-link "
+            "runs; an arm run is identified against its own arm and duty cycle",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    try:
+        saved = None if args.save is None else new_arm_model_path(args.save, data_dir)
+        run = load_arm_run(data_dir, int(args.target))
+    except ValueError as err:
+        print(f"thermocomp identify: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except (ArmRunInputError, OSError) as err:
+        print(f"thermocomp identify: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    try:
+        full, refit = identify_arm_run(run, args.params)
+    except IdentificationError as err:
+        print(f"thermocomp identify: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    model = arm_model_of(args.save or f"run-{args.target}", run, full, refit)
+    header = f"identified by thermocomp identify {args.target} (arm {model.arm})"
+    written = [path for path in (args.out, saved) if path is not None]
+    try:
+        for path in written:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(arm_model_toml(model, header=header), encoding="utf-8")
+    except OSError as err:
+        print(f"thermocomp identify: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    if args.json:
+        document = {
+            "run": run.name,
+            "arm": model.arm,
+            "duty_cycle": run.duty_cycle,
+            "all": full.to_dict(),
+            "refit": refit.to_dict(),
+            "arm_model": model.provenance(),
+            "saved_arm_model": args.save,
+            "arm_model_file": None if args.out is None else str(args.out),
+        }
+        print(json.dumps(_finite(document), indent=2, allow_nan=False))
+    else:
+        print(format_arm_result(full, refit))
+        if saved is not None:
+            print(
+                f"saved as arm model {args.save!r} ({saved}): `thermocomp run --arm-model "
+                f'{args.save}`, or "arm_model": "{args.save}" in POST /runs'
+            )
+    return EXIT_OK
+
+
+def _finite(value: object) -> object:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(item) for item in value]
+    return value
