@@ -22,6 +22,7 @@ from drivers import c500c_server_protocol as proto
 from drivers.c500c import C500CRobot
 from drivers.c500c_server import C500CServerRobot
 from drivers.errors import DeviceReportedError
+from drivers.sim.arm_bench import true_arm
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.joint_arm import (
     ESTIMATED_A465_PULSES_PER_DEG,
@@ -31,6 +32,7 @@ from drivers.sim.joint_arm import (
     pose_of,
     shift_location,
     trapezoid,
+    wrist_singular,
 )
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
 from tests.helpers import REPO_ROOT, cli_command, run_cli
@@ -101,6 +103,58 @@ def test_wshift_turns_in_the_world_frame_about_the_location() -> None:
     expected = expected @ pose_of(location)[:3, :3]
     assert pose_of(shifted)[:3, :3] == pytest.approx(expected, abs=1e-12)
     assert shifted[:3] == pytest.approx((401.0, 48.0, 300.5))
+
+
+# The duty cycle's camera station (config/duty/a465-pick-and-place.toml): the tool straight
+# down (y-rot 90 deg, z-y-x gimbal lock) at the A465's wrist singularity (joint 5 = 0, joints 4
+# and 6 aligned), and its place station, away from it.
+CAMERA_DEG = (0.0, 35.0, 55.0, 0.0, 0.0, 0.0)
+PLACE_DEG = (60.0, 50.0, 30.0, 0.0, 10.0, 30.0)
+
+
+def test_the_camera_station_is_wrist_singular_and_the_place_station_is_not() -> None:
+    assert wrist_singular(A465, np.radians(CAMERA_DEG))
+    assert not wrist_singular(A465, np.radians(PLACE_DEG))
+
+
+def test_a_small_shift_at_the_wrist_singularity_moves_the_tool_by_the_shift() -> None:
+    """A thermal correction (tens of um, tens of urad, angles in the console's 0.001 degree
+    steps) at the camera station: the exact solution of the shifted location swings joints 4
+    and 6 by ~27 degrees in opposite senses, which moves a real arm's tool (other DH values
+    than the controller's) by tens of um. Kept joint 4: every joint moves by the small step
+    the shift needs, the nominal tool by the shift, and a perturbed arm's tool within 1 um of
+    it (the joint step, ~1e-4 rad, times its DH error, 0.2 mm: ~0.02 um)."""
+    arm = JointArm(replace(ARM, start_joints_deg=CAMERA_DEG))
+    q0 = arm.joints_at(0.0)
+    translation = np.array([0.020, -0.030, 0.025])  # mm
+    rotation_deg = (0.002, -0.003, 0.003)  # z, y, x: ~50 urad
+    shifted = shift_location(location_of(forward(A465, q0)), (*translation, *rotation_deg))
+    q1 = arm.solve(shifted, q0)
+    assert np.max(np.abs(np.degrees(q1 - q0))) < 0.02  # no wrist swing
+    assert q1[3] == q0[3]
+    nominal = forward(A465, q1)[:3, 3] - forward(A465, q0)[:3, 3]
+    assert nominal == pytest.approx(translation, abs=1e-4)
+    truth = true_arm(A465, np.random.default_rng(1), 0.2, 2e-4, np.ones(A465.dof))
+    moved = forward(truth, q1)[:3, 3] - forward(truth, q0)[:3, 3]
+    assert moved == pytest.approx(translation, abs=1e-3)
+    # the orientation is met in the directions the wrist reaches; about world z (joint 1's
+    # axis, which the singular wrist cannot turn about) the tool turns with joint 1 alone
+    missed = Rotation.from_matrix(forward(A465, q1)[:3, :3] @ pose_of(shifted)[:3, :3].T)
+    expected_z = (q1[0] - q0[0]) - math.radians(rotation_deg[0])
+    assert missed.as_rotvec() == pytest.approx([0.0, 0.0, expected_z], abs=1e-7)
+
+
+def test_arriving_at_the_wrist_singularity_keeps_joint_4_and_leaving_it_is_exact() -> None:
+    """From the place station to the camera station's location the exact solution lands with
+    joints 4 and 6 at -21.6 / +21.6 degrees (the seed's path decides): the tool's true pose
+    then depends on where. Kept joint 4: the taught joints exactly. Back to the place station
+    (a real reorientation) the locked wrist cannot reach it and the exact solution is used."""
+    arm = JointArm(replace(ARM, start_joints_deg=PLACE_DEG))
+    q_place, q_camera = np.radians(PLACE_DEG), np.radians(CAMERA_DEG)
+    q = arm.solve(location_of(forward(A465, q_camera)), q_place)
+    assert q == pytest.approx(q_camera, abs=1e-7)
+    back = arm.solve(location_of(forward(A465, q_place)), q)
+    assert back == pytest.approx(q_place, abs=1e-7)
 
 
 # --- the console emulator with an arm, over a real pty ---------------------------------------

@@ -15,6 +15,18 @@ Conventions (ASSUMED where C500C.md is silent):
   in world coordinates").
 - A location the inverse kinematics cannot reach from the current joints within the joint
   limits (no change of branch: the controller keeps its stance) is catalogue 003.
+- At the wrist singularity (the last three joints' axes in one plane: the A465's joint 5 = 0,
+  joints 4 and 6 aligned) the controller keeps the first wrist joint where it is and solves
+  the other joints for the position exactly and for the orientation as closely as the wrist
+  allows (ASSUMED, C500C.md is silent; the usual closed-form treatment of a spherical wrist's
+  singularity, Siciliano et al., *Robotics: Modelling, Planning and Control*, 2009, § 2.12.2
+  and § 3.3.2: there only the sum of joints 4 and 6 is determined, and an exact solution of a
+  location a few µrad off the singular set swings joints 4 and 6 by tens of degrees in opposite
+  senses). Without it a µm-scale `wshift` at the camera station swung joints 4 and 6 by ~27
+  degrees, and the bench's true arm (other DH values, as any real arm) moved the tool 25-45 µm
+  away from the commanded change (README "Running a duty cycle on an arm"). A location whose
+  orientation the locked wrist cannot reach within ``WRIST_LOCK_ROTATION_TOLERANCE_RAD`` (a
+  real reorientation) is solved exactly as elsewhere.
 """
 
 from __future__ import annotations
@@ -27,11 +39,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from daemon.arm.description import Arm, ArmError
 from daemon.arm.kinematics import forward, inverse, jacobian
-from daemon.arm.types import JointSample
+from daemon.arm.types import JointSample, pose_difference
 
 FloatArray = NDArray[np.float64]
 Location = tuple[float, float, float, float, float, float]
@@ -49,6 +62,22 @@ DEFAULT_ACCELERATION_DEG_S2 = 240.0
 ESTIMATED_A465_PULSES_PER_DEG = 1111.0
 #: Motions kept for ``sample()`` of past times (a run's bench samples between its steps).
 MOTION_HISTORY = 4096
+#: The wrist is singular when the smallest singular value of its three joints' angular
+#: Jacobian (|sin| of the middle wrist joint's angle for a spherical wrist) is below the sine
+#: of this angle (degrees): a wrist bent less than this keeps its first joint (module docstring).
+WRIST_SINGULAR_DEG = 1.0
+#: A locked-wrist solution is accepted when the orientation it misses is below this (rad):
+#: the unreachable part of a thermal correction (tens of µrad) and of the console's 0.001 degree
+#: angle steps; anything larger is a real reorientation and is solved exactly.
+WRIST_LOCK_ROTATION_TOLERANCE_RAD = 1e-3
+#: ... and its position within this of the target (mm; 0.1 µm, far below the A465's ±50 µm
+#: repeatability, thesis 3.2.1).
+WRIST_LOCK_POSITION_TOLERANCE_MM = 1e-4
+#: Weight of the orientation residual of the locked-wrist solve (mm per rad): small, so that
+#: the position is met and the orientation is matched in the directions the wrist can reach.
+WRIST_LOCK_ROTATION_WEIGHT_MM_PER_RAD = 1.0
+#: A 6-joint arm's wrist: its last three joints.
+WRIST_JOINTS = 3
 
 
 class UnreachableError(Exception):
@@ -141,6 +170,66 @@ def trapezoid(
         ramp = math.sqrt(distance / acceleration)
         duration = 2.0 * ramp
     return _Motion(start_s, q0, q1, distance, acceleration, ramp, duration)
+
+
+def wrist_singular(arm: Arm, q_rad: FloatArray) -> bool:
+    """Whether the arm's wrist (its last three joints, an arm of six or more) is at its
+    singularity: their angular Jacobian loses rank (module docstring)."""
+    if arm.dof < 2 * WRIST_JOINTS:
+        return False
+    angular = jacobian(arm, q_rad)[3:, -WRIST_JOINTS:]
+    smallest = float(np.linalg.svd(angular, compute_uv=False)[-1])
+    return smallest < math.sin(math.radians(WRIST_SINGULAR_DEG))
+
+
+def wrist_locked_inverse(
+    arm: Arm, pose: FloatArray, seed: FloatArray, q_now: FloatArray
+) -> FloatArray | None:
+    """The joints that reach ``pose``'s position with the first wrist joint kept at
+    ``q_now``'s, the orientation matched as closely as the wrist allows (module docstring),
+    solved from ``seed`` (the other joints); None when the position is missed or the
+    orientation missed by more than WRIST_LOCK_ROTATION_TOLERANCE_RAD."""
+    locked = arm.dof - WRIST_JOINTS
+    free = np.array([i for i in range(arm.dof) if i != locked])
+    lower, upper = arm.lower_rad[free], arm.upper_rad[free]
+    target_rotation = pose[:3, :3]
+    weight = WRIST_LOCK_ROTATION_WEIGHT_MM_PER_RAD
+
+    def joints(x: FloatArray) -> FloatArray:
+        q = seed.copy()
+        q[locked] = q_now[locked]
+        q[free] = x
+        return q
+
+    def residual(x: FloatArray) -> FloatArray:
+        current = forward(arm, joints(x))
+        rotation = Rotation.from_matrix(current[:3, :3] @ target_rotation.T).as_rotvec()
+        return np.concatenate([current[:3, 3] - pose[:3, 3], weight * rotation])
+
+    def derivative(x: FloatArray) -> FloatArray:
+        out = jacobian(arm, joints(x))[:, free]
+        out[3:] *= weight
+        return out
+
+    result = least_squares(
+        residual,
+        np.clip(seed[free], lower, upper),
+        jac=derivative,
+        bounds=(lower, upper),
+        method="trf",
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-15,
+        max_nfev=200,
+    )
+    q = joints(np.clip(result.x, lower, upper))
+    error = pose_difference(pose, forward(arm, q))
+    if (
+        error.translation_norm_mm > WRIST_LOCK_POSITION_TOLERANCE_MM
+        or error.rotation_angle_rad > WRIST_LOCK_ROTATION_TOLERANCE_RAD
+    ):
+        return None
+    return q
 
 
 def pose_of(location: Sequence[float]) -> FloatArray:
@@ -237,10 +326,7 @@ class JointArm:
         pseudo-inverse. Returns when the motion ends; UnreachableError when it cannot."""
         start_s = max(now_s, self._last.end_s)
         q_now = self.joints_at(start_s)
-        try:
-            q_target = inverse(self.arm, pose_of(target), q_now, restarts=0)
-        except ArmError as err:
-            raise UnreachableError(str(err)) from err
+        q_target = self.solve(target, q_now)
         q_actual = q_target
         if np.any(noise_mm):
             dq = np.linalg.pinv(jacobian(self.arm, q_target)[:3]) @ noise_mm
@@ -256,6 +342,25 @@ class JointArm:
         self._history.append(motion)
         self._commanded_q = q_target
         return motion.end_s
+
+    def solve(self, target: Sequence[float], q_now: FloatArray) -> FloatArray:
+        """The joints of the world location ``target`` from ``q_now``: on ``q_now``'s branch;
+        at the wrist singularity (of the solution, or of ``q_now`` when no exact solution is
+        found) with the first wrist joint kept where it is (module docstring).
+        UnreachableError when no solution is within the tolerances."""
+        arm, pose = self.arm, pose_of(target)
+        try:
+            exact: FloatArray | None = inverse(arm, pose, q_now, restarts=0)
+        except ArmError as err:
+            exact, failure = None, err
+        seed = q_now if exact is None else exact
+        if wrist_singular(arm, seed):
+            locked = wrist_locked_inverse(arm, pose, seed, q_now)
+            if locked is not None:
+                return locked
+        if exact is None:
+            raise UnreachableError(str(failure)) from failure
+        return exact
 
     def halt(self, now_s: float) -> None:
         """Stop the motion in progress where the arm is at ``now_s``."""
