@@ -40,7 +40,7 @@ from daemon.model.identify import (
     validate,
 )
 from daemon.model.observer import regions_to_nodes
-from daemon.model.presets import check_network_name, saved_networks_dir
+from daemon.model.presets import check_network_name, new_saved_path, saved_networks_dir
 from daemon.recorder import DATABASE_NAME
 from daemon.reports import ReportError, read_run
 from daemon.run_setup import RunParameterError, resolve_heat
@@ -336,12 +336,7 @@ def run_identify(args: argparse.Namespace) -> int:
 def saved_network_path(name: str, data_dir: Path) -> Path:
     """Where ``--save NAME`` writes: a valid name, no preset's, not yet taken (ValueError)."""
     check_network_name(name)
-    if name in available_presets():
-        raise ValueError(f"--save {name!r}: a preset has that name; choose another")
-    path = saved_networks_dir(data_dir) / f"{name}.toml"
-    if path.exists():
-        raise ValueError(f"--save {name!r}: {path} exists; choose another name")
-    return path
+    return new_saved_path(name, saved_networks_dir(data_dir), available_presets(), "a preset")
 
 
 def finite_json(value: object) -> object:
