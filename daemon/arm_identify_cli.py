@@ -49,6 +49,7 @@ from daemon.arm.identify import (
     marker_sensitivity,
 )
 from daemon.arm.ir_regions import region_nodes
+from daemon.identify_cli import finite_json, recorded_parameters, warning_lines, write_outputs
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.identify import IdentificationError
 from daemon.recorder import DATABASE_NAME
@@ -75,17 +76,7 @@ class ArmRun:
 
 def recorded_run(data_dir: Path, run_id: int) -> tuple[dict[str, Any], dict[str, Any]]:
     """The run's parameters and settings, read-only; ArmRunInputError when there is none."""
-    path = Path(data_dir) / DATABASE_NAME
-    try:
-        with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
-            row = db.execute(
-                "SELECT parameters_json, config_json FROM runs WHERE id = ?", (run_id,)
-            ).fetchone()
-    except sqlite3.Error as err:
-        raise ArmRunInputError(f"cannot read {path}: {err}") from err
-    if row is None:
-        raise ArmRunInputError(f"no run {run_id} in {path}")
-    return json.loads(row[0] or "{}"), json.loads(row[1] or "{}")
+    return recorded_parameters(data_dir, run_id, ArmRunInputError)
 
 
 def is_arm_run(parameters: dict[str, Any]) -> bool:
@@ -268,9 +259,7 @@ def format_arm_result(full: ArmIdentification, refit: ArmIdentification) -> str:
         f"{temperature} degC ({fit.temperature_samples} values); conditioning "
         f"{full.conditioning:.3g}"
     )
-    lines += [f"warning: {warning}" for warning in full.warnings]
-    if not refit.success:
-        lines.append(f"warning: the optimiser stopped early: {refit.message}")
+    lines += warning_lines(full.warnings, refit.success, refit.message)
     return "\n".join(lines)
 
 
@@ -309,9 +298,7 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
     header = f"identified by thermocomp identify {args.target} (arm {model.arm})"
     written = [path for path in (args.out, saved) if path is not None]
     try:
-        for path in written:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(arm_model_toml(model, header=header), encoding="utf-8")
+        write_outputs(written, arm_model_toml(model, header=header))
     except OSError as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_FAILURE
@@ -326,7 +313,7 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
             "saved_arm_model": args.save,
             "arm_model_file": None if args.out is None else str(args.out),
         }
-        print(json.dumps(_finite(document), indent=2, allow_nan=False))
+        print(json.dumps(finite_json(document), indent=2, allow_nan=False))
     else:
         print(format_arm_result(full, refit))
         if saved is not None:
@@ -335,13 +322,3 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
                 f'{args.save}`, or "arm_model": "{args.save}" in POST /runs'
             )
     return EXIT_OK
-
-
-def _finite(value: object) -> object:
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {key: _finite(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(item) for item in value]
-    return value

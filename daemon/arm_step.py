@@ -46,7 +46,14 @@ from daemon.recorder import Recorder, StepRecord
 from daemon.runs import RunParameters
 from daemon.scheduler import Tick
 from daemon.sensors import Sensors
-from daemon.step import LATE_FRACTION, OK, SENSOR_ERROR_FLAGS, StepOutcome, Verdict
+from daemon.step import (
+    SENSOR_ERROR_FLAGS,
+    StepOutcome,
+    begin_record,
+    finish_record,
+    read_infrared,
+    step_verdict,
+)
 from daemon.workers import Workers
 from drivers.base import MoveResult, Pose, RobotStatus
 from drivers.errors import DeviceError
@@ -150,19 +157,9 @@ class ArmStepPipeline:
     async def run(self, work: ArmRunWork, tick: Tick) -> StepOutcome:
         parameters = work.parameters
         run_time_s = tick.scheduled_s - work.start_s
-        record = StepRecord(
-            run_id=work.run_id,
-            step=tick.step,
-            scheduled_s=run_time_s,
-            actual_s=tick.actual_s - work.start_s,
-            lateness_s=tick.actual_s - tick.scheduled_s,
-            deformation_scale=parameters.deformation_scale,
-        )
-        flags: list[str] = []
+        record, flags = begin_record(work.run_id, parameters, work.start_s, tick)
         errors: list[str] = []
         stages: dict[str, float] = {}
-        if record.lateness_s > LATE_FRACTION * parameters.step_s:
-            flags.append("late")
         pose = work.pose_at(tick.step)
         record.arm_pose = pose.name
 
@@ -207,28 +204,19 @@ class ArmStepPipeline:
             )
 
         # 5. record, committed before the next step begins
-        record.flags = ",".join(flags)
-        record.error = "; ".join(errors)
-        record.stage_ms_json = json.dumps({k: round(v * 1e3, 3) for k, v in stages.items()})
+        finish_record(record, flags, errors, stages)
         started = time.perf_counter()
         await self._workers.db(self._recorder.write_step, record)
         stages["record"] = time.perf_counter() - started
-        return StepOutcome(
-            record, None, self._verdict(unsafe, device_fault, flags, record), round_trips_s, stages
+        verdict = step_verdict(
+            self._settings,
+            unsafe=unsafe,
+            device_fault=device_fault,
+            flags=flags,
+            record=record,
+            sensor_error_flags=ARM_SENSOR_ERROR_FLAGS,
         )
-
-    def _verdict(
-        self, unsafe: str | None, device_fault: str | None, flags: list[str], record: StepRecord
-    ) -> Verdict:
-        if unsafe is not None:
-            return Verdict("pause", unsafe)
-        if device_fault is not None:
-            return Verdict("fault", device_fault)
-        if self._settings.scheduler.sensor_error_policy == "pause" and (
-            set(flags) & ARM_SENSOR_ERROR_FLAGS
-        ):
-            return Verdict("pause", f"sensor error: {record.error}")
-        return OK
+        return StepOutcome(record, None, verdict, round_trips_s, stages)
 
     # --- 1. the model ------------------------------------------------------------------
 
@@ -318,25 +306,17 @@ class ArmStepPipeline:
     ) -> None:
         """The IR regions on the links, recorded (identification reads them back:
         daemon/arm_identify_cli.py) and, with prediction model+ir, fused into the model."""
-        try:
-            reading = await self._sensors.read_ir()
-        except DeviceError as err:
-            self._errors.note(err)
-            flags.append("ir-error")
-            errors.append(str(err))
-            return
-        age_s = self._now() - reading.timestamp_s
-        if age_s > self._settings.ir.max_age_s:
-            flags.append("stale-ir")
-            errors.append(self._sensors.stale("ir", "reading", age_s))
-        record.ir_json = json.dumps(
-            {
-                name: {"mean_c": region.mean_c, "max_c": region.max_c}
-                for name, region in reading.regions.items()
-            }
+        reading = await read_infrared(
+            self._sensors,
+            self._errors,
+            self._now,
+            self._settings,
+            record=record,
+            flags=flags,
+            errors=errors,
         )
         observe = getattr(work.predictor, "observe", None)
-        if callable(observe) and "stale-ir" not in flags:
+        if reading is not None and callable(observe):
             # prediction model+ir: the IR regions correct the arm model's nodes, for the next
             # step's prediction (on the step's worker: a Kalman update of tens of nodes)
             means = {name: region.mean_c for name, region in reading.regions.items()}

@@ -40,7 +40,7 @@ from daemon.model.identify import (
     validate,
 )
 from daemon.model.observer import regions_to_nodes
-from daemon.model.presets import check_network_name, saved_networks_dir
+from daemon.model.presets import check_network_name, new_saved_path, saved_networks_dir
 from daemon.recorder import DATABASE_NAME
 from daemon.reports import ReportError, read_run
 from daemon.run_setup import RunParameterError, resolve_heat
@@ -143,8 +143,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.set_defaults(handler=run_identify)
 
 
-def _recorded_parameters(data_dir: Path, run_id: int) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The run's recorded parameters and settings (runs table), read-only."""
+def recorded_parameters(
+    data_dir: Path, run_id: int, error: type[Exception] = RunInputError
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The run's recorded parameters and settings (runs table), read-only (a live daemon's
+    recording is never disturbed); ``error`` when the database cannot be read or has no such
+    run (daemon/arm_identify_cli.py reads an arm run's with it too)."""
     path = Path(data_dir) / DATABASE_NAME
     try:
         with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
@@ -152,9 +156,9 @@ def _recorded_parameters(data_dir: Path, run_id: int) -> tuple[dict[str, Any], d
                 "SELECT parameters_json, config_json FROM runs WHERE id = ?", (run_id,)
             ).fetchone()
     except sqlite3.Error as err:
-        raise RunInputError(f"cannot read {path}: {err}") from err
+        raise error(f"cannot read {path}: {err}") from err
     if row is None:
-        raise RunInputError(f"no run {run_id} in {path}")
+        raise error(f"no run {run_id} in {path}")
     return json.loads(row[0] or "{}"), json.loads(row[1] or "{}")
 
 
@@ -189,7 +193,7 @@ def load_run(target: str, settings: Settings, heater_off_s: float | None) -> Loa
             steps, _ = read_run(data_dir, int(target))
         except ReportError as err:
             raise RunInputError(str(err)) from err
-        parameters, config = _recorded_parameters(data_dir, int(target))
+        parameters, config = recorded_parameters(data_dir, int(target))
         recorded = Settings.model_validate(config) if config else settings
         recorded_heat = parameters.get("heat_w")
         heat = None if recorded_heat is None else dict(recorded_heat)
@@ -234,12 +238,26 @@ def format_result(result: IdentificationResult, out: Path | None) -> str:
                 f"{region} = {value:+.3f} degC" for region, value in result.offsets_c.items()
             )
         )
-    lines += [f"warning: {warning}" for warning in result.warnings]
-    if not result.success:
-        lines.append(f"warning: the optimiser stopped early: {result.message}")
+    lines += warning_lines(result.warnings, result.success, result.message)
     if out is not None:
         lines.append(f"network written to {out}")
     return "\n".join(lines)
+
+
+def warning_lines(warnings: Sequence[str], success: bool, message: str) -> list[str]:
+    """The report's closing lines: the identifiability warnings, and the optimiser's message
+    when it stopped early (the arm's report ends with them too)."""
+    lines = [f"warning: {warning}" for warning in warnings]
+    if not success:
+        lines.append(f"warning: the optimiser stopped early: {message}")
+    return lines
+
+
+def write_outputs(paths: Sequence[Path], text: str) -> None:
+    """``text`` written to each of ``paths`` (``--out`` and ``--save``), folders made."""
+    for path in paths:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
 
 
 def _number(value: float | None) -> str:
@@ -256,7 +274,7 @@ def run_identify(args: argparse.Namespace) -> int:
         from daemon.arm_identify_cli import is_arm_run, run_arm_identify
 
         try:
-            parameters, _ = _recorded_parameters(settings.storage.data_dir, int(args.target))
+            parameters, _ = recorded_parameters(settings.storage.data_dir, int(args.target))
         except RunInputError as err:
             print(f"thermocomp identify: {err}", file=sys.stderr)
             return EXIT_FAILURE
@@ -293,10 +311,7 @@ def run_identify(args: argparse.Namespace) -> int:
         identified = dataclasses.replace(result.network, calibration=calibration)
         header = f"identified by thermocomp identify {args.target} from {network.name}"
         text = network_toml(identified, header=header)
-        written = [path for path in (args.out, saved) if path is not None]
-        for path in written:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(text, encoding="utf-8")
+        write_outputs([path for path in (args.out, saved) if path is not None], text)
     except (IdentificationError, NetworkError) as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -307,7 +322,7 @@ def run_identify(args: argparse.Namespace) -> int:
         document = result.to_dict()
         document["network_file"] = None if args.out is None else str(args.out)
         document["saved_network"] = args.save
-        print(json.dumps(_finite(document), indent=2, allow_nan=False))
+        print(json.dumps(finite_json(document), indent=2, allow_nan=False))
     else:
         print(format_result(result, args.out))
         if saved is not None:
@@ -321,20 +336,15 @@ def run_identify(args: argparse.Namespace) -> int:
 def saved_network_path(name: str, data_dir: Path) -> Path:
     """Where ``--save NAME`` writes: a valid name, no preset's, not yet taken (ValueError)."""
     check_network_name(name)
-    if name in available_presets():
-        raise ValueError(f"--save {name!r}: a preset has that name; choose another")
-    path = saved_networks_dir(data_dir) / f"{name}.toml"
-    if path.exists():
-        raise ValueError(f"--save {name!r}: {path} exists; choose another name")
-    return path
+    return new_saved_path(name, saved_networks_dir(data_dir), available_presets(), "a preset")
 
 
-def _finite(value: object) -> object:
-    """JSON has no inf/NaN: an unbounded standard error is null."""
+def finite_json(value: object) -> object:
+    """JSON has no inf/NaN: an unbounded standard error is null (in dicts, lists, tuples)."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
-        return {key: _finite(item) for key, item in value.items()}
+        return {key: finite_json(item) for key, item in value.items()}
     if isinstance(value, list | tuple):
-        return [_finite(item) for item in value]
+        return [finite_json(item) for item in value]
     return value

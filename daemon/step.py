@@ -36,7 +36,7 @@ from daemon.sensors import Sensors
 from daemon.vision import CentroidError, measure_with_camera_settings
 from daemon.vision.calibration import camera_to_robot
 from daemon.workers import Workers
-from drivers.base import Frame, MoveResult, Pose, Robot
+from drivers.base import Frame, IrReading, MoveResult, Pose, Robot
 from drivers.errors import DeviceError
 
 logger = logging.getLogger(__name__)
@@ -118,19 +118,9 @@ class StepPipeline:
     async def run(self, work: RunWork, tick: Tick) -> StepOutcome:
         parameters = work.parameters
         run_time_s = tick.scheduled_s - work.start_s
-        record = StepRecord(
-            run_id=work.run_id,
-            step=tick.step,
-            scheduled_s=run_time_s,
-            actual_s=tick.actual_s - work.start_s,
-            lateness_s=tick.actual_s - tick.scheduled_s,
-            deformation_scale=parameters.deformation_scale,
-        )
-        flags: list[str] = []
+        record, flags = begin_record(work.run_id, parameters, work.start_s, tick)
         errors: list[str] = []
         stages: dict[str, float] = {}
-        if record.lateness_s > LATE_FRACTION * parameters.step_s:
-            flags.append("late")
         point = procedure_point(parameters, tick.step, run_time_s)
 
         # 1. the model, to the time the move is expected to execute (latency-compensated)
@@ -174,10 +164,7 @@ class StepPipeline:
             )
 
         # 5. record, committed before the next step begins
-        record.flags = ",".join(flags)
-        record.error = "; ".join(errors)
-        # the record's own stage cannot be in it: it is in the timing statistics only
-        record.stage_ms_json = json.dumps({k: round(v * 1e3, 3) for k, v in stages.items()})
+        finish_record(record, flags, errors, stages)
         started = time.perf_counter()
         archive_every = self._settings.storage.archive_every
         if frame is not None and archive_every and tick.step % archive_every == 0:
@@ -186,21 +173,15 @@ class StepPipeline:
             )
         await self._workers.db(self._recorder.write_step, record)
         stages["record"] = time.perf_counter() - started
-        verdict = self._verdict(unsafe, device_fault, flags, record)
+        verdict = step_verdict(
+            self._settings,
+            unsafe=unsafe,
+            device_fault=device_fault,
+            flags=flags,
+            record=record,
+            sensor_error_flags=SENSOR_ERROR_FLAGS,
+        )
         return StepOutcome(record, frame, verdict, round_trips_s, stages)
-
-    def _verdict(
-        self, unsafe: str | None, device_fault: str | None, flags: list[str], record: StepRecord
-    ) -> Verdict:
-        if unsafe is not None:
-            return Verdict("pause", unsafe)
-        if device_fault is not None:
-            return Verdict("fault", device_fault)
-        if self._settings.scheduler.sensor_error_policy == "pause" and (
-            set(flags) & SENSOR_ERROR_FLAGS
-        ):
-            return Verdict("pause", f"sensor error: {record.error}")
-        return OK
 
     # --- 1. the model ------------------------------------------------------------------
 
@@ -386,18 +367,16 @@ class StepPipeline:
     async def _infrared(
         self, work: RunWork, record: StepRecord, flags: list[str], errors: list[str]
     ) -> None:
-        try:
-            reading = await self._sensors.read_ir()
-        except DeviceError as err:
-            self._errors.note(err)
-            flags.append("ir-error")
-            errors.append(str(err))
-            return
-        age_s = self._now() - reading.timestamp_s
-        if age_s > self._settings.ir.max_age_s:
-            flags.append("stale-ir")
-            errors.append(self._sensors.stale("ir", "reading", age_s))
-        elif work.observer is not None:  # a stale reading is recorded, never fused
+        reading = await read_infrared(
+            self._sensors,
+            self._errors,
+            self._now,
+            self._settings,
+            record=record,
+            flags=flags,
+            errors=errors,
+        )
+        if reading is not None and work.observer is not None:
             innovation = work.observer.update(
                 {name: region.mean_c for name, region in reading.regions.items()}
             )
@@ -411,12 +390,94 @@ class StepPipeline:
             )
             if work.observer.drifting:
                 flags.append("model-drifting")
-        record.ir_json = json.dumps(
-            {
-                name: {"mean_c": region.mean_c, "max_c": region.max_c}
-                for name, region in reading.regions.items()
-            }
-        )
+
+
+# -- shared with the arm's pipeline (daemon/arm_step.py) ---------------------------------------
+
+
+def begin_record(
+    run_id: int, parameters: RunParameters, start_s: float, tick: Tick
+) -> tuple[StepRecord, list[str]]:
+    """The step's record with its times (run clock from ``start_s``), and its first flags:
+    ``late`` when it begins more than LATE_FRACTION of a period after its deadline."""
+    record = StepRecord(
+        run_id=run_id,
+        step=tick.step,
+        scheduled_s=tick.scheduled_s - start_s,
+        actual_s=tick.actual_s - start_s,
+        lateness_s=tick.actual_s - tick.scheduled_s,
+        deformation_scale=parameters.deformation_scale,
+    )
+    flags: list[str] = []
+    if record.lateness_s > LATE_FRACTION * parameters.step_s:
+        flags.append("late")
+    return record, flags
+
+
+def finish_record(
+    record: StepRecord, flags: list[str], errors: list[str], stages: dict[str, float]
+) -> None:
+    """The step's flags, errors and stage timings (ms) into its record, before it is written
+    (the record's own stage cannot be in it: it is in the timing statistics only)."""
+    record.flags = ",".join(flags)
+    record.error = "; ".join(errors)
+    record.stage_ms_json = json.dumps({k: round(v * 1e3, 3) for k, v in stages.items()})
+
+
+def step_verdict(
+    settings: Settings,
+    *,
+    unsafe: str | None,
+    device_fault: str | None,
+    flags: list[str],
+    record: StepRecord,
+    sensor_error_flags: frozenset[str],
+) -> Verdict:
+    """What the step asks of its run: a pause for a refused target, a fault for a device
+    fault, a pause for a sensor error (one of ``sensor_error_flags``) under the "pause"
+    policy (scheduler.sensor_error_policy), else go on."""
+    if unsafe is not None:
+        return Verdict("pause", unsafe)
+    if device_fault is not None:
+        return Verdict("fault", device_fault)
+    if settings.scheduler.sensor_error_policy == "pause" and (set(flags) & sensor_error_flags):
+        return Verdict("pause", f"sensor error: {record.error}")
+    return OK
+
+
+async def read_infrared(
+    sensors: Sensors,
+    errors_log: ErrorLog,
+    now: Callable[[], float],
+    settings: Settings,
+    *,
+    record: StepRecord,
+    flags: list[str],
+    errors: list[str],
+) -> IrReading | None:
+    """The step's IR reading, recorded (``ir_json``; identification reads it back) and
+    flagged: ``ir-error`` when it failed, ``stale-ir`` when older than ir.max_age_s. The
+    reading when it may be fused into the model, None otherwise (a stale reading is recorded,
+    never fused)."""
+    try:
+        reading = await sensors.read_ir()
+    except DeviceError as err:
+        errors_log.note(err)
+        flags.append("ir-error")
+        errors.append(str(err))
+        return None
+    record.ir_json = json.dumps(
+        {
+            name: {"mean_c": region.mean_c, "max_c": region.max_c}
+            for name, region in reading.regions.items()
+        }
+    )
+    age_s = now() - reading.timestamp_s
+    if age_s > settings.ir.max_age_s:
+        flags.append("stale-ir")
+        errors.append(sensors.stale("ir", "reading", age_s))
+        return None
+    return reading
 
 
 def _vector3(array: NDArray[np.float64]) -> tuple[float, float, float]:

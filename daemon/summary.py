@@ -41,7 +41,7 @@ def run_summary(
         summarize_run(
             steps,
             compensation=parameters.compensation,
-            reference=None if drift_run is None else recorder.run_steps(drift_run, SUMMARY_COLUMNS),
+            reference=_reference_steps(recorder, drift_run),
             reference_run=drift_run,
         )
     )
@@ -59,11 +59,7 @@ def run_summary(
                 "y_um": reference[1],
             },
             "uncompensated_measured_max_um": measured_uncompensated_max_um(work, steps),
-            "timing": {
-                **timing,
-                # over every step of the run, not only the recent window
-                "lateness_s": percentiles(steps.numeric.get("lateness_s", ())),
-            },
+            "timing": _timing(timing, steps),
         }
     )
     return summary
@@ -102,7 +98,7 @@ def arm_summary(
             steps,
             recorder.arm_poses(work.run_id),
             compensation=parameters.compensation,
-            reference=None if drift_run is None else recorder.run_steps(drift_run, SUMMARY_COLUMNS),
+            reference=_reference_steps(recorder, drift_run),
             reference_run=drift_run,
         )
     )
@@ -117,10 +113,19 @@ def arm_summary(
             "overruns": overruns,
             "skipped_deadlines": skipped,
             "reference": {"source": work.reference_source},
-            "timing": {
-                **timing,
-                "lateness_s": percentiles(steps.numeric.get("lateness_s", ())),
-            },
+            "timing": _timing(timing, steps),
         }
     )
     return summary
+
+
+def _reference_steps(recorder: Recorder, drift_run: int | None) -> RunSteps | None:
+    """The steps of the measured uncompensated run a run's reduction is against, if it names
+    one (checked at its start: ended, compensation off, same scale)."""
+    return None if drift_run is None else recorder.run_steps(drift_run, SUMMARY_COLUMNS)
+
+
+def _timing(timing: dict[str, Any], steps: RunSteps) -> dict[str, Any]:
+    """The run's timing with the lateness percentiles over every step of the run, not only
+    the recent window."""
+    return {**timing, "lateness_s": percentiles(steps.numeric.get("lateness_s", ()))}

@@ -216,12 +216,9 @@ class FakeIr:
         return IrReading({"shaft": region}, self.clock.now(), 0)
 
 
-class FakeDevices:
-    def __init__(self, clock: Clock, heat_w: dict[str, float]) -> None:
-        self.truth = FakeBench(clock, heat_w)  # not `bench`: that is the real sim's hook
-        self.robot = FakeRobot(self.truth)
-        self.camera = FakeCamera(self.truth)
-        self.ir = FakeIr(clock)
+class OpenedDevices:
+    """A fake's devices as an async context manager with nothing to open or close (the
+    daemon's open_devices hook enters it; the arm's fakes use it too)."""
 
     async def __aenter__(self) -> Self:
         return self
@@ -233,6 +230,14 @@ class FakeDevices:
         tb: TracebackType | None,
     ) -> None:
         return None
+
+
+class FakeDevices(OpenedDevices):
+    def __init__(self, clock: Clock, heat_w: dict[str, float]) -> None:
+        self.truth = FakeBench(clock, heat_w)  # not `bench`: that is the real sim's hook
+        self.robot = FakeRobot(self.truth)
+        self.camera = FakeCamera(self.truth)
+        self.ir = FakeIr(clock)
 
 
 def make_settings(tmp_path: Path, **sections: dict[str, Any]) -> Settings:

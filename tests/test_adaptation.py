@@ -15,6 +15,7 @@ from daemon.model.calibration import CalibratedParameter, Calibration
 from daemon.model.identify import apply_parameters, parse_parameters
 from daemon.model.model import ModelError
 from daemon.model.observer import STAND_DRIFT_SIGMA_UM, IrObserver
+from tests.test_model_steppers import lumped  # the one-node network of the analytic oracles
 
 AMBIENT_C = 22.0
 HEAT = {"2": 0.5, "9": 0.5}
@@ -26,20 +27,6 @@ IR_OFFSET_C = 0.5
 @pytest.fixture(scope="module")
 def preset() -> ThermalNetwork:
     return load_network("thesis-two-link")
-
-
-def lumped(capacitance: float = 10.0, r_ambient: float = 5.0) -> ThermalNetwork:
-    return ThermalNetwork(
-        name="lumped",
-        node_names=("only",),
-        positions_mm=np.array([0.0]),
-        capacitance_j_per_c=np.array([capacitance]),
-        alpha_per_c=np.array([1e-5]),
-        r_ambient_c_per_w=np.array([r_ambient]),
-        r_end_c_per_w=np.array([math.inf]),
-        resistances=(),
-        reference_nodes=("only", "only"),
-    )
 
 
 def test_one_node_converges_to_the_closed_form_truth_within_its_uncertainty() -> None:

@@ -14,7 +14,6 @@ import asyncio
 import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from types import TracebackType
 from typing import Any, Self
 
 import numpy as np
@@ -35,7 +34,7 @@ from daemon.workers import Workers
 from drivers.base import DEFAULT_GOAL, GoalRobot, LinkState, MoveResult, Pose, RobotStatus, Vector3
 from drivers.clock import Clock, make_clock
 from drivers.errors import MotionHeldError
-from tests.fakes import FakeBench, FakeCamera, FakeIr, Gate
+from tests.fakes import FakeBench, FakeCamera, FakeIr, Gate, OpenedDevices
 
 WAIT_S = 30.0
 STEP_S = 10.0
@@ -214,23 +213,12 @@ class FakeMeter:
         return ToolMeasurement(pose, 0.001, True, {"cam-0": ((1.0, 2.0),)})
 
 
-class FakeArmDevices:
+class FakeArmDevices(OpenedDevices):
     def __init__(self, clock: Clock) -> None:
         self.bench = ArmTruth(clock)
         self.robot = FakeArmRobot(self.bench)
         self.camera = FakeCamera(FakeBench(clock, {}))  # the two-link camera: unused by arm runs
         self.ir = FakeIr(clock)
-
-    async def __aenter__(self) -> Self:
-        return self
-
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        return None
 
 
 class ArmHarness:

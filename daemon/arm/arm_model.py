@@ -23,7 +23,7 @@ from typing import Any
 
 from daemon.arm.description import available_arms
 from daemon.model.calibration import CalibratedParameter
-from daemon.model.presets import check_network_name
+from daemon.model.presets import check_network_name, new_saved_path
 
 #: The data directory's folder of identified arm models.
 ARM_MODELS_FOLDER = "arm-models"
@@ -110,12 +110,7 @@ def new_arm_model_path(name: str, data_dir: Path) -> Path:
     """Where ``--save NAME`` writes an arm model: a plain name, no arm preset's, not yet
     taken (ValueError)."""
     check_arm_model_name(name)
-    if name in available_arms():
-        raise ValueError(f"--save {name!r}: an arm preset has that name; choose another")
-    path = saved_arm_models_dir(data_dir) / f"{name}.toml"
-    if path.exists():
-        raise ValueError(f"--save {name!r}: {path} exists; choose another name")
-    return path
+    return new_saved_path(name, saved_arm_models_dir(data_dir), available_arms(), "an arm preset")
 
 
 # -- TOML ----------------------------------------------------------------------------------------

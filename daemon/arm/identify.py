@@ -19,8 +19,8 @@ Scale factors are fitted as logarithms within [1/10, 10], offsets within +-5 deg
 ``scipy.optimize.least_squares`` and a robust loss, two passes (the second weighs markers and
 temperatures by their own residual RMS); standard errors, correlations and what is not
 identifiable from ``J`` at the solution exactly as daemon.model.identify reports them (its
-``_uncertainty``: normalised J^T J, near-singular directions, |correlation| > 0.995, relative
-SE > 0.5, parameters at a bound).
+:func:`~daemon.model.identify.uncertainty`: normalised J^T J, near-singular directions,
+|correlation| > 0.995, relative SE > 0.5, parameters at a bound).
 
 The forward model (:mod:`daemon.arm.response`) is cheap because the arm's network is linear
 and a link's growth tiny: every input's response in one pass of the network's modes, and the
@@ -53,12 +53,18 @@ from daemon.model.identify import (
     FittedParameter,
     IdentificationError,
     Parameter,
-    _uncertainty,
+    central_jacobian,
+    conditioning,
+    find_parameter,
+    parameters_report,
+    residual_variance,
+    rms,
+    uncertainty,
 )
 
-#: Bounds (as in daemon.model.identify) of a scale factor and of an IR offset.
-SCALE_BOUNDS = (0.1, 10.0)
-OFFSET_BOUND_C = 5.0
+#: The step of the central differences of the reported Jacobian (absolute: the fitted vector
+#: is log scales and offsets of order 1).
+JACOBIAN_STEP = 1e-5
 
 
 # -- parameters ----------------------------------------------------------------------------------
@@ -162,19 +168,11 @@ class ArmIdentification:
     warnings: tuple[str, ...] = ()
 
     def parameter(self, name: str) -> FittedParameter:
-        for parameter in self.parameters:
-            if parameter.name == name:
-                return parameter
-        raise KeyError(name)
+        return find_parameter(self.parameters, name)
 
     def to_dict(self) -> dict[str, Any]:
-        names = [p.name for p in self.parameters]
         return {
-            "parameters": [dataclasses.asdict(p) for p in self.parameters],
-            "correlation": {
-                a: {b: float(self.correlation[i, j]) for j, b in enumerate(names)}
-                for i, a in enumerate(names)
-            },
+            **parameters_report(self.parameters, self.correlation),
             "heat_scales": self.scales.heat.tolist(),
             "convection_scale": self.scales.convection,
             "alpha_scale": self.scales.alpha,
@@ -257,21 +255,7 @@ class _ArmProblem:
 
     def quality(self, values: FloatArray) -> ArmFitQuality:
         marker, temperature = self.raw(values)
-        return ArmFitQuality(_rms(marker), _rms(temperature), marker.size, temperature.size)
-
-
-def _rms(values: FloatArray) -> float | None:
-    return float(np.sqrt(np.mean(values**2))) if values.size else None
-
-
-def _jacobian(problem: _ArmProblem, values: FloatArray, step: float = 1e-5) -> FloatArray:
-    columns = []
-    for k in range(values.size):
-        up, down = values.copy(), values.copy()
-        up[k] += step
-        down[k] -= step
-        columns.append((problem.weighted(up) - problem.weighted(down)) / (2.0 * step))
-    return np.column_stack(columns)
+        return ArmFitQuality(rms(marker), rms(temperature), marker.size, temperature.size)
 
 
 def identify_arm(
@@ -292,8 +276,8 @@ def identify_arm(
     count = int(problem.marker_mask.sum() + sum(m.sum() for m in problem.region_masks.values()))
     if count <= len(specs):
         raise IdentificationError(f"{count} measurements cannot fit {len(specs)} parameters")
-    lower = np.array([_bounds(s)[0] for s in specs])
-    upper = np.array([_bounds(s)[1] for s in specs])
+    lower = np.array([s.bounds[0] for s in specs])
+    upper = np.array([s.bounds[1] for s in specs])
     values = np.zeros(len(specs))
     sigmas = (marker_sigma_mm, temperature_sigma_c)
     result: Any = None
@@ -315,14 +299,9 @@ def identify_arm(
             max(quality.marker_rms_mm or marker_sigma_mm, 1e-6),
             max(quality.temperature_rms_c or temperature_sigma_c, 1e-4),
         )
-    jacobian = _jacobian(problem, values)
-    residuals = problem.weighted(values)
-    variance = float(residuals @ residuals) / max(residuals.size - len(specs), 1)
-    fitted, correlation, warnings = _uncertainty(specs, values, jacobian, variance)
-    information = jacobian.T @ jacobian
-    diagonal = np.sqrt(np.clip(np.diag(information), 1e-300, None))
-    singular = np.linalg.svd(information / np.outer(diagonal, diagonal), compute_uv=False)
-    conditioning = float(singular[0] / max(singular[-1], 1e-300))
+    jacobian = central_jacobian(problem.weighted, values, JACOBIAN_STEP, relative=False)
+    variance = residual_variance(problem.weighted(values), len(specs))
+    fitted, correlation, warnings = uncertainty(specs, values, jacobian, variance)
     return ArmIdentification(
         parameters=tuple(fitted),
         correlation=correlation,
@@ -330,17 +309,11 @@ def identify_arm(
         fit=problem.quality(values),
         values=values,
         specs=tuple(specs),
-        conditioning=conditioning,
+        conditioning=conditioning(jacobian),
         success=bool(result.success),
         message=str(result.message),
         warnings=tuple(warnings),
     )
-
-
-def _bounds(spec: Parameter) -> tuple[float, float]:
-    if spec.kind == "offset":
-        return -OFFSET_BOUND_C, OFFSET_BOUND_C
-    return math.log(SCALE_BOUNDS[0]), math.log(SCALE_BOUNDS[1])
 
 
 __all__ = [

@@ -77,42 +77,30 @@ class MotorParameters:
             raise ValueError(f"gear efficiency must be in (0, 1], got {self.gear_efficiency}")
 
 
+def _column(name: str) -> cached_property[FloatArray]:
+    """A MotorTable property: the MotorParameters field ``name`` of every joint, as an array
+    (computed once)."""
+
+    def column(table: MotorTable) -> FloatArray:
+        return np.array([getattr(joint, name) for joint in table.joints], dtype=np.float64)
+
+    column.__name__ = name
+    return cached_property(column)
+
+
 @dataclass(frozen=True, eq=False)
 class MotorTable:
     """The parameters of several joints as arrays (one element per joint), for vector math."""
 
     joints: tuple[MotorParameters, ...]
 
-    def _column(self, name: str) -> FloatArray:
-        return np.array([getattr(joint, name) for joint in self.joints], dtype=np.float64)
-
-    @cached_property
-    def ratio(self) -> FloatArray:
-        return self._column("gear_ratio")
-
-    @cached_property
-    def k_t(self) -> FloatArray:
-        return self._column("torque_constant_nm_per_a")
-
-    @cached_property
-    def resistance(self) -> FloatArray:
-        return self._column("resistance_ohm")
-
-    @cached_property
-    def viscous(self) -> FloatArray:
-        return self._column("viscous_nm_s_per_rad")
-
-    @cached_property
-    def coulomb(self) -> FloatArray:
-        return self._column("coulomb_nm")
-
-    @cached_property
-    def efficiency(self) -> FloatArray:
-        return self._column("gear_efficiency")
-
-    @cached_property
-    def rotor_inertia(self) -> FloatArray:
-        return self._column("rotor_inertia_kg_m2")
+    ratio = _column("gear_ratio")
+    k_t = _column("torque_constant_nm_per_a")
+    resistance = _column("resistance_ohm")
+    viscous = _column("viscous_nm_s_per_rad")
+    coulomb = _column("coulomb_nm")
+    efficiency = _column("gear_efficiency")
+    rotor_inertia = _column("rotor_inertia_kg_m2")
 
     @classmethod
     def of(cls, params: MotorParameters | Sequence[MotorParameters] | MotorTable) -> MotorTable:

@@ -28,7 +28,7 @@ import dataclasses
 import json
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -374,6 +374,29 @@ class FittedParameter:
     reason: str = ""
 
 
+def find_parameter(parameters: Sequence[FittedParameter], name: str) -> FittedParameter:
+    """The fitted parameter called ``name`` (KeyError when there is none)."""
+    for parameter in parameters:
+        if parameter.name == name:
+            return parameter
+    raise KeyError(name)
+
+
+def parameters_report(
+    parameters: Sequence[FittedParameter], correlation: FloatArray
+) -> dict[str, Any]:
+    """The ``parameters`` and ``correlation`` entries of an identification's JSON document
+    (the two-link network's and the arm's alike)."""
+    names = [p.name for p in parameters]
+    return {
+        "parameters": [dataclasses.asdict(p) for p in parameters],
+        "correlation": {
+            a: {b: float(correlation[i, j]) for j, b in enumerate(names)}
+            for i, a in enumerate(names)
+        },
+    }
+
+
 @dataclass(frozen=True)
 class IdentificationResult:
     parameters: tuple[FittedParameter, ...]
@@ -390,19 +413,11 @@ class IdentificationResult:
     validation: FitQuality | None = field(default=None)
 
     def parameter(self, name: str) -> FittedParameter:
-        for parameter in self.parameters:
-            if parameter.name == name:
-                return parameter
-        raise KeyError(name)
+        return find_parameter(self.parameters, name)
 
     def to_dict(self) -> dict[str, Any]:
-        names = [p.name for p in self.parameters]
         return {
-            "parameters": [dataclasses.asdict(p) for p in self.parameters],
-            "correlation": {
-                a: {b: float(self.correlation[i, j]) for j, b in enumerate(names)}
-                for i, a in enumerate(names)
-            },
+            **parameters_report(self.parameters, self.correlation),
             "fit": dataclasses.asdict(self.fit),
             "validation": None if self.validation is None else dataclasses.asdict(self.validation),
             "heat_w": self.heat_w,
@@ -459,26 +474,43 @@ class _Problem:
     def quality(self, values: FloatArray) -> FitQuality:
         temperature, deformation = self.raw_residuals(values)
         return FitQuality(
-            temperature_rms_c=_rms(temperature),
-            deformation_rms_um=_rms(deformation),
+            temperature_rms_c=rms(temperature),
+            deformation_rms_um=rms(deformation),
             temperature_samples=int(temperature.size),
             deformation_samples=int(deformation.size),
         )
 
 
-def _rms(values: FloatArray) -> float | None:
+# -- the uncertainty report, shared with the arm's identification (daemon.arm.identify) ------
+
+
+def rms(values: FloatArray) -> float | None:
+    """The root mean square of ``values``; None when there is none."""
     return float(np.sqrt(np.mean(values**2))) if values.size else None
 
 
-def _jacobian(problem: _Problem, values: FloatArray) -> FloatArray:
+def central_jacobian(
+    residuals: Callable[[FloatArray], FloatArray],
+    values: FloatArray,
+    step: float = JACOBIAN_STEP,
+    *,
+    relative: bool = True,
+) -> FloatArray:
+    """The Jacobian of ``residuals`` at ``values`` by central differences: each parameter's
+    step is ``step`` times max(1, |value|) when ``relative``, else ``step``."""
     columns = []
     for k in range(values.size):
-        step = JACOBIAN_STEP * max(1.0, abs(values[k]))
+        h = step * max(1.0, abs(values[k])) if relative else step
         up, down = values.copy(), values.copy()
-        up[k] += step
-        down[k] -= step
-        columns.append((problem.weighted(up) - problem.weighted(down)) / (2.0 * step))
+        up[k] += h
+        down[k] -= h
+        columns.append((residuals(up) - residuals(down)) / (2.0 * h))
     return np.column_stack(columns)
+
+
+def residual_variance(residuals: FloatArray, parameters: int) -> float:
+    """``s^2``: the weighted residuals' sum of squares over their degrees of freedom."""
+    return float(residuals @ residuals) / max(residuals.size - parameters, 1)
 
 
 def identify(
@@ -528,10 +560,9 @@ def identify(
         deformation_sigma_um=max(quality.deformation_rms_um or deformation_sigma_um, 1e-3),
     )
     values = np.asarray(result.x, dtype=np.float64)
-    jacobian = _jacobian(problem, values)
-    residuals = problem.weighted(values)
-    variance = float(residuals @ residuals) / max(residuals.size - len(specs), 1)
-    fitted, correlation, warnings = _uncertainty(specs, values, jacobian, variance)
+    jacobian = central_jacobian(problem.weighted, values)
+    variance = residual_variance(problem.weighted(values), len(specs))
+    fitted, correlation, warnings = uncertainty(specs, values, jacobian, variance)
     applied = apply_parameters(network, specs, values, used_regions)
     heat_nodes = {
         network.node_names[network.node_index(node)]
@@ -601,17 +632,37 @@ def _fit_pass(
     )
 
 
-def _uncertainty(
+def _normalised_information(jacobian: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """J^T J normalised by its diagonal (so its singular values compare directions, not
+    units), and the square root of that diagonal."""
+    information = jacobian.T @ jacobian
+    diagonal = np.sqrt(np.clip(np.diag(information), 1e-300, None))
+    return information / np.outer(diagonal, diagonal), diagonal
+
+
+def conditioning(jacobian: FloatArray) -> float:
+    """The largest over the smallest singular value of the normalised J^T J."""
+    normalised, _ = _normalised_information(jacobian)
+    singular = np.linalg.svd(normalised, compute_uv=False)
+    return float(singular[0] / max(singular[-1], 1e-300))
+
+
+def uncertainty(
     specs: Sequence[Parameter], values: FloatArray, jacobian: FloatArray, variance: float
 ) -> tuple[list[FittedParameter], FloatArray, list[str]]:
-    """Standard errors, correlations and identifiability from ``J`` at the solution.
+    """Standard errors, correlations and identifiability from ``J`` at the solution
+    (``values``, the fitted vector: log scales and offsets; ``variance``, the weighted
+    residual variance :func:`residual_variance`): the fitted parameters, their correlation
+    matrix and a warning for each one the data do not identify.
 
     J^T J is normalised by its diagonal before the pseudo-inverse, so the singular values
     compare directions, not units; a parameter loading a direction with a singular value
-    below SINGULAR_RATIO x the largest is one the data cannot tell from the others."""
-    information = jacobian.T @ jacobian
-    diagonal = np.sqrt(np.clip(np.diag(information), 1e-300, None))
-    normalised = information / np.outer(diagonal, diagonal)
+    below SINGULAR_RATIO x the largest is one the data cannot tell from the others. It is
+    not identifiable either when |correlation| with another exceeds CORRELATION_LIMIT, when
+    its relative SE exceeds RELATIVE_SE_LIMIT (an offset's SE OFFSET_SE_LIMIT_C), or when it
+    ends at its bound. The two-link and the arm identification (daemon.arm.identify) both
+    report with it."""
+    normalised, diagonal = _normalised_information(jacobian)
     u, singular, _ = np.linalg.svd(normalised)
     weak = singular < SINGULAR_RATIO * singular[0]
     inverse = (u[:, ~weak] / singular[~weak]) @ u[:, ~weak].T
@@ -839,15 +890,22 @@ __all__ = [
     "Parameter",
     "RunData",
     "calibration_of",
+    "central_jacobian",
+    "conditioning",
     "default_parameters",
     "evaluate",
+    "find_parameter",
     "heat_schedule",
     "identify",
     "measured_deformation_um",
     "network_toml",
     "observation_matrix",
+    "parameters_report",
     "parse_parameters",
+    "residual_variance",
+    "rms",
     "run_data_from_steps",
     "simulate_temperatures",
+    "uncertainty",
     "validate",
 ]

@@ -19,6 +19,7 @@ import contextlib
 import dataclasses
 import math
 import re
+from collections.abc import Collection
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -162,6 +163,19 @@ def check_network_name(name: str) -> str:
 def saved_networks_dir(data_dir: Path) -> Path:
     """Where ``identify --save`` keeps the identified networks of a data directory."""
     return Path(data_dir) / SAVED_FOLDER
+
+
+def new_saved_path(name: str, folder: Path, presets: Collection[str], preset_kind: str) -> Path:
+    """Where ``identify --save NAME`` writes in ``folder`` (a network's or an arm model's,
+    daemon/arm/arm_model.py), its name already checked: ``NAME.toml``; ValueError when one of
+    ``presets`` (``preset_kind``, e.g. "a preset") has that name or the file exists (a saved
+    model is never overwritten)."""
+    if name in presets:
+        raise ValueError(f"--save {name!r}: {preset_kind} has that name; choose another")
+    path = folder / f"{name}.toml"
+    if path.exists():
+        raise ValueError(f"--save {name!r}: {path} exists; choose another name")
+    return path
 
 
 def available_saved(data_dir: Path | None) -> list[str]:

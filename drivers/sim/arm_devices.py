@@ -154,13 +154,12 @@ class ArmBenchControl:
         return np.asarray(self._emulator.joint_sample(now).q_rad, dtype=np.float64)
 
 
-class SimArmCamera:
-    """One of the arm bench's cameras: a whole frame of the tool's markers (rendered in a
-    worker thread: a 5 MP frame)."""
+class _ArmBenchSensor:
+    """What the arm bench's sensors share: the bench they read, the run clock that stamps
+    them, a sequence number; nothing to open or close (the bench is open_arm_bench's)."""
 
-    def __init__(self, control: ArmBenchControl, index: int, clock: Clock) -> None:
+    def __init__(self, control: ArmBenchControl, clock: Clock) -> None:
         self._control = control
-        self.index = index
         self._clock = clock
         self._sequence = 0
 
@@ -169,6 +168,15 @@ class SimArmCamera:
 
     async def __aexit__(self, *exc: object) -> None:
         return None
+
+
+class SimArmCamera(_ArmBenchSensor):
+    """One of the arm bench's cameras: a whole frame of the tool's markers (rendered in a
+    worker thread: a 5 MP frame)."""
+
+    def __init__(self, control: ArmBenchControl, index: int, clock: Clock) -> None:
+        super().__init__(control, clock)
+        self.index = index
 
     async def grab(self) -> Frame:
         now = self._clock.now()
@@ -190,19 +198,8 @@ class SimArmCamera:
         return np.asarray(frame.image), frame.bit_depth
 
 
-class SimArmIr:
+class SimArmIr(_ArmBenchSensor):
     """The IR regions of the arm bench (mean of the true nodes there, offset and noise)."""
-
-    def __init__(self, control: ArmBenchControl, clock: Clock) -> None:
-        self._control = control
-        self._clock = clock
-        self._sequence = 0
-
-    async def __aenter__(self) -> Self:
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        return None
 
     async def read(self) -> IrReading:
         now = self._clock.now()
