@@ -751,6 +751,14 @@ class ArmSettings(_Section):
         description="Arm bench: cameras at each measured pose (simulated; their models "
         "are the bench's unless arm.cameras_file is set).",
     )
+    camera_devices: Annotated[tuple[CameraSettings, ...], Field(max_length=MAX_ARM_CAMERAS)] = (
+        Field(
+            (),
+            description="On hardware: the real cameras watching the tool, in the order of "
+            "arm.cameras_file's cameras; each a camera section (driver opencv, genicam or "
+            'replay, e.g. {driver = "genicam", serial = "..."}).',
+        )
+    )
     markers_mm: Annotated[
         tuple[tuple[float, float, float], ...], Field(min_length=1, max_length=MAX_MARKERS)
     ] = Field(
@@ -782,6 +790,23 @@ class ArmSettings(_Section):
         description="With arm.bending: share of each joint's flange conductance on the link's "
         "motor-housing side (the arm's design; 0.5: symmetric, no gradient across a link).",
     )
+
+    @model_validator(mode="after")
+    def _camera_devices_need_models(self) -> Self:
+        # the 3-D measurement needs each real camera's calibrated model (intrinsics, pose):
+        # they come from the camera file, matched by position (README "Measuring in 3-D")
+        if self.camera_devices and self.cameras_file is None:
+            raise ValueError(
+                "arm.camera_devices needs arm.cameras_file (the cameras' models, from "
+                "`thermocomp calibrate cameras`)"
+            )
+        simulated = [i for i, cam in enumerate(self.camera_devices) if cam.driver == "sim"]
+        if simulated:
+            raise ValueError(
+                f"arm.camera_devices[{simulated[0]}]: driver 'sim' is the two-link bench's "
+                "camera; the arm bench simulates its own (arm.cameras)"
+            )
+        return self
 
 
 class Settings(_Section):

@@ -112,7 +112,10 @@ def default_arm_meter(settings: Settings, devices: Devices, workers: Workers) ->
 
     cameras = tuple(getattr(devices, "cameras", ()) or ())
     if not cameras:
-        raise ArmSetupError("an arm run needs the arm's cameras (drivers.factory: arm.enabled)")
+        raise ArmSetupError(
+            "an arm run needs the cameras watching the tool: on hardware set "
+            "arm.camera_devices and arm.cameras_file, on the bench arm.enabled"
+        )
     cameras_file = settings.arm.cameras_file
     if cameras_file is not None:
         models = tuple(load_cameras(Path(cameras_file)))

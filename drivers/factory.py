@@ -16,6 +16,8 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass
 
 from config import ConfigError, Settings
+from config.settings import CameraSettings
+from daemon.vision.cameras import CameraFileError, load_cameras
 from daemon.vision.multiview import CameraModel
 from drivers.base import Camera, IrReader, Robot
 from drivers.c500c import C500CRobot
@@ -139,16 +141,7 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
         else:
             robot = C500CRobot(settings.robot)
 
-        camera: Camera
-        if settings.camera.driver == "sim":
-            assert bench is not None
-            camera = SimCamera(settings.camera, bench, clock)
-        elif settings.camera.driver == "opencv":
-            camera = OpenCvCamera(settings.camera, clock)
-        elif settings.camera.driver == "genicam":
-            camera = GenICamCamera(settings.camera, clock)
-        else:
-            camera = ReplayCamera(settings.camera, clock)
+        camera = camera_driver(settings.camera, clock, bench)
 
         ir: IrReader
         if settings.ir.driver == "sim":
@@ -164,10 +157,58 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
         await stack.enter_async_context(robot)
         await stack.enter_async_context(camera)
         await stack.enter_async_context(ir)
+        cameras, camera_models = await _open_arm_cameras(settings, clock, stack)
         logger.info(
-            "devices open: camera=%s ir=%s robot=%s",
+            "devices open: camera=%s ir=%s robot=%s arm cameras=%d",
             settings.camera.driver,
             settings.ir.driver,
             settings.robot.driver,
+            len(cameras),
         )
-        yield Devices(camera=camera, ir=ir, robot=robot, bench=bench, emulator=emulator)
+        yield Devices(
+            camera=camera,
+            ir=ir,
+            robot=robot,
+            bench=bench,
+            emulator=emulator,
+            cameras=cameras,
+            camera_models=camera_models,
+        )
+
+
+def camera_driver(camera: CameraSettings, clock: Clock, bench: Bench | None) -> Camera:
+    """The camera driver of one camera section (not yet opened); ``sim`` needs the bench."""
+    if camera.driver == "sim":
+        assert bench is not None
+        return SimCamera(camera, bench, clock)
+    if camera.driver == "opencv":
+        return OpenCvCamera(camera, clock)
+    if camera.driver == "genicam":
+        return GenICamCamera(camera, clock)
+    return ReplayCamera(camera, clock)
+
+
+async def _open_arm_cameras(
+    settings: Settings, clock: Clock, stack: contextlib.AsyncExitStack
+) -> tuple[tuple[Camera, ...], tuple[CameraModel, ...]]:
+    """On hardware, the real cameras watching the arm's tool (arm.camera_devices), opened in
+    ``stack``, with their calibrated models from arm.cameras_file, matched by position."""
+    devices = settings.arm.camera_devices
+    if not settings.arm.enabled or not devices:
+        return (), ()
+    assert settings.arm.cameras_file is not None  # ArmSettings' validator
+    try:
+        models = load_cameras(settings.arm.cameras_file)
+    except CameraFileError as err:
+        raise ConfigError(f"arm.cameras_file: {err}") from err
+    if len(models) != len(devices):
+        raise ConfigError(
+            f"arm.camera_devices lists {len(devices)} cameras but arm.cameras_file "
+            f"{settings.arm.cameras_file} has {len(models)}: one device per camera, same order"
+        )
+    cameras: list[Camera] = []
+    for device in devices:
+        camera = camera_driver(device, clock, None)
+        await stack.enter_async_context(camera)
+        cameras.append(camera)
+    return tuple(cameras), models
