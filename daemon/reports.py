@@ -65,18 +65,24 @@ def read_run(data_dir: Path, run_id: int) -> tuple[RunSteps, dict[str, Any] | No
     return steps, summary
 
 
-def run_parameters(data_dir: Path, run_id: int) -> dict[str, Any]:
-    """The parameters a run was started with ({} when the database does not say)."""
+def _run_json(data_dir: Path, run_id: int, column: str) -> object:
+    """One JSON column of a run's row, decoded (None when the row, the value or its JSON is
+    missing or broken); ReportError when the database cannot be read."""
     path = Path(data_dir) / DATABASE_NAME
     try:
         with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
-            row = db.execute("SELECT parameters_json FROM runs WHERE id = ?", (run_id,)).fetchone()
+            row = db.execute(f"SELECT {column} FROM runs WHERE id = ?", (run_id,)).fetchone()
     except sqlite3.Error as err:
         raise ReportError(f"cannot read {path}: {err}") from err
     try:
-        parameters = json.loads(row[0]) if row and row[0] else {}
+        return json.loads(row[0]) if row and row[0] else None
     except json.JSONDecodeError:
-        return {}
+        return None
+
+
+def run_parameters(data_dir: Path, run_id: int) -> dict[str, Any]:
+    """The parameters a run was started with ({} when the database does not say)."""
+    parameters = _run_json(data_dir, run_id, "parameters_json")
     return parameters if isinstance(parameters, dict) else {}
 
 
@@ -94,16 +100,7 @@ def reference_steps(data_dir: Path, reference_run: int) -> RunSteps:
 def run_clock(data_dir: Path, run_id: int) -> str | None:
     """The run's ``bench.clock`` setting, from the settings the daemon recorded with it (None
     when the database does not say): the report drops the lateness figure on a virtual clock."""
-    path = Path(data_dir) / DATABASE_NAME
-    try:
-        with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
-            row = db.execute("SELECT config_json FROM runs WHERE id = ?", (run_id,)).fetchone()
-    except sqlite3.Error as err:
-        raise ReportError(f"cannot read {path}: {err}") from err
-    try:
-        config = json.loads(row[0]) if row and row[0] else {}
-    except json.JSONDecodeError:
-        return None
+    config = _run_json(data_dir, run_id, "config_json")
     bench = config.get("bench") if isinstance(config, dict) else None
     clock = bench.get("clock") if isinstance(bench, dict) else None
     return clock if isinstance(clock, str) else None
