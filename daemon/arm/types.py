@@ -17,9 +17,13 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 FloatArray = NDArray[np.float64]
 
@@ -30,6 +34,23 @@ def _vector3(values: object, what: str) -> FloatArray:
         raise ValueError(f"{what}: expected three finite numbers, got {values!r}")
     array.setflags(write=False)
     return array
+
+
+#: SciPy's warning at y = +-90 deg (z-y-x gimbal lock): "Gimbal lock detected. Setting third
+#: angle to zero since it is not possible to uniquely determine all angles."
+GIMBAL_LOCK_WARNING = "Gimbal lock detected"
+
+
+def zyx_deg_of(rotation: Rotation) -> tuple[float, float, float]:
+    """Intrinsic z-y-x angles (degrees) of ``rotation``: the C500C's world angles (``wshift``'s
+    zrot, yrot, xrot; ``w2``'s WORLD row). At y = +-90 deg (a tool pointing straight down or
+    up: the A465's camera station) only z -+ x is determined; SciPy then sets x to 0 and warns.
+    Any split of z and x is the same rotation (the console and the emulator rebuild the same
+    matrix from it), so that warning, and only it, is silenced."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=GIMBAL_LOCK_WARNING, category=UserWarning)
+        z, y, x = rotation.as_euler("ZYX", degrees=True)
+    return float(z), float(y), float(x)
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,13 +91,7 @@ class Pose6:
         from scipy.spatial.transform import Rotation
 
         # a copy: SciPy's Cython rotations refuse the read-only arrays Pose6 holds
-        rotvec = np.array(self.rotation_rad)
-        # At y = +-90 deg (gimbal lock) only z -+ x is determined: SciPy sets x to 0 and warns
-        # "Gimbal lock detected"; any split is the same rotation, so only that is silenced.
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message="Gimbal lock detected", category=UserWarning)
-            z, y, x = Rotation.from_rotvec(rotvec).as_euler("ZYX", degrees=True)
-        return float(z), float(y), float(x)
+        return zyx_deg_of(Rotation.from_rotvec(np.array(self.rotation_rad)))
 
 
 @dataclass(frozen=True, slots=True)

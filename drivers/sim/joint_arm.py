@@ -32,7 +32,6 @@ Conventions (ASSUMED where C500C.md is silent):
 from __future__ import annotations
 
 import math
-import warnings
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -44,7 +43,7 @@ from scipy.spatial.transform import Rotation
 
 from daemon.arm.description import Arm, ArmError
 from daemon.arm.kinematics import forward, inverse, jacobian
-from daemon.arm.types import JointSample, pose_difference
+from daemon.arm.types import JointSample, pose_difference, zyx_deg_of
 
 FloatArray = NDArray[np.float64]
 Location = tuple[float, float, float, float, float, float]
@@ -238,22 +237,6 @@ def pose_of(location: Sequence[float]) -> FloatArray:
     pose[:3, :3] = Rotation.from_euler("ZYX", list(location[3:6]), degrees=True).as_matrix()
     pose[:3, 3] = location[:3]
     return pose
-
-
-#: SciPy's warning at y = +-90 deg (z-y-x gimbal lock): "Gimbal lock detected. Setting third
-#: angle to zero since it is not possible to uniquely determine all angles."
-GIMBAL_LOCK_WARNING = "Gimbal lock detected"
-
-
-def zyx_deg_of(rotation: Rotation) -> tuple[float, float, float]:
-    """Intrinsic z-y-x angles (degrees) of ``rotation``. At y = +-90 deg (a tool pointing
-    straight down or up: the A465's camera station) only z -+ x is determined; SciPy then
-    sets x to 0 and warns. Any split of z and x is the same rotation (the console and
-    pose_of rebuild the same matrix from it), so that warning, and only it, is silenced."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=GIMBAL_LOCK_WARNING, category=UserWarning)
-        z, y, x = rotation.as_euler("ZYX", degrees=True)
-    return float(z), float(y), float(x)
 
 
 def location_of(pose: FloatArray) -> Location:
