@@ -307,7 +307,7 @@ def test_noise_estimate_does_not_collapse_under_one_count(noise_counts: float) -
 
 
 def test_grouped_median_of_whole_counts_by_hand() -> None:
-    from daemon.vision.centroid import _grouped_median
+    from daemon.vision.centroid_robust import _grouped_median
 
     # all differences 0: half of the interval [0, 1/2] holding them all
     assert _grouped_median(np.zeros(10)) == pytest.approx(0.25)
