@@ -1,0 +1,92 @@
+"""One recorded step (issue 2 onwards): the row of the steps table, whose field order is the
+column order of the table, the CSV and every export (the contract with daemon.analysis), and
+the SQL that creates that table (daemon/recorder.py writes it)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(slots=True)
+class StepRecord:
+    """One step as recorded; field order is the column order of the steps table and CSV."""
+
+    run_id: int
+    step: int
+    scheduled_s: float
+    actual_s: float
+    lateness_s: float
+    model_time_s: float | None = None
+    predicted_x_um: float | None = None  # unscaled predicted deformation
+    predicted_y_um: float | None = None
+    predicted_z_um: float | None = None
+    offset_x_mm: float | None = None  # commanded compensation offset
+    offset_y_mm: float | None = None
+    offset_z_mm: float | None = None
+    pose_x_mm: float | None = None  # actual pose read back
+    pose_y_mm: float | None = None
+    pose_z_mm: float | None = None
+    centroid_x_px: float | None = None
+    centroid_y_px: float | None = None
+    centroid_x_um: float | None = None
+    centroid_y_um: float | None = None
+    drift_x_um: float | None = None  # centroid minus the reference (at the goal, before
+    drift_y_um: float | None = None  # the first move; else step 0's centroid)
+    residual_um: float | None = None  # drift projected on the link direction
+    ir_json: str | None = None  # {"region": {"mean_c": .., "max_c": ..}}
+    flags: str = ""  # comma-separated
+    error: str = ""
+    # --- extra columns (after the contract's) ---
+    deformation_scale: float | None = None  # the run's scale (residuals are scaled motion)
+    model_temperatures_json: str | None = None  # {"node": predicted degC} of the model
+    frame_path: str | None = None  # archived 16-bit PNG, relative to the data directory
+    stage_ms_json: str | None = None  # {"model": ms, "move": ms, ...} wall time per stage
+    deformation_sigma_um: float | None = None  # 1-sigma of the prediction (model+ir)
+    innovation_nis: float | None = None  # normalised innovation squared of the IR update
+    # --- arm runs (issue 20): 6-DOF in the arm's base frame; empty on a two-link run ---
+    arm_pose: str | None = None  # the duty cycle's measured pose of this step
+    predicted_tx_um: float | None = None  # predicted tool error: translation (um)
+    predicted_ty_um: float | None = None
+    predicted_tz_um: float | None = None
+    predicted_rx_urad: float | None = None  # ... and rotation vector (urad)
+    predicted_ry_urad: float | None = None
+    predicted_rz_urad: float | None = None
+    correction_tx_mm: float | None = None  # commanded correction from the taught pose (mm)
+    correction_ty_mm: float | None = None
+    correction_tz_mm: float | None = None
+    correction_rx_urad: float | None = None  # ... and its rotation vector (urad)
+    correction_ry_urad: float | None = None
+    correction_rz_urad: float | None = None
+    measured_tx_um: float | None = None  # measured tool pose less its reference: translation
+    measured_ty_um: float | None = None
+    measured_tz_um: float | None = None
+    measured_rx_urad: float | None = None  # ... and rotation vector (urad; >= 3 markers)
+    measured_ry_urad: float | None = None
+    measured_rz_urad: float | None = None
+    drift_3d_um: float | None = None  # |measured translation|: the 3-D drift (the residual)
+    rotation_error_urad: float | None = None  # |measured rotation|: the rotation error
+    measured_sigma_um: float | None = None  # 1-sigma of the 3-D position (sqrt trace cov)
+    # the observer's estimates after the IR update: {"heat": [factor, 1-sigma], ...,
+    # "offset:REGION": [degC, 1-sigma]} (model+ir; the factors with observer.adapt, issue 19)
+    observer_json: str | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+STEP_COLUMNS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(StepRecord))
+SQL_TYPES = {"int": "INTEGER", "float": "REAL", "str": "TEXT"}
+
+
+def column_type(field: dataclasses.Field[Any]) -> str:
+    base = str(field.type).split("|")[0].strip()
+    return SQL_TYPES[base]
+
+
+STEPS_SCHEMA = (
+    "CREATE TABLE IF NOT EXISTS steps ("
+    + ", ".join(f"{f.name} {column_type(f)}" for f in dataclasses.fields(StepRecord))
+    + ", PRIMARY KEY (run_id, step), FOREIGN KEY (run_id) REFERENCES runs(id))"
+)
