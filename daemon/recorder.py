@@ -38,6 +38,24 @@ from config import redact_secrets
 from daemon.analysis import RunSteps, steps_from_rows
 from daemon.step_record import STEP_COLUMNS, STEPS_SCHEMA, StepRecord, column_type
 
+# StepRecord and STEP_COLUMNS (daemon/step_record.py) are what this module records: exported
+# with it
+__all__ = [
+    "DATABASE_NAME",
+    "EXPORT_BATCH_STEPS",
+    "INTERRUPTED",
+    "LIVE_STATES",
+    "LOCK_NAME",
+    "STEP_COLUMNS",
+    "Recorder",
+    "RecorderError",
+    "RunRow",
+    "StepRecord",
+    "read_steps",
+    "step_rows",
+    "write_steps_csv",
+]
+
 logger = logging.getLogger(__name__)
 
 DATABASE_NAME = "thermocomp.sqlite3"

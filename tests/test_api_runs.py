@@ -22,7 +22,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from websockets.asyncio.client import ClientConnection, connect
 
 from api.app import create_app
-from api.routers import runs as runs_router
+from api.routers import run_data as run_data_router
 from config import Settings
 from daemon.service import Daemon
 from tests.test_api_server import CONTROL, READ, receive_json, serve
@@ -71,7 +71,7 @@ async def test_full_run_cycle(
     bench: tuple[httpx.AsyncClient, str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     client, address = bench
-    monkeypatch.setattr(runs_router, "CSV_CHUNK_STEPS", 4)  # the CSV streams in many chunks
+    monkeypatch.setattr(run_data_router, "CSV_CHUNK_STEPS", 4)  # the CSV streams in many chunks
     health = (await client.get("/api/v1/health")).json()
     assert health["daemon"] == "running"
     assert health["devices"] == {"robot": "connected", "camera": "open", "ir": "open"}

@@ -32,7 +32,7 @@ from hypothesis import strategies as st
 from schemathesis import Case, GenerationMode
 
 from api.app import create_app
-from api.routers import runs as runs_router
+from api.routers import run_data as run_data_router
 from config import Settings
 from daemon.model import available_presets
 from daemon.recorder import Recorder
@@ -329,7 +329,7 @@ def test_parquet_is_described_only_when_pyarrow_is_installed(
     """Without the ``parquet`` extra the server answered format=parquet with a 501: a request
     its own description offered ended in a server error. Now the format is offered only when
     the export can be written."""
-    monkeypatch.setattr(runs_router, "parquet_available", lambda: installed)
+    monkeypatch.setattr(run_data_router, "parquet_available", lambda: installed)
     description = create_app(Settings()).openapi()
     expected = ["json", "csv", "parquet"] if installed else ["json", "csv"]
     assert step_format_enum(description) == expected
@@ -341,7 +341,7 @@ async def test_parquet_export_without_and_with_pyarrow(
 ) -> None:
     steps_url = f"/api/v1/runs/{bench.finished_run}/steps"
     async with httpx.AsyncClient(base_url=bench.base_url, headers=READ_AUTH, timeout=30) as client:
-        monkeypatch.setattr(runs_router, "parquet_available", lambda: False)
+        monkeypatch.setattr(run_data_router, "parquet_available", lambda: False)
         refused = await client.get(steps_url, params={"format": "parquet"})
         assert refused.status_code == 422, refused.text
         body = refused.json()
@@ -350,7 +350,7 @@ async def test_parquet_export_without_and_with_pyarrow(
         run = (await client.get(f"/api/v1/runs/{bench.finished_run}")).json()
         assert "steps_parquet" not in run["links"]  # no link to what the server cannot do
 
-        monkeypatch.setattr(runs_router, "parquet_available", lambda: True)
+        monkeypatch.setattr(run_data_router, "parquet_available", lambda: True)
         run = (await client.get(f"/api/v1/runs/{bench.finished_run}")).json()
         assert run["links"]["steps_parquet"] == f"{steps_url}?format=parquet"
         if importlib.util.find_spec("pyarrow") is None:
