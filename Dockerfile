@@ -28,8 +28,9 @@ RUN pip install --no-cache-dir --no-deps --no-build-isolation .
 FROM python:3.11-slim
 RUN useradd --system --uid 10001 --home-dir /data --create-home thermocomp
 COPY --from=build /opt/venv /opt/venv
-# The example configurations (the networks are package data, inside the venv).
-COPY config/sim.toml config/lab.toml /etc/thermocomp/
+# The example configurations (the networks, arms and duty cycles are package data, inside the
+# venv); arm-sim.toml is the simulated arm bench: serve --config /etc/thermocomp/arm-sim.toml
+COPY config/sim.toml config/lab.toml config/arm-sim.toml /etc/thermocomp/
 ENV PATH=/opt/venv/bin:$PATH \
     THERMOCOMP_STORAGE__DATA_DIR=/data \
     THERMOCOMP_API__HOST=0.0.0.0
