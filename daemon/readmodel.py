@@ -30,7 +30,11 @@ class RunView:
         return self.state.is_active
 
     def progress(self, clock_now: float) -> tuple[float, float]:
-        """Percent of the duration elapsed on the run clock, and run-clock seconds left."""
+        """Percent of the duration elapsed on the run clock, and run-clock seconds left. A
+        finished run is complete whenever its last step came: its last step is scheduled one
+        step before the duration's end, and it ends when that step is recorded."""
+        if self.state is RunState.FINISHED:
+            return 100.0, 0.0
         now = clock_now if math.isnan(self.end_s) else min(clock_now, self.end_s)
         elapsed = 0.0 if math.isnan(self.start_s) else max(now - self.start_s, 0.0)
         duration = self.parameters.duration_s
