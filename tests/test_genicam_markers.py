@@ -10,6 +10,7 @@ known 6-DOF offset must give that offset back (the drift an arm run records)."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import importlib.util
 import math
@@ -29,11 +30,13 @@ from config import Settings
 from config.settings import CameraSettings
 from daemon.arm.types import Pose6
 from daemon.arm_measure import MultiCameraMeter
+from daemon.vision.cameras import write_cameras
 from daemon.vision.markers import marker_pixels, render_markers
 from daemon.vision.multiview import CameraModel, pose_difference
 from daemon.workers import Workers
+from drivers.base import Frame
 from drivers.clock import ScaledClock
-from drivers.errors import DeviceError, ProtocolError
+from drivers.errors import DeviceError, DeviceTimeoutError, ProtocolError
 from drivers.genicam_camera import GenICamCamera
 from drivers.sim.arm_markers import CameraRig
 from drivers.sim.camemu import (
@@ -78,9 +81,10 @@ def moved(base: np.ndarray, translation_mm: Any, rotation_rad: Any) -> np.ndarra
     return out
 
 
-def rig(count: int) -> tuple[CameraModel, ...]:
-    """``count`` cameras 700 mm from the tool, 30 deg above it, 120 deg apart; f = 2000 px;
-    the camera file's pixel floor low enough that the centroids' own noise rules."""
+def rig(count: int, target_mm: Any = TOOL_MM) -> tuple[CameraModel, ...]:
+    """``count`` cameras 700 mm from the tool (at ``target_mm``), 30 deg above it, 120 deg
+    apart; f = 2000 px; the camera file's pixel floor low enough that the centroids' own
+    noise rules."""
     cameras = CameraRig(
         count=count,
         focal_px=2000.0,
@@ -89,7 +93,7 @@ def rig(count: int) -> tuple[CameraModel, ...]:
         pixel_sigma_px=1e-4,
         spread_rad=math.radians(120.0),
         azimuth_rad=math.radians(-60.0),
-    ).cameras(TOOL_MM)
+    ).cameras(target_mm)
     return tuple(cameras)
 
 
@@ -168,8 +172,6 @@ def check_within(
 async def test_markers_on_emulated_genicam_frames_give_the_pose_and_its_drift(
     tmp_path: Path, bit_depth: int
 ) -> None:
-    from daemon.vision.cameras import write_cameras
-
     probe = Settings()
     models = rig(len(EMULATED))
     write_cameras(tmp_path / "cameras.toml", models)
@@ -268,3 +270,41 @@ async def test_a_bad_feature_file_fails_the_open_in_one_line(tmp_path: Path) -> 
         message = str(caught.value)
         assert "\n" not in message
         assert f"feature file {path}" in message and reason in message
+
+
+class _SilentCamera:
+    """A camera whose grab never returns (a frame lost on the wire)."""
+
+    async def __aenter__(self) -> _SilentCamera:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def grab(self) -> Frame:
+        await asyncio.Event().wait()
+        raise AssertionError("unreachable")
+
+
+async def test_each_tool_camera_is_waited_for_its_own_grab_timeout(tmp_path: Path) -> None:
+    """arm.camera_devices[i].grab_timeout_s bounds camera i's grab, not the laser-spot
+    camera's (here 30 s): the measurement fails after the device's 0.05 s."""
+    models = rig(2)
+    write_cameras(tmp_path / "cameras.toml", models)
+    devices = [
+        device(serial, tmp_path / "unused.pfs", 12).model_copy(update={"grab_timeout_s": 0.05})
+        for serial in EMULATED
+    ]
+    settings = arm_settings(devices, tmp_path / "cameras.toml")
+    assert settings.camera.grab_timeout_s != 0.05
+    settings = settings.model_copy(
+        update={"camera": settings.camera.model_copy(update={"grab_timeout_s": 30.0})}
+    )
+    workers = Workers()
+    try:
+        meter = MultiCameraMeter(settings, [_SilentCamera(), _SilentCamera()], models, workers)
+        async with asyncio.timeout(10.0):
+            with pytest.raises(DeviceTimeoutError, match=r"no frame within 0.05 s"):
+                await meter.measure(pose(TOOL_MM, TOOL_ROTATION_RAD))
+    finally:
+        workers.shutdown()
