@@ -1,6 +1,7 @@
-"""The spot camera over GenICam (``camera.driver = "genicam"``): the settings' pixel format,
-ROI, exposure and gain applied after every open, frames from the transport of
-drivers/genicam.py (its docstring: threads, bounds, frame times, reconnection)."""
+"""The spot camera over GenICam (``camera.driver = "genicam"``, and each of an arm's
+``arm.camera_devices``): the settings' feature file, then pixel format, ROI, exposure and gain
+applied after every open, frames from the transport of drivers/genicam.py (its docstring:
+threads, bounds, frame times, reconnection), each checked to be the ROI."""
 
 from __future__ import annotations
 

@@ -28,6 +28,7 @@ os.environ.setdefault("PYLON_CAMEMU", "2")
 
 from config import Settings
 from config.settings import CameraSettings
+from daemon.arm.run import MeasurementError, ToolMeasurement
 from daemon.arm.types import Pose6
 from daemon.arm_measure import MultiCameraMeter
 from daemon.vision.cameras import write_cameras
@@ -308,3 +309,40 @@ async def test_each_tool_camera_is_waited_for_its_own_grab_timeout(tmp_path: Pat
                 await meter.measure(pose(TOOL_MM, TOOL_ROTATION_RAD))
     finally:
         workers.shutdown()
+
+
+@needs_pylon
+async def test_devices_in_another_order_than_the_camera_file_do_not_measure_the_tool(
+    tmp_path: Path,
+) -> None:
+    """arm.camera_devices[i] is the camera file's camera i: each emulated camera serves the
+    view of its own model, so the same devices listed the other way round find no marker
+    where the models put them (the serial decides the device, not the listing order)."""
+    probe = Settings()
+    models = rig(len(EMULATED))
+    at_rest = pose(TOOL_MM, TOOL_ROTATION_RAD)
+    rng = np.random.default_rng(3)
+    devices = []
+    for serial, model in zip(EMULATED, models, strict=True):
+        frame = frame_of(model, markers_world(at_rest, probe), 12, rng)
+        path = write_emulation_image(tmp_path / f"{serial}.png", frame, 12)
+        devices.append(device(serial, write_feature_file(tmp_path / f"{serial}.pfs", path), 12))
+    workers = Workers()
+    results: list[ToolMeasurement | str] = []
+    try:
+        for listed in (devices, devices[::-1]):
+            write_cameras(tmp_path / "cameras.toml", models)
+            settings = arm_settings(listed, tmp_path / "cameras.toml")
+            async with contextlib.AsyncExitStack() as stack:
+                clock = ScaledClock()
+                cameras = [await stack.enter_async_context(GenICamCamera(d, clock)) for d in listed]
+                meter = MultiCameraMeter(settings, cameras, models, workers)
+                try:
+                    results.append(await meter.measure(at_rest))
+                except MeasurementError as err:
+                    results.append(str(err))
+    finally:
+        workers.shutdown()
+    in_order, swapped = results
+    assert isinstance(in_order, ToolMeasurement) and in_order.oriented
+    assert swapped == "no marker seen by 2 cameras"
