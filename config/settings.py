@@ -228,6 +228,11 @@ class CameraSettings(_Section):
     user_id: str | None = Field(
         None, description="GenICam: the camera's DeviceUserID; none: any (the first found)."
     )
+    feature_file: Path | None = Field(
+        None,
+        description="GenICam: a pylon feature file (.pfs, as pylon Viewer saves it) loaded "
+        "after each open, before the settings here (which win); none: none.",
+    )
     pixel_format: Literal["Mono8", "Mono12", "Mono16"] | None = Field(
         None, description="GenICam PixelFormat; none: Mono<bit_depth>. Must match bit_depth."
     )

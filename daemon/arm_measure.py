@@ -50,17 +50,27 @@ class MarkerView:
     sigma_px: float
 
 
+@dataclass(frozen=True, slots=True)
+class SensorNoise:
+    """What the centroid's 1-sigma needs of a camera's sensor (its [camera] settings)."""
+
+    gain_e_per_count: float = 1.0
+    read_noise_e: float = 5.0
+
+
 def marker_views(
     cameras: Sequence[CameraModel],
     frames: Sequence[Frame],
     markers_world: FloatArray,
     *,
-    bit_depth: int,
+    sensors: Sequence[SensorNoise] | None = None,
     window_half_px: int = WINDOW_HALF_PX,
 ) -> list[MarkerView]:
-    """Every marker's centroid in every camera whose frame shows it near its expected pixel."""
+    """Every marker's centroid in every camera whose frame shows it near its expected pixel,
+    at the frame's own bit depth and the camera's sensor noise (``sensors``, same order)."""
     views: list[MarkerView] = []
-    for camera, frame in zip(cameras, frames, strict=True):
+    noises = tuple(sensors) if sensors is not None else (SensorNoise(),) * len(cameras)
+    for camera, frame, noise in zip(cameras, frames, noises, strict=True):
         image = np.asarray(frame.image)
         height, width = image.shape[:2]
         for marker, (x, y) in enumerate(project(camera, markers_world)):
@@ -72,7 +82,12 @@ def marker_views(
             if c1 - c0 < window_half_px or r1 - r0 < window_half_px:
                 continue  # off the chip
             try:
-                result = measure_centroid(image[r0:r1, c0:c1], bit_depth=bit_depth)
+                result = measure_centroid(
+                    image[r0:r1, c0:c1],
+                    bit_depth=frame.bit_depth,
+                    gain_e_per_count=noise.gain_e_per_count,
+                    read_noise_e=noise.read_noise_e,
+                )
             except CentroidError:
                 continue
             sigma = max(result.sigma_x_px, result.sigma_y_px, camera.pixel_sigma_px)
@@ -150,21 +165,26 @@ class MultiCameraMeter:
         self._models = tuple(models)
         self._workers = workers
         self._markers: NDArray[np.float64] = np.array(settings.arm.markers_mm, dtype=np.float64)
+        # each device's own sensor and grab timeout on hardware (arm.camera_devices, same
+        # order); the [camera] section's for the arm bench's simulated cameras
+        devices = settings.arm.camera_devices
+        own = devices if len(devices) == len(self._cameras) else (settings.camera,) * len(models)
+        self._sensors = tuple(SensorNoise(d.gain_e_per_count, d.read_noise_e) for d in own)
+        self._timeouts_s = tuple(d.grab_timeout_s for d in own)
 
     async def measure(self, expected_pose: FloatArray) -> ToolMeasurement:
-        frames = await asyncio.gather(*(self._grab(camera) for camera in self._cameras))
+        frames = await asyncio.gather(
+            *(self._grab(c, t) for c, t in zip(self._cameras, self._timeouts_s, strict=True))
+        )
         return await self._workers.step(self._solve, frames, expected_pose)
 
     def _solve(self, frames: Sequence[Frame], expected_pose: FloatArray) -> ToolMeasurement:
         expected = np.asarray(expected_pose, dtype=np.float64)
         markers_world = self._markers @ expected[:3, :3].T + expected[:3, 3]
-        views = marker_views(
-            self._models, frames, markers_world, bit_depth=self._settings.camera.bit_depth
-        )
+        views = marker_views(self._models, frames, markers_world, sensors=self._sensors)
         return tool_pose(self._models, views, self._markers, expected)
 
-    async def _grab(self, camera: Camera) -> Frame:
-        timeout_s = self._settings.camera.grab_timeout_s
+    async def _grab(self, camera: Camera, timeout_s: float) -> Frame:
         try:
             async with asyncio.timeout(timeout_s) as scope:
                 return await camera.grab()

@@ -34,6 +34,7 @@ import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -177,6 +178,20 @@ def set_node(camera: Any, name: str, value: Any, device: str) -> bool:
     except Exception as err:
         raise ProtocolError(device, f"the camera refuses {name} = {value!r}: {err}") from err
     return True
+
+
+def load_feature_file(camera: Any, path: Path, device: str) -> None:
+    """Write the features of a pylon feature file (``.pfs``: pylon Viewer's "Save Features",
+    pypylon ``FeaturePersistence.Save``; a GenApi persistence stream, one ``name<TAB>value``
+    per line after its GUID header) to the open camera, validating each value. A missing
+    file, an unknown feature or a refused value is one line naming the file."""
+    pylon = pylon_module()
+    try:
+        pylon.FeaturePersistence.Load(str(path), camera.GetNodeMap(), True)
+    except Exception as err:  # pylon's RuntimeException, with GenApi's file and line
+        first = (str(err).splitlines() or [""])[0]
+        reason = first.split(" : ")[0].strip() or type(err).__name__
+        raise ProtocolError(device, f"feature file {path}: {reason}") from err
 
 
 class GenICamTransport:

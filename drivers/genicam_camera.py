@@ -1,10 +1,12 @@
-"""The spot camera over GenICam (``camera.driver = "genicam"``): the settings' pixel format,
-ROI, exposure and gain applied after every open, frames from the transport of
-drivers/genicam.py (its docstring: threads, bounds, frame times, reconnection)."""
+"""The spot camera over GenICam (``camera.driver = "genicam"``, and each of an arm's
+``arm.camera_devices``): the settings' feature file, then pixel format, ROI, exposure and gain
+applied after every open, frames from the transport of drivers/genicam.py (its docstring:
+threads, bounds, frame times, reconnection), each checked to be the ROI."""
 
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 
@@ -17,6 +19,7 @@ from drivers.genicam import (
     GenICamTransport,
     choose_pixel_format,
     has_node,
+    load_feature_file,
     set_node,
 )
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
@@ -27,6 +30,7 @@ def configure_image(
     device: str,
     *,
     pixel_format: str,
+    feature_file: Path | None = None,
     width_px: int | None = None,
     height_px: int | None = None,
     offset_x_px: int = 0,
@@ -34,7 +38,10 @@ def configure_image(
     exposure_us: float | None = None,
     gain_db: float | None = None,
 ) -> None:
-    """Pixel format, ROI, exposure and gain, on the worker thread after each open."""
+    """The feature file, then pixel format, ROI, exposure and gain (over the file's), on the
+    worker thread after each open."""
+    if feature_file is not None:
+        load_feature_file(camera, feature_file, device)
     offered = tuple(camera.PixelFormat.Symbolics) if has_node(camera, "PixelFormat") else ()
     camera.PixelFormat.Value = choose_pixel_format(pixel_format, offered, device)
     if width_px is not None and height_px is not None:
@@ -102,6 +109,7 @@ class GenICamCamera:
             camera,
             "camera",
             pixel_format=self.pixel_format,
+            feature_file=settings.feature_file,
             width_px=settings.width_px,
             height_px=settings.height_px,
             offset_x_px=settings.offset_x_px,
@@ -130,6 +138,17 @@ class GenICamCamera:
         async with self._lock:
             raw = await self.transport.grab()
             self.last_grab_s = raw.grab_s
+            roi = (self.settings.height_px, self.settings.width_px)
+            if raw.image.shape != roi:
+                # a camera sends its ROI; pylon's emulation serves a smaller image file at
+                # its own size (drivers/sim/camemu.py): pixels would no longer be where the
+                # camera model puts them
+                height, width = raw.image.shape[:2]
+                raise ProtocolError(
+                    "camera",
+                    f"{self.transport.description} sent a {width}x{height} frame, its ROI is "
+                    f"{roi[1]}x{roi[0]}",
+                )
             frame = Frame(
                 image=raw.image,
                 bit_depth=self.settings.bit_depth,
