@@ -16,13 +16,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from config import Settings
 from daemon.runs import RunParameters
 from daemon.service import Daemon
-from drivers.clock import make_clock
-from drivers.factory import Devices
+from drivers.clock import ScaledClock, make_clock
+from drivers.factory import Devices, open_devices
 from drivers.sim.arm_markers import CameraRig
+from tests.test_arm_cameras import EMULATED, arm_on_hardware, camera_file, needs_pylon
 
 STEPS = 12
 WAIT_S = 90.0
@@ -100,3 +102,27 @@ async def test_an_arm_run_with_one_camera_measures_and_compensates(tmp_path: Pat
     assert np.sqrt(np.mean(along**2)) > np.sqrt(np.mean(across**2))
     assert np.all(sigma > 20.0)
     assert np.sqrt(np.mean(along**2)) < 2.0 * sigma.mean()
+
+
+@needs_pylon
+async def test_on_hardware_one_camera_and_a_one_camera_file_make_the_meter(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """arm.camera_devices with one camera and a camera file of one: the factory opens it and
+    the arm run's meter takes it (pylon's emulated GenICam camera, as tests/test_arm_cameras.py)."""
+    from daemon.arm_measure import MultiCameraMeter
+    from daemon.arm_setup import default_arm_meter
+    from daemon.workers import Workers
+
+    settings = arm_on_hardware(monkeypatch, camera_file(tmp_path / "one.toml", 1), EMULATED[:1])
+    workers = Workers()
+    try:
+        async with open_devices(settings, ScaledClock()) as opened:
+            assert opened.arm_bench is None and len(opened.cameras) == 1
+            assert [m.name for m in opened.camera_models] == ["cam0"]
+            meter = default_arm_meter(settings, opened, workers)
+            assert isinstance(meter, MultiCameraMeter)
+            frame = await opened.cameras[0].grab()
+            assert frame.image.shape == (240, 320)
+    finally:
+        workers.shutdown()
