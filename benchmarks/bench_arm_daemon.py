@@ -19,7 +19,11 @@ measured at each pose's taught goal relative to its cold reference), the share o
 uncompensated RMS removed, the RMS over the 3-D measurement's own 1-sigma (the meter's
 estimate from the centroids' noise, ``measured_sigma_um``), the rotation error (RMS).
 
-    .venv/bin/python benchmarks/bench_arm_daemon.py [--seed N]
+    .venv/bin/python benchmarks/bench_arm_daemon.py [--seed N] [--cameras N] [--no-identify]
+
+``--cameras 1``: one camera at each measured pose (``arm.cameras``), the tool's pose from the
+markers' pixels by perspective-n-point (daemon/vision/pnp.py). ``--no-identify``: the
+uncompensated and preset runs only (no calibration run, no identification).
 """
 
 from __future__ import annotations
@@ -50,6 +54,7 @@ from daemon.arm_identify_cli import arm_model_of, identify_arm_run, load_arm_run
 from daemon.runs import RunParameters
 from daemon.service import Daemon
 from drivers.clock import make_clock
+from drivers.sim.arm_markers import CameraRig
 
 CONFIG = Path(__file__).resolve().parent.parent / "config" / "arm-sim.toml"
 #: The calibration run's measurement noise is drawn from this seed + the bench's seed.
@@ -57,9 +62,13 @@ CALIBRATION_NOISE_OFFSET = 1000
 MODEL_NAME = "bench-calibration"
 
 
-def settings_for(data_dir: Path, seed: int, noise_seed: int | None) -> Settings:
+def settings_for(
+    data_dir: Path, seed: int, noise_seed: int | None, cameras: int | None = None
+) -> Settings:
     data = load_settings(CONFIG).model_dump()
     data["bench"].update({"seed": seed, "noise_seed": noise_seed})
+    if cameras is not None:
+        data["arm"]["cameras"] = cameras
     data["storage"].update({"data_dir": str(data_dir), "report_at_end": False})
     return Settings.model_validate(data)
 
@@ -77,7 +86,24 @@ async def one_run(settings: Settings, **overrides: Any) -> tuple[int, dict[str, 
     return int(info["id"]), final, steps
 
 
-def figures(steps: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def sight_of_one_camera(settings: Settings) -> np.ndarray | None:
+    """With one camera per pose: the unit direction from the camera to the tool (the bench's
+    rig, drivers/sim/arm_markers.py CameraRig: the same at every station), else None."""
+    if settings.arm.cameras != 1:
+        return None
+    rig = CameraRig(count=1)
+    elevation, azimuth = rig.elevation_rad, rig.azimuth_rad
+    towards_camera = np.array(
+        [
+            math.cos(elevation) * math.cos(azimuth),
+            math.cos(elevation) * math.sin(azimuth),
+            math.sin(elevation),
+        ]
+    )
+    return -towards_camera
+
+
+def figures(steps: Sequence[dict[str, Any]], sight: np.ndarray | None = None) -> dict[str, Any]:
     drift = np.array([s["drift_3d_um"] for s in steps], dtype=float)
     rotation = np.array([s["rotation_error_urad"] for s in steps], dtype=float)
     sigma = np.array([s["measured_sigma_um"] for s in steps], dtype=float)
@@ -92,14 +118,36 @@ def figures(steps: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "predicted_max_3d_um": float(np.nanmax(np.linalg.norm(predicted, axis=1))),
         "drift_3d_um_per_step": [round(float(v), 2) for v in drift],
         "poses": [s["arm_pose"] for s in steps],
+        **({} if sight is None else split_by_sight(steps, sight)),
     }
 
 
-async def bench(seed: int, data_dir: Path) -> dict[str, Any]:
+def split_by_sight(steps: Sequence[dict[str, Any]], sight: np.ndarray) -> dict[str, float]:
+    """The measured drift's RMS along the one camera's line of sight and across it."""
+    measured = np.array([[s[f"measured_t{a}_um"] for a in "xyz"] for s in steps], dtype=float)
+    along = measured @ sight
+    across = np.linalg.norm(measured - np.outer(along, sight), axis=1)
+    return {
+        "rms_along_sight_um": float(np.sqrt(np.nanmean(along**2))),
+        "rms_across_sight_um": float(np.sqrt(np.nanmean(across**2))),
+    }
+
+
+async def bench(
+    seed: int, data_dir: Path, cameras: int | None = None, identify: bool = True
+) -> dict[str, Any]:
     started = time.perf_counter()
     walls: dict[str, float] = {}
-    calibration_settings = settings_for(data_dir, seed, seed + CALIBRATION_NOISE_OFFSET)
-    settings = settings_for(data_dir, seed, None)
+    settings = settings_for(data_dir, seed, None, cameras)
+    if not identify:
+        results = await compare(settings, {"none": {"compensation": "off"}, "preset": {}}, walls)
+        return {
+            "seed": seed,
+            "cameras": settings.arm.cameras,
+            "runs": results,
+            "wall_s": {**walls, "total": time.perf_counter() - started},
+        }
+    calibration_settings = settings_for(data_dir, seed, seed + CALIBRATION_NOISE_OFFSET, cameras)
 
     t = time.perf_counter()
     calibration_id, _, calibration_steps = await one_run(calibration_settings, compensation="off")
@@ -119,24 +167,10 @@ async def bench(seed: int, data_dir: Path) -> dict[str, Any]:
         "identified": {"arm_model": MODEL_NAME},
         "identified + model+ir": {"arm_model": MODEL_NAME, "prediction": "model+ir"},
     }
-    results: dict[str, dict[str, Any]] = {}
-    reference: int | None = None
-    for name, case in cases.items():
-        t = time.perf_counter()
-        given = case if reference is None else {**case, "reference_run": reference}
-        run_id, final, steps = await one_run(settings, **given)
-        walls[name] = time.perf_counter() - t
-        if name == "none":
-            reference = run_id
-        results[name] = {**figures(steps), "run_id": run_id}
-        summary = final.get("summary") or {}
-        results[name]["summary_reduction_3d_percent"] = summary.get("reduction_3d_percent")
-    drift = results["none"]
-    for result in results.values():
-        result["reduction_3d"] = 1.0 - result["rms_3d_um"] / drift["rms_3d_um"]
-        result["rms_over_noise"] = result["rms_3d_um"] / result["noise_3d_um"]
+    results = await compare(settings, cases, walls)
     return {
         "seed": seed,
+        "cameras": settings.arm.cameras,
         "calibration": {
             "run_id": calibration_id,
             "noise_seed": seed + CALIBRATION_NOISE_OFFSET,
@@ -150,19 +184,46 @@ async def bench(seed: int, data_dir: Path) -> dict[str, Any]:
     }
 
 
+async def compare(
+    settings: Settings, cases: dict[str, dict[str, Any]], walls: dict[str, float]
+) -> dict[str, dict[str, Any]]:
+    """One run per case, the first (uncompensated) the reference of the others."""
+    results: dict[str, dict[str, Any]] = {}
+    reference: int | None = None
+    for name, case in cases.items():
+        t = time.perf_counter()
+        given = case if reference is None else {**case, "reference_run": reference}
+        run_id, final, steps = await one_run(settings, **given)
+        walls[name] = time.perf_counter() - t
+        if name == "none":
+            reference = run_id
+        results[name] = {**figures(steps, sight_of_one_camera(settings)), "run_id": run_id}
+        summary = final.get("summary") or {}
+        results[name]["summary_reduction_3d_percent"] = summary.get("reduction_3d_percent")
+    drift = results["none"]
+    for result in results.values():
+        result["reduction_3d"] = 1.0 - result["rms_3d_um"] / drift["rms_3d_um"]
+        result["rms_over_noise"] = result["rms_3d_um"] / result["noise_3d_um"]
+    return results
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--cameras", type=int, default=None, help="arm.cameras per pose")
+    parser.add_argument("--no-identify", action="store_true", help="none and preset runs only")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     with tempfile.TemporaryDirectory(prefix="bench-arm-daemon-") as folder:
-        result = asyncio.run(bench(args.seed, Path(folder)))
+        result = asyncio.run(
+            bench(args.seed, Path(folder), args.cameras, identify=not args.no_identify)
+        )
     load = os.getloadavg()
     result["load_average"] = list(load)
     runs = result["runs"]
     print(
-        f"A465 'a465-pick-and-place' through the daemon, config/arm-sim.toml, seed {args.seed}: "
-        "8 h of arm time, 12 steps"
+        f"A465 'a465-pick-and-place' through the daemon, config/arm-sim.toml, seed {args.seed}, "
+        f"{result['cameras']} camera(s) per pose: 8 h of arm time, 12 steps"
     )
     print_table(
         [
@@ -189,11 +250,26 @@ def main(argv: Sequence[str] | None = None) -> int:
             for name, r in runs.items()
         ],
     )
-    calibration = result["calibration"]
     print(
         f"\n3-D measurement noise (the meter's 1-sigma per position): "
         f"{runs['none']['noise_3d_um']:.2f} um"
     )
+    for name, r in runs.items():
+        if "rms_along_sight_um" in r:
+            print(
+                f"{name}: RMS along the camera's line of sight {r['rms_along_sight_um']:.2f} um, "
+                f"across it {r['rms_across_sight_um']:.2f} um"
+            )
+    calibration = result.get("calibration")
+    if calibration is None:
+        walls = result["wall_s"]
+        print(
+            "\nwall time: "
+            + ", ".join(f"{name} {value:.1f} s" for name, value in walls.items())
+            + f"; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}"
+        )
+        write_results("bench_arm_daemon", result)
+        return 0
     refit = {p["name"]: p for p in calibration["refit"]["parameters"]}
     print(
         f"\nidentification of the calibration run (noise seed {calibration['noise_seed']}, "

@@ -1,7 +1,10 @@
 """The tool's 3-D measurement in an arm run (issue 20; thesis 7.2.2, several cameras): one
 frame from every camera, each marker's centroid in a window around where the expected tool
 pose puts it, each marker triangulated from the cameras that see it, and the tool's pose from
-the markers (orientation from three or more: daemon/vision/multiview.py).
+the markers (orientation from three or more: daemon/vision/multiview.py). When fewer than three
+markers are seen by two cameras — one camera watching the tool, the thesis's setup — the pose
+comes from the markers' pixels directly (perspective-n-point, daemon/vision/pnp.py: one camera
+seeing three or more markers gives the whole pose, its depth along the line of sight poorer).
 
 The centroid is the thesis's robust spot centroid (daemon/vision/centroid.py) on a window of
 the frame: the markers are tens of pixels apart on the chip, the window is a few spot widths,
@@ -30,6 +33,7 @@ from daemon.vision.multiview import (
     rigid_pose_from_markers,
     triangulate,
 )
+from daemon.vision.pnp import pose_from_views
 from daemon.workers import Workers
 from drivers.base import Camera, Frame
 from drivers.errors import DeviceTimeoutError
@@ -101,9 +105,11 @@ def tool_pose(
     markers_tool: FloatArray,
     expected_pose: FloatArray,
 ) -> ToolMeasurement:
-    """The tool's pose from the marker views; raises MeasurementError when no marker is seen
-    by two cameras. With fewer than three triangulated markers the orientation is the
-    expected one and only the position is measured (``oriented`` False)."""
+    """The tool's pose from the marker views. Three or more markers triangulated (each seen by
+    two cameras): their rigid fit. Fewer: the pose from the views' pixels (one camera is
+    enough, :func:`pnp_pose`); failing that, with one or two triangulated markers the
+    orientation is the expected one and only the position is measured (``oriented`` False);
+    with none, MeasurementError."""
     by_name = {camera.name: camera for camera in cameras}
     points: list[FloatArray] = []
     covariances: list[FloatArray] = []
@@ -123,12 +129,18 @@ def tool_pose(
         points.append(point)
         covariances.append(covariance)
         seen.append(marker)
-    if not seen:
-        raise MeasurementError(f"no marker seen by {MIN_VIEWS} cameras")
     centroids: dict[str, list[tuple[float, float]]] = {}
     for view in views:
         centroids.setdefault(view.camera, []).append((view.x_px, view.y_px))
     frozen = {name: tuple(values) for name, values in centroids.items()}
+    if len(seen) < 3:
+        try:
+            return pnp_pose(cameras, views, markers_tool, expected_pose, frozen)
+        except MultiviewError as err:
+            if not seen:
+                raise MeasurementError(
+                    f"no marker seen by {MIN_VIEWS} cameras, and no pose from the views: {err}"
+                ) from err
     if len(seen) >= 3:
         try:
             pose, covariance6 = rigid_pose_from_markers(
@@ -145,6 +157,26 @@ def tool_pose(
     pose[:3, 3] = np.mean(translations, axis=0)
     variance = float(np.mean([np.trace(c) for c in covariances])) / len(seen)
     return ToolMeasurement(pose, math.sqrt(variance), False, frozen)
+
+
+def pnp_pose(
+    cameras: Sequence[CameraModel],
+    views: Sequence[MarkerView],
+    markers_tool: FloatArray,
+    expected_pose: FloatArray,
+    centroids: dict[str, tuple[tuple[float, float], ...]],
+) -> ToolMeasurement:
+    """The tool's pose from the views' pixels (daemon/vision/pnp.py; the expected pose picks
+    the branch when no camera sees four markers); MultiviewError when they cannot give it."""
+    index = {camera.name: k for k, camera in enumerate(cameras)}
+    pixels = np.full((len(cameras), markers_tool.shape[0], 2), np.nan)
+    sigmas = np.full_like(pixels, np.nan)
+    for view in views:
+        pixels[index[view.camera], view.marker] = (view.x_px, view.y_px)
+        sigmas[index[view.camera], view.marker] = view.sigma_px
+    fit = pose_from_views(cameras, markers_tool, pixels, sigmas, expected_pose=expected_pose)
+    sigma = math.sqrt(float(np.trace(fit.covariance[:3, :3])))
+    return ToolMeasurement(fit.pose, sigma, True, centroids)
 
 
 class MultiCameraMeter:

@@ -708,11 +708,25 @@ async def test_the_meter_measures_a_known_displacement_of_the_tool() -> None:
         assert error.rotation_angle_rad < 1e-4  # 37 urad here; the shift turns by 374 urad
         found = pose_difference(nominal, measured.pose)
         np.testing.assert_allclose(found.translation_mm, shift.translation_mm, atol=0.01)
-        # one camera sees no depth: no marker is triangulated
+        # one camera triangulates nothing, but sees the four markers: the pose by PnP
+        # (daemon/vision/pnp.py), its depth along the camera's line of sight poorer
         alone = MultiCameraMeter(
             settings, [_MarkerCamera(models[0], world, 9)], models[:1], workers
         )
-        with pytest.raises(MeasurementError, match="2 cameras"):
-            await alone.measure(nominal)
+        single = await alone.measure(nominal)
+        assert single.oriented and list(single.centroids_px) == [models[0].name]
+        error = pose_difference(true_pose, single.pose)
+        assert error.translation_norm_mm < 3 * single.sigma_mm
+        assert single.sigma_mm > 2 * measured.sigma_mm  # depth from one camera: poorer
+        assert error.rotation_angle_rad < 3e-4
+        found = pose_difference(nominal, single.pose)
+        np.testing.assert_allclose(found.translation_mm, shift.translation_mm, atol=0.05)
+        # a camera that sees no marker measures nothing
+        elsewhere = markers @ true_pose[:3, :3].T + true_pose[:3, 3] + [0.0, 0.0, 5000.0]
+        blind = MultiCameraMeter(
+            settings, [_MarkerCamera(models[0], elsewhere, 9)], models[:1], workers
+        )
+        with pytest.raises(MeasurementError, match="no pose from the views: 0 marker"):
+            await blind.measure(nominal)
     finally:
         workers.shutdown()

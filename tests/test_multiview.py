@@ -531,8 +531,12 @@ def test_markers_seen_by_fewer_than_two_cameras_are_left_out() -> None:
     assert measured.views == (3, 3, 3, 1)
     assert np.all(np.isnan(measured.points_mm[3]))
     assert measured.pose == pytest.approx(pose, abs=1e-8)
-    blind[1:, 2] = np.nan
-    with pytest.raises(MultiviewError, match="2 marker"):
+    blind[1:, 2] = np.nan  # two markers triangulated: the pose from the views (PnP)
+    from_views = measure_tool_pose(cameras, MARKERS, blind)
+    assert from_views.views == (3, 3, 1, 1)
+    assert from_views.pose == pytest.approx(pose, abs=1e-8)
+    blind[:, 1:] = np.nan  # one marker: no pose at all
+    with pytest.raises(MultiviewError, match=r"^1 marker\(s\) seen by two or more cameras and no"):
         measure_tool_pose(cameras, MARKERS, blind)
     with pytest.raises(MultiviewError, match="shape"):
         measure_tool_pose(cameras, MARKERS, pixels[:, :3])

@@ -3,6 +3,11 @@ two or more cameras is triangulated (:func:`daemon.vision.multiview.triangulate`
 the centroids' own sigmas), and the located markers give the pose
 (:func:`daemon.vision.multiview.rigid_pose_from_markers`, weighted by their covariances).
 
+With fewer than three markers triangulated (one camera watching the tool, or markers each seen
+by one camera only) the pose comes from the pixels directly: perspective-n-point over every
+view (:func:`daemon.vision.pnp.pose_from_views`; one camera seeing four markers is enough, its
+depth along the line of sight poorer, as its covariance says).
+
 The markers are treated as independent: their pixel noise is. What the cameras' calibrated
 poses get wrong is common to every measurement with the same cameras, so it cancels in the
 difference of two poses (the drift from a reference), which is what the compensation uses.
@@ -17,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from daemon.vision.cameras import CameraModel
 from daemon.vision.multiview import MultiviewError, rigid_pose_from_markers, triangulate
+from daemon.vision.pnp import pose_from_views
 
 FloatArray = NDArray[np.float64]
 
@@ -26,7 +32,8 @@ class ToolMeasurement:
     """One measured tool pose: ``pose`` (4x4, tool -> world) and its 6x6 ``covariance``
     (translation mm, rotation vector rad; world frame), the markers' triangulated positions
     (M x 3, NaN for a marker seen by fewer than two cameras) and covariances, and how many
-    cameras saw each marker."""
+    cameras saw each marker. A pose from the views (fewer than three markers triangulated) has
+    the PnP fit's covariance."""
 
     pose: FloatArray
     covariance: FloatArray
@@ -44,7 +51,8 @@ def measure_tool_pose(
     """The tool pose from ``pixels`` (cameras x markers x 2; NaN where a camera does not see a
     marker) of the markers whose tool-frame positions are ``model_mm`` (markers x 3).
     ``sigmas_px`` (cameras x markers x 2): each centroid's 1-sigma, default each camera's
-    ``pixel_sigma_px``. Needs three or more markers seen by two or more cameras each."""
+    ``pixel_sigma_px``. Three or more markers seen by two or more cameras each: triangulated and
+    fitted; fewer: the pose from the views by perspective-n-point (module docstring)."""
     model = np.asarray(model_mm, dtype=np.float64)
     observed = np.asarray(pixels, dtype=np.float64)
     count = model.shape[0] if model.ndim == 2 else 0
@@ -79,9 +87,19 @@ def measure_tool_pose(
         points[marker], covariances[marker] = point, covariance
     located = [m for m in range(count) if views[m] >= 2]
     if len(located) < 3:
-        raise MultiviewError(
-            f"{len(located)} marker(s) seen by two or more cameras: a tool pose needs three "
-            f"(views per marker: {views})"
+        try:
+            fit = pose_from_views(cameras, model, observed, sigmas)
+        except MultiviewError as err:
+            raise MultiviewError(
+                f"{len(located)} marker(s) seen by two or more cameras and no pose from the "
+                f"views (views per marker: {views}): {err}"
+            ) from err
+        return ToolMeasurement(
+            pose=fit.pose,
+            covariance=fit.covariance,
+            points_mm=points,
+            point_covariances_mm2=covariances,
+            views=tuple(views),
         )
     pose, covariance = rigid_pose_from_markers(
         model[located], points[located], covariances[located]
