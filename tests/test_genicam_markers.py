@@ -345,4 +345,8 @@ async def test_devices_in_another_order_than_the_camera_file_do_not_measure_the_
         workers.shutdown()
     in_order, swapped = results
     assert isinstance(in_order, ToolMeasurement) and in_order.oriented
-    assert swapped == "no marker seen by 2 cameras"
+    # nor a pose from single views (daemon/vision/pnp.py): each camera found at most one
+    # marker where its model looked
+    assert isinstance(swapped, str) and swapped.startswith(
+        "no marker seen by 2 cameras, and no pose"
+    )
