@@ -729,6 +729,8 @@ class ApiSettings(_Section):
 
 #: Markers on the tool (issue 20): at most this many, each a point in the tool frame (mm).
 MAX_MARKERS = 32
+#: Frames averaged per tool measurement at most: 64 frames of 5 MP cameras are seconds.
+MAX_FRAMES_PER_MEASUREMENT = 64
 #: Arm-run correction limits admit at most this much (a correction is a few tenths of a mm).
 MAX_ARM_TRANSLATION_MM = 100.0
 MAX_ARM_ROTATION_DEG = 10.0
@@ -773,6 +775,11 @@ class ArmSettings(_Section):
     )
     measured_poses: Annotated[tuple[str, ...], Field(max_length=100)] = Field(
         (), description="Duty-cycle poses measured and corrected; empty: those it marks measured."
+    )
+    frames_per_measurement: Annotated[int, Field(ge=1, le=MAX_FRAMES_PER_MEASUREMENT)] = Field(
+        1,
+        description="Frames grabbed from every camera per tool measurement; each marker's "
+        "centroid is their mean (its noise, and the pose's, divided by sqrt(frames)).",
     )
     max_translation_mm: Annotated[float, Field(gt=0, le=MAX_ARM_TRANSLATION_MM)] = Field(
         2.0, description="Largest translation of a pose's correction (mm)."

@@ -43,6 +43,8 @@ from drivers.errors import DeviceTimeoutError
 WINDOW_HALF_PX = 24
 #: A marker is triangulated from at least this many cameras (one camera sees no depth).
 MIN_VIEWS = 2
+#: Frames from which an average's 1-sigma also looks at the centroids' scatter.
+MIN_FRAMES_FOR_SCATTER = 3
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,6 +101,33 @@ def marker_views(
     return views
 
 
+def mean_views(view_sets: Sequence[Sequence[MarkerView]]) -> list[MarkerView]:
+    """Each (camera, marker)'s centroid averaged over the frames that showed it. The mean's
+    1-sigma is the single centroid's over sqrt(frames): the larger of the sigma the centroids
+    report and, from three frames on, their observed scatter (what moves the spot from frame
+    to frame without the centroid knowing: air, vibration) - so a scatter the frames share,
+    which averaging cannot remove, is never hidden behind the reported one."""
+    grouped: dict[tuple[str, int], list[MarkerView]] = {}
+    for views in view_sets:
+        for view in views:
+            grouped.setdefault((view.camera, view.marker), []).append(view)
+    averaged: list[MarkerView] = []
+    for (camera, marker), views in grouped.items():
+        xs = np.array([view.x_px for view in views])
+        ys = np.array([view.y_px for view in views])
+        count = len(views)
+        variance = float(np.mean([view.sigma_px**2 for view in views]))
+        if count >= MIN_FRAMES_FOR_SCATTER:
+            scatter = 0.5 * (float(np.var(xs, ddof=1)) + float(np.var(ys, ddof=1)))
+            variance = max(variance, scatter)
+        averaged.append(
+            MarkerView(
+                camera, marker, float(xs.mean()), float(ys.mean()), math.sqrt(variance / count)
+            )
+        )
+    return averaged
+
+
 def tool_pose(
     cameras: Sequence[CameraModel],
     views: Sequence[MarkerView],
@@ -146,8 +175,8 @@ def tool_pose(
             pose, covariance6 = rigid_pose_from_markers(
                 markers_tool[seen], np.array(points), np.array(covariances)
             )
-            sigma = math.sqrt(float(np.trace(covariance6[:3, :3])))
-            return ToolMeasurement(pose, sigma, True, frozen)
+            sigma_mm, sigma_rad = pose_sigmas(covariance6)
+            return ToolMeasurement(pose, sigma_mm, True, frozen, sigma_rad)
         except MultiviewError:
             pass  # markers in a line: position only
     rotation = np.asarray(expected_pose, dtype=np.float64)[:3, :3]
@@ -157,6 +186,16 @@ def tool_pose(
     pose[:3, 3] = np.mean(translations, axis=0)
     variance = float(np.mean([np.trace(c) for c in covariances])) / len(seen)
     return ToolMeasurement(pose, math.sqrt(variance), False, frozen)
+
+
+def pose_sigmas(covariance6: FloatArray) -> tuple[float, float]:
+    """The 1-sigma of a pose's position (mm) and orientation (rad) from its 6x6 covariance of
+    [translation (mm), rotation vector (rad)]: the square roots of the blocks' traces."""
+    covariance = np.asarray(covariance6, dtype=np.float64)
+    return (
+        math.sqrt(float(np.trace(covariance[:3, :3]))),
+        math.sqrt(float(np.trace(covariance[3:, 3:]))),
+    )
 
 
 def pnp_pose(
@@ -175,8 +214,8 @@ def pnp_pose(
         pixels[index[view.camera], view.marker] = (view.x_px, view.y_px)
         sigmas[index[view.camera], view.marker] = view.sigma_px
     fit = pose_from_views(cameras, markers_tool, pixels, sigmas, expected_pose=expected_pose)
-    sigma = math.sqrt(float(np.trace(fit.covariance[:3, :3])))
-    return ToolMeasurement(fit.pose, sigma, True, centroids)
+    sigma_mm, sigma_rad = pose_sigmas(fit.covariance)
+    return ToolMeasurement(fit.pose, sigma_mm, True, centroids, sigma_rad)
 
 
 class MultiCameraMeter:
@@ -203,17 +242,28 @@ class MultiCameraMeter:
         own = devices if len(devices) == len(self._cameras) else (settings.camera,) * len(models)
         self._sensors = tuple(SensorNoise(d.gain_e_per_count, d.read_noise_e) for d in own)
         self._timeouts_s = tuple(d.grab_timeout_s for d in own)
+        self._frames = settings.arm.frames_per_measurement
 
     async def measure(self, expected_pose: FloatArray) -> ToolMeasurement:
-        frames = await asyncio.gather(
-            *(self._grab(c, t) for c, t in zip(self._cameras, self._timeouts_s, strict=True))
-        )
-        return await self._workers.step(self._solve, frames, expected_pose)
-
-    def _solve(self, frames: Sequence[Frame], expected_pose: FloatArray) -> ToolMeasurement:
+        """``arm.frames_per_measurement`` frames from every camera (the cameras together, one
+        frame after the other), each marker's centroid averaged over them, then the pose."""
         expected = np.asarray(expected_pose, dtype=np.float64)
+        view_sets: list[list[MarkerView]] = []
+        for _ in range(self._frames):
+            frames = await asyncio.gather(
+                *(self._grab(c, t) for c, t in zip(self._cameras, self._timeouts_s, strict=True))
+            )
+            view_sets.append(await self._workers.step(self._views, frames, expected))
+        return await self._workers.step(self._solve, view_sets, expected)
+
+    def _views(self, frames: Sequence[Frame], expected: FloatArray) -> list[MarkerView]:
         markers_world = self._markers @ expected[:3, :3].T + expected[:3, 3]
-        views = marker_views(self._models, frames, markers_world, sensors=self._sensors)
+        return marker_views(self._models, frames, markers_world, sensors=self._sensors)
+
+    def _solve(
+        self, view_sets: Sequence[Sequence[MarkerView]], expected: FloatArray
+    ) -> ToolMeasurement:
+        views = list(view_sets[0]) if len(view_sets) == 1 else mean_views(view_sets)
         return tool_pose(self._models, views, self._markers, expected)
 
     async def _grab(self, camera: Camera, timeout_s: float) -> Frame:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -339,3 +340,5 @@ def record_measurement(
             drift
         )
         record.rotation_error_urad = angle_urad(drift)
+        if math.isfinite(measurement.rotation_sigma_rad):
+            record.measured_rotation_sigma_urad = measurement.rotation_sigma_rad * 1e6

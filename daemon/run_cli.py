@@ -286,6 +286,7 @@ def _arm_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:
         ("rotation error RMS", summary.get("rotation_error_rms_urad"), "urad"),
         ("predicted tool error max", summary.get("predicted_3d_max_um"), "um"),
         ("3-D measurement 1-sigma", summary.get("measurement_sigma_um"), "um"),
+        ("rotation meas. 1-sigma", summary.get("measurement_rotation_sigma_urad"), "urad"),
     ]
     if summary.get("reduction_basis") == "reference":
         reference = summary.get("reference_run")

@@ -71,6 +71,9 @@ class StepRecord:
     # the observer's estimates after the IR update: {"heat": [factor, 1-sigma], ...,
     # "offset:REGION": [degC, 1-sigma]} (model+ir; the factors with observer.adapt, issue 19)
     observer_json: str | None = None
+    # 1-sigma of the measured orientation (sqrt trace of the pose covariance's rotation block;
+    # arm runs, issue 20): the rotation error's noise, as measured_sigma_um is the drift's
+    measured_rotation_sigma_urad: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -84,11 +84,6 @@ async def test_compensated_arm_run_beats_the_uncompensated_drift(tmp_path: Path)
     assert len(shifts) == 2 + 2 + STEPS, commands[-20:]
     drift = np.array([s["drift_3d_um"] for s in off_steps])
     residual = np.array([s["drift_3d_um"] for s in on_steps])
-    # uncompensated: the arm drifts by ~100 um in 8 h (seed 7: 101 um)
-    assert drift.max() > 80.0
-    # compensated: what is left is the model's error and the measurement's noise; the preset
-    # model predicts ~1.6 x this truth's drift (seed 7: 167 um), so it over-corrects and
-    # leaves ~66 um, i.e. 2/3 of the drift (README "Running a duty cycle on an arm")
     # uncompensated: the arm drifts by well over 100 um in 8 h (seed 7: 173 um)
     assert drift.max() > 100.0
     # compensated with the presets' model: what is left is the model's error (the truth's
@@ -105,3 +100,7 @@ async def test_compensated_arm_run_beats_the_uncompensated_drift(tmp_path: Path)
     )
     summary = on["summary"]
     assert summary["drift_3d_max_um"] == pytest.approx(residual.max())
+    # each measured step carries its orientation's noise, the summary their median
+    rotation_sigmas = np.array([s["measured_rotation_sigma_urad"] for s in on_steps], dtype=float)
+    assert np.all(np.isfinite(rotation_sigmas)) and np.all(rotation_sigmas > 0)
+    assert summary["measurement_rotation_sigma_urad"] == pytest.approx(np.median(rotation_sigmas))

@@ -36,6 +36,7 @@ ARM_SUMMARY_KEYS: tuple[str, ...] = (
     "reduction_3d_percent",
     "reduction_rotation_percent",
     "measurement_sigma_um",
+    "measurement_rotation_sigma_urad",
 )
 
 
@@ -105,6 +106,12 @@ def summarize_arm_run(
     )
     sigma = _finite(_column(steps, "measured_sigma_um"))
     summary["measurement_sigma_um"] = float(np.median(sigma)) if sigma.size else None
+    # the rotation error's own noise: a rotation error (or its reduction) at this level is the
+    # cameras', not the arm's (four markers 120 mm apart: tens of urad per frame)
+    rotation_sigma = _finite(_column(steps, "measured_rotation_sigma_urad"))
+    summary["measurement_rotation_sigma_urad"] = (
+        float(np.median(rotation_sigma)) if rotation_sigma.size else None
+    )
     summary["reference_run"] = None
     summary["reduction_basis"] = "drift" if compensation == "off" else "none"
     if reference is not None and compensation != "off":
@@ -151,6 +158,7 @@ ARM_LABELS: dict[str, tuple[str, str]] = {
     "reduction_3d_percent": ("reduction of the 3-D drift", "%"),
     "reduction_rotation_percent": ("reduction of the rotation error", "%"),
     "measurement_sigma_um": ("3-D measurement 1-sigma (median)", "µm"),
+    "measurement_rotation_sigma_urad": ("rotation measurement 1-sigma (median)", "µrad"),
 }
 
 

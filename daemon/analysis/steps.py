@@ -61,6 +61,7 @@ NUMERIC_COLUMNS: tuple[str, ...] = (
     "drift_3d_um",
     "rotation_error_urad",
     "measured_sigma_um",
+    "measured_rotation_sigma_urad",
 )
 #: The 6-DOF columns of an arm run (issue 20); a two-link run leaves them empty.
 ARM_COLUMNS: tuple[str, ...] = NUMERIC_COLUMNS[NUMERIC_COLUMNS.index("deformation_sigma_um") + 1 :]

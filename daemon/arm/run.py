@@ -77,13 +77,17 @@ class ArmPredictor(Protocol):
 @dataclass(frozen=True, eq=False)
 class ToolMeasurement:
     """One 3-D measurement of the tool: its pose (4x4, base frame) from the markers seen in
-    the cameras, the 1-sigma of its position (mm), and whether the orientation was measured
-    (>= 3 markers); ``centroids_px`` per camera and marker for the record."""
+    the cameras, the 1-sigma of its position (mm) and orientation (rad), and whether the
+    orientation was measured (>= 3 markers); ``centroids_px`` per camera and marker for the
+    record."""
 
     pose: FloatArray
     sigma_mm: float
     oriented: bool
     centroids_px: Mapping[str, tuple[tuple[float, float], ...]]
+    #: 1-sigma of the orientation (rad, sqrt of the rotation block's trace); NaN when the
+    #: orientation was not measured
+    rotation_sigma_rad: float = math.nan
 
 
 class MeasurementError(ValueError):

@@ -1,0 +1,116 @@
+"""Averaging frames in a tool measurement (daemon/arm_measure.py, arm.frames_per_measurement):
+the centroids' mean and the 1-sigma it is given, and the meter's pose noise over repeated
+measurements of a still tool, against the 1/sqrt(frames) that independent frames give."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Self
+
+import numpy as np
+import pytest
+
+from config import Settings
+from daemon.arm_measure import MarkerView, MultiCameraMeter, mean_views
+from daemon.vision.multiview import pose_difference
+from daemon.workers import Workers
+
+#: The image-plane jitter of the test's frames (px): the arm bench's order (0.03 px)
+JITTER_PX = 0.05
+
+
+def test_mean_views_averages_each_camera_and_marker_over_its_frames() -> None:
+    frames = [
+        [MarkerView("a", 0, 100.0, 50.0, 0.02), MarkerView("b", 0, 10.0, 20.0, 0.02)],
+        [MarkerView("a", 0, 100.2, 50.2, 0.02)],  # marker 0 not found by camera b here
+    ]
+    by_key = {(v.camera, v.marker): v for v in mean_views(frames)}
+    a, b = by_key["a", 0], by_key["b", 0]
+    assert (a.x_px, a.y_px) == pytest.approx((100.1, 50.1))
+    # two frames: the reported sigma over sqrt(2) (scatter is not used below three frames)
+    assert a.sigma_px == pytest.approx(0.02 / math.sqrt(2))
+    assert (b.x_px, b.y_px, b.sigma_px) == (10.0, 20.0, 0.02)
+
+
+def test_mean_views_takes_the_scatter_when_it_exceeds_the_reported_sigma() -> None:
+    xs = [0.0, 0.3, -0.3, 0.0]  # sample variance 0.06 px^2, y the same
+    frames = [[MarkerView("a", 1, x, x, 0.01)] for x in xs]
+    (mean,) = mean_views(frames)
+    assert mean.sigma_px == pytest.approx(math.sqrt(0.06 / 4))
+    quiet = [[MarkerView("a", 1, 1e-4 * k, 0.0, 0.01)] for k in range(4)]
+    assert mean_views(quiet)[0].sigma_px == pytest.approx(0.01 / 2)  # reported: larger
+
+
+class _JitteryMarkerCamera:
+    """The arm bench's camera (drivers/sim/arm_markers.py MarkerRenderer): photon and read
+    noise plus a seeded image-plane jitter drawn anew for every frame (air, stand vibration)."""
+
+    def __init__(self, model: Any, rig: Any, points: np.ndarray, seed: int, jitter: float) -> None:
+        from drivers.sim.arm_markers import MarkerRenderer
+
+        self.renderer = MarkerRenderer(model, rig, np.random.default_rng(seed))
+        self.points, self.jitter_px = points, jitter
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def grab(self) -> Any:
+        from drivers.base import Frame
+
+        image = self.renderer.render(self.points, self.jitter_px)
+        return Frame(image, self.renderer.rig.bit_depth, 0.0, 0, "camera")  # type: ignore[arg-type]
+
+
+async def test_averaged_frames_divide_the_pose_noise_by_sqrt_frames() -> None:
+    from drivers.sim.arm_markers import CameraRig
+
+    pose = np.eye(4)
+    pose[:3, 3] = (400.0, 0.0, 300.0)
+    rig = CameraRig(width_px=1024, height_px=768, focal_px=2000.0)
+    models = rig.cameras(pose[:3, 3])
+    repeats = 20
+    spreads: dict[int, tuple[float, float, float, float]] = {}
+    workers = Workers()
+    try:
+        for frames in (1, 9):
+            settings = Settings.model_validate(
+                {"camera": {"bit_depth": rig.bit_depth}, "arm": {"frames_per_measurement": frames}}
+            )
+            markers = np.array(settings.arm.markers_mm)
+            world = markers @ pose[:3, :3].T + pose[:3, 3]
+            cameras = [
+                _JitteryMarkerCamera(m, rig, world, 11 + k, JITTER_PX) for k, m in enumerate(models)
+            ]
+            meter = MultiCameraMeter(settings, cameras, models, workers)
+            errors_um, rotations, sigmas, rotation_sigmas = [], [], [], []
+            for _ in range(repeats):
+                measured = await meter.measure(pose)
+                error = pose_difference(pose, measured.pose)
+                errors_um.append(error.translation_norm_mm * 1000)
+                rotations.append(error.rotation_angle_rad * 1e6)
+                sigmas.append(measured.sigma_mm * 1000)
+                rotation_sigmas.append(measured.rotation_sigma_rad * 1e6)
+            spreads[frames] = (
+                float(np.sqrt(np.mean(np.square(errors_um)))),
+                float(np.sqrt(np.mean(np.square(rotations)))),
+                float(np.mean(sigmas)),
+                float(np.mean(rotation_sigmas)),
+            )
+    finally:
+        workers.shutdown()
+    single_um, single_urad, single_sigma, single_rotation_sigma = spreads[1]
+    mean_um, mean_urad, mean_sigma, mean_rotation_sigma = spreads[9]
+    # nine frames: the reported 1-sigma is a third (the frames' noise is independent)...
+    assert single_sigma / mean_sigma == pytest.approx(3.0, rel=0.2), spreads
+    # ... and the measured error follows it: RMS of |error| from 20 measurements (60 degrees
+    # of freedom, ~10 % of scatter) within [0.6, 1.5] of the reported 1-sigma, both ways
+    assert 0.6 < single_um / single_sigma < 1.5, spreads
+    assert 0.6 < mean_um / mean_sigma < 1.5, spreads
+    # the rotation (four markers, 120 mm) the same way, against its own reported 1-sigma
+    # (the rotation block of the pose's covariance: what a step records as its noise)
+    assert single_rotation_sigma / mean_rotation_sigma == pytest.approx(3.0, rel=0.2), spreads
+    assert 0.6 < single_urad / single_rotation_sigma < 1.5, spreads
+    assert 0.6 < mean_urad / mean_rotation_sigma < 1.5, spreads
