@@ -21,7 +21,17 @@ from api.metrics import ApiMetrics
 from api.middleware import Gate
 from api.openapi import install_openapi
 from api.relay import Relay
-from api.routers import configuration, devices, health, metrics, networks, runs, state, ws
+from api.routers import (
+    arm_models,
+    configuration,
+    devices,
+    health,
+    metrics,
+    networks,
+    runs,
+    state,
+    ws,
+)
 from api.security import Authenticator, HostAllowList, RateLimiter
 from config import ConfigError, Settings
 from daemon import __version__
@@ -117,6 +127,7 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         runs.control_router,
         configuration.router,
         networks.router,
+        arm_models.router,
         devices.router,
         ws.router,
     ):
