@@ -64,6 +64,8 @@ async def test_saved_arm_models_are_listed_with_their_identification(tmp_path: P
     data_dir = tmp_path / "data"
     save(data_dir, "cal", arm_model_toml(MODEL))
     save(data_dir, "broken", "format = 1\nname = ")
+    wrong = arm_model_toml(MODEL).replace("standard_error = 0.04", 'standard_error = "small"')
+    save(data_dir, "wrong", wrong)  # TOML, but a text where a number belongs
     app = create_app(settings_for(data_dir), service_factory=Daemon)
     async with (
         serve(app) as address,
@@ -76,8 +78,10 @@ async def test_saved_arm_models_are_listed_with_their_identification(tmp_path: P
         assert listed["arm_presets"] == available_arms() and "crs-a465" in listed["arm_presets"]
         assert listed["duty_cycles"] == available_duty_cycles()
         assert [m["name"] for m in listed["arm_models"]] == ["cal"]
-        assert [p["name"] for p in listed["unreadable"]] == ["broken"]
-        assert "broken.toml" in listed["unreadable"][0]["error"]
+        unreadable = {p["name"]: p["error"] for p in listed["unreadable"]}
+        assert set(unreadable) == {"broken", "wrong"}
+        assert "broken.toml" in unreadable["broken"]
+        assert "standard_error must be a number" in unreadable["wrong"]
 
         one = await client.get("/api/v1/arm-models/cal", headers=READ_AUTH)
         assert one.status_code == 200, one.text

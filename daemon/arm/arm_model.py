@@ -222,8 +222,8 @@ def load_arm_model(path: Path) -> ArmModel:
             CalibratedParameter(
                 name=str(p["name"]),
                 value=float(p["value"]),
-                standard_error=p.get("standard_error"),
-                relative_error=p.get("relative_error"),
+                standard_error=_optional(p, "standard_error"),
+                relative_error=_optional(p, "relative_error"),
                 identifiable=bool(p.get("identifiable", True)),
                 reason=str(p.get("reason", "")),
             )
