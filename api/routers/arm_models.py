@@ -141,14 +141,21 @@ def _read(data_dir: Path, name: str) -> ArmModelInfo:
     return _info(load_arm_model(saved_arm_models_dir(data_dir) / f"{name}.toml"), name)
 
 
-def _read_all(data_dir: Path) -> tuple[list[ArmModelInfo], list[ArmModelProblem]]:
+def _read_all(data_dir: Path, arm_runs: bool) -> ArmModelList:
+    """Every saved model and the installed presets (blocking: files and folders)."""
     models, problems = [], []
     for name in available_saved_arm_models(data_dir):
         try:
             models.append(_read(data_dir, name))
         except ArmModelError as err:
             problems.append(ArmModelProblem(name=name, error=str(err)))
-    return models, problems
+    return ArmModelList(
+        arm_runs=arm_runs,
+        arm_presets=available_arms(),
+        duty_cycles=available_duty_cycles(),
+        arm_models=models,
+        unreadable=problems,
+    )
 
 
 def _lookup(data_dir: Path, name: str) -> ArmModelInfo | None:
@@ -163,14 +170,7 @@ async def list_arm_models(settings: SettingsDep, daemon: DaemonDep) -> ArmModelL
     """The identified arm models saved in the data directory, each with its identification
     table, the unreadable ones with the reason, and the arm presets and duty cycles an arm
     run may name."""
-    models, problems = await daemon.read(_read_all, settings.storage.data_dir)
-    return ArmModelList(
-        arm_runs=settings.arm.enabled,
-        arm_presets=available_arms(),
-        duty_cycles=available_duty_cycles(),
-        arm_models=models,
-        unreadable=problems,
-    )
+    return await daemon.read(_read_all, settings.storage.data_dir, settings.arm.enabled)
 
 
 @router.get(
