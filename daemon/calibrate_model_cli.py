@@ -13,8 +13,11 @@ cold; in a lab give ``--cool-down S``. Exit statuses: 0 all three steps done and
 finished; 1 a run did not finish or a device failed; 2 bad usage, a name already taken, or
 identification impossible.
 
-On an arm (``[arm] enabled``, or ``--duty-cycle``) the same chain runs the arm's steps:
-daemon/calibrate_arm_model_cli.py.
+On an arm (``[arm] enabled``, or ``--duty-cycle``) the same chain runs the arm's steps
+(daemon/calibrate_arm_model_cli.py): an uncompensated calibration run of the duty cycle, the
+arm's model identified from it and saved as arm model NAME, a validation run with
+``--arm-model NAME`` whose 3-D residual is measured against the calibration run's drift and
+the measurement's noise; ``--network`` and ``--scale`` do not apply there.
 """
 
 from __future__ import annotations
