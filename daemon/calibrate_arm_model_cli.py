@@ -49,6 +49,13 @@ def run_calibrate_arm_model(args: argparse.Namespace, settings: Settings) -> int
                 file=sys.stderr,
             )
             return EXIT_USAGE
+    if settings.arm.duty_cycle is None:
+        print(
+            f"{PROG}: an arm is calibrated on a duty cycle: give --duty-cycle NAME|PATH or set "
+            "arm.duty_cycle",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
     try:
         saved = new_arm_model_path(args.save, settings.storage.data_dir)
     except ValueError as err:

@@ -52,6 +52,17 @@ def test_refused_before_anything_runs(
     assert not (tmp_path / "data").exists()
 
 
+def test_an_arm_without_a_duty_cycle_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "arm.toml"
+    config.write_text("[arm]\nenabled = true\n")
+    argv = ["calibrate", "model", "--config", str(config), "--data-dir", str(tmp_path / "d")]
+    status, _, err = run_in_process(calibrate_cli.register, [*argv, "--save", "x"], capsys)
+    assert status == 2 and "give --duty-cycle NAME|PATH or set arm.duty_cycle" in err, err
+    assert not (tmp_path / "d").exists()
+
+
 def test_calibration_identification_and_validation_on_the_arm_bench(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
