@@ -22,6 +22,7 @@ from api.middleware import Gate
 from api.openapi import install_openapi
 from api.relay import Relay
 from api.routers import (
+    arm_models,
     configuration,
     devices,
     health,
@@ -128,6 +129,7 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         run_data.read_router,
         configuration.router,
         networks.router,
+        arm_models.router,
         devices.router,
         ws.router,
     ):

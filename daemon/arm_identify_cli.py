@@ -20,6 +20,12 @@ What the run recorded, read back READ-ONLY (as daemon/identify_cli.py reads a tw
 The fit is benchmarks/bench_arm.py's: every parameter first (heat per joint, convection,
 alpha, one IR offset per region), reported with its standard error and whether the run
 identifies it; then the identifiable ones refitted, the others left at the preset's 1.0.
+
+``--validate RUN_ID`` is the two-link meaning on the arm: another recorded run of the same arm
+(any duty cycle, compensated or not: its correction is taken out as above) is predicted by the
+identified model, nothing refitted, and by the preset; the RMS of each prediction's error in
+the tool's translation and the IR regions says whether the model carries over
+(daemon/arm/identify.py evaluate_arm). The saved model records the validation.
 """
 
 from __future__ import annotations
@@ -30,7 +36,7 @@ import math
 import sqlite3
 import sys
 from contextlib import closing
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -42,9 +48,11 @@ from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from daemon.arm.arm_model import ArmModel, arm_model_toml, new_arm_model_path
 from daemon.arm.controller import ArmController, ArmModelOptions, load_controller
 from daemon.arm.identify import (
+    ArmFitQuality,
     ArmIdentification,
     ArmModelSpec,
     ArmRunData,
+    evaluate_arm,
     identify_arm,
     marker_sensitivity,
 )
@@ -237,6 +245,73 @@ def arm_model_of(
     )
 
 
+@dataclass(frozen=True)
+class ArmValidation:
+    """Another recorded run of the arm as the identified model and the preset predict it."""
+
+    run: str
+    duty_cycle: str
+    identified: ArmFitQuality
+    preset: ArmFitQuality
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "run": self.run,
+            "duty_cycle": self.duty_cycle,
+            "identified": asdict(self.identified),
+            "preset": asdict(self.preset),
+        }
+
+
+def validate_arm_run(run: ArmRun, refit: ArmIdentification, other: ArmRun) -> ArmValidation:
+    """``other`` predicted by the refit and by the preset (module docstring); ArmRunInputError
+    when it is a run of another arm."""
+    if other.controller.arm.name != run.controller.arm.name:
+        raise ArmRunInputError(
+            f"{other.name} ran arm {other.controller.arm.name!r}, {run.name} arm "
+            f"{run.controller.arm.name!r}: a model validates on its own arm"
+        )
+    return ArmValidation(
+        run=other.name,
+        duty_cycle=other.duty_cycle,
+        identified=evaluate_arm(refit, other.data, other.spec),
+        preset=evaluate_arm(None, other.data, other.spec),
+    )
+
+
+def validated_model(model: ArmModel, validation: ArmValidation | None) -> ArmModel:
+    """``model`` with its validation recorded (unchanged without one)."""
+    if validation is None:
+        return model
+    return replace(
+        model,
+        validation_runs=(validation.run,),
+        validation_marker_rms_um=_um(validation.identified.marker_rms_mm),
+        validation_temperature_rms_c=validation.identified.temperature_rms_c,
+        validation_preset_marker_rms_um=_um(validation.preset.marker_rms_mm),
+    )
+
+
+def _um(value_mm: float | None) -> float | None:
+    return None if value_mm is None else 1000.0 * value_mm
+
+
+def format_validation(validation: ArmValidation) -> str:
+    def rms(quality: ArmFitQuality) -> str:
+        marker = "n/a" if quality.marker_rms_mm is None else f"{1000 * quality.marker_rms_mm:.3g}"
+        temperature = (
+            "n/a" if quality.temperature_rms_c is None else f"{quality.temperature_rms_c:.3g}"
+        )
+        return f"tool translation RMS {marker} um, IR RMS {temperature} degC"
+
+    identified, preset = validation.identified, validation.preset
+    return (
+        f"validation on {validation.run} ({validation.duty_cycle}; "
+        f"{identified.marker_samples} translation values, {identified.temperature_samples} IR "
+        f"values), nothing refitted: identified {rms(identified)}; preset {rms(preset)}"
+    )
+
+
 def format_arm_result(full: ArmIdentification, refit: ArmIdentification) -> str:
     refitted = {p.name: p for p in refit.parameters}
     lines = [
@@ -273,16 +348,24 @@ def _percent(relative: float | None) -> str:
 def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
     """``thermocomp identify RUN_ID`` of an arm run (daemon/identify_cli.py delegates)."""
     data_dir = settings.storage.data_dir
-    if args.validate or args.network or args.heater_off is not None:
+    if args.network or args.heater_off is not None:
         print(
-            "thermocomp identify: --validate, --network and --heater-off are for two-link "
-            "runs; an arm run is identified against its own arm and duty cycle",
+            "thermocomp identify: --network and --heater-off are for two-link runs; an arm "
+            "run is identified against its own arm and duty cycle",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    if args.validate is not None and not args.validate.isdigit():
+        print(
+            f"thermocomp identify: --validate {args.validate!r}: an arm model is validated on "
+            "a recorded arm run, by its number",
             file=sys.stderr,
         )
         return EXIT_USAGE
     try:
         saved = None if args.save is None else new_arm_model_path(args.save, data_dir)
         run = load_arm_run(data_dir, int(args.target))
+        other = None if args.validate is None else load_arm_run(data_dir, int(args.validate))
     except ValueError as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -291,10 +374,16 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
         return EXIT_FAILURE
     try:
         full, refit = identify_arm_run(run, args.params)
+        validation = None if other is None else validate_arm_run(run, refit, other)
     except IdentificationError as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_USAGE
-    model = arm_model_of(args.save or f"run-{args.target}", run, full, refit)
+    except ArmRunInputError as err:
+        print(f"thermocomp identify: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    model = validated_model(
+        arm_model_of(args.save or f"run-{args.target}", run, full, refit), validation
+    )
     header = f"identified by thermocomp identify {args.target} (arm {model.arm})"
     written = [path for path in (args.out, saved) if path is not None]
     try:
@@ -310,12 +399,15 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
             "all": full.to_dict(),
             "refit": refit.to_dict(),
             "arm_model": model.provenance(),
+            "validation": None if validation is None else validation.to_dict(),
             "saved_arm_model": args.save,
             "arm_model_file": None if args.out is None else str(args.out),
         }
         print(json.dumps(finite_json(document), indent=2, allow_nan=False))
     else:
         print(format_arm_result(full, refit))
+        if validation is not None:
+            print(format_validation(validation))
         if saved is not None:
             print(
                 f"saved as arm model {args.save!r} ({saved}): `thermocomp run --arm-model "

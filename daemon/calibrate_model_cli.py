@@ -12,6 +12,12 @@ Between the runs the links must cool back to ambient: on the simulated bench eve
 cold; in a lab give ``--cool-down S``. Exit statuses: 0 all three steps done and both runs
 finished; 1 a run did not finish or a device failed; 2 bad usage, a name already taken, or
 identification impossible.
+
+On an arm (``[arm] enabled``, or ``--duty-cycle``) the same chain runs the arm's steps
+(daemon/calibrate_arm_model_cli.py): an uncompensated calibration run of the duty cycle, the
+arm's model identified from it and saved as arm model NAME, a validation run with
+``--arm-model NAME`` whose 3-D residual is measured against the calibration run's drift and
+the measurement's noise; ``--network`` and ``--scale`` do not apply there.
 """
 
 from __future__ import annotations
@@ -60,15 +66,24 @@ def add_parser(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_config_argument(parser)
-    parser.add_argument("--save", metavar="NAME", required=True, help="name of the network")
-    parser.add_argument("--network", help="the network to identify from (default model.network)")
+    parser.add_argument(
+        "--save", metavar="NAME", required=True, help="name of the network (of an arm: arm model)"
+    )
+    parser.add_argument(
+        "--network", help="two-link: the network to identify from (default model.network)"
+    )
+    parser.add_argument(
+        "--duty-cycle",
+        metavar="NAME|PATH",
+        help="an arm: the duty cycle both runs follow (default arm.duty_cycle; implies "
+        "arm.enabled); the saved model is an arm model",
+    )
     parser.add_argument("--duration", type=positive_float, metavar="S", help="each run's length")
     parser.add_argument("--step", type=positive_float, metavar="S", help="each run's step")
     parser.add_argument(
         "--scale",
         type=positive_float,
-        default=DEFAULT_SCALE,
-        help=f"deformation scale of both runs (thesis 6.3; default {DEFAULT_SCALE:g})",
+        help=f"two-link: deformation scale of both runs (thesis 6.3; default {DEFAULT_SCALE:g})",
     )
     parser.add_argument(
         "--prediction",
@@ -81,6 +96,13 @@ def add_parser(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
         default=0.0,
         metavar="S",
         help="wait this long between the runs for the links to cool (a lab; default 0)",
+    )
+    parser.add_argument(
+        "--params",
+        nargs="+",
+        metavar="PARAM",
+        help="the parameters identification fits, as `thermocomp identify --params` (default: "
+        "identify's)",
     )
     parser.add_argument("--no-validate", action="store_true", help="stop after identification")
     parser.add_argument("--data-dir", type=Path, help="folder of the run database")
@@ -95,6 +117,10 @@ def _settings(args: argparse.Namespace) -> Settings:
         "storage": {"data_dir": args.data_dir},
         "scheduler": {"duration_s": args.duration, "step_s": args.step},
         "model": {"network": args.network, "prediction": args.prediction},
+        "arm": {
+            "duty_cycle": args.duty_cycle,
+            "enabled": True if args.duty_cycle is not None else None,
+        },
     }
     for section, values in overrides.items():
         data[section].update({k: v for k, v in values.items() if v is not None})
@@ -105,6 +131,12 @@ def run_calibrate_model(args: argparse.Namespace) -> int:
     from daemon.identify_cli import saved_network_path
 
     settings = _settings(args)
+    if settings.arm.enabled:  # issue 20: the arm's chain
+        from daemon.calibrate_arm_model_cli import run_calibrate_arm_model
+
+        return run_calibrate_arm_model(args, settings)
+    if args.scale is None:
+        args.scale = DEFAULT_SCALE
     try:
         saved = saved_network_path(args.save, settings.storage.data_dir)
     except ValueError as err:
@@ -142,7 +174,7 @@ async def _one_run(daemon: Daemon, settings: Settings, what: str, **values: Any)
     return final
 
 
-async def _run_alone(settings: Settings, what: str, **values: Any) -> dict[str, Any]:
+async def run_alone(settings: Settings, what: str, **values: Any) -> dict[str, Any]:
     """One run in its own daemon (opened and closed around it: identification runs between
     the runs with no device open, so a virtual clock never jumps while it computes)."""
     from daemon.recorder import RecorderError
@@ -157,7 +189,11 @@ async def _run_alone(settings: Settings, what: str, **values: Any) -> dict[str, 
 
 
 def _identify_and_save(
-    settings: Settings, run_id: int, saved: Path, outcome: dict[str, Any]
+    settings: Settings,
+    run_id: int,
+    saved: Path,
+    outcome: dict[str, Any],
+    params: list[str] | None = None,
 ) -> None:
     from daemon.identify_cli import RunInputError, load_run
     from daemon.model import NetworkError, load_network
@@ -166,7 +202,7 @@ def _identify_and_save(
     try:
         run = load_run(str(run_id), settings, None)
         base = load_network(run.network or settings.model.network, settings.storage.data_dir)
-        result = identify(run.data_for(base), base, run.regions)
+        result = identify(run.data_for(base), base, run.regions, params)
     except (RunInputError, NetworkError, IdentificationError) as err:
         raise StepFailedError(f"identification: {err}", EXIT_USAGE) from err
     provenance = calibration_of(
@@ -189,17 +225,17 @@ def _identify_and_save(
 
 async def _chain(settings: Settings, args: argparse.Namespace, saved: Path) -> dict[str, Any]:
     outcome: dict[str, Any] = {"network": args.save, "network_file": str(saved)}
-    calibration = await _run_alone(
+    calibration = await run_alone(
         settings, "calibration run", compensation="off", deformation_scale=args.scale
     )
     outcome["calibration_run"] = _run_view(calibration)
     # blocking (SciPy, SQLite read-only, one file): nothing else runs meanwhile
-    _identify_and_save(settings, int(calibration["id"]), saved, outcome)
+    _identify_and_save(settings, int(calibration["id"]), saved, outcome, args.params)
     if args.no_validate:
         return outcome
     if args.cool_down > 0:  # a lab's links cool in real time
         await asyncio.sleep(args.cool_down)
-    validation = await _run_alone(
+    validation = await run_alone(
         settings,
         "validation run",
         network=args.save,

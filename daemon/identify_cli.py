@@ -123,7 +123,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "`thermocomp run --network NAME` and POST /runs use it by name, GET /networks lists it",
     )
     parser.add_argument(
-        "--validate", metavar="RUN_ID|FILE", help="a second run to check the fit on"
+        "--validate",
+        metavar="RUN_ID|FILE",
+        help="a second run to check the fit on (of an arm run: another recorded arm run by "
+        "number, predicted by the identified model and by the preset)",
     )
     parser.add_argument(
         "--heater-off",

@@ -34,6 +34,7 @@ from schemathesis import Case, GenerationMode
 from api.app import create_app
 from api.routers import run_data as run_data_router
 from config import Settings
+from daemon.arm.arm_model import ArmModel, arm_model_toml, saved_arm_models_dir
 from daemon.model import available_presets
 from daemon.recorder import Recorder
 from daemon.reports import write_run_report
@@ -125,11 +126,18 @@ class Bench:
     base_url: str
     finished_run: int
     archived_step: int
+    arm_model: str  # a saved arm model (GET /arm-models/{name})
     answers: dict[str, set[int]] = field(default_factory=dict)
 
 
 @pytest.fixture
 async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
+    # an identified arm model saved in the data directory, as `identify RUN --save` writes it
+    arm_model = ArmModel(name="cal", arm="CRS A465", heat_scales=(1.0, 1.2, 0.9, 1.0, 1.0, 1.0))
+    saved_arm_models_dir(tmp_path / "data").mkdir(parents=True)
+    (saved_arm_models_dir(tmp_path / "data") / "cal.toml").write_text(
+        arm_model_toml(arm_model), "utf-8"
+    )
     app = create_app(bench_settings(tmp_path / "data"), service_factory=Daemon)
     async with (
         serve(app) as address,
@@ -144,7 +152,7 @@ async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
         assert len(steps) == 6 and archived
         # its report, as `thermocomp report RUN` writes it (the API only serves reports)
         await asyncio.to_thread(write_run_report, tmp_path / "data", run_id)
-        yield Bench(f"http://{address}", run_id, archived[0])
+        yield Bench(f"http://{address}", run_id, archived[0], arm_model.name)
 
 
 # --- the fuzzing, in a worker thread: schemathesis' requests block, the server runs in this
@@ -196,7 +204,8 @@ def fuzz_operation(
 ) -> None:
     """Run ``send(case, target)`` on ``examples`` generated cases; ``target`` says which run a
     positive case aims at: the one drawn, the finished run or the active one (a drawn run id
-    rarely exists, so without this only 404s would be seen)."""
+    rarely exists, so without this only 404s would be seen); likewise a saved arm model's
+    name instead of the drawn one."""
     targets = ("drawn", "finished", "active") if mode is GenerationMode.POSITIVE else ("drawn",)
 
     @settings(
@@ -234,6 +243,8 @@ def fuzz(bench: Bench) -> set[str]:
                 case.path_parameters["run_id"] = run_id
                 if "step" in case.path_parameters and run_id == bench.finished_run:
                     case.path_parameters["step"] = bench.archived_step
+            if "name" in case.path_parameters and target != "drawn":
+                case.path_parameters["name"] = bench.arm_model  # a drawn name is rarely saved
             answers = bench.answers.setdefault(label, set())
             response = waited_out(
                 lambda: case.call(base_url=bench.base_url, session=session, headers=CONTROL_AUTH),

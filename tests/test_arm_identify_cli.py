@@ -330,3 +330,47 @@ async def test_each_arm_step_feeds_its_ir_reading_to_the_model(tmp_path: Path) -
     for reading, step in zip(readings, steps, strict=True):
         recorded = json.loads(step["ir_json"])
         assert reading == {name: value["mean_c"] for name, value in recorded.items()}
+
+
+def test_validate_predicts_another_run_with_the_identified_model_and_the_preset(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``identify 1 --validate 2`` on two recordings of the same truth (other noise): the
+    identified model predicts run 2's tool translation to its noise (NOISE_UM per component:
+    72 values, the sample RMS within ~25 % of it) and its IR regions to theirs (IR_NOISE_C);
+    the preset (joint 2's heat x1.0, no IR offset) misses both by far more."""
+    record_run(tmp_path, seed=3)
+    record_run(tmp_path, seed=4)
+    status, out, err = identify(tmp_path, capsys, *PARAMS, "--validate", "2", "--json")
+    assert status == 0, err
+    validation = json.loads(out)["validation"]
+    assert validation["run"] == "run 2" and validation["duty_cycle"] == DUTY
+    identified, preset = validation["identified"], validation["preset"]
+    assert identified["marker_samples"] == 3 * STEPS
+    assert 0.75 * NOISE_UM < 1000 * identified["marker_rms_mm"] < 1.25 * NOISE_UM
+    assert 0.75 * IR_NOISE_C < identified["temperature_rms_c"] < 1.25 * IR_NOISE_C
+    assert 1000 * preset["marker_rms_mm"] > 3 * NOISE_UM
+    assert preset["temperature_rms_c"] > 0.1  # the offsets alone are 0.3 and -0.2 degC
+    # saved with the model, and printed in the table
+    status, out, err = identify(tmp_path, capsys, *PARAMS, "--validate", "2", "--save", "v")
+    assert status == 0, err
+    assert "validation on run 2" in out and "preset tool translation RMS" in out
+    model = load_arm_model(saved_arm_models_dir(tmp_path) / "v.toml")
+    assert model.validation_runs == ("run 2",)
+    assert model.validation_marker_rms_um == pytest.approx(1000 * identified["marker_rms_mm"])
+    assert model.validation_preset_marker_rms_um == pytest.approx(1000 * preset["marker_rms_mm"])
+
+
+@pytest.mark.parametrize(
+    ("validate", "status", "message"),
+    [
+        ("run.csv", 2, "validated on a recorded arm run, by its number"),
+        ("9", 1, "no run 9"),
+    ],
+)
+def test_validate_refuses_what_is_not_a_recorded_arm_run(
+    recorded: Path, capsys: pytest.CaptureFixture[str], validate: str, status: int, message: str
+) -> None:
+    code, _, err = identify(recorded, capsys, "--validate", validate)
+    assert code == status and message in err, err
+    assert len(err.strip().splitlines()) == 1

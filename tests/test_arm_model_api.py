@@ -64,6 +64,10 @@ async def test_arm_model_by_name_over_the_api(tmp_path: Path) -> None:
             assert "passwd" not in response.text
         missing = await client.post("/api/v1/runs", json={"arm_model": "nothing"}, headers=HEADERS)
         assert "cal" in missing.json()["message"]  # the 404 lists the saved arm models
+        listed = (await client.get("/api/v1/arm-models", headers=HEADERS)).json()
+        assert listed["arm_runs"] is True  # arm.enabled: the dashboard offers the models
+        assert [m["name"] for m in listed["arm_models"]] == ["cal"]
+        assert listed["arm_models"][0]["heat_scales"] == list(model.heat_scales)
         started = await client.post(
             "/api/v1/runs",
             json={"arm_model": "cal", "prediction": "model+ir"},

@@ -10,6 +10,7 @@ import json
 import math
 import re
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,7 @@ import httpx
 import pytest
 from playwright.sync_api import Browser, Page, Route, sync_playwright
 
+from daemon.arm.arm_model import ArmModel, arm_model_toml, saved_arm_models_dir
 from tests.helpers import running_server
 
 CHROMIUM = "/usr/bin/chromium"
@@ -403,22 +405,34 @@ def test_the_api_description_runs_under_its_own_csp(browser: Browser, server: st
 def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
     browser: Browser, tmp_path: Path
 ) -> None:
-    """Issue 20: on the arm bench an arm run's steps draw the tool's 3-D drift and rotation
-    error (norm and components), and its history row gives the 3-D figures."""
+    """Issue 20: on the arm bench the run form offers the saved arm models (GET /arm-models)
+    and a run started with one uses it; an arm run's steps draw the tool's 3-D drift and
+    rotation error (norm and components), and its history row gives the 3-D figures."""
     env = {
         "THERMOCOMP_API__CONTROL_TOKEN": CONTROL,
         "THERMOCOMP_STORAGE__DATA_DIR": str(tmp_path / "data"),
     }
+    folder = saved_arm_models_dir(tmp_path / "data")
+    folder.mkdir(parents=True)
+    model = ArmModel(name="cal", arm="CRS A465", heat_scales=(1.0, 0.84, 0.85, 1.0, 1.0, 1.0))
+    (folder / "cal.toml").write_text(arm_model_toml(replace(model, source_runs=("run 7",))))
     steps = 12  # config/arm-sim.toml: 120 s at a 10 s step
     with running_server(["--config", "config/arm-sim.toml"], env=env) as server:
         page, page_errors = open_dashboard(browser, server)
         assert page.locator("#arm-drift").is_hidden()  # a two-link page until an arm step
+        offered = page.locator("#arm-model-select option", has_text="cal (identified from run 7)")
+        offered.wait_for(state="attached")
+        assert page.locator("#arm-model-field").is_visible()
+        page.select_option("#arm-model-select", "cal")
         page.fill("#token", CONTROL)
         page.click("#token-form button")
         page.wait_for_selector("#stream-state.open")
         page.fill("input[name=duration_s]", "120")
         page.fill("input[name=step_s]", "10")
         page.click("#btn-start")
+        page.wait_for_selector("#message:has-text('run 1 ')")
+        run = httpx.get(f"{server}/api/v1/runs/1", timeout=10).json()
+        assert run["parameters"]["arm_model"] == "cal"
         page.wait_for_function(
             f"window.thermocomp.plots.drift3d && "
             f"window.thermocomp.plots.drift3d.data[0].length >= {steps}",

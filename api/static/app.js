@@ -905,6 +905,27 @@
     } catch { /* the list is a convenience; the config's network is the default */ }
   }
 
+  // an arm daemon (arm.enabled, issue 20): the identified arm models saved in the data
+  // directory, each saying where it came from; a two-link daemon hides the field
+  async function loadArmModels() {
+    try {
+      const list = await api("GET", "/arm-models");
+      if (!list.arm_runs) return;
+      const select = $("arm-model-select");
+      for (const model of list.arm_models) {
+        const option = document.createElement("option");
+        option.value = model.name;
+        option.textContent = `${model.name} (identified from ${model.source_runs.join(", ")})`;
+        const fit = model.marker_rms_um === null
+          ? "" : `, fit RMS ${model.marker_rms_um.toFixed(2)} µm`;
+        option.title = `arm ${model.arm}, duty cycle ${model.duty_cycle}, identified `
+          + `${model.identified_at}${fit}`;
+        select.append(option);
+      }
+      $("arm-model-field").hidden = false;
+    } catch { /* the list is a convenience; without it a run uses the preset arm's model */ }
+  }
+
   // exposed for the browser test and for curious users in the console
   window.thermocomp = { state, plots };
 
@@ -922,4 +943,5 @@
   refreshHistory();
   refreshHealth();
   loadNetworks();
+  loadArmModels();
 })();

@@ -56,6 +56,12 @@ class ArmModel:
     identified_at: str = ""
     marker_rms_um: float | None = None
     temperature_rms_c: float | None = None
+    # ``identify --validate RUN``: the model's prediction of another recorded run of the arm,
+    # nothing refitted, beside the preset's (daemon/arm/identify.py evaluate_arm)
+    validation_runs: tuple[str, ...] = ()
+    validation_marker_rms_um: float | None = None
+    validation_temperature_rms_c: float | None = None
+    validation_preset_marker_rms_um: float | None = None
 
     def provenance(self) -> dict[str, Any]:
         """What a run records of the model it used."""
@@ -70,6 +76,7 @@ class ArmModel:
             "alpha_scale": self.alpha_scale,
             "ir_offsets_c": dict(self.ir_offsets_c),
             "identifiable": {p.name: p.identifiable for p in self.parameters},
+            "validation_runs": list(self.validation_runs),
         }
 
 
@@ -146,6 +153,15 @@ def arm_model_toml(model: ArmModel, header: str = "") -> str:
         top["marker_rms_um"] = model.marker_rms_um
     if model.temperature_rms_c is not None:
         top["temperature_rms_c"] = model.temperature_rms_c
+    if model.validation_runs:
+        top["validation_runs"] = list(model.validation_runs)
+    for key, item in (
+        ("validation_marker_rms_um", model.validation_marker_rms_um),
+        ("validation_temperature_rms_c", model.validation_temperature_rms_c),
+        ("validation_preset_marker_rms_um", model.validation_preset_marker_rms_um),
+    ):
+        if item is not None and math.isfinite(item):
+            top[key] = float(item)
     lines += [f"{key} = {_value(value)}" for key, value in top.items()]
     for table, values in (
         ("ir_offsets_c", model.ir_offsets_c),
@@ -183,6 +199,16 @@ def _mapping(values: object, what: str) -> dict[str, float]:
         raise ArmModelError(f"[{what}] must be a table of numbers") from err
 
 
+def _optional(data: Mapping[str, Any], key: str) -> float | None:
+    """An optional number of the file (absent: None)."""
+    value = data.get(key)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ArmModelError(f"{key} must be a number")
+    return float(value)
+
+
 def load_arm_model(path: Path) -> ArmModel:
     """An arm model file (ArmModelError naming the file when it does not load)."""
     try:
@@ -196,8 +222,8 @@ def load_arm_model(path: Path) -> ArmModel:
             CalibratedParameter(
                 name=str(p["name"]),
                 value=float(p["value"]),
-                standard_error=p.get("standard_error"),
-                relative_error=p.get("relative_error"),
+                standard_error=_optional(p, "standard_error"),
+                relative_error=_optional(p, "relative_error"),
                 identifiable=bool(p.get("identifiable", True)),
                 reason=str(p.get("reason", "")),
             )
@@ -218,8 +244,12 @@ def load_arm_model(path: Path) -> ArmModel:
             duty_cycle=str(data.get("duty_cycle", "")),
             source_runs=tuple(str(r) for r in data.get("source_runs", [])),
             identified_at=str(data.get("identified_at", "")),
-            marker_rms_um=data.get("marker_rms_um"),
-            temperature_rms_c=data.get("temperature_rms_c"),
+            marker_rms_um=_optional(data, "marker_rms_um"),
+            temperature_rms_c=_optional(data, "temperature_rms_c"),
+            validation_runs=tuple(str(r) for r in data.get("validation_runs", [])),
+            validation_marker_rms_um=_optional(data, "validation_marker_rms_um"),
+            validation_temperature_rms_c=_optional(data, "validation_temperature_rms_c"),
+            validation_preset_marker_rms_um=_optional(data, "validation_preset_marker_rms_um"),
         )
     except ArmModelError as err:
         raise ArmModelError(f"{path}: {err}") from err

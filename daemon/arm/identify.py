@@ -316,6 +316,31 @@ def identify_arm(
     )
 
 
+def evaluate_arm(
+    identification: ArmIdentification | None, run: ArmRunData, model: ArmModelSpec
+) -> ArmFitQuality:
+    """How well ``identification``'s parameters (None: the preset's, every factor 1 and no IR
+    offset) predict another recorded run of the same arm: the residual RMS of its tool
+    translation and IR regions, nothing refitted (the arm's analogue of
+    :func:`daemon.model.identify.evaluate`). An offset of a region the run did not record is
+    left out; a region it recorded with no identified offset is predicted with none."""
+    used = [r for r in model.regions if r in run.region_c]
+    if identification is None:
+        specs: list[Parameter] = []
+        values = np.zeros(0)
+    else:
+        pairs = [
+            (spec, value)
+            for spec, value in zip(identification.specs, identification.values, strict=True)
+            if spec.kind != "offset" or set(spec.targets) <= set(used)
+        ]
+        specs = [spec for spec, _ in pairs]
+        values = np.array([value for _, value in pairs], dtype=np.float64)
+    if len(model.sensitivities) <= int(run.pose_index.max()):
+        raise IdentificationError(f"{run.name}: a measurement names a pose with no sensitivity")
+    return _ArmProblem(run, model, specs).quality(values)
+
+
 __all__ = [
     "SENSITIVITY_STRAIN",
     "ArmFitQuality",
@@ -327,6 +352,7 @@ __all__ = [
     "Responses",
     "apply_values",
     "default_parameters",
+    "evaluate_arm",
     "identify_arm",
     "marker_sensitivity",
     "parse_parameters",

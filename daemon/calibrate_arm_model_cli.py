@@ -1,0 +1,237 @@
+"""``thermocomp calibrate model`` on an arm (``[arm] enabled``, issue 20): the two-link chain
+(daemon/calibrate_model_cli.py) with the arm's steps, each still a command of its own:
+
+1. an uncompensated calibration run of the duty cycle
+   (``thermocomp run --compensation off``);
+2. the arm's identification from it, saved in the data directory as arm model NAME
+   (``thermocomp identify RUN --save NAME``; daemon/arm_identify_cli.py): each joint's heat,
+   convection, alpha and the IR offsets, the identifiable ones refitted;
+3. a compensated validation run with that model (``thermocomp run --arm-model NAME
+   --reference-run RUN``): its 3-D residual, the reduction against the calibration run's
+   drift (same arm, same duty cycle, uncompensated), and the residual RMS over the 3-D
+   measurement's own 1-sigma; then, as ``identify --validate`` does, the validation run's
+   thermal displacement (its measured drift minus the correction commanded) predicted by the
+   identified model and by the preset, nothing refitted.
+
+Each run has a daemon of its own, opened and closed around it: identification computes with no
+device open, so a virtual clock cannot jump meanwhile (the two-link chain's rule). There is no
+deformation scale here (``--scale`` is the two-link bench's, thesis 6.3) and no network
+(``--network``): the arm's model is its arm file's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from config import Settings
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from daemon.calibrate_model_cli import PROG, StepFailedError, run_alone
+
+if TYPE_CHECKING:
+    from daemon.arm.identify import ArmIdentification
+    from daemon.arm_identify_cli import ArmRun
+
+
+def run_calibrate_arm_model(args: argparse.Namespace, settings: Settings) -> int:
+    """The arm chain (module docstring); the exit statuses of the two-link one."""
+    from daemon.arm.arm_model import new_arm_model_path
+
+    for given, option in ((args.network, "--network"), (args.scale, "--scale")):
+        if given is not None:
+            print(
+                f"{PROG}: {option} is for the two-link bench; an arm is identified against its "
+                "own arm file and duty cycle, at scale 1",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
+    if settings.arm.duty_cycle is None:
+        print(
+            f"{PROG}: an arm is calibrated on a duty cycle: give --duty-cycle NAME|PATH or set "
+            "arm.duty_cycle",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    try:
+        saved = new_arm_model_path(args.save, settings.storage.data_dir)
+    except ValueError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        outcome, table = asyncio.run(_chain(settings, args, saved))
+    except StepFailedError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return err.status
+    if args.json:
+        from daemon.run_cli import _finite
+
+        print(json.dumps(_finite(outcome), indent=2, default=str, allow_nan=False))
+    else:
+        _print(outcome, table)
+    return EXIT_OK
+
+
+def _identify_and_save(
+    settings: Settings,
+    run_id: int,
+    name: str,
+    saved: Path,
+    outcome: dict[str, Any],
+    *,
+    params: list[str] | None,
+) -> tuple[str, ArmRun, ArmIdentification]:
+    """Step 2, blocking (SciPy, SQLite read-only, one file): the identification table, the
+    run as identification read it, and the refit the saved model holds."""
+    from daemon.arm.arm_model import arm_model_toml
+    from daemon.arm_identify_cli import (
+        ArmRunInputError,
+        arm_model_of,
+        format_arm_result,
+        identify_arm_run,
+        load_arm_run,
+    )
+    from daemon.identify_cli import write_outputs
+    from daemon.model.identify import IdentificationError
+
+    try:
+        run = load_arm_run(settings.storage.data_dir, run_id)
+    except (ArmRunInputError, OSError) as err:
+        raise StepFailedError(f"identification: {err}", EXIT_FAILURE) from err
+    try:
+        full, refit = identify_arm_run(run, params)
+    except IdentificationError as err:
+        raise StepFailedError(f"identification: {err}", EXIT_USAGE) from err
+    model = arm_model_of(name, run, full, refit)
+    header = f"identified by {PROG} from run {run_id} (arm {model.arm})"
+    try:
+        write_outputs([saved], arm_model_toml(model, header=header))
+    except OSError as err:
+        raise StepFailedError(f"cannot save {saved}: {err}", EXIT_FAILURE) from err
+    outcome["identified"] = {
+        "all": full.to_dict(),
+        "refit": refit.to_dict(),
+        "arm_model": model.provenance(),
+    }
+    return format_arm_result(full, refit), run, refit
+
+
+def _prediction_check(
+    settings: Settings, run: ArmRun, refit: ArmIdentification, validation: int
+) -> dict[str, Any]:
+    """Step 3's offline part: the validation run predicted by the identified model and by the
+    preset, nothing refitted (blocking)."""
+    from daemon.arm_identify_cli import ArmRunInputError, load_arm_run, validate_arm_run
+    from daemon.model.identify import IdentificationError
+
+    try:
+        other = load_arm_run(settings.storage.data_dir, validation)
+        return validate_arm_run(run, refit, other).to_dict()
+    except (ArmRunInputError, IdentificationError, OSError) as err:
+        raise StepFailedError(f"validation: {err}", EXIT_FAILURE) from err
+
+
+async def _chain(
+    settings: Settings, args: argparse.Namespace, saved: Path
+) -> tuple[dict[str, Any], str]:
+    outcome: dict[str, Any] = {"arm_model": args.save, "arm_model_file": str(saved)}
+    calibration = await run_alone(settings, "calibration run", compensation="off")
+    outcome["calibration_run"] = _run_view(calibration)
+    calibration_id = int(calibration["id"])
+    # blocking: nothing else runs meanwhile (no daemon is open)
+    table, run, refit = _identify_and_save(
+        settings, calibration_id, args.save, saved, outcome, params=args.params
+    )
+    if args.no_validate:
+        return outcome, table
+    if args.cool_down > 0:  # a lab's arm cools in real time
+        await asyncio.sleep(args.cool_down)
+    validation = await run_alone(
+        settings,
+        "validation run",
+        compensation="absolute",
+        arm_model=args.save,
+        reference_run=calibration_id,
+    )
+    view = _run_view(validation)
+    drift_rms = outcome["calibration_run"]["drift_3d_rms_um"]
+    residual_rms = view["drift_3d_rms_um"]
+    view["reduction_3d_rms_percent"] = (
+        100.0 * (1.0 - residual_rms / drift_rms) if residual_rms is not None and drift_rms else None
+    )
+    outcome["validation_run"] = view
+    outcome["prediction"] = _prediction_check(settings, run, refit, int(validation["id"]))
+    return outcome, table
+
+
+_SUMMARY_KEYS = (
+    "arm_n",
+    "duty_cycle",
+    "drift_3d_max_um",
+    "drift_3d_rms_um",
+    "rotation_error_max_urad",
+    "rotation_error_rms_urad",
+    "measurement_sigma_um",
+    "reduction_basis",
+    "reference_run",
+    "reference_drift_3d_max_um",
+    "reduction_3d_percent",
+    "reduction_rotation_percent",
+)
+
+
+def _run_view(final: dict[str, Any]) -> dict[str, Any]:
+    """A run's figures for the chain's report: the arm summary's, and the 3-D RMS over the
+    measurement's own 1-sigma."""
+    summary = final.get("summary") or {}
+    view = {
+        "id": final["id"],
+        "state": final["state"],
+        **{k: summary.get(k) for k in _SUMMARY_KEYS},
+    }
+    rms, sigma = view["drift_3d_rms_um"], view["measurement_sigma_um"]
+    view["rms_over_noise"] = rms / sigma if rms is not None and sigma else None
+    return view
+
+
+def _print(outcome: dict[str, Any], table: str) -> None:
+    calibration = outcome["calibration_run"]
+    print(
+        f"1. calibration run {calibration['id']} ({calibration['duty_cycle']}, compensation "
+        f"off): 3-D drift max {_number(calibration['drift_3d_max_um'])} um, RMS "
+        f"{_number(calibration['drift_3d_rms_um'])} um"
+    )
+    print(f"2. identified and saved as arm model {outcome['arm_model']!r} "
+          f"({outcome['arm_model_file']}):")  # fmt: skip
+    print("\n".join(f"     {line}" for line in table.splitlines()))
+    validation = outcome.get("validation_run")
+    if validation is None:
+        print("3. validation skipped (--no-validate)")
+        return
+    print(
+        f"3. validation run {validation['id']} with --arm-model {outcome['arm_model']}: 3-D "
+        f"residual max {_number(validation['drift_3d_max_um'])} um, RMS "
+        f"{_number(validation['drift_3d_rms_um'])} um = "
+        f"{_number(validation['rms_over_noise'])} x the 3-D measurement's 1-sigma "
+        f"({_number(validation['measurement_sigma_um'])} um); reduction of the drift of run "
+        f"{validation['reference_run']}: {_number(validation['reduction_3d_percent'])} % "
+        f"(largest), {_number(validation['reduction_3d_rms_percent'])} % (RMS); rotation "
+        f"error RMS {_number(validation['rotation_error_rms_urad'])} urad"
+    )
+    prediction = outcome["prediction"]
+    identified, preset = prediction["identified"], prediction["preset"]
+    print(
+        f"   its thermal displacement predicted, nothing refitted: identified model RMS "
+        f"{_um(identified['marker_rms_mm'])} um, preset {_um(preset['marker_rms_mm'])} um"
+    )
+
+
+def _um(value_mm: object) -> str:
+    return _number(1000.0 * value_mm) if isinstance(value_mm, float) else "-"
+
+
+def _number(value: object) -> str:
+    return f"{value:.3g}" if isinstance(value, float) else "-" if value is None else str(value)
