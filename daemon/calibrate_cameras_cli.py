@@ -22,12 +22,18 @@ z are the marker's own positions), i.e. at ``R marker + p`` in the world. With
 ``--fit-marker`` that offset is only the starting guess and is fitted together with the
 cameras (the tool must turn between poses).
 
-Driving the arm through the daemon to record the observations is not part of this command yet:
-record them with the arm (its commanded tool poses and the centroids) and pass the CSV.
+* or measured with the arm: ``--robot`` (with ``--config``: the ``[arm]`` section, its camera
+  file as the initial guess, its cameras and markers) teaches the goal (``--here``, or the duty
+  cycle's pose ``--station NAME``), moves the tool through the cube of ``--per-axis``³ poses
+  ±``--size`` mm about it, turned at random by up to ``--turn`` rad (the whole pattern within
+  arm.calibration_max_* or the arm's correction limits, else nothing moves), grabs a frame from
+  every camera at each and finds every marker near where the initial guess puts it
+  (daemon/camera_calibration_run.py); cameras that saw too few markers keep their pose.
 
 Exit statuses: 0 calibrated; 1 a fit failed (a camera saw the marker at fewer than four
-positions, positions on one line, an offset the moves do not determine); 2 bad usage, an
-unreadable camera file or CSV.
+positions, positions on one line, an offset the moves do not determine; with --robot: no camera
+could be fitted) or a device failed; 2 bad usage, an unreadable camera file or CSV, a pattern
+beyond the limits.
 """
 
 from __future__ import annotations
@@ -41,7 +47,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, positive_float
+from config.cli import (
+    EXIT_FAILURE,
+    EXIT_OK,
+    EXIT_USAGE,
+    add_config_argument,
+    positive_float,
+)
 
 if TYPE_CHECKING:
     from daemon.vision.camera_pose import CameraPoseFit
@@ -83,12 +95,40 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
-        "--cameras", type=Path, required=True, metavar="FILE", help="camera file (intrinsics)"
+        "--cameras",
+        type=Path,
+        metavar="FILE",
+        help="camera file (intrinsics; with --robot the initial guess, default arm.cameras_file)",
     )
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--observations", type=Path, metavar="CSV", help="recorded observations")
     source.add_argument(
         "--simulate", type=Path, metavar="TRUTH", help="camera file of the true cameras"
+    )
+    source.add_argument(
+        "--robot",
+        action="store_true",
+        help="move the arm through the pattern and grab the frames ([arm] of --config)",
+    )
+    add_config_argument(parser)
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument(
+        "--station",
+        metavar="NAME",
+        help="robot: calibrate around this pose of arm.duty_cycle (reached and taught first)",
+    )
+    where.add_argument(
+        "--here",
+        action="store_true",
+        help="robot: calibrate around where the robot stands (the default)",
+    )
+    parser.add_argument(
+        "--search-px",
+        type=int,
+        default=None,
+        metavar="PX",
+        help="robot: half-width of the window each marker is searched in around where the "
+        "camera file puts it (default 96)",
     )
     parser.add_argument(
         "--centre",
@@ -100,9 +140,9 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     parser.add_argument(
         "--size",
         type=positive_float,
-        default=50.0,
+        default=None,
         metavar="MM",
-        help="simulation: half-width of the cube (default 50)",
+        help="half-width of the cube (simulation: default 50; robot: half the limit)",
     )
     parser.add_argument(
         "--per-axis",
@@ -114,9 +154,10 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     parser.add_argument(
         "--turn",
         type=float,
-        default=0.0,
+        default=None,
         metavar="RAD",
-        help="simulation: turn the tool at random by up to this about each axis (default 0)",
+        help="turn the tool at random by up to this about each axis (simulation: default 0; "
+        "robot: within half the rotation limit)",
     )
     parser.add_argument(
         "--marker",
@@ -136,9 +177,11 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="X,Y,Z",
         help="simulation: the marker's true offset on the tool (default --marker)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="simulation: noise seed (default 0)")
     parser.add_argument(
-        "--save-observations", type=Path, metavar="CSV", help="simulation: write the rows here"
+        "--seed", type=int, default=0, help="simulation: noise seed; robot: turns (default 0)"
+    )
+    parser.add_argument(
+        "--save-observations", type=Path, metavar="CSV", help="simulation, robot: write the rows"
     )
     parser.add_argument(
         "--write", type=Path, metavar="FILE", help="write the calibrated camera file here"
@@ -334,9 +377,31 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
     if args.per_axis < 2:
         print(f"{PROG}: --per-axis must be 2 or more", file=sys.stderr)
         return EXIT_USAGE
-    if not (math.isfinite(args.turn) and 0.0 <= args.turn <= math.pi):
+    if args.turn is not None and not (math.isfinite(args.turn) and 0.0 <= args.turn <= math.pi):
         print(f"{PROG}: --turn must be between 0 and pi rad", file=sys.stderr)
         return EXIT_USAGE
+    if args.robot:
+        from daemon.calibrate_cameras_robot import run_with_robot
+
+        return run_with_robot(args)
+    robot_only = [
+        option
+        for option, value in (
+            ("--station", args.station),
+            ("--here", args.here),
+            ("--search-px", args.search_px),
+            ("--config", args.config),
+        )
+        if value
+    ]
+    if robot_only:
+        print(f"{PROG}: {robot_only[0]} goes with --robot", file=sys.stderr)
+        return EXIT_USAGE
+    if args.cameras is None:
+        print(f"{PROG}: --cameras FILE is needed (the cameras' intrinsics)", file=sys.stderr)
+        return EXIT_USAGE
+    args.size = 50.0 if args.size is None else args.size
+    args.turn = 0.0 if args.turn is None else args.turn
     try:
         cameras = load_cameras(args.cameras)
         truth = load_cameras(args.simulate) if args.simulate is not None else None
