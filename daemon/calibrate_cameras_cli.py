@@ -15,20 +15,21 @@ are either
   ``--turn`` rad about each axis (seeded); the marker at ``--true-marker`` on it is rendered
   with photon and read noise in every true camera and measured by the robust centroid;
   ``--save-observations`` keeps those rows as CSV; the output then also gives each camera's
-  error from the truth.
+  error from the truth, or
+* measured with the arm: ``--robot`` (with ``--config``: the ``[arm]`` section, its camera
+  file as the initial guess, its cameras and markers) teaches the goal (``--here``, the duty
+  cycle's pose ``--station NAME`` or ``--joints J1,...`` in degrees), moves the tool through
+  the cube of ``--per-axis``³ poses ±``--size`` mm about it, turned at random by up to
+  ``--turn`` rad (the whole pattern within arm.calibration_max_* or the arm's correction
+  limits, else nothing moves), grabs a frame from every camera at each and finds every marker
+  near where the initial guess puts it (daemon/camera_calibration_run.py); cameras that saw
+  too few markers keep their pose.
 
 The marker sits at ``--marker`` (mm, tool frame; default 0,0,0: the tool point, so that x, y,
 z are the marker's own positions), i.e. at ``R marker + p`` in the world. With
 ``--fit-marker`` that offset is only the starting guess and is fitted together with the
-cameras (the tool must turn between poses).
-
-* or measured with the arm: ``--robot`` (with ``--config``: the ``[arm]`` section, its camera
-  file as the initial guess, its cameras and markers) teaches the goal (``--here``, or the duty
-  cycle's pose ``--station NAME``), moves the tool through the cube of ``--per-axis``³ poses
-  ±``--size`` mm about it, turned at random by up to ``--turn`` rad (the whole pattern within
-  arm.calibration_max_* or the arm's correction limits, else nothing moves), grabs a frame from
-  every camera at each and finds every marker near where the initial guess puts it
-  (daemon/camera_calibration_run.py); cameras that saw too few markers keep their pose.
+cameras (the tool must turn between poses). With ``--robot`` every marker of arm.markers_mm
+is observed at its own position and the fitted offset is their common shift on the tool.
 
 Exit statuses: 0 calibrated; 1 a fit failed (a camera saw the marker at fewer than four
 positions, positions on one line, an offset the moves do not determine; with --robot: no camera
@@ -118,6 +119,12 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="robot: calibrate around this pose of arm.duty_cycle (reached and taught first)",
     )
     where.add_argument(
+        "--joints",
+        type=_angles,
+        metavar="J1,J2,...",
+        help="robot: calibrate around these joint angles (deg; reached and taught first)",
+    )
+    where.add_argument(
         "--here",
         action="store_true",
         help="robot: calibrate around where the robot stands (the default)",
@@ -198,6 +205,18 @@ def _triple(text: str) -> tuple[float, float, float]:
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z, got {text!r}")
     return values[0], values[1], values[2]
+
+
+def _angles(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(
+            f"expected joint angles J1,J2,... in deg, got {text!r}"
+        ) from err
+    if not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected finite joint angles, got {text!r}")
+    return values
 
 
 def read_observations(path: Path) -> list[Observation]:
@@ -388,6 +407,7 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
         option
         for option, value in (
             ("--station", args.station),
+            ("--joints", args.joints),
             ("--here", args.here),
             ("--search-px", args.search_px),
             ("--config", args.config),

@@ -43,6 +43,7 @@ from daemon.camera_calibration_run import (
     calibrate_with_robot,
     check_pattern,
     default_size_turn,
+    joints_pose,
     robot_pattern,
     station_pose,
 )
@@ -126,7 +127,8 @@ def fit_robot_rows(
             skipped[fit.camera.name] = (
                 f"its fit leaves {fit.residual_px:.3f} px RMS, reduced chi2 "
                 f"{fit.reduced_chi2:.0f} > {MAX_REDUCED_CHI2:g}: the tool was not where the "
-                "read-back put it (a goal at the wrist singularity? choose one off it)"
+                "read-back put it (a goal at the wrist singularity? choose one off it, e.g. "
+                "--joints with the wrist bent)"
             )
         else:
             kept.append(fit)
@@ -167,8 +169,10 @@ def run_with_robot(args: argparse.Namespace) -> int:
     try:
         shifts = robot_pattern(size, args.per_axis, turn, args.seed)
         check_pattern(settings, shifts)
-        if args.station is not None:
-            station_pose(settings, args.station)  # refused now, before anything opens
+        if args.station is not None:  # refused now, before anything opens
+            station_pose(settings, args.station)
+        if args.joints is not None:
+            joints_pose(settings, args.joints)
     except PatternError as err:
         return _usage(str(err))
     recording = Recording("")
@@ -179,6 +183,7 @@ def run_with_robot(args: argparse.Namespace) -> int:
                 models,
                 shifts,
                 station=args.station,
+                joints_deg=args.joints,
                 search_half_px=search,
                 recording=recording,
             )

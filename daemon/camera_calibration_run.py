@@ -403,24 +403,54 @@ def controller_frame_truth(
     return tuple(cameras), (float(np.linalg.norm(t_e)), 1000.0 * angle)
 
 
+#: The goal's name when it is given by ``--joints``.
+JOINTS_GOAL = "camcal"
+
+
+def joints_pose(
+    settings: Settings, joints_deg: Sequence[float]
+) -> tuple[str, FloatArray, FloatArray]:
+    """A goal given by the arm's joint angles (deg): (JOINTS_GOAL, joints rad, the controller's
+    tool pose 4x4); PatternError when the count or a joint's limits do not fit the arm."""
+    from daemon.arm.description import load_arm
+    from daemon.arm.kinematics import forward
+
+    arm = load_arm(settings.arm.arm_file)
+    q = np.radians(np.asarray(joints_deg, dtype=np.float64))
+    if q.size != arm.dof:
+        raise PatternError(f"--joints: {q.size} angles for the {arm.dof} joints of {arm.name}")
+    outside = np.flatnonzero((q < arm.lower_rad) | (q > arm.upper_rad))
+    if outside.size:
+        k = int(outside[0])
+        raise PatternError(
+            f"--joints: joint {k + 1} at {math.degrees(q[k]):g} deg is beyond its limits "
+            f"[{math.degrees(arm.lower_rad[k]):g}, {math.degrees(arm.upper_rad[k]):g}] deg"
+        )
+    return JOINTS_GOAL, q, np.asarray(forward(arm, q), dtype=np.float64)
+
+
 async def calibrate_with_robot(
     settings: Settings,
     models: Sequence[CameraModel],
     shifts: Sequence[Shift],
     *,
     station: str | None,
+    joints_deg: Sequence[float] | None = None,
     search_half_px: int = SEARCH_HALF_PX,
     recording: Recording | None = None,
 ) -> RobotRun:
     """Open the devices (drivers/factory.py), teach the goal — where the robot stands, or the
-    duty cycle's pose ``station`` reached by one absolute move as an arm run teaches it
-    (daemon/arm_robot.py) — record the pattern around it and close the devices."""
+    duty cycle's pose ``station`` or the joint angles ``joints_deg``, reached by one absolute
+    move as an arm run teaches its poses (daemon/arm_robot.py) — record the pattern around it
+    and close the devices."""
     from daemon.arm.run import MeasuredPose
     from daemon.arm_robot import GoalRobotArm
     from drivers.clock import make_clock
     from drivers.factory import open_devices
 
     target = station_pose(settings, station) if station is not None else None
+    if joints_deg is not None:
+        target = joints_pose(settings, joints_deg)
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     async with open_devices(settings, clock) as devices:
         robot = devices.robot

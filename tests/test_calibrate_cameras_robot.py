@@ -264,6 +264,44 @@ def test_a_station_at_the_wrist_singularity_is_refused_and_nothing_written(
         assert f"{name} its fit leaves" in line
 
 
+def test_the_camera_stations_cameras_from_a_goal_off_the_wrist_singularity(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The same station with the wrist bent by 10 degrees (joint 5): the tool's markers are
+    still in its cameras' views, the joints move smoothly, the cameras are recovered."""
+    truth = bench_cameras(load_settings(ARM_SIM))
+    guess = tmp_path / "guess.toml"
+    write_cameras(guess, perturbed(truth, seed=6))
+    status, out, err = run_in_process(
+        calibrate_cli.register,
+        [
+            "calibrate",
+            "cameras",
+            "--robot",
+            "--config",
+            str(lab_file(tmp_path, None)),
+            "--cameras",
+            str(guess),
+            "--joints",
+            "0,35,55,0,10,0",
+            "--per-axis",
+            "2",
+            "--json",
+        ],
+        capsys,
+    )
+    assert status == 0, err
+    data = json.loads(out)
+    assert data["goal"] == "camcal" and data["poses"] == 8 and data["returned_to_goal"]
+    fitted = {c["camera"]: c for c in data["cameras"]}
+    assert sorted(fitted) == ["s0-arm-0", "s0-arm-1", "s0-arm-2"]
+    for name, camera in fitted.items():
+        error = np.array(camera["centre_error_mm"])
+        assert np.linalg.norm(error) < 0.1, (name, error)  # 8 poses: a few tens of um
+        assert np.all(np.abs(error) < 4.0 * np.array(camera["centre_se_mm"]) + 0.005)
+        assert camera["reduced_chi2"] < 2.0
+
+
 # --- bad usage: exit 2, one line, nothing opened ---------------------------------------------
 
 
@@ -293,6 +331,8 @@ def no_devices(monkeypatch: pytest.MonkeyPatch) -> None:
         (["--fit-marker", "--turn", "0"], {}, "--fit-marker needs the tool to turn"),
         (["--station", "nowhere"], {}, "--station 'nowhere': not a pose of the duty cycle"),
         (["--per-axis", "1"], {}, "--per-axis must be 2 or more"),
+        (["--joints", "0,35,55"], {}, "--joints: 3 angles for the 6 joints of"),
+        (["--joints", "0,35,55,0,10,400"], {}, "--joints: joint 6 at 400 deg is beyond"),
     ],
 )
 def test_bad_patterns_are_refused_before_anything_opens(
