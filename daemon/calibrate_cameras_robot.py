@@ -254,9 +254,11 @@ def _report(
             }
         print(json.dumps(data, indent=2))
     else:
+        missed = ", ".join(f"{n} {k}" for n, k in record.missed.items() if k)
         print(
             f"# {record.poses} poses around the goal {record.goal!r} ({record.moves} moves), "
-            f"back at the goal: {'yes' if record.returned else 'NO'}"
+            f"back at the goal: {'yes' if record.returned else 'NO'}; markers the guess put "
+            f"on a chip but not found there: {missed or 'none'}"
         )
         for fit in calibrated.fits:
             print(_summary(fit, reference.get(fit.camera.name)))
