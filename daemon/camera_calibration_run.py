@@ -45,7 +45,7 @@ from daemon.vision import CentroidError
 from daemon.vision.camera_pose import grid_positions
 from daemon.vision.centroid import measure_centroid
 from daemon.vision.multiview import CameraModel, project
-from drivers.base import Camera, Frame, GoalRobot, Pose, Vector3
+from drivers.base import Camera, Frame, GoalRobot, Vector3
 from drivers.errors import DeviceError, DeviceTimeoutError
 
 logger = logging.getLogger(__name__)
@@ -234,12 +234,12 @@ def find_markers(
 
 @dataclass
 class Recording:
-    """What the pattern gave: the observation rows, the goal, how many poses were visited, and
-    per camera the poses at which it saw at least one marker and the markers it did not find
-    where its guess put them on its chip."""
+    """What the pattern gave: the observation rows, the goal, how many poses were visited (and
+    moves made), whether the robot is back at the goal, and per camera the poses at which it
+    saw at least one marker and the markers it did not find where its guess put them on its
+    chip."""
 
     goal: str
-    goal_pose: Pose | None = None
     rows: list[Observation] = field(default_factory=list)
     poses: int = 0
     moves: int = 0
@@ -281,7 +281,6 @@ async def record_pattern(
         raise ValueError(f"{len(cameras)} cameras but {len(models)} camera models")
     record = recording if recording is not None else Recording(goal)
     record.goal = goal
-    record.goal_pose = robot.taught_goals().get(goal)
     for model in models:
         record.seen_poses.setdefault(model.name, 0)
         record.missed.setdefault(model.name, 0)
