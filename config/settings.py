@@ -793,6 +793,20 @@ class ArmSettings(_Section):
     max_step_rotation_deg: Annotated[float, Field(gt=0, le=MAX_ARM_ROTATION_DEG)] = Field(
         0.05, description="Largest change of a pose's rotation between its corrections (deg)."
     )
+    calibration_max_translation_mm: Annotated[
+        float | None, Field(gt=0, le=MAX_ARM_TRANSLATION_MM)
+    ] = Field(
+        None,
+        description="`calibrate cameras --robot`: farthest the pattern may move the tool from "
+        "its goal (mm); none: arm.max_translation_mm.",
+    )
+    calibration_max_rotation_deg: Annotated[float | None, Field(gt=0, le=MAX_ARM_ROTATION_DEG)] = (
+        Field(
+            None,
+            description="`calibrate cameras --robot`: largest turn of the tool from its goal "
+            "(deg); none: arm.max_rotation_deg.",
+        )
+    )
     motion_dt_s: Annotated[float, Field(gt=0, le=10)] = Field(
         0.05, description="Time step of the duty cycle's motion samples for motor heat (s)."
     )

@@ -15,19 +15,26 @@ are either
   ``--turn`` rad about each axis (seeded); the marker at ``--true-marker`` on it is rendered
   with photon and read noise in every true camera and measured by the robust centroid;
   ``--save-observations`` keeps those rows as CSV; the output then also gives each camera's
-  error from the truth.
+  error from the truth, or
+* measured with the arm: ``--robot`` (with ``--config``: the ``[arm]`` section, its camera
+  file as the initial guess, its cameras and markers) teaches the goal (``--here``, the duty
+  cycle's pose ``--station NAME`` or ``--joints J1,...`` in degrees), moves the tool through
+  the cube of ``--per-axis``³ poses ±``--size`` mm about it, turned at random by up to
+  ``--turn`` rad (the whole pattern within arm.calibration_max_* or the arm's correction
+  limits, else nothing moves), grabs a frame from every camera at each and finds every marker
+  near where the initial guess puts it (daemon/camera_calibration_run.py); cameras that saw
+  too few markers keep their pose.
 
 The marker sits at ``--marker`` (mm, tool frame; default 0,0,0: the tool point, so that x, y,
 z are the marker's own positions), i.e. at ``R marker + p`` in the world. With
 ``--fit-marker`` that offset is only the starting guess and is fitted together with the
-cameras (the tool must turn between poses).
-
-Driving the arm through the daemon to record the observations is not part of this command yet:
-record them with the arm (its commanded tool poses and the centroids) and pass the CSV.
+cameras (the tool must turn between poses). With ``--robot`` every marker of arm.markers_mm
+is observed at its own position and the fitted offset is their common shift on the tool.
 
 Exit statuses: 0 calibrated; 1 a fit failed (a camera saw the marker at fewer than four
-positions, positions on one line, an offset the moves do not determine); 2 bad usage, an
-unreadable camera file or CSV.
+positions, positions on one line, an offset the moves do not determine; with --robot: no camera
+could be fitted) or a device failed; 2 bad usage, an unreadable camera file or CSV, a pattern
+beyond the limits.
 """
 
 from __future__ import annotations
@@ -41,7 +48,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, positive_float
+from config.cli import (
+    EXIT_FAILURE,
+    EXIT_OK,
+    EXIT_USAGE,
+    add_config_argument,
+    positive_float,
+)
 
 if TYPE_CHECKING:
     from daemon.vision.camera_pose import CameraPoseFit
@@ -83,12 +96,46 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
-        "--cameras", type=Path, required=True, metavar="FILE", help="camera file (intrinsics)"
+        "--cameras",
+        type=Path,
+        metavar="FILE",
+        help="camera file (intrinsics; with --robot the initial guess, default arm.cameras_file)",
     )
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--observations", type=Path, metavar="CSV", help="recorded observations")
     source.add_argument(
         "--simulate", type=Path, metavar="TRUTH", help="camera file of the true cameras"
+    )
+    source.add_argument(
+        "--robot",
+        action="store_true",
+        help="move the arm through the pattern and grab the frames ([arm] of --config)",
+    )
+    add_config_argument(parser)
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument(
+        "--station",
+        metavar="NAME",
+        help="robot: calibrate around this pose of arm.duty_cycle (reached and taught first)",
+    )
+    where.add_argument(
+        "--joints",
+        type=_angles,
+        metavar="J1,J2,...",
+        help="robot: calibrate around these joint angles (deg; reached and taught first)",
+    )
+    where.add_argument(
+        "--here",
+        action="store_true",
+        help="robot: calibrate around where the robot stands (the default)",
+    )
+    parser.add_argument(
+        "--search-px",
+        type=int,
+        default=None,
+        metavar="PX",
+        help="robot: half-width of the window each marker is searched in around where the "
+        "camera file puts it (default 96)",
     )
     parser.add_argument(
         "--centre",
@@ -100,9 +147,9 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     parser.add_argument(
         "--size",
         type=positive_float,
-        default=50.0,
+        default=None,
         metavar="MM",
-        help="simulation: half-width of the cube (default 50)",
+        help="half-width of the cube (simulation: default 50; robot: half the limit)",
     )
     parser.add_argument(
         "--per-axis",
@@ -114,9 +161,10 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     parser.add_argument(
         "--turn",
         type=float,
-        default=0.0,
+        default=None,
         metavar="RAD",
-        help="simulation: turn the tool at random by up to this about each axis (default 0)",
+        help="turn the tool at random by up to this about each axis (simulation: default 0; "
+        "robot: within half the rotation limit)",
     )
     parser.add_argument(
         "--marker",
@@ -136,9 +184,11 @@ def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="X,Y,Z",
         help="simulation: the marker's true offset on the tool (default --marker)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="simulation: noise seed (default 0)")
     parser.add_argument(
-        "--save-observations", type=Path, metavar="CSV", help="simulation: write the rows here"
+        "--seed", type=int, default=0, help="simulation: noise seed; robot: turns (default 0)"
+    )
+    parser.add_argument(
+        "--save-observations", type=Path, metavar="CSV", help="simulation, robot: write the rows"
     )
     parser.add_argument(
         "--write", type=Path, metavar="FILE", help="write the calibrated camera file here"
@@ -155,6 +205,18 @@ def _triple(text: str) -> tuple[float, float, float]:
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"expected three finite numbers X,Y,Z, got {text!r}")
     return values[0], values[1], values[2]
+
+
+def _angles(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(
+            f"expected joint angles J1,J2,... in deg, got {text!r}"
+        ) from err
+    if not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected finite joint angles, got {text!r}")
+    return values
 
 
 def read_observations(path: Path) -> list[Observation]:
@@ -334,9 +396,32 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
     if args.per_axis < 2:
         print(f"{PROG}: --per-axis must be 2 or more", file=sys.stderr)
         return EXIT_USAGE
-    if not (math.isfinite(args.turn) and 0.0 <= args.turn <= math.pi):
+    if args.turn is not None and not (math.isfinite(args.turn) and 0.0 <= args.turn <= math.pi):
         print(f"{PROG}: --turn must be between 0 and pi rad", file=sys.stderr)
         return EXIT_USAGE
+    if args.robot:
+        from daemon.calibrate_cameras_robot import run_with_robot
+
+        return run_with_robot(args)
+    robot_only = [
+        option
+        for option, value in (
+            ("--station", args.station),
+            ("--joints", args.joints),
+            ("--here", args.here),
+            ("--search-px", args.search_px),
+            ("--config", args.config),
+        )
+        if value
+    ]
+    if robot_only:
+        print(f"{PROG}: {robot_only[0]} goes with --robot", file=sys.stderr)
+        return EXIT_USAGE
+    if args.cameras is None:
+        print(f"{PROG}: --cameras FILE is needed (the cameras' intrinsics)", file=sys.stderr)
+        return EXIT_USAGE
+    args.size = 50.0 if args.size is None else args.size
+    args.turn = 0.0 if args.turn is None else args.turn
     try:
         cameras = load_cameras(args.cameras)
         truth = load_cameras(args.simulate) if args.simulate is not None else None

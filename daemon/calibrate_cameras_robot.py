@@ -1,0 +1,285 @@
+"""``thermocomp calibrate cameras --robot`` (issue 20): the checks before anything moves, the
+pattern on the arm (:mod:`daemon.camera_calibration_run`), the fits of every camera that saw
+enough markers (:mod:`daemon.calibrate_cameras_cli`: each camera alone, or with
+``--fit-marker`` every camera and the markers' common offset together) and the camera file.
+
+A camera that saw fewer than four markers (another station's camera, one whose guess is too far
+off) is not fitted: it is named with the reason and keeps its pose from the initial file, so a
+rig with a station per measured pose is calibrated one ``--station`` at a time into the same
+file. Exit statuses as the command's: 0 at least one camera calibrated; 1 a device error
+(the pattern stopped, the robot returned to the goal when the driver let it), no camera fitted
+or a failed fit; 2 bad usage (no [arm], no camera file, a pattern beyond the limits, an unknown
+station, cameras and camera file that do not match).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from config import load_settings
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
+from daemon.calibrate_cameras_cli import (
+    PROG,
+    Calibrated,
+    Observation,
+    _as_dict,
+    _summary,
+    fit_known_marker,
+    fit_with_marker,
+    write_observations,
+)
+from daemon.camera_calibration_run import (
+    SEARCH_HALF_PX,
+    PatternError,
+    Recording,
+    RobotRun,
+    calibrate_with_robot,
+    check_pattern,
+    default_size_turn,
+    joints_pose,
+    robot_pattern,
+    station_pose,
+)
+from daemon.vision.camera_pose import MIN_POSE_POINTS
+from daemon.vision.cameras import CameraFileError, CameraModel, load_cameras, write_cameras
+from daemon.vision.multiview import MultiviewError
+from drivers.errors import DeviceError
+
+#: A camera is fitted only when the marker positions it saw spread across its view by at
+#: least this fraction of its distance (RMS about their mean along the second principal axis):
+#: a few millimetres' cluster 700 mm away (one marker of another station at the edge of the
+#: frame, followed through the pattern) leaves the pose's depth and rotation undetermined. The
+#: arm bench's 120 mm marker plate at 700 mm spreads over ~6 %.
+MIN_SPREAD_OF_DISTANCE = 0.02
+
+
+#: A fitted camera is kept only when its reduced chi² (residuals over the centroids' sigmas)
+#: is below this: residuals five times the noise mean the read-back tool poses are not where
+#: the markers were (e.g. at a wrist singularity the controller swings joints 4 and 6 for a
+#: small move, and the real wrist, not exactly spherical, carries the tool elsewhere).
+MAX_REDUCED_CHI2 = 25.0
+
+
+def _usage(message: str) -> int:
+    print(f"{PROG}: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def fit_robot_rows(
+    cameras: tuple[CameraModel, ...], rows: list[Observation], fit_marker: bool
+) -> tuple[Calibrated | None, dict[str, str]]:
+    """The fitted cameras (those with at least MIN_POSE_POINTS markers seen; each alone, or all
+    with the markers' common offset) and, by name, why each other camera was not fitted."""
+    skipped: dict[str, str] = {}
+    usable = []
+    for camera in cameras:
+        points = np.array([row.position_mm for row in rows if row.camera == camera.name])
+        if points.size == 0:
+            skipped[camera.name] = "saw no marker at any pose"
+            continue
+        if len(points) < MIN_POSE_POINTS:
+            skipped[camera.name] = (
+                f"saw only {len(points)} marker(s): a pose needs {MIN_POSE_POINTS}"
+            )
+            continue
+        spread = float(
+            np.sqrt(
+                np.linalg.svd(points - points.mean(axis=0), compute_uv=False)[1] ** 2 / len(points)
+            )
+        )
+        distance = float(np.linalg.norm(points.mean(axis=0) - camera.centre_mm))
+        if spread < MIN_SPREAD_OF_DISTANCE * distance:
+            skipped[camera.name] = (
+                f"the {len(points)} marker positions it saw spread over {spread:.2f} mm (RMS "
+                f"across), {100 * spread / distance:.2f} % of its distance: at least "
+                f"{100 * MIN_SPREAD_OF_DISTANCE:g} % fixes a pose (a marker of another "
+                "station at its edge?)"
+            )
+            continue
+        usable.append(camera)
+    if not usable:
+        return None, skipped
+    names = {camera.name for camera in usable}
+    mine = [row for row in rows if row.camera in names]
+    if fit_marker:
+        joint = fit_with_marker(tuple(usable), mine, (0.0, 0.0, 0.0))
+        fits, marker, marker_se = list(joint.fits), joint.marker_mm, joint.marker_se_mm
+    else:
+        fits, marker, marker_se = [], (0.0, 0.0, 0.0), None
+        for camera in usable:
+            try:
+                own = [row for row in mine if row.camera == camera.name]
+                one = fit_known_marker((camera,), own, (0.0, 0.0, 0.0))
+            except (MultiviewError, cv2.error) as err:
+                skipped[camera.name] = str(err).strip().splitlines()[-1]
+                continue
+            fits.extend(one.fits)
+    kept = []
+    for fit in fits:
+        if fit.reduced_chi2 > MAX_REDUCED_CHI2:
+            skipped[fit.camera.name] = (
+                f"its fit leaves {fit.residual_px:.3f} px RMS, reduced chi2 "
+                f"{fit.reduced_chi2:.0f} > {MAX_REDUCED_CHI2:g}: the tool was not where the "
+                "read-back put it (a goal at the wrist singularity? choose one off it, e.g. "
+                "--joints with the wrist bent)"
+            )
+        else:
+            kept.append(fit)
+    if not kept:
+        return None, skipped
+    return Calibrated(kept, marker, marker_se), skipped
+
+
+def run_with_robot(args: argparse.Namespace) -> int:
+    settings = load_settings(args.config)
+    if not settings.arm.enabled:
+        return _usage(
+            "--robot needs the [arm] section with enabled = true (the arm, its markers and "
+            "the cameras watching them)"
+        )
+    path = args.cameras or (
+        Path(settings.arm.cameras_file) if settings.arm.cameras_file is not None else None
+    )
+    if path is None:
+        return _usage(
+            "no camera file: give --cameras FILE or set arm.cameras_file (the initial guess: "
+            "intrinsics known, poses approximate)"
+        )
+    try:
+        models = load_cameras(path)
+    except CameraFileError as err:
+        return _usage(str(err))
+    size, turn = default_size_turn(settings)
+    size = size if args.size is None else args.size
+    # turns only make the markers' offset observable: without --fit-marker the tool keeps its
+    # orientation (an offset then shifts every camera alike; README)
+    turn = (turn if args.fit_marker else 0.0) if args.turn is None else args.turn
+    if args.fit_marker and turn == 0.0:
+        return _usage("--fit-marker needs the tool to turn: --turn must be above 0")
+    search = SEARCH_HALF_PX if args.search_px is None else args.search_px
+    if search < 4:
+        return _usage("--search-px must be 4 or more")
+    try:
+        shifts = robot_pattern(size, args.per_axis, turn, args.seed)
+        check_pattern(settings, shifts)
+        if args.station is not None:  # refused now, before anything opens
+            station_pose(settings, args.station)
+        if args.joints is not None:
+            joints_pose(settings, args.joints)
+    except PatternError as err:
+        return _usage(str(err))
+    recording = Recording("")
+    try:
+        run = asyncio.run(
+            calibrate_with_robot(
+                settings,
+                models,
+                shifts,
+                station=args.station,
+                joints_deg=args.joints,
+                search_half_px=search,
+                recording=recording,
+            )
+        )
+    except PatternError as err:
+        return _usage(str(err))
+    except DeviceError as err:
+        back = "returned to" if recording.returned else "could NOT return to"
+        print(
+            f"{PROG}: {err}; the pattern stopped after {recording.poses} of {len(shifts)} poses, "
+            f"the robot {back} the goal {recording.goal!r}",
+            file=sys.stderr,
+        )
+        return EXIT_FAILURE
+    rows = run.recording.rows
+    if args.save_observations is not None:
+        write_observations(args.save_observations, rows)
+    try:
+        calibrated, skipped = fit_robot_rows(models, rows, args.fit_marker)
+    except MultiviewError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    if calibrated is None:
+        print(
+            f"{PROG}: no camera calibrated from {run.recording.poses} poses: "
+            + "; ".join(f"{name} {why}" for name, why in skipped.items())
+            + " (is the goal in front of the cameras? is the camera file's guess near?)",
+            file=sys.stderr,
+        )
+        return EXIT_FAILURE
+    _report(args, run, models=models, calibrated=calibrated, skipped=skipped, guess_path=path)
+    return EXIT_OK
+
+
+def _report(
+    args: argparse.Namespace,
+    run: RobotRun,
+    *,
+    models: tuple[CameraModel, ...],
+    calibrated: Calibrated,
+    skipped: dict[str, str],
+    guess_path: Path,
+) -> None:
+    record = run.recording
+    fitted = {fit.camera.name: fit for fit in calibrated.fits}
+    cameras = [fitted[m.name].camera if m.name in fitted else m for m in models]
+    reference = {m.name: r for m, r in zip(models, run.reference or (), strict=False)}
+    if args.json:
+        data: dict[str, object] = {
+            "goal": record.goal,
+            "poses": record.poses,
+            "moves": record.moves,
+            "returned_to_goal": record.returned,
+            "cameras": [_as_dict(f, reference.get(f.camera.name)) for f in calibrated.fits],
+            "not_fitted": [{"camera": n, "reason": why} for n, why in skipped.items()],
+            "markers_seen": {m.name: record.seen_poses.get(m.name, 0) for m in models},
+            "markers_missed": dict(record.missed),
+            "marker_mm": list(calibrated.marker_mm),
+            "marker_se_mm": (
+                list(calibrated.marker_se_mm) if calibrated.marker_se_mm is not None else None
+            ),
+        }
+        if run.kinematic_error is not None:
+            # the arm bench: errors above are from the truth as the controller's frame sees it
+            data["bench_kinematic_error"] = {
+                "translation_mm": run.kinematic_error[0],
+                "rotation_mrad": run.kinematic_error[1],
+            }
+        print(json.dumps(data, indent=2))
+    else:
+        missed = ", ".join(f"{n} {k}" for n, k in record.missed.items() if k)
+        print(
+            f"# {record.poses} poses around the goal {record.goal!r} ({record.moves} moves), "
+            f"back at the goal: {'yes' if record.returned else 'NO'}; markers the guess put "
+            f"on a chip but not found there: {missed or 'none'}"
+        )
+        for fit in calibrated.fits:
+            print(_summary(fit, reference.get(fit.camera.name)))
+        for name, why in skipped.items():
+            print(f"# {name}: not fitted, {why}: its pose is kept from {guess_path}")
+        if calibrated.marker_se_mm is not None:
+            offset = ", ".join(
+                f"{v:.4f}+-{s:.4f}"
+                for v, s in zip(calibrated.marker_mm, calibrated.marker_se_mm, strict=True)
+            )
+            print(f"# the markers' common offset from arm.markers_mm: ({offset}) mm, tool frame")
+        if run.kinematic_error is not None:
+            print(
+                "# arm bench: errors are from the truth's cameras in the controller's frame "
+                f"(the arm's kinematic error at the goal: {run.kinematic_error[0]:.3f} mm, "
+                f"{run.kinematic_error[1]:.3f} mrad)"
+            )
+        if args.write is None:
+            from daemon.vision.cameras import cameras_toml
+
+            print(cameras_toml(cameras), end="")
+    if args.write is not None:
+        write_cameras(args.write, cameras)
+        print(f"# written to {args.write}", file=sys.stderr)
