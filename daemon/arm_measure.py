@@ -64,6 +64,20 @@ class SensorNoise:
     read_noise_e: float = 5.0
 
 
+def device_sensors(
+    settings: Settings, count: int
+) -> tuple[tuple[SensorNoise, ...], tuple[float, ...]]:
+    """Each of ``count`` tool cameras' sensor noise and grab timeout (s): on hardware its own
+    ``arm.camera_devices`` entry (same order as the camera file), on the arm bench's simulated
+    cameras the ``[camera]`` section's."""
+    devices = settings.arm.camera_devices
+    own = devices if len(devices) == count else (settings.camera,) * count
+    return (
+        tuple(SensorNoise(d.gain_e_per_count, d.read_noise_e) for d in own),
+        tuple(d.grab_timeout_s for d in own),
+    )
+
+
 def marker_views(
     cameras: Sequence[CameraModel],
     frames: Sequence[Frame],
@@ -236,12 +250,7 @@ class MultiCameraMeter:
         self._models = tuple(models)
         self._workers = workers
         self._markers: NDArray[np.float64] = np.array(settings.arm.markers_mm, dtype=np.float64)
-        # each device's own sensor and grab timeout on hardware (arm.camera_devices, same
-        # order); the [camera] section's for the arm bench's simulated cameras
-        devices = settings.arm.camera_devices
-        own = devices if len(devices) == len(self._cameras) else (settings.camera,) * len(models)
-        self._sensors = tuple(SensorNoise(d.gain_e_per_count, d.read_noise_e) for d in own)
-        self._timeouts_s = tuple(d.grab_timeout_s for d in own)
+        self._sensors, self._timeouts_s = device_sensors(settings, len(models))
         self._frames = settings.arm.frames_per_measurement
 
     async def measure(self, expected_pose: FloatArray) -> ToolMeasurement:

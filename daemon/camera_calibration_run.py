@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation
 
 from config import Settings
 from daemon.arm.types import FloatArray
-from daemon.arm_measure import WINDOW_HALF_PX
+from daemon.arm_measure import WINDOW_HALF_PX, SensorNoise, device_sensors
 from daemon.arm_robot import pose_matrix
 from daemon.calibrate_cameras_cli import Observation
 from daemon.vision import CentroidError
@@ -185,7 +185,13 @@ def _window(image: np.ndarray, x: float, y: float, half: int) -> tuple[np.ndarra
 
 
 def _measure_marker(
-    image: np.ndarray, x: float, y: float, bit_depth: int, search_half_px: int
+    image: np.ndarray,
+    x: float,
+    y: float,
+    *,
+    bit_depth: int,
+    search_half_px: int,
+    noise: SensorNoise,
 ) -> tuple[float, float, float, float] | None:
     """The spot near (x, y): searched in the wide window, measured again in the window centred
     on it; (x, y, sigma_x, sigma_y) in frame pixels, or None (off the chip, not found, cut)."""
@@ -198,7 +204,12 @@ def _measure_marker(
             return None
         part, c0, r0 = window
         try:
-            result = measure_centroid(part, bit_depth=bit_depth)
+            result = measure_centroid(
+                part,
+                bit_depth=bit_depth,
+                gain_e_per_count=noise.gain_e_per_count,
+                read_noise_e=noise.read_noise_e,
+            )
         except CentroidError:
             return None
         x, y = result.x_px + c0, result.y_px + r0
@@ -213,17 +224,27 @@ def find_markers(
     markers_world: FloatArray,
     *,
     search_half_px: int = SEARCH_HALF_PX,
+    sensors: Sequence[SensorNoise] | None = None,
 ) -> list[MarkerFind]:
     """Every marker found in every frame (blocking: call it off the loop): the robust centroid
     in a ``search_half_px`` window around where the camera's model puts it, then again in the
     measuring window centred on that; a marker off the chip, not found, or cut by the window's
     edge is left out. The 1-sigma is the centroid's own, at least the camera's
-    ``pixel_sigma_px`` (as daemon/arm_measure.py marker_views)."""
+    ``pixel_sigma_px`` (as daemon/arm_measure.py marker_views), from each camera's sensor
+    noise (``sensors``, same order; default: the centroid's defaults)."""
     found: list[MarkerFind] = []
-    for index, (model, frame) in enumerate(zip(models, frames, strict=True)):
+    noises = tuple(sensors) if sensors is not None else (SensorNoise(),) * len(models)
+    for index, (model, frame, noise) in enumerate(zip(models, frames, noises, strict=True)):
         image = np.asarray(frame.image)
         for marker, (x, y) in enumerate(project(model, markers_world)):
-            spot = _measure_marker(image, float(x), float(y), frame.bit_depth, search_half_px)
+            spot = _measure_marker(
+                image,
+                float(x),
+                float(y),
+                bit_depth=frame.bit_depth,
+                search_half_px=search_half_px,
+                noise=noise,
+            )
             if spot is None:
                 continue
             floor = model.pixel_sigma_px
@@ -272,6 +293,7 @@ async def record_pattern(
     grab_timeout_s: float,
     search_half_px: int = SEARCH_HALF_PX,
     recording: Recording | None = None,
+    sensors: Sequence[SensorNoise] | None = None,
 ) -> Recording:
     """Visit every shift of the (checked) pattern from the taught ``goal``, grab a frame from
     every camera at each and find the markers; back to the goal at the end whatever happened
@@ -300,7 +322,7 @@ async def record_pattern(
             frames = await asyncio.gather(*(grab(camera, grab_timeout_s) for camera in cameras))
             world = markers_tool_mm @ tool[:3, :3].T + tool[:3, 3]
             found = await asyncio.to_thread(
-                find_markers, models, frames, world, search_half_px=search_half_px
+                find_markers, models, frames, world, search_half_px=search_half_px, sensors=sensors
             )
             _add_rows(record, models, found, world, tool)
             record.poses += 1
@@ -471,6 +493,7 @@ async def calibrate_with_robot(
             goal = target[0]
             await GoalRobotArm(goal_robot).teach_pose(MeasuredPose(*target))
         arm = settings.arm
+        sensors, timeouts_s = device_sensors(settings, len(models))
         record = await record_pattern(
             goal_robot,
             cameras,
@@ -480,9 +503,10 @@ async def calibrate_with_robot(
             goal=goal,
             max_step_mm=arm.max_step_translation_mm,
             max_step_rad=math.radians(arm.max_step_rotation_deg),
-            grab_timeout_s=settings.camera.grab_timeout_s,
+            grab_timeout_s=max(timeouts_s),
             search_half_px=search_half_px,
             recording=recording,
+            sensors=sensors,
         )
         reference = kinematic = None
         bench = devices.arm_bench

@@ -220,9 +220,7 @@ async def test_the_written_file_measures_the_tool_where_the_controller_puts_it(
         frames = await asyncio.gather(*(camera.grab() for camera in devices.cameras))
     errors = {}
     for label, models in files.items():
-        views = marker_views(
-            models, frames, markers @ believed[:3, :3].T + believed[:3, 3], bit_depth=12
-        )
+        views = marker_views(models, frames, markers @ believed[:3, :3].T + believed[:3, 3])
         measured = tool_pose(models, views, markers, believed)
         assert measured.oriented
         errors[label] = float(np.linalg.norm(measured.pose[:3, 3] - believed[:3, 3]))
