@@ -19,11 +19,15 @@ measured at each pose's taught goal relative to its cold reference), the share o
 uncompensated RMS removed, the RMS over the 3-D measurement's own 1-sigma (the meter's
 estimate from the centroids' noise, ``measured_sigma_um``), the rotation error (RMS).
 
-    .venv/bin/python benchmarks/bench_arm_daemon.py [--seed N] [--cameras N] [--no-identify]
+    .venv/bin/python benchmarks/bench_arm_daemon.py [--seed N] [--cameras N] [--frames N]
+        [--no-identify]
 
 ``--cameras 1``: one camera at each measured pose (``arm.cameras``), the tool's pose from the
 markers' pixels by perspective-n-point (daemon/vision/pnp.py). ``--no-identify``: the
-uncompensated and preset runs only (no calibration run, no identification).
+uncompensated and preset runs only (no calibration run, no identification). ``--frames N``:
+``arm.frames_per_measurement`` (each marker's centroid averaged over N frames per camera).
+The rotation error is reported with the meter's own 1-sigma of the orientation
+(``measured_rotation_sigma_urad``) and their ratio, as the 3-D drift is.
 """
 
 from __future__ import annotations
@@ -63,12 +67,18 @@ MODEL_NAME = "bench-calibration"
 
 
 def settings_for(
-    data_dir: Path, seed: int, noise_seed: int | None, cameras: int | None = None
+    data_dir: Path,
+    seed: int,
+    noise_seed: int | None,
+    cameras: int | None = None,
+    frames: int | None = None,
 ) -> Settings:
     data = load_settings(CONFIG).model_dump()
     data["bench"].update({"seed": seed, "noise_seed": noise_seed})
     if cameras is not None:
         data["arm"]["cameras"] = cameras
+    if frames is not None:
+        data["arm"]["frames_per_measurement"] = frames
     data["storage"].update({"data_dir": str(data_dir), "report_at_end": False})
     return Settings.model_validate(data)
 
@@ -107,6 +117,7 @@ def figures(steps: Sequence[dict[str, Any]], sight: np.ndarray | None = None) ->
     drift = np.array([s["drift_3d_um"] for s in steps], dtype=float)
     rotation = np.array([s["rotation_error_urad"] for s in steps], dtype=float)
     sigma = np.array([s["measured_sigma_um"] for s in steps], dtype=float)
+    rotation_sigma = np.array([s["measured_rotation_sigma_urad"] for s in steps], dtype=float)
     predicted = np.array([[s[f"predicted_t{a}_um"] for a in "xyz"] for s in steps], dtype=float)
     return {
         "rms_3d_um": float(np.sqrt(np.nanmean(drift**2))),
@@ -115,6 +126,7 @@ def figures(steps: Sequence[dict[str, Any]], sight: np.ndarray | None = None) ->
         "rms_rotation_urad": float(np.sqrt(np.nanmean(rotation**2))),
         "max_rotation_urad": float(np.nanmax(rotation)),
         "noise_3d_um": float(np.nanmean(sigma)),
+        "noise_rotation_urad": float(np.nanmean(rotation_sigma)),
         "predicted_max_3d_um": float(np.nanmax(np.linalg.norm(predicted, axis=1))),
         "drift_3d_um_per_step": [round(float(v), 2) for v in drift],
         "poses": [s["arm_pose"] for s in steps],
@@ -134,20 +146,28 @@ def split_by_sight(steps: Sequence[dict[str, Any]], sight: np.ndarray) -> dict[s
 
 
 async def bench(
-    seed: int, data_dir: Path, cameras: int | None = None, identify: bool = True
+    seed: int,
+    data_dir: Path,
+    cameras: int | None = None,
+    identify: bool = True,
+    frames: int | None = None,
 ) -> dict[str, Any]:
     started = time.perf_counter()
     walls: dict[str, float] = {}
-    settings = settings_for(data_dir, seed, None, cameras)
+    settings = settings_for(data_dir, seed, None, cameras, frames)
     if not identify:
         results = await compare(settings, {"none": {"compensation": "off"}, "preset": {}}, walls)
         return {
             "seed": seed,
             "cameras": settings.arm.cameras,
+            "frames": settings.arm.frames_per_measurement,
+            "steps": round(settings.scheduler.duration_s / settings.scheduler.step_s),
             "runs": results,
             "wall_s": {**walls, "total": time.perf_counter() - started},
         }
-    calibration_settings = settings_for(data_dir, seed, seed + CALIBRATION_NOISE_OFFSET, cameras)
+    calibration_settings = settings_for(
+        data_dir, seed, seed + CALIBRATION_NOISE_OFFSET, cameras, frames
+    )
 
     t = time.perf_counter()
     calibration_id, _, calibration_steps = await one_run(calibration_settings, compensation="off")
@@ -171,6 +191,8 @@ async def bench(
     return {
         "seed": seed,
         "cameras": settings.arm.cameras,
+        "frames": settings.arm.frames_per_measurement,
+        "steps": round(settings.scheduler.duration_s / settings.scheduler.step_s),
         "calibration": {
             "run_id": calibration_id,
             "noise_seed": seed + CALIBRATION_NOISE_OFFSET,
@@ -204,6 +226,10 @@ async def compare(
     for result in results.values():
         result["reduction_3d"] = 1.0 - result["rms_3d_um"] / drift["rms_3d_um"]
         result["rms_over_noise"] = result["rms_3d_um"] / result["noise_3d_um"]
+        result["rotation_over_noise"] = result["rms_rotation_urad"] / result["noise_rotation_urad"]
+        result["reduction_rotation"] = (
+            1.0 - result["rms_rotation_urad"] / drift["rms_rotation_urad"]
+        )
     return results
 
 
@@ -212,18 +238,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--cameras", type=int, default=None, help="arm.cameras per pose")
     parser.add_argument("--no-identify", action="store_true", help="none and preset runs only")
+    parser.add_argument("--frames", type=int, default=None, help="arm.frames_per_measurement")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     with tempfile.TemporaryDirectory(prefix="bench-arm-daemon-") as folder:
         result = asyncio.run(
-            bench(args.seed, Path(folder), args.cameras, identify=not args.no_identify)
+            bench(
+                args.seed,
+                Path(folder),
+                args.cameras,
+                identify=not args.no_identify,
+                frames=args.frames,
+            )
         )
     load = os.getloadavg()
     result["load_average"] = list(load)
     runs = result["runs"]
     print(
         f"A465 'a465-pick-and-place' through the daemon, config/arm-sim.toml, seed {args.seed}, "
-        f"{result['cameras']} camera(s) per pose: 8 h of arm time, 12 steps"
+        f"{result['cameras']} camera(s) per pose, {result['frames']} frame(s) per measurement: "
+        f"8 h of arm time, {result['steps']} steps"
     )
     print_table(
         [
@@ -234,6 +268,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "3-D removed",
             "RMS/noise",
             "RMS rot urad",
+            "rot/noise",
+            "rot removed",
             "predicted max um",
         ],
         [
@@ -245,6 +281,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 "-" if name == "none" else f"{100 * r['reduction_3d']:.1f} %",
                 r["rms_over_noise"],
                 r["rms_rotation_urad"],
+                r["rotation_over_noise"],
+                "-" if name == "none" else f"{100 * r['reduction_rotation']:.1f} %",
                 r["predicted_max_3d_um"],
             ]
             for name, r in runs.items()
@@ -252,7 +290,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     print(
         f"\n3-D measurement noise (the meter's 1-sigma per position): "
-        f"{runs['none']['noise_3d_um']:.2f} um"
+        f"{runs['none']['noise_3d_um']:.2f} um; of the orientation "
+        f"{runs['none']['noise_rotation_urad']:.1f} urad"
     )
     for name, r in runs.items():
         if "rms_along_sight_um" in r:
