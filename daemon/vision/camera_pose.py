@@ -31,12 +31,12 @@ from scipy.optimize import least_squares
 
 from daemon.vision.cameras import CameraModel
 from daemon.vision.multiview import (
-    MIN_MARKER_SPREAD,
     MultiviewError,
     PixelSigma,
     depths_mm,
     points_array,
 )
+from daemon.vision.points import on_one_line
 
 FloatArray = NDArray[np.float64]
 
@@ -97,8 +97,7 @@ def fit_camera_pose(
         raise MultiviewError(
             f"camera {camera.name}: {count} positions: a pose needs at least {MIN_POSE_POINTS}"
         )
-    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-    if spread[0] == 0.0 or spread[1] < MIN_MARKER_SPREAD * spread[0]:
+    if on_one_line(points):
         raise MultiviewError(
             f"camera {camera.name}: the positions lie on one line: the pose is undetermined; "
             "move the marker across a plane or a volume"

@@ -17,10 +17,9 @@ base frame), 6-DOF differences as :class:`~daemon.arm.types.Pose6`.
   intersected with the known plane; :func:`axis_camera` builds the CameraModel equivalent to
   the single camera's ``camera.um_per_px`` / ``camera.rotation_deg`` calibration, and
   ``triangulate([camera], [pixel], plane=...)`` does the same.
-- :func:`rigid_pose_from_markers`: the tool's pose from M >= 3 markers of known tool-frame
-  positions measured in the world: weighted Kabsch / Wahba (``scipy.spatial.transform.
-  Rotation.align_vectors``), refined with each marker's full covariance; covariance of the pose
-  by linearisation. :func:`pose_difference` gives the 6-DOF difference of two poses.
+- :func:`rigid_pose_from_markers` (daemon/vision/rigid_pose.py, re-exported here): the tool's
+  pose from M >= 3 markers of known tool-frame positions measured in the world, and its
+  covariance; :func:`pose_difference` gives the 6-DOF difference of two poses.
 """
 
 from __future__ import annotations
@@ -32,12 +31,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
-from daemon.arm.types import Pose6
-from daemon.arm.types import pose_difference as arm_pose_difference
 from daemon.vision.cameras import (
     CameraFileError,
     CameraModel,
@@ -47,8 +43,15 @@ from daemon.vision.cameras import (
     look_at,
     write_cameras,
 )
+from daemon.vision.points import MIN_MARKER_SPREAD, FloatArray, MultiviewError, points_array
+from daemon.vision.rigid_pose import (
+    pose_covariance_difference,
+    pose_difference,
+    rigid_pose_from_markers,
+)
 
 __all__ = [
+    "MIN_MARKER_SPREAD",
     "CameraFileError",
     "CameraModel",
     "MultiviewError",
@@ -72,28 +75,15 @@ __all__ = [
     "write_cameras",
 ]
 
-FloatArray = NDArray[np.float64]
 PixelSigma = float | tuple[float, float]
 
 #: Rays closer to parallel than this carry no depth: triangulation is refused (rad; 0.1°).
 MIN_RAY_ANGLE_RAD = math.radians(0.1)
-#: Markers whose spread's second principal extent is below this fraction of the first lie on a
-#: line: the rotation about that line is undetermined.
-MIN_MARKER_SPREAD = 1e-3
 #: A ray meeting the plane at less than this angle (rad; ~0.6°) gives no usable point.
 MIN_PLANE_INCIDENCE_RAD = 0.01
 _UM_PER_MM = 1000.0
 #: Newton steps of measure_in_plane after the ray's intersection (quadratic convergence).
 _PLANE_NEWTON_STEPS = 3
-#: Gauss-Newton of the marker pose: at most this many steps, done when a step is below the
-#: tolerance (mm and rad alike: far below any marker noise).
-_MAX_POSE_ITERATIONS = 20
-_POSE_STEP_TOLERANCE = 1e-12
-
-
-class MultiviewError(ValueError):
-    """A 3-D measurement cannot be made (too few views, degenerate geometry, point behind a
-    camera); ``str()`` is the one line for the user."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,16 +104,6 @@ class Triangulation:
     residuals_px: FloatArray
     chi2: float
     dof: int
-
-
-def points_array(points_mm: ArrayLike) -> FloatArray:
-    """Points as an N x 3 float array (one point of 3 -> 1 x 3); MultiviewError otherwise."""
-    points = np.asarray(points_mm, dtype=np.float64)
-    if points.ndim == 1:
-        points = points.reshape(1, -1)
-    if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
-        raise MultiviewError(f"expected finite 3-D points (N x 3), got shape {points.shape}")
-    return points
 
 
 def project(camera: CameraModel, points_mm: ArrayLike) -> FloatArray:
@@ -376,143 +356,3 @@ def axis_camera(
         image_size_px=(width, height),
         pixel_sigma_px=pixel_sigma_px,
     )
-
-
-def _skew(vector: FloatArray) -> FloatArray:
-    x, y, z = vector
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def rigid_pose_from_markers(
-    model_mm: ArrayLike, measured_mm: ArrayLike, covariances: ArrayLike | None = None
-) -> tuple[FloatArray, FloatArray]:
-    """The rigid pose T (4x4, tool -> world) that carries the markers' tool-frame positions
-    ``model_mm`` (M x 3) onto their measured world positions ``measured_mm`` (M x 3), M >= 3
-    not on one line, and its 6x6 covariance.
-
-    ``covariances`` (M x 3 x 3, mm²) weigh each marker (e.g. :func:`triangulate`'s); None
-    weighs them equally at 1 mm² (the covariance then scales with the real variance). The
-    covariance is of ``[dt (mm), dr (rad)]`` where the true pose is ``t + dt`` and
-    ``exp([dr]x) R``: translation and rotation vector in the world frame, the order of
-    :meth:`Pose6.as_array`.
-    """
-    model = points_array(model_mm)
-    measured = points_array(measured_mm)
-    count = model.shape[0]
-    if measured.shape != model.shape:
-        raise MultiviewError(
-            f"{count} model markers but {measured.shape[0]} measured ones: they must pair up"
-        )
-    if count < 3:
-        raise MultiviewError(f"{count} marker(s): an orientation needs three or more")
-    if covariances is None:
-        cov = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()
-    else:
-        cov = np.asarray(covariances, dtype=np.float64)
-        if cov.shape != (count, 3, 3) or not np.all(np.isfinite(cov)):
-            raise MultiviewError(f"expected {count} finite 3x3 covariances, got {cov.shape}")
-    for name, points in (("model", model), ("measured", measured)):
-        spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-        if spread[0] == 0.0 or spread[1] < MIN_MARKER_SPREAD * spread[0]:
-            raise MultiviewError(
-                f"the {name} markers lie on one line (or one point): the rotation about it is "
-                "undetermined; use three or more markers not in a line"
-            )
-    try:
-        information = np.linalg.inv(cov)
-        whiten = np.linalg.cholesky(information)  # information = L L^T; r^T info r = |L^T r|²
-    except np.linalg.LinAlgError as err:
-        raise MultiviewError("a marker's covariance is not positive definite") from err
-    # weighted Kabsch for the start: scalar weights 1 / mean variance of each marker
-    weights = 3.0 / np.trace(cov, axis1=1, axis2=2)
-    model_centre = weights @ model / weights.sum()
-    measured_centre = weights @ measured / weights.sum()
-    start = Rotation.align_vectors(measured - measured_centre, model - model_centre, weights)[0]
-    rotation0 = start.as_matrix()
-    translation0 = measured_centre - rotation0 @ model_centre
-
-    def whitened_system(
-        rotation: FloatArray, translation: FloatArray
-    ) -> tuple[FloatArray, FloatArray]:
-        """Whitened residuals and their Jacobian in (dt, dr) at a pose (the perturbation
-        ``R -> exp([dr]x) R``, ``t -> t + dt``: d(R m + t) = dt - [R m]x dr)."""
-        rotated = model @ rotation.T
-        errors = rotated + translation - measured
-        residual = np.einsum("mji,mj->mi", whiten, errors).ravel()
-        blocks = [
-            chol.T @ np.hstack([np.eye(3), -_skew(arm)])
-            for arm, chol in zip(rotated, whiten, strict=True)
-        ]
-        return np.asarray(residual, dtype=np.float64), np.vstack(blocks)
-
-    # Gauss-Newton from the Kabsch start: the problem is nearly linear there (small residuals
-    # of well-measured markers), so a few steps reach machine precision
-    rotation, translation = rotation0, translation0
-    for _ in range(_MAX_POSE_ITERATIONS):
-        residual, jacobian = whitened_system(rotation, translation)
-        step = np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
-        rotation = Rotation.from_rotvec(step[3:]).as_matrix() @ rotation
-        translation = translation + step[:3]
-        if np.linalg.norm(step) < _POSE_STEP_TOLERANCE:
-            break
-    _, jacobian = whitened_system(rotation, translation)
-    covariance = np.linalg.inv(jacobian.T @ jacobian)
-    transform = np.eye(4)
-    transform[:3, :3] = rotation
-    transform[:3, 3] = translation
-    return transform, 0.5 * (covariance + covariance.T)
-
-
-def _pose_parts(pose: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    transform = np.asarray(pose, dtype=np.float64)
-    if transform.shape != (4, 4) or not np.all(np.isfinite(transform)):
-        raise MultiviewError(f"expected a finite 4x4 pose, got shape {transform.shape}")
-    return transform[:3, :3], transform[:3, 3]
-
-
-def pose_difference(reference: ArrayLike, current: ArrayLike) -> Pose6:
-    """``current`` relative to ``reference`` in the world frame
-    (:func:`daemon.arm.types.pose_difference`, the one implementation, reference first);
-    a malformed pose is a :class:`MultiviewError`."""
-    _pose_parts(reference)
-    _pose_parts(current)
-    return arm_pose_difference(reference, current)
-
-
-def pose_covariance_difference(
-    reference: ArrayLike,
-    current: ArrayLike,
-    reference_covariance: ArrayLike,
-    current_covariance: ArrayLike,
-) -> FloatArray:
-    """6x6 covariance of :func:`pose_difference` for two independent poses with the
-    covariances of :func:`rigid_pose_from_markers`, by first-order propagation (central
-    differences of the difference under each pose's perturbation)."""
-    poses = [np.asarray(reference, dtype=np.float64), np.asarray(current, dtype=np.float64)]
-    covs = [np.asarray(reference_covariance, dtype=np.float64)]
-    covs.append(np.asarray(current_covariance, dtype=np.float64))
-    for cov in covs:
-        if cov.shape != (6, 6):
-            raise MultiviewError(f"expected 6x6 pose covariances, got {cov.shape}")
-
-    def perturbed(pose: FloatArray, delta: FloatArray) -> FloatArray:
-        moved = pose.copy()
-        moved[:3, :3] = Rotation.from_rotvec(delta[3:]).as_matrix() @ pose[:3, :3]
-        moved[:3, 3] = pose[:3, 3] + delta[:3]
-        return moved
-
-    step = 1e-7
-    total = np.zeros((6, 6))
-    for which in range(2):
-        jacobian = np.zeros((6, 6))
-        for k in range(6):
-            delta = np.zeros(6)
-            delta[k] = step
-            plus, minus = list(poses), list(poses)
-            plus[which] = perturbed(poses[which], delta)
-            minus[which] = perturbed(poses[which], -delta)
-            jacobian[:, k] = (
-                pose_difference(*plus).as_array() - pose_difference(*minus).as_array()
-            ) / (2 * step)
-        total += jacobian @ covs[which] @ jacobian.T
-    return 0.5 * (total + total.T)

@@ -40,12 +40,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from daemon.vision.cameras import CameraModel
-from daemon.vision.multiview import (
-    MIN_MARKER_SPREAD,
-    MultiviewError,
-    depths_mm,
-    projection_jacobian,
-)
+from daemon.vision.multiview import MultiviewError, depths_mm, projection_jacobian
+from daemon.vision.points import on_one_line, skew
 
 FloatArray = NDArray[np.float64]
 
@@ -83,14 +79,8 @@ class ViewPose:
         return tuple(sorted({marker for _, marker in self.observations}))
 
 
-def _skew(vector: FloatArray) -> FloatArray:
-    x, y, z = vector
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
 def _check_spread(points: FloatArray) -> None:
-    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-    if spread[0] == 0.0 or spread[1] < MIN_MARKER_SPREAD * spread[0]:
+    if on_one_line(points):
         raise MultiviewError(
             "the seen markers lie on one line: the rotation about it is undetermined; show "
             "three or more markers not in a line"
@@ -202,7 +192,7 @@ def pose_from_views(
             predicted, d_point = projection_jacobian(cameras[c], arms + translation)
             residual_rows.append(predicted - observed[c, ms])
             for arm, block in zip(arms, d_point, strict=True):
-                jacobian_rows.append(block @ np.hstack([np.eye(3), -_skew(arm)]))
+                jacobian_rows.append(block @ np.hstack([np.eye(3), -skew(arm)]))
         residual = np.vstack(residual_rows) * weights
         jacobian = np.vstack(jacobian_rows) * weights.reshape(-1, 1)
         return np.asarray(residual.ravel()), np.asarray(jacobian)
