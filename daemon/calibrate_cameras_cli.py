@@ -40,7 +40,6 @@ beyond the limits.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import sys
@@ -55,6 +54,12 @@ from config.cli import (
     add_config_argument,
     positive_float,
 )
+from daemon.camera_observations import (
+    Observation,
+    ObservationError,
+    read_observations,
+    write_observations,
+)
 
 if TYPE_CHECKING:
     from daemon.vision.camera_pose import CameraPoseFit
@@ -63,29 +68,11 @@ if TYPE_CHECKING:
 # numpy, OpenCV and SciPy are imported where they are used: `--help` answers at once (issue 16)
 
 PROG = "thermocomp calibrate cameras"
-CSV_COLUMNS = ("camera", "x_mm", "y_mm", "z_mm", "x_px", "y_px")
-SIGMA_COLUMNS = ("sigma_x_px", "sigma_y_px")
-ROTATION_COLUMNS = ("rx_rad", "ry_rad", "rz_rad")
 #: The simulated marker: a spot like the bench's laser spot (bench.spot_sigma_px, 16-bit,
 #: half full scale, 1 e-/count, 5 e- read noise: the [camera] defaults).
 SIM_SPOT_SIGMA_PX = 3.0
 SIM_PEAK_FRACTION = 0.5
 SIM_READ_NOISE_COUNTS = 5.0
-
-
-class ObservationError(Exception):
-    """The observations cannot be read or used (exit 2) ."""
-
-
-@dataclass(frozen=True, slots=True)
-class Observation:
-    """One camera's centroid of the marker with the tool at (position, rotation vector)."""
-
-    camera: str
-    position_mm: tuple[float, float, float]
-    pixel_px: tuple[float, float]
-    sigma_px: tuple[float, float] | None
-    rotation_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 def register(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -217,53 +204,6 @@ def _angles(text: str) -> tuple[float, ...]:
     if not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"expected finite joint angles, got {text!r}")
     return values
-
-
-def read_observations(path: Path) -> list[Observation]:
-    """The CSV's rows (module docstring); ObservationError names the file and the row."""
-    try:
-        with path.open(newline="", encoding="utf-8") as handle:
-            reader = csv.DictReader(handle)
-            missing = [c for c in CSV_COLUMNS if c not in (reader.fieldnames or [])]
-            if missing:
-                raise ObservationError(f"{path}: missing column(s) {', '.join(missing)}")
-            with_sigma = all(c in (reader.fieldnames or []) for c in SIGMA_COLUMNS)
-            with_rotation = all(c in (reader.fieldnames or []) for c in ROTATION_COLUMNS)
-            rows = []
-            for number, row in enumerate(reader, start=2):
-                try:
-                    values = [float(row[c]) for c in CSV_COLUMNS[1:]]
-                    sigma = (
-                        (float(row["sigma_x_px"]), float(row["sigma_y_px"])) if with_sigma else None
-                    )
-                    turn = [float(row[c]) for c in ROTATION_COLUMNS] if with_rotation else [0.0] * 3
-                except (TypeError, ValueError) as err:
-                    raise ObservationError(f"{path}: line {number}: not a number ({err})") from err
-                rows.append(
-                    Observation(
-                        row["camera"],
-                        (values[0], values[1], values[2]),
-                        (values[3], values[4]),
-                        sigma,
-                        (turn[0], turn[1], turn[2]),
-                    )
-                )
-    except OSError as err:
-        raise ObservationError(f"{path}: cannot read: {err.strerror}") from err
-    if not rows:
-        raise ObservationError(f"{path}: no observations")
-    return rows
-
-
-def write_observations(path: Path, rows: list[Observation]) -> None:
-    with path.open("w", newline="", encoding="utf-8") as handle:
-        writer = csv.writer(handle)
-        writer.writerow([*CSV_COLUMNS, *ROTATION_COLUMNS, *SIGMA_COLUMNS])
-        for row in rows:
-            sigma = row.sigma_px or ("", "")
-            writer.writerow(
-                [row.camera, *row.position_mm, *row.pixel_px, *row.rotation_rad, *sigma]
-            )
 
 
 def simulate_observations(
@@ -465,7 +405,7 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
     )
     if args.json:
         data = {
-            "cameras": [_as_dict(f, truths.get(f.camera.name)) for f in fits],
+            "cameras": [fit_as_dict(f, truths.get(f.camera.name)) for f in fits],
             "marker_mm": list(calibrated.marker_mm),
             "marker_se_mm": (
                 list(calibrated.marker_se_mm) if calibrated.marker_se_mm is not None else None
@@ -474,7 +414,7 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
         print(json.dumps(data, indent=2))
     else:
         for one in fits:
-            print(_summary(one, truths.get(one.camera.name)))
+            print(fit_summary(one, truths.get(one.camera.name)))
         print(marker_line)
         if args.write is None:
             print(cameras_toml([f.camera for f in fits]), end="")
@@ -484,7 +424,7 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _as_dict(fit: CameraPoseFit, truth: CameraModel | None) -> dict[str, object]:
+def fit_as_dict(fit: CameraPoseFit, truth: CameraModel | None) -> dict[str, object]:
     data: dict[str, object] = {
         "camera": fit.camera.name,
         "points": fit.points,
@@ -503,7 +443,7 @@ def _as_dict(fit: CameraPoseFit, truth: CameraModel | None) -> dict[str, object]
     return data
 
 
-def _summary(fit: CameraPoseFit, truth: CameraModel | None) -> str:
+def fit_summary(fit: CameraPoseFit, truth: CameraModel | None) -> str:
     centre = ", ".join(
         f"{v:.3f}+-{s:.3f}" for v, s in zip(fit.centre_mm, fit.centre_se_mm, strict=True)
     )

@@ -28,25 +28,26 @@ from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from daemon.calibrate_cameras_cli import (
     PROG,
     Calibrated,
-    Observation,
-    _as_dict,
-    _summary,
+    fit_as_dict,
     fit_known_marker,
+    fit_summary,
     fit_with_marker,
-    write_observations,
+)
+from daemon.camera_calibration_pattern import (
+    PatternError,
+    check_pattern,
+    default_size_turn,
+    robot_pattern,
 )
 from daemon.camera_calibration_run import (
     SEARCH_HALF_PX,
-    PatternError,
     Recording,
     RobotRun,
     calibrate_with_robot,
-    check_pattern,
-    default_size_turn,
     joints_pose,
-    robot_pattern,
     station_pose,
 )
+from daemon.camera_observations import Observation, write_observations
 from daemon.vision.camera_pose import MIN_POSE_POINTS
 from daemon.vision.cameras import CameraFileError, CameraModel, load_cameras, write_cameras
 from daemon.vision.multiview import MultiviewError
@@ -237,7 +238,7 @@ def _report(
             "poses": record.poses,
             "moves": record.moves,
             "returned_to_goal": record.returned,
-            "cameras": [_as_dict(f, reference.get(f.camera.name)) for f in calibrated.fits],
+            "cameras": [fit_as_dict(f, reference.get(f.camera.name)) for f in calibrated.fits],
             "not_fitted": [{"camera": n, "reason": why} for n, why in skipped.items()],
             "markers_seen": {m.name: record.seen_poses.get(m.name, 0) for m in models},
             "markers_missed": dict(record.missed),
@@ -261,7 +262,7 @@ def _report(
             f"on a chip but not found there: {missed or 'none'}"
         )
         for fit in calibrated.fits:
-            print(_summary(fit, reference.get(fit.camera.name)))
+            print(fit_summary(fit, reference.get(fit.camera.name)))
         for name, why in skipped.items():
             print(f"# {name}: not fitted, {why}: its pose is kept from {guess_path}")
         if calibrated.marker_se_mm is not None:

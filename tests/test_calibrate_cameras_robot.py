@@ -29,15 +29,12 @@ from daemon.arm.duty import load_duty_cycle
 from daemon.arm.run import MeasuredPose
 from daemon.arm_measure import marker_views, tool_pose
 from daemon.arm_robot import GoalRobotArm, pose_matrix
+from daemon.camera_calibration_pattern import Shift, check_pattern, robot_pattern, split_shift
 from daemon.camera_calibration_run import (
     Recording,
-    Shift,
-    check_pattern,
     controller_frame_truth,
     find_markers,
     record_pattern,
-    robot_pattern,
-    split_shift,
     station_pose,
 )
 from daemon.vision.cameras import load_cameras, write_cameras
