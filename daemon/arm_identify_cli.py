@@ -57,7 +57,7 @@ from daemon.arm.identify import (
     marker_sensitivity,
 )
 from daemon.arm.ir_regions import region_nodes
-from daemon.identify_cli import finite_json, recorded_parameters, warning_lines, write_outputs
+from daemon.identify_run import finite_json, recorded_parameters, warning_lines, write_outputs
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.identify import IdentificationError
 from daemon.recorder import DATABASE_NAME
