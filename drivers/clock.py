@@ -8,8 +8,12 @@ computed; an accelerated clock runs ``factor`` times faster than the wall clock.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import heapq
+import itertools
 import math
 import time
+from collections.abc import Iterator
 from typing import Protocol
 
 
@@ -43,20 +47,100 @@ class ScaledClock:
 
 
 class VirtualClock:
-    """Time that only moves when someone sleeps: it jumps to the deadline."""
+    """Time that only moves when someone sleeps: it jumps to the deadline.
+
+    **Paced** (issue 20, a duty cycle played on the arm bench): while a task holds
+    :meth:`pacing` (the cycle's player: its moves' ``finish`` and its dwells), a *follower*
+    (:meth:`follow_until`, the run's step timer through :class:`FollowingClock`) does not jump
+    the time: it waits until the pacer's sleeps have carried it past its deadline, and a pacer's
+    sleep stops at each follower's deadline on its way (a discrete-event clock: the steps come
+    at their time within the cycle's motion, not ahead of it). Without a pacer a follower
+    sleeps as anyone does."""
 
     def __init__(self, start_s: float = 0.0) -> None:
         self._now = start_s
+        self._pacers = 0
+        self._followers: list[tuple[float, int, asyncio.Future[None]]] = []
+        self._order = itertools.count()
 
     def now(self) -> float:
         return self._now
 
-    async def sleep_until(self, deadline_s: float) -> None:
+    @staticmethod
+    def _check(deadline_s: float) -> None:
         if not math.isfinite(deadline_s):
             # a jump to infinity would leave every later deadline NaN (issue 15, point 7)
             raise ValueError(f"virtual clock: deadline {deadline_s} is not finite")
+
+    async def sleep_until(self, deadline_s: float) -> None:
+        self._check(deadline_s)
+        # a follower due on the way wakes at its own time, and runs before time goes on
+        while self._followers and self._followers[0][0] < deadline_s:
+            self._now = max(self._now, self._followers[0][0])
+            self._wake_due()
+            await asyncio.sleep(0)
         self._now = max(self._now, deadline_s)
+        self._wake_due()
         await asyncio.sleep(0)  # still a scheduling point, as a real sleep would be
+
+    async def follow_until(self, deadline_s: float) -> None:
+        """Sleep until ``deadline_s`` without moving the time while a pacer holds it."""
+        self._check(deadline_s)
+        while self._pacers and self._now < deadline_s:
+            waiter = asyncio.get_running_loop().create_future()
+            heapq.heappush(self._followers, (deadline_s, next(self._order), waiter))
+            try:
+                await waiter
+            finally:
+                if not waiter.done():  # cancelled: forget it
+                    waiter.cancel()
+                    self._followers = [f for f in self._followers if f[2] is not waiter]
+                    heapq.heapify(self._followers)
+        await self.sleep_until(deadline_s)
+
+    @contextlib.contextmanager
+    def pacing(self) -> Iterator[None]:
+        """While held, only sleep_until moves the time (class docstring)."""
+        self._pacers += 1
+        try:
+            yield
+        finally:
+            self._pacers -= 1
+            if not self._pacers:  # nobody paces: the followers sleep as anyone does
+                self._wake_all()
+
+    def _wake_due(self) -> None:
+        while self._followers and self._followers[0][0] <= self._now:
+            _, _, waiter = heapq.heappop(self._followers)
+            if not waiter.done():
+                waiter.set_result(None)
+
+    def _wake_all(self) -> None:
+        followers, self._followers = self._followers, []
+        for _, _, waiter in followers:
+            if not waiter.done():
+                waiter.set_result(None)
+
+
+class FollowingClock:
+    """A clock's view for a task whose sleeps must not move a paced virtual clock (the run's
+    step timer while a duty cycle plays: VirtualClock's docstring); any other clock as is."""
+
+    def __init__(self, clock: Clock) -> None:
+        self.clock = clock
+        factor = getattr(clock, "factor", None)
+        if factor is not None:
+            self.factor = factor  # the scheduler's precise wake reads it
+
+    def now(self) -> float:
+        return self.clock.now()
+
+    async def sleep_until(self, deadline_s: float) -> None:
+        follow = getattr(self.clock, "follow_until", None)
+        if follow is None:
+            await self.clock.sleep_until(deadline_s)
+        else:
+            await follow(deadline_s)
 
 
 def make_clock(kind: str, factor: float = 1.0) -> Clock:

@@ -55,6 +55,10 @@ DEFAULT_START_JOINTS_DEG: tuple[float, ...] = (0.0, 30.0, 60.0, 0.0, 30.0, 0.0)
 #: of the A465's at a moderate speed setting (its published maximum joint speeds are ~180 deg/s).
 DEFAULT_SPEED_DEG_S = 60.0
 DEFAULT_ACCELERATION_DEG_S2 = 240.0
+#: The console's speed setting at which ``speed_deg_s`` applies (drivers/sim/ash.py
+#: START_SPEED_PERCENT: the controller's setting at start-up, which the emulator of before never
+#: changed): at another setting the joint speed scales in proportion (`speed N`, C500C.md).
+REFERENCE_SPEED_PERCENT = 10
 #: Encoder pulses per joint degree for the `PULSES` row. ESTIMATED: no public figure for the
 #: A465 was found; the order of a 1,000-line quadrature encoder (4,000 counts per motor turn)
 #: on a 100:1 harmonic drive: 4,000 x 100 / 360 = 1,111 per degree.
@@ -93,6 +97,15 @@ class JointArmConfig:
     acceleration_deg_s2: float = DEFAULT_ACCELERATION_DEG_S2
     #: per joint; None: ESTIMATED_A465_PULSES_PER_DEG for every joint
     pulses_per_deg: tuple[float, ...] | None = None
+    #: the controller's per-joint speed limits at `speed 100` (deg/s; issue 20: a played duty
+    #: cycle's arm moves at its pose's percentage of them, each motion synchronised so that no
+    #: joint exceeds its own, as daemon/arm/duty.py plans it); None: one speed for every
+    #: joint, ``speed_deg_s`` at REFERENCE_SPEED_PERCENT, scaled by the setting
+    max_speed_deg_s: tuple[float, ...] | None = None
+    #: ... and acceleration limits (deg/s^2), NOT scaled by the speed setting: the console has
+    #: no acceleration command (C500C.md "Motion and locations" lists `speed [%]` only), so the
+    #: controller keeps its own (ASSUMED); None: ``acceleration_deg_s2`` for every joint
+    max_accel_deg_s2: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         joints = len(self.arm.joints)
@@ -102,6 +115,28 @@ class JointArmConfig:
             raise ValueError("joint speed and acceleration must be positive")
         if self.pulses_per_deg is not None and len(self.pulses_per_deg) != joints:
             raise ValueError(f"{joints} pulses-per-degree values expected")
+        for limits in (self.max_speed_deg_s, self.max_accel_deg_s2):
+            if limits is not None and (
+                len(limits) != joints or not all(math.isfinite(v) and v > 0 for v in limits)
+            ):
+                raise ValueError(f"{joints} positive joint limits expected, got {limits}")
+
+    def limits_rad(self, speed_percent: int) -> tuple[FloatArray, FloatArray]:
+        """Each joint's speed (rad/s) and acceleration (rad/s^2) limit at the console's speed
+        setting ``speed_percent`` (the fields' comments)."""
+        joints = len(self.arm.joints)
+        if self.max_speed_deg_s is None:
+            speed = np.full(joints, self.speed_deg_s)
+            if speed_percent != REFERENCE_SPEED_PERCENT:
+                speed = speed * (speed_percent / REFERENCE_SPEED_PERCENT)
+        else:
+            speed = np.asarray(self.max_speed_deg_s, dtype=np.float64) * (speed_percent / 100.0)
+        accel = (
+            np.full(joints, self.acceleration_deg_s2)
+            if self.max_accel_deg_s2 is None
+            else np.asarray(self.max_accel_deg_s2, dtype=np.float64)
+        )
+        return np.radians(speed), np.radians(accel)
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,6 +204,26 @@ def trapezoid(
         ramp = math.sqrt(distance / acceleration)
         duration = 2.0 * ramp
     return _Motion(start_s, q0, q1, distance, acceleration, ramp, duration)
+
+
+def synchronised(
+    q0: FloatArray, q1: FloatArray, start_s: float, speed: FloatArray, acceleration: FloatArray
+) -> _Motion:
+    """The synchronised profile under per-joint limits (daemon/arm/duty.py's plan): every joint
+    follows one normalised trapezoid s(t) from 0 to 1 whose speed and acceleration are the
+    tightest of the moving joints' ``limit_j / |dq_j|``. With equal limits it is
+    :func:`trapezoid` exactly."""
+    delta = np.abs(q1 - q0)
+    moving = delta > 0.0
+    if not moving.any():
+        return _Motion(start_s, q0, q1, 0.0, float(np.min(acceleration)), 0.0, 0.0)
+    if np.ptp(speed) == 0.0 and np.ptp(acceleration) == 0.0:
+        return trapezoid(q0, q1, start_s, float(speed[0]), float(acceleration[0]))
+    normal_speed = float(np.min(speed[moving] / delta[moving]))
+    normal_accel = float(np.min(acceleration[moving] / delta[moving]))
+    # the normalised profile as a motion of "distance 1": sample() scales it by q1 - q0
+    unit = trapezoid(np.zeros(1), np.ones(1), start_s, normal_speed, normal_accel)
+    return _Motion(start_s, q0, q1, 1.0, unit.acceleration, unit.ramp_s, unit.duration_s)
 
 
 def wrist_singular(arm: Arm, q_rad: FloatArray) -> bool:
@@ -302,11 +357,23 @@ class JointArm:
     def end_s(self) -> float:
         return self._last.end_s
 
-    def move_to(self, target: Sequence[float], now_s: float, noise_mm: FloatArray) -> float:
+    def last_start_s(self) -> float:
+        """When the latest motion started (its end: :meth:`end_s`)."""
+        return self._last.start_s
+
+    def move_to(
+        self,
+        target: Sequence[float],
+        now_s: float,
+        noise_mm: FloatArray,
+        *,
+        speed_percent: int = REFERENCE_SPEED_PERCENT,
+    ) -> float:
         """Start a motion to the world location ``target`` at ``now_s`` (after the current one
         has ended: callers `finish` first); the arm arrives off the target by ``noise_mm`` in
         world x, y, z (repeatability), turned into joint angles through the Jacobian's
-        pseudo-inverse. Returns when the motion ends; UnreachableError when it cannot."""
+        pseudo-inverse, at the console's speed setting ``speed_percent`` (JointArmConfig.
+        limits_rad). Returns when the motion ends; UnreachableError when it cannot."""
         start_s = max(now_s, self._last.end_s)
         q_now = self.joints_at(start_s)
         q_target = self.solve(target, q_now)
@@ -315,13 +382,21 @@ class JointArm:
             dq = np.linalg.pinv(jacobian(self.arm, q_target)[:3]) @ noise_mm
             q_actual = np.clip(q_target + dq, self.arm.lower_rad, self.arm.upper_rad)
         config = self.config
-        motion = trapezoid(
-            q_now,
-            q_actual,
-            start_s,
-            math.radians(config.speed_deg_s),
-            math.radians(config.acceleration_deg_s2),
-        )
+        if (
+            config.max_speed_deg_s is None
+            and config.max_accel_deg_s2 is None
+            and speed_percent == REFERENCE_SPEED_PERCENT
+        ):  # the emulator of before, to the bit
+            motion = trapezoid(
+                q_now,
+                q_actual,
+                start_s,
+                math.radians(config.speed_deg_s),
+                math.radians(config.acceleration_deg_s2),
+            )
+        else:
+            speed, acceleration = config.limits_rad(speed_percent)
+            motion = synchronised(q_now, q_actual, start_s, speed, acceleration)
         self._history.append(motion)
         self._commanded_q = q_target
         return motion.end_s
