@@ -36,7 +36,7 @@ from daemon.arm.run import CyclePose, MeasuredPose
 from daemon.arm.types import Pose6
 from drivers.base import MoveResult
 from drivers.clock import Clock
-from drivers.errors import DeviceError
+from drivers.errors import DeviceError, MotionHeldError
 
 logger = logging.getLogger(__name__)
 
@@ -198,7 +198,9 @@ class ArmPlayer:
                     await clock.sleep_until(arrived_s + entry.dwell_s)
         except DeviceError as err:
             self.error = err
-            logger.warning("run %d: the duty cycle stopped: %s", self._run_id, err)
+            # after a hold (a pause, the run's end) a refused move is how the playing ends
+            log = logger.info if isinstance(err, MotionHeldError) else logger.warning
+            log("run %d: the duty cycle stopped: %s", self._run_id, err)
         except Exception as err:  # a bug: the run learns it at its next step, not never
             logger.exception("run %d: the duty cycle's player failed", self._run_id)
             self.error = PlayerStoppedError(f"the duty cycle's player failed: {err!r}")

@@ -96,6 +96,8 @@ class VirtualClock:
                     waiter.cancel()
                     self._followers = [f for f in self._followers if f[2] is not waiter]
                     heapq.heapify(self._followers)
+            if self._now >= deadline_s:
+                return  # woken at its time: on, before the pacer moves the time again
         await self.sleep_until(deadline_s)
 
     @contextlib.contextmanager
