@@ -154,7 +154,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{load[2]:.2f} on {os.cpu_count()} CPUs"
     )
     if profile is not None:
-        pstats.Stats(profile).sort_stats("cumulative").print_stats(25)
+        pstats.Stats(profile).sort_stats("cumulative").print_stats(40)
     write_results("bench_arm_played", result)
     return 0
 

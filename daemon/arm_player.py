@@ -116,10 +116,11 @@ class ArmPlayer:
     # --- the session's side --------------------------------------------------------------
 
     def start(self) -> None:
-        """Play from the pose after the last one reached (a resume), or the first."""
-        if self.playing:
+        """Play from the pose after the last one reached (a resume), or the first. Not while
+        an error is pending: a step reports it first (the run faults), and :meth:`stop`
+        clears it; a restart here would let the robot go on as if nothing had happened."""
+        if self.playing or self.error is not None:
             return
-        self.error = None
         self._stopping = False
         self._task = asyncio.get_running_loop().create_task(
             self._play(), name=f"run-{self._run_id}-duty-cycle"
@@ -129,12 +130,14 @@ class ArmPlayer:
         """Stop playing: now in a dwell or a wait, after the move being written otherwise."""
         task = self._task
         if task is None:
+            self.error = None
             return
         self._stopping = True
         if not self._moving:
             task.cancel()
         await asyncio.gather(task, return_exceptions=True)
         self._task = None
+        self.error = None  # the run paused or faulted: a resume is the operator's decision
 
     # --- the step's side -----------------------------------------------------------------
 

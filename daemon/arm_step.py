@@ -14,6 +14,13 @@ A refused correction (a limit, a non-finite value) is never sent: the step recor
 flag ``unsafe-target`` and asks for a pause, as the 1-D path. A hold that comes at any point
 of the step is enforced by the driver, which refuses the move under its lock right before the
 bytes are written (drivers/base.py Robot.stop).
+
+With a played duty cycle (daemon/arm_player.py) the robot is moved by the player, not by the
+step: the step predicts the tool error at every pose of the cycle (the arm warmed once), checks
+each pose's correction and hands the accepted ones to the player (a refused one is never sent,
+and flags the step ``unsafe-target`` as above), then waits for the robot to arrive at its
+measured pose, measures the tool during the dwell and releases the player. A player's error
+arrives here as the DeviceError of that wait (``robot-error``).
 """
 
 from __future__ import annotations

@@ -11,6 +11,12 @@ clock the hours of a duty cycle pass in seconds, which the emulated robot's move
 cannot, so the emulator performs the run's own moves (to each measured pose and its
 correction) and the truth reads the arm's joints from it at every frame. Every camera and the
 IR reader advance the truth to the run clock before they measure.
+
+With ``arm.play_duty_cycle`` (config/arm-sim-played.toml, time_scale 1) the robot plays the
+whole cycle (daemon/arm_player.py): the emulator then runs on the run's clock at the arm's real
+joint speeds (the duty cycle's limits at `speed 100`, scaled by each move's `speed N`), and the
+truth's motors are heated by the motion the emulator performs (ShiftedMotion over
+``emulator.joint_sample``, from the run's start), not by DutyCycleMotion.
 """
 
 from __future__ import annotations
