@@ -12,7 +12,7 @@ import asyncio
 from collections.abc import Callable
 from itertools import pairwise
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -22,13 +22,14 @@ from config import Settings
 from daemon.arm.run import CyclePose, MeasuredPose
 from daemon.arm.types import Pose6
 from daemon.arm_player import ArmPlayer
+from daemon.arm_robot import GoalRobotArm
 from daemon.run_setup import RunParameterError
 from daemon.runs import RunParameters, RunState
 from daemon.service import Daemon
 from drivers import c500c_protocol as proto
-from drivers.base import MoveResult
+from drivers.base import GoalRobot, LinkState, MoveResult, Pose
 from drivers.clock import VirtualClock, make_clock
-from drivers.errors import MotionHeldError
+from drivers.errors import DeviceError, MotionHeldError
 from drivers.factory import Devices
 from drivers.sim.emulator import C500CEmulator
 
@@ -198,6 +199,61 @@ async def test_pause_resume_restarts_the_player_and_a_hold_stops_every_move(
         assert stopped["state"] == "stopped"
         assert not player.playing
     assert not [c for c in written[held_at:] if proto.is_motion_command(c)], written[held_at:]
+
+
+async def test_a_link_fault_during_the_cycle_faults_the_run_and_a_resume_plays_on(
+    tmp_path: Path,
+) -> None:
+    settings = settings_for(tmp_path, duration_s=600.0)
+    # a lost answer is found out in 2 s (a `finish` on the virtual clock answers at once)
+    robot = settings.robot.model_copy(update={"command_timeout_s": 2.0, "move_timeout_s": 2.0})
+    settings = settings.model_copy(update={"robot": robot})
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        devices = daemon.devices
+        assert isinstance(devices, Devices) and devices.emulator is not None
+        with daemon.subscribe(kinds=frozenset({"step"})) as steps:
+            await daemon.start_run(RunParameters.from_settings(settings))
+            async with asyncio.timeout(WAIT_S):
+                await steps.get()
+            player = player_of(daemon)
+            devices.emulator.inject("drop")  # the answer of the cycle's next command is lost
+            async with asyncio.timeout(WAIT_S):
+                assert await daemon.wait_state(RunState.FAULT) is RunState.FAULT
+                event = await steps.get()  # the step that learnt it from the player
+            assert "robot-error" in event.data["flags"]
+            await until(lambda: not player.playing)
+            await until(lambda: devices.robot.status().link is LinkState.CONNECTED)
+            moves = len(devices.emulator.state.motions)
+            await daemon.resume()
+            async with asyncio.timeout(WAIT_S):
+                event = await steps.get()
+            assert event.data["flags"] == "" and player.playing
+            assert len(devices.emulator.state.motions) > moves
+        stopped = await daemon.stop()
+    assert stopped["state"] == "stopped"
+    assert not player.playing
+
+
+class SpeedlessRobot:
+    """A GoalRobot whose moves take no speed (as the fast path's driver)."""
+
+    def __init__(self) -> None:
+        self.moves = 0
+
+    def taught_goals(self) -> dict[str, Pose]:
+        return {"a": Pose(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)}
+
+    async def move_absolute(self, *args: object, **kwargs: object) -> MoveResult:
+        self.moves += 1
+        raise AssertionError("nothing may be sent")
+
+
+async def test_a_driver_without_a_speed_refuses_a_played_move() -> None:
+    robot = SpeedlessRobot()
+    arm = GoalRobotArm(cast(GoalRobot, robot))
+    with pytest.raises(DeviceError, match="cannot set a move's speed"):
+        await arm.move_to_goal("a", Pose6.zero(), speed_percent=50)
+    assert robot.moves == 0
 
 
 # --- the player against a fake robot ---------------------------------------------------------
