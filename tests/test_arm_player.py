@@ -71,17 +71,21 @@ def settings_for(tmp_path: Path, duration_s: float, **arm: Any) -> Settings:
     )
 
 
-def performed(emulator: C500CEmulator) -> list[tuple[str, int, float, float]]:
+def performed(
+    emulator: C500CEmulator, within_mm: float = 0.5
+) -> list[tuple[str, int, float, float]]:
     """The emulator's motions after the teaching and the references, as (cycle goal, speed %,
-    start, end): each identified by the taught goal it went to (within 0.5 mm: a correction
-    is tens of µm) and its speed (a pose's approach and retreat share a location)."""
+    start, end): each identified by the taught goal it went to (``within_mm``: a correction
+    is tens of µm; the goals are 60 mm apart or more) and its speed (a pose's approach and
+    retreat share a location)."""
     locations = emulator.state.locations
     out = []
     for motion in list(emulator.state.motions)[TEACHING_MOVES:]:
         near = [
             (goal, percent)
             for goal, percent, _ in CYCLE
-            if np.linalg.norm(np.subtract(locations[f"g_{goal}"][:3], motion.target[:3])) < 0.5
+            if np.linalg.norm(np.subtract(locations[f"g_{goal}"][:3], motion.target[:3]))
+            < within_mm
             and percent == motion.speed_percent
         ]
         assert len(near) == 1, (motion, near)
@@ -232,6 +236,41 @@ async def test_a_link_fault_during_the_cycle_faults_the_run_and_a_resume_plays_o
         stopped = await daemon.stop()
     assert stopped["state"] == "stopped"
     assert not player.playing
+
+
+async def test_a_refused_correction_is_never_sent_and_pauses_the_run(tmp_path: Path) -> None:
+    # the model's error x 300: within a minute a pose's correction changes by more than
+    # arm.max_step_translation_mm (0.5 mm) and is refused
+    settings = settings_for(tmp_path, duration_s=300.0)
+    limit_mm = settings.arm.max_step_translation_mm
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        devices = daemon.devices
+        assert isinstance(devices, Devices) and devices.emulator is not None
+        parameters = RunParameters.from_settings(settings, deformation_scale=300.0)
+        info = await daemon.start_run(parameters)
+        async with asyncio.timeout(WAIT_S):
+            assert await daemon.wait_state(RunState.PAUSED) is RunState.PAUSED
+        player = player_of(daemon)
+        await until(lambda: not player.playing)
+        assert daemon.recorder is not None
+        steps = [record.as_dict() for record in daemon.recorder.steps(info["id"])]
+        locations = dict(devices.emulator.state.locations)
+        played = list(devices.emulator.state.motions)[TEACHING_MOVES:]
+        moves = performed(devices.emulator, within_mm=5.0)
+        await daemon.stop()
+    assert "unsafe-target" in steps[-1]["flags"] and "refused" in steps[-1]["error"]
+    assert all("unsafe-target" not in s["flags"] for s in steps[:-1])
+    # every correction the robot was sent into a pose stayed within the limits: its size, and
+    # its change since the previous one into that pose (the refused change never was sent)
+    sent: dict[str, list[np.ndarray]] = {}
+    for (goal, _, _, _), motion in zip(moves, played, strict=True):
+        sent.setdefault(goal, []).append(np.subtract(motion.target[:3], locations[f"g_{goal}"][:3]))
+    rounding = 2e-3  # the console's 0.001 mm per axis
+    for shifts in sent.values():
+        assert max(np.linalg.norm(v) for v in shifts) <= settings.arm.max_translation_mm
+        changes = [np.linalg.norm(b - a) for a, b in pairwise(shifts)]
+        assert max(changes) <= limit_mm + rounding
+    assert max(np.linalg.norm(v) for v in sent["place"]) > 0.3  # corrections were sent
 
 
 class SpeedlessRobot:
