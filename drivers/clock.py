@@ -46,6 +46,11 @@ class ScaledClock:
         await asyncio.sleep(max(remaining, 0.0) / self.factor)
 
 
+#: Scheduling points a pacer gives woken followers before it moves the time on (the run's step
+#: passes a few awaits between its timer's wake and reading the time of its tick).
+FOLLOWER_YIELDS = 8
+
+
 class VirtualClock:
     """Time that only moves when someone sleeps: it jumps to the deadline.
 
@@ -77,15 +82,25 @@ class VirtualClock:
         # a follower due on the way wakes at its own time, and runs before time goes on
         while self._followers and self._followers[0][0] < deadline_s:
             self._now = max(self._now, self._followers[0][0])
-            self._wake_due()
-            await asyncio.sleep(0)
+            await self._let_woken_run()
         self._now = max(self._now, deadline_s)
-        self._wake_due()
-        await asyncio.sleep(0)  # still a scheduling point, as a real sleep would be
+        if not await self._let_woken_run():
+            await asyncio.sleep(0)  # still a scheduling point, as a real sleep would be
+
+    async def _let_woken_run(self) -> bool:
+        """Wake the followers due now and give them a few scheduling points to get on with
+        their step before the pacer moves the time again (a woken task's own awaits, e.g. the
+        session's sleep's clean-up, each take one); whether any was woken."""
+        woken = self._wake_due()
+        for _ in range(FOLLOWER_YIELDS if woken else 0):
+            await asyncio.sleep(0)
+        return woken > 0
 
     async def follow_until(self, deadline_s: float) -> None:
         """Sleep until ``deadline_s`` without moving the time while a pacer holds it."""
         self._check(deadline_s)
+        if self._pacers and self._now >= deadline_s:
+            return  # due: on at once, before the pacer moves the time again
         while self._pacers and self._now < deadline_s:
             waiter = asyncio.get_running_loop().create_future()
             heapq.heappush(self._followers, (deadline_s, next(self._order), waiter))
@@ -111,11 +126,14 @@ class VirtualClock:
             if not self._pacers:  # nobody paces: the followers sleep as anyone does
                 self._wake_all()
 
-    def _wake_due(self) -> None:
+    def _wake_due(self) -> int:
+        woken = 0
         while self._followers and self._followers[0][0] <= self._now:
             _, _, waiter = heapq.heappop(self._followers)
             if not waiter.done():
                 waiter.set_result(None)
+                woken += 1
+        return woken
 
     def _wake_all(self) -> None:
         followers, self._followers = self._followers, []
