@@ -126,14 +126,20 @@ class ArmPlayer:
             self._play(), name=f"run-{self._run_id}-duty-cycle"
         )
 
-    async def stop(self) -> None:
-        """Stop playing: now in a dwell or a wait, after the move being written otherwise."""
+    async def stop(self, grace_s: float | None = None) -> None:
+        """Stop playing: now in a dwell or a wait; otherwise once the move being written has
+        ended, or after ``grace_s`` (a move waiting for the operator's PAUSE/CONTINUE may wait
+        minutes): then it is cut, which holds the robot (drivers/c500c_link.py)."""
         task = self._task
         if task is None:
             self.error = None
             return
         self._stopping = True
         if not self._moving:
+            task.cancel()
+        _, pending = await asyncio.wait({task}, timeout=grace_s)
+        if pending:
+            logger.warning("run %d: cutting the duty cycle's move to stop", self._run_id)
             task.cancel()
         await asyncio.gather(task, return_exceptions=True)
         self._task = None

@@ -300,7 +300,7 @@ class RunSession:
         if playing:
             player.start()
         else:
-            await player.stop()
+            await player.stop(self._services.settings.scheduler.stop_grace_s)
 
     def _arm(self) -> ArmServices:
         arm = self._services.arm

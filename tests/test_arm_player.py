@@ -371,6 +371,34 @@ async def test_a_refused_move_ends_the_playing_and_reaches_the_next_arrival() ->
     await player.stop()
 
 
+class StuckRobot:
+    """A move that does not end (one waiting for the operator's PAUSE/CONTINUE)."""
+
+    def __init__(self) -> None:
+        self.started = asyncio.Event()
+        self.cut = False
+
+    async def move_to_goal(
+        self, goal: str, correction: Pose6, *, speed_percent: int | None = None
+    ) -> MoveResult:
+        self.started.set()
+        try:
+            await asyncio.Event().wait()
+        except asyncio.CancelledError:
+            self.cut = True
+            raise
+        raise AssertionError("unreachable")
+
+
+async def test_stop_lets_a_move_end_but_cuts_it_after_the_grace() -> None:
+    robot = StuckRobot()
+    player = ArmPlayer(robot, fake_cycle(), VirtualClock(), run_id=1)
+    player.start()
+    await robot.started.wait()
+    await player.stop(grace_s=0.05)
+    assert robot.cut and not player.playing
+
+
 # --- settings ----------------------------------------------------------------------------------
 
 
