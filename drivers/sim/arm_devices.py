@@ -256,6 +256,7 @@ async def open_arm_bench(
             joint_arm,
             max_speed_deg_s=tuple(np.degrees(duty.max_speed_rad_s).tolist()),
             max_accel_deg_s2=tuple(np.degrees(duty.max_accel_rad_s2).tolist()),
+            cache_solutions=True,
         )
     async with contextlib.AsyncExitStack() as stack:
         emulator = C500CEmulator(

@@ -31,6 +31,7 @@ Conventions (ASSUMED where C500C.md is silent):
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -79,6 +80,9 @@ WRIST_LOCK_POSITION_TOLERANCE_MM = 1e-4
 #: Weight of the orientation residual of the locked-wrist solve (mm per rad): small, so that
 #: the position is met and the orientation is matched in the directions the wrist can reach.
 WRIST_LOCK_ROTATION_WEIGHT_MM_PER_RAD = 1.0
+#: Solutions kept with JointArmConfig.cache_solutions (a played cycle's locations, each with
+#: its correction of the step: a few per step).
+SOLUTION_CACHE = 4096
 #: A 6-joint arm's wrist: its last three joints.
 WRIST_JOINTS = 3
 
@@ -102,6 +106,12 @@ class JointArmConfig:
     #: joint exceeds its own, as daemon/arm/duty.py plans it); None: one speed for every
     #: joint, ``speed_deg_s`` at REFERENCE_SPEED_PERCENT, scaled by the setting
     max_speed_deg_s: tuple[float, ...] | None = None
+    #: keep the exact inverse-kinematics solution of each world location and reuse it when the
+    #: arm is sent there again (a played duty cycle goes to the same few locations thousands of
+    #: times; the arm keeps its stance, so the solution is the one a solve from the current
+    #: joints converges to; the wrist-singular case is still solved from the current joints):
+    #: the bench's speed only, off by default
+    cache_solutions: bool = False
     #: ... and acceleration limits (deg/s^2), NOT scaled by the speed setting: the console has
     #: no acceleration command (C500C.md "Motion and locations" lists `speed [%]` only), so the
     #: controller keeps its own (ASSUMED); None: ``acceleration_deg_s2`` for every joint
@@ -317,11 +327,17 @@ class JointArm:
 
     config: JointArmConfig
     _history: deque[_Motion] = field(init=False)
+    #: the motions' start times, for a bisection (a truth integrating a played cycle samples
+    #: hundreds of motions back); False once a halt made them non-monotonic: a scan then
+    _starts: deque[float] = field(init=False)
+    _sorted: bool = field(init=False, default=True)
     _commanded_q: FloatArray = field(init=False)
+    _solutions: dict[tuple[float, ...], FloatArray] = field(init=False, default_factory=dict)
 
     def __post_init__(self) -> None:
         q = np.radians(np.asarray(self.config.start_joints_deg, dtype=np.float64))
         self._history = deque([trapezoid(q, q, 0.0, 1.0, 1.0)], maxlen=MOTION_HISTORY)
+        self._starts = deque([0.0], maxlen=MOTION_HISTORY)
         self._commanded_q = q.copy()
 
     @property
@@ -336,6 +352,8 @@ class JointArm:
         return self._motion_at(t_s).sample(t_s)[0]
 
     def _motion_at(self, t_s: float) -> _Motion:
+        if self._sorted:  # the latest motion started at or before t_s
+            return self._history[max(bisect.bisect_right(self._starts, t_s) - 1, 0)]
         for motion in reversed(self._history):
             if motion.start_s <= t_s:
                 return motion
@@ -397,7 +415,7 @@ class JointArm:
         else:
             speed, acceleration = config.limits_rad(speed_percent)
             motion = synchronised(q_now, q_actual, start_s, speed, acceleration)
-        self._history.append(motion)
+        self._append(motion)
         self._commanded_q = q_target
         return motion.end_s
 
@@ -407,10 +425,19 @@ class JointArm:
         found) with the first wrist joint kept where it is (module docstring).
         UnreachableError when no solution is within the tolerances."""
         arm, pose = self.arm, pose_of(target)
-        try:
-            exact: FloatArray | None = inverse(arm, pose, q_now, restarts=0)
-        except ArmError as err:
-            exact, failure = None, err
+        key = tuple(float(v) for v in target)
+        exact: FloatArray | None = self._solutions.get(key)
+        failure: ArmError | None = None
+        if exact is None:
+            try:
+                exact = inverse(arm, pose, q_now, restarts=0)
+            except ArmError as err:
+                failure = err
+            else:
+                if self.config.cache_solutions:
+                    if len(self._solutions) >= SOLUTION_CACHE:
+                        self._solutions.clear()
+                    self._solutions[key] = exact
         seed = q_now if exact is None else exact
         if wrist_singular(arm, seed):
             locked = wrist_locked_inverse(arm, pose, seed, q_now)
@@ -418,12 +445,18 @@ class JointArm:
                 return locked
         if exact is None:
             raise UnreachableError(str(failure)) from failure
-        return exact
+        return exact.copy()
 
     def halt(self, now_s: float) -> None:
         """Stop the motion in progress where the arm is at ``now_s``."""
         if now_s < self._last.end_s:
-            self._history.append(self._motion_at(now_s).halted_at(now_s))
+            self._append(self._motion_at(now_s).halted_at(now_s))
+
+    def _append(self, motion: _Motion) -> None:
+        if motion.start_s < self._starts[-1]:
+            self._sorted = False
+        self._history.append(motion)
+        self._starts.append(motion.start_s)
 
     def pulses(self, q_rad: FloatArray) -> tuple[int, ...]:
         """The `PULSES` row: joint degrees x pulses per degree (ESTIMATED, see the constant)."""
