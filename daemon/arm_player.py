@@ -70,6 +70,7 @@ class Arrival:
 class _Request:
     name: str
     arrived: asyncio.Future[Arrival]
+    ready: asyncio.Event = field(default_factory=asyncio.Event)  # the step's corrections in
     released: asyncio.Event = field(default_factory=asyncio.Event)
 
 
@@ -147,6 +148,19 @@ class ArmPlayer:
 
     # --- the step's side -----------------------------------------------------------------
 
+    def expect(self, name: str) -> None:
+        """A step will measure at the cycle pose ``name``: the move into it waits until the
+        step's corrections are handed over (:meth:`ready`), so that it carries them (and,
+        on a virtual clock, so that which arrival a step measures does not depend on how long
+        its model took on a worker thread). :meth:`release` withdraws it."""
+        self.release()
+        self._request = _Request(name, asyncio.get_running_loop().create_future())
+
+    def ready(self) -> None:
+        """The step's corrections are handed over: the move into its pose may start."""
+        if self._request is not None:
+            self._request.ready.set()
+
     async def arrive(self, name: str) -> Arrival:
         """Wait until the robot has arrived at the cycle pose ``name`` (its next arrival);
         the robot stays there until :meth:`release`. Raises the player's error."""
@@ -154,8 +168,12 @@ class ArmPlayer:
             raise self.error
         if not self.playing:
             raise PlayerStoppedError("the duty cycle is not playing")
-        request = _Request(name, asyncio.get_running_loop().create_future())
-        self._request = request
+        request = self._request
+        if request is None or request.name != name:
+            self.expect(name)
+            request = self._request
+            assert request is not None
+        request.ready.set()
         try:
             return await request.arrived
         except BaseException:
@@ -163,10 +181,13 @@ class ArmPlayer:
             raise
 
     def release(self) -> None:
-        """The step is done at the pose: the player may move on."""
+        """The step is done at the pose (or withdraws its request): the player may go on."""
         request, self._request = self._request, None
         if request is not None:
+            request.ready.set()
             request.released.set()
+            if not request.arrived.done():
+                request.arrived.cancel()
 
     # --- the playing ---------------------------------------------------------------------
 
@@ -186,6 +207,9 @@ class ArmPlayer:
             with self._paced():
                 while not self._stopping:
                     entry = self.cycle[self.next_index]
+                    request = self._request
+                    if request is not None and request.name == entry.name:
+                        await request.ready.wait()  # the move carries the step's corrections
                     correction = self.correction(entry.name)
                     self._moving = True
                     try:

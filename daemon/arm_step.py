@@ -172,13 +172,29 @@ class ArmStepPipeline:
         self._limits = correction_limits(settings)
 
     async def run(self, work: ArmRunWork, tick: Tick) -> StepOutcome:
-        parameters = work.parameters
-        run_time_s = tick.scheduled_s - work.start_s
-        record, flags = begin_record(work.run_id, parameters, work.start_s, tick)
-        errors: list[str] = []
-        stages: dict[str, float] = {}
+        record, flags = begin_record(work.run_id, work.parameters, work.start_s, tick)
         pose = work.pose_at(tick.step)
         record.arm_pose = pose.name
+        if self._player is None:
+            return await self._step(work, tick, pose, record, flags)
+        self._player.expect(pose.name)  # before the model: the move into it waits for it
+        try:
+            return await self._step(work, tick, pose, record, flags)
+        finally:
+            self._player.release()
+
+    async def _step(
+        self,
+        work: ArmRunWork,
+        tick: Tick,
+        pose: MeasuredPose,
+        record: StepRecord,
+        flags: list[str],
+    ) -> StepOutcome:
+        parameters = work.parameters
+        run_time_s = tick.scheduled_s - work.start_s
+        errors: list[str] = []
+        stages: dict[str, float] = {}
 
         # 1. the model to the time the move is expected to execute, then the tool error there
         started = time.perf_counter()
@@ -198,12 +214,13 @@ class ArmStepPipeline:
         correction, unsafe = self._correction(work, pose, error)
         if player is not None and unsafe is None:
             unsafe = self._hand_to_player(work, player, errors_by_pose)
+        if player is not None:
+            (player.release if unsafe is not None else player.ready)()
         self._record_correction(record, correction)
 
         # 3. the move to the pose's taught goal + the correction (played: the cycle's arrival)
         device_fault: str | None = None
         round_trips_s: tuple[float, ...] = ()
-        arrived = False
         if unsafe is not None:
             flags.append("unsafe-target")
             errors.append(unsafe)
@@ -214,7 +231,6 @@ class ArmStepPipeline:
                     work.last_correction[pose.name] = correction
                 else:
                     arrival = await player.arrive(pose.name)
-                    arrived = True
                     result = arrival.result
                     self._record_correction(record, arrival.correction)
                 round_trips_s = result.round_trips_s
@@ -230,14 +246,12 @@ class ArmStepPipeline:
         stages["move"] = time.perf_counter() - started
 
         # 4. measure the tool in every camera, and the IR regions
-        try:
-            if device_fault is None and unsafe is None:
-                await self._measure(
-                    work, pose=pose, record=record, flags=flags, errors=errors, stages=stages
-                )
-        finally:
-            if arrived and player is not None:
-                player.release()  # the robot may go on with its cycle
+        # (played: the robot stays at the pose until the step is recorded, run() releases it:
+        # a few ms beyond the dwell, and which arrival each step measures is reproducible)
+        if device_fault is None and unsafe is None:
+            await self._measure(
+                work, pose=pose, record=record, flags=flags, errors=errors, stages=stages
+            )
 
         # 5. record, committed before the next step begins
         finish_record(record, flags, errors, stages)
