@@ -65,7 +65,7 @@ async def one_run(settings: Settings, **overrides: Any) -> dict[str, Any]:
         steps = [record.as_dict() for record in daemon.recorder.steps(info["id"])]
         devices = daemon.devices
         assert isinstance(devices, Devices) and devices.emulator is not None
-        moves = len(devices.emulator.state.motions)
+        moves = devices.emulator.state.motion_count
     if final["state"] != "finished":
         raise RuntimeError(f"run {info['id']} ended {final['state']}: {final.get('reason')}")
     flagged = [s for s in steps if s["flags"]]

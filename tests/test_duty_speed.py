@@ -194,6 +194,7 @@ async def test_the_console_driver_sets_the_emulated_arms_speed_over_a_pty(
     commands = list(emulator.state.commands)
     assert commands.count("speed 40") == 1
     assert emulator.state.speed_percent == 40
+    assert emulator.state.motion_count == len(emulator.state.motions) == 2
 
 
 # --- the paced virtual clock -----------------------------------------------------------------

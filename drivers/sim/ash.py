@@ -109,6 +109,7 @@ class ConsoleState:
     #: every motion started, in order (bounded like ``commands``): its start and end on the
     #: emulator's clock, the location it was commanded to and the speed setting it ran at
     motions: deque[MotionRecord] = field(default_factory=lambda: deque(maxlen=COMMAND_LOG_LINES))
+    motion_count: int = 0  # every motion ever started (``motions`` keeps the latest)
 
     def log_command(self, line: str) -> None:
         self.commands.append(line)
@@ -363,6 +364,7 @@ class Console:
                 raise ConsoleCommandError(proto.format_error(3)) from None
             start_s = self.joint_arm.last_start_s()
             state.motions.append(MotionRecord(start_s, end_s, target, state.speed_percent))
+            state.motion_count += 1
             state.previous_actual = self.actual_pose(now_s)
             state.commanded = target
             state.actual = self.actual_pose(end_s)
@@ -375,6 +377,7 @@ class Console:
         )
         state.motion_end_s = now_s + self.config.move_ms / 1000.0
         state.motions.append(MotionRecord(now_s, state.motion_end_s, target, state.speed_percent))
+        state.motion_count += 1
 
     async def _finish(self) -> None:
         clock = self.config.clock
