@@ -6,9 +6,11 @@ step pipeline checked for that pose (daemon/arm_step.py: the correction of each 
 its own configuration, checked against the arm.max_* limits before it is handed here; a refused
 one never is), at the pose's speed (the console's `speed N`, sent by the driver only when it
 changes; the acceleration is the controller's own: C500C.md has no command for it), then the
-pose's dwell on the run clock. A step that measures a pose asks for it (:meth:`arrive`): when
-the robot is there, the step measures the tool during the dwell, and the player waits for the
-step (:meth:`release`) before it moves on, so the robot never moves under a measurement.
+pose's dwell on the run clock. A step that measures a pose names it first (:meth:`expect`, before
+its model runs); the move into that pose waits until the step has handed over its corrections
+(:meth:`ready`); when the robot is there (:meth:`arrive`) the step measures the tool during the
+dwell, and the player waits for the step (:meth:`release`) before it moves on, so the robot
+never moves under a measurement.
 
 The player owns no run state: daemon/session.py starts it when the run runs and stops it on a
 pause, a fault and the end (:meth:`stop` lets a move already written end: cutting a console
