@@ -154,6 +154,23 @@ async def test_the_robot_plays_every_pose_in_order_at_its_speed_and_dwell(tmp_pa
         assert any(np.allclose(shift, correction, atol=6e-4) for shift in shifts), correction
 
 
+async def test_a_played_run_is_reproducible(tmp_path: Path) -> None:
+    """Which arrival each step measures does not hang on its worker threads' timing (the step
+    names its pose before its model runs, the move into it waits for the corrections)."""
+    runs = []
+    for name in ("a", "b"):
+        settings = settings_for(tmp_path / name, duration_s=60.0)
+        async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+            info = await daemon.start_run(RunParameters.from_settings(settings))
+            async with asyncio.timeout(WAIT_S):
+                await daemon.wait_run()
+            assert daemon.recorder is not None
+            runs.append([r.as_dict() for r in daemon.recorder.steps(info["id"])])
+    columns = ("drift_3d_um", "correction_tx_mm", "predicted_tz_um", "actual_s")
+    first, second = ([[s[c] for c in columns] for s in steps] for steps in runs)
+    assert first == second and len(first) == 3
+
+
 async def test_pause_resume_restarts_the_player_and_a_hold_stops_every_move(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
