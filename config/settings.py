@@ -816,6 +816,13 @@ class ArmSettings(_Section):
         description="With arm.bending: share of each joint's flange conductance on the link's "
         "motor-housing side (the arm's design; 0.5: symmetric, no gradient across a link).",
     )
+    play_duty_cycle: bool | None = Field(
+        None,
+        description="The robot plays the whole duty cycle (every pose at its speed, its dwell) "
+        "for the whole arm run, the measured poses measured in passing; needs time_scale 1 and "
+        "the console driver. false: it moves to the measured poses only (the accelerated "
+        "bench). none: played with robot.driver c500c, not on the bench or the fast path.",
+    )
 
     @model_validator(mode="after")
     def _camera_devices_need_models(self) -> Self:
@@ -837,6 +844,22 @@ class ArmSettings(_Section):
 
 class Settings(_Section):
     """Everything thermocomp can be told, one section per part of the product."""
+
+    @model_validator(mode="after")
+    def _playable_duty_cycle(self) -> Self:
+        # a real arm cannot be accelerated, and the fast path's frames carry no speed
+        if self.arm.play_duty_cycle:
+            if self.robot.driver == "c500c-server":
+                raise ValueError(
+                    "arm.play_duty_cycle needs robot.driver c500c: the fast path's moves "
+                    "carry no speed (controller/PROTOCOL.md)"
+                )
+            if self.compensation.time_scale != 1.0:
+                raise ValueError(
+                    "arm.play_duty_cycle needs compensation.time_scale 1: a played cycle "
+                    "moves the arm in real time"
+                )
+        return self
 
     bench: BenchSettings = BenchSettings()
     camera: CameraSettings = CameraSettings()

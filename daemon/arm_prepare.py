@@ -2,6 +2,9 @@
 named goal, then measure the tool at each goal before any correction: the zero of each pose's
 drift (thesis 6.2's reference "at the start at the operational goal", one per pose).
 
+With a played duty cycle (daemon/arm_player.py) every pose of the cycle is taught, the
+measured ones under their own names.
+
 Teaching an arm pose moves the robot (to the pose's joint angles), unlike the two-link bench's
 ``here opgoal``: daemon/session.py calls this only once motion is allowed (after the start's
 resume, and again after a resume from a fault), and the driver refuses every move after a
@@ -15,6 +18,7 @@ from dataclasses import dataclass
 
 from daemon.arm.run import MeasurementError
 from daemon.arm.types import Pose6
+from daemon.arm_player import ArmPlayer
 from daemon.arm_step import ArmRobot, ArmRunWork, ArmStepPipeline, ToolMeter
 from daemon.events import ErrorLog
 from drivers.errors import DeviceError
@@ -29,11 +33,16 @@ class ArmServices:
     robot: ArmRobot
     meter: ToolMeter
     pipeline: ArmStepPipeline
+    player: ArmPlayer | None = None  # a played duty cycle (daemon/arm_player.py)
 
 
 async def teach_poses(work: ArmRunWork, robot: ArmRobot) -> None:
-    """Teach each measured pose as the goal of its name (raises DeviceError)."""
-    for pose in work.poses:
+    """Teach each measured pose as the goal of its name, or with a played duty cycle every
+    pose of the cycle, in its order (raises DeviceError)."""
+    poses = {pose.name: pose for pose in work.poses}
+    if work.cycle:
+        poses = {entry.pose.name: entry.pose for entry in work.cycle}
+    for pose in poses.values():
         work.taught[pose.name] = await robot.teach_pose(pose)
         logger.info("run %d: taught pose %r", work.run_id, pose.name)
 

@@ -15,13 +15,22 @@ motion command refused after a hold, right before its bytes are written.
 from __future__ import annotations
 
 import logging
+from typing import cast
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from daemon.arm.run import FloatArray, MeasuredPose
 from daemon.arm.types import Pose6
-from drivers.base import DEFAULT_GOAL, GoalRobot, MoveResult, Pose, RobotStatus, Vector3
+from drivers.base import (
+    DEFAULT_GOAL,
+    GoalRobot,
+    MoveResult,
+    Pose,
+    RobotStatus,
+    SpeedGoalRobot,
+    Vector3,
+)
 from drivers.errors import DeviceError
 
 logger = logging.getLogger(__name__)
@@ -49,6 +58,12 @@ def shift_to(target: FloatArray, start: FloatArray) -> tuple[Vector3, Vector3]:
     return t, r
 
 
+def sets_speed(robot: object) -> bool:
+    """Whether the driver's moves take a speed (drivers/base.py SpeedGoalRobot: the console
+    driver; the fast path's frames carry none)."""
+    return bool(getattr(robot, "SETS_SPEED", False))
+
+
 class GoalRobotArm:
     """ArmRobot over a GoalRobot driver (module docstring)."""
 
@@ -73,15 +88,25 @@ class GoalRobotArm:
         )
         return taught
 
-    async def move_to_goal(self, goal: str, correction: Pose6) -> MoveResult:
+    async def move_to_goal(
+        self, goal: str, correction: Pose6, *, speed_percent: int | None = None
+    ) -> MoveResult:
+        """The taught ``goal`` + ``correction``; ``speed_percent``: at that speed (a played
+        duty cycle, drivers/base.py SpeedGoalRobot), refused by a driver that cannot set it."""
         t, r = correction.translation_mm, correction.rotation_rad
         if goal not in self.robot.taught_goals():
             raise DeviceError("robot", f"goal {goal!r} is not taught")
-        return await self.robot.move_absolute(
-            (float(t[0]), float(t[1]), float(t[2])),
-            (float(r[0]), float(r[1]), float(r[2])),
-            goal=goal,
-        )
+        offset = (float(t[0]), float(t[1]), float(t[2]))
+        rotation = (float(r[0]), float(r[1]), float(r[2]))
+        if speed_percent is None:
+            return await self.robot.move_absolute(offset, rotation, goal=goal)
+        if not sets_speed(self.robot):
+            raise DeviceError(
+                "robot",
+                f"the robot driver {type(self.robot).__name__} cannot set a move's speed",
+            )
+        robot = cast(SpeedGoalRobot, self.robot)
+        return await robot.move_absolute(offset, rotation, goal=goal, speed_percent=speed_percent)
 
     async def stop(self) -> None:
         await self.robot.stop()

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, cast
 
 from config import CONFIG_DIR, Settings
-from daemon.arm.run import ArmPredictor, MeasuredPose
+from daemon.arm.run import ArmPredictor, CyclePose, MeasuredPose
 from daemon.arm_step import ArmRobot, ToolMeter
 from daemon.devices_check import Devices
 from daemon.runs import RunParameters
@@ -34,6 +34,8 @@ class ArmPlan:
     predictor: ArmPredictor
     poses: tuple[MeasuredPose, ...]
     snapshot: dict[str, Any] = field(default_factory=dict)
+    #: every pose of the duty cycle as the robot plays it (daemon/arm_player.py)
+    cycle: tuple[CyclePose, ...] = ()
 
 
 ArmSetup = Callable[[Settings, RunParameters], ArmPlan]
@@ -48,6 +50,24 @@ def arm_file(settings: Settings) -> Path:
     name = settings.arm.arm_file
     preset = ARMS_DIR / f"{name}.toml"
     return preset if preset.exists() else Path(name)
+
+
+def plays_duty_cycle(settings: Settings) -> bool:
+    """Whether arm runs play the whole duty cycle (arm.play_duty_cycle; unset: on the real
+    console only, config/settings.py's description)."""
+    play = settings.arm.play_duty_cycle
+    return settings.robot.driver == "c500c" if play is None else play
+
+
+def check_played_run(settings: Settings, parameters: RunParameters, plan: ArmPlan) -> None:
+    """A played duty cycle moves the real arm in real time: time_scale 1, and the cycle."""
+    if parameters.time_scale != 1.0:
+        raise ArmSetupError(
+            f"a played duty cycle needs time_scale 1, not {parameters.time_scale:g}: a real "
+            "arm cannot be accelerated (set arm.play_duty_cycle = false to measure only)"
+        )
+    if not plan.cycle:
+        raise ArmSetupError("a played duty cycle needs the cycle's poses (the arm setup gave none)")
 
 
 def check_arm_run(settings: Settings, duty_cycle: str | None) -> None:
@@ -101,7 +121,18 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
         "arm_model": None if identified is None else identified.provenance(),
         "prediction": parameters.prediction,
     }
-    return ArmPlan(controller, poses, snapshot)
+    cycle = controller.cycle_poses(poses)
+    if plays_duty_cycle(settings):
+        snapshot["played"] = [
+            {
+                "pose": c.name,
+                "goal": c.pose.name,
+                "speed_percent": c.speed_percent,
+                "dwell_s": c.dwell_s,
+            }
+            for c in cycle
+        ]
+    return ArmPlan(controller, poses, snapshot, cycle)
 
 
 def default_arm_meter(settings: Settings, devices: Devices, workers: Workers) -> ToolMeter:

@@ -14,6 +14,13 @@ A refused correction (a limit, a non-finite value) is never sent: the step recor
 flag ``unsafe-target`` and asks for a pause, as the 1-D path. A hold that comes at any point
 of the step is enforced by the driver, which refuses the move under its lock right before the
 bytes are written (drivers/base.py Robot.stop).
+
+With a played duty cycle (daemon/arm_player.py) the robot is moved by the player, not by the
+step: the step predicts the tool error at every pose of the cycle (the arm warmed once), checks
+each pose's correction and hands the accepted ones to the player (a refused one is never sent,
+and flags the step ``unsafe-target`` as above), then waits for the robot to arrive at its
+measured pose, measures the tool during the dwell and releases the player. A player's error
+arrives here as the DeviceError of that wait (``robot-error``).
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from config import Settings
 from daemon.arm.correction import CorrectionLimits, check_correction, correction_for
 from daemon.arm.run import (
     ArmPredictor,
+    CyclePose,
     FloatArray,
     MeasuredPose,
     MeasurementError,
@@ -41,6 +49,7 @@ from daemon.arm.run import (
     translation_um,
 )
 from daemon.arm.types import Pose6
+from daemon.arm_player import ArmPlayer
 from daemon.events import ErrorLog
 from daemon.model.compensation import UnsafeTargetError
 from daemon.recorder import Recorder, StepRecord
@@ -77,8 +86,11 @@ class ArmRobot(Protocol):
         """Bring the tool to ``pose`` and teach it there as the goal ``pose.name``."""
         ...
 
-    async def move_to_goal(self, goal: str, correction: Pose6) -> MoveResult:
-        """Move to the taught goal ``goal`` shifted by ``correction`` (base frame)."""
+    async def move_to_goal(
+        self, goal: str, correction: Pose6, *, speed_percent: int | None = None
+    ) -> MoveResult:
+        """Move to the taught goal ``goal`` shifted by ``correction`` (base frame), at
+        ``speed_percent`` of the controller's speed (None: its current one)."""
         ...
 
     async def stop(self) -> None: ...
@@ -113,6 +125,9 @@ class ArmRunWork:
     #: the tool pose measured at each taught goal before the first move: the drift's zero
     reference: dict[str, FloatArray] = field(default_factory=dict)
     reference_source: str = "each pose's first step"
+    #: a played duty cycle (daemon/arm_player.py): every pose in order, each taught; empty:
+    #: the robot moves to the measured poses only, one per step
+    cycle: tuple[CyclePose, ...] = ()
 
     def pose_at(self, step: int) -> MeasuredPose:
         """The measured poses in turn, one per step (the duty cycle's order)."""
@@ -144,7 +159,9 @@ class ArmStepPipeline:
         workers: Workers,
         errors: ErrorLog,
         clock_now: Callable[[], float],
+        player: ArmPlayer | None = None,
     ) -> None:
+        self._player = player  # a played duty cycle: the robot is moved by it
         self._settings = settings
         self._robot = robot
         self._meter = meter
@@ -156,27 +173,53 @@ class ArmStepPipeline:
         self._limits = correction_limits(settings)
 
     async def run(self, work: ArmRunWork, tick: Tick) -> StepOutcome:
-        parameters = work.parameters
-        run_time_s = tick.scheduled_s - work.start_s
-        record, flags = begin_record(work.run_id, parameters, work.start_s, tick)
-        errors: list[str] = []
-        stages: dict[str, float] = {}
+        record, flags = begin_record(work.run_id, work.parameters, work.start_s, tick)
         pose = work.pose_at(tick.step)
         record.arm_pose = pose.name
+        if self._player is None:
+            return await self._step(work, tick, pose, record, flags)
+        self._player.expect(pose.name)  # before the model: the move into it waits for it
+        try:
+            return await self._step(work, tick, pose, record, flags)
+        finally:
+            self._player.release()
+
+    async def _step(
+        self,
+        work: ArmRunWork,
+        tick: Tick,
+        pose: MeasuredPose,
+        record: StepRecord,
+        flags: list[str],
+    ) -> StepOutcome:
+        parameters = work.parameters
+        run_time_s = tick.scheduled_s - work.start_s
+        errors: list[str] = []
+        stages: dict[str, float] = {}
 
         # 1. the model to the time the move is expected to execute, then the tool error there
         started = time.perf_counter()
         model_s = (run_time_s + self._settings.compensation.latency_s) * parameters.time_scale
-        error = await self._workers.step(self._predict, work, model_s, pose)
+        player = self._player
+        if player is None:
+            error = await self._workers.step(self._predict, work, model_s, pose)
+            errors_by_pose = {pose.name: error}
+        else:  # every pose of the played cycle at its own configuration, the arm warmed once
+            errors_by_pose = await self._workers.step(self._predict_cycle, work, model_s)
+            error = errors_by_pose[pose.name]
         self._record_model(work, record, error)
         stages["model"] = time.perf_counter() - started
 
-        # 2. the correction, checked before anything reaches the robot
+        # 2. the corrections, checked before anything reaches the robot
         started = time.perf_counter()
         correction, unsafe = self._correction(work, pose, error)
+        if player is not None and unsafe is None:
+            unsafe = self._hand_to_player(work, player, errors_by_pose)
+        if player is not None:
+            (player.release if unsafe is not None else player.ready)()
         self._record_correction(record, correction)
 
-        # 3. the move to the pose's taught goal + the correction
+        # 3. the move to the pose's taught goal + the correction (played: the cycle's arrival)
         device_fault: str | None = None
         round_trips_s: tuple[float, ...] = ()
         if unsafe is not None:
@@ -184,8 +227,13 @@ class ArmStepPipeline:
             errors.append(unsafe)
         else:
             try:
-                result = await self._robot.move_to_goal(pose.name, correction)
-                work.last_correction[pose.name] = correction
+                if player is None:
+                    result = await self._robot.move_to_goal(pose.name, correction)
+                    work.last_correction[pose.name] = correction
+                else:
+                    arrival = await player.arrive(pose.name)
+                    result = arrival.result
+                    self._record_correction(record, arrival.correction)
                 round_trips_s = result.round_trips_s
                 if result.pose is None:
                     flags.append("no-readback")
@@ -199,6 +247,8 @@ class ArmStepPipeline:
         stages["move"] = time.perf_counter() - started
 
         # 4. measure the tool in every camera, and the IR regions
+        # (played: the robot stays at the pose until the step is recorded, run() releases it:
+        # a few ms beyond the dwell, and which arrival each step measures is reproducible)
         if device_fault is None and unsafe is None:
             await self._measure(
                 work, pose=pose, record=record, flags=flags, errors=errors, stages=stages
@@ -231,6 +281,22 @@ class ArmStepPipeline:
         return predictor.tool_error(pose)
 
     @staticmethod
+    def _predict_cycle(work: ArmRunWork, model_s: float) -> dict[str, Pose6]:
+        """The tool error at every pose of the played cycle (kinematics.tool_errors through
+        the predictor's ``tool_errors`` when it has one), by cycle pose name; the measured
+        poses under their names too."""
+        predictor = work.predictor
+        if model_s > predictor.time_s:
+            predictor.advance_to(model_s)
+        poses = [entry.pose for entry in work.cycle]
+        many = getattr(predictor, "tool_errors", None)
+        found = many(poses) if callable(many) else [predictor.tool_error(p) for p in poses]
+        out = {entry.name: e for entry, e in zip(work.cycle, found, strict=True)}
+        for pose in work.poses:
+            out.setdefault(pose.name, predictor.tool_error(pose))
+        return out
+
+    @staticmethod
     def _record_model(work: ArmRunWork, record: StepRecord, error: Pose6) -> None:
         record.model_time_s = work.predictor.time_s
         record.predicted_tx_um, record.predicted_ty_um, record.predicted_tz_um = translation_um(
@@ -258,6 +324,29 @@ class ArmStepPipeline:
             return check_correction(correction, work.previous(pose), self._limits), None
         except UnsafeTargetError as err:
             return Pose6.zero(), f"correction of pose {pose.name!r} refused: {err}"
+
+    def _hand_to_player(
+        self, work: ArmRunWork, player: ArmPlayer, errors_by_pose: dict[str, Pose6]
+    ) -> str | None:
+        """Each played pose's correction, checked against the limits and the pose's previous
+        one; the accepted ones go to the player (the next move into each pose uses it), a
+        refused one never does: the first refusal is returned for the step's verdict."""
+        if work.parameters.compensation == "off":
+            return None
+        accepted: dict[str, Pose6] = {}
+        refused: str | None = None
+        for entry in work.cycle:
+            try:
+                correction = correction_for(
+                    errors_by_pose[entry.name], work.parameters.deformation_scale
+                )
+                previous = work.last_correction.get(entry.name, Pose6.zero())
+                accepted[entry.name] = check_correction(correction, previous, self._limits)
+            except UnsafeTargetError as err:
+                refused = refused or f"correction of pose {entry.name!r} refused: {err}"
+        work.last_correction.update(accepted)
+        player.set_corrections(accepted)
+        return refused
 
     @staticmethod
     def _record_correction(record: StepRecord, correction: Pose6) -> None:

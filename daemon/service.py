@@ -28,6 +28,7 @@ from typing import Any, TypeVar
 
 from config import Settings
 from daemon import __version__
+from daemon.arm_player import ArmPlayer
 from daemon.arm_prepare import ArmServices
 from daemon.arm_setup import (
     ArmMeterFactory,
@@ -35,8 +36,10 @@ from daemon.arm_setup import (
     ArmSetupError,
     arm_robot,
     check_arm_run,
+    check_played_run,
     default_arm_meter,
     default_arm_setup,
+    plays_duty_cycle,
 )
 from daemon.arm_step import ArmRunWork, ArmStepPipeline
 from daemon.devices_check import DeviceCheck, Devices, check_devices
@@ -66,7 +69,7 @@ from daemon.sensors import Sensors
 from daemon.session import BenchControl, ResumeRefusedError, RunSession, SessionServices
 from daemon.step import RunWork, StepPipeline
 from daemon.workers import Workers
-from drivers.clock import Clock, make_clock
+from drivers.clock import Clock, FollowingClock, make_clock
 
 __all__ = [
     "Daemon",
@@ -254,6 +257,17 @@ class Daemon:
             raise RunParameterError(f"arm run: {err}") from err
         if not plan.poses:
             raise RunParameterError("arm run: the duty cycle has no measured pose")
+        played = plays_duty_cycle(self.settings)
+        if played:
+            try:
+                check_played_run(self.settings, parameters, plan)
+            except ArmSetupError as err:
+                raise RunParameterError(f"arm run: {err}") from err
+        elif self.settings.robot.driver != "sim":
+            logger.warning(
+                "arm run: the duty cycle is not played (arm.play_duty_cycle): the robot moves "
+                "to its measured poses only; run the cycle's motion on the controller"
+            )
         await workers.db(check_reference_run, recorder, parameters)
         run_id = await workers.db(
             recorder.create_run,
@@ -264,6 +278,7 @@ class Daemon:
         )
         sensors = self._sensors
         assert sensors is not None
+        player = ArmPlayer(robot, plan.cycle, self.clock, run_id) if played else None
         pipeline = ArmStepPipeline(
             self.settings,
             robot=robot,
@@ -273,9 +288,12 @@ class Daemon:
             workers=workers,
             errors=self.error_log,
             clock_now=self.clock.now,
+            player=player,
         )
-        work = ArmRunWork(run_id, parameters, plan.predictor, plan.poses)
-        return work, ArmServices(robot, meter, pipeline)
+        work = ArmRunWork(
+            run_id, parameters, plan.predictor, plan.poses, cycle=plan.cycle if played else ()
+        )
+        return work, ArmServices(robot, meter, pipeline, player)
 
     async def pause(self, reason: str = "paused by request") -> None:
         async with self._requests:
@@ -436,7 +454,8 @@ class Daemon:
             bench = getattr(devices, "arm_bench", None) or bench
         return SessionServices(
             settings=self.settings,
-            clock=self.clock,
+            # a played duty cycle paces a virtual clock: the run's steps follow it
+            clock=self.clock if arm is None or arm.player is None else FollowingClock(self.clock),
             robot=devices.robot,
             sensors=sensors,
             bench=bench,

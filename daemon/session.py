@@ -289,6 +289,19 @@ class RunSession:
         elif not moving:
             work.goal = await self._services.robot.teach_goal()
 
+    async def _play_duty_cycle(self, playing: bool) -> None:
+        """A played duty cycle (daemon/arm_player.py) runs while the run runs: started (from
+        the pose after the last one reached) when it runs, stopped when it pauses, faults or
+        ends. The player changes no state: its errors come back through the next step."""
+        arm = self._services.arm
+        player = None if arm is None else arm.player
+        if player is None:
+            return
+        if playing:
+            player.start()
+        else:
+            await player.stop(self._services.settings.scheduler.stop_grace_s)
+
     def _arm(self) -> ArmServices:
         arm = self._services.arm
         if arm is None:
@@ -353,12 +366,14 @@ class RunSession:
             if self.stop_requested or self.state is RunState.STOPPING:
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
+                await self._play_duty_cycle(False)
                 if not await self._wait_while_held():
                     return
                 timer.resync()
                 continue
             if timer.next_deadline_s >= end_s - 1e-9:
                 return
+            await self._play_duty_cycle(True)
             await self._sleep_until(timer.next_wake_s)
             if self.stop_requested or self.state is not RunState.RUNNING:
                 continue  # woken by a request: handled at the top
@@ -460,6 +475,7 @@ class RunSession:
         services = self._services
         try:
             await self._hold_quietly()
+            await self._play_duty_cycle(False)
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
             try:

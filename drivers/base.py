@@ -221,3 +221,23 @@ class GoalRobot(Robot, Protocol):
     def taught_goals(self) -> dict[str, Pose]:
         """The goals taught on this connection's controller, by name."""
         ...
+
+
+class SpeedGoalRobot(GoalRobot, Protocol):
+    """A GoalRobot whose absolute moves also set the controller's speed (issue 20: a duty cycle
+    plays each move at its pose's speed). The console driver is one (`speed N`, C500C.md
+    "Motion and locations"); the fast path is not: its MOVE_GOAL frame carries no speed
+    (controller/PROTOCOL.md), so an arm run does not play its duty cycle over it."""
+
+    async def move_absolute(
+        self,
+        offset_mm: Vector3,
+        rotation_rad: Vector3 = ZERO_ROTATION,
+        *,
+        goal: str = DEFAULT_GOAL,
+        speed_percent: int | None = None,
+    ) -> MoveResult:
+        """GoalRobot.move_absolute at ``speed_percent`` (1..100 % of the controller's maximum
+        speed; refused outside before anything is sent); None: the speed the controller has.
+        The speed is sent only when it differs from the last one sent on this connection."""
+        ...

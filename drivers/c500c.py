@@ -70,6 +70,9 @@ async def _done() -> None:
 class C500CRobot(ConsoleLink):
     """The robot as the daemon sees it (drivers.base.Robot) on a C500C console."""
 
+    #: a drivers.base.SpeedGoalRobot: its moves take a speed (`speed N`)
+    SETS_SPEED = True
+
     def __init__(
         self,
         settings: RobotSettings,
@@ -90,6 +93,9 @@ class C500CRobot(ConsoleLink):
             self._motion_held, self._hold_reason = True, "connected to check only"
         self._goals: dict[str, Pose] = {}  # taught goals by name (drivers/goals.py)
         self._moves = 0  # moves since the goal was taught (robot.readback_every counts them)
+        #: the speed (%) last set with `speed N` on this connection; None: unknown (the
+        #: controller's own: after a connect, a resume or a restart), so the next is sent
+        self._speed_percent: int | None = None
 
     async def _read_pose(self) -> Pose:
         lines = await self._command("w2", self.settings.command_timeout_s)
@@ -194,14 +200,26 @@ class C500CRobot(ConsoleLink):
         rotation_rad: Vector3 = ZERO_ROTATION,
         *,
         goal: str = DEFAULT_GOAL,
+        speed_percent: int | None = None,
     ) -> MoveResult:
         """Goal + offset (thesis 6.4.4): `set cur = <goal>` and `wshift cur,dx,dy,dz,zrot,yrot,
         xrot` in one write, `moves`, `finish`, and the `w2` read-back every
         robot.readback_every-th move. ``rotation_rad``: a rotation vector in the base frame
         (daemon.arm.types.Pose6), sent as its z-y-x angles in degrees with 3 decimals (C500C.md;
         drivers/goals.py). The read-back is checked on the position only: how the controller
-        composes wshift's angles with the goal's is not documented (C500C.md)."""
+        composes wshift's angles with the goal's is not documented (C500C.md).
+
+        ``speed_percent`` (SpeedGoalRobot): `speed N` first, in the same write as `set` and
+        `wshift`, only when N differs from the speed last sent (it moves nothing; a hold that
+        comes after it still refuses the `moves`). Outside 1..100 it is refused here, before
+        anything is written."""
         self._require_finite(offset_mm)
+        speed = None
+        if speed_percent is not None:
+            try:
+                speed = proto.speed_command(speed_percent)
+            except ValueError as err:
+                raise DeviceError(DEVICE, f"refused {err}") from err
         rotation_deg = rotation_zyx_deg(rotation_rad, DEVICE)
         variable = goal_variable(goal, DEVICE)
         taught = self._goals.get(goal)
@@ -220,8 +238,15 @@ class C500CRobot(ConsoleLink):
                 readback=readback,
                 rotation_deg=rotation_deg,
             )
+            if speed is not None and speed_percent != self._speed_percent:
+                writes[0] = (speed, *writes[0])
+            else:
+                speed = None
             expected = (taught.x + commanded[0], taught.y + commanded[1], taught.z + commanded[2])
-            return await self._run_motion(
+            if speed is not None:
+                # unknown until the write is answered: a failed write sends it again
+                self._speed_percent = None
+            result = await self._run_motion(
                 writes,
                 offset_mm,
                 commanded,
@@ -233,6 +258,9 @@ class C500CRobot(ConsoleLink):
                 ),
                 goal=goal,
             )
+            if speed_percent is not None:
+                self._speed_percent = speed_percent
+            return result
 
     async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
         """Relative `wx`/`wy`/`wz` moves (only to reproduce the thesis's comparison)."""
@@ -302,6 +330,7 @@ class C500CRobot(ConsoleLink):
             self._motion_held = False
             self._hold_reason = None
             self._moves = 0  # the first move after a resume reads the pose back
+            self._speed_percent = None  # a restarted controller is back at its own speed
         logger.info("robot motion resumed")
 
     def status(self) -> RobotStatus:

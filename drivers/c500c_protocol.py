@@ -547,6 +547,23 @@ def absolute_move_commands(
     return writes, commanded
 
 
+#: The console's speed setting (C500C.md "Motion and locations": `speed [%]`; catalogue 015
+#: `Illegal speed chosen` outside it): a whole percentage of the controller's maximum speed.
+MIN_SPEED_PERCENT = 1
+MAX_SPEED_PERCENT = 100
+
+
+def speed_command(percent: int) -> str:
+    """`speed N` (C500C.md "Motion and locations"): the controller's speed for the motions
+    that follow, in percent of its maximum. It moves nothing. The acceleration has no console
+    command (C500C.md lists none): the controller keeps its own."""
+    if isinstance(percent, bool) or not isinstance(percent, int):
+        raise ValueError(f"a speed is a whole percentage, not {percent!r}")
+    if not MIN_SPEED_PERCENT <= percent <= MAX_SPEED_PERCENT:
+        raise ValueError(f"speed {percent} % is outside {MIN_SPEED_PERCENT}..{MAX_SPEED_PERCENT} %")
+    return f"speed {percent}"
+
+
 def incremental_move_commands(
     delta_mm: Vector3, *, readback: bool = True
 ) -> tuple[list[Write], Vector3]:

@@ -21,6 +21,7 @@ the IR regions each step, starting from the identified IR offsets (as benchmarks
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,10 +34,10 @@ from daemon.arm.description import Arm, load_arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.ir_regions import region_nodes
-from daemon.arm.kinematics import forward, inverse, tool_error
-from daemon.arm.run import FloatArray, MeasuredPose
+from daemon.arm.kinematics import forward, inverse, tool_error, tool_errors
+from daemon.arm.run import CyclePose, FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel
-from daemon.arm.types import Pose6
+from daemon.arm.types import LinkThermalState, Pose6
 from daemon.model.observer import IrObserver
 
 #: The observer's prior on an IR offset the model file gives no uncertainty for (degC): the
@@ -155,13 +156,26 @@ class ArmController:
         if self.observer is not None:
             self.observer.update(reading_c)
 
-    def tool_error(self, pose: MeasuredPose) -> Pose6:
-        states = self.thermal.link_states()
+    def _link_states(self) -> tuple[LinkThermalState, ...]:
+        states = tuple(self.thermal.link_states())
         if self.alpha_scale != 1.0:
             states = tuple(
                 dataclasses.replace(s, alpha_per_c=s.alpha_per_c * self.alpha_scale) for s in states
             )
-        return tool_error(self.arm, pose.q_rad, states, bending=self.options.bending)
+        return states
+
+    def tool_error(self, pose: MeasuredPose) -> Pose6:
+        return tool_error(self.arm, pose.q_rad, self._link_states(), bending=self.options.bending)
+
+    def tool_errors(self, poses: Sequence[MeasuredPose]) -> list[Pose6]:
+        """The tool error at each of ``poses`` (a played cycle's every pose) for the model's
+        current state, the arm warmed once (kinematics.tool_errors)."""
+        return tool_errors(
+            self.arm,
+            [pose.q_rad for pose in poses],
+            self._link_states(),
+            bending=self.options.bending,
+        )
 
     def temperatures_c(self) -> Mapping[str, float]:
         return dict(zip(self.thermal.node_names, self.thermal.temperatures_c.tolist(), strict=True))
@@ -184,6 +198,49 @@ class ArmController:
             MeasuredPose(pose.name, np.array(pose.q_rad), forward(self.arm, pose.q_rad))
             for pose in chosen
         )
+
+    def cycle_poses(self, measured: Sequence[MeasuredPose]) -> tuple[CyclePose, ...]:
+        """Every pose of the duty cycle in its order, as the robot plays it (daemon/
+        arm_player.py): each taught as a goal (a measured pose as its ``measured`` entry, the
+        others under a valid goal name made from theirs: :func:`goal_names`), its move's speed
+        fraction as the console's whole percentage (at least 1 %), its dwell."""
+        by_name = {pose.name: pose for pose in measured}
+        names = goal_names([pose.name for pose in self.duty.poses], set(by_name))
+        cycle = []
+        for taught, goal in zip(self.duty.poses, names, strict=True):
+            pose = by_name.get(taught.name) or MeasuredPose(
+                goal, np.array(taught.q_rad), forward(self.arm, taught.q_rad)
+            )
+            percent = min(100, max(1, round(taught.speed * 100.0)))
+            cycle.append(
+                CyclePose(taught.name, pose, percent, taught.dwell_s, taught.name in by_name)
+            )
+        return tuple(cycle)
+
+
+#: A goal name: a letter, then letters, digits or underscores, 14 at most (drivers/goals.py
+#: GOAL_NAME; the pure core does not import drivers).
+_GOAL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,13}")
+
+
+def goal_names(names: Sequence[str], keep: set[str]) -> list[str]:
+    """A distinct valid goal name for each pose name: ``keep`` (the measured poses, already
+    goals) and valid names as they are, others with each other character as ``_`` (e.g.
+    ``pick-above`` -> ``pick_above``), else ``p<index>``."""
+    used = set(keep)
+    out = []
+    for index, name in enumerate(names):
+        if name in keep:
+            out.append(name)
+            continue
+        candidate = re.sub(r"[^A-Za-z0-9_]", "_", name)
+        if not _GOAL_NAME.fullmatch(candidate) or candidate in used:
+            candidate = f"p{index}"
+        while candidate in used:
+            candidate += "_"
+        used.add(candidate)
+        out.append(candidate)
+    return out
 
 
 def load_controller(

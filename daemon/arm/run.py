@@ -22,6 +22,7 @@ from daemon.vision.multiview import pose_difference
 
 __all__ = [
     "ArmPredictor",
+    "CyclePose",
     "MeasuredPose",
     "MeasurementError",
     "ToolMeasurement",
@@ -49,6 +50,20 @@ class MeasuredPose:
     name: str
     q_rad: FloatArray
     tool_pose: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class CyclePose:
+    """A pose of the duty cycle as the robot plays it (issue 20, daemon/arm_player.py): taught
+    as the goal ``pose.name`` (a valid goal name: drivers/goals.py; a measured pose keeps its
+    own), moved into at ``speed_percent`` of the controller's maximum speed, held for
+    ``dwell_s``; ``measured``: the tool is measured there. ``name`` is the duty cycle's."""
+
+    name: str
+    pose: MeasuredPose
+    speed_percent: int
+    dwell_s: float
+    measured: bool
 
 
 class ArmPredictor(Protocol):

@@ -11,6 +11,12 @@ clock the hours of a duty cycle pass in seconds, which the emulated robot's move
 cannot, so the emulator performs the run's own moves (to each measured pose and its
 correction) and the truth reads the arm's joints from it at every frame. Every camera and the
 IR reader advance the truth to the run clock before they measure.
+
+With ``arm.play_duty_cycle`` (config/arm-sim-played.toml, time_scale 1) the robot plays the
+whole cycle (daemon/arm_player.py): the emulator then runs on the run's clock at the arm's real
+joint speeds (the duty cycle's limits at `speed 100`, scaled by each move's `speed N`), and the
+truth's motors are heated by the motion the emulator performs (ShiftedMotion over
+``emulator.joint_sample``, from the run's start), not by DutyCycleMotion.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ from drivers.c500c import C500CRobot
 from drivers.clock import Clock
 from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
 from drivers.sim.arm_markers import CameraRig
-from drivers.sim.arm_motion import DutyCycleMotion
+from drivers.sim.arm_motion import DutyCycleMotion, JointMotionSource, ShiftedMotion
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.joint_arm import DEFAULT_ACCELERATION_DEG_S2, DEFAULT_SPEED_DEG_S, JointArmConfig
 
@@ -60,8 +66,17 @@ class ArmBenchDevices:
     camera_models: tuple[CameraModel, ...]
 
 
+def played(settings: Settings) -> bool:
+    """Whether arm runs play the duty cycle through the emulator (arm.play_duty_cycle; on the
+    bench only when set: daemon/arm_setup.py plays_duty_cycle)."""
+    return settings.arm.play_duty_cycle is True
+
+
 def speed_factor(settings: Settings) -> float:
-    """How much faster than a real arm the emulated one moves, for the bench's clock."""
+    """How much faster than a real arm the emulated one moves, for the bench's clock (a played
+    duty cycle: real speed, the emulator on the run clock)."""
+    if played(settings):
+        return 1.0
     bench = settings.bench
     if bench.clock == "virtual":
         return VIRTUAL_SPEED_FACTOR
@@ -111,17 +126,21 @@ class ArmBenchControl:
         self._arm = arm
         self._time_scale = settings.compensation.time_scale
         self._duty = duty
+        self._played = played(settings)
         self._lock = threading.Lock()
         self.truth = self._new_truth(duty)
         self.start_s: float | None = None
 
-    def _new_truth(self, duty: DutyCycle | None) -> ArmBench:
-        """A cold truth following ``duty`` with its payload at the tool (as the controller's
-        model has it: daemon/arm/heat.py JointHeatProfile.from_duty)."""
+    def _new_truth(
+        self, duty: DutyCycle | None, motion: JointMotionSource | None = None
+    ) -> ArmBench:
+        """A cold truth following ``duty`` (played in process, unless ``motion`` is given: the
+        emulator's) with its payload at the tool (as the controller's model has it:
+        daemon/arm/heat.py JointHeatProfile.from_duty)."""
         if duty is None:
-            return ArmBench(self._config, None, arm=self._arm)
+            return ArmBench(self._config, motion, arm=self._arm)
         config = dataclasses.replace(self._config, payload_kg=duty.payload_kg)
-        return ArmBench(config, DutyCycleMotion(duty), arm=self._arm)
+        return ArmBench(config, motion or DutyCycleMotion(duty), arm=self._arm)
 
     @property
     def cameras(self) -> tuple[CameraModel, ...]:
@@ -135,7 +154,9 @@ class ArmBenchControl:
         """An arm run starts: the arm is cold now and follows ``duty_cycle`` (else the
         settings' one). Blocking (a second): the session calls it on a worker thread."""
         duty = self._duty if duty_cycle is None else load_duty_cycle(duty_cycle)
-        truth = self._new_truth(duty)
+        # played: the motion the emulator performs from now on heats the truth's motors
+        motion = ShiftedMotion(self._emulator, t_s) if self._played else None
+        truth = self._new_truth(duty, motion)
         with self._lock:
             self.truth = truth
             self.start_s = t_s
@@ -149,8 +170,8 @@ class ArmBenchControl:
             return self.truth
 
     def joints(self) -> np.ndarray:
-        """Where the emulated arm's joints are now (its own loop's clock)."""
-        now = asyncio.get_running_loop().time()
+        """Where the emulated arm's joints are now (on its own clock)."""
+        now = self._emulator.console.now()
         return np.asarray(self._emulator.joint_sample(now).q_rad, dtype=np.float64)
 
 
@@ -223,6 +244,20 @@ async def open_arm_bench(
     duty = None if settings.arm.duty_cycle is None else load_duty_cycle(settings.arm.duty_cycle)
     factor = speed_factor(settings)
     robot_settings = settings.robot
+    joint_arm = JointArmConfig(
+        arm=arm,
+        speed_deg_s=DEFAULT_SPEED_DEG_S * factor,
+        acceleration_deg_s2=DEFAULT_ACCELERATION_DEG_S2 * factor * factor,
+    )
+    if played(settings) and duty is not None:
+        # the controller's joint limits at `speed 100`: the duty cycle's (the arm's published
+        # maxima, config/duty); its acceleration is its own (no console command sets it)
+        joint_arm = dataclasses.replace(
+            joint_arm,
+            max_speed_deg_s=tuple(np.degrees(duty.max_speed_rad_s).tolist()),
+            max_accel_deg_s2=tuple(np.degrees(duty.max_accel_rad_s2).tolist()),
+            cache_solutions=True,
+        )
     async with contextlib.AsyncExitStack() as stack:
         emulator = C500CEmulator(
             EmulatorConfig(
@@ -232,11 +267,8 @@ async def open_arm_bench(
                 move_ms=robot_settings.emulator_move_ms,
                 baudrate=robot_settings.baudrate,
                 paced=robot_settings.emulator_paced,
-                joint_arm=JointArmConfig(
-                    arm=arm,
-                    speed_deg_s=DEFAULT_SPEED_DEG_S * factor,
-                    acceleration_deg_s2=DEFAULT_ACCELERATION_DEG_S2 * factor * factor,
-                ),
+                joint_arm=joint_arm,
+                clock=clock if played(settings) else None,
             )
         )
         await stack.enter_async_context(emulator)

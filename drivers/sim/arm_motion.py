@@ -91,6 +91,20 @@ class DutyCycleMotion:
         return JointSample(t_s, q[0], qd[0], qdd[0])
 
 
+class ShiftedMotion:
+    """A motion read ``offset_s`` later on its own clock: the emulator's joints (timed on the
+    run clock) seen from a truth whose time starts at a run's start (issue 20, a played duty
+    cycle: the truth is heated by the motion the emulator performs)."""
+
+    def __init__(self, source: JointMotionSource, offset_s: float) -> None:
+        self.source = source
+        self.offset_s = float(offset_s)
+
+    def joint_sample(self, t_s: float) -> JointSample:
+        sample = self.source.joint_sample(t_s + self.offset_s)
+        return JointSample(t_s, sample.q_rad, sample.qd_rad_s, sample.qdd_rad_s2)
+
+
 class MotorEnergy:
     """The energy each motor has put into its joint since t = 0 (J): the integral of
     ``power(sample)`` over the motion (module docstring). ``energy_j(t)`` must be asked with
@@ -207,5 +221,6 @@ __all__ = [
     "MotorEnergy",
     "PeriodicMotion",
     "PowerFunction",
+    "ShiftedMotion",
     "StillMotion",
 ]

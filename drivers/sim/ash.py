@@ -34,6 +34,10 @@ if TYPE_CHECKING:
 REACH_MM = 900.0
 #: Where the emulated arm starts: x, y, z (mm), z-rot, y-rot, x-rot (degrees).
 START_POSE: tuple[float, ...] = (457.200, 0.000, 254.000, 0.000, 90.000, 0.000)
+#: The console's speed setting when the controller starts (`speed` prints it; `speed N` sets it,
+#: C500C.md "Motion and locations"). The emulated arm's joint speeds scale with it
+#: (drivers/sim/joint_arm.py).
+START_SPEED_PERCENT = 10
 #: Command lines the emulator keeps for inspection (tests, drills): the latest ones only.
 COMMAND_LOG_LINES = 10_000
 Location = tuple[float, float, float, float, float, float]
@@ -69,6 +73,17 @@ class _Question:
     on_answer: Callable[[str], list[str]]
 
 
+@dataclass(frozen=True, slots=True)
+class MotionRecord:
+    """One motion the emulated arm performed (tests read them: a played duty cycle's order,
+    speeds and dwells)."""
+
+    start_s: float
+    end_s: float
+    target: Location
+    speed_percent: int
+
+
 @dataclass
 class ConsoleState:
     """What the emulated controller knows. Tests may read and change it."""
@@ -83,13 +98,18 @@ class ConsoleState:
     in_shell: bool = False
     awaiting_button: bool = False  # a motion waits for PAUSE/CONTINUE
     restarts: int = 0
-    speed_percent: int = 10
+    speed_percent: int = START_SPEED_PERCENT
     motion_end_s: float = 0.0
     locations: dict[str, Location] = field(default_factory=dict)
     # The latest command lines received, in order (bounded: a sim daemon runs for days at
     # ~250 lines a second), and how many were ever received (fault injection counts them).
     commands: deque[str] = field(default_factory=lambda: deque(maxlen=COMMAND_LOG_LINES))
     received: int = 0
+
+    #: every motion started, in order (bounded like ``commands``): its start and end on the
+    #: emulator's clock, the location it was commanded to and the speed setting it ran at
+    motions: deque[MotionRecord] = field(default_factory=lambda: deque(maxlen=COMMAND_LOG_LINES))
+    motion_count: int = 0  # every motion ever started (``motions`` keeps the latest)
 
     def log_command(self, line: str) -> None:
         self.commands.append(line)
@@ -192,6 +212,11 @@ class Console:
         state.restarts += 1
         self.question = None
         self._after_button = None
+
+    def now(self) -> float:
+        """The emulator's clock: its config's clock, else the serving loop's ``time()``."""
+        clock = self.config.clock
+        return asyncio.get_running_loop().time() if clock is None else clock.now()
 
     def actual_pose(self, now_s: float) -> Location:
         """Where the arm really is at loop time ``now_s`` (the start pose while moving)."""
@@ -326,15 +351,20 @@ class Console:
         sigma_mm = self.config.noise_um / 1000.0
         noise = self.rng.normal(0.0, sigma_mm, size=3) if sigma_mm > 0 else np.zeros(3)
         state = self.state
-        now_s = max(asyncio.get_running_loop().time(), self.motion_not_before)
+        now_s = max(self.now(), self.motion_not_before)
         self.motion_not_before = 0.0
         if self.joint_arm is not None:
             from drivers.sim.joint_arm import UnreachableError
 
             try:
-                end_s = self.joint_arm.move_to(target, now_s, noise)
+                end_s = self.joint_arm.move_to(
+                    target, now_s, noise, speed_percent=state.speed_percent
+                )
             except UnreachableError:
                 raise ConsoleCommandError(proto.format_error(3)) from None
+            start_s = self.joint_arm.last_start_s()
+            state.motions.append(MotionRecord(start_s, end_s, target, state.speed_percent))
+            state.motion_count += 1
             state.previous_actual = self.actual_pose(now_s)
             state.commanded = target
             state.actual = self.actual_pose(end_s)
@@ -346,8 +376,14 @@ class Console:
             (target[0] + noise[0], target[1] + noise[1], target[2] + noise[2], *target[3:])
         )
         state.motion_end_s = now_s + self.config.move_ms / 1000.0
+        state.motions.append(MotionRecord(now_s, state.motion_end_s, target, state.speed_percent))
+        state.motion_count += 1
 
     async def _finish(self) -> None:
+        clock = self.config.clock
+        if clock is not None:
+            await clock.sleep_until(self.state.motion_end_s)
+            return
         remaining = self.state.motion_end_s - asyncio.get_running_loop().time()
         if remaining > 0:
             await asyncio.sleep(remaining)
@@ -375,7 +411,7 @@ class Console:
     def _cmd_w2(self, rest: str) -> list[str]:
         if rest:
             raise ConsoleCommandError(_shell_error("too many arguments."))
-        now_s = asyncio.get_running_loop().time()
+        now_s = self.now()
         joints = None if self.joint_arm is None else self.joint_arm.joints_at(now_s)
         return self._table(self.actual_pose(now_s), proto.ACTUAL_TITLE, joints)
 
@@ -393,7 +429,7 @@ class Console:
         self._variable_name(name)
 
         def teach() -> list[str]:
-            self.state.locations[name] = self.actual_pose(asyncio.get_running_loop().time())
+            self.state.locations[name] = self.actual_pose(self.now())
             return []
 
         return teach() if name in self.state.locations else self._create_it(name, teach)

@@ -45,6 +45,7 @@ from config import faults as fault_specs
 from config.faults import Fault
 from daemon.arm.types import JointSample
 from drivers import c500c_protocol as proto
+from drivers.clock import Clock
 from drivers.sim.ash import (
     COMMAND_LOG_LINES,
     MOTION_WORDS,
@@ -137,6 +138,10 @@ class EmulatorConfig:
     #: moves go through its inverse kinematics, `w2` prints its JOINTS and PULSES; None: the
     #: emulator of before (no kinematics), and start_pose is where it starts
     joint_arm: JointArmConfig | None = None
+    #: the clock the emulated arm's motions are timed on (issue 20, a played duty cycle on the
+    #: arm bench: the run's clock, so that a virtual run's dwells and moves share one time);
+    #: None: the serving event loop's ``time()`` (wall time), as before
+    clock: Clock | None = None
 
 
 class _Link(Protocol):
@@ -315,11 +320,12 @@ class C500CEmulator:
         self.console.restart()
 
     def actual_pose(self) -> Location:
-        return self.console.actual_pose(asyncio.get_running_loop().time())
+        return self.console.actual_pose(self.console.now())
 
     def joint_sample(self, t_s: float) -> JointSample:
         """The emulated arm's joint positions, speeds and accelerations at ``t_s`` on the
-        emulator's clock (the serving event loop's ``time()``): the motion it really performed,
+        emulator's clock (config.clock, else the serving event loop's ``time()``): the motion it
+        really performed,
         for the arm bench's motor heat. Only for an emulator with an arm (config.joint_arm)."""
         if self.console.joint_arm is None:
             raise RuntimeError("this emulator has no arm (EmulatorConfig.joint_arm)")

@@ -31,6 +31,7 @@ Conventions (ASSUMED where C500C.md is silent):
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -55,6 +56,10 @@ DEFAULT_START_JOINTS_DEG: tuple[float, ...] = (0.0, 30.0, 60.0, 0.0, 30.0, 0.0)
 #: of the A465's at a moderate speed setting (its published maximum joint speeds are ~180 deg/s).
 DEFAULT_SPEED_DEG_S = 60.0
 DEFAULT_ACCELERATION_DEG_S2 = 240.0
+#: The console's speed setting at which ``speed_deg_s`` applies (drivers/sim/ash.py
+#: START_SPEED_PERCENT: the controller's setting at start-up, which the emulator of before never
+#: changed): at another setting the joint speed scales in proportion (`speed N`, C500C.md).
+REFERENCE_SPEED_PERCENT = 10
 #: Encoder pulses per joint degree for the `PULSES` row. ESTIMATED: no public figure for the
 #: A465 was found; the order of a 1,000-line quadrature encoder (4,000 counts per motor turn)
 #: on a 100:1 harmonic drive: 4,000 x 100 / 360 = 1,111 per degree.
@@ -75,6 +80,9 @@ WRIST_LOCK_POSITION_TOLERANCE_MM = 1e-4
 #: Weight of the orientation residual of the locked-wrist solve (mm per rad): small, so that
 #: the position is met and the orientation is matched in the directions the wrist can reach.
 WRIST_LOCK_ROTATION_WEIGHT_MM_PER_RAD = 1.0
+#: Solutions kept with JointArmConfig.cache_solutions (a played cycle's locations, each with
+#: its correction of the step: a few per step).
+SOLUTION_CACHE = 4096
 #: A 6-joint arm's wrist: its last three joints.
 WRIST_JOINTS = 3
 
@@ -93,6 +101,21 @@ class JointArmConfig:
     acceleration_deg_s2: float = DEFAULT_ACCELERATION_DEG_S2
     #: per joint; None: ESTIMATED_A465_PULSES_PER_DEG for every joint
     pulses_per_deg: tuple[float, ...] | None = None
+    #: the controller's per-joint speed limits at `speed 100` (deg/s; issue 20: a played duty
+    #: cycle's arm moves at its pose's percentage of them, each motion synchronised so that no
+    #: joint exceeds its own, as daemon/arm/duty.py plans it); None: one speed for every
+    #: joint, ``speed_deg_s`` at REFERENCE_SPEED_PERCENT, scaled by the setting
+    max_speed_deg_s: tuple[float, ...] | None = None
+    #: keep the exact inverse-kinematics solution of each world location and reuse it when the
+    #: arm is sent there again (a played duty cycle goes to the same few locations thousands of
+    #: times; the arm keeps its stance, so the solution is the one a solve from the current
+    #: joints converges to; the wrist-singular case is still solved from the current joints):
+    #: the bench's speed only, off by default
+    cache_solutions: bool = False
+    #: ... and acceleration limits (deg/s^2), NOT scaled by the speed setting: the console has
+    #: no acceleration command (C500C.md "Motion and locations" lists `speed [%]` only), so the
+    #: controller keeps its own (ASSUMED); None: ``acceleration_deg_s2`` for every joint
+    max_accel_deg_s2: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         joints = len(self.arm.joints)
@@ -102,6 +125,28 @@ class JointArmConfig:
             raise ValueError("joint speed and acceleration must be positive")
         if self.pulses_per_deg is not None and len(self.pulses_per_deg) != joints:
             raise ValueError(f"{joints} pulses-per-degree values expected")
+        for limits in (self.max_speed_deg_s, self.max_accel_deg_s2):
+            if limits is not None and (
+                len(limits) != joints or not all(math.isfinite(v) and v > 0 for v in limits)
+            ):
+                raise ValueError(f"{joints} positive joint limits expected, got {limits}")
+
+    def limits_rad(self, speed_percent: int) -> tuple[FloatArray, FloatArray]:
+        """Each joint's speed (rad/s) and acceleration (rad/s^2) limit at the console's speed
+        setting ``speed_percent`` (the fields' comments)."""
+        joints = len(self.arm.joints)
+        if self.max_speed_deg_s is None:
+            speed = np.full(joints, self.speed_deg_s)
+            if speed_percent != REFERENCE_SPEED_PERCENT:
+                speed = speed * (speed_percent / REFERENCE_SPEED_PERCENT)
+        else:
+            speed = np.asarray(self.max_speed_deg_s, dtype=np.float64) * (speed_percent / 100.0)
+        accel = (
+            np.full(joints, self.acceleration_deg_s2)
+            if self.max_accel_deg_s2 is None
+            else np.asarray(self.max_accel_deg_s2, dtype=np.float64)
+        )
+        return np.radians(speed), np.radians(accel)
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,6 +214,26 @@ def trapezoid(
         ramp = math.sqrt(distance / acceleration)
         duration = 2.0 * ramp
     return _Motion(start_s, q0, q1, distance, acceleration, ramp, duration)
+
+
+def synchronised(
+    q0: FloatArray, q1: FloatArray, start_s: float, speed: FloatArray, acceleration: FloatArray
+) -> _Motion:
+    """The synchronised profile under per-joint limits (daemon/arm/duty.py's plan): every joint
+    follows one normalised trapezoid s(t) from 0 to 1 whose speed and acceleration are the
+    tightest of the moving joints' ``limit_j / |dq_j|``. With equal limits it is
+    :func:`trapezoid` exactly."""
+    delta = np.abs(q1 - q0)
+    moving = delta > 0.0
+    if not moving.any():
+        return _Motion(start_s, q0, q1, 0.0, float(np.min(acceleration)), 0.0, 0.0)
+    if np.ptp(speed) == 0.0 and np.ptp(acceleration) == 0.0:
+        return trapezoid(q0, q1, start_s, float(speed[0]), float(acceleration[0]))
+    normal_speed = float(np.min(speed[moving] / delta[moving]))
+    normal_accel = float(np.min(acceleration[moving] / delta[moving]))
+    # the normalised profile as a motion of "distance 1": sample() scales it by q1 - q0
+    unit = trapezoid(np.zeros(1), np.ones(1), start_s, normal_speed, normal_accel)
+    return _Motion(start_s, q0, q1, 1.0, unit.acceleration, unit.ramp_s, unit.duration_s)
 
 
 def wrist_singular(arm: Arm, q_rad: FloatArray) -> bool:
@@ -262,11 +327,17 @@ class JointArm:
 
     config: JointArmConfig
     _history: deque[_Motion] = field(init=False)
+    #: the motions' start times, for a bisection (a truth integrating a played cycle samples
+    #: hundreds of motions back); False once a halt made them non-monotonic: a scan then
+    _starts: deque[float] = field(init=False)
+    _sorted: bool = field(init=False, default=True)
     _commanded_q: FloatArray = field(init=False)
+    _solutions: dict[tuple[float, ...], FloatArray] = field(init=False, default_factory=dict)
 
     def __post_init__(self) -> None:
         q = np.radians(np.asarray(self.config.start_joints_deg, dtype=np.float64))
         self._history = deque([trapezoid(q, q, 0.0, 1.0, 1.0)], maxlen=MOTION_HISTORY)
+        self._starts = deque([0.0], maxlen=MOTION_HISTORY)
         self._commanded_q = q.copy()
 
     @property
@@ -281,6 +352,8 @@ class JointArm:
         return self._motion_at(t_s).sample(t_s)[0]
 
     def _motion_at(self, t_s: float) -> _Motion:
+        if self._sorted:  # the latest motion started at or before t_s
+            return self._history[max(bisect.bisect_right(self._starts, t_s) - 1, 0)]
         for motion in reversed(self._history):
             if motion.start_s <= t_s:
                 return motion
@@ -302,11 +375,23 @@ class JointArm:
     def end_s(self) -> float:
         return self._last.end_s
 
-    def move_to(self, target: Sequence[float], now_s: float, noise_mm: FloatArray) -> float:
+    def last_start_s(self) -> float:
+        """When the latest motion started (its end: :meth:`end_s`)."""
+        return self._last.start_s
+
+    def move_to(
+        self,
+        target: Sequence[float],
+        now_s: float,
+        noise_mm: FloatArray,
+        *,
+        speed_percent: int = REFERENCE_SPEED_PERCENT,
+    ) -> float:
         """Start a motion to the world location ``target`` at ``now_s`` (after the current one
         has ended: callers `finish` first); the arm arrives off the target by ``noise_mm`` in
         world x, y, z (repeatability), turned into joint angles through the Jacobian's
-        pseudo-inverse. Returns when the motion ends; UnreachableError when it cannot."""
+        pseudo-inverse, at the console's speed setting ``speed_percent`` (JointArmConfig.
+        limits_rad). Returns when the motion ends; UnreachableError when it cannot."""
         start_s = max(now_s, self._last.end_s)
         q_now = self.joints_at(start_s)
         q_target = self.solve(target, q_now)
@@ -315,14 +400,22 @@ class JointArm:
             dq = np.linalg.pinv(jacobian(self.arm, q_target)[:3]) @ noise_mm
             q_actual = np.clip(q_target + dq, self.arm.lower_rad, self.arm.upper_rad)
         config = self.config
-        motion = trapezoid(
-            q_now,
-            q_actual,
-            start_s,
-            math.radians(config.speed_deg_s),
-            math.radians(config.acceleration_deg_s2),
-        )
-        self._history.append(motion)
+        if (
+            config.max_speed_deg_s is None
+            and config.max_accel_deg_s2 is None
+            and speed_percent == REFERENCE_SPEED_PERCENT
+        ):  # the emulator of before, to the bit
+            motion = trapezoid(
+                q_now,
+                q_actual,
+                start_s,
+                math.radians(config.speed_deg_s),
+                math.radians(config.acceleration_deg_s2),
+            )
+        else:
+            speed, acceleration = config.limits_rad(speed_percent)
+            motion = synchronised(q_now, q_actual, start_s, speed, acceleration)
+        self._append(motion)
         self._commanded_q = q_target
         return motion.end_s
 
@@ -332,10 +425,19 @@ class JointArm:
         found) with the first wrist joint kept where it is (module docstring).
         UnreachableError when no solution is within the tolerances."""
         arm, pose = self.arm, pose_of(target)
-        try:
-            exact: FloatArray | None = inverse(arm, pose, q_now, restarts=0)
-        except ArmError as err:
-            exact, failure = None, err
+        key = tuple(float(v) for v in target)
+        exact: FloatArray | None = self._solutions.get(key)
+        failure: ArmError | None = None
+        if exact is None:
+            try:
+                exact = inverse(arm, pose, q_now, restarts=0)
+            except ArmError as err:
+                failure = err
+            else:
+                if self.config.cache_solutions:
+                    if len(self._solutions) >= SOLUTION_CACHE:
+                        self._solutions.clear()
+                    self._solutions[key] = exact
         seed = q_now if exact is None else exact
         if wrist_singular(arm, seed):
             locked = wrist_locked_inverse(arm, pose, seed, q_now)
@@ -343,12 +445,18 @@ class JointArm:
                 return locked
         if exact is None:
             raise UnreachableError(str(failure)) from failure
-        return exact
+        return exact.copy()
 
     def halt(self, now_s: float) -> None:
         """Stop the motion in progress where the arm is at ``now_s``."""
         if now_s < self._last.end_s:
-            self._history.append(self._motion_at(now_s).halted_at(now_s))
+            self._append(self._motion_at(now_s).halted_at(now_s))
+
+    def _append(self, motion: _Motion) -> None:
+        if motion.start_s < self._starts[-1]:
+            self._sorted = False
+        self._history.append(motion)
+        self._starts.append(motion.start_s)
 
     def pulses(self, q_rad: FloatArray) -> tuple[int, ...]:
         """The `PULSES` row: joint degrees x pulses per degree (ESTIMATED, see the constant)."""

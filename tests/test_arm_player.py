@@ -1,0 +1,438 @@
+"""Issue 20: the duty cycle played by the robot (daemon/arm_player.py) end to end: an arm run
+through the daemon, the console driver and the C500C emulator in joint space over a real pty,
+on a virtual clock the cycle paces (drivers/clock.py), with the arm bench's truth heated by
+the motion the emulator performs. The emulator's own log of motions is the oracle: every pose
+of the cycle in order, each at its pose's speed, each dwell, the measured poses measured; a
+hold lets no move command reach the serial writer; pause/resume restarts the player where it
+left off; stop ends it. Plus the player against a fake robot, and the settings' refusals."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from itertools import pairwise
+from pathlib import Path
+from typing import Any, cast
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from config import Settings
+from daemon.arm.run import CyclePose, MeasuredPose
+from daemon.arm.types import Pose6
+from daemon.arm_player import ArmPlayer
+from daemon.arm_robot import GoalRobotArm
+from daemon.run_setup import RunParameterError
+from daemon.runs import RunParameters, RunState
+from daemon.service import Daemon
+from drivers import c500c_protocol as proto
+from drivers.base import GoalRobot, LinkState, MoveResult, Pose
+from drivers.clock import VirtualClock, make_clock
+from drivers.errors import DeviceError, MotionHeldError
+from drivers.factory import Devices
+from drivers.sim.emulator import C500CEmulator
+
+WAIT_S = 120.0
+#: config/duty/a465-pick-and-place.toml: goal (the pose's name made a goal name), the move's
+#: speed in percent, the dwell (s); the measured poses are camera and place
+CYCLE = (
+    ("camera", 80, 1.0),
+    ("pick_above", 90, 0.0),
+    ("pick", 30, 0.5),
+    ("pick_retract", 30, 0.0),
+    ("place_above", 90, 0.0),
+    ("place", 30, 0.5),
+    ("place_retract", 30, 0.0),
+)
+TEACHING_MOVES = len(CYCLE) + 2  # each pose taught, then the two measured poses' references
+
+
+def settings_for(tmp_path: Path, duration_s: float, **arm: Any) -> Settings:
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    return Settings.model_validate(
+        {
+            "bench": {"seed": 7, "clock": "virtual"},
+            "storage": {"data_dir": str(tmp_path), "report_at_end": False},
+            "scheduler": {"duration_s": duration_s, "step_s": 20.0},
+            "compensation": {"time_scale": 1.0},
+            "robot": {"driver": "sim", "readback_every": 1},
+            "camera": {"bit_depth": 12, "grab_timeout_s": 30.0},
+            "ir": {"driver": "sim"},
+            "arm": {
+                "enabled": True,
+                "duty_cycle": "a465-pick-and-place",
+                "play_duty_cycle": True,
+                "bending": True,
+                "motor_side_share": 0.75,
+                **arm,
+            },
+        }
+    )
+
+
+def performed(
+    emulator: C500CEmulator, within_mm: float = 0.5
+) -> list[tuple[str, int, float, float]]:
+    """The emulator's motions after the teaching and the references, as (cycle goal, speed %,
+    start, end): each identified by the taught goal it went to (``within_mm``: a correction
+    is tens of µm; the goals are 60 mm apart or more) and its speed (a pose's approach and
+    retreat share a location)."""
+    locations = emulator.state.locations
+    out = []
+    for motion in list(emulator.state.motions)[TEACHING_MOVES:]:
+        near = [
+            (goal, percent)
+            for goal, percent, _ in CYCLE
+            if np.linalg.norm(np.subtract(locations[f"g_{goal}"][:3], motion.target[:3]))
+            < within_mm
+            and percent == motion.speed_percent
+        ]
+        assert len(near) == 1, (motion, near)
+        out.append((near[0][0], motion.speed_percent, motion.start_s, motion.end_s))
+    return out
+
+
+def player_of(daemon: Daemon) -> ArmPlayer:
+    session = daemon._session  # the run's own player, to see that it stopped
+    assert session is not None and session._services.arm is not None
+    player = session._services.arm.player
+    assert player is not None
+    return player
+
+
+async def until(condition: Callable[[], bool]) -> None:
+    async with asyncio.timeout(WAIT_S):
+        while not condition():  # noqa: ASYNC110 -- the state changes on the loop's tasks
+            await asyncio.sleep(0.01)
+
+
+async def test_the_robot_plays_every_pose_in_order_at_its_speed_and_dwell(tmp_path: Path) -> None:
+    settings = settings_for(tmp_path, duration_s=100.0)
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        devices = daemon.devices
+        assert isinstance(devices, Devices) and devices.emulator is not None
+        info = await daemon.start_run(RunParameters.from_settings(settings))
+        async with asyncio.timeout(WAIT_S):
+            final = await daemon.wait_run()
+        assert daemon.recorder is not None
+        steps = [record.as_dict() for record in daemon.recorder.steps(info["id"])]
+        moves = performed(devices.emulator)
+        commands = list(devices.emulator.state.commands)
+        locations = dict(devices.emulator.state.locations)
+        played = list(devices.emulator.state.motions)[TEACHING_MOVES:]
+        targets = [(g, m.target) for (g, _, _, _), m in zip(moves, played, strict=True)]
+        assert not player_of(daemon).playing
+    assert final["state"] == "finished", final
+    assert len(steps) == 5
+    assert all(s["flags"] == "" for s in steps), [s["error"] for s in steps]
+    # every pose taught, each under its goal name
+    assert [c for c in commands if c.startswith("here g_")] == [f"here g_{g}" for g, _, _ in CYCLE]
+    # the whole cycle, in order, from its first pose, for the whole run (100 s: ~14 cycles)
+    goals = [goal for goal, _, _, _ in moves]
+    assert len(goals) > 10 * len(CYCLE)
+    assert goals == [CYCLE[k % len(CYCLE)][0] for k in range(len(goals))]
+    # each move at its pose's speed; `speed N` sent only when it changes
+    speeds = [percent for _, percent, _, _ in moves]
+    assert speeds == [CYCLE[k % len(CYCLE)][1] for k in range(len(speeds))]
+    changes = [f"speed {speeds[0]}"] + [f"speed {b}" for a, b in pairwise(speeds) if a != b]
+    sent = [c for c in commands if c.startswith("speed ")]
+    # (the run's end holds the robot: the next move's speed may go out, its `moves` not)
+    assert sent[: len(changes)] == changes and len(sent) - len(changes) <= 1
+    # each dwell on the run clock: the next move starts the pose's dwell after the arrival
+    for k, (_, _, _, end) in enumerate(moves[:-1]):
+        assert moves[k + 1][2] - end == pytest.approx(CYCLE[k % len(CYCLE)][2], abs=1e-9)
+    # the measured poses measured in turn, in passing, at their taught goal (+ correction)
+    assert [s["arm_pose"] for s in steps] == ["camera", "place", "camera", "place", "camera"]
+    assert all(s["drift_3d_um"] is not None and s["drift_3d_um"] < 50.0 for s in steps)
+    # the correction recorded is one the robot was sent into that pose with (goal + wshift)
+    recorded = [np.array([s[f"correction_t{a}_mm"] for a in "xyz"]) for s in steps]
+    assert max(np.linalg.norm(c) for c in recorded) > 0.005  # compensated: tens of µm
+    for step, correction in zip(steps, recorded, strict=True):
+        goal = locations[f"g_{step['arm_pose']}"]
+        shifts = [np.subtract(t[:3], goal[:3]) for g, t in targets if g == step["arm_pose"]]
+        assert any(np.allclose(shift, correction, atol=6e-4) for shift in shifts), correction
+
+
+async def test_a_played_run_is_reproducible(tmp_path: Path) -> None:
+    """Which arrival each step measures does not hang on its worker threads' timing (the step
+    names its pose before its model runs, the move into it waits for the corrections)."""
+    runs = []
+    for name in ("a", "b"):
+        settings = settings_for(tmp_path / name, duration_s=60.0)
+        async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+            info = await daemon.start_run(RunParameters.from_settings(settings))
+            async with asyncio.timeout(WAIT_S):
+                await daemon.wait_run()
+            assert daemon.recorder is not None
+            runs.append([r.as_dict() for r in daemon.recorder.steps(info["id"])])
+    columns = ("drift_3d_um", "correction_tx_mm", "predicted_tz_um", "actual_s")
+    first, second = ([[s[c] for c in columns] for s in steps] for steps in runs)
+    assert first == second and len(first) == 3
+
+
+async def test_pause_resume_restarts_the_player_and_a_hold_stops_every_move(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    written: list[str] = []
+    encode = proto.encode_command
+
+    def spy(command: str) -> bytes:  # what reaches the serial writer, in order
+        written.append(command)
+        return encode(command)
+
+    monkeypatch.setattr(proto, "encode_command", spy)
+    settings = settings_for(tmp_path, duration_s=600.0)
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        devices = daemon.devices
+        assert isinstance(devices, Devices) and devices.emulator is not None
+        emulator = devices.emulator
+        with daemon.subscribe(kinds=frozenset({"step"})) as steps:
+            await daemon.start_run(RunParameters.from_settings(settings))
+            async with asyncio.timeout(WAIT_S):
+                await steps.get()
+            player = player_of(daemon)
+            assert player.playing
+
+            # pause: the player stops (a move under way ends), nothing moves while paused
+            await daemon.pause()
+            await until(lambda: not player.playing)
+            before = len(performed(emulator))
+            next_goal = CYCLE[player.next_index][0]
+            await daemon.resume()
+            async with asyncio.timeout(WAIT_S):
+                await steps.get()
+            after = performed(emulator)
+            assert len(after) > before
+            # resumed from the pose after the last one reached, in the cycle's order
+            assert after[before][0] == next_goal
+            goals = [g for g, _, _, _ in after[before:]]
+            start = [g for g, _, _ in CYCLE].index(next_goal)
+            assert goals == [CYCLE[(start + k) % len(CYCLE)][0] for k in range(len(goals))]
+
+            # a hold during the cycle: no move command reaches the serial writer after it
+            held_at = len(written)
+            await daemon.hold_robot("test hold")
+            assert await daemon.wait_state(RunState.PAUSED) is RunState.PAUSED
+            await until(lambda: not player.playing)
+            assert isinstance(player.error, MotionHeldError) or player.error is None
+        stopped = await daemon.stop()
+        assert stopped["state"] == "stopped"
+        assert not player.playing
+    assert not [c for c in written[held_at:] if proto.is_motion_command(c)], written[held_at:]
+
+
+async def test_a_link_fault_during_the_cycle_faults_the_run_and_a_resume_plays_on(
+    tmp_path: Path,
+) -> None:
+    settings = settings_for(tmp_path, duration_s=600.0)
+    # a lost answer is found out in 2 s (a `finish` on the virtual clock answers at once)
+    robot = settings.robot.model_copy(update={"command_timeout_s": 2.0, "move_timeout_s": 2.0})
+    settings = settings.model_copy(update={"robot": robot})
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        devices = daemon.devices
+        assert isinstance(devices, Devices) and devices.emulator is not None
+        with daemon.subscribe(kinds=frozenset({"step"})) as steps:
+            await daemon.start_run(RunParameters.from_settings(settings))
+            async with asyncio.timeout(WAIT_S):
+                await steps.get()
+            player = player_of(daemon)
+            devices.emulator.inject("drop")  # the answer of the cycle's next command is lost
+            async with asyncio.timeout(WAIT_S):
+                assert await daemon.wait_state(RunState.FAULT) is RunState.FAULT
+                event = await steps.get()  # the step that learnt it from the player
+            assert "robot-error" in event.data["flags"]
+            await until(lambda: not player.playing)
+            await until(lambda: devices.robot.status().link is LinkState.CONNECTED)
+            moves = len(devices.emulator.state.motions)
+            await daemon.resume()
+            async with asyncio.timeout(WAIT_S):
+                event = await steps.get()
+            assert event.data["flags"] == "" and player.playing
+            assert len(devices.emulator.state.motions) > moves
+        stopped = await daemon.stop()
+    assert stopped["state"] == "stopped"
+    assert not player.playing
+
+
+async def test_a_refused_correction_is_never_sent_and_pauses_the_run(tmp_path: Path) -> None:
+    # the model's error x 300: within a minute a pose's correction changes by more than
+    # arm.max_step_translation_mm (0.5 mm) and is refused
+    settings = settings_for(tmp_path, duration_s=300.0)
+    limit_mm = settings.arm.max_step_translation_mm
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        devices = daemon.devices
+        assert isinstance(devices, Devices) and devices.emulator is not None
+        parameters = RunParameters.from_settings(settings, deformation_scale=300.0)
+        info = await daemon.start_run(parameters)
+        async with asyncio.timeout(WAIT_S):
+            assert await daemon.wait_state(RunState.PAUSED) is RunState.PAUSED
+        player = player_of(daemon)
+        await until(lambda: not player.playing)
+        assert daemon.recorder is not None
+        steps = [record.as_dict() for record in daemon.recorder.steps(info["id"])]
+        locations = dict(devices.emulator.state.locations)
+        played = list(devices.emulator.state.motions)[TEACHING_MOVES:]
+        moves = performed(devices.emulator, within_mm=5.0)
+        await daemon.stop()
+    assert "unsafe-target" in steps[-1]["flags"] and "refused" in steps[-1]["error"]
+    assert all("unsafe-target" not in s["flags"] for s in steps[:-1])
+    # every correction the robot was sent into a pose stayed within the limits: its size, and
+    # its change since the previous one into that pose (the refused change never was sent)
+    sent: dict[str, list[np.ndarray]] = {}
+    for (goal, _, _, _), motion in zip(moves, played, strict=True):
+        sent.setdefault(goal, []).append(np.subtract(motion.target[:3], locations[f"g_{goal}"][:3]))
+    rounding = 2e-3  # the console's 0.001 mm per axis
+    for shifts in sent.values():
+        assert max(np.linalg.norm(v) for v in shifts) <= settings.arm.max_translation_mm
+        changes = [np.linalg.norm(b - a) for a, b in pairwise(shifts)]
+        assert max(changes) <= limit_mm + rounding
+    assert max(np.linalg.norm(v) for v in sent["place"]) > 0.3  # corrections were sent
+
+
+class SpeedlessRobot:
+    """A GoalRobot whose moves take no speed (as the fast path's driver)."""
+
+    def __init__(self) -> None:
+        self.moves = 0
+
+    def taught_goals(self) -> dict[str, Pose]:
+        return {"a": Pose(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)}
+
+    async def move_absolute(self, *args: object, **kwargs: object) -> MoveResult:
+        self.moves += 1
+        raise AssertionError("nothing may be sent")
+
+
+async def test_a_driver_without_a_speed_refuses_a_played_move() -> None:
+    robot = SpeedlessRobot()
+    arm = GoalRobotArm(cast(GoalRobot, robot))
+    with pytest.raises(DeviceError, match="cannot set a move's speed"):
+        await arm.move_to_goal("a", Pose6.zero(), speed_percent=50)
+    assert robot.moves == 0
+
+
+# --- the player against a fake robot ---------------------------------------------------------
+
+
+class FakeRobot:
+    """Moves take 2 s of the clock; the n-th move (if set) is refused as after a hold."""
+
+    def __init__(self, clock: VirtualClock, refuse_at: int | None = None) -> None:
+        self.clock = clock
+        self.refuse_at = refuse_at
+        self.moves: list[tuple[str, Pose6, int | None, float]] = []
+
+    async def move_to_goal(
+        self, goal: str, correction: Pose6, *, speed_percent: int | None = None
+    ) -> MoveResult:
+        if self.refuse_at is not None and len(self.moves) == self.refuse_at:
+            raise MotionHeldError("robot", "motion is held until resume(): test")
+        await self.clock.sleep_until(self.clock.now() + 2.0)
+        self.moves.append((goal, correction, speed_percent, self.clock.now()))
+        return MoveResult((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), None, 0, 0, ())
+
+
+def fake_cycle() -> tuple[CyclePose, ...]:
+    def pose(name: str) -> MeasuredPose:
+        return MeasuredPose(name, np.zeros(6), np.eye(4))
+
+    return (
+        CyclePose("a", pose("a"), 50, 1.0, True),
+        CyclePose("b-1", pose("b_1"), 100, 0.0, False),
+        CyclePose("c", pose("c"), 20, 3.0, True),
+    )
+
+
+async def test_the_player_sends_each_poses_latest_correction_and_waits_for_the_measurement() -> (
+    None
+):
+    clock = VirtualClock()
+    robot = FakeRobot(clock)
+    player = ArmPlayer(robot, fake_cycle(), clock, run_id=1)
+    shift = Pose6(np.array([0.01, 0.0, 0.0]), np.zeros(3))
+    player.set_corrections({"c": shift})
+    player.start()
+    arrival = await player.arrive("c")
+    arrived_s = clock.now()
+    # three 2-s moves and a's 1-s dwell
+    assert arrival.correction is shift and arrival.arrived_s == arrived_s == 7.0
+    assert [(g, s) for g, _, s, _ in robot.moves] == [("a", 50), ("b_1", 100), ("c", 20)]
+    await asyncio.sleep(0)
+    assert len(robot.moves) == 3 and clock.now() == arrived_s  # held there until released
+    player.release()
+    await player.arrive("a")  # c's dwell (3 s) then the 2-s move: at 11 s
+    assert clock.now() == pytest.approx(arrived_s + 3.0 + 2.0)
+    player.release()
+    await player.stop()
+    assert not player.playing
+
+
+async def test_a_refused_move_ends_the_playing_and_reaches_the_next_arrival() -> None:
+    clock = VirtualClock()
+    robot = FakeRobot(clock, refuse_at=1)
+    player = ArmPlayer(robot, fake_cycle(), clock, run_id=1)
+    player.start()
+    with pytest.raises(MotionHeldError):
+        await player.arrive("c")
+    assert not player.playing and len(robot.moves) == 1
+    player.start()  # the loop's start: not while an error waits for a step to report it
+    with pytest.raises(MotionHeldError):
+        await player.arrive("c")
+    robot.refuse_at = None
+    await player.stop()  # the run faulted
+    player.start()  # a resume: from the pose after the last one reached (b_1)
+    await player.arrive("c")
+    assert [g for g, _, _, _ in robot.moves] == ["a", "b_1", "c"]
+    player.release()
+    await player.stop()
+
+
+class StuckRobot:
+    """A move that does not end (one waiting for the operator's PAUSE/CONTINUE)."""
+
+    def __init__(self) -> None:
+        self.started = asyncio.Event()
+        self.cut = False
+
+    async def move_to_goal(
+        self, goal: str, correction: Pose6, *, speed_percent: int | None = None
+    ) -> MoveResult:
+        self.started.set()
+        try:
+            await asyncio.Event().wait()
+        except asyncio.CancelledError:
+            self.cut = True
+            raise
+        raise AssertionError("unreachable")
+
+
+async def test_stop_lets_a_move_end_but_cuts_it_after_the_grace() -> None:
+    robot = StuckRobot()
+    player = ArmPlayer(robot, fake_cycle(), VirtualClock(), run_id=1)
+    player.start()
+    await robot.started.wait()
+    await player.stop(grace_s=0.05)
+    assert robot.cut and not player.playing
+
+
+# --- settings ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("changes", "match"),
+    [
+        ({"robot": {"driver": "c500c-server"}}, "fast path"),
+        ({"compensation": {"time_scale": 240.0}}, "time_scale 1"),
+    ],
+)
+def test_playing_is_refused_where_it_cannot_be(changes: dict[str, Any], match: str) -> None:
+    with pytest.raises(ValidationError, match=match):
+        Settings.model_validate({"arm": {"enabled": True, "play_duty_cycle": True}, **changes})
+
+
+async def test_a_played_run_with_a_scaled_clock_is_refused(tmp_path: Path) -> None:
+    settings = settings_for(tmp_path, duration_s=100.0)
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        with pytest.raises(RunParameterError, match="time_scale 1"):
+            await daemon.start_run(RunParameters.from_settings(settings, time_scale=240.0))
