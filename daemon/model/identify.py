@@ -25,54 +25,101 @@ solution, ``cov = s^2 (J^T J)^-1`` with ``s^2`` the weighted residual variance.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from daemon.analysis.steps import RunSteps
-from daemon.model.calibration import (
-    CALIBRATION_TABLE,
-    CalibratedParameter,
-    Calibration,
-    offset_sigmas_c,
+from daemon.model.identified_network import calibration_of, network_toml
+from daemon.model.identify_parameters import (
+    OFFSET_BOUND_C,
+    PARAMETER_KINDS,
+    SCALE_BOUNDS,
+    Applied,
+    IdentificationError,
+    Parameter,
+    ParameterKind,
+    apply_parameters,
+    default_parameters,
+    observation_matrix,
+    parse_parameters,
+)
+from daemon.model.identify_uncertainty import (
+    CORRELATION_LIMIT,
+    JACOBIAN_STEP,
+    OFFSET_SE_LIMIT_C,
+    RELATIVE_SE_LIMIT,
+    SINGULAR_RATIO,
+    FitQuality,
+    FittedParameter,
+    central_jacobian,
+    conditioning,
+    find_parameter,
+    parameters_report,
+    residual_variance,
+    rms,
+    uncertainty,
 )
 from daemon.model.model import NetworkModes
-from daemon.model.network import FloatArray, NetworkError, ThermalNetwork
+from daemon.model.network import FloatArray, ThermalNetwork
+
+# The parameters, the uncertainty report and the network file are modules of their own
+# (identify_parameters.py, identify_uncertainty.py, identified_network.py); they are part of
+# identification's interface.
+__all__ = [
+    "CORRELATION_LIMIT",
+    "JACOBIAN_STEP",
+    "OFFSET_BOUND_C",
+    "OFFSET_SE_LIMIT_C",
+    "PARAMETER_KINDS",
+    "RELATIVE_SE_LIMIT",
+    "SCALE_BOUNDS",
+    "SINGULAR_RATIO",
+    "Applied",
+    "FitQuality",
+    "FittedParameter",
+    "HeatSchedule",
+    "IdentificationError",
+    "IdentificationResult",
+    "Parameter",
+    "ParameterKind",
+    "RunData",
+    "apply_parameters",
+    "calibration_of",
+    "central_jacobian",
+    "conditioning",
+    "default_parameters",
+    "evaluate",
+    "find_parameter",
+    "heat_schedule",
+    "heat_vector",
+    "identify",
+    "measured_deformation_um",
+    "network_toml",
+    "observation_matrix",
+    "parameters_report",
+    "parse_parameters",
+    "residual_variance",
+    "rms",
+    "run_data_from_steps",
+    "simulate_temperatures",
+    "uncertainty",
+    "validate",
+]
 
 logger = logging.getLogger(__name__)
 
-ParameterKind = Literal["convection", "heat", "contact", "alpha", "offset"]
-PARAMETER_KINDS: tuple[ParameterKind, ...] = ("convection", "heat", "contact", "alpha", "offset")
 
-#: Bounds of a fitted scale factor (its logarithm is fitted) and of an IR offset (degC; the
-#: FLIR A40M's accuracy is +-2 degC, thesis 3.2.2).
-SCALE_BOUNDS = (0.1, 10.0)
-OFFSET_BOUND_C = 5.0
-#: A parameter is not identifiable when its relative standard error exceeds this (a log SE
-#: of 0.5 is a factor e^0.5 = 1.65 either way), when an offset's SE exceeds OFFSET_SE_LIMIT_C,
-#: when it loads a direction of J^T J that the data do not see (singular value ratio below
-#: SINGULAR_RATIO), or when it correlates with another one beyond CORRELATION_LIMIT.
-RELATIVE_SE_LIMIT = 0.5
-OFFSET_SE_LIMIT_C = 1.0
-SINGULAR_RATIO = 1e-7
-CORRELATION_LIMIT = 0.995
 #: The robust loss and its scale (in units of a residual's standard deviation).
 LOSS = "soft_l1"
 LOSS_SCALE = 3.0
-#: Relative step of the central differences of the reported Jacobian.
-JACOBIAN_STEP = 1e-5
 
 HeatSchedule = tuple[tuple[float, dict[str, float]], ...]
-
-
-class IdentificationError(ValueError):
-    """The run or the parameter list cannot be used for identification."""
 
 
 # -- data ---------------------------------------------------------------------------------------
@@ -185,218 +232,7 @@ def simulate_temperatures(
     return result
 
 
-# -- parameters ---------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Parameter:
-    """One fitted group: ``kind`` acting on ``targets`` (node indices, or region names)."""
-
-    name: str
-    kind: ParameterKind
-    targets: tuple[str, ...]
-    node_indices: tuple[int, ...] = ()
-
-    @property
-    def is_log(self) -> bool:
-        return self.kind != "offset"
-
-    @property
-    def bounds(self) -> tuple[float, float]:
-        if self.is_log:
-            return math.log(SCALE_BOUNDS[0]), math.log(SCALE_BOUNDS[1])
-        return -OFFSET_BOUND_C, OFFSET_BOUND_C
-
-
-def default_parameters(network: ThermalNetwork, regions: Mapping[str, Sequence[str]]) -> list[str]:
-    """Convection, each heater's heat input, the expansion coefficient and (with IR regions)
-    one common IR offset."""
-    names = ["convection", *(f"heat:{node}" for node in network.heater_nodes), "alpha"]
-    return [*names, "offset"] if regions else names
-
-
-def parse_parameters(
-    specs: Sequence[str],
-    network: ThermalNetwork,
-    regions: Mapping[str, Sequence[str]],
-) -> list[Parameter]:
-    """Parameters from their names (module docstring); raises IdentificationError."""
-    parsed: list[Parameter] = []
-    for spec in specs:
-        kind, _, argument = spec.strip().partition(":")
-        if kind not in PARAMETER_KINDS:
-            raise IdentificationError(
-                f"unknown parameter {spec!r}; kinds: {', '.join(PARAMETER_KINDS)}"
-            )
-        try:
-            parsed.append(_parameter(spec.strip(), kind, argument, network, regions))
-        except NetworkError as err:
-            raise IdentificationError(f"parameter {spec!r}: {err}") from err
-    names = [p.name for p in parsed]
-    if len(set(names)) != len(names):
-        raise IdentificationError(f"a parameter is given twice: {', '.join(names)}")
-    if not parsed:
-        raise IdentificationError("no parameter to fit")
-    return parsed
-
-
-def _parameter(
-    spec: str,
-    kind: ParameterKind,
-    argument: str,
-    network: ThermalNetwork,
-    regions: Mapping[str, Sequence[str]],
-) -> Parameter:
-    every = tuple(range(network.node_count))
-    if kind == "offset":
-        if not regions:
-            raise IdentificationError(f"parameter {spec!r}: the run has no IR region")
-        if argument and argument not in regions:
-            raise IdentificationError(
-                f"parameter {spec!r}: unknown region; regions: {', '.join(regions)}"
-            )
-        return Parameter(spec, kind, (argument,) if argument else tuple(regions))
-    if kind == "alpha":
-        if argument:
-            raise IdentificationError(f"parameter {spec!r}: alpha takes no argument")
-        return Parameter(spec, kind, (), every)
-    if kind == "convection":
-        if not argument:
-            return Parameter(spec, kind, (), every)
-        first, sep, last = argument.partition("..")
-        if not sep:
-            raise IdentificationError(f"parameter {spec!r}: write convection:A..B (node names)")
-        low, high = sorted(
-            float(network.positions_mm[network.node_index(node)]) for node in (first, last)
-        )
-        inside = (network.positions_mm >= low) & (network.positions_mm <= high)
-        return Parameter(spec, kind, (first, last), tuple(int(i) for i in np.flatnonzero(inside)))
-    if kind == "heat":
-        nodes = (argument,) if argument else network.heater_nodes
-        if not nodes:
-            raise IdentificationError(f"parameter {spec!r}: the network names no heater node")
-        indices = tuple(network.node_named(n, "heat node") for n in nodes)  # by name (issue 19)
-        return Parameter(spec, kind, tuple(nodes), indices)
-    if not argument:
-        raise IdentificationError(f"parameter {spec!r}: write contact:NODE (a shaft's node)")
-    index = network.node_index(argument)
-    if not any(index in (r.a, r.b) for r in network.resistances):
-        raise IdentificationError(f"parameter {spec!r}: node {argument!r} joins no other node")
-    return Parameter(spec, kind, (argument,), (index,))
-
-
-@dataclass(frozen=True)
-class Applied:
-    """A parameter vector applied: the scaled network, heat factor per node, offset per
-    region."""
-
-    network: ThermalNetwork
-    heat_factor: FloatArray
-    offsets_c: dict[str, float]
-
-
-def apply_parameters(
-    network: ThermalNetwork,
-    parameters: Sequence[Parameter],
-    values: FloatArray,
-    regions: Mapping[str, Sequence[str]],
-) -> Applied:
-    """The network with fitted values (log scales and linear offsets) applied."""
-    convection = np.ones(network.node_count)
-    alpha = np.ones(network.node_count)
-    heat = np.ones(network.node_count)
-    contact = np.ones(network.node_count)
-    offsets = dict.fromkeys(regions, 0.0)
-    for parameter, value in zip(parameters, values, strict=True):
-        factor = math.exp(value) if parameter.is_log else 1.0
-        chosen = list(parameter.node_indices)
-        if parameter.kind == "convection":
-            convection[chosen] *= factor
-        elif parameter.kind == "alpha":
-            alpha[chosen] *= factor
-        elif parameter.kind == "heat":
-            heat[chosen] *= factor
-        elif parameter.kind == "contact":
-            contact[chosen] *= factor
-        else:
-            for region in parameter.targets:
-                offsets[region] += float(value)
-    resistances = tuple(
-        dataclasses.replace(r, r_c_per_w=r.r_c_per_w * contact[r.a] * contact[r.b])
-        for r in network.resistances
-    )
-    scaled = dataclasses.replace(
-        network,
-        r_ambient_c_per_w=network.r_ambient_c_per_w / convection,
-        r_end_c_per_w=network.r_end_c_per_w / convection,
-        alpha_per_c=network.alpha_per_c * alpha,
-        resistances=resistances,
-    )
-    return Applied(scaled, heat, offsets)
-
-
-def observation_matrix(
-    network: ThermalNetwork, regions: Mapping[str, Sequence[str]]
-) -> dict[str, FloatArray]:
-    """Each IR region's row: the mean of the nodes it covers (IrRegion.node ties a region to
-    a node; a region over several nodes sees their mean)."""
-    rows: dict[str, FloatArray] = {}
-    for region, nodes in regions.items():
-        if not nodes:
-            raise IdentificationError(f"region {region!r} is tied to no node")
-        row = np.zeros(network.node_count)
-        for node in nodes:
-            row[network.node_index(node)] += 1.0 / len(nodes)
-        rows[region] = row
-    return rows
-
-
 # -- the fit ------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class FitQuality:
-    """Residual RMS of the temperatures (degC) and of the deformation (µm), and counts."""
-
-    temperature_rms_c: float | None
-    deformation_rms_um: float | None
-    temperature_samples: int
-    deformation_samples: int
-
-
-@dataclass(frozen=True)
-class FittedParameter:
-    name: str
-    value: float  # the scale factor (log kinds) or the offset in degC
-    standard_error: float  # of ``value`` (delta method for scale factors)
-    relative_error: float | None  # SE of the logarithm: the relative SE of a scale factor
-    identifiable: bool
-    reason: str = ""
-
-
-def find_parameter(parameters: Sequence[FittedParameter], name: str) -> FittedParameter:
-    """The fitted parameter called ``name`` (KeyError when there is none)."""
-    for parameter in parameters:
-        if parameter.name == name:
-            return parameter
-    raise KeyError(name)
-
-
-def parameters_report(
-    parameters: Sequence[FittedParameter], correlation: FloatArray
-) -> dict[str, Any]:
-    """The ``parameters`` and ``correlation`` entries of an identification's JSON document
-    (the two-link network's and the arm's alike)."""
-    names = [p.name for p in parameters]
-    return {
-        "parameters": [dataclasses.asdict(p) for p in parameters],
-        "correlation": {
-            a: {b: float(correlation[i, j]) for j, b in enumerate(names)}
-            for i, a in enumerate(names)
-        },
-    }
-
-
 @dataclass(frozen=True)
 class IdentificationResult:
     parameters: tuple[FittedParameter, ...]
@@ -479,38 +315,6 @@ class _Problem:
             temperature_samples=int(temperature.size),
             deformation_samples=int(deformation.size),
         )
-
-
-# -- the uncertainty report, shared with the arm's identification (daemon.arm.identify) ------
-
-
-def rms(values: FloatArray) -> float | None:
-    """The root mean square of ``values``; None when there is none."""
-    return float(np.sqrt(np.mean(values**2))) if values.size else None
-
-
-def central_jacobian(
-    residuals: Callable[[FloatArray], FloatArray],
-    values: FloatArray,
-    step: float = JACOBIAN_STEP,
-    *,
-    relative: bool = True,
-) -> FloatArray:
-    """The Jacobian of ``residuals`` at ``values`` by central differences: each parameter's
-    step is ``step`` times max(1, |value|) when ``relative``, else ``step``."""
-    columns = []
-    for k in range(values.size):
-        h = step * max(1.0, abs(values[k])) if relative else step
-        up, down = values.copy(), values.copy()
-        up[k] += h
-        down[k] -= h
-        columns.append((residuals(up) - residuals(down)) / (2.0 * h))
-    return np.column_stack(columns)
-
-
-def residual_variance(residuals: FloatArray, parameters: int) -> float:
-    """``s^2``: the weighted residuals' sum of squares over their degrees of freedom."""
-    return float(residuals @ residuals) / max(residuals.size - parameters, 1)
 
 
 def identify(
@@ -632,84 +436,6 @@ def _fit_pass(
     )
 
 
-def _normalised_information(jacobian: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """J^T J normalised by its diagonal (so its singular values compare directions, not
-    units), and the square root of that diagonal."""
-    information = jacobian.T @ jacobian
-    diagonal = np.sqrt(np.clip(np.diag(information), 1e-300, None))
-    return information / np.outer(diagonal, diagonal), diagonal
-
-
-def conditioning(jacobian: FloatArray) -> float:
-    """The largest over the smallest singular value of the normalised J^T J."""
-    normalised, _ = _normalised_information(jacobian)
-    singular = np.linalg.svd(normalised, compute_uv=False)
-    return float(singular[0] / max(singular[-1], 1e-300))
-
-
-def uncertainty(
-    specs: Sequence[Parameter], values: FloatArray, jacobian: FloatArray, variance: float
-) -> tuple[list[FittedParameter], FloatArray, list[str]]:
-    """Standard errors, correlations and identifiability from ``J`` at the solution
-    (``values``, the fitted vector: log scales and offsets; ``variance``, the weighted
-    residual variance :func:`residual_variance`): the fitted parameters, their correlation
-    matrix and a warning for each one the data do not identify.
-
-    J^T J is normalised by its diagonal before the pseudo-inverse, so the singular values
-    compare directions, not units; a parameter loading a direction with a singular value
-    below SINGULAR_RATIO x the largest is one the data cannot tell from the others. It is
-    not identifiable either when |correlation| with another exceeds CORRELATION_LIMIT, when
-    its relative SE exceeds RELATIVE_SE_LIMIT (an offset's SE OFFSET_SE_LIMIT_C), or when it
-    ends at its bound. The two-link and the arm identification (daemon.arm.identify) both
-    report with it."""
-    normalised, diagonal = _normalised_information(jacobian)
-    u, singular, _ = np.linalg.svd(normalised)
-    weak = singular < SINGULAR_RATIO * singular[0]
-    inverse = (u[:, ~weak] / singular[~weak]) @ u[:, ~weak].T
-    if weak.any():  # the unseen directions have unbounded variance: say so, not a small number
-        inverse = inverse + (u[:, weak] / (SINGULAR_RATIO * singular[0])) @ u[:, weak].T
-    covariance = variance * inverse / np.outer(diagonal, diagonal)
-    se_raw = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    correlation = covariance / np.outer(np.where(se_raw > 0, se_raw, 1.0), se_raw + (se_raw == 0))
-    np.fill_diagonal(correlation, 1.0)
-    loading = (np.abs(u[:, weak]) > 0.1).any(axis=1) if weak.any() else np.zeros(len(specs), bool)
-    fitted: list[FittedParameter] = []
-    warnings: list[str] = []
-    for k, spec in enumerate(specs):
-        reasons = []
-        if loading[k]:
-            reasons.append("J^T J is near-singular along this parameter")
-        partners = [
-            specs[j].name
-            for j in range(len(specs))
-            if j != k and abs(correlation[k, j]) > CORRELATION_LIMIT
-        ]
-        if partners:
-            reasons.append(f"|correlation| > {CORRELATION_LIMIT} with {', '.join(partners)}")
-        if spec.is_log:
-            value = math.exp(values[k])
-            relative: float | None = float(se_raw[k])
-            standard_error = value * float(se_raw[k])
-            if se_raw[k] > RELATIVE_SE_LIMIT:
-                reasons.append(f"relative standard error {se_raw[k]:.3g} > {RELATIVE_SE_LIMIT}")
-        else:
-            value, relative, standard_error = float(values[k]), None, float(se_raw[k])
-            if standard_error > OFFSET_SE_LIMIT_C:
-                reasons.append(f"standard error {standard_error:.3g} degC > {OFFSET_SE_LIMIT_C}")
-        at_bound = math.isclose(values[k], spec.bounds[0], abs_tol=1e-6) or math.isclose(
-            values[k], spec.bounds[1], abs_tol=1e-6
-        )
-        if at_bound:
-            reasons.append("at its bound")
-        reason = "; ".join(reasons)
-        if reason:
-            warnings.append(f"{spec.name} is not identifiable from these data: {reason}")
-        fitted.append(
-            FittedParameter(spec.name, value, standard_error, relative, not reason, reason)
-        )
-    return fitted, correlation, warnings
-
-
 def evaluate(
     result: IdentificationResult,
     run: RunData,
@@ -733,179 +459,3 @@ def validate(
 ) -> IdentificationResult:
     """``result`` with its validation on ``run`` filled in."""
     return dataclasses.replace(result, validation=evaluate(result, run, network, regions))
-
-
-# -- the network file ---------------------------------------------------------------------------
-
-
-def calibration_of(
-    result: IdentificationResult,
-    base_network: str,
-    source_runs: Sequence[str],
-    identified_at: str,
-    validation_runs: Sequence[str] = (),
-) -> Calibration:
-    """What the identified network file records besides its node values (issue 19): the
-    provenance, every fitted parameter with its error and identifiability, and the IR offsets
-    with their uncertainty (the observer's starting point)."""
-    errors = {
-        p.name: (p.standard_error if math.isfinite(p.standard_error) else None)
-        for p in result.parameters
-    }
-    offsets = {spec.name: spec.targets for spec in result.specs if spec.kind == "offset"}
-    validation = result.validation
-    return Calibration(
-        base_network=base_network,
-        source_runs=tuple(source_runs),
-        identified_at=identified_at,
-        parameters=tuple(
-            CalibratedParameter(
-                name=p.name,
-                value=p.value,
-                standard_error=errors[p.name],
-                relative_error=p.relative_error
-                if p.relative_error is None or math.isfinite(p.relative_error)
-                else None,
-                identifiable=p.identifiable,
-                reason=p.reason,
-            )
-            for p in result.parameters
-        ),
-        ir_offsets_c={
-            r: v
-            for r, v in result.offsets_c.items()
-            if any(r in regions for regions in offsets.values())
-        },
-        ir_offset_sigma_c=offset_sigmas_c(offsets, errors),
-        temperature_rms_c=result.fit.temperature_rms_c,
-        deformation_rms_um=result.fit.deformation_rms_um,
-        validation_runs=tuple(validation_runs),
-        validation_deformation_rms_um=None if validation is None else validation.deformation_rms_um,
-    )
-
-
-def _calibration_toml(calibration: Calibration) -> list[str]:
-    lines = [
-        "",
-        "# Where this network came from and how sure identification is (daemon.model.calibration)",
-        f"[{CALIBRATION_TABLE}]",
-        f"base_network = {_toml_value(calibration.base_network)}",
-        f"source_runs = {_toml_value(list(calibration.source_runs))}",
-        f"identified_at = {_toml_value(calibration.identified_at)}",
-        f"validation_runs = {_toml_value(list(calibration.validation_runs))}",
-    ]
-    for key, number in (
-        ("temperature_rms_c", calibration.temperature_rms_c),
-        ("deformation_rms_um", calibration.deformation_rms_um),
-        ("validation_deformation_rms_um", calibration.validation_deformation_rms_um),
-    ):
-        if number is not None and math.isfinite(number):
-            lines.append(f"{key} = {_toml_value(number)}")
-    for table, values in (
-        ("ir_offsets_c", calibration.ir_offsets_c),
-        ("ir_offset_sigma_c", calibration.ir_offset_sigma_c),
-    ):
-        lines += ["", f"[{CALIBRATION_TABLE}.{table}]"]
-        lines += [f"{_toml_value(r)} = {_toml_value(float(v))}" for r, v in values.items()]
-    for parameter in calibration.parameters:
-        lines += [
-            "",
-            f"[[{CALIBRATION_TABLE}.parameters]]",
-            f"name = {_toml_value(parameter.name)}",
-            f"value = {_toml_value(parameter.value)}",
-        ]
-        for key, error in (
-            ("standard_error", parameter.standard_error),
-            ("relative_error", parameter.relative_error),
-        ):
-            if error is not None and math.isfinite(error):
-                lines.append(f"{key} = {_toml_value(error)}")
-        lines.append(f"identifiable = {'true' if parameter.identifiable else 'false'}")
-        if parameter.reason:
-            lines.append(f"reason = {_toml_value(parameter.reason)}")
-    return lines
-
-
-def _toml_value(value: float | str | Sequence[float] | Sequence[str]) -> str:
-    if isinstance(value, str):
-        return json.dumps(value)  # a JSON string is a valid TOML basic string
-    if isinstance(value, float | int):
-        number = float(value)
-        if math.isinf(number):
-            return "inf"
-        return repr(number)
-    return "[" + ", ".join(_toml_value(item) for item in value) + "]"
-
-
-def network_toml(network: ThermalNetwork, header: str = "") -> str:
-    """``network`` in the ``[[nodes]]``/``[[resistances]]`` format of config/networks/ that
-    :func:`daemon.model.load_network` reads (floats at full precision, so it reloads to the
-    same matrices)."""
-    lines = [f"# {line}" for line in header.splitlines()]
-    lines += [
-        f"name = {_toml_value(network.name)}",
-        f"description = {_toml_value(network.description)}",
-        f"reference_nodes = {_toml_value(list(network.reference_nodes))}",
-        f"heater_nodes = {_toml_value(list(network.heater_nodes))}",
-        f"direction = {_toml_value(network.direction.tolist())}",
-    ]
-    if network.bar_ends_mm is not None:
-        lines.append(f"bar_ends_mm = {_toml_value(list(network.bar_ends_mm))}")
-    for i, name in enumerate(network.node_names):
-        lines += [
-            "",
-            "[[nodes]]",
-            f"name = {_toml_value(name)}",
-            f"position_mm = {_toml_value(float(network.positions_mm[i]))}",
-            f"capacitance_j_per_c = {_toml_value(float(network.capacitance_j_per_c[i]))}",
-            f"alpha_per_c = {_toml_value(float(network.alpha_per_c[i]))}",
-        ]
-        for key, array in (
-            ("r_ambient_c_per_w", network.r_ambient_c_per_w),
-            ("r_end_c_per_w", network.r_end_c_per_w),
-        ):
-            if math.isfinite(array[i]):
-                lines.append(f"{key} = {_toml_value(float(array[i]))}")
-        if network.heat_w[i] != 0.0:
-            lines.append(f"heat_w = {_toml_value(float(network.heat_w[i]))}")
-    for resistance in network.resistances:
-        between = [network.node_names[resistance.a], network.node_names[resistance.b]]
-        lines += [
-            "",
-            "[[resistances]]",
-            f"between = {_toml_value(between)}",
-            f"r_c_per_w = {_toml_value(resistance.r_c_per_w)}",
-        ]
-    if network.calibration is not None:
-        lines += _calibration_toml(network.calibration)
-    return "\n".join(lines) + "\n"
-
-
-__all__ = [
-    "PARAMETER_KINDS",
-    "FitQuality",
-    "FittedParameter",
-    "IdentificationError",
-    "IdentificationResult",
-    "Parameter",
-    "RunData",
-    "calibration_of",
-    "central_jacobian",
-    "conditioning",
-    "default_parameters",
-    "evaluate",
-    "find_parameter",
-    "heat_schedule",
-    "identify",
-    "measured_deformation_um",
-    "network_toml",
-    "observation_matrix",
-    "parameters_report",
-    "parse_parameters",
-    "residual_variance",
-    "rms",
-    "run_data_from_steps",
-    "simulate_temperatures",
-    "uncertainty",
-    "validate",
-]
