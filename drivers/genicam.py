@@ -27,15 +27,10 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
-import importlib
 import logging
-import threading
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -44,15 +39,39 @@ from numpy.typing import NDArray
 from drivers.base import LinkState
 from drivers.clock import Clock
 from drivers.errors import DeviceError, DeviceTimeoutError, NotConnectedError, ProtocolError
+from drivers.genicam_nodes import (
+    INSTALL_HINT,
+    MONO_FORMATS,
+    choose_pixel_format,
+    find_node,
+    has_node,
+    load_feature_file,
+    node_value,
+    pylon_module,
+    set_node,
+)
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
+
+# pylon's module and node helpers are drivers/genicam_nodes.py; the drivers import them here
+# with the transport
+__all__ = [
+    "CLOCK_RESYNC_S",
+    "INSTALL_HINT",
+    "MONO_FORMATS",
+    "CameraClockMap",
+    "GenICamSelection",
+    "GenICamTransport",
+    "RawImage",
+    "choose_pixel_format",
+    "has_node",
+    "load_feature_file",
+    "node_value",
+    "pylon_module",
+    "set_node",
+]
 
 logger = logging.getLogger(__name__)
 
-#: How to get pypylon when it is missing: the optional extra.
-INSTALL_HINT = "install the genicam extra: pip install 'thermocomp[genicam]' (pypylon)"
-#: Pixel formats the drivers read, and their significant bits: unpacked mono only, which pylon
-#: hands over as uint8 / uint16 arrays.
-MONO_FORMATS = {"Mono8": 8, "Mono10": 10, "Mono12": 12, "Mono14": 14, "Mono16": 16}
 #: Re-latch the camera's counter against the run clock this often (s): two crystals drift
 #: apart by tens of ppm, i.e. under 1 ms in this time.
 CLOCK_RESYNC_S = 30.0
@@ -60,39 +79,6 @@ CLOCK_RESYNC_S = 30.0
 SFNC_TICKS_PER_S = 1e9
 MS_PER_S = 1000.0
 US_PER_S = 1e6
-_IMPORT_LOCK = threading.Lock()
-
-
-def pylon_module() -> ModuleType:
-    """``pypylon.pylon``, or NotConnectedError naming the extra to install.
-
-    Its SWIG bindings emit DeprecationWarnings while they load; where warnings are errors
-    (``-W error``, the test suite) the extension module then crashes the interpreter instead
-    of failing the import, so they are silenced for the (one, locked) import."""
-    try:
-        with _IMPORT_LOCK, warnings.catch_warnings():
-            warnings.filterwarnings("ignore", "builtin type [Ss]wig", DeprecationWarning)
-            return importlib.import_module("pypylon.pylon")
-    except ImportError as err:
-        raise NotConnectedError(
-            "genicam", f"pypylon cannot be imported ({err}): {INSTALL_HINT}"
-        ) from err
-
-
-def choose_pixel_format(wanted: str, offered: tuple[str, ...], device: str) -> str:
-    """``wanted`` when the camera offers it and the drivers can read it; else one clear line."""
-    mono = [name for name in offered if name in MONO_FORMATS]
-    if wanted not in MONO_FORMATS:
-        raise ProtocolError(
-            device, f"unsupported pixel format {wanted}: use one of {', '.join(MONO_FORMATS)}"
-        )
-    if wanted not in offered:
-        raise ProtocolError(
-            device,
-            f"the camera does not offer pixel format {wanted} (it offers "
-            f"{', '.join(mono) or 'no unpacked mono format'})",
-        )
-    return wanted
 
 
 @dataclass
@@ -136,62 +122,6 @@ class RawImage:
     timestamp_s: float
     timestamp_source: str  # camera | trigger | host
     grab_s: float  # wall time the grab took in the worker thread
-
-
-def _node(camera: Any, name: str) -> Any | None:
-    """The camera's GenICam node ``name`` when it exists and is available, else None."""
-    pylon_module()
-    genicam = importlib.import_module("pypylon.genicam")
-    try:
-        node = camera.GetNodeMap().GetNode(name)
-    except Exception:  # pylon raises its own types for unknown names
-        return None
-    if node is None or not genicam.IsAvailable(node):
-        return None
-    return node
-
-
-def has_node(camera: Any, name: str) -> bool:
-    """The camera has the node ``name`` and it is available now."""
-    return _node(camera, name) is not None
-
-
-def node_value(camera: Any, name: str) -> Any | None:
-    """A readable node's value (number, or an enumeration's symbolic), else None."""
-    node = _node(camera, name)
-    genicam = importlib.import_module("pypylon.genicam")
-    if node is None or not genicam.IsReadable(node):
-        return None
-    value = getattr(camera, name).Value
-    return value
-
-
-def set_node(camera: Any, name: str, value: Any, device: str) -> bool:
-    """Write a node if the camera has it writable; False when it has not. A value the camera
-    refuses (out of range, wrong step) is one clear line naming the node."""
-    node = _node(camera, name)
-    genicam = importlib.import_module("pypylon.genicam")
-    if node is None or not genicam.IsWritable(node):
-        return False
-    try:
-        getattr(camera, name).Value = value
-    except Exception as err:
-        raise ProtocolError(device, f"the camera refuses {name} = {value!r}: {err}") from err
-    return True
-
-
-def load_feature_file(camera: Any, path: Path, device: str) -> None:
-    """Write the features of a pylon feature file (``.pfs``: pylon Viewer's "Save Features",
-    pypylon ``FeaturePersistence.Save``; a GenApi persistence stream, one ``name<TAB>value``
-    per line after its GUID header) to the open camera, validating each value. A missing
-    file, an unknown feature or a refused value is one line naming the file."""
-    pylon = pylon_module()
-    try:
-        pylon.FeaturePersistence.Load(str(path), camera.GetNodeMap(), True)
-    except Exception as err:  # pylon's RuntimeException, with GenApi's file and line
-        first = (str(err).splitlines() or [""])[0]
-        reason = first.split(" : ")[0].strip() or type(err).__name__
-        raise ProtocolError(device, f"feature file {path}: {reason}") from err
 
 
 class GenICamTransport:
@@ -325,7 +255,7 @@ class GenICamTransport:
             ("GevTimestampControlLatch", "GevTimestampValue", "GevTimestampTickFrequency"),
             ("TimestampLatch", "TimestampLatchValue", None),
         ):
-            if _node(camera, latch) is None or _node(camera, value) is None:
+            if find_node(camera, latch) is None or find_node(camera, value) is None:
                 continue
             ticks_per_s = (
                 float(node_value(camera, frequency) or 0.0) if frequency else SFNC_TICKS_PER_S
