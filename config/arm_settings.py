@@ -63,6 +63,12 @@ class ArmSettings(Section):
         description="Frames grabbed from every camera per tool measurement; each marker's "
         "centroid is their mean (its noise, and the pose's, divided by sqrt(frames)).",
     )
+    reference_frames: Annotated[int, Field(ge=1, le=MAX_FRAMES_PER_MEASUREMENT)] | None = Field(
+        None,
+        description="Frames of each pose's reference (its zero, measured once before the first "
+        "step): its error is in every later drift of that pose; none: "
+        "arm.frames_per_measurement.",
+    )
     max_translation_mm: Annotated[float, Field(gt=0, le=MAX_ARM_TRANSLATION_MM)] = Field(
         2.0, description="Largest translation of a pose's correction (mm)."
     )

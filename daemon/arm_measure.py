@@ -253,16 +253,19 @@ class MultiCameraMeter:
         self._sensors, self._timeouts_s = device_sensors(settings, len(models))
         self._frames = settings.arm.frames_per_measurement
 
-    async def measure(self, expected_pose: FloatArray) -> ToolMeasurement:
-        """``arm.frames_per_measurement`` frames from every camera (the cameras together, one
-        frame after the other), each marker's centroid averaged over them, then the pose."""
+    async def measure(
+        self, expected_pose: FloatArray, frames: int | None = None
+    ) -> ToolMeasurement:
+        """``frames`` (default ``arm.frames_per_measurement``) frames from every camera (the
+        cameras together, one frame after the other), each marker's centroid averaged over
+        them, then the pose."""
         expected = np.asarray(expected_pose, dtype=np.float64)
         view_sets: list[list[MarkerView]] = []
-        for _ in range(self._frames):
-            frames = await asyncio.gather(
+        for _ in range(self._frames if frames is None else frames):
+            grabbed = await asyncio.gather(
                 *(self._grab(c, t) for c, t in zip(self._cameras, self._timeouts_s, strict=True))
             )
-            view_sets.append(await self._workers.step(self._views, frames, expected))
+            view_sets.append(await self._workers.step(self._views, grabbed, expected))
         return await self._workers.step(self._solve, view_sets, expected)
 
     def _views(self, frames: Sequence[Frame], expected: FloatArray) -> list[MarkerView]:

@@ -47,14 +47,18 @@ async def teach_poses(work: ArmRunWork, robot: ArmRobot) -> None:
         logger.info("run %d: taught pose %r", work.run_id, pose.name)
 
 
-async def measure_references(work: ArmRunWork, services: ArmServices, errors: ErrorLog) -> None:
-    """The tool at each taught goal, uncorrected, before the first step. A pose whose markers
-    cannot be measured now takes its first step's measurement as its zero instead."""
+async def measure_references(
+    work: ArmRunWork, services: ArmServices, errors: ErrorLog, frames: int | None = None
+) -> None:
+    """The tool at each taught goal, uncorrected, before the first step, with ``frames`` per
+    camera (arm.reference_frames: the reference's error is in every later drift of its pose,
+    so it may be worth more frames than a step's). A pose whose markers cannot be measured now
+    takes its first step's measurement as its zero instead."""
     measured = 0
     for pose in work.poses:
         try:
             await services.robot.move_to_goal(pose.name, Pose6.zero())
-            measurement = await services.meter.measure(pose.tool_pose)
+            measurement = await services.meter.measure(pose.tool_pose, frames)
         except MeasurementError as err:
             logger.warning("run %d: no reference at %r (%s)", work.run_id, pose.name, err)
             continue

@@ -107,7 +107,11 @@ class ToolMeter(Protocol):
     markers -> tool pose (daemon/arm_measure.py). Raises DeviceError (a camera) or
     MeasurementError (the markers)."""
 
-    async def measure(self, expected_pose: FloatArray) -> ToolMeasurement: ...
+    async def measure(
+        self, expected_pose: FloatArray, frames: int | None = None
+    ) -> ToolMeasurement:
+        """``frames`` per camera (None: the meter's own number, arm.frames_per_measurement)."""
+        ...
 
 
 @dataclass(eq=False)

@@ -324,7 +324,12 @@ class RunSession:
         """Each pose's zero, measured at its taught goal; a robot fault meanwhile parks the
         run in fault (the poses' first steps are then their references). False if stopped."""
         try:
-            await measure_references(work, self._arm(), self._services.errors)
+            await measure_references(
+                work,
+                self._arm(),
+                self._services.errors,
+                self._services.settings.arm.reference_frames,
+            )
         except DeviceError as err:
             await self._fault(f"cannot measure the taught poses: {err}")
             if not await self._wait_while_held():

@@ -114,3 +114,67 @@ async def test_averaged_frames_divide_the_pose_noise_by_sqrt_frames() -> None:
     assert single_rotation_sigma / mean_rotation_sigma == pytest.approx(3.0, rel=0.2), spreads
     assert 0.6 < single_urad / single_rotation_sigma < 1.5, spreads
     assert 0.6 < mean_urad / mean_rotation_sigma < 1.5, spreads
+
+
+class _CountingCamera(_JitteryMarkerCamera):
+    grabs = 0
+
+    async def grab(self) -> Any:
+        self.grabs += 1
+        return await super().grab()
+
+
+async def test_a_measurement_may_ask_for_more_frames_than_a_step() -> None:
+    """arm.reference_frames: the pose's zero is measured once and its error is in every later
+    drift of the pose, so it may be averaged over more frames than a step's measurement."""
+    from drivers.sim.arm_markers import CameraRig
+
+    pose = np.eye(4)
+    pose[:3, 3] = (400.0, 0.0, 300.0)
+    rig = CameraRig(width_px=1024, height_px=768, focal_px=2000.0)
+    models = rig.cameras(pose[:3, 3])
+    settings = Settings.model_validate(
+        {"camera": {"bit_depth": rig.bit_depth}, "arm": {"frames_per_measurement": 2}}
+    )
+    world = np.array(settings.arm.markers_mm) @ pose[:3, :3].T + pose[:3, 3]
+    cameras = [_CountingCamera(m, rig, world, 40 + k, JITTER_PX) for k, m in enumerate(models)]
+    workers = Workers()
+    try:
+        meter = MultiCameraMeter(settings, cameras, models, workers)
+        await meter.measure(pose)
+        assert [c.grabs for c in cameras] == [2] * len(cameras)
+        await meter.measure(pose, 5)
+        assert [c.grabs for c in cameras] == [7] * len(cameras)
+    finally:
+        workers.shutdown()
+
+
+async def test_the_references_are_measured_with_arm_reference_frames() -> None:
+    from daemon.arm.types import Pose6
+    from daemon.arm_prepare import ArmServices, measure_references
+    from daemon.events import ErrorLog, EventBus
+    from tests.test_arm_run import POSES
+
+    asked: list[tuple[str, int | None]] = []
+
+    class Robot:
+        goal = ""
+
+        async def move_to_goal(self, goal: str, correction: Pose6) -> None:
+            self.goal = goal
+
+    robot = Robot()
+
+    class Meter:
+        async def measure(self, expected_pose: Any, frames: int | None = None) -> Any:
+            from daemon.arm.run import ToolMeasurement
+
+            asked.append((robot.goal, frames))
+            return ToolMeasurement(np.asarray(expected_pose), 0.001, True, {})
+
+    work: Any = type("Work", (), {"poses": POSES, "reference": {}, "run_id": 1})()
+    services = ArmServices(robot, Meter(), pipeline=None)  # type: ignore[arg-type]
+    await measure_references(work, services, ErrorLog(EventBus()), 32)
+    assert asked == [(pose.name, 32) for pose in POSES]
+    assert set(work.reference) == {pose.name for pose in POSES}
+    assert work.reference_source == "each taught goal before the first correction"

@@ -203,7 +203,9 @@ class FakeMeter:
         self.robot = robot
         self.measurements = 0
 
-    async def measure(self, expected_pose: np.ndarray) -> ToolMeasurement:
+    async def measure(
+        self, expected_pose: np.ndarray, frames: int | None = None
+    ) -> ToolMeasurement:
         robot = self.robot
         assert robot.goal is not None
         nominal = next(p.tool_pose for p in POSES if p.name == robot.goal)
