@@ -10,7 +10,9 @@ Where things live (issue 15): a run's state changes only in daemon/session.py; o
 daemon/step.py (model -> target check -> move -> measure -> record); the safety checks of a
 target are daemon/model/compensation.py (limits) and the robot driver (hold, finite values,
 right before the bytes are written). This façade only routes requests and keeps the read model
-(daemon/readmodel.py) that the API reads.
+(daemon/readmodel.py) that the API reads; a run is built from its parameters in
+daemon/run_start.py, and a run's end that could not be written is kept and written again by
+daemon/unrecorded_end.py.
 """
 
 from __future__ import annotations
@@ -27,21 +29,9 @@ from types import TracebackType
 from typing import Any, TypeVar
 
 from config import Settings
-from daemon import __version__
-from daemon.arm_player import ArmPlayer
 from daemon.arm_prepare import ArmServices
-from daemon.arm_setup import (
-    ArmMeterFactory,
-    ArmSetup,
-    ArmSetupError,
-    arm_robot,
-    check_arm_run,
-    check_played_run,
-    default_arm_meter,
-    default_arm_setup,
-    plays_duty_cycle,
-)
-from daemon.arm_step import ArmRunWork, ArmStepPipeline
+from daemon.arm_setup import ArmMeterFactory, ArmSetup, default_arm_meter, default_arm_setup
+from daemon.arm_step import ArmRunWork
 from daemon.devices_check import DeviceCheck, Devices, check_devices
 from daemon.events import (
     ERROR_HISTORY,
@@ -52,24 +42,18 @@ from daemon.events import (
     Subscription,
 )
 from daemon.readmodel import RunView
-from daemon.recorder import Recorder, RecorderError
+from daemon.recorder import Recorder
 from daemon.report_queue import ReportQueue, ReportStatus
-from daemon.run_setup import (
-    RunParameterError,
-    build_model,
-    build_observer,
-    check_admissible_scale,
-    check_reference_run,
-    network_snapshot,
-    unit_vector,
-)
+from daemon.run_setup import RunParameterError
+from daemon.run_start import RunBuilder
 from daemon.runs import RunParameters, RunState, RunStateError
 from daemon.scheduler import TimingStats
 from daemon.sensors import Sensors
-from daemon.session import BenchControl, ResumeRefusedError, RunSession, SessionServices
-from daemon.step import RunWork, StepPipeline
+from daemon.session import ResumeRefusedError, RunSession
+from daemon.step import RunWork
+from daemon.unrecorded_end import UnrecordedEnd
 from daemon.workers import Workers
-from drivers.clock import Clock, FollowingClock, make_clock
+from drivers.clock import Clock, make_clock
 
 __all__ = [
     "Daemon",
@@ -83,7 +67,7 @@ logger = logging.getLogger(__name__)
 _T = TypeVar("_T")
 
 #: How often an end of run that could not be recorded (disk full, database read-only) is
-#: written again, until it is (s).
+#: written again, until it is (s; daemon/unrecorded_end.py).
 UNRECORDED_END_RETRY_S = 2.0
 SHUTDOWN_REASON = "daemon shut down"
 HOLD_REASON = "robot held by request"
@@ -130,8 +114,7 @@ class Daemon:
         self._hold_generation = 0
         #: monotonic time of the control loop's last sign of life (systemd watchdog, issue 10)
         self.last_progress_monotonic = time.monotonic()
-        self._unrecorded_end: tuple[int, str, dict[str, Any] | None, str | None] | None = None
-        self._retry_task: asyncio.Task[None] | None = None
+        self._unrecorded_end = UnrecordedEnd(self._storage, UNRECORDED_END_RETRY_S)
 
     # --- lifecycle ---------------------------------------------------------------------
 
@@ -164,11 +147,8 @@ class Daemon:
     ) -> None:
         try:
             await self.shutdown()
-            if self._retry_task is not None:
-                self._retry_task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await self._retry_task
-            await self._record_unrecorded_end()  # one last try before the database closes
+            await self._unrecorded_end.stop_retrying()
+            await self._unrecorded_end.record()  # one last try before the database closes
         finally:
             await self._exit_stack.aclose()
             self._devices = None
@@ -208,92 +188,30 @@ class Daemon:
                 raise RunConflictError(
                     f"run {session.id} is {session.state.value}: one run at a time"
                 )
-            await self._record_unrecorded_end(raise_on_failure=True)
+            await self._unrecorded_end.record(raise_on_failure=True)
+            builder = self._run_builder()
             work: RunWork | ArmRunWork
             arm: ArmServices | None = None
             if parameters.duty_cycle is not None:
-                work, arm = await self._arm_work(parameters)
+                work, arm = await builder.arm_work(parameters)
             else:
-                work = await self._two_link_work(parameters)
+                work = await builder.two_link_work(parameters)
             self.timing = TimingStats()
-            session = RunSession(work, self._services(arm))
+            services = builder.session_services(
+                arm,
+                bus=self.bus,
+                timing=self.timing,
+                reports=self.reports,
+                hold_generation=lambda: self._hold_generation,
+                on_view=self._set_view,
+                on_progress=self._progress,
+                on_unrecorded_end=self._unrecorded_end.remember,
+            )
+            session = RunSession(work, services)
             self._session = session
             session.start()
             logger.info("run %d started: %s", work.run_id, parameters.model_dump())
             return session.view().info(self.clock.now())
-
-    async def _two_link_work(self, parameters: RunParameters) -> RunWork:
-        workers, recorder = self._workers_(), self._recorder()
-        built = await workers.step(build_model, self.settings, parameters)
-        parameters, network, model = built.parameters, built.network, built.model
-        logger.info("run heat: %s (from %s)", parameters.heat_w, built.heat_source)
-        direction = unit_vector(self.settings.model.direction)
-        await workers.step(check_admissible_scale, self.settings, parameters, network, direction)
-        await workers.db(check_reference_run, recorder, parameters)
-        observer = None
-        if parameters.prediction == "model+ir":
-            reader_regions = tuple(getattr(self.devices.ir, "regions", ()) or ())
-            observer = build_observer(self.settings, model, reader_regions)
-        run_id = await workers.db(
-            recorder.create_run,
-            parameters.model_dump(mode="json"),
-            self.settings.model_dump(mode="json"),
-            network_snapshot(network, built.heat_source),
-            __version__,
-        )
-        return RunWork(run_id, parameters, model, direction, observer)
-
-    async def _arm_work(self, parameters: RunParameters) -> tuple[ArmRunWork, ArmServices]:
-        """An arm run (issue 20): the arm's model and poses, its robot face, tool meter and
-        step pipeline; RunParameterError when the arm run cannot be built."""
-        workers, recorder = self._workers_(), self._recorder()
-        try:
-            check_arm_run(self.settings, parameters.duty_cycle)
-            assert parameters.duty_cycle is not None
-            plan = await workers.step(self._arm_setup, self.settings, parameters)
-            robot = arm_robot(self.devices.robot)
-            meter = self._arm_meter(self.settings, self.devices, workers)
-        except (ArmSetupError, ValueError, OSError) as err:
-            raise RunParameterError(f"arm run: {err}") from err
-        if not plan.poses:
-            raise RunParameterError("arm run: the duty cycle has no measured pose")
-        played = plays_duty_cycle(self.settings)
-        if played:
-            try:
-                check_played_run(self.settings, parameters, plan)
-            except ArmSetupError as err:
-                raise RunParameterError(f"arm run: {err}") from err
-        elif self.settings.robot.driver != "sim":
-            logger.warning(
-                "arm run: the duty cycle is not played (arm.play_duty_cycle): the robot moves "
-                "to its measured poses only; run the cycle's motion on the controller"
-            )
-        await workers.db(check_reference_run, recorder, parameters)
-        run_id = await workers.db(
-            recorder.create_run,
-            parameters.model_dump(mode="json"),
-            self.settings.model_dump(mode="json"),
-            plan.snapshot,
-            __version__,
-        )
-        sensors = self._sensors
-        assert sensors is not None
-        player = ArmPlayer(robot, plan.cycle, self.clock, run_id) if played else None
-        pipeline = ArmStepPipeline(
-            self.settings,
-            robot=robot,
-            meter=meter,
-            sensors=sensors,
-            recorder=recorder,
-            workers=workers,
-            errors=self.error_log,
-            clock_now=self.clock.now,
-            player=player,
-        )
-        work = ArmRunWork(
-            run_id, parameters, plan.predictor, plan.poses, cycle=plan.cycle if played else ()
-        )
-        return work, ArmServices(robot, meter, pipeline, player)
 
     async def pause(self, reason: str = "paused by request") -> None:
         async with self._requests:
@@ -436,41 +354,17 @@ class Daemon:
 
     # --- internals ---------------------------------------------------------------------
 
-    def _services(self, arm: ArmServices | None = None) -> SessionServices:
-        devices, sensors = self.devices, self._sensors
-        assert sensors is not None
-        workers, recorder = self._workers_(), self._recorder()
-        pipeline = StepPipeline(
-            self.settings,
-            robot=devices.robot,
-            sensors=sensors,
-            recorder=recorder,
-            workers=workers,
-            errors=self.error_log,
-            clock_now=self.clock.now,
-        )
-        bench: BenchControl | None = getattr(devices, "bench", None)
-        if arm is not None:  # an arm run starts the arm bench's truth, when there is one
-            bench = getattr(devices, "arm_bench", None) or bench
-        return SessionServices(
+    def _run_builder(self) -> RunBuilder:
+        return RunBuilder(
             settings=self.settings,
-            # a played duty cycle paces a virtual clock: the run's steps follow it
-            clock=self.clock if arm is None or arm.player is None else FollowingClock(self.clock),
-            robot=devices.robot,
-            sensors=sensors,
-            bench=bench,
-            pipeline=pipeline,
-            recorder=recorder,
-            workers=workers,
-            bus=self.bus,
+            clock=self.clock,
+            devices=lambda: self.devices,
+            sensors=self._sensors,
+            workers=self._workers_(),
+            recorder=self._recorder(),
             errors=self.error_log,
-            timing=self.timing,
-            reports=self.reports,
-            hold_generation=lambda: self._hold_generation,
-            on_view=self._set_view,
-            on_progress=self._progress,
-            on_unrecorded_end=self._remember_unrecorded_end,
-            arm=arm,
+            arm_setup=self._arm_setup,
+            arm_meter=self._arm_meter,
         )
 
     def _set_view(self, view: RunView) -> None:
@@ -480,38 +374,10 @@ class Daemon:
     def _progress(self) -> None:
         self.last_progress_monotonic = time.monotonic()
 
-    def _remember_unrecorded_end(
-        self, run_id: int, state: str, summary: dict[str, Any] | None, reason: str | None
-    ) -> None:
-        """The run's end could not be written (disk full, read-only database): keep it and
-        write it as soon as writing works again (issue 15, point 8)."""
-        self._unrecorded_end = (run_id, state, summary, reason)
-        if self._retry_task is None or self._retry_task.done():
-            self._retry_task = asyncio.get_running_loop().create_task(
-                self._retry_unrecorded_end(), name="record-run-end"
-            )
-
-    async def _retry_unrecorded_end(self) -> None:
-        while self._unrecorded_end is not None:
-            await asyncio.sleep(UNRECORDED_END_RETRY_S)
-            await self._record_unrecorded_end()
-
-    async def _record_unrecorded_end(self, *, raise_on_failure: bool = False) -> None:
-        pending = self._unrecorded_end
-        if pending is None or self._workers is None or self.recorder is None:
-            return
-        try:
-            await self._workers.db(self.recorder.finish_run, *pending)
-        except RecorderError as err:
-            if raise_on_failure:
-                raise RecorderError(
-                    f"the end of run {pending[0]} is not recorded yet ({err}); "
-                    "free the disk or fix the database, then start again"
-                ) from err
-            return
-        if self._unrecorded_end is pending:
-            self._unrecorded_end = None
-        logger.info("run %d: its end is recorded now (%s)", pending[0], pending[1])
+    def _storage(self) -> tuple[Workers, Recorder] | None:
+        if self._workers is None or self.recorder is None:
+            return None
+        return self._workers, self.recorder
 
     def _recorder(self) -> Recorder:
         if self.recorder is None:

@@ -9,8 +9,11 @@ pause while the operator paused or stopped during it) is already on the step's r
 and error) and changes nothing, so it never turns a run into ``aborted`` (issue 15, point 1).
 
 Every state change happens synchronously (no await between check and change), is published at
-once, and is persisted in order on the recorder's one thread; the run's frozen view
-(daemon/readmodel.py) is replaced at each change for the API to read.
+once, and is persisted in order on the recorder's one thread (daemon/session_publish.py); the
+run's frozen view (daemon/readmodel.py) is replaced at each change for the API to read. What
+the session does to the devices outside a step (teach, the bench's start, the reference frame,
+a played duty cycle) is daemon/session_devices.py; what the daemon gives it,
+daemon/session_services.py. Those compute and do I/O; the state changes only here.
 """
 
 from __future__ import annotations
@@ -19,71 +22,35 @@ import asyncio
 import functools
 import logging
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from config import Settings
-from daemon.arm_prepare import ArmServices, measure_references, teach_poses
+from daemon.arm_prepare import measure_references
 from daemon.arm_step import ArmRunWork
-from daemon.events import ErrorLog, Event, EventBus
 from daemon.readmodel import RunView
-from daemon.recorder import Recorder, RecorderError
-from daemon.report_queue import ReportQueue
+from daemon.recorder import RecorderError
 from daemon.runs import RunState, RunStateError, StateMachine
-from daemon.scheduler import FixedStepTimer, TimingStats
-from daemon.sensors import Sensors
-from daemon.step import RunWork, StepOutcome, StepPipeline, Verdict
+from daemon.scheduler import FixedStepTimer
+from daemon.session_devices import (
+    capture_reference,
+    play_duty_cycle,
+    start_bench,
+    teach_goals,
+)
+from daemon.session_publish import RunPublisher
+from daemon.session_services import BenchControl, SessionServices
+from daemon.step import RunWork, StepOutcome, Verdict
 from daemon.summary import run_summary
-from daemon.vision import CentroidError, measure_with_camera_settings
-from daemon.workers import Workers
-from drivers.base import Robot
-from drivers.clock import Clock
 from drivers.errors import DeviceError, GoalLostError
+
+__all__ = ["BenchControl", "ResumeRefusedError", "RunSession", "SessionServices"]
 
 logger = logging.getLogger(__name__)
 
 
 class ResumeRefusedError(RunStateError):
     """The run cannot continue (e.g. the controller lost the taught goal): a 409 with why."""
-
-
-class BenchControl(Protocol):
-    """What a run tells the simulated bench (drivers.sim.bench.Bench) when it starts."""
-
-    def start_run(
-        self,
-        t_s: float,
-        *,
-        deformation_scale: float | None = None,
-        procedure: str | None = None,
-        heater_off_s: float | None = None,
-    ) -> None: ...
-
-
-@dataclass(frozen=True, slots=True)
-class SessionServices:
-    """What a run uses of the daemon: its devices, workers, recorder and outlets."""
-
-    settings: Settings
-    clock: Clock
-    robot: Robot
-    sensors: Sensors
-    bench: BenchControl | None
-    pipeline: StepPipeline
-    recorder: Recorder
-    workers: Workers
-    bus: EventBus
-    errors: ErrorLog
-    timing: TimingStats
-    reports: ReportQueue
-    hold_generation: Callable[[], int]  # bumped by every hold, before the robot is held
-    on_view: Callable[[RunView], None]  # the daemon's read model
-    on_progress: Callable[[], None]  # the control loop is alive (systemd watchdog)
-    on_unrecorded_end: Callable[[int, str, dict[str, Any] | None, str | None], None]
-    arm: ArmServices | None = None  # an arm run's robot, tool meter and step (issue 20)
 
 
 class RunSession:
@@ -103,6 +70,7 @@ class RunSession:
         self.finishing = False  # holding the robot, writing the summary and the final state
         self._wake = asyncio.Event()
         self._start_generation = services.hold_generation()
+        self._publisher = RunPublisher(self.id, services)
         self.task: asyncio.Task[None] | None = None
 
     @property
@@ -230,7 +198,7 @@ class RunSession:
             # 6.4.3: every offset is from the goal taught here. Taught first, while still held:
             # a resume checks the goal the controller holds, and after a controller restart the
             # previous run's goal is gone (C500C.md), which must not refuse a new run.
-            await self._teach(moving=False)
+            await teach_goals(self.work, services, moving=False)
             if robot.status().motion_held:
                 # the previous run ended with the robot held; starting is an explicit request to
                 # move again -- unless a hold came after that request (it wins)
@@ -239,34 +207,25 @@ class RunSession:
                 await robot.resume()
             if self._hold_since_start():
                 return False
-            await self._teach(moving=True)
+            await teach_goals(self.work, services, moving=True)
         except DeviceError as err:
             services.errors.note(err)
             await self._fault(f"cannot teach the operational goal: {err}")
             if not await self._wait_while_held():
                 return False
-            await self._teach(moving=False)
-            await self._teach(moving=True)
+            await teach_goals(self.work, services, moving=False)
+            await teach_goals(self.work, services, moving=True)
         if parameters.warmup_wait_s > 0:
             logger.info("run %d: camera warm-up wait %.0f s", self.id, parameters.warmup_wait_s)
             await self._sleep_until(services.clock.now() + parameters.warmup_wait_s)
         if self.stop_requested:
             return False
-        if isinstance(self.work, ArmRunWork):
-            await self._start_arm_bench()
-        elif services.bench is not None:
-            # the simulated links start cold with this run, at its scale and procedure
-            services.bench.start_run(
-                services.clock.now(),
-                deformation_scale=parameters.deformation_scale,
-                procedure=parameters.procedure,
-                heater_off_s=parameters.heater_off_s,
-            )
+        await start_bench(self.work, services)
         if isinstance(self.work, ArmRunWork):
             if not await self._arm_references(self.work):
                 return False
         else:
-            await self._capture_reference()
+            await capture_reference(self.work, services)
         self.work.start_s = services.clock.now()
         self.timer = FixedStepTimer(
             services.clock,
@@ -278,55 +237,13 @@ class RunSession:
             self._go(RunState.RUNNING, None)
         return not self.stop_requested
 
-    async def _teach(self, *, moving: bool) -> None:
-        """Teach the run's goals: the two-link bench's goal where the robot stands (no motion:
-        before the start's resume); an arm run's measured poses, each reached by a move (so
-        after the resume, and refused by the driver after any hold)."""
-        work = self.work
-        if isinstance(work, ArmRunWork):
-            if moving:
-                await teach_poses(work, self._arm().robot)
-        elif not moving:
-            work.goal = await self._services.robot.teach_goal()
-
-    async def _play_duty_cycle(self, playing: bool) -> None:
-        """A played duty cycle (daemon/arm_player.py) runs while the run runs: started (from
-        the pose after the last one reached) when it runs, stopped when it pauses, faults or
-        ends. The player changes no state: its errors come back through the next step."""
-        arm = self._services.arm
-        player = None if arm is None else arm.player
-        if player is None:
-            return
-        if playing:
-            player.start()
-        else:
-            await player.stop(self._services.settings.scheduler.stop_grace_s)
-
-    def _arm(self) -> ArmServices:
-        arm = self._services.arm
-        if arm is None:
-            raise RuntimeError("an arm run without the arm's services")
-        return arm
-
-    async def _start_arm_bench(self) -> None:
-        """The simulated arm (drivers/sim/arm_bench.py) starts cold with this run (built on a
-        worker thread: it takes a second)."""
-        start = getattr(self._services.bench, "start_arm_run", None)
-        if start is not None:
-            services = self._services
-            await services.workers.step(
-                functools.partial(
-                    start, services.clock.now(), duty_cycle=self.work.parameters.duty_cycle
-                )
-            )
-
     async def _arm_references(self, work: ArmRunWork) -> bool:
         """Each pose's zero, measured at its taught goal; a robot fault meanwhile parks the
         run in fault (the poses' first steps are then their references). False if stopped."""
         try:
             await measure_references(
                 work,
-                self._arm(),
+                self._services.arm_services(),
                 self._services.errors,
                 self._services.settings.arm.reference_frames,
             )
@@ -342,27 +259,6 @@ class RunSession:
         self.request_stop("start cancelled: the robot was held after the start was requested")
         return True
 
-    async def _capture_reference(self) -> None:
-        """The spot at the operational goal before the first move: the zero of every drift.
-
-        Thesis 6.2 sets the centroid "at the start at the operational goal". Taken here, the
-        robot has not moved since the goal was taught, so the reference carries no positioning
-        error. If no frame can be had, step 0's centroid is used."""
-        services = self._services
-        try:
-            frame = await services.sensors.grab()
-            result = await services.workers.step(
-                measure_with_camera_settings, frame.image, services.settings.camera
-            )
-        except (DeviceError, CentroidError) as err:
-            if isinstance(err, DeviceError):
-                services.errors.note(err)
-            logger.warning("run %d: no reference frame (%s): step 0 is the reference", self.id, err)
-            return
-        assert isinstance(self.work, RunWork)
-        self.work.reference_um[0] = (result.x_um, result.y_um)
-        self.work.reference_source = "goal before the first move"
-
     async def _loop(self) -> None:
         timer = self.timer
         assert timer is not None
@@ -371,14 +267,14 @@ class RunSession:
             if self.stop_requested or self.state is RunState.STOPPING:
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
-                await self._play_duty_cycle(False)
+                await play_duty_cycle(self._services, False)
                 if not await self._wait_while_held():
                     return
                 timer.resync()
                 continue
             if timer.next_deadline_s >= end_s - 1e-9:
                 return
-            await self._play_duty_cycle(True)
+            await play_duty_cycle(self._services, True)
             await self._sleep_until(timer.next_wake_s)
             if self.stop_requested or self.state is not RunState.RUNNING:
                 continue  # woken by a request: handled at the top
@@ -386,7 +282,7 @@ class RunSession:
             # under way (it completes): skipping it would leave a gap in the step numbers
             tick = await timer.wait()
             if isinstance(self.work, ArmRunWork):
-                outcome = await self._arm().pipeline.run(self.work, tick)
+                outcome = await self._services.arm_services().pipeline.run(self.work, tick)
             else:
                 outcome = await self._services.pipeline.run(self.work, tick)
             self._recorded(outcome)
@@ -395,31 +291,10 @@ class RunSession:
             self._services.on_progress()
 
     def _recorded(self, outcome: StepOutcome) -> None:
-        """Publish a committed step: the event, the frame for live views, the read model."""
-        services, record = self._services, outcome.record
-        self.step = record.step
-        self.last_record = record.as_dict()
-        services.timing.add(record.lateness_s, outcome.stages_s)
-        services.bus.publish(
-            Event("step", {**self.last_record, "serial_round_trips_s": outcome.round_trips_s})
-        )
-        if outcome.frame is not None:  # for live views; a reference, no copy
-            frame = outcome.frame
-            services.bus.publish(
-                Event(
-                    "frame",
-                    {
-                        "run_id": self.id,
-                        "step": record.step,
-                        "image": frame.image,
-                        "bit_depth": frame.bit_depth,
-                        "timestamp_s": frame.timestamp_s,
-                        "centroid_x_px": record.centroid_x_px,
-                        "centroid_y_px": record.centroid_y_px,
-                    },
-                )
-            )
-        self._publish_view()
+        """A committed step: the session's last step, then its publication."""
+        self.step = outcome.record.step
+        self.last_record = outcome.record.as_dict()
+        self._publisher.step(outcome, self.last_record, self.view())
 
     async def _judge(self, step: int, verdict: Verdict) -> None:
         """A step's verdict meets the operator's requests here."""
@@ -480,7 +355,7 @@ class RunSession:
         services = self._services
         try:
             await self._hold_quietly()
-            await self._play_duty_cycle(False)
+            await play_duty_cycle(self._services, False)
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
             try:
@@ -510,8 +385,7 @@ class RunSession:
         finally:
             self.ended_s = services.clock.now()
             self.machine.state, self.machine.reason = final, reason
-            services.bus.publish(self._state_event())
-            self._publish_view()
+            self._publisher.state(self.view())
             if services.settings.storage.report_at_end and self.step >= 0:
                 services.reports.submit(self.id)
             logger.info("run %d %s%s", self.id, final.value, f" ({reason})" if reason else "")
@@ -533,24 +407,8 @@ class RunSession:
         self._announce(self.state, reason)
 
     def _announce(self, state: RunState, reason: str | None) -> None:
-        services = self._services
-        services.bus.publish(self._state_event())
-        self._publish_view()
-        write = services.workers.db(services.recorder.set_run_state, self.id, state.value, reason)
-        write.add_done_callback(self._state_written)
-
-    def _state_written(self, write: asyncio.Future[None]) -> None:
-        if write.cancelled():
-            return
-        err = write.exception()
-        if err is not None:
-            logger.error("run %d: cannot record its state: %s", self.id, err)
-            self._services.errors.note(err, device="storage")
-
-    def _state_event(self) -> Event:
-        return Event(
-            "state", {"run_id": self.id, "state": self.state.value, "reason": self.machine.reason}
-        )
+        self._publisher.state(self.view())
+        self._publisher.persist_state(state, reason)
 
     def view(self) -> RunView:
         return RunView(
@@ -566,9 +424,6 @@ class RunSession:
             skipped=0 if self.timer is None else self.timer.skipped,
             last_record=self.last_record,
         )
-
-    def _publish_view(self) -> None:
-        self._services.on_view(self.view())
 
     async def _hold_quietly(self) -> None:
         try:

@@ -1,0 +1,193 @@
+"""What a run is built from when the daemon starts it: its parameters resolved and checked, its
+row in the run database, its work, and the services its session is given.
+
+The two-link bench's run: model, admissible scale, reference run and observer
+(daemon/run_setup.py). An arm run (issue 20): the arm's plan, its robot face, tool meter,
+played duty cycle and step pipeline (daemon/arm_setup.py). RunParameterError when the run is
+not admissible. Nothing here starts a run or changes a run's state: daemon/service.py builds
+under its request lock and daemon/session.py runs what was built.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from config import Settings
+from daemon import __version__
+from daemon.arm_player import ArmPlayer
+from daemon.arm_prepare import ArmServices
+from daemon.arm_setup import (
+    ArmMeterFactory,
+    ArmSetup,
+    ArmSetupError,
+    arm_robot,
+    check_arm_run,
+    check_played_run,
+    plays_duty_cycle,
+)
+from daemon.arm_step import ArmRunWork, ArmStepPipeline
+from daemon.devices_check import Devices
+from daemon.events import ErrorLog, EventBus
+from daemon.readmodel import RunView
+from daemon.recorder import Recorder
+from daemon.report_queue import ReportQueue
+from daemon.run_setup import (
+    RunParameterError,
+    build_model,
+    build_observer,
+    check_admissible_scale,
+    check_reference_run,
+    network_snapshot,
+    unit_vector,
+)
+from daemon.runs import RunParameters
+from daemon.scheduler import TimingStats
+from daemon.sensors import Sensors
+from daemon.session_services import BenchControl, SessionServices
+from daemon.step import RunWork, StepPipeline
+from daemon.workers import Workers
+from drivers.clock import Clock, FollowingClock
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class RunBuilder:
+    """The daemon's parts a new run is built from (one per start)."""
+
+    settings: Settings
+    clock: Clock
+    #: the daemon's open devices, read where they are used (RuntimeError once it is closed)
+    devices: Callable[[], Devices]
+    sensors: Sensors | None  # None until the daemon's devices are open
+    workers: Workers
+    recorder: Recorder
+    errors: ErrorLog
+    arm_setup: ArmSetup  # an arm run's model and poses (issue 20)
+    arm_meter: ArmMeterFactory  # ... and its tool measurement
+
+    async def two_link_work(self, parameters: RunParameters) -> RunWork:
+        """The two-link bench's run: its model, checked scale, reference run and observer."""
+        workers, recorder = self.workers, self.recorder
+        built = await workers.step(build_model, self.settings, parameters)
+        parameters, network, model = built.parameters, built.network, built.model
+        logger.info("run heat: %s (from %s)", parameters.heat_w, built.heat_source)
+        direction = unit_vector(self.settings.model.direction)
+        await workers.step(check_admissible_scale, self.settings, parameters, network, direction)
+        await workers.db(check_reference_run, recorder, parameters)
+        observer = None
+        if parameters.prediction == "model+ir":
+            reader_regions = tuple(getattr(self.devices().ir, "regions", ()) or ())
+            observer = build_observer(self.settings, model, reader_regions)
+        run_id = await workers.db(
+            recorder.create_run,
+            parameters.model_dump(mode="json"),
+            self.settings.model_dump(mode="json"),
+            network_snapshot(network, built.heat_source),
+            __version__,
+        )
+        return RunWork(run_id, parameters, model, direction, observer)
+
+    async def arm_work(self, parameters: RunParameters) -> tuple[ArmRunWork, ArmServices]:
+        """An arm run (issue 20): the arm's model and poses, its robot face, tool meter and
+        step pipeline; RunParameterError when the arm run cannot be built."""
+        workers, recorder = self.workers, self.recorder
+        try:
+            check_arm_run(self.settings, parameters.duty_cycle)
+            assert parameters.duty_cycle is not None
+            plan = await workers.step(self.arm_setup, self.settings, parameters)
+            robot = arm_robot(self.devices().robot)
+            meter = self.arm_meter(self.settings, self.devices(), workers)
+        except (ArmSetupError, ValueError, OSError) as err:
+            raise RunParameterError(f"arm run: {err}") from err
+        if not plan.poses:
+            raise RunParameterError("arm run: the duty cycle has no measured pose")
+        played = plays_duty_cycle(self.settings)
+        if played:
+            try:
+                check_played_run(self.settings, parameters, plan)
+            except ArmSetupError as err:
+                raise RunParameterError(f"arm run: {err}") from err
+        elif self.settings.robot.driver != "sim":
+            logger.warning(
+                "arm run: the duty cycle is not played (arm.play_duty_cycle): the robot moves "
+                "to its measured poses only; run the cycle's motion on the controller"
+            )
+        await workers.db(check_reference_run, recorder, parameters)
+        run_id = await workers.db(
+            recorder.create_run,
+            parameters.model_dump(mode="json"),
+            self.settings.model_dump(mode="json"),
+            plan.snapshot,
+            __version__,
+        )
+        sensors = self.sensors
+        assert sensors is not None
+        player = ArmPlayer(robot, plan.cycle, self.clock, run_id) if played else None
+        pipeline = ArmStepPipeline(
+            self.settings,
+            robot=robot,
+            meter=meter,
+            sensors=sensors,
+            recorder=recorder,
+            workers=workers,
+            errors=self.errors,
+            clock_now=self.clock.now,
+            player=player,
+        )
+        work = ArmRunWork(
+            run_id, parameters, plan.predictor, plan.poses, cycle=plan.cycle if played else ()
+        )
+        return work, ArmServices(robot, meter, pipeline, player)
+
+    def session_services(
+        self,
+        arm: ArmServices | None,
+        *,
+        bus: EventBus,
+        timing: TimingStats,
+        reports: ReportQueue,
+        hold_generation: Callable[[], int],
+        on_view: Callable[[RunView], None],
+        on_progress: Callable[[], None],
+        on_unrecorded_end: Callable[[int, str, dict[str, Any] | None, str | None], None],
+    ) -> SessionServices:
+        """The run's devices, step pipeline and clock, with the daemon's outlets."""
+        devices, sensors = self.devices(), self.sensors
+        assert sensors is not None
+        workers, recorder = self.workers, self.recorder
+        pipeline = StepPipeline(
+            self.settings,
+            robot=devices.robot,
+            sensors=sensors,
+            recorder=recorder,
+            workers=workers,
+            errors=self.errors,
+            clock_now=self.clock.now,
+        )
+        bench: BenchControl | None = getattr(devices, "bench", None)
+        if arm is not None:  # an arm run starts the arm bench's truth, when there is one
+            bench = getattr(devices, "arm_bench", None) or bench
+        return SessionServices(
+            settings=self.settings,
+            # a played duty cycle paces a virtual clock: the run's steps follow it
+            clock=self.clock if arm is None or arm.player is None else FollowingClock(self.clock),
+            robot=devices.robot,
+            sensors=sensors,
+            bench=bench,
+            pipeline=pipeline,
+            recorder=recorder,
+            workers=workers,
+            bus=bus,
+            errors=self.errors,
+            timing=timing,
+            reports=reports,
+            hold_generation=hold_generation,
+            on_view=on_view,
+            on_progress=on_progress,
+            on_unrecorded_end=on_unrecorded_end,
+            arm=arm,
+        )

@@ -1,0 +1,90 @@
+"""What a run's session does to the devices outside a step: teach the run's goals, start the
+simulated bench cold, take the two-link bench's reference frame, start and stop a played duty
+cycle -- for the two-link bench and for an arm run (issue 20; its poses: daemon/arm_prepare.py).
+
+RunSession (daemon/session.py) calls these at the points of its prepare -> loop -> finish and
+decides what their errors do: nothing here changes the run's state (issue 15). They may change
+the run's work (its goal, its references), which is data, not state.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+
+from daemon.arm_prepare import teach_poses
+from daemon.arm_step import ArmRunWork
+from daemon.session_services import SessionServices
+from daemon.step import RunWork
+from daemon.vision import CentroidError, measure_with_camera_settings
+from drivers.errors import DeviceError
+
+logger = logging.getLogger(__name__)
+
+
+async def teach_goals(
+    work: RunWork | ArmRunWork, services: SessionServices, *, moving: bool
+) -> None:
+    """Teach the run's goals: the two-link bench's goal where the robot stands (no motion:
+    before the start's resume); an arm run's measured poses, each reached by a move (so
+    after the resume, and refused by the driver after any hold). Raises DeviceError."""
+    if isinstance(work, ArmRunWork):
+        if moving:
+            await teach_poses(work, services.arm_services().robot)
+    elif not moving:
+        work.goal = await services.robot.teach_goal()
+
+
+async def start_bench(work: RunWork | ArmRunWork, services: SessionServices) -> None:
+    """The simulated bench, when there is one, starts cold with this run."""
+    parameters = work.parameters
+    if isinstance(work, ArmRunWork):
+        # the simulated arm (drivers/sim/arm_bench.py), built on a worker thread: it takes a
+        # second
+        start = getattr(services.bench, "start_arm_run", None)
+        if start is not None:
+            await services.workers.step(
+                functools.partial(start, services.clock.now(), duty_cycle=parameters.duty_cycle)
+            )
+    elif services.bench is not None:
+        # the simulated links start cold with this run, at its scale and procedure
+        services.bench.start_run(
+            services.clock.now(),
+            deformation_scale=parameters.deformation_scale,
+            procedure=parameters.procedure,
+            heater_off_s=parameters.heater_off_s,
+        )
+
+
+async def capture_reference(work: RunWork, services: SessionServices) -> None:
+    """The spot at the operational goal before the first move: the zero of every drift.
+
+    Thesis 6.2 sets the centroid "at the start at the operational goal". Taken here, the
+    robot has not moved since the goal was taught, so the reference carries no positioning
+    error. If no frame can be had, step 0's centroid is used."""
+    try:
+        frame = await services.sensors.grab()
+        result = await services.workers.step(
+            measure_with_camera_settings, frame.image, services.settings.camera
+        )
+    except (DeviceError, CentroidError) as err:
+        if isinstance(err, DeviceError):
+            services.errors.note(err)
+        logger.warning("run %d: no reference frame (%s): step 0 is the reference", work.run_id, err)
+        return
+    work.reference_um[0] = (result.x_um, result.y_um)
+    work.reference_source = "goal before the first move"
+
+
+async def play_duty_cycle(services: SessionServices, playing: bool) -> None:
+    """A played duty cycle (daemon/arm_player.py) runs while the run runs: started (from
+    the pose after the last one reached) when it runs, stopped when it pauses, faults or
+    ends. The player changes no state: its errors come back through the next step."""
+    arm = services.arm
+    player = None if arm is None else arm.player
+    if player is None:
+        return
+    if playing:
+        player.start()
+    else:
+        await player.stop(services.settings.scheduler.stop_grace_s)
