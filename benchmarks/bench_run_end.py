@@ -97,7 +97,7 @@ def measure(case: str, data_dir: Path, run_id: int) -> dict[str, float]:
     from daemon.analysis import summarize_run
     from daemon.reports import write_run_report
     from daemon.scheduler import percentiles
-    from daemon.service import SUMMARY_COLUMNS
+    from daemon.summary import SUMMARY_COLUMNS
 
     started = time.perf_counter()
     if case == "summary":  # what Daemon._summary reads and computes at the end of a run
