@@ -1,14 +1,14 @@
 """The emulated C500C's `ash` command interpreter: one line in, answer lines out (no I/O).
 
 drivers/sim/emulator.py serves it on a pty or a TCP port. It follows the firmware's texts and
-layouts of C500C.md through drivers/c500c_protocol.py; what no source confirms is that module's
-``ASSUMED`` block. Emulator-only simplifications (not protocol assumptions): without an arm
-(EmulatorConfig.joint_arm) there are no kinematics (the PULSES and JOINTS rows are zeros), the
-reach check is a sphere of ``REACH_MM`` around the base and `wshift` adds its angles; with one,
-the arm lives in joint space (drivers/sim/joint_arm.py: inverse kinematics, trapezoidal
-profiles, JOINTS and PULSES from the joints). Relative `w*` moves start from the actual (not the
-commanded) pose, so their positioning errors accumulate as the thesis's incremental commands
-did (6.4.4).
+layouts of C500C.md through drivers/c500c_protocol.py; what no source confirms is the
+``ASSUMED`` block of drivers/c500c_texts.py. Emulator-only simplifications (not protocol
+assumptions): without an arm (EmulatorConfig.joint_arm) there are no kinematics (the PULSES and
+JOINTS rows are zeros), the reach check is a sphere of ``REACH_MM`` around the base and `wshift`
+adds its angles; with one, the arm lives in joint space (drivers/sim/joint_arm.py: inverse
+kinematics, trapezoidal profiles, JOINTS and PULSES from the joints). Relative `w*` moves start
+from the actual (not the commanded) pose, so their positioning errors accumulate as the
+thesis's incremental commands did (6.4.4).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from drivers import c500c_protocol as proto
 
 if TYPE_CHECKING:
-    from drivers.sim.emulator import EmulatorConfig
+    from drivers.sim.emulator_config import EmulatorConfig
     from drivers.sim.joint_arm import JointArm
 
 #: Emulator simplification: a location farther than this from the base is out of reach (mm).
