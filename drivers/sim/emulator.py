@@ -23,9 +23,9 @@ its bytes, delay it, stall the console, close the link, or restart the controlle
 its variables). See :func:`parse_faults`.
 
 This module is the serving loop (one conversation per link, the faults applied to its answers,
-the controls tests and the bench use); the console's state and command interpreter are
-drivers/sim/ash.py, the pty / TCP link and the pacing drivers/sim/emulator_link.py, the
-configuration and fault specs drivers/sim/emulator_config.py.
+the controls tests and the bench use); the console's command interpreter is drivers/sim/ash.py
+(its state drivers/sim/ash_state.py), the pty / TCP link and the pacing
+drivers/sim/emulator_link.py, the configuration and fault specs drivers/sim/emulator_config.py.
 """
 
 from __future__ import annotations
@@ -46,13 +46,13 @@ import numpy as np
 from config.faults import Fault
 from daemon.arm.types import JointSample
 from drivers import c500c_protocol as proto
-from drivers.sim.ash import (
+from drivers.sim.ash import Console
+from drivers.sim.ash_state import (
     COMMAND_LOG_LINES,
     MOTION_WORDS,
     REACH_MM,
     RESTART_BANNER,
     START_POSE,
-    Console,
     ConsoleCommandError,
     ConsoleState,
     Location,

@@ -12,7 +12,7 @@ from config import faults as fault_specs
 from config.faults import Fault
 from drivers import c500c_protocol as proto
 from drivers.clock import Clock
-from drivers.sim.ash import START_POSE
+from drivers.sim.ash_state import START_POSE
 
 if TYPE_CHECKING:
     from drivers.sim.joint_arm import JointArmConfig
