@@ -40,12 +40,8 @@ from drivers.base import (
     Vector3,
 )
 from drivers.c500c_console import Transcript
-from drivers.c500c_link import (
-    DEVICE,
-    LINK_UP,
-    TARGET_LOCATION,
-    ConsoleLink,
-)
+from drivers.c500c_link import DEVICE, TARGET_LOCATION, ConsoleLink
+from drivers.c500c_link_states import LINK_UP
 from drivers.errors import (
     DeviceError,
     GoalLostError,

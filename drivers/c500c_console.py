@@ -1,5 +1,6 @@
 """One open C500C console link: bytes out and in (counted, optionally transcribed), and a
-command's reply read up to its prompt, with the point-of-control wait and the questions.
+command's reply read up to its prompt, with the point-of-control wait and the questions, and the
+probe-line synchronisation that finds where the console's output ends.
 
 The console link (drivers/c500c_link.py) builds its state machine on this; ``thermocomp robot check
 --transcript FILE`` writes the :class:`Transcript`, and tests replay one (every byte the host
@@ -13,6 +14,7 @@ A transcript file is JSON lines, one per chunk in the order it crossed the line:
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import re
 import time
@@ -23,6 +25,7 @@ from typing import Literal
 
 from drivers import c500c_protocol as proto
 from drivers.errors import (
+    DeviceError,
     DeviceTimeoutError,
     NotConnectedError,
     PointOfControlError,
@@ -33,6 +36,8 @@ DEVICE = proto.DEVICE
 #: An unrecognised question (a line ending in "? " or ": " without a line end) is taken as one
 #: when nothing more arrives for this long (s); a known question is recognised at once.
 QUESTION_SETTLE_S = 0.5
+#: Probe lines tried before synchronisation gives up (each waits robot.command_timeout_s).
+SYNC_ATTEMPTS = 3
 
 Direction = Literal["host", "console"]
 
@@ -248,6 +253,49 @@ async def read_until(
     except LinkLost as err:
         raise NotConnectedError(DEVICE, f"link lost on {port} during {what}") from err
     return end
+
+
+async def synchronise(
+    connection: Connection,
+    prompts: re.Pattern[bytes],
+    next_probe: Callable[[], str],
+    timeout_s: float,
+    *,
+    port: str,
+    application: str,
+) -> bytes:
+    """Bring the console to a clean prompt: Ctrl-E and a probe line; the reply is complete at
+    the prompt (one of ``prompts``) after the probe's echo (ASSUMED 6). Bounded: SYNC_ATTEMPTS
+    probes (``next_probe()`` names each), each waiting ``timeout_s`` (the first after Ctrl-E,
+    the others alone). Returns the bytes taken, up to and including that prompt; whatever came
+    before the probe's echo is discarded with them."""
+    last: DeviceError | None = None
+    for attempt in range(SYNC_ATTEMPTS):
+        probe = next_probe()
+        # Ctrl-E first ends a continuous display; a retry goes alone (ASSUMED 6)
+        interrupt = proto.CTRL_E if attempt == 0 else b""
+        connection.write(interrupt + proto.encode_command(probe))
+        try:
+            end = await read_until(
+                connection,
+                functools.partial(proto.find_probe_answer, probe=probe, prompt=prompts),
+                timeout_s,
+                f"synchronisation probe {probe!r}",
+                port,
+            )
+        except DeviceTimeoutError as err:
+            last = err
+            continue
+        return connection.take(end)
+    tail = proto.pending_line(bytes(connection.pending))
+    hint = (
+        f"; the console's prompt is {tail!r}, not {application!r}: check robot.application"
+        if tail.endswith("> ")
+        else ""
+    )
+    raise DeviceTimeoutError(
+        DEVICE, f"console not synchronised after {SYNC_ATTEMPTS} probe lines{hint}: {last}"
+    )
 
 
 async def read_reply(

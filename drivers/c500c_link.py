@@ -2,15 +2,8 @@
 
 It opens the port, synchronises on a prompt, exchanges commands under one lock, answers or
 interrupts the console's questions, waits for the operator when the controller asks for the
-point of control, resynchronises after a cut command and reconnects after a link fault. Link
-states (drivers.base.LinkState):
-
-    DISCONNECTED --__aenter__--> CONNECTING --synchronised--> CONNECTED
-    CONNECTED --a command cut (cancelled)--> RESYNCHRONISING --probe answered--> CONNECTED
-    CONNECTED --link fault--> RECONNECTING --attempt ok--> CONNECTED (motion held)
-    RECONNECTING --attempt fails--> wait backoff, try again (first 0.5 s, x2, capped)
-    CONNECTED --"Press the PAUSE/CONTINUE..."--> AWAITING_POINT_OF_CONTROL --button--> CONNECTED
-    any --__aexit__--> DISCONNECTED
+point of control, resynchronises after a cut command and reconnects after a link fault. Its
+states and their transitions are drivers/c500c_link_states.py.
 
 Synchronisation (connect, reconnect, after a cut command) never waits for the line to go
 quiet: it sends Ctrl-E and a probe line the console does not know, and waits, bounded and with
@@ -23,15 +16,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import functools
 import logging
 import math
 import time
-from types import TracebackType
-from typing import Any, Self
-
-import serial
-import serial_asyncio
+from typing import Self
 
 from config.settings import RobotSettings
 from drivers import c500c_protocol as proto
@@ -45,8 +33,9 @@ from drivers.c500c_console import (
     Transcript,
     answer_question,
     read_reply,
-    read_until,
+    synchronise,
 )
+from drivers.c500c_link_states import LINK_UP, TRANSITIONS, LinkLifecycle
 from drivers.errors import (
     ConsoleQuestionError,
     DeviceError,
@@ -59,12 +48,11 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
+from drivers.serial_port import open_serial
 
 logger = logging.getLogger(__name__)
 
 DEVICE = proto.DEVICE
-#: Probe lines tried before synchronisation gives up (each waits robot.command_timeout_s).
-SYNC_ATTEMPTS = 3
 #: Name of the taught operational goal and of the per-step target on the controller.
 GOAL_LOCATION = "opgoal"
 TARGET_LOCATION = "cur"
@@ -72,44 +60,7 @@ TARGET_LOCATION = "cur"
 VARIABLE_NOT_FOUND = "variable not found."
 
 
-#: The link's state machine: every allowed transition (drivers.base.LinkState). FAULT is not
-#: used here: a broken link is RECONNECTING, a device-reported fault holds motion instead.
-TRANSITIONS: dict[LinkState, frozenset[LinkState]] = {
-    LinkState.DISCONNECTED: frozenset({LinkState.CONNECTING}),
-    LinkState.CONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
-    LinkState.CONNECTED: frozenset(
-        {
-            LinkState.AWAITING_POINT_OF_CONTROL,
-            LinkState.RESYNCHRONISING,
-            LinkState.RECONNECTING,
-            LinkState.DISCONNECTED,
-        }
-    ),
-    LinkState.AWAITING_POINT_OF_CONTROL: frozenset(
-        {
-            LinkState.CONNECTED,
-            LinkState.RESYNCHRONISING,
-            LinkState.RECONNECTING,
-            LinkState.DISCONNECTED,
-        }
-    ),
-    LinkState.RESYNCHRONISING: frozenset(
-        {
-            LinkState.CONNECTED,
-            LinkState.AWAITING_POINT_OF_CONTROL,
-            LinkState.RECONNECTING,
-            LinkState.DISCONNECTED,
-        }
-    ),
-    LinkState.RECONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
-}
-#: States in which commands can be exchanged.
-LINK_UP = frozenset(
-    {LinkState.CONNECTED, LinkState.AWAITING_POINT_OF_CONTROL, LinkState.RESYNCHRONISING}
-)
-
-
-class ConsoleLink:
+class ConsoleLink(LinkLifecycle):
     """The console link of one C500C controller (subclassed by the robot driver)."""
 
     def __init__(
@@ -189,18 +140,6 @@ class ConsoleLink:
             raise
         return self
 
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        await self._close()
-
-    @property
-    def _reconnect_attempts(self) -> int:
-        return self._reconnector.attempts
-
     async def _close(self) -> None:
         await self._reconnector.cancel()
         task, self._resync_task = self._resync_task, None
@@ -214,31 +153,17 @@ class ConsoleLink:
 
     async def _open_port(self) -> Connection:
         settings = self.settings
-
-        def open_blocking() -> Any:
-            # Opening a port can block (USB adapters, termios): never on the event loop.
-            return serial.serial_for_url(
-                self.port,
-                baudrate=settings.baudrate,
-                bytesize=settings.bytesize,
-                parity=settings.parity,
-                stopbits=settings.stopbits,
-                # C500C.md: the notes say RTS/CTS "does not seem to work" on the console, the
-                # same repository's host service enables it: a setting, off by default
-                rtscts=settings.flow_control == "rtscts",
-                xonxoff=False,
-                timeout=0,
-            )
-
-        try:
-            instance = await asyncio.to_thread(open_blocking)
-        except (serial.SerialException, OSError, ValueError) as err:
-            raise NotConnectedError(DEVICE, f"cannot open {self.port}: {err}") from err
-        loop = asyncio.get_running_loop()
-        reader = asyncio.StreamReader()
-        protocol = asyncio.StreamReaderProtocol(reader)
-        transport, _ = await serial_asyncio.connection_for_serial(loop, lambda: protocol, instance)
-        writer = asyncio.StreamWriter(transport, protocol, reader, loop)
+        reader, writer = await open_serial(
+            DEVICE,
+            self.port,
+            baudrate=settings.baudrate,
+            bytesize=settings.bytesize,
+            parity=settings.parity,
+            stopbits=settings.stopbits,
+            # C500C.md: the notes say RTS/CTS "does not seem to work" on the console, the
+            # same repository's host service enables it: a setting, off by default
+            rtscts=settings.flow_control == "rtscts",
+        )
         return Connection(reader, writer, self.transcript, self.counters)
 
     async def _connect(self) -> None:
@@ -283,42 +208,22 @@ class ConsoleLink:
                 )
 
     async def _synchronise(self, connection: Connection, timeout_s: float) -> bool:
-        """Bring the console to a clean prompt: Ctrl-E and a probe line; the reply is complete
-        at the prompt after the probe's echo (ASSUMED 6). Bounded: SYNC_ATTEMPTS probes, each
-        waiting ``timeout_s`` (the first after Ctrl-E, the others alone). Returns whether the
-        console is at the system shell."""
-        prompts = self._prompt_or_shell
-        last: DeviceError | None = None
-        for attempt in range(SYNC_ATTEMPTS):
-            self._sync_counter += 1
-            probe = proto.sync_probe(self._sync_counter)
-            # Ctrl-E first ends a continuous display; a retry goes alone (ASSUMED 6)
-            interrupt = proto.CTRL_E if attempt == 0 else b""
-            connection.write(interrupt + proto.encode_command(probe))
-            try:
-                end = await read_until(
-                    connection,
-                    functools.partial(proto.find_probe_answer, probe=probe, prompt=prompts),
-                    timeout_s,
-                    f"synchronisation probe {probe!r}",
-                    self.port,
-                )
-            except DeviceTimeoutError as err:
-                last = err
-                continue
-            raw = connection.take(end)
-            self._note_prompt(raw)
-            return proto.find_shell_prompt(raw[raw.rfind(b"\n") + 1 :]) is not None
-        tail = proto.pending_line(bytes(connection.pending))
-        hint = (
-            f"; the console's prompt is {tail!r}, not {self.settings.application!r}: "
-            "check robot.application"
-            if tail.endswith("> ")
-            else ""
+        """Bring the console to a clean prompt (c500c_console.synchronise: Ctrl-E and a probe
+        line, bounded). Returns whether the console is at the system shell."""
+        raw = await synchronise(
+            connection,
+            self._prompt_or_shell,
+            self._next_probe,
+            timeout_s,
+            port=self.port,
+            application=self.settings.application,
         )
-        raise DeviceTimeoutError(
-            DEVICE, f"console not synchronised after {SYNC_ATTEMPTS} probe lines{hint}: {last}"
-        )
+        self._note_prompt(raw)
+        return proto.find_shell_prompt(raw[raw.rfind(b"\n") + 1 :]) is not None
+
+    def _next_probe(self) -> str:
+        self._sync_counter += 1
+        return proto.sync_probe(self._sync_counter)
 
     def _note_prompt(self, raw: bytes) -> None:
         self._last_prompt = raw[raw.rfind(b"\n") + 1 :].decode("ascii", errors="replace")
@@ -458,13 +363,6 @@ class ConsoleLink:
             raise DeviceTimeoutError(
                 DEVICE, f"link not {state.value} within {timeout_s:g} s ({self._link.value})"
             ) from err
-
-    async def wait_connected(self, timeout_s: float) -> None:
-        """Wait until the link is up (after a reconnection); DeviceTimeoutError otherwise."""
-        try:
-            await asyncio.wait_for(self._connected_event.wait(), timeout_s)
-        except TimeoutError as err:
-            raise DeviceTimeoutError(DEVICE, f"not reconnected within {timeout_s:g} s") from err
 
     # --- commands ---
 

@@ -11,7 +11,7 @@ before a motion frame is written.
 Any reply that cannot be trusted — bad CRC, garbage, an impossible length, a sequence number
 never used, a timeout, a lost port — is a link fault: every outstanding request fails with it,
 motion is held until the robot's ``resume()``, and the link reconnects in the background with a
-capped exponential back-off (TRANSITIONS below, as the console driver's).
+capped exponential back-off (drivers/c500c_link_states.py, as the console driver's).
 """
 
 from __future__ import annotations
@@ -21,15 +21,15 @@ import contextlib
 import itertools
 import logging
 from dataclasses import dataclass
-from types import TracebackType
-from typing import Any, Self
+from typing import Self
 
 import serial
-import serial_asyncio
 
 from config.settings import RobotSettings
 from drivers import c500c_server_protocol as proto
 from drivers.base import LinkState
+from drivers.c500c_link_states import SERVER_TRANSITIONS as TRANSITIONS
+from drivers.c500c_link_states import LinkLifecycle
 from drivers.errors import (
     DeviceError,
     DeviceTimeoutError,
@@ -38,6 +38,7 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
+from drivers.serial_port import open_serial
 
 logger = logging.getLogger(__name__)
 
@@ -46,15 +47,6 @@ DEVICE = proto.DEVICE
 ABANDONED_LIMIT = 1024
 
 _MOTION = (proto.RequestType.MOVE_GOAL, proto.RequestType.MOVE_RELATIVE)
-
-#: The link's state machine (drivers.base.LinkState), the console driver's without its
-#: point-of-control state: the program takes the point of control once, at its start.
-TRANSITIONS: dict[LinkState, frozenset[LinkState]] = {
-    LinkState.DISCONNECTED: frozenset({LinkState.CONNECTING}),
-    LinkState.CONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
-    LinkState.CONNECTED: frozenset({LinkState.RECONNECTING, LinkState.DISCONNECTED}),
-    LinkState.RECONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
-}
 
 
 class _LinkFault(Exception):
@@ -77,7 +69,7 @@ class _Connection:
             transport.abort()
 
 
-class ServerLink:
+class ServerLink(LinkLifecycle):
     """The link to the server program: requests, replies, heartbeats, faults, reconnection."""
 
     def __init__(
@@ -145,18 +137,6 @@ class ServerLink:
         )
         return self
 
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
-        await self._close()
-
-    @property
-    def _reconnect_attempts(self) -> int:
-        return self._reconnector.attempts
-
     async def _close(self) -> None:
         task, self._heartbeat_task = self._heartbeat_task, None
         if task is not None:
@@ -170,30 +150,17 @@ class ServerLink:
         self._connected_event.clear()
 
     async def _open_port(self) -> _Connection:
-        settings = self.settings
-
-        def open_blocking() -> Any:
-            # Opening a port can block (USB adapters, termios): never on the event loop.
-            return serial.serial_for_url(
-                self.port,
-                baudrate=settings.server_baudrate,
-                bytesize=8,
-                parity="N",
-                stopbits=1,
-                rtscts=False,  # the program turns flow control off (controller/PROTOCOL.md)
-                xonxoff=False,  # binary frames: 0x11/0x13 are data
-                timeout=0,
-            )
-
-        try:
-            instance = await asyncio.to_thread(open_blocking)
-        except (serial.SerialException, OSError, ValueError) as err:
-            raise NotConnectedError(DEVICE, f"cannot open {self.port}: {err}") from err
-        loop = asyncio.get_running_loop()
-        reader = asyncio.StreamReader()
-        protocol = asyncio.StreamReaderProtocol(reader)
-        transport, _ = await serial_asyncio.connection_for_serial(loop, lambda: protocol, instance)
-        return _Connection(reader, asyncio.StreamWriter(transport, protocol, reader, loop))
+        # XON/XOFF stays off (drivers/serial_port.py): binary frames, 0x11/0x13 are data
+        reader, writer = await open_serial(
+            DEVICE,
+            self.port,
+            baudrate=self.settings.server_baudrate,
+            bytesize=8,
+            parity="N",
+            stopbits=1,
+            rtscts=False,  # the program turns flow control off (controller/PROTOCOL.md)
+        )
+        return _Connection(reader, writer)
 
     async def _connect(self) -> None:
         """Open the port and exchange one heartbeat: the program answers with its state."""
@@ -321,13 +288,6 @@ class ServerLink:
             return  # connecting: the handshake fails with the error; closed: nothing to do
         self._enter(LinkState.RECONNECTING)
         self._reconnector.start()
-
-    async def wait_connected(self, timeout_s: float) -> None:
-        """Wait until the link is up (after a reconnection); DeviceTimeoutError otherwise."""
-        try:
-            await asyncio.wait_for(self._connected_event.wait(), timeout_s)
-        except TimeoutError as err:
-            raise DeviceTimeoutError(DEVICE, f"not reconnected within {timeout_s:g} s") from err
 
     # --- one request ---
 

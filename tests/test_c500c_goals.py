@@ -27,7 +27,7 @@ from drivers.sim.server_emulator import (
 from tests.c500c_scripted import ScriptedRobot
 
 PROMPT = b"ash> "
-GOAL = (457.2, 0.0, 254.0, 0.0, 90.0, 0.0)  # the emulator's start pose (drivers/sim/ash.py)
+GOAL = (457.2, 0.0, 254.0, 0.0, 90.0, 0.0)  # the emulator's start pose (drivers/sim/ash_state.py)
 
 
 def _rotvec(z_deg: float, y_deg: float, x_deg: float) -> tuple[float, float, float]:

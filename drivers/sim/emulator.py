@@ -9,9 +9,10 @@ the host triggers them (`here`/`set` to a variable that does not exist: "-- crea
 without an application: "Application name > "), and a motion command without the point of
 control prints the PAUSE/CONTINUE request and blocks until the button is pressed
 (:meth:`C500CEmulator.press_pause_continue`, or SIGUSR1 to ``thermocomp emulate``).
-The byte-level conventions it follows are those of :mod:`drivers.c500c_protocol`, whose
-``ASSUMED`` block is the one place where unconfirmed parts of the protocol are written down;
-the command interpreter (and the emulator's simplifications) is :mod:`drivers.sim.ash`.
+The byte-level conventions it follows are those of :mod:`drivers.c500c_protocol`; the
+``ASSUMED`` block of :mod:`drivers.c500c_texts` is the one place where unconfirmed parts of the
+protocol are written down; the command interpreter (and the emulator's simplifications) is
+:mod:`drivers.sim.ash`.
 
 Pacing: every byte costs 10 bit times (8N1 framing: start, 8 data, stop) at the configured baud
 rate in both directions, so timings measured against the emulator are those of the real link
@@ -20,43 +21,60 @@ rate in both directions, so timings measured against the emulator are those of t
 Fault injection (for tests and robustness drills): drop the answer of a command, corrupt one of
 its bytes, delay it, stall the console, close the link, or restart the controller (it forgets
 its variables). See :func:`parse_faults`.
+
+This module is the serving loop (one conversation per link, the faults applied to its answers,
+the controls tests and the bench use); the console's command interpreter is drivers/sim/ash.py
+(its state drivers/sim/ash_state.py), the pty / TCP link and the pacing
+drivers/sim/emulator_link.py, the configuration and fault specs drivers/sim/emulator_config.py.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import errno
 import logging
 import os
-import pty
 import shutil
 import tempfile
-import tty
 from collections.abc import Awaitable, Callable, Coroutine
-from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Literal, Protocol, Self
+from typing import Any, Literal, Self
 
 import numpy as np
 
-from config import faults as fault_specs
 from config.faults import Fault
 from daemon.arm.types import JointSample
 from drivers import c500c_protocol as proto
-from drivers.clock import Clock
-from drivers.sim.ash import (
+from drivers.sim.ash import Console
+from drivers.sim.ash_state import (
     COMMAND_LOG_LINES,
     MOTION_WORDS,
     REACH_MM,
     RESTART_BANNER,
     START_POSE,
-    Console,
     ConsoleCommandError,
     ConsoleState,
     Location,
     as_location,
+)
+from drivers.sim.emulator_config import (
+    CONTROLLER_FAULT_KINDS,
+    DEFAULT_DELAY_S,
+    DEFAULT_STALL_S,
+    FAULT_KINDS,
+    EmulatorConfig,
+    FaultKind,
+    emulator_config,
+    parse_faults,
+)
+from drivers.sim.emulator_link import (
+    BITS_PER_CHARACTER,
+    Link,
+    LinkClosed,
+    Pacer,
+    PtyLink,
+    StreamLink,
 )
 
 __all__ = [
@@ -81,169 +99,7 @@ __all__ = [
     "parse_faults",
 ]
 
-if TYPE_CHECKING:
-    from drivers.sim.joint_arm import JointArmConfig
-
 logger = logging.getLogger(__name__)
-
-#: Bits on the wire per character with 8N1 framing (start bit, 8 data bits, stop bit).
-BITS_PER_CHARACTER = 10
-#: How long a `stall` fault lasts when the spec gives no duration (s).
-DEFAULT_STALL_S = 5.0
-#: How long a `delay` fault delays an answer when the spec gives no duration (s).
-DEFAULT_DELAY_S = 1.0
-
-FaultKind = Literal["drop", "corrupt", "delay", "stall", "close", "restart"]
-#: The link's faults: each is over once the driver has reconnected.
-FAULT_KINDS: tuple[FaultKind, ...] = ("drop", "corrupt", "delay", "stall", "close")
-#: Faults of the controller itself: a restart forgets every variable (the taught goal too).
-CONTROLLER_FAULT_KINDS: tuple[FaultKind, ...] = ("restart",)
-
-
-def parse_faults(spec: str) -> tuple[Fault[FaultKind], ...]:
-    """Parse ``KIND[=SECONDS][@N|%P],...`` (the spec of config/faults.py): e.g.
-    ``drop@5,delay=2@7,corrupt%0.01,close@20``. ``@N`` strikes at the N-th command line, ``%P``
-    at every command with probability P. Raises ValueError with a message naming the bad item.
-
-    Each fault applies to the answer of a command line. drop: the command runs but its answer
-    (lines and prompt) is lost; corrupt: one byte of the answer is replaced by a byte the
-    console never sends; delay: the answer comes ``seconds`` late; stall: the console ignores
-    everything for ``seconds``; close: the link closes (a pty is replaced by a fresh one behind
-    the same path, a TCP client is disconnected); restart: the command is not executed, the
-    controller restarts (every variable forgotten, online off) and its console is back at the
-    system shell `$ `.
-    """
-    return fault_specs.parse_faults(spec, FAULT_KINDS + CONTROLLER_FAULT_KINDS)
-
-
-@dataclass(frozen=True, slots=True)
-class EmulatorConfig:
-    application: str = "ash"
-    seed: int = 1
-    noise_um: float = 0.9  # 1-sigma per axis; 0.9 reproduces the thesis's S_x (Table 6.1)
-    move_ms: float = 5.0
-    baudrate: int = 57600
-    paced: bool = True
-    arm_power: bool = True
-    homed: bool = True
-    online: bool = False  # as a real controller starts; the driver turns it on
-    point_of_control: bool = True
-    start_in_shell: bool = False  # start at the system shell `$ ` instead of the ash prompt
-    start_pose: tuple[float, ...] = START_POSE
-    #: how `w0`/`w2` print: the firmware's layout (C500C.md); "single-line" is this project's
-    #: older layout, kept only for the driver's compatibility test
-    layout: proto.Layout = "firmware"
-    faults: tuple[Fault[FaultKind], ...] = ()
-    #: an arm in joint space (issue 20; drivers/sim/joint_arm.py): its pose is its joints, world
-    #: moves go through its inverse kinematics, `w2` prints its JOINTS and PULSES; None: the
-    #: emulator of before (no kinematics), and start_pose is where it starts
-    joint_arm: JointArmConfig | None = None
-    #: the clock the emulated arm's motions are timed on (issue 20, a played duty cycle on the
-    #: arm bench: the run's clock, so that a virtual run's dwells and moves share one time);
-    #: None: the serving event loop's ``time()`` (wall time), as before
-    clock: Clock | None = None
-
-
-class _Link(Protocol):
-    async def read(self) -> bytes: ...  # b"" at end of link
-
-    async def write(self, data: bytes) -> None: ...
-
-    def close(self) -> None: ...
-
-
-def _set_once(future: asyncio.Future[None]) -> None:
-    if not future.done():
-        future.set_result(None)
-
-
-class _PtyLink:
-    """The master side of a pseudo-terminal, non-blocking, driven by the event loop."""
-
-    def __init__(self) -> None:
-        self.master_fd, self.slave_fd = pty.openpty()
-        # Raw mode: no echo or CR/LF translation by the line discipline; the console echoes.
-        tty.setraw(self.slave_fd)
-        os.set_blocking(self.master_fd, False)
-        self.slave_path = os.ttyname(self.slave_fd)
-        self.closed = False
-
-    async def read(self) -> bytes:
-        loop = asyncio.get_running_loop()
-        while not self.closed:
-            try:
-                return os.read(self.master_fd, 4096)
-            except BlockingIOError:
-                pass
-            except OSError as err:
-                if err.errno == errno.EIO:
-                    return b""
-                raise
-            ready: asyncio.Future[None] = loop.create_future()
-            loop.add_reader(self.master_fd, _set_once, ready)
-            try:
-                await ready
-            finally:
-                loop.remove_reader(self.master_fd)
-        return b""
-
-    async def write(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view and not self.closed:
-            try:
-                view = view[os.write(self.master_fd, view) :]
-            except BlockingIOError:
-                await asyncio.sleep(0.001)  # the pty buffer is full: the host is not reading
-
-    def close(self) -> None:
-        if not self.closed:
-            self.closed = True
-            # The slave fd we hold keeps the pty alive between host reconnections; closing both
-            # ends is what an unplugged cable looks like to the host (EIO on its reads).
-            os.close(self.master_fd)
-            os.close(self.slave_fd)
-
-
-class _StreamLink:
-    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self._reader, self._writer = reader, writer
-
-    async def read(self) -> bytes:
-        try:
-            return await self._reader.read(4096)
-        except ConnectionError:
-            return b""
-
-    async def write(self, data: bytes) -> None:
-        if self._writer.is_closing():
-            return
-        self._writer.write(data)
-        with contextlib.suppress(ConnectionError):
-            await self._writer.drain()
-
-    def close(self) -> None:
-        self._writer.close()
-
-
-class _Pacer:
-    """10 bit times per character at the baud rate (C500C.md: 0.17 ms per byte at 57600)."""
-
-    def __init__(self, baudrate: int, enabled: bool) -> None:
-        self.byte_s = BITS_PER_CHARACTER / baudrate
-        self.enabled = enabled
-        self._free_at = 0.0
-
-    async def take(self, byte_count: int) -> None:
-        """Wait until ``byte_count`` more bytes have crossed the line."""
-        if not self.enabled or byte_count == 0:
-            return
-        loop = asyncio.get_running_loop()
-        self._free_at = max(self._free_at, loop.time()) + byte_count * self.byte_s
-        await asyncio.sleep(max(self._free_at - loop.time(), 0.0))
-
-
-class _LinkClosed(Exception):
-    pass
 
 
 class C500CEmulator:
@@ -277,7 +133,7 @@ class C500CEmulator:
         self._link_path: Path | None = None
         self._server: asyncio.Server | None = None
         self._tasks: set[asyncio.Task[None]] = set()
-        self._pty: _PtyLink | None = None
+        self._pty: PtyLink | None = None
         self._stalled_until = 0.0
         self.device_path = ""
         self.faults_applied: list[tuple[int, FaultKind]] = []  # (command number, kind)
@@ -385,7 +241,7 @@ class C500CEmulator:
 
     def _open_pty(self) -> None:
         assert self._link_path is not None
-        link = _PtyLink()
+        link = PtyLink()
         self._pty = link
         staging = self._link_path.with_name(self._link_path.name + ".new")
         with contextlib.suppress(FileNotFoundError):
@@ -394,7 +250,7 @@ class C500CEmulator:
         os.replace(staging, self._link_path)  # atomic: a host never sees a missing path
         self._spawn(self._serve_pty(link))
 
-    async def _serve_pty(self, link: _PtyLink) -> None:
+    async def _serve_pty(self, link: PtyLink) -> None:
         try:
             await self._session(link)
         finally:
@@ -408,7 +264,7 @@ class C500CEmulator:
         task = asyncio.current_task()
         assert task is not None
         self._tasks.add(task)
-        link = _StreamLink(reader, writer)
+        link = StreamLink(reader, writer)
         try:
             await self._session(link)
         finally:
@@ -425,9 +281,9 @@ class C500CEmulator:
                 return fault
         return None
 
-    async def _session(self, link: _Link) -> None:
-        pacer_in = _Pacer(self.config.baudrate, self.config.paced)
-        pacer_out = _Pacer(self.config.baudrate, self.config.paced)
+    async def _session(self, link: Link) -> None:
+        pacer_in = Pacer(self.config.baudrate, self.config.paced)
+        pacer_out = Pacer(self.config.baudrate, self.config.paced)
         line = bytearray()
         last_was_cr = False
         loop = asyncio.get_running_loop()
@@ -470,11 +326,11 @@ class C500CEmulator:
                     last_was_cr = byte == ord("\r")
                 if echo:
                     await send(bytes(echo))
-        except _LinkClosed:
+        except LinkClosed:
             return
 
     async def _answer(
-        self, text: str, send: Callable[[bytes], Awaitable[None]], link: _Link
+        self, text: str, send: Callable[[bytes], Awaitable[None]], link: Link
     ) -> None:
         number = self.state.received + 1
         fault = self._fault_for(number)
@@ -484,7 +340,7 @@ class C500CEmulator:
         if fault is not None and fault.kind == "close":
             self.state.log_command(text)  # received, never executed
             link.close()
-            raise _LinkClosed
+            raise LinkClosed
         if fault is not None and fault.kind == "restart":
             self.state.log_command(text)  # received, never executed
             self.console.restart()
@@ -524,30 +380,3 @@ class C500CEmulator:
         if fault is not None and fault.kind == "delay":
             await asyncio.sleep(fault.seconds if fault.seconds is not None else DEFAULT_DELAY_S)
         await send(answer + self.console.prompt)
-
-
-def emulator_config(
-    *,
-    seed: int = 1,
-    noise_um: float = 0.9,
-    move_ms: float = 5.0,
-    baudrate: int = 57600,
-    paced: bool = True,
-    faults: str = "",
-    application: str = "ash",
-    layout: proto.Layout = "firmware",
-) -> EmulatorConfig:
-    """An :class:`EmulatorConfig` from the command line's or the settings' plain values."""
-    if noise_um < 0 or move_ms < 0:
-        raise ValueError("noise and move time must not be negative")
-    return replace(
-        EmulatorConfig(),
-        seed=seed,
-        noise_um=noise_um,
-        move_ms=move_ms,
-        baudrate=baudrate,
-        paced=paced,
-        faults=parse_faults(faults),
-        application=application,
-        layout=layout,
-    )

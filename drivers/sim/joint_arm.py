@@ -56,7 +56,7 @@ DEFAULT_START_JOINTS_DEG: tuple[float, ...] = (0.0, 30.0, 60.0, 0.0, 30.0, 0.0)
 #: of the A465's at a moderate speed setting (its published maximum joint speeds are ~180 deg/s).
 DEFAULT_SPEED_DEG_S = 60.0
 DEFAULT_ACCELERATION_DEG_S2 = 240.0
-#: The console's speed setting at which ``speed_deg_s`` applies (drivers/sim/ash.py
+#: The console's speed setting at which ``speed_deg_s`` applies (drivers/sim/ash_state.py
 #: START_SPEED_PERCENT: the controller's setting at start-up, which the emulator of before never
 #: changed): at another setting the joint speed scales in proportion (`speed N`, C500C.md).
 REFERENCE_SPEED_PERCENT = 10

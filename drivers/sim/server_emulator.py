@@ -38,13 +38,8 @@ from config.faults import Fault
 from drivers import c500c_protocol as console_proto
 from drivers import c500c_server_protocol as proto
 from drivers.errors import ProtocolError
-from drivers.sim.emulator import (
-    BITS_PER_CHARACTER,
-    C500CEmulator,
-    EmulatorConfig,
-    _Link,
-    _LinkClosed,
-)
+from drivers.sim.emulator import C500CEmulator, EmulatorConfig
+from drivers.sim.emulator_link import BITS_PER_CHARACTER, Link, LinkClosed
 
 logger = logging.getLogger(__name__)
 
@@ -225,7 +220,7 @@ class C500CServerEmulator(C500CEmulator):
                 return fault
         return None
 
-    async def _session(self, link: _Link) -> None:
+    async def _session(self, link: Link) -> None:
         # Pacing is bookkeeping plus one timer per reply: a request is read at once but counts
         # as arrived when its last byte would have (``arrived``); its reply goes out when its
         # own last byte would have left. A timer per direction would add the event loop's
@@ -296,7 +291,7 @@ class C500CServerEmulator(C500CEmulator):
                         logger.info("injecting %s into the reply to %s", fault.kind, request)
                         if fault.kind == "close":
                             link.close()
-                            raise _LinkClosed
+                            raise LinkClosed
                         if fault.kind == "silence":
                             seconds = fault.seconds or DEFAULT_SILENCE_FAULT_S
                             self._silent_until = loop.time() + seconds
@@ -308,7 +303,7 @@ class C500CServerEmulator(C500CEmulator):
                     await self._serve(request, replier(fault, arrived), arrived)
                     if loop.time() < self._silent_until:
                         break
-        except _LinkClosed:
+        except LinkClosed:
             return
 
     async def _serve(
