@@ -233,6 +233,27 @@ async def compare(
     return results
 
 
+def print_parameter_table(calibration: dict[str, Any]) -> None:
+    """Every parameter of the calibration run's identification: value, standard error,
+    identifiable, the refit value (or the preset's) and why not (this benchmark's and
+    bench_arm_played's)."""
+    refit = {p["name"]: p for p in calibration["refit"]["parameters"]}
+    print_table(
+        ["parameter", "all: value", "SE", "identifiable", "refit", "why not"],
+        [
+            [
+                p["name"],
+                p["value"],
+                p["standard_error"] if math.isfinite(p["standard_error"]) else "inf",
+                p["identifiable"],
+                refit[p["name"]]["value"] if p["name"] in refit else "(preset)",
+                p["reason"] or "-",
+            ]
+            for p in calibration["all"]["parameters"]
+        ],
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=1)
@@ -309,25 +330,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         write_results("bench_arm_daemon", result)
         return 0
-    refit = {p["name"]: p for p in calibration["refit"]["parameters"]}
     print(
         f"\nidentification of the calibration run (noise seed {calibration['noise_seed']}, "
         f"drift {calibration['max_3d_um']:.1f} um max):"
     )
-    print_table(
-        ["parameter", "all: value", "SE", "identifiable", "refit", "why not"],
-        [
-            [
-                p["name"],
-                p["value"],
-                p["standard_error"] if math.isfinite(p["standard_error"]) else "inf",
-                p["identifiable"],
-                refit[p["name"]]["value"] if p["name"] in refit else "(preset)",
-                p["reason"] or "-",
-            ]
-            for p in calibration["all"]["parameters"]
-        ],
-    )
+    print_parameter_table(calibration)
     walls = result["wall_s"]
     print(
         "\nwall time: "

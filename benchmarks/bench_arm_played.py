@@ -28,7 +28,6 @@ import argparse
 import asyncio
 import cProfile
 import logging
-import math
 import os
 import pstats
 import sys
@@ -45,7 +44,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.bench_arm_daemon import CALIBRATION_NOISE_OFFSET, MODEL_NAME, figures
+from benchmarks.bench_arm_daemon import (
+    CALIBRATION_NOISE_OFFSET,
+    MODEL_NAME,
+    figures,
+    print_parameter_table,
+)
 from benchmarks.common import print_table, write_results
 from config import Settings, load_settings
 from daemon.arm.arm_model import arm_model_toml, new_arm_model_path
@@ -265,27 +269,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def print_identification(calibration: dict[str, Any]) -> None:
-    refit = {p["name"]: p for p in calibration["refit"]["parameters"]}
     print(
         f"\nidentification of the calibration run (noise seed {calibration['noise_seed']}, "
         f"drift {calibration['max_3d_um']:.1f} um max, {calibration['rms_3d_um']:.1f} um RMS; "
         f"run {calibration['wall_s']:.1f} s, identification "
         f"{calibration['wall_identification_s']:.1f} s wall):"
     )
-    print_table(
-        ["parameter", "all: value", "SE", "identifiable", "refit", "why not"],
-        [
-            [
-                p["name"],
-                p["value"],
-                p["standard_error"] if math.isfinite(p["standard_error"]) else "inf",
-                p["identifiable"],
-                refit[p["name"]]["value"] if p["name"] in refit else "(preset)",
-                p["reason"] or "-",
-            ]
-            for p in calibration["all"]["parameters"]
-        ],
-    )
+    print_parameter_table(calibration)
 
 
 if __name__ == "__main__":
