@@ -222,15 +222,48 @@ async def compare(
         results[name] = {**figures(steps, sight_of_one_camera(settings)), "run_id": run_id}
         summary = final.get("summary") or {}
         results[name]["summary_reduction_3d_percent"] = summary.get("reduction_3d_percent")
-    drift = results["none"]
-    for result in results.values():
-        result["reduction_3d"] = 1.0 - result["rms_3d_um"] / drift["rms_3d_um"]
-        result["rms_over_noise"] = result["rms_3d_um"] / result["noise_3d_um"]
-        result["rotation_over_noise"] = result["rms_rotation_urad"] / result["noise_rotation_urad"]
-        result["reduction_rotation"] = (
-            1.0 - result["rms_rotation_urad"] / drift["rms_rotation_urad"]
-        )
+    add_ratios(results)
     return results
+
+
+def add_ratios(runs: dict[str, dict[str, Any]]) -> None:
+    """Each run's share of the uncompensated run's ("none") RMS removed, in 3-D and rotation,
+    and each RMS over the meter's own 1-sigma (this benchmark's and bench_arm_played's)."""
+    drift = runs["none"]
+    for run in runs.values():
+        run["reduction_3d"] = 1.0 - run["rms_3d_um"] / drift["rms_3d_um"]
+        run["rms_over_noise"] = run["rms_3d_um"] / run["noise_3d_um"]
+        run["rotation_over_noise"] = run["rms_rotation_urad"] / run["noise_rotation_urad"]
+        run["reduction_rotation"] = 1.0 - run["rms_rotation_urad"] / drift["rms_rotation_urad"]
+
+
+#: The columns every arm benchmark's table of controllers starts with (:func:`controller_row`).
+CONTROLLER_COLUMNS = [
+    "controller",
+    "RMS 3-D um",
+    "max 3-D um",
+    "last 1/3 RMS um",
+    "3-D removed",
+    "RMS/noise",
+    "RMS rot urad",
+    "rot/noise",
+    "rot removed",
+]
+
+
+def controller_row(name: str, run: dict[str, Any]) -> list[Any]:
+    """A controller's figures in the order of CONTROLLER_COLUMNS."""
+    return [
+        name,
+        run["rms_3d_um"],
+        run["max_3d_um"],
+        run["last_third_rms_3d_um"],
+        "-" if name == "none" else f"{100 * run['reduction_3d']:.1f} %",
+        run["rms_over_noise"],
+        run["rms_rotation_urad"],
+        run["rotation_over_noise"],
+        "-" if name == "none" else f"{100 * run['reduction_rotation']:.1f} %",
+    ]
 
 
 def print_parameter_table(calibration: dict[str, Any]) -> None:
@@ -281,33 +314,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"8 h of arm time, {result['steps']} steps"
     )
     print_table(
-        [
-            "controller",
-            "RMS 3-D um",
-            "max 3-D um",
-            "last 1/3 RMS um",
-            "3-D removed",
-            "RMS/noise",
-            "RMS rot urad",
-            "rot/noise",
-            "rot removed",
-            "predicted max um",
-        ],
-        [
-            [
-                name,
-                r["rms_3d_um"],
-                r["max_3d_um"],
-                r["last_third_rms_3d_um"],
-                "-" if name == "none" else f"{100 * r['reduction_3d']:.1f} %",
-                r["rms_over_noise"],
-                r["rms_rotation_urad"],
-                r["rotation_over_noise"],
-                "-" if name == "none" else f"{100 * r['reduction_rotation']:.1f} %",
-                r["predicted_max_3d_um"],
-            ]
-            for name, r in runs.items()
-        ],
+        [*CONTROLLER_COLUMNS, "predicted max um"],
+        [[*controller_row(name, r), r["predicted_max_3d_um"]] for name, r in runs.items()],
     )
     print(
         f"\n3-D measurement noise (the meter's 1-sigma per position): "

@@ -46,7 +46,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.bench_arm_daemon import (
     CALIBRATION_NOISE_OFFSET,
+    CONTROLLER_COLUMNS,
     MODEL_NAME,
+    add_ratios,
+    controller_row,
     figures,
     print_parameter_table,
 )
@@ -163,11 +166,7 @@ async def bench(
         runs["identified + model+ir"] = await one_run(
             settings, arm_model=MODEL_NAME, prediction="model+ir", reference_run=none["run_id"]
         )
-    for run in runs.values():
-        run["reduction_3d"] = 1.0 - run["rms_3d_um"] / none["rms_3d_um"]
-        run["rms_over_noise"] = run["rms_3d_um"] / run["noise_3d_um"]
-        run["rotation_over_noise"] = run["rms_rotation_urad"] / run["noise_rotation_urad"]
-        run["reduction_rotation"] = 1.0 - run["rms_rotation_urad"] / none["rms_rotation_urad"]
+    add_ratios(runs)
     return {**result, "runs": runs}
 
 
@@ -215,35 +214,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{result['frames']} frame(s) per measurement"
     )
     print_table(
-        [
-            "controller",
-            "RMS 3-D um",
-            "max 3-D um",
-            "last 1/3 RMS um",
-            "3-D removed",
-            "RMS/noise",
-            "RMS rot urad",
-            "rot/noise",
-            "rot removed",
-            "moves",
-            "wall s",
-        ],
-        [
-            [
-                name,
-                r["rms_3d_um"],
-                r["max_3d_um"],
-                r["last_third_rms_3d_um"],
-                "-" if name == "none" else f"{100 * r['reduction_3d']:.1f} %",
-                r["rms_over_noise"],
-                r["rms_rotation_urad"],
-                r["rotation_over_noise"],
-                "-" if name == "none" else f"{100 * r['reduction_rotation']:.1f} %",
-                r["moves"],
-                r["wall_s"],
-            ]
-            for name, r in runs.items()
-        ],
+        [*CONTROLLER_COLUMNS, "moves", "wall s"],
+        [[*controller_row(name, r), r["moves"], r["wall_s"]] for name, r in runs.items()],
     )
     drift = np.array(runs["none"]["drift_3d_um_per_step"])
     print(
