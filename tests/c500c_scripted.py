@@ -13,10 +13,29 @@ from collections.abc import Sequence
 from typing import Any
 
 from config.settings import RobotSettings
+from drivers import c500c_protocol as console_proto
 from drivers.c500c import C500CRobot
 from drivers.c500c_console import Connection
 
 Script = Sequence[tuple[bytes, bytes]]
+PROMPT = b"ash> "
+
+
+def ok_exchange(command: bytes) -> tuple[bytes, bytes]:
+    """A command the console echoes and answers with its prompt alone."""
+    return (command + b"\r", command + b"\r\n" + PROMPT)
+
+
+def probe_exchange() -> tuple[bytes, bytes]:
+    """The driver's first synchronisation probe and the console's answer to it."""
+    line = b"tcsync1"
+    return (b"\x05" + line + b"\r", line + b"\r\nerror: Unrecognized command.\r\n" + PROMPT)
+
+
+def w2_exchange(pose: tuple[float, ...]) -> tuple[bytes, bytes]:
+    """``w2`` answered with the firmware's table showing ``pose`` as the WORLD row."""
+    table = console_proto.format_w_table(pose, (0.0,) * 6, (0,) * 6)
+    return (b"w2\r", b"w2\r\n" + "".join(f"{line}\r\n" for line in table).encode() + PROMPT)
 
 
 class _ScriptedTransport(asyncio.Transport):

@@ -11,7 +11,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from config.settings import RobotSettings
-from drivers import c500c_protocol as console_proto
 from drivers import c500c_server_protocol as proto
 from drivers.base import DEFAULT_GOAL, GoalRobot, Pose
 from drivers.c500c import C500CRobot
@@ -24,9 +23,14 @@ from drivers.sim.server_emulator import (
     goal_location,
     server_emulator_config,
 )
-from tests.c500c_scripted import ScriptedRobot
+from tests.c500c_scripted import (
+    PROMPT,
+    ScriptedRobot,
+    ok_exchange,
+    probe_exchange,
+    w2_exchange,
+)
 
-PROMPT = b"ash> "
 GOAL = (457.2, 0.0, 254.0, 0.0, 90.0, 0.0)  # the emulator's start pose (drivers/sim/ash_state.py)
 
 
@@ -80,20 +84,6 @@ def test_both_drivers_are_goal_robots() -> None:
 # --- the console: exact exchanges ------------------------------------------------------------
 
 
-def _ok(command: bytes) -> tuple[bytes, bytes]:
-    return (command + b"\r", command + b"\r\n" + PROMPT)
-
-
-def _probe() -> tuple[bytes, bytes]:
-    line = b"tcsync1"
-    return (b"\x05" + line + b"\r", line + b"\r\nerror: Unrecognized command.\r\n" + PROMPT)
-
-
-def _w2(pose: tuple[float, ...]) -> tuple[bytes, bytes]:
-    table = console_proto.format_w_table(pose, (0.0,) * 6, (0,) * 6)
-    return (b"w2\r", b"w2\r\n" + "".join(f"{line}\r\n" for line in table).encode() + PROMPT)
-
-
 def _set_and_shift(goal: bytes, shift: bytes, answer: bytes = b"") -> tuple[bytes, bytes]:
     set_cur = b"set cur = " + goal
     return (
@@ -102,7 +92,7 @@ def _set_and_shift(goal: bytes, shift: bytes, answer: bytes = b"") -> tuple[byte
     )
 
 
-CONNECT = [_probe(), _ok(b"new cur"), _ok(b"online on")]
+CONNECT = [probe_exchange(), ok_exchange(b"new cur"), ok_exchange(b"online on")]
 P1 = (460.0, 10.0, 250.0, 1.0, 89.0, 0.5)
 
 
@@ -110,18 +100,18 @@ async def test_rotated_wshift_exchange() -> None:
     rotated = (457.212, 0.0, 254.0, 0.3, 89.8, 0.1)
     script = [
         *CONNECT,
-        _ok(b"new opgoal"),
-        _ok(b"here opgoal"),
-        _w2(GOAL),
+        ok_exchange(b"new opgoal"),
+        ok_exchange(b"here opgoal"),
+        w2_exchange(GOAL),
         _set_and_shift(b"opgoal", b"wshift cur,0.012,0.000,0.000,0.300,-0.200,0.100"),
-        _ok(b"moves cur"),
-        _ok(b"finish"),
-        _w2(rotated),
+        ok_exchange(b"moves cur"),
+        ok_exchange(b"finish"),
+        w2_exchange(rotated),
         # a rotation about z alone, rounded to the console's 0.001 degree
         _set_and_shift(b"opgoal", b"wshift cur,0.000,0.000,0.000,-0.001,0.000,0.000"),
-        _ok(b"moves cur"),
-        _ok(b"finish"),
-        _w2(GOAL),
+        ok_exchange(b"moves cur"),
+        ok_exchange(b"finish"),
+        w2_exchange(GOAL),
     ]
     robot = ScriptedRobot(script)
     async with robot:
@@ -138,24 +128,24 @@ async def test_rotated_wshift_exchange() -> None:
 async def test_named_goals_exchange_and_resume_checks_every_goal() -> None:
     script = [
         *CONNECT,
-        _ok(b"new opgoal"),
-        _ok(b"here opgoal"),
-        _w2(GOAL),
-        _ok(b"new g_p1"),  # C500C.md "Questions": created with `new` before `here`
-        _ok(b"here g_p1"),
-        _w2(P1),
+        ok_exchange(b"new opgoal"),
+        ok_exchange(b"here opgoal"),
+        w2_exchange(GOAL),
+        ok_exchange(b"new g_p1"),  # C500C.md "Questions": created with `new` before `here`
+        ok_exchange(b"here g_p1"),
+        w2_exchange(P1),
         _set_and_shift(b"g_p1", b"wshift cur,0.001,0.000,-0.002,0,0,0"),
-        _ok(b"moves cur"),
-        _ok(b"finish"),
-        _w2((460.001, 10.0, 249.998, 1.0, 89.0, 0.5)),
+        ok_exchange(b"moves cur"),
+        ok_exchange(b"finish"),
+        w2_exchange((460.001, 10.0, 249.998, 1.0, 89.0, 0.5)),
         _set_and_shift(b"opgoal", b"wshift cur,0.000,0.000,0.000,0,0,0"),
-        _ok(b"moves cur"),
-        _ok(b"finish"),
-        _w2(GOAL),
+        ok_exchange(b"moves cur"),
+        ok_exchange(b"finish"),
+        w2_exchange(GOAL),
         # resume: every taught goal must still exist, then one read-back
-        _ok(b"set cur = opgoal"),
-        _ok(b"set cur = g_p1"),
-        _w2(GOAL),
+        ok_exchange(b"set cur = opgoal"),
+        ok_exchange(b"set cur = g_p1"),
+        w2_exchange(GOAL),
     ]
     robot = ScriptedRobot(script)
     async with robot:
@@ -176,9 +166,9 @@ async def test_named_goals_exchange_and_resume_checks_every_goal() -> None:
 async def test_a_lost_named_goal_refuses_resume() -> None:
     script = [
         *CONNECT,
-        _ok(b"new g_p1"),
-        _ok(b"here g_p1"),
-        _w2(P1),
+        ok_exchange(b"new g_p1"),
+        ok_exchange(b"here g_p1"),
+        w2_exchange(P1),
         (b"set cur = g_p1\r", b"set cur = g_p1\r\nerror: variable not found.\r\n" + PROMPT),
     ]
     robot = ScriptedRobot(script)
@@ -207,7 +197,9 @@ async def test_refused_moves_write_nothing(
     goal: str,
     match: str,
 ) -> None:
-    robot = ScriptedRobot([*CONNECT, _ok(b"new opgoal"), _ok(b"here opgoal"), _w2(GOAL)])
+    robot = ScriptedRobot(
+        [*CONNECT, ok_exchange(b"new opgoal"), ok_exchange(b"here opgoal"), w2_exchange(GOAL)]
+    )
     async with robot:
         await robot.teach_goal()
         with pytest.raises(DeviceError, match=match):

@@ -15,30 +15,20 @@ from config.settings import RobotSettings
 from daemon.arm.description import load_arm
 from daemon.arm.duty import trapezoid_timing
 from daemon.arm.kinematics import forward
-from drivers import c500c_protocol as console_proto
 from drivers.c500c import C500CRobot
 from drivers.clock import FollowingClock, VirtualClock
 from drivers.errors import DeviceError, MotionHeldError
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.joint_arm import JointArm, JointArmConfig, location_of
-from tests.c500c_scripted import ScriptedRobot
+from tests.c500c_scripted import (
+    PROMPT,
+    ScriptedRobot,
+    ok_exchange,
+    probe_exchange,
+    w2_exchange,
+)
 
-PROMPT = b"ash> "
 GOAL = (457.2, 0.0, 254.0, 0.0, 90.0, 0.0)
-
-
-def _ok(command: bytes) -> tuple[bytes, bytes]:
-    return (command + b"\r", command + b"\r\n" + PROMPT)
-
-
-def _probe() -> tuple[bytes, bytes]:
-    line = b"tcsync1"
-    return (b"\x05" + line + b"\r", line + b"\r\nerror: Unrecognized command.\r\n" + PROMPT)
-
-
-def _w2(pose: tuple[float, ...]) -> tuple[bytes, bytes]:
-    table = console_proto.format_w_table(pose, (0.0,) * 6, (0,) * 6)
-    return (b"w2\r", b"w2\r\n" + "".join(f"{line}\r\n" for line in table).encode() + PROMPT)
 
 
 def _speed_set_shift(speed: bytes | None) -> tuple[bytes, bytes]:
@@ -53,19 +43,19 @@ def _speed_set_shift(speed: bytes | None) -> tuple[bytes, bytes]:
 
 
 def _move() -> list[tuple[bytes, bytes]]:
-    return [_ok(b"moves cur"), _ok(b"finish"), _w2(GOAL)]
+    return [ok_exchange(b"moves cur"), ok_exchange(b"finish"), w2_exchange(GOAL)]
 
 
-CONNECT = [_probe(), _ok(b"new cur"), _ok(b"online on")]
+CONNECT = [probe_exchange(), ok_exchange(b"new cur"), ok_exchange(b"online on")]
 ZERO = (0.0, 0.0, 0.0)
 
 
 async def test_speed_is_sent_only_when_it_changes_and_again_after_a_resume() -> None:
     script = [
         *CONNECT,
-        _ok(b"new opgoal"),
-        _ok(b"here opgoal"),
-        _w2(GOAL),
+        ok_exchange(b"new opgoal"),
+        ok_exchange(b"here opgoal"),
+        w2_exchange(GOAL),
         _speed_set_shift(b"speed 80"),
         *_move(),
         _speed_set_shift(None),  # 80 % again: nothing to send
@@ -75,8 +65,8 @@ async def test_speed_is_sent_only_when_it_changes_and_again_after_a_resume() -> 
         _speed_set_shift(None),  # no speed asked: the controller's current one
         *_move(),
         # resume: the controller may have restarted at its own speed, so 30 % is sent again
-        _ok(b"set cur = opgoal"),
-        _w2(GOAL),
+        ok_exchange(b"set cur = opgoal"),
+        w2_exchange(GOAL),
         _speed_set_shift(b"speed 30"),
         *_move(),
     ]
@@ -99,7 +89,7 @@ async def test_speed_is_sent_only_when_it_changes_and_again_after_a_resume() -> 
 async def test_a_speed_outside_1_to_100_percent_is_refused_before_anything_is_sent(
     bad: object,
 ) -> None:
-    script = [*CONNECT, _ok(b"new opgoal"), _ok(b"here opgoal"), _w2(GOAL)]
+    script = [*CONNECT, ok_exchange(b"new opgoal"), ok_exchange(b"here opgoal"), w2_exchange(GOAL)]
     robot = ScriptedRobot(script)  # nothing beyond the teach: a byte more fails the script
     async with robot:
         await robot.teach_goal()
