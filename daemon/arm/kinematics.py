@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -42,6 +43,15 @@ IK_ROTATION_TOLERANCE_RAD = 1e-9
 IK_ROTATION_WEIGHT_MM_PER_RAD = 500.0
 #: Extra deterministic starting points tried when the seed does not converge.
 IK_RESTARTS = 12
+#: SciPy's bounded least squares as the inverse kinematics runs it (trust-region reflective,
+#: converged far below IK_POSITION_TOLERANCE_MM); the emulator's wrist-locked solve too.
+IK_SOLVER_OPTIONS: dict[str, Any] = {
+    "method": "trf",
+    "xtol": 1e-15,
+    "ftol": 1e-15,
+    "gtol": 1e-15,
+    "max_nfev": 200,
+}
 _IK_RNG_SEED = 20
 
 
@@ -150,15 +160,7 @@ def inverse(
     def solve(start: FloatArray) -> tuple[FloatArray, float, float]:
         start = np.clip(start, lower, upper)
         result = least_squares(
-            residual,
-            start,
-            jac=derivative,
-            bounds=(lower, upper),
-            method="trf",
-            xtol=1e-15,
-            ftol=1e-15,
-            gtol=1e-15,
-            max_nfev=200,
+            residual, start, jac=derivative, bounds=(lower, upper), **IK_SOLVER_OPTIONS
         )
         q = np.clip(result.x, lower, upper)
         error = pose_difference(target, forward(arm, q))

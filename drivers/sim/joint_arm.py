@@ -43,7 +43,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from daemon.arm.description import Arm, ArmError
-from daemon.arm.kinematics import forward, inverse, jacobian
+from daemon.arm.kinematics import IK_SOLVER_OPTIONS, forward, inverse, jacobian
 from daemon.arm.types import JointSample, pose_difference, zyx_deg_of
 
 FloatArray = NDArray[np.float64]
@@ -280,11 +280,7 @@ def wrist_locked_inverse(
         np.clip(seed[free], lower, upper),
         jac=derivative,
         bounds=(lower, upper),
-        method="trf",
-        xtol=1e-15,
-        ftol=1e-15,
-        gtol=1e-15,
-        max_nfev=200,
+        **IK_SOLVER_OPTIONS,
     )
     q = joints(np.clip(result.x, lower, upper))
     error = pose_difference(pose, forward(arm, q))
