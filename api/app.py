@@ -36,8 +36,8 @@ from api.routers import (
 from api.security import Authenticator, HostAllowList, RateLimiter
 from config import ConfigError, Settings
 from daemon import __version__
-from daemon.recorder import RecorderError
 from daemon.service import Daemon
+from daemon.storage.recorder import RecorderError
 from drivers.errors import DeviceError
 
 API_PREFIX = "/api/v1"

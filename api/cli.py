@@ -35,16 +35,18 @@ COMMANDS: tuple[Command, ...] = (
     Command("run", "daemon.run_cli", "run one compensation run to its end and print its summary"),
     Command(
         "stats",
-        "daemon.reports",
+        "daemon.storage.reports",
         "error statistics of a column (thesis 6.6: N, mean, S_x, chi-squared)",
     ),
     Command(
         "fit",
-        "daemon.reports",
+        "daemon.storage.reports",
         "first-order exponential fit of a column: time constant and steady state",
     ),
     Command(
-        "report", "daemon.reports", "write a run's report: figures, summary.json and an HTML page"
+        "report",
+        "daemon.storage.reports",
+        "write a run's report: figures, summary.json and an HTML page",
     ),
     Command(
         "identify", "daemon.identify_cli", "fit a thermal network's parameters to a recorded run"

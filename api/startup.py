@@ -28,7 +28,7 @@ from api.connections import ACCEPT_MARGIN
 from api.security import is_loopback
 from config import Settings
 from config.cli import EXIT_ADDRESS, EXIT_DEVICE, EXIT_STORAGE, EXIT_USAGE
-from daemon.recorder import Recorder, RecorderError
+from daemon.storage.recorder import Recorder, RecorderError
 
 logger = logging.getLogger(__name__)
 

@@ -37,8 +37,8 @@ from api.app import create_app
 from benchmarks.bench_api import HEADERS, TOKEN, free_port, start_server
 from benchmarks.common import print_table, write_results
 from config import Settings
-from daemon.recorder import DATABASE_NAME, STEP_COLUMNS, Recorder, StepRecord
 from daemon.service import Daemon
+from daemon.storage.recorder import DATABASE_NAME, STEP_COLUMNS, Recorder, StepRecord
 
 EXPORT_STEPS = 50_000
 EXPORT_CLIENTS = 6

@@ -28,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.common import print_table, proc_status_mib, write_results
-from daemon.recorder import DATABASE_NAME, STEP_COLUMNS, Recorder
+from daemon.storage.recorder import DATABASE_NAME, STEP_COLUMNS, Recorder
 
 DEFAULT_STEPS = (18_000, 180_000)  # 6 min and 1 h at a 20 ms step
 STEP_S = 0.02
@@ -95,8 +95,8 @@ def build_database(data_dir: Path, steps: int, seed: int = 1) -> int:
 def measure(case: str, data_dir: Path, run_id: int) -> dict[str, float]:
     """In this (child) process: run ``case`` once; its wall time and peak RSS."""
     from daemon.analysis import summarize_run
-    from daemon.reports import write_run_report
     from daemon.scheduler import percentiles
+    from daemon.storage.reports import write_run_report
     from daemon.summary import SUMMARY_COLUMNS
 
     started = time.perf_counter()

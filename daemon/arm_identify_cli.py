@@ -60,7 +60,7 @@ from daemon.arm.ir_regions import region_nodes
 from daemon.identify_run import finite_json, recorded_parameters, warning_lines, write_outputs
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.identify import IdentificationError
-from daemon.recorder import DATABASE_NAME
+from daemon.storage.recorder import DATABASE_NAME
 
 #: The heat record's step for identification (arm time, s): a measurement's time is rounded to
 #: it; the links' time constants are tens of minutes (benchmarks/bench_arm.py IDENTIFY_STEP_S).

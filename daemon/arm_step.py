@@ -52,7 +52,6 @@ from daemon.arm.types import Pose6
 from daemon.arm_player import ArmPlayer
 from daemon.events import ErrorLog
 from daemon.model.compensation import UnsafeTargetError
-from daemon.recorder import Recorder, StepRecord
 from daemon.runs import RunParameters
 from daemon.scheduler import Tick
 from daemon.sensors import Sensors
@@ -64,6 +63,7 @@ from daemon.step import (
     read_infrared,
     step_verdict,
 )
+from daemon.storage.recorder import Recorder, StepRecord
 from daemon.workers import Workers
 from drivers.base import MoveResult, Pose, RobotStatus
 from drivers.errors import DeviceError

@@ -177,8 +177,8 @@ async def _one_run(daemon: Daemon, settings: Settings, what: str, **values: Any)
 async def run_alone(settings: Settings, what: str, **values: Any) -> dict[str, Any]:
     """One run in its own daemon (opened and closed around it: identification runs between
     the runs with no device open, so a virtual clock never jumps while it computes)."""
-    from daemon.recorder import RecorderError
     from daemon.service import Daemon
+    from daemon.storage.recorder import RecorderError
     from drivers.errors import DeviceError
 
     try:

@@ -1,7 +1,7 @@
 """``thermocomp identify``'s work (its options: daemon/identify_cli.py): fit a network to a
 recorded run (issue 9), the glue around the pure :mod:`daemon.model.identify`.
 
-A run is read from the run database READ-ONLY (daemon.reports.read_run, so a live daemon's
+A run is read from the run database READ-ONLY (daemon.storage.reports.read_run, so a live daemon's
 recording is never disturbed), with the heat it commanded and its IR regions from the run's own
 recorded parameters and settings; or from an exported CSV, with the heat and regions of
 ``--config``.
@@ -41,9 +41,9 @@ from daemon.model.identify import (
 )
 from daemon.model.observer import regions_to_nodes
 from daemon.model.presets import check_network_name, new_saved_path, saved_networks_dir
-from daemon.recorder import DATABASE_NAME
-from daemon.reports import ReportError, read_run
 from daemon.run_setup import RunParameterError, resolve_heat
+from daemon.storage.recorder import DATABASE_NAME
+from daemon.storage.reports import ReportError, read_run
 
 logger = logging.getLogger(__name__)
 

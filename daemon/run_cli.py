@@ -27,9 +27,9 @@ from config.cli import (
     add_config_argument,
     positive_float,
 )
-from daemon.recorder import RecorderError
-from daemon.report_queue import ReportStatus
 from daemon.runs import RunParameters, RunState, RunStateError
+from daemon.storage.recorder import RecorderError
+from daemon.storage.report_queue import ReportStatus
 
 if TYPE_CHECKING:  # the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not
     # for `thermocomp run --help`

@@ -32,8 +32,6 @@ from daemon.arm_step import ArmRunWork, ArmStepPipeline
 from daemon.devices_check import Devices
 from daemon.events import ErrorLog, EventBus
 from daemon.readmodel import RunView
-from daemon.recorder import Recorder
-from daemon.report_queue import ReportQueue
 from daemon.run_setup import (
     RunParameterError,
     build_model,
@@ -48,6 +46,8 @@ from daemon.scheduler import TimingStats
 from daemon.sensors import Sensors
 from daemon.session_services import BenchControl, SessionServices
 from daemon.step import RunWork, StepPipeline
+from daemon.storage.recorder import Recorder
+from daemon.storage.report_queue import ReportQueue
 from daemon.workers import Workers
 from drivers.clock import Clock, FollowingClock
 

@@ -42,8 +42,6 @@ from daemon.events import (
     Subscription,
 )
 from daemon.readmodel import RunView
-from daemon.recorder import Recorder
-from daemon.report_queue import ReportQueue, ReportStatus
 from daemon.run_setup import RunParameterError
 from daemon.run_start import RunBuilder
 from daemon.runs import RunParameters, RunState, RunStateError
@@ -51,6 +49,8 @@ from daemon.scheduler import TimingStats
 from daemon.sensors import Sensors
 from daemon.session import ResumeRefusedError, RunSession
 from daemon.step import RunWork
+from daemon.storage.recorder import Recorder
+from daemon.storage.report_queue import ReportQueue, ReportStatus
 from daemon.unrecorded_end import UnrecordedEnd
 from daemon.workers import Workers
 from drivers.clock import Clock, make_clock
@@ -286,7 +286,7 @@ class Daemon:
         return await self._workers_().read(function, *args)
 
     async def export(self, function: Callable[..., _T], *args: Any) -> _T:
-        """Run an export's encoding (daemon/exports.py) in an export process: it never holds
+        """Run an export's encoding (daemon/storage/exports.py) in an export process: it never holds
         this process's GIL, so it cannot delay a step (issue 15, point 6)."""
         return await self._workers_().export(function, *args)
 

@@ -29,7 +29,6 @@ import numpy as np
 from daemon.arm_prepare import measure_references
 from daemon.arm_step import ArmRunWork
 from daemon.readmodel import RunView
-from daemon.recorder import RecorderError
 from daemon.runs import RunState, RunStateError, StateMachine
 from daemon.scheduler import FixedStepTimer
 from daemon.session_devices import (
@@ -41,6 +40,7 @@ from daemon.session_devices import (
 from daemon.session_publish import RunPublisher
 from daemon.session_services import BenchControl, SessionServices
 from daemon.step import RunWork, StepOutcome, Verdict
+from daemon.storage.recorder import RecorderError
 from daemon.summary import run_summary
 from drivers.errors import DeviceError, GoalLostError
 

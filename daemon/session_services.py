@@ -13,11 +13,11 @@ from config import Settings
 from daemon.arm_prepare import ArmServices
 from daemon.events import ErrorLog, EventBus
 from daemon.readmodel import RunView
-from daemon.recorder import Recorder
-from daemon.report_queue import ReportQueue
 from daemon.scheduler import TimingStats
 from daemon.sensors import Sensors
 from daemon.step import StepPipeline
+from daemon.storage.recorder import Recorder
+from daemon.storage.report_queue import ReportQueue
 from daemon.workers import Workers
 from drivers.base import Robot
 from drivers.clock import Clock

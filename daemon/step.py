@@ -29,10 +29,10 @@ from daemon.model.compensation import (
 )
 from daemon.model.network import UM_PER_MM
 from daemon.model.observer import IrObserver
-from daemon.recorder import Recorder, StepRecord
 from daemon.runs import ProcedurePoint, RunParameters, heat_at, procedure_point
 from daemon.scheduler import Tick
 from daemon.sensors import Sensors
+from daemon.storage.recorder import Recorder, StepRecord
 from daemon.vision import CentroidError, measure_with_camera_settings
 from daemon.vision.calibration import camera_to_robot
 from daemon.workers import Workers

@@ -9,9 +9,9 @@ import numpy as np
 from daemon.analysis import NUMERIC_COLUMNS, RunSteps, summarize_run
 from daemon.analysis.arm import summarize_arm_run
 from daemon.arm_step import ArmRunWork
-from daemon.recorder import Recorder
 from daemon.scheduler import percentiles
 from daemon.step import RunWork
+from daemon.storage.recorder import Recorder
 
 #: What the summary reads of the steps: no JSON columns (temperatures, IR, stage timings),
 #: which cost most of the time to read back.

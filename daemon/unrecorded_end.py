@@ -15,7 +15,7 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-from daemon.recorder import Recorder, RecorderError
+from daemon.storage.recorder import Recorder, RecorderError
 from daemon.workers import Workers
 
 logger = logging.getLogger(__name__)

@@ -6,7 +6,7 @@
   step), and the end-of-run summary.
 - ``reads``: API reads, bounded: at most ``READ_THREADS`` run at once and the rest wait their
   turn in the API, never in front of the control loop.
-- ``exports``: processes that encode step exports (daemon/exports.py): CPU-heavy work that
+- ``exports``: processes that encode step exports (daemon/storage/exports.py): CPU-heavy work that
   would hold this process's GIL for seconds, so it runs in processes of its own, started on
   first use; at most ``EXPORT_PROCESSES`` at once.
 

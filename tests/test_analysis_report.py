@@ -19,8 +19,8 @@ import pytest
 from api.cli import build_parser, main
 from daemon.analysis import steps_from_rows, summarize_run, write_report
 from daemon.analysis.plots import envelope
-from daemon.recorder import Recorder, StepRecord
-from daemon.reports import report_dir
+from daemon.storage.recorder import Recorder, StepRecord
+from daemon.storage.reports import report_dir
 from tests.helpers import run_cli
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

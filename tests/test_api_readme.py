@@ -8,7 +8,7 @@ import re
 import subprocess
 from pathlib import Path
 
-from daemon.recorder import STEP_COLUMNS
+from daemon.storage.recorder import STEP_COLUMNS
 from tests.helpers import REPO_ROOT, running_server
 
 README = REPO_ROOT / "README.md"

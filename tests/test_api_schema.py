@@ -36,9 +36,9 @@ from api.routers import run_data as run_data_router
 from config import Settings
 from daemon.arm.arm_model import ArmModel, arm_model_toml, saved_arm_models_dir
 from daemon.model import available_presets
-from daemon.recorder import Recorder
-from daemon.reports import write_run_report
 from daemon.service import Daemon
+from daemon.storage.recorder import Recorder
+from daemon.storage.reports import write_run_report
 from tests.test_api_runs import wait_state
 from tests.test_api_server import CONTROL, READ, serve
 

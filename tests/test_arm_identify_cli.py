@@ -31,8 +31,8 @@ from daemon.arm.arm_model import (
 from daemon.arm.controller import ArmModelOptions, load_controller
 from daemon.arm.ir_regions import region_nodes, region_point
 from daemon.arm_setup import ArmSetupError, arm_file, default_arm_setup
-from daemon.recorder import Recorder, StepRecord
 from daemon.runs import RunParameters
+from daemon.storage.recorder import Recorder, StepRecord
 from tests.helpers import run_in_process
 from tests.test_arm_run import ArmHarness, FakePredictor, run_to_end
 from tests.test_arm_run import arm_settings as run_arm_settings

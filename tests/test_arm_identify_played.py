@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from daemon.arm_identify_cli import IDENTIFY_STEP_S, load_arm_run
-from daemon.recorder import DATABASE_NAME
 from daemon.runs import RunParameters
 from daemon.service import Daemon
+from daemon.storage.recorder import DATABASE_NAME
 from drivers.clock import make_clock
 from tests.test_arm_player import WAIT_S, settings_for
 

@@ -548,7 +548,7 @@ async def test_arm_run_through_the_api_exports_and_report(tmp_path: Path) -> Non
     import httpx
 
     from api.app import create_app
-    from daemon.reports import write_run_report
+    from daemon.storage.reports import write_run_report
     from tests.test_api_server import CONTROL, serve
 
     settings = arm_settings(tmp_path)
@@ -607,7 +607,7 @@ def test_a_database_without_the_arm_columns_is_read_and_exported_with_them(
     import sqlite3
 
     from daemon.analysis.steps import ARM_COLUMNS
-    from daemon.recorder import DATABASE_NAME, STEP_COLUMNS, Recorder, StepRecord
+    from daemon.storage.recorder import DATABASE_NAME, STEP_COLUMNS, Recorder, StepRecord
 
     arm_columns = STEP_COLUMNS[STEP_COLUMNS.index("arm_pose") :]
     assert set(ARM_COLUMNS) <= set(arm_columns)

@@ -14,7 +14,7 @@ import pytest
 
 from daemon import calibrate_cli
 from daemon.arm.arm_model import load_arm_model, saved_arm_models_dir
-from daemon.recorder import Recorder
+from daemon.storage.recorder import Recorder
 from tests.helpers import REPO_ROOT, run_in_process
 
 CONFIG = str(REPO_ROOT / "config" / "arm-sim.toml")

@@ -24,7 +24,6 @@ from daemon.model import load_network, network_facts
 from daemon.model.identify import network_toml
 from daemon.model.observer import OFFSET_SIGMA_C
 from daemon.model.presets import saved_networks_dir
-from daemon.recorder import Recorder
 from daemon.run_setup import (
     RunParameterError,
     build_model,
@@ -34,6 +33,7 @@ from daemon.run_setup import (
 )
 from daemon.runs import RunParameters
 from daemon.service import Daemon
+from daemon.storage.recorder import Recorder
 from tests.helpers import run_cli, run_in_process
 from tests.test_api_runs import CONTROL_HEADERS, bench_settings, wait_state
 from tests.test_api_server import serve

@@ -28,11 +28,11 @@ from config import Settings
 from daemon import service as service_module
 from daemon import session as session_module
 from daemon import step as step_module
-from daemon.recorder import Recorder, RecorderError, StepRecord
 from daemon.runs import RunState
 from daemon.scheduler import FixedStepTimer
 from daemon.service import Daemon, ResumeRefusedError
 from daemon.step import StepPipeline
+from daemon.storage.recorder import Recorder, RecorderError, StepRecord
 from drivers.clock import VirtualClock
 from drivers.errors import DeviceError, GoalLostError
 from tests.fakes import Gate, Harness, make_settings, params

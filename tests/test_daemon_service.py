@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from daemon.model import ThermalModel, load_network
-from daemon.recorder import Recorder, RecorderError
-from daemon.report_queue import ReportStatus
 from daemon.runs import RunState, RunStateError
 from daemon.service import RunConflictError, RunParameterError
+from daemon.storage.recorder import Recorder, RecorderError
+from daemon.storage.report_queue import ReportStatus
 from tests.fakes import GOAL, HEAT_W, SHAPE, Harness, make_settings, params
 
 

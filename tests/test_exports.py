@@ -1,4 +1,4 @@
-"""Step exports encoded in worker processes (daemon/exports.py): the same records as the
+"""Step exports encoded in worker processes (daemon/storage/exports.py): the same records as the
 recorder's own reads, in bounded chunks that join into the whole run."""
 
 from __future__ import annotations
@@ -10,8 +10,14 @@ import json
 import math
 from pathlib import Path
 
-from daemon.exports import csv_chunk, json_chunk
-from daemon.recorder import DATABASE_NAME, STEP_COLUMNS, Recorder, StepRecord, write_steps_csv
+from daemon.storage.exports import csv_chunk, json_chunk
+from daemon.storage.recorder import (
+    DATABASE_NAME,
+    STEP_COLUMNS,
+    Recorder,
+    StepRecord,
+    write_steps_csv,
+)
 from daemon.workers import Workers
 
 STEPS = 25

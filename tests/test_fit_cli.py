@@ -10,7 +10,7 @@ import pytest
 
 from api.cli import main
 from daemon.analysis import summarize_run
-from daemon.recorder import Recorder, StepRecord
+from daemon.storage.recorder import Recorder, StepRecord
 from tests.helpers import run_cli
 from tests.test_analysis_report import synthetic_rows
 

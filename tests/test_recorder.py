@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.recorder import STEP_COLUMNS, Recorder, RecorderError, StepRecord, step_rows
+from daemon.storage.recorder import STEP_COLUMNS, Recorder, RecorderError, StepRecord, step_rows
 
 CONTRACT_COLUMNS = [
     "run_id",
@@ -212,7 +212,7 @@ def test_parquet_export_is_written_batch_by_batch_with_stable_types(
     """Batches smaller than the run, the first all-null in a column a later one fills: the
     file has every step, each column with its table type."""
     pq = pytest.importorskip("pyarrow.parquet")
-    import daemon.recorder as recorder_module
+    import daemon.storage.recorder as recorder_module
 
     monkeypatch.setattr(recorder_module, "EXPORT_BATCH_STEPS", 3)
     with Recorder(tmp_path) as recorder:

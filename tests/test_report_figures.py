@@ -28,7 +28,7 @@ from daemon.analysis.plots import (
     plot_lateness,
     plot_temperatures,
 )
-from daemon.recorder import Recorder, StepRecord
+from daemon.storage.recorder import Recorder, StepRecord
 from tests.test_analysis_report import synthetic_rows
 
 #: Points per segment where the check samples a line between its vertices (display pixels

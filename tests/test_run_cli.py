@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from daemon.analysis import SUMMARY_KEYS
-from daemon.recorder import DATABASE_NAME, Recorder
+from daemon.storage.recorder import DATABASE_NAME, Recorder
 from tests.helpers import REPO_ROOT, cli_command, run_cli
 
 SIM = "config/sim.toml"

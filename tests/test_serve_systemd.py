@@ -19,7 +19,7 @@ import httpx
 import pytest
 
 from api.serve import SUPERVISOR_POLL_S, supervise
-from daemon.recorder import Recorder
+from daemon.storage.recorder import Recorder
 from daemon.systemd import SystemdNotifier
 from tests.helpers import REPO_ROOT, cli_command, free_port
 

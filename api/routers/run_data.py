@@ -20,11 +20,11 @@ from pydantic_core import CoreSchema
 
 from api.deps import DaemonDep, ReadAccess
 from api.errors import ApiError, ErrorBody
-from daemon.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
-from daemon.recorder import Recorder, RecorderError, RunRow
-from daemon.report_queue import ReportStatus
 from daemon.runs import RunState
 from daemon.service import Daemon
+from daemon.storage.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
+from daemon.storage.recorder import Recorder, RecorderError, RunRow
+from daemon.storage.report_queue import ReportStatus
 
 logger = logging.getLogger(__name__)
 
@@ -85,7 +85,7 @@ StepFormat = Annotated[
 ]
 #: Steps per JSON answer when no limit is given, and at most (``next_from`` continues): ~0.9 kB
 #: a step, so 5,000 steps is ~4.5 MB (50,000 were 44 MB and 5 s, issue 16). Both JSON and CSV
-#: stream chunk by chunk (daemon/exports.py's CHUNK_STEPS), encoded in export processes.
+#: stream chunk by chunk (daemon/storage/exports.py's CHUNK_STEPS), encoded in export processes.
 JSON_PAGE_STEPS = 1_000
 JSON_MAX_STEPS = 5_000
 #: Steps read and encoded per CSV chunk: a long run's CSV never fills the memory.
@@ -106,8 +106,8 @@ async def get_steps(
     start: Annotated[int, Query(alias="from", ge=0, le=2**62, description="First step.")] = 0,
     limit: Annotated[int | None, Query(ge=1, le=10_000_000)] = None,
 ) -> Response:
-    """The run's step records (daemon/recorder.py's StepRecord columns) from step ``from``, at
-    most ``limit``: JSON ``{"run_id", "steps": [...], "next_from"}`` (1,000 steps per answer
+    """The run's step records (daemon/storage/recorder.py's StepRecord columns) from step ``from``,
+    at most ``limit``: JSON ``{"run_id", "steps": [...], "next_from"}`` (1,000 steps per answer
     by default, at most 5,000; ``next_from`` is the next page's ``from``, null at the end),
     CSV (streamed, all steps unless ``limit``) or Parquet (the whole run, written batch by
     batch; only with the ``parquet`` extra)."""
@@ -115,8 +115,8 @@ async def get_steps(
     recorder = recorder_of(daemon)
     if format == "parquet":
         return await _parquet(daemon, recorder, run_id)
-    # every chunk is read and encoded in an export process (daemon/exports.py): never by this
-    # process, whose control loop would wait for the GIL meanwhile (issue 15, point 6)
+    # every chunk is read and encoded in an export process (daemon/storage/exports.py): never by
+    # this process, whose control loop would wait for the GIL meanwhile (issue 15, point 6)
     database = recorder.path
     count = _chunk(limit) if format == "csv" else min(limit or JSON_PAGE_STEPS, JSON_MAX_STEPS)
     try:

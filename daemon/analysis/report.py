@@ -414,7 +414,7 @@ def write_report(
 ) -> ReportFiles:
     """Write the figures, ``summary.json`` and ``report.html`` of one run into ``out_dir``.
 
-    ``rows`` are the run's step records (the columns of daemon/recorder.py's StepRecord).
+    ``rows`` are the run's step records (the columns of daemon/storage/recorder.py's StepRecord).
     ``clock`` is the run's ``bench.clock`` setting when known: on a virtual clock the
     lateness figure is replaced by a line saying why it would be empty. ``compensation`` (the
     run's mode, inferred from its offsets when None), ``reference`` and ``reference_run``

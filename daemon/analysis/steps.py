@@ -1,6 +1,6 @@
 """A run's step records as numeric series, and the run summary of thesis Table 6.1.
 
-The rows are step records (the columns of daemon/recorder.py's StepRecord): mappings keyed
+The rows are step records (the columns of daemon/storage/recorder.py's StepRecord): mappings keyed
 by column name, as the recorder's SQLite rows or an exported CSV give them (missing values
 empty or None). Nothing here reads files; callers hand rows in.
 """

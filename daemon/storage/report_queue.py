@@ -18,7 +18,7 @@ import os
 import sys
 from pathlib import Path
 
-from daemon.reports import report_dir
+from daemon.storage.reports import report_dir
 
 logger = logging.getLogger(__name__)
 
@@ -91,7 +91,7 @@ class ReportQueue:
         child = await asyncio.create_subprocess_exec(
             sys.executable,
             "-m",
-            "daemon.report_worker",
+            "daemon.storage.report_worker",
             str(self._data_dir),
             str(run_id),
             stdin=asyncio.subprocess.DEVNULL,

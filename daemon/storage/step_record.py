@@ -1,6 +1,6 @@
 """One recorded step (issue 2 onwards): the row of the steps table, whose field order is the
 column order of the table, the CSV and every export (the contract with daemon.analysis), and
-the SQL that creates that table (daemon/recorder.py writes it)."""
+the SQL that creates that table (daemon/storage/recorder.py writes it)."""
 
 from __future__ import annotations
 

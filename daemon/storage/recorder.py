@@ -36,9 +36,9 @@ from numpy.typing import NDArray
 
 from config import redact_secrets
 from daemon.analysis import RunSteps, steps_from_rows
-from daemon.step_record import STEP_COLUMNS, STEPS_SCHEMA, StepRecord, column_type
+from daemon.storage.step_record import STEP_COLUMNS, STEPS_SCHEMA, StepRecord, column_type
 
-# StepRecord and STEP_COLUMNS (daemon/step_record.py) are what this module records: exported
+# StepRecord and STEP_COLUMNS (daemon/storage/step_record.py) are what this module records: exported
 # with it
 __all__ = [
     "DATABASE_NAME",

@@ -22,7 +22,7 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any
 
-from daemon.recorder import read_steps, write_steps_csv
+from daemon.storage.recorder import read_steps, write_steps_csv
 
 #: Steps per chunk: about 0.9 kB of JSON a step, so ~1 MB a chunk (a short copy for the
 #: daemon to receive) and a few tens of milliseconds of a worker's time.

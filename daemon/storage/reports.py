@@ -29,7 +29,7 @@ from daemon.analysis import RunSteps, compensation_of, steps_from_rows, summariz
 if TYPE_CHECKING:
     from daemon.analysis import ReportFiles
 from daemon.analysis import cli as analysis_cli
-from daemon.recorder import DATABASE_NAME, step_rows
+from daemon.storage.recorder import DATABASE_NAME, step_rows
 
 logger = logging.getLogger(__name__)
 

@@ -1,12 +1,13 @@
-"""``python -m daemon.report_worker DATA_DIR RUN_ID``: the child process that writes one run's
-report for daemon/report_queue.py. Exit 0 when written; otherwise the reason on stderr."""
+"""``python -m daemon.storage.report_worker DATA_DIR RUN_ID``: the child process that writes one
+run's report for daemon/storage/report_queue.py. Exit 0 when written; otherwise the reason on
+stderr."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-from daemon.reports import write_run_report
+from daemon.storage.reports import write_run_report
 
 
 def main(argv: list[str]) -> int:
