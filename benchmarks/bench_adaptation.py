@@ -102,7 +102,7 @@ def settings_for(
 
 
 async def _one_run(settings: Settings, parameters: dict[str, Any]) -> list[dict[str, Any]]:
-    from daemon.runs import RunParameters
+    from daemon.run.states import RunParameters
     from daemon.service import Daemon
 
     async with Daemon(settings) as daemon:

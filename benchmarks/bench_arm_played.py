@@ -57,7 +57,7 @@ from benchmarks.common import print_table, write_results
 from config import Settings, load_settings
 from daemon.arm.arm_model import arm_model_toml, new_arm_model_path
 from daemon.arm_identify_cli import arm_model_of, identify_arm_run, load_arm_run
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from drivers.clock import make_clock
 from drivers.factory import Devices

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import print_table, write_results
 from config import CONFIG_DIR, Settings, load_settings
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon, RunParameterError
 
 CONFIG = CONFIG_DIR / "sim.toml"

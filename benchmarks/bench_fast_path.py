@@ -215,7 +215,7 @@ async def fixed_step(duration_s: float, inline: bool, freeze: bool) -> dict[str,
                 byte_counts.append(result.bytes_sent + result.bytes_received)
                 slot += 1
                 if ended > start + slot * STEP_S:
-                    # An overrun: as the daemon's scheduler (daemon/scheduler.py), count it
+                    # An overrun: as the daemon's scheduler (daemon/run/scheduler.py), count it
                     # once and go on at the first deadline still in the future.
                     overruns += 1
                     first_future = math.floor((ended - start) / STEP_S) + 1

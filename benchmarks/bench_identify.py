@@ -39,7 +39,7 @@ from config.settings import BenchSettings, Settings
 from daemon.model import ThermalModel, ThermalNetwork, load_network
 from daemon.model.identify import RunData, heat_schedule, identify
 from daemon.model.observer import PROCESS_NOISE_C2_PER_S, IrObserver
-from daemon.run_setup import resolve_heat
+from daemon.run.setup import resolve_heat
 from drivers.clock import VirtualClock
 from drivers.ir import region_temperatures
 from drivers.sim.bench import Bench

@@ -37,7 +37,7 @@ from config import Settings
 from daemon.identify_run import load_run
 from daemon.model import load_network
 from daemon.model.identify import calibration_of, identify, network_toml
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 
 PRESET = "thesis-two-link"

@@ -95,9 +95,9 @@ def build_database(data_dir: Path, steps: int, seed: int = 1) -> int:
 def measure(case: str, data_dir: Path, run_id: int) -> dict[str, float]:
     """In this (child) process: run ``case`` once; its wall time and peak RSS."""
     from daemon.analysis import summarize_run
-    from daemon.scheduler import percentiles
+    from daemon.run.scheduler import percentiles
+    from daemon.run.summary import SUMMARY_COLUMNS
     from daemon.storage.reports import write_run_report
-    from daemon.summary import SUMMARY_COLUMNS
 
     started = time.perf_counter()
     if case == "summary":  # what Daemon._summary reads and computes at the end of a run

@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import print_table, write_results
 from config import Settings, load_settings
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 
 CONFIG = Path(__file__).resolve().parent.parent / "config" / "sim.toml"

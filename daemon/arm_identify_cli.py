@@ -117,7 +117,7 @@ def _number(value: object) -> float:
 
 def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     """The recorded arm run as identification sees it (module docstring)."""
-    from daemon.arm_setup import arm_file
+    from daemon.run.arm.setup import arm_file
 
     parameters, config = recorded_run(data_dir, run_id)
     if not is_arm_run(parameters):

@@ -157,9 +157,9 @@ def run_calibrate_model(args: argparse.Namespace) -> int:
 
 
 async def _one_run(daemon: Daemon, settings: Settings, what: str, **values: Any) -> dict[str, Any]:
+    from daemon.run.setup import RunParameterError
+    from daemon.run.states import RunParameters, RunState
     from daemon.run_cli import _supervise
-    from daemon.run_setup import RunParameterError
-    from daemon.runs import RunParameters, RunState
 
     try:
         parameters = RunParameters.from_settings(settings, **values)

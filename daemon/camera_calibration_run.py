@@ -38,10 +38,10 @@ from scipy.spatial.transform import Rotation
 
 from config import Settings
 from daemon.arm.types import FloatArray
-from daemon.arm_measure import WINDOW_HALF_PX, SensorNoise, device_sensors
-from daemon.arm_robot import pose_matrix
 from daemon.camera_calibration_pattern import ZERO_SHIFT, PatternError, Shift, split_shift
 from daemon.camera_observations import Observation
+from daemon.run.arm.measure import WINDOW_HALF_PX, SensorNoise, device_sensors
+from daemon.run.arm.robot import pose_matrix
 from daemon.vision import CentroidError
 from daemon.vision.centroid import measure_centroid
 from daemon.vision.multiview import CameraModel, project
@@ -128,7 +128,7 @@ def find_markers(
     in a ``search_half_px`` window around where the camera's model puts it, then again in the
     measuring window centred on that; a marker off the chip, not found, or cut by the window's
     edge is left out. The 1-sigma is the centroid's own, at least the camera's
-    ``pixel_sigma_px`` (as daemon/arm_measure.py marker_views), from each camera's sensor
+    ``pixel_sigma_px`` (as daemon/run/arm/measure.py marker_views), from each camera's sensor
     noise (``sensors``, same order; default: the centroid's defaults)."""
     found: list[MarkerFind] = []
     noises = tuple(sensors) if sensors is not None else (SensorNoise(),) * len(models)
@@ -360,10 +360,10 @@ async def calibrate_with_robot(
 ) -> RobotRun:
     """Open the devices (drivers/factory.py), teach the goal — where the robot stands, or the
     duty cycle's pose ``station`` or the joint angles ``joints_deg``, reached by one absolute
-    move as an arm run teaches its poses (daemon/arm_robot.py) — record the pattern around it
+    move as an arm run teaches its poses (daemon/run/arm/robot.py) — record the pattern around it
     and close the devices."""
     from daemon.arm.run import MeasuredPose
-    from daemon.arm_robot import GoalRobotArm
+    from daemon.run.arm.robot import GoalRobotArm
     from drivers.clock import make_clock
     from drivers.factory import open_devices
 

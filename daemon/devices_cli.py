@@ -1,5 +1,6 @@
 """``thermocomp devices check``: open every configured device, grab one frame, one IR image and
-the robot's pose, print what came back and write the preview (issue 18; daemon/devices_check.py).
+the robot's pose, print what came back and write the preview (issue 18;
+daemon/run/devices_check.py).
 
 Exit statuses (README): 0 every device answered; 1 a device could not be opened or failed to
 answer (each failure one line, the others still described); 2 bad usage or configuration.
@@ -19,7 +20,7 @@ from config.cli import EXIT_FAILURE, EXIT_OK, add_config_argument
 from drivers.errors import DeviceError
 
 if TYPE_CHECKING:
-    from daemon.devices_check import DeviceCheck
+    from daemon.run.devices_check import DeviceCheck
 
 # the device and vision modules (OpenCV, SciPy, the drivers) are imported where they are used:
 # `thermocomp devices --help` must answer at once (issue 16)
@@ -53,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 async def _check(settings: Settings) -> DeviceCheck:
-    from daemon.devices_check import check_devices
+    from daemon.run.devices_check import check_devices
     from drivers.clock import make_clock
     from drivers.factory import open_devices
 
@@ -63,7 +64,7 @@ async def _check(settings: Settings) -> DeviceCheck:
 
 
 def run_devices_check(args: argparse.Namespace) -> int:
-    from daemon.devices_check import describe, preview_png
+    from daemon.run.devices_check import describe, preview_png
 
     settings = load_settings(args.config)
     try:

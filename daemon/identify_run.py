@@ -41,7 +41,7 @@ from daemon.model.identify import (
 )
 from daemon.model.observer import regions_to_nodes
 from daemon.model.presets import check_network_name, new_saved_path, saved_networks_dir
-from daemon.run_setup import RunParameterError, resolve_heat
+from daemon.run.setup import RunParameterError, resolve_heat
 from daemon.storage.recorder import DATABASE_NAME
 from daemon.storage.reports import ReportError, read_run
 

@@ -27,7 +27,7 @@ from config.cli import (
     add_config_argument,
     positive_float,
 )
-from daemon.runs import RunParameters, RunState, RunStateError
+from daemon.run.states import RunParameters, RunState, RunStateError
 from daemon.storage.recorder import RecorderError
 from daemon.storage.report_queue import ReportStatus
 

@@ -6,13 +6,13 @@ live as ``interrupted``) and the devices; leaving holds the robot, stops any run
 run`` are thin layers over :meth:`Daemon.start_run`, :meth:`pause`, :meth:`resume`,
 :meth:`stop`, :meth:`hold_robot`, :meth:`shutdown`, :meth:`snapshot` and :meth:`subscribe`.
 
-Where things live (issue 15): a run's state changes only in daemon/session.py; one step is
-daemon/step.py (model -> target check -> move -> measure -> record); the safety checks of a
-target are daemon/model/compensation.py (limits) and the robot driver (hold, finite values,
+Where things live (issue 15): a run's state changes only in daemon/run/session.py; one step is
+daemon/run/two_link/step.py (model -> target check -> move -> measure -> record); the safety checks
+of a target are daemon/model/compensation.py (limits) and the robot driver (hold, finite values,
 right before the bytes are written). This façade only routes requests and keeps the read model
-(daemon/readmodel.py) that the API reads; a run is built from its parameters in
-daemon/run_start.py, and a run's end that could not be written is kept and written again by
-daemon/unrecorded_end.py.
+(daemon/run/readmodel.py) that the API reads; a run is built from its parameters in
+daemon/run/start.py, and a run's end that could not be written is kept and written again by
+daemon/run/unrecorded_end.py.
 """
 
 from __future__ import annotations
@@ -29,11 +29,11 @@ from types import TracebackType
 from typing import Any, TypeVar
 
 from config import Settings
-from daemon.arm_prepare import ArmServices
-from daemon.arm_setup import ArmMeterFactory, ArmSetup, default_arm_meter, default_arm_setup
-from daemon.arm_step import ArmRunWork
-from daemon.devices_check import DeviceCheck, Devices, check_devices
-from daemon.events import (
+from daemon.run.arm.prepare import ArmServices
+from daemon.run.arm.setup import ArmMeterFactory, ArmSetup, default_arm_meter, default_arm_setup
+from daemon.run.arm.step import ArmRunWork
+from daemon.run.devices_check import DeviceCheck, Devices, check_devices
+from daemon.run.events import (
     ERROR_HISTORY,
     EVENT_QUEUE_DEFAULT,
     ErrorEntry,
@@ -41,18 +41,18 @@ from daemon.events import (
     EventBus,
     Subscription,
 )
-from daemon.readmodel import RunView
-from daemon.run_setup import RunParameterError
-from daemon.run_start import RunBuilder
-from daemon.runs import RunParameters, RunState, RunStateError
-from daemon.scheduler import TimingStats
-from daemon.sensors import Sensors
-from daemon.session import ResumeRefusedError, RunSession
-from daemon.step import RunWork
+from daemon.run.readmodel import RunView
+from daemon.run.scheduler import TimingStats
+from daemon.run.sensors import Sensors
+from daemon.run.session import ResumeRefusedError, RunSession
+from daemon.run.setup import RunParameterError
+from daemon.run.start import RunBuilder
+from daemon.run.states import RunParameters, RunState, RunStateError
+from daemon.run.two_link.step import RunWork
+from daemon.run.unrecorded_end import UnrecordedEnd
+from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue, ReportStatus
-from daemon.unrecorded_end import UnrecordedEnd
-from daemon.workers import Workers
 from drivers.clock import Clock, make_clock
 
 __all__ = [
@@ -67,7 +67,7 @@ logger = logging.getLogger(__name__)
 _T = TypeVar("_T")
 
 #: How often an end of run that could not be recorded (disk full, database read-only) is
-#: written again, until it is (s; daemon/unrecorded_end.py).
+#: written again, until it is (s; daemon/run/unrecorded_end.py).
 UNRECORDED_END_RETRY_S = 2.0
 SHUTDOWN_REASON = "daemon shut down"
 HOLD_REASON = "robot held by request"

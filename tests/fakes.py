@@ -21,7 +21,7 @@ import numpy as np
 
 from config import Settings
 from daemon.model import ThermalModel, load_network
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.vision import render_spot
 from drivers.base import (

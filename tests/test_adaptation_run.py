@@ -14,8 +14,8 @@ import pytest
 from config import Settings
 from config.settings import IrRegion
 from daemon.model import ThermalModel, load_network
-from daemon.run_setup import RunParameterError, build_observer
-from daemon.runs import RunParameters
+from daemon.run.setup import RunParameterError, build_observer
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 
 TRUE_HEAT, TRUE_CONVECTION = 1.3, 0.7

@@ -13,8 +13,8 @@ import pytest
 
 from api.cli import main
 from daemon.analysis import compensation_of, steps_from_rows, summarize_run, write_report
-from daemon.run_setup import RunParameterError, check_reference_run
-from daemon.runs import RunParameters
+from daemon.run.setup import RunParameterError, check_reference_run
+from daemon.run.states import RunParameters
 from daemon.storage.recorder import Recorder, StepRecord
 
 

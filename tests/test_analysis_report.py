@@ -292,7 +292,7 @@ async def test_report_after_a_short_bench_run_agrees_with_the_daemon(
     """Done-when of issue 8: a real run on the simulated bench (virtual clock), then
     `thermocomp report RUN_ID` writes every figure, and its numbers are the daemon's."""
     from config import load_settings
-    from daemon.runs import RunParameters
+    from daemon.run.states import RunParameters
     from daemon.service import Daemon
     from tests.helpers import REPO_ROOT
 

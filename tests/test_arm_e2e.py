@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from config import Settings
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from drivers.clock import make_clock
 from drivers.factory import Devices

@@ -15,7 +15,7 @@ import pytest
 
 from config import Settings
 from daemon import identify_cli
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from drivers.clock import make_clock
 from drivers.sim.arm_bench import ArmBench, ArmBenchConfig

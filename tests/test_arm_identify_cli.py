@@ -30,8 +30,8 @@ from daemon.arm.arm_model import (
 )
 from daemon.arm.controller import ArmModelOptions, load_controller
 from daemon.arm.ir_regions import region_nodes, region_point
-from daemon.arm_setup import ArmSetupError, arm_file, default_arm_setup
-from daemon.runs import RunParameters
+from daemon.run.arm.setup import ArmSetupError, arm_file, default_arm_setup
+from daemon.run.states import RunParameters
 from daemon.storage.recorder import Recorder, StepRecord
 from tests.helpers import run_in_process
 from tests.test_arm_run import ArmHarness, FakePredictor, run_to_end
@@ -313,7 +313,7 @@ class ObservingPredictor(FakePredictor):
 
 
 async def test_each_arm_step_feeds_its_ir_reading_to_the_model(tmp_path: Path) -> None:
-    """daemon/arm_step.py: the IR regions read at a step reach the model's observe() (the
+    """daemon/run/arm/step.py: the IR regions read at a step reach the model's observe() (the
     arm's observer with model+ir; a no-op otherwise), as recorded in the step's ir_json."""
     predictors: list[ObservingPredictor] = []
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from daemon.arm_identify_cli import IDENTIFY_STEP_S, load_arm_run
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.storage.recorder import DATABASE_NAME
 from drivers.clock import make_clock

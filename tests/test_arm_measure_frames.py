@@ -1,4 +1,4 @@
-"""Averaging frames in a tool measurement (daemon/arm_measure.py, arm.frames_per_measurement):
+"""Averaging frames in a tool measurement (daemon/run/arm/measure.py, arm.frames_per_measurement):
 the centroids' mean and the 1-sigma it is given, and the meter's pose noise over repeated
 measurements of a still tool, against the 1/sqrt(frames) that independent frames give."""
 
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from config import Settings
-from daemon.arm_measure import MarkerView, MultiCameraMeter, mean_views
+from daemon.run.arm.measure import MarkerView, MultiCameraMeter, mean_views
+from daemon.run.workers import Workers
 from daemon.vision.multiview import pose_difference
-from daemon.workers import Workers
 
 #: The image-plane jitter of the test's frames (px): the arm bench's order (0.03 px)
 JITTER_PX = 0.05
@@ -151,8 +151,8 @@ async def test_a_measurement_may_ask_for_more_frames_than_a_step() -> None:
 
 async def test_the_references_are_measured_with_arm_reference_frames() -> None:
     from daemon.arm.types import Pose6
-    from daemon.arm_prepare import ArmServices, measure_references
-    from daemon.events import ErrorLog, EventBus
+    from daemon.run.arm.prepare import ArmServices, measure_references
+    from daemon.run.events import ErrorLog, EventBus
     from tests.test_arm_run import POSES
 
     asked: list[tuple[str, int | None]] = []

@@ -1,6 +1,6 @@
 """One camera watching the tool (issue 20: "one camera along one axis stays a valid setup"): an
 arm run on the arm bench through the daemon with ``arm.cameras = 1``, the tool's pose from its
-four markers by perspective-n-point (daemon/arm_measure.py -> daemon/vision/pnp.py).
+four markers by perspective-n-point (daemon/run/arm/measure.py -> daemon/vision/pnp.py).
 
 One camera sees the depth along its line of sight far worse than across it (by about the
 distance over the markers' spread): the compensated residual across the line of sight is as
@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from config import Settings
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from drivers.clock import ScaledClock, make_clock
 from drivers.factory import Devices, open_devices
@@ -110,9 +110,9 @@ async def test_on_hardware_one_camera_and_a_one_camera_file_make_the_meter(
 ) -> None:
     """arm.camera_devices with one camera and a camera file of one: the factory opens it and
     the arm run's meter takes it (pylon's emulated GenICam camera, as tests/test_arm_cameras.py)."""
-    from daemon.arm_measure import MultiCameraMeter
-    from daemon.arm_setup import default_arm_meter
-    from daemon.workers import Workers
+    from daemon.run.arm.measure import MultiCameraMeter
+    from daemon.run.arm.setup import default_arm_meter
+    from daemon.run.workers import Workers
 
     settings = arm_on_hardware(monkeypatch, camera_file(tmp_path / "one.toml", 1), EMULATED[:1])
     workers = Workers()

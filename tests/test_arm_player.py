@@ -1,4 +1,4 @@
-"""Issue 20: the duty cycle played by the robot (daemon/arm_player.py) end to end: an arm run
+"""Issue 20: the duty cycle played by the robot (daemon/run/arm/player.py) end to end: an arm run
 through the daemon, the console driver and the C500C emulator in joint space over a real pty,
 on a virtual clock the cycle paces (drivers/clock.py), with the arm bench's truth heated by
 the motion the emulator performs. The emulator's own log of motions is the oracle: every pose
@@ -21,10 +21,10 @@ from pydantic import ValidationError
 from config import Settings
 from daemon.arm.run import CyclePose, MeasuredPose
 from daemon.arm.types import Pose6
-from daemon.arm_player import ArmPlayer
-from daemon.arm_robot import GoalRobotArm
-from daemon.run_setup import RunParameterError
-from daemon.runs import RunParameters, RunState
+from daemon.run.arm.player import ArmPlayer
+from daemon.run.arm.robot import GoalRobotArm
+from daemon.run.setup import RunParameterError
+from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
 from drivers import c500c_protocol as proto
 from drivers.base import GoalRobot, LinkState, MoveResult, Pose

@@ -24,13 +24,13 @@ from config import Settings
 from daemon.arm.correction import CorrectionLimits, check_correction, correction_for
 from daemon.arm.run import MeasuredPose, ToolMeasurement
 from daemon.arm.types import Pose6
-from daemon.arm_setup import ArmPlan
-from daemon.arm_step import ToolMeter
-from daemon.devices_check import Devices
 from daemon.model.compensation import UnsafeTargetError
-from daemon.runs import RunParameters, RunState
+from daemon.run.arm.setup import ArmPlan
+from daemon.run.arm.step import ToolMeter
+from daemon.run.devices_check import Devices
+from daemon.run.states import RunParameters, RunState
+from daemon.run.workers import Workers
 from daemon.service import Daemon, RunParameterError
-from daemon.workers import Workers
 from drivers.base import DEFAULT_GOAL, GoalRobot, LinkState, MoveResult, Pose, RobotStatus, Vector3
 from drivers.clock import Clock, make_clock
 from drivers.errors import MotionHeldError
@@ -656,7 +656,8 @@ def test_thermocomp_run_prints_an_arm_runs_figures(capsys: pytest.CaptureFixture
     assert not any("residual" in line for line in lines)  # not the two-link table
 
 
-# --- the tool's 3-D measurement (daemon/arm_measure.py) ----------------------------------------
+# --- the tool's 3-D measurement (daemon/run/arm/measure.py)
+# ----------------------------------------
 
 
 class _MarkerCamera:
@@ -682,7 +683,7 @@ class _MarkerCamera:
 
 async def test_the_meter_measures_a_known_displacement_of_the_tool() -> None:
     from daemon.arm.run import MeasurementError
-    from daemon.arm_measure import MultiCameraMeter
+    from daemon.run.arm.measure import MultiCameraMeter
     from daemon.vision.multiview import pose_difference
     from drivers.sim.arm_markers import CameraRig
 

@@ -26,8 +26,8 @@ os.environ.setdefault("PYLON_CAMEMU", "2")
 
 from config import Settings
 from daemon.arm.description import load_arm
-from daemon.arm_setup import default_arm_setup
-from daemon.runs import RunParameters
+from daemon.run.arm.setup import default_arm_setup
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.vision.cameras import write_cameras
 from daemon.vision.markers import marker_pixels

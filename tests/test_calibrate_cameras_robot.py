@@ -27,8 +27,6 @@ from daemon import calibrate_cameras_robot, calibrate_cli
 from daemon.arm.description import load_arm
 from daemon.arm.duty import load_duty_cycle
 from daemon.arm.run import MeasuredPose
-from daemon.arm_measure import marker_views, tool_pose
-from daemon.arm_robot import GoalRobotArm, pose_matrix
 from daemon.camera_calibration_pattern import Shift, check_pattern, robot_pattern, split_shift
 from daemon.camera_calibration_run import (
     Recording,
@@ -37,6 +35,8 @@ from daemon.camera_calibration_run import (
     record_pattern,
     station_pose,
 )
+from daemon.run.arm.measure import marker_views, tool_pose
+from daemon.run.arm.robot import GoalRobotArm, pose_matrix
 from daemon.vision.cameras import load_cameras, write_cameras
 from daemon.vision.markers import render_markers
 from daemon.vision.multiview import CameraModel, intrinsic_matrix, look_at, project
@@ -202,7 +202,7 @@ def test_the_saved_observations_give_the_same_fit(
 async def test_the_written_file_measures_the_tool_where_the_controller_puts_it(
     calibrated: Calibrated,
 ) -> None:
-    """An arm run's measurement (daemon/arm_measure.py) at the station with the written file
+    """An arm run's measurement (daemon/run/arm/measure.py) at the station with the written file
     and with the guess: the tool's position from the calibrated cameras is the controller's
     read-back within tens of um (the cameras are in its frame), the guess's is millimetres off."""
     assert calibrated.status == 0, calibrated.err

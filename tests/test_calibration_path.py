@@ -24,14 +24,14 @@ from daemon.model import load_network, network_facts
 from daemon.model.identify import network_toml
 from daemon.model.observer import OFFSET_SIGMA_C
 from daemon.model.presets import saved_networks_dir
-from daemon.run_setup import (
+from daemon.run.setup import (
     RunParameterError,
     build_model,
     build_observer,
     offset_prior_sigma_c,
     resolve_heat,
 )
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.storage.recorder import Recorder
 from tests.helpers import run_cli, run_in_process
@@ -135,7 +135,7 @@ def test_a_run_uses_the_network_heat_unless_it_overrides_it(
     built = build_model(plain, RunParameters(network=SAVED))
     assert built.parameters.heat_w == identified and "network" in built.heat_source
     assert built.model.heat_w.tolist() == built.network.heat_w.tolist()
-    with caplog.at_level(logging.WARNING, logger="daemon.run_setup"):
+    with caplog.at_level(logging.WARNING, logger="daemon.run.setup"):
         told = build_model(settings_for(data_dir, heat_w={"2": 0.1}), RunParameters(network=SAVED))
     assert told.parameters.heat_w == identified
     assert "model.heat_w (2 = 0.1 W) not used" in caplog.text

@@ -26,12 +26,12 @@ import pytest
 from api.app import create_app
 from config import Settings
 from daemon import service as service_module
-from daemon import session as session_module
-from daemon import step as step_module
-from daemon.runs import RunState
-from daemon.scheduler import FixedStepTimer
+from daemon.run import session as session_module
+from daemon.run.scheduler import FixedStepTimer
+from daemon.run.states import RunState
+from daemon.run.two_link import step as step_module
+from daemon.run.two_link.step import StepPipeline
 from daemon.service import Daemon, ResumeRefusedError
-from daemon.step import StepPipeline
 from daemon.storage.recorder import Recorder, RecorderError, StepRecord
 from drivers.clock import VirtualClock
 from drivers.errors import DeviceError, GoalLostError

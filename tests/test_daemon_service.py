@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from daemon.model import ThermalModel, load_network
-from daemon.runs import RunState, RunStateError
+from daemon.run.states import RunState, RunStateError
 from daemon.service import RunConflictError, RunParameterError
 from daemon.storage.recorder import Recorder, RecorderError
 from daemon.storage.report_queue import ReportStatus

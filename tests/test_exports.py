@@ -10,6 +10,7 @@ import json
 import math
 from pathlib import Path
 
+from daemon.run.workers import Workers
 from daemon.storage.exports import csv_chunk, json_chunk
 from daemon.storage.recorder import (
     DATABASE_NAME,
@@ -18,7 +19,6 @@ from daemon.storage.recorder import (
     StepRecord,
     write_steps_csv,
 )
-from daemon.workers import Workers
 
 STEPS = 25
 

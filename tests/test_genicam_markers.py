@@ -2,7 +2,7 @@
 (PYLON_CAMEMU) serve image files of the markers rendered as each camera of a camera file sees
 them at a known tool pose (drivers/sim/camemu.py: the files, and the feature file the driver
 loads to point each camera at its own), grabbed through the real driver
-(drivers/genicam_camera.py) and measured by the arm run's measurement (daemon/arm_measure.py).
+(drivers/genicam_camera.py) and measured by the arm run's measurement (daemon/run/arm/measure.py).
 
 The oracle is the pose the images were rendered at: the measured pose must match it within the
 measurement's own predicted uncertainty, and a second frame rendered with the tool moved by a
@@ -30,11 +30,11 @@ from config import Settings
 from config.settings import CameraSettings
 from daemon.arm.run import MeasurementError, ToolMeasurement
 from daemon.arm.types import Pose6
-from daemon.arm_measure import MultiCameraMeter
+from daemon.run.arm.measure import MultiCameraMeter
+from daemon.run.workers import Workers
 from daemon.vision.cameras import write_cameras
 from daemon.vision.markers import marker_pixels, render_markers
 from daemon.vision.multiview import CameraModel, pose_difference
-from daemon.workers import Workers
 from drivers.base import Frame
 from drivers.clock import ScaledClock
 from drivers.errors import DeviceError, DeviceTimeoutError, ProtocolError

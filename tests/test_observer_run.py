@@ -11,7 +11,7 @@ import pytest
 from pydantic import ValidationError
 
 from config import Settings
-from daemon.runs import RunParameters
+from daemon.run.states import RunParameters
 from daemon.service import Daemon
 
 WRONG_MODEL_BENCH = {

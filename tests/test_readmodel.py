@@ -1,11 +1,11 @@
-"""The run's frozen view (daemon/readmodel.py): the progress the API and dashboard show."""
+"""The run's frozen view (daemon/run/readmodel.py): the progress the API and dashboard show."""
 
 from __future__ import annotations
 
 import pytest
 
-from daemon.readmodel import RunView
-from daemon.runs import RunParameters, RunState
+from daemon.run.readmodel import RunView
+from daemon.run.states import RunParameters, RunState
 
 
 def view(state: RunState, end_s: float) -> RunView:

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from config import Settings
 from daemon.model import ThermalModel
-from daemon.runs import RunParameters, RunState
+from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
 from drivers.c500c import C500CRobot
 from drivers.sim.emulator import FAULT_KINDS, C500CEmulator, FaultKind

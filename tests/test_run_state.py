@@ -6,7 +6,7 @@ import pytest
 from pydantic import ValidationError
 
 from config import Settings
-from daemon.runs import (
+from daemon.run.states import (
     TRANSITIONS,
     RunParameters,
     RunState,
@@ -126,5 +126,5 @@ def test_heaters_switch_off_at_the_scheduled_time() -> None:
     parameters = RunParameters(heat_w={"2": 0.5, "9": 0.5}, heater_off_s=100.0)
     assert heat_at(parameters, 99.9) == {"2": 0.5, "9": 0.5}
     assert heat_at(parameters, 100.0) == {"2": 0.0, "9": 0.0}
-    # no heat given: none until the run's start resolves it (daemon.run_setup.resolve_heat)
+    # no heat given: none until the run's start resolves it (daemon.run.setup.resolve_heat)
     assert heat_at(RunParameters(), 1e6) == {}

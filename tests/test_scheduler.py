@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from daemon.scheduler import FixedStepTimer, TimingStats
+from daemon.run.scheduler import FixedStepTimer, TimingStats
 from drivers.clock import ScaledClock, VirtualClock
 
 

@@ -17,7 +17,7 @@ import pytest
 import drivers.camera
 from config import ConfigError, Settings, load_settings
 from config.faults import SENSOR_FAULT_KINDS, Fault, parse_sensor_faults
-from daemon.runs import RunParameters, RunState
+from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
 from daemon.storage.recorder import StepRecord
 from drivers.camera import VideoSource

@@ -1,7 +1,7 @@
 """``GET /devices/preview``: the bring-up preview while the daemon is idle (issue 18).
 
 One frame (spot ringed), one thermal image (every IR region drawn and labelled) and the robot's
-pose, from the daemon's own open devices (daemon/devices_check.py), as a PNG. Refused with 409
+pose, from the daemon's own open devices (daemon/run/devices_check.py), as a PNG. Refused with 409
 while a run is active: a preview grab would take a frame, an IR reading and a console round trip
 from the run's steps.
 """
@@ -13,7 +13,7 @@ from fastapi.responses import Response
 
 from api.deps import DaemonDep, ReadAccess
 from api.errors import ApiError, ErrorBody
-from daemon.devices_check import preview_png
+from daemon.run.devices_check import preview_png
 from daemon.service import RunConflictError
 from drivers.errors import DeviceError
 

@@ -20,7 +20,7 @@ from pydantic_core import CoreSchema
 
 from api.deps import DaemonDep, ReadAccess
 from api.errors import ApiError, ErrorBody
-from daemon.runs import RunState
+from daemon.run.states import RunState
 from daemon.service import Daemon
 from daemon.storage.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
 from daemon.storage.recorder import Recorder, RecorderError, RunRow

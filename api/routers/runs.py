@@ -24,7 +24,7 @@ from daemon.arm.arm_model import ArmModelNotFoundError, named_arm_model_path
 from daemon.arm.duty import available_duty_cycles
 from daemon.model import available_presets
 from daemon.model.presets import NETWORK_NAME, NetworkNotFoundError, named_network_path
-from daemon.runs import RunParameters, RunStateError
+from daemon.run.states import RunParameters, RunStateError
 from daemon.service import Daemon, RunConflictError
 from daemon.storage.recorder import RecorderError, RunRow
 from drivers.errors import DeviceError

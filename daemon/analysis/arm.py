@@ -2,7 +2,7 @@
 and per measured pose, and their reduction against an uncompensated run. Pure.
 
 The drift of a step is its measured tool pose less the one measured at the same taught goal
-before the first correction (daemon/arm_step.py): in a compensated run it is the residual of
+before the first correction (daemon/run/arm/step.py): in a compensated run it is the residual of
 the compensation, in an uncompensated one the arm's thermal drift. The reduction is the
 thesis's (6.7: ``100 (1 - max error / max uncompensated)``) on the 3-D norms, over the time
 both runs cover, and likewise for the rotation.

@@ -1,5 +1,5 @@
 """The controller's model of the arm during a duty cycle (issue 20): the ArmPredictor of an arm
-run (daemon/arm_step.py). Pure.
+run (daemon/run/arm/step.py). Pure.
 
 Each advance takes the motor heat of the duty cycle's *commanded* motion over the interval
 (the duty cycle's joint positions, speeds and accelerations on ``motion_dt_s``, the joint

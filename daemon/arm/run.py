@@ -2,7 +2,7 @@
 daemon's step sees them. Pure: protocols, values and the pose arithmetic of a measurement.
 
 The controller's model of the arm (kinematics + ArmThermalModel + duty cycle: built in
-daemon/arm_setup.py) is an :class:`ArmPredictor`; the tool's 3-D measurement (N cameras,
+daemon/run/arm/setup.py) is an :class:`ArmPredictor`; the tool's 3-D measurement (N cameras,
 markers, triangulation) is a :class:`ToolMeasurement` per step. Keeping the step against these
 two small faces lets it be tested with exact fakes and keeps the pieces' own APIs out of it.
 """
@@ -54,7 +54,7 @@ class MeasuredPose:
 
 @dataclass(frozen=True, eq=False)
 class CyclePose:
-    """A pose of the duty cycle as the robot plays it (issue 20, daemon/arm_player.py): taught
+    """A pose of the duty cycle as the robot plays it (issue 20, daemon/run/arm/player.py): taught
     as the goal ``pose.name`` (a valid goal name: drivers/goals.py; a measured pose keeps its
     own), moved into at ``speed_percent`` of the controller's maximum speed, held for
     ``dwell_s``; ``measured``: the tool is measured there. ``name`` is the duty cycle's."""

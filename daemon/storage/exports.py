@@ -7,7 +7,7 @@ six exporting clients, benchmarks/bench_control_core.py). So each chunk of an ex
 encoded here, in a child process with its own read-only connection, and comes back as bytes of
 bounded size (``CHUNK_STEPS`` steps, about 1 MB) that the API streams out.
 
-Everything here is a plain function of picklable arguments: ``daemon.workers.Workers.export``
+Everything here is a plain function of picklable arguments: ``daemon.run.workers.Workers.export``
 runs it in its process pool.
 """
 

@@ -62,7 +62,7 @@ DATABASE_NAME = "thermocomp.sqlite3"
 LOCK_NAME = "thermocomp.lock"
 
 #: Run states that mean "someone was still working on it": after a crash they become
-#: ``interrupted`` (see daemon.runs.RunState).
+#: ``interrupted`` (see daemon.run.states.RunState).
 LIVE_STATES = ("starting", "running", "paused", "stopping", "fault")
 INTERRUPTED = "interrupted"
 #: Steps per batch of a Parquet export (one row group each).

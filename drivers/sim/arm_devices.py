@@ -13,7 +13,7 @@ correction) and the truth reads the arm's joints from it at every frame. Every c
 IR reader advance the truth to the run clock before they measure.
 
 With ``arm.play_duty_cycle`` (config/arm-sim-played.toml, time_scale 1) the robot plays the
-whole cycle (daemon/arm_player.py): the emulator then runs on the run's clock at the arm's real
+whole cycle (daemon/run/arm/player.py): the emulator then runs on the run's clock at the arm's real
 joint speeds (the duty cycle's limits at `speed 100`, scaled by each move's `speed N`), and the
 truth's motors are heated by the motion the emulator performs (ShiftedMotion over
 ``emulator.joint_sample``, from the run's start), not by DutyCycleMotion.
@@ -68,7 +68,7 @@ class ArmBenchDevices:
 
 def played(settings: Settings) -> bool:
     """Whether arm runs play the duty cycle through the emulator (arm.play_duty_cycle; on the
-    bench only when set: daemon/arm_setup.py plays_duty_cycle)."""
+    bench only when set: daemon/run/arm/setup.py plays_duty_cycle)."""
     return settings.arm.play_duty_cycle is True
 
 

@@ -1,4 +1,4 @@
-"""What the daemon gives a run's session (daemon/session.py): its devices, workers, recorder
+"""What the daemon gives a run's session (daemon/run/session.py): its devices, workers, recorder
 and outlets, the simulated bench it starts, and an arm run's own services (issue 20).
 
 Values only: the run's state changes in RunSession alone (issue 15)."""
@@ -10,15 +10,15 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from config import Settings
-from daemon.arm_prepare import ArmServices
-from daemon.events import ErrorLog, EventBus
-from daemon.readmodel import RunView
-from daemon.scheduler import TimingStats
-from daemon.sensors import Sensors
-from daemon.step import StepPipeline
+from daemon.run.arm.prepare import ArmServices
+from daemon.run.events import ErrorLog, EventBus
+from daemon.run.readmodel import RunView
+from daemon.run.scheduler import TimingStats
+from daemon.run.sensors import Sensors
+from daemon.run.two_link.step import StepPipeline
+from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue
-from daemon.workers import Workers
 from drivers.base import Robot
 from drivers.clock import Clock
 

@@ -2,7 +2,7 @@
 arm run, as the arm would in production, and its motion heats the motors.
 
 Each pose in the cycle's order: the move to its taught goal plus the latest correction the
-step pipeline checked for that pose (daemon/arm_step.py: the correction of each taught pose at
+step pipeline checked for that pose (daemon/run/arm/step.py: the correction of each taught pose at
 its own configuration, checked against the arm.max_* limits before it is handed here; a refused
 one never is), at the pose's speed (the console's `speed N`, sent by the driver only when it
 changes; the acceleration is the controller's own: C500C.md has no command for it), then the
@@ -12,7 +12,7 @@ its model runs); the move into that pose waits until the step has handed over it
 dwell, and the player waits for the step (:meth:`release`) before it moves on, so the robot
 never moves under a measurement.
 
-The player owns no run state: daemon/session.py starts it when the run runs and stops it on a
+The player owns no run state: daemon/run/session.py starts it when the run runs and stops it on a
 pause, a fault and the end (:meth:`stop` lets a move already written end: cutting a console
 move mid-exchange would hold the robot and dirty the link; the console cannot halt a motion
 anyway, C500C.md), and restarts it on a resume from the pose after the last one reached. An
@@ -44,7 +44,7 @@ logger = logging.getLogger(__name__)
 
 
 class PlayingRobot(Protocol):
-    """What the player needs of the robot (daemon/arm_robot.py GoalRobotArm)."""
+    """What the player needs of the robot (daemon/run/arm/robot.py GoalRobotArm)."""
 
     async def move_to_goal(
         self, goal: str, correction: Pose6, *, speed_percent: int | None = None
@@ -109,7 +109,7 @@ class ArmPlayer:
         return tuple(seen.values())
 
     def set_corrections(self, corrections: Mapping[str, Pose6]) -> None:
-        """The latest checked corrections by cycle pose name (daemon/arm_step.py); a pose not
+        """The latest checked corrections by cycle pose name (daemon/run/arm/step.py); a pose not
         named keeps its previous one."""
         self._corrections.update(corrections)
 

@@ -15,10 +15,10 @@ from typing import Any, cast
 
 from config import CONFIG_DIR, Settings
 from daemon.arm.run import ArmPredictor, CyclePose, MeasuredPose
-from daemon.arm_step import ArmRobot, ToolMeter
-from daemon.devices_check import Devices
-from daemon.runs import RunParameters
-from daemon.workers import Workers
+from daemon.run.arm.step import ArmRobot, ToolMeter
+from daemon.run.devices_check import Devices
+from daemon.run.states import RunParameters
+from daemon.run.workers import Workers
 from drivers.base import GoalRobot, Robot
 
 
@@ -34,7 +34,7 @@ class ArmPlan:
     predictor: ArmPredictor
     poses: tuple[MeasuredPose, ...]
     snapshot: dict[str, Any] = field(default_factory=dict)
-    #: every pose of the duty cycle as the robot plays it (daemon/arm_player.py)
+    #: every pose of the duty cycle as the robot plays it (daemon/run/arm/player.py)
     cycle: tuple[CyclePose, ...] = ()
 
 
@@ -138,7 +138,7 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
 def default_arm_meter(settings: Settings, devices: Devices, workers: Workers) -> ToolMeter:
     """The tool's measurement from the devices' cameras and their calibrated models (the
     arm's camera file, else the bench's own models)."""
-    from daemon.arm_measure import MultiCameraMeter
+    from daemon.run.arm.measure import MultiCameraMeter
     from daemon.vision.multiview import load_cameras
 
     cameras = tuple(getattr(devices, "cameras", ()) or ())
@@ -160,9 +160,9 @@ def default_arm_meter(settings: Settings, devices: Devices, workers: Workers) ->
 
 
 def arm_robot(robot: Robot) -> ArmRobot:
-    """The robot's arm face (daemon/arm_robot.py) over a driver with named taught goals and
+    """The robot's arm face (daemon/run/arm/robot.py) over a driver with named taught goals and
     rotated absolute moves; ArmSetupError when the driver has none."""
-    from daemon.arm_robot import GoalRobotArm
+    from daemon.run.arm.robot import GoalRobotArm
 
     if not callable(getattr(robot, "taught_goals", None)):
         raise ArmSetupError(

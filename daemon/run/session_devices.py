@@ -1,8 +1,8 @@
 """What a run's session does to the devices outside a step: teach the run's goals, start the
 simulated bench cold, take the two-link bench's reference frame, start and stop a played duty
-cycle -- for the two-link bench and for an arm run (issue 20; its poses: daemon/arm_prepare.py).
+cycle -- for the two-link bench and for an arm run (issue 20; its poses: daemon/run/arm/prepare.py).
 
-RunSession (daemon/session.py) calls these at the points of its prepare -> loop -> finish and
+RunSession (daemon/run/session.py) calls these at the points of its prepare -> loop -> finish and
 decides what their errors do: nothing here changes the run's state (issue 15). They may change
 the run's work (its goal, its references), which is data, not state.
 """
@@ -12,10 +12,10 @@ from __future__ import annotations
 import functools
 import logging
 
-from daemon.arm_prepare import teach_poses
-from daemon.arm_step import ArmRunWork
-from daemon.session_services import SessionServices
-from daemon.step import RunWork
+from daemon.run.arm.prepare import teach_poses
+from daemon.run.arm.step import ArmRunWork
+from daemon.run.services import SessionServices
+from daemon.run.two_link.step import RunWork
 from daemon.vision import CentroidError, measure_with_camera_settings
 from drivers.errors import DeviceError
 
@@ -77,7 +77,7 @@ async def capture_reference(work: RunWork, services: SessionServices) -> None:
 
 
 async def play_duty_cycle(services: SessionServices, playing: bool) -> None:
-    """A played duty cycle (daemon/arm_player.py) runs while the run runs: started (from
+    """A played duty cycle (daemon/run/arm/player.py) runs while the run runs: started (from
     the pose after the last one reached) when it runs, stopped when it pauses, faults or
     ends. The player changes no state: its errors come back through the next step."""
     arm = services.arm

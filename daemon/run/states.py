@@ -8,7 +8,7 @@ State machine (issue 6, issue 15)::
 Final states say what happened: ``finished`` (ran to its end), ``stopped`` (by request: the
 reason says who asked and why), ``aborted`` (an error), ``fault`` (a device fault the run was
 parked in when it ended), ``interrupted`` (only ever written by the recorder at start-up, for
-a run a crash left live). Only :class:`daemon.session.RunSession` changes a run's state.
+a run a crash left live). Only :class:`daemon.run.session.RunSession` changes a run's state.
 """
 
 from __future__ import annotations
@@ -253,7 +253,7 @@ def procedure_point(parameters: RunParameters, step: int, run_time_s: float) -> 
 
 def heat_at(parameters: RunParameters, run_time_s: float) -> dict[str, float]:
     """The heater inputs of the procedure at ``run_time_s`` (heaters on, then off)."""
-    heat = parameters.heat_w or {}  # resolved at the run's start (daemon.run_setup)
+    heat = parameters.heat_w or {}  # resolved at the run's start (daemon.run.setup)
     if parameters.heater_off_s is not None and run_time_s >= parameters.heater_off_s:
         return dict.fromkeys(heat, 0.0)
     return dict(heat)

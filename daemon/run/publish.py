@@ -1,8 +1,8 @@
 """What a run's session tells the rest of the daemon after each change it made: the state and
-step events, the frame for live views, the run's frozen view (daemon/readmodel.py) for the API,
+step events, the frame for live views, the run's frozen view (daemon/run/readmodel.py) for the API,
 and the state persisted in order on the recorder's one thread.
 
-RunSession (daemon/session.py) makes every change and then calls this; nothing here changes
+RunSession (daemon/run/session.py) makes every change and then calls this; nothing here changes
 the run's state (issue 15): it only reads the views and records it is given.
 """
 
@@ -12,11 +12,11 @@ import asyncio
 import logging
 from typing import Any
 
-from daemon.events import Event
-from daemon.readmodel import RunView
-from daemon.runs import RunState
-from daemon.session_services import SessionServices
-from daemon.step import StepOutcome
+from daemon.run.events import Event
+from daemon.run.readmodel import RunView
+from daemon.run.services import SessionServices
+from daemon.run.states import RunState
+from daemon.run.two_link.step import StepOutcome
 
 logger = logging.getLogger(__name__)
 

@@ -1,5 +1,5 @@
-"""One step of an arm run (issue 20), top to bottom, like daemon/step.py's StepPipeline:
-model -> correction check -> move -> measure -> record.
+"""One step of an arm run (issue 20), top to bottom, like daemon/run/two_link/step.py's
+StepPipeline: model -> correction check -> move -> measure -> record.
 
 Each fixed step advances the controller's arm model (motor heat from the duty cycle's
 commanded motion) to the step's time, takes the duty cycle's next measured pose, predicts the
@@ -8,14 +8,14 @@ rotation, daemon/arm/correction.py) before anything reaches the robot, moves to 
 goal of that pose plus the correction, measures the tool in every camera (markers ->
 triangulation -> pose) and records the 6-DOF prediction, correction and measurement. It
 returns a StepOutcome with a verdict and never changes the run's state: what a verdict does is
-decided in daemon/session.py, as for the two-link bench.
+decided in daemon/run/session.py, as for the two-link bench.
 
 A refused correction (a limit, a non-finite value) is never sent: the step records it with the
 flag ``unsafe-target`` and asks for a pause, as the 1-D path. A hold that comes at any point
 of the step is enforced by the driver, which refuses the move under its lock right before the
 bytes are written (drivers/base.py Robot.stop).
 
-With a played duty cycle (daemon/arm_player.py) the robot is moved by the player, not by the
+With a played duty cycle (daemon/run/arm/player.py) the robot is moved by the player, not by the
 step: the step predicts the tool error at every pose of the cycle (the arm warmed once), checks
 each pose's correction and hands the accepted ones to the player (a refused one is never sent,
 and flags the step ``unsafe-target`` as above), then waits for the robot to arrive at its
@@ -49,13 +49,13 @@ from daemon.arm.run import (
     translation_um,
 )
 from daemon.arm.types import Pose6
-from daemon.arm_player import ArmPlayer
-from daemon.events import ErrorLog
 from daemon.model.compensation import UnsafeTargetError
-from daemon.runs import RunParameters
-from daemon.scheduler import Tick
-from daemon.sensors import Sensors
-from daemon.step import (
+from daemon.run.arm.player import ArmPlayer
+from daemon.run.events import ErrorLog
+from daemon.run.scheduler import Tick
+from daemon.run.sensors import Sensors
+from daemon.run.states import RunParameters
+from daemon.run.two_link.step import (
     SENSOR_ERROR_FLAGS,
     StepOutcome,
     begin_record,
@@ -63,8 +63,8 @@ from daemon.step import (
     read_infrared,
     step_verdict,
 )
+from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, StepRecord
-from daemon.workers import Workers
 from drivers.base import MoveResult, Pose, RobotStatus
 from drivers.errors import DeviceError
 
@@ -77,7 +77,7 @@ ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR}
 
 
 class ArmRobot(Protocol):
-    """What an arm run needs of the robot (daemon/arm_robot.py over a driver with named taught
+    """What an arm run needs of the robot (daemon/run/arm/robot.py over a driver with named taught
     goals and rotated absolute moves, drivers/base.py GoalRobot). The hold contract is
     drivers/base.py Robot's: after ``stop()`` every motion command is refused right before its
     bytes are written."""
@@ -104,7 +104,7 @@ class ArmRobot(Protocol):
 
 class ToolMeter(Protocol):
     """The tool's 3-D measurement: every camera's frame -> marker centroids -> triangulated
-    markers -> tool pose (daemon/arm_measure.py). Raises DeviceError (a camera) or
+    markers -> tool pose (daemon/run/arm/measure.py). Raises DeviceError (a camera) or
     MeasurementError (the markers)."""
 
     async def measure(
@@ -129,7 +129,7 @@ class ArmRunWork:
     #: the tool pose measured at each taught goal before the first move: the drift's zero
     reference: dict[str, FloatArray] = field(default_factory=dict)
     reference_source: str = "each pose's first step"
-    #: a played duty cycle (daemon/arm_player.py): every pose in order, each taught; empty:
+    #: a played duty cycle (daemon/run/arm/player.py): every pose in order, each taught; empty:
     #: the robot moves to the measured poses only, one per step
     cycle: tuple[CyclePose, ...] = ()
 

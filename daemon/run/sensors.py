@@ -7,7 +7,7 @@ from collections.abc import Awaitable
 from typing import TypeVar
 
 from config import Settings
-from daemon.events import ErrorLog
+from daemon.run.events import ErrorLog
 from drivers.base import Camera, Frame, IrReader, IrReading
 from drivers.errors import DeviceError, DeviceTimeoutError
 

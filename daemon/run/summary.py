@@ -8,9 +8,9 @@ import numpy as np
 
 from daemon.analysis import NUMERIC_COLUMNS, RunSteps, summarize_run
 from daemon.analysis.arm import summarize_arm_run
-from daemon.arm_step import ArmRunWork
-from daemon.scheduler import percentiles
-from daemon.step import RunWork
+from daemon.run.arm.step import ArmRunWork
+from daemon.run.scheduler import percentiles
+from daemon.run.two_link.step import RunWork
 from daemon.storage.recorder import Recorder
 
 #: What the summary reads of the steps: no JSON columns (temperatures, IR, stage timings),

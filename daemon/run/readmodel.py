@@ -8,7 +8,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from daemon.runs import RunParameters, RunState
+from daemon.run.states import RunParameters, RunState
 
 
 @dataclass(frozen=True, slots=True)

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from config import Settings
 from daemon.arm.run import FloatArray, MeasurementError, ToolMeasurement
+from daemon.run.workers import Workers
 from daemon.vision import CentroidError
 from daemon.vision.centroid import measure_centroid
 from daemon.vision.multiview import (
@@ -34,7 +35,6 @@ from daemon.vision.multiview import (
     triangulate,
 )
 from daemon.vision.pnp import pose_from_views
-from daemon.workers import Workers
 from drivers.base import Camera, Frame
 from drivers.errors import DeviceTimeoutError
 

@@ -1,19 +1,19 @@
 """One run, from its start to its final state: the only code that changes a run's state.
 
 prepare (teach the goal, warm-up, reference frame) -> loop (one step per deadline:
-daemon/step.py) -> finish (hold, summary, final state committed). Operator requests (pause,
-resume, stop, a robot hold) and the steps' verdicts meet here, in :meth:`RunSession._go`,
-against the state machine of daemon/runs.py: a request is refused with RunStateError when the
+daemon/run/two_link/step.py) -> finish (hold, summary, final state committed). Operator requests
+(pause, resume, stop, a robot hold) and the steps' verdicts meet here, in :meth:`RunSession._go`,
+against the state machine of daemon/run/states.py: a request is refused with RunStateError when the
 state does not allow it; a verdict that arrives after a request (a step that ends in its own
 pause while the operator paused or stopped during it) is already on the step's record (flag
 and error) and changes nothing, so it never turns a run into ``aborted`` (issue 15, point 1).
 
 Every state change happens synchronously (no await between check and change), is published at
-once, and is persisted in order on the recorder's one thread (daemon/session_publish.py); the
-run's frozen view (daemon/readmodel.py) is replaced at each change for the API to read. What
+once, and is persisted in order on the recorder's one thread (daemon/run/publish.py); the
+run's frozen view (daemon/run/readmodel.py) is replaced at each change for the API to read. What
 the session does to the devices outside a step (teach, the bench's start, the reference frame,
-a played duty cycle) is daemon/session_devices.py; what the daemon gives it,
-daemon/session_services.py. Those compute and do I/O; the state changes only here.
+a played duty cycle) is daemon/run/session_devices.py; what the daemon gives it,
+daemon/run/services.py. Those compute and do I/O; the state changes only here.
 """
 
 from __future__ import annotations
@@ -26,22 +26,22 @@ from typing import Any
 
 import numpy as np
 
-from daemon.arm_prepare import measure_references
-from daemon.arm_step import ArmRunWork
-from daemon.readmodel import RunView
-from daemon.runs import RunState, RunStateError, StateMachine
-from daemon.scheduler import FixedStepTimer
-from daemon.session_devices import (
+from daemon.run.arm.prepare import measure_references
+from daemon.run.arm.step import ArmRunWork
+from daemon.run.publish import RunPublisher
+from daemon.run.readmodel import RunView
+from daemon.run.scheduler import FixedStepTimer
+from daemon.run.services import BenchControl, SessionServices
+from daemon.run.session_devices import (
     capture_reference,
     play_duty_cycle,
     start_bench,
     teach_goals,
 )
-from daemon.session_publish import RunPublisher
-from daemon.session_services import BenchControl, SessionServices
-from daemon.step import RunWork, StepOutcome, Verdict
+from daemon.run.states import RunState, RunStateError, StateMachine
+from daemon.run.summary import run_summary
+from daemon.run.two_link.step import RunWork, StepOutcome, Verdict
 from daemon.storage.recorder import RecorderError
-from daemon.summary import run_summary
 from drivers.errors import DeviceError, GoalLostError
 
 __all__ = ["BenchControl", "ResumeRefusedError", "RunSession", "SessionServices"]

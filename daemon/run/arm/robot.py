@@ -1,6 +1,6 @@
 """The robot as an arm run uses it (issue 20): a driver with named taught goals and rotated
 absolute moves (drivers/base.py GoalRobot, both C500C drivers) behind the ArmRobot face of
-daemon/arm_step.py.
+daemon/run/arm/step.py.
 
 Teaching a measured pose of the duty cycle: the console teaches only where the robot stands
 (`here <var>`, C500C.md), so the robot is first brought to the pose. The pose where the robot

@@ -28,7 +28,7 @@ from daemon.model.compensation import (
 )
 from daemon.model.model import EXACT_NODE_LIMIT
 from daemon.model.observer import OFFSET_SIGMA_C, IrObserver, regions_to_nodes
-from daemon.runs import RunParameters, heat_at
+from daemon.run.states import RunParameters, heat_at
 from daemon.storage.recorder import Recorder
 
 logger = logging.getLogger(__name__)

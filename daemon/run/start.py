@@ -2,10 +2,10 @@
 row in the run database, its work, and the services its session is given.
 
 The two-link bench's run: model, admissible scale, reference run and observer
-(daemon/run_setup.py). An arm run (issue 20): the arm's plan, its robot face, tool meter,
-played duty cycle and step pipeline (daemon/arm_setup.py). RunParameterError when the run is
+(daemon/run/setup.py). An arm run (issue 20): the arm's plan, its robot face, tool meter,
+played duty cycle and step pipeline (daemon/run/arm/setup.py). RunParameterError when the run is
 not admissible. Nothing here starts a run or changes a run's state: daemon/service.py builds
-under its request lock and daemon/session.py runs what was built.
+under its request lock and daemon/run/session.py runs what was built.
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from typing import Any
 
 from config import Settings
 from daemon import __version__
-from daemon.arm_player import ArmPlayer
-from daemon.arm_prepare import ArmServices
-from daemon.arm_setup import (
+from daemon.run.arm.player import ArmPlayer
+from daemon.run.arm.prepare import ArmServices
+from daemon.run.arm.setup import (
     ArmMeterFactory,
     ArmSetup,
     ArmSetupError,
@@ -28,11 +28,14 @@ from daemon.arm_setup import (
     check_played_run,
     plays_duty_cycle,
 )
-from daemon.arm_step import ArmRunWork, ArmStepPipeline
-from daemon.devices_check import Devices
-from daemon.events import ErrorLog, EventBus
-from daemon.readmodel import RunView
-from daemon.run_setup import (
+from daemon.run.arm.step import ArmRunWork, ArmStepPipeline
+from daemon.run.devices_check import Devices
+from daemon.run.events import ErrorLog, EventBus
+from daemon.run.readmodel import RunView
+from daemon.run.scheduler import TimingStats
+from daemon.run.sensors import Sensors
+from daemon.run.services import BenchControl, SessionServices
+from daemon.run.setup import (
     RunParameterError,
     build_model,
     build_observer,
@@ -41,14 +44,11 @@ from daemon.run_setup import (
     network_snapshot,
     unit_vector,
 )
-from daemon.runs import RunParameters
-from daemon.scheduler import TimingStats
-from daemon.sensors import Sensors
-from daemon.session_services import BenchControl, SessionServices
-from daemon.step import RunWork, StepPipeline
+from daemon.run.states import RunParameters
+from daemon.run.two_link.step import RunWork, StepPipeline
+from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue
-from daemon.workers import Workers
 from drivers.clock import Clock, FollowingClock
 
 logger = logging.getLogger(__name__)

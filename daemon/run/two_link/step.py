@@ -1,7 +1,7 @@
 """One step of a run (thesis 6.4), top to bottom: model -> target check -> move -> measure ->
 record. The pipeline computes the step and returns its outcome (the committed record, the
 frame, and a verdict: ok, pause(reason) or fault(reason)); it never changes the run's state.
-What the verdict does to the run is decided in one place, daemon/session.py, against the
+What the verdict does to the run is decided in one place, daemon/run/session.py, against the
 operator's requests that may have arrived meanwhile.
 """
 
@@ -19,7 +19,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from config import Settings
-from daemon.events import ErrorLog
 from daemon.model import ThermalModel
 from daemon.model.compensation import (
     CompensationLimits,
@@ -29,13 +28,14 @@ from daemon.model.compensation import (
 )
 from daemon.model.network import UM_PER_MM
 from daemon.model.observer import IrObserver
-from daemon.runs import ProcedurePoint, RunParameters, heat_at, procedure_point
-from daemon.scheduler import Tick
-from daemon.sensors import Sensors
+from daemon.run.events import ErrorLog
+from daemon.run.scheduler import Tick
+from daemon.run.sensors import Sensors
+from daemon.run.states import ProcedurePoint, RunParameters, heat_at, procedure_point
+from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, StepRecord
 from daemon.vision import CentroidError, measure_with_camera_settings
 from daemon.vision.calibration import camera_to_robot
-from daemon.workers import Workers
 from drivers.base import Frame, IrReading, MoveResult, Pose, Robot
 from drivers.errors import DeviceError
 
@@ -392,7 +392,7 @@ class StepPipeline:
                 flags.append("model-drifting")
 
 
-# -- shared with the arm's pipeline (daemon/arm_step.py) ---------------------------------------
+# -- shared with the arm's pipeline (daemon/run/arm/step.py) ---------------------------------------
 
 
 def begin_record(

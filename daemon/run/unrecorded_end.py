@@ -15,8 +15,8 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
+from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, RecorderError
-from daemon.workers import Workers
 
 logger = logging.getLogger(__name__)
 

@@ -2,11 +2,11 @@
 named goal, then measure the tool at each goal before any correction: the zero of each pose's
 drift (thesis 6.2's reference "at the start at the operational goal", one per pose).
 
-With a played duty cycle (daemon/arm_player.py) every pose of the cycle is taught, the
+With a played duty cycle (daemon/run/arm/player.py) every pose of the cycle is taught, the
 measured ones under their own names.
 
 Teaching an arm pose moves the robot (to the pose's joint angles), unlike the two-link bench's
-``here opgoal``: daemon/session.py calls this only once motion is allowed (after the start's
+``here opgoal``: daemon/run/session.py calls this only once motion is allowed (after the start's
 resume, and again after a resume from a fault), and the driver refuses every move after a
 hold. Nothing here changes the run's state; errors go back to the session.
 """
@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 from daemon.arm.run import MeasurementError
 from daemon.arm.types import Pose6
-from daemon.arm_player import ArmPlayer
-from daemon.arm_step import ArmRobot, ArmRunWork, ArmStepPipeline, ToolMeter
-from daemon.events import ErrorLog
+from daemon.run.arm.player import ArmPlayer
+from daemon.run.arm.step import ArmRobot, ArmRunWork, ArmStepPipeline, ToolMeter
+from daemon.run.events import ErrorLog
 from drivers.errors import DeviceError
 
 logger = logging.getLogger(__name__)
@@ -33,7 +33,7 @@ class ArmServices:
     robot: ArmRobot
     meter: ToolMeter
     pipeline: ArmStepPipeline
-    player: ArmPlayer | None = None  # a played duty cycle (daemon/arm_player.py)
+    player: ArmPlayer | None = None  # a played duty cycle (daemon/run/arm/player.py)
 
 
 async def teach_poses(work: ArmRunWork, robot: ArmRobot) -> None:
