@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import print_table, write_results
 from config import Settings
-from daemon.identify_run import load_run
+from daemon.calibration.identify_run import load_run
 from daemon.model import load_network
 from daemon.model.identify import calibration_of, identify, network_toml
 from daemon.run.states import RunParameters

@@ -57,7 +57,12 @@ from daemon.arm.identify import (
     marker_sensitivity,
 )
 from daemon.arm.ir_regions import region_nodes
-from daemon.identify_run import finite_json, recorded_parameters, warning_lines, write_outputs
+from daemon.calibration.identify_run import (
+    finite_json,
+    recorded_parameters,
+    warning_lines,
+    write_outputs,
+)
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.identify import IdentificationError
 from daemon.storage.recorder import DATABASE_NAME

@@ -94,7 +94,7 @@ def _identify_and_save(
         identify_arm_run,
         load_arm_run,
     )
-    from daemon.identify_run import write_outputs
+    from daemon.calibration.identify_run import write_outputs
     from daemon.model.identify import IdentificationError
 
     try:

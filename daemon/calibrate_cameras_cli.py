@@ -22,7 +22,7 @@ are either
   the cube of ``--per-axis``³ poses ±``--size`` mm about it, turned at random by up to
   ``--turn`` rad (the whole pattern within arm.calibration_max_* or the arm's correction
   limits, else nothing moves), grabs a frame from every camera at each and finds every marker
-  near where the initial guess puts it (daemon/camera_calibration_run.py); cameras that saw
+  near where the initial guess puts it (daemon/calibration/camera_run.py); cameras that saw
   too few markers keep their pose.
 
 The marker sits at ``--marker`` (mm, tool frame; default 0,0,0: the tool point, so that x, y,
@@ -54,7 +54,7 @@ from config.cli import (
     add_config_argument,
     positive_float,
 )
-from daemon.camera_observations import (
+from daemon.calibration.camera_observations import (
     Observation,
     ObservationError,
     read_observations,
@@ -340,7 +340,7 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
         print(f"{PROG}: --turn must be between 0 and pi rad", file=sys.stderr)
         return EXIT_USAGE
     if args.robot:
-        from daemon.calibrate_cameras_robot import run_with_robot
+        from daemon.calibration.cameras_robot import run_with_robot
 
         return run_with_robot(args)
     robot_only = [

@@ -128,7 +128,7 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 
 def run_calibrate_model(args: argparse.Namespace) -> int:
-    from daemon.identify_run import saved_network_path
+    from daemon.calibration.identify_run import saved_network_path
 
     settings = _settings(args)
     if settings.arm.enabled:  # issue 20: the arm's chain
@@ -195,7 +195,7 @@ def _identify_and_save(
     outcome: dict[str, Any],
     params: list[str] | None = None,
 ) -> None:
-    from daemon.identify_run import RunInputError, load_run
+    from daemon.calibration.identify_run import RunInputError, load_run
     from daemon.model import NetworkError, load_network
     from daemon.model.identify import IdentificationError, calibration_of, identify, network_toml
 

@@ -1,5 +1,6 @@
 """``thermocomp identify``: its options (light: ``--help`` answers at once, issue 16); the work
-is daemon/identify_run.py (SciPy, the network, the run database), imported when it runs."""
+is daemon/calibration/identify_run.py (SciPy, the network, the run database), imported when it
+runs."""
 
 from __future__ import annotations
 
@@ -69,6 +70,6 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def run_identify(args: argparse.Namespace) -> int:
-    from daemon.identify_run import run_identify as run
+    from daemon.calibration.identify_run import run_identify as run
 
     return run(args)

@@ -23,12 +23,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from config import Settings, load_settings
-from daemon import calibrate_cameras_robot, calibrate_cli
+from daemon import calibrate_cli
 from daemon.arm.description import load_arm
 from daemon.arm.duty import load_duty_cycle
 from daemon.arm.run import MeasuredPose
-from daemon.camera_calibration_pattern import Shift, check_pattern, robot_pattern, split_shift
-from daemon.camera_calibration_run import (
+from daemon.calibration import cameras_robot as calibrate_cameras_robot
+from daemon.calibration.camera_pattern import Shift, check_pattern, robot_pattern, split_shift
+from daemon.calibration.camera_run import (
     Recording,
     controller_frame_truth,
     find_markers,

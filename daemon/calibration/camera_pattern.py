@@ -1,7 +1,7 @@
 """The pattern of ``thermocomp calibrate cameras --robot`` (issue 20): the tool poses around the
 taught goal, declared whole and checked against the limits before anything moves
 (``PatternError``: nothing moves), and each move split within the arm's step limits
-(daemon/camera_calibration_run.py moves the robot through it)."""
+(daemon/calibration/camera_run.py moves the robot through it)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``thermocomp calibrate cameras --robot`` (issue 20): the checks before anything moves, the
-pattern on the arm (:mod:`daemon.camera_calibration_run`), the fits of every camera that saw
+pattern on the arm (:mod:`daemon.calibration.camera_run`), the fits of every camera that saw
 enough markers (:mod:`daemon.calibrate_cameras_cli`: each camera alone, or with
 ``--fit-marker`` every camera and the markers' common offset together) and the camera file.
 
@@ -33,13 +33,14 @@ from daemon.calibrate_cameras_cli import (
     fit_summary,
     fit_with_marker,
 )
-from daemon.camera_calibration_pattern import (
+from daemon.calibration.camera_observations import Observation, write_observations
+from daemon.calibration.camera_pattern import (
     PatternError,
     check_pattern,
     default_size_turn,
     robot_pattern,
 )
-from daemon.camera_calibration_run import (
+from daemon.calibration.camera_run import (
     SEARCH_HALF_PX,
     Recording,
     RobotRun,
@@ -47,7 +48,6 @@ from daemon.camera_calibration_run import (
     joints_pose,
     station_pose,
 )
-from daemon.camera_observations import Observation, write_observations
 from daemon.vision.camera_pose import MIN_POSE_POINTS
 from daemon.vision.cameras import CameraFileError, CameraModel, load_cameras, write_cameras
 from daemon.vision.multiview import MultiviewError

@@ -38,8 +38,8 @@ from scipy.spatial.transform import Rotation
 
 from config import Settings
 from daemon.arm.types import FloatArray
-from daemon.camera_calibration_pattern import ZERO_SHIFT, PatternError, Shift, split_shift
-from daemon.camera_observations import Observation
+from daemon.calibration.camera_observations import Observation
+from daemon.calibration.camera_pattern import ZERO_SHIFT, PatternError, Shift, split_shift
 from daemon.run.arm.measure import WINDOW_HALF_PX, SensorNoise, device_sensors
 from daemon.run.arm.robot import pose_matrix
 from daemon.vision import CentroidError
