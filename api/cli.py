@@ -32,7 +32,9 @@ class Command(NamedTuple):
 #: a subcommand's first line must come in well under 0.5 s (issue 16).
 COMMANDS: tuple[Command, ...] = (
     Command("serve", "api.serve_cli", "run the daemon with its REST/WebSocket API"),
-    Command("run", "daemon.run_cli", "run one compensation run to its end and print its summary"),
+    Command(
+        "run", "daemon.commands.run", "run one compensation run to its end and print its summary"
+    ),
     Command(
         "stats",
         "daemon.storage.reports",
@@ -49,12 +51,16 @@ COMMANDS: tuple[Command, ...] = (
         "write a run's report: figures, summary.json and an HTML page",
     ),
     Command(
-        "identify", "daemon.identify_cli", "fit a thermal network's parameters to a recorded run"
+        "identify",
+        "daemon.commands.identify",
+        "fit a thermal network's parameters to a recorded run",
     ),
-    Command("devices", "daemon.devices_cli", "bring-up: check that the configured devices answer"),
+    Command(
+        "devices", "daemon.commands.devices", "bring-up: check that the configured devices answer"
+    ),
     Command(
         "calibrate",
-        "daemon.calibrate_cli",
+        "daemon.commands.calibrate",
         "calibrate with the robot: the camera, several cameras in 3-D, or the model",
     ),
     Command("model", "daemon.model.cli", "simulate a thermal network or report its facts"),

@@ -7,7 +7,7 @@ recorder) and is read back from its database, as ``thermocomp run`` and ``thermo
 would (in process here, to time them):
 
 1. a calibration run, compensation off, with another measurement noise (``bench.noise_seed``):
-   ``thermocomp identify`` of it (daemon/arm_identify_cli.py: every parameter, then the
+   ``thermocomp identify`` of it (daemon/commands/arm_identify.py: every parameter, then the
    identifiable ones refitted), saved as an arm model;
 2. uncompensated (the drift; the reference of the reductions);
 3. the preset arm model;
@@ -54,7 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.common import print_table, write_results
 from config import Settings, load_settings
 from daemon.arm.arm_model import arm_model_toml, new_arm_model_path
-from daemon.arm_identify_cli import arm_model_of, identify_arm_run, load_arm_run
+from daemon.commands.arm_identify import arm_model_of, identify_arm_run, load_arm_run
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from drivers.clock import make_clock

@@ -6,7 +6,7 @@ emulator performs, time_scale 1 on a virtual clock paced by the cycle).
 Runs of the same arm: none (the drift) and the preset arm model (compensated, with the first as
 reference); with ``--identify`` first a calibration run of the same arm with another
 measurement noise (``bench.noise_seed`` = seed + 1000), its identification (as ``thermocomp
-identify RUN --save NAME``: daemon/arm_identify_cli.py, every parameter, then the identifiable
+identify RUN --save NAME``: daemon/commands/arm_identify.py, every parameter, then the identifiable
 ones refitted) and two more runs: the identified arm model, and it with the IR observer
 (``--prediction model+ir``), as benchmarks/bench_arm_daemon.py does on the accelerated bench.
 Reported: the measured 3-D residual (RMS and largest over the steps), the share of the
@@ -56,7 +56,7 @@ from benchmarks.bench_arm_daemon import (
 from benchmarks.common import print_table, write_results
 from config import Settings, load_settings
 from daemon.arm.arm_model import arm_model_toml, new_arm_model_path
-from daemon.arm_identify_cli import arm_model_of, identify_arm_run, load_arm_run
+from daemon.commands.arm_identify import arm_model_of, identify_arm_run, load_arm_run
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from drivers.clock import make_clock

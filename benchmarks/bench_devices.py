@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.common import print_table, write_results
 from config import Settings
 from config.settings import CameraSettings
-from daemon.calibrate_cli import bench_truth, calibrate, checked_pattern
+from daemon.commands.calibrate import bench_truth, calibrate, checked_pattern
 from drivers.clock import ScaledClock
 from drivers.genicam_camera import GenICamCamera
 

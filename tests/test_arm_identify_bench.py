@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from config import Settings
-from daemon import identify_cli
+from daemon.commands import identify as identify_cli
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from drivers.clock import make_clock

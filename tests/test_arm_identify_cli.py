@@ -19,7 +19,6 @@ import numpy as np
 import pytest
 
 from config import Settings
-from daemon import identify_cli
 from daemon.arm.arm_model import (
     ArmModel,
     ArmModelNotFoundError,
@@ -30,6 +29,7 @@ from daemon.arm.arm_model import (
 )
 from daemon.arm.controller import ArmModelOptions, load_controller
 from daemon.arm.ir_regions import region_nodes, region_point
+from daemon.commands import identify as identify_cli
 from daemon.run.arm.setup import ArmSetupError, arm_file, default_arm_setup
 from daemon.run.states import RunParameters
 from daemon.storage.recorder import Recorder, StepRecord

@@ -3,7 +3,7 @@ make-up: the duty cycle played by the console driver through the C500C emulator 
 on a pty, time_scale 1, virtual clock) as it was recorded: each measurement at the step's run
 time (the arm's own time, nothing scaled), and the thermal displacement as the measured drift
 minus the correction the robot arrived with at that pose (the player's, recorded by the step).
-The oracle is the run's own database, read independently of daemon/arm_identify_cli.py."""
+The oracle is the run's own database, read independently of daemon/commands/arm_identify.py."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from daemon.arm_identify_cli import IDENTIFY_STEP_S, load_arm_run
+from daemon.commands.arm_identify import IDENTIFY_STEP_S, load_arm_run
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.storage.recorder import DATABASE_NAME

@@ -630,7 +630,7 @@ def test_a_database_without_the_arm_columns_is_read_and_exported_with_them(
 
 
 def test_thermocomp_run_prints_an_arm_runs_figures(capsys: pytest.CaptureFixture[str]) -> None:
-    from daemon.run_cli import _print_result
+    from daemon.commands.run import _print_result
 
     summary = {
         "arm_n": 12,

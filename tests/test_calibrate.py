@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from config import Settings, load_settings
-from daemon import calibrate_cli
-from daemon.calibrate_cli import (
+from daemon.commands import calibrate as calibrate_cli
+from daemon.commands.calibrate import (
     SpotLostError,
     checked_pattern,
     measure_pattern,

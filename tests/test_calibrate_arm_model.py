@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon import calibrate_cli
 from daemon.arm.arm_model import load_arm_model, saved_arm_models_dir
+from daemon.commands import calibrate as calibrate_cli
 from daemon.storage.recorder import Recorder
 from tests.helpers import REPO_ROOT, run_in_process
 

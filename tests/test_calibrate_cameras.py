@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon import calibrate_cli
+from daemon.commands import calibrate as calibrate_cli
 from daemon.vision.cameras import load_cameras, write_cameras
 from daemon.vision.multiview import CameraModel, intrinsic_matrix, look_at, project
 from tests.helpers import run_cli, run_in_process

@@ -23,7 +23,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from config import Settings, load_settings
-from daemon import calibrate_cli
 from daemon.arm.description import load_arm
 from daemon.arm.duty import load_duty_cycle
 from daemon.arm.run import MeasuredPose
@@ -36,6 +35,7 @@ from daemon.calibration.camera_run import (
     record_pattern,
     station_pose,
 )
+from daemon.commands import calibrate as calibrate_cli
 from daemon.run.arm.measure import marker_views, tool_pose
 from daemon.run.arm.robot import GoalRobotArm, pose_matrix
 from daemon.vision.cameras import load_cameras, write_cameras

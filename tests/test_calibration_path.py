@@ -19,7 +19,7 @@ import pytest
 from api.app import create_app
 from config import Settings
 from config.settings import IrRegion
-from daemon import identify_cli
+from daemon.commands import identify as identify_cli
 from daemon.model import load_network, network_facts
 from daemon.model.identify import network_toml
 from daemon.model.observer import OFFSET_SIGMA_C

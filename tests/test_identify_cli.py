@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon import identify_cli
+from daemon.commands import identify as identify_cli
 from daemon.model import ThermalModel, load_network
 from daemon.model.identify import apply_parameters, parse_parameters
 from tests.helpers import run_cli, run_in_process

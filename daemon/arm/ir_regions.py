@@ -1,5 +1,5 @@
 """Which nodes of the controller's arm model an IR region sees (issue 20): for identification
-(daemon/arm_identify_cli.py) and the arm's IR observer (daemon/arm/controller.py). Pure.
+(daemon/commands/arm_identify.py) and the arm's IR observer (daemon/arm/controller.py). Pure.
 
 A region is a point along a link: ``(link, fraction)`` from the link's proximal joint. The arm
 bench's IR reader names its regions ``<link>-mid`` (the middle of the link,

@@ -1,10 +1,10 @@
 """The robot side of ``thermocomp calibrate cameras --robot`` (issue 20): the arm moves the tool
 through a pattern of poses around a taught goal, every camera grabs a frame at each, each
 marker's centroid is found near where the initial guess of the camera puts it, and the rows are
-the observations the fits of :mod:`daemon.calibrate_cameras_cli` take (the columns of
+the observations the fits of :mod:`daemon.commands.calibrate_cameras` take (the columns of
 ``moves.csv``).
 
-Modelled on ``thermocomp calibrate camera`` (daemon/calibrate_cli.py): the pattern is declared
+Modelled on ``thermocomp calibrate camera`` (daemon/commands/calibrate.py): the pattern is declared
 whole and checked against the limits before anything moves (``PatternError``: nothing moves);
 a move whose change from the previous one exceeds the arm's step limits is split along the
 straight line (which stays inside the pattern's convex hull, hence inside its limits); the robot

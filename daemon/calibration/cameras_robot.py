@@ -1,6 +1,6 @@
 """``thermocomp calibrate cameras --robot`` (issue 20): the checks before anything moves, the
 pattern on the arm (:mod:`daemon.calibration.camera_run`), the fits of every camera that saw
-enough markers (:mod:`daemon.calibrate_cameras_cli`: each camera alone, or with
+enough markers (:mod:`daemon.commands.calibrate_cameras`: each camera alone, or with
 ``--fit-marker`` every camera and the markers' common offset together) and the camera file.
 
 A camera that saw fewer than four markers (another station's camera, one whose guess is too far
@@ -25,14 +25,6 @@ import numpy as np
 
 from config import load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
-from daemon.calibrate_cameras_cli import (
-    PROG,
-    Calibrated,
-    fit_as_dict,
-    fit_known_marker,
-    fit_summary,
-    fit_with_marker,
-)
 from daemon.calibration.camera_observations import Observation, write_observations
 from daemon.calibration.camera_pattern import (
     PatternError,
@@ -47,6 +39,14 @@ from daemon.calibration.camera_run import (
     calibrate_with_robot,
     joints_pose,
     station_pose,
+)
+from daemon.commands.calibrate_cameras import (
+    PROG,
+    Calibrated,
+    fit_as_dict,
+    fit_known_marker,
+    fit_summary,
+    fit_with_marker,
 )
 from daemon.vision.camera_pose import MIN_POSE_POINTS
 from daemon.vision.cameras import CameraFileError, CameraModel, load_cameras, write_cameras

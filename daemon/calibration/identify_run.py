@@ -1,4 +1,4 @@
-"""``thermocomp identify``'s work (its options: daemon/identify_cli.py): fit a network to a
+"""``thermocomp identify``'s work (its options: daemon/commands/identify.py): fit a network to a
 recorded run (issue 9), the glue around the pure :mod:`daemon.model.identify`.
 
 A run is read from the run database READ-ONLY (daemon.storage.reports.read_run, so a live daemon's
@@ -92,7 +92,7 @@ def recorded_parameters(
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """The run's recorded parameters and settings (runs table), read-only (a live daemon's
     recording is never disturbed); ``error`` when the database cannot be read or has no such
-    run (daemon/arm_identify_cli.py reads an arm run's with it too)."""
+    run (daemon/commands/arm_identify.py reads an arm run's with it too)."""
     path = Path(data_dir) / DATABASE_NAME
     try:
         with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
@@ -215,14 +215,14 @@ def run_identify(args: argparse.Namespace) -> int:
             update={"storage": settings.storage.model_copy(update={"data_dir": args.data_dir})}
         )
     if args.target.isdigit() and not Path(args.target).is_file():
-        from daemon.arm_identify_cli import is_arm_run, run_arm_identify
+        from daemon.commands.arm_identify import is_arm_run, run_arm_identify
 
         try:
             parameters, _ = recorded_parameters(settings.storage.data_dir, int(args.target))
         except RunInputError as err:
             print(f"thermocomp identify: {err}", file=sys.stderr)
             return EXIT_FAILURE
-        if is_arm_run(parameters):  # issue 20: an arm model (daemon/arm_identify_cli.py)
+        if is_arm_run(parameters):  # issue 20: an arm model (daemon/commands/arm_identify.py)
             return run_arm_identify(args, settings)
     saved = None
     try:

@@ -399,7 +399,7 @@ class ArmStepPipeline:
         self, work: ArmRunWork, record: StepRecord, flags: list[str], errors: list[str]
     ) -> None:
         """The IR regions on the links, recorded (identification reads them back:
-        daemon/arm_identify_cli.py) and, with prediction model+ir, fused into the model."""
+        daemon/commands/arm_identify.py) and, with prediction model+ir, fused into the model."""
         reading = await read_infrared(
             self._sensors,
             self._errors,

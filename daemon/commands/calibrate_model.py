@@ -14,7 +14,7 @@ finished; 1 a run did not finish or a device failed; 2 bad usage, a name already
 identification impossible.
 
 On an arm (``[arm] enabled``, or ``--duty-cycle``) the same chain runs the arm's steps
-(daemon/calibrate_arm_model_cli.py): an uncompensated calibration run of the duty cycle, the
+(daemon/commands/calibrate_arm_model.py): an uncompensated calibration run of the duty cycle, the
 arm's model identified from it and saved as arm model NAME, a validation run with
 ``--arm-model NAME`` whose 3-D residual is measured against the calibration run's drift and
 the measurement's noise; ``--network`` and ``--scale`` do not apply there.
@@ -132,7 +132,7 @@ def run_calibrate_model(args: argparse.Namespace) -> int:
 
     settings = _settings(args)
     if settings.arm.enabled:  # issue 20: the arm's chain
-        from daemon.calibrate_arm_model_cli import run_calibrate_arm_model
+        from daemon.commands.calibrate_arm_model import run_calibrate_arm_model
 
         return run_calibrate_arm_model(args, settings)
     if args.scale is None:
@@ -148,7 +148,7 @@ def run_calibrate_model(args: argparse.Namespace) -> int:
         print(f"{PROG}: {err}", file=sys.stderr)
         return err.status
     if args.json:
-        from daemon.run_cli import _finite
+        from daemon.commands.run import _finite
 
         print(json.dumps(_finite(outcome), indent=2, default=str, allow_nan=False))
     else:
@@ -157,9 +157,9 @@ def run_calibrate_model(args: argparse.Namespace) -> int:
 
 
 async def _one_run(daemon: Daemon, settings: Settings, what: str, **values: Any) -> dict[str, Any]:
+    from daemon.commands.run import _supervise
     from daemon.run.setup import RunParameterError
     from daemon.run.states import RunParameters, RunState
-    from daemon.run_cli import _supervise
 
     try:
         parameters = RunParameters.from_settings(settings, **values)

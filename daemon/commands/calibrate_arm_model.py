@@ -1,10 +1,10 @@
 """``thermocomp calibrate model`` on an arm (``[arm] enabled``, issue 20): the two-link chain
-(daemon/calibrate_model_cli.py) with the arm's steps, each still a command of its own:
+(daemon/commands/calibrate_model.py) with the arm's steps, each still a command of its own:
 
 1. an uncompensated calibration run of the duty cycle
    (``thermocomp run --compensation off``);
 2. the arm's identification from it, saved in the data directory as arm model NAME
-   (``thermocomp identify RUN --save NAME``; daemon/arm_identify_cli.py): each joint's heat,
+   (``thermocomp identify RUN --save NAME``; daemon/commands/arm_identify.py): each joint's heat,
    convection, alpha and the IR offsets, the identifiable ones refitted;
 3. a compensated validation run with that model (``thermocomp run --arm-model NAME
    --reference-run RUN``): its 3-D residual, the reduction against the calibration run's
@@ -30,11 +30,11 @@ from typing import TYPE_CHECKING, Any
 
 from config import Settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
-from daemon.calibrate_model_cli import PROG, StepFailedError, run_alone
+from daemon.commands.calibrate_model import PROG, StepFailedError, run_alone
 
 if TYPE_CHECKING:
     from daemon.arm.identify import ArmIdentification
-    from daemon.arm_identify_cli import ArmRun
+    from daemon.commands.arm_identify import ArmRun
 
 
 def run_calibrate_arm_model(args: argparse.Namespace, settings: Settings) -> int:
@@ -67,7 +67,7 @@ def run_calibrate_arm_model(args: argparse.Namespace, settings: Settings) -> int
         print(f"{PROG}: {err}", file=sys.stderr)
         return err.status
     if args.json:
-        from daemon.run_cli import _finite
+        from daemon.commands.run import _finite
 
         print(json.dumps(_finite(outcome), indent=2, default=str, allow_nan=False))
     else:
@@ -87,14 +87,14 @@ def _identify_and_save(
     """Step 2, blocking (SciPy, SQLite read-only, one file): the identification table, the
     run as identification read it, and the refit the saved model holds."""
     from daemon.arm.arm_model import arm_model_toml
-    from daemon.arm_identify_cli import (
+    from daemon.calibration.identify_run import write_outputs
+    from daemon.commands.arm_identify import (
         ArmRunInputError,
         arm_model_of,
         format_arm_result,
         identify_arm_run,
         load_arm_run,
     )
-    from daemon.calibration.identify_run import write_outputs
     from daemon.model.identify import IdentificationError
 
     try:
@@ -124,7 +124,7 @@ def _prediction_check(
 ) -> dict[str, Any]:
     """Step 3's offline part: the validation run predicted by the identified model and by the
     preset, nothing refitted (blocking)."""
-    from daemon.arm_identify_cli import ArmRunInputError, load_arm_run, validate_arm_run
+    from daemon.commands.arm_identify import ArmRunInputError, load_arm_run, validate_arm_run
     from daemon.model.identify import IdentificationError
 
     try:

@@ -2,7 +2,7 @@
 daemon/arm/identify.py sees it, the fit, its report, and ``--save NAME`` as an arm model
 (daemon/arm/arm_model.py) that ``thermocomp run --arm-model NAME`` uses.
 
-What the run recorded, read back READ-ONLY (as daemon/identify_cli.py reads a two-link run):
+What the run recorded, read back READ-ONLY (as daemon/commands/identify.py reads a two-link run):
 
 - its parameters (the duty cycle, ``time_scale``) and settings (the arm file, ambient, the
   motor heat's resolution ``arm.motion_dt_s``): the controller's preset model is rebuilt from
@@ -351,7 +351,7 @@ def _percent(relative: float | None) -> str:
 
 
 def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
-    """``thermocomp identify RUN_ID`` of an arm run (daemon/identify_cli.py delegates)."""
+    """``thermocomp identify RUN_ID`` of an arm run (daemon/commands/identify.py delegates)."""
     data_dir = settings.storage.data_dir
     if args.network or args.heater_off is not None:
         print(

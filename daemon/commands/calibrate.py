@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument, positive_float
-from daemon import calibrate_cameras_cli
+from daemon.commands import calibrate_cameras as calibrate_cameras_cli
 from drivers.base import Vector3
 from drivers.errors import DeviceError
 
@@ -96,7 +96,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     camera.add_argument("--json", action="store_true", help="print the result as JSON")
     camera.set_defaults(handler=run_calibrate_camera)
     calibrate_cameras_cli.register(kinds)  # `calibrate cameras`: 3-D camera poses (issue 20)
-    from daemon import calibrate_model_cli  # light: its heavy imports are where it runs
+    from daemon.commands import (
+        calibrate_model as calibrate_model_cli,  # light: its heavy imports are where it runs
+    )
 
     calibrate_model_cli.add_parser(kinds)
 
