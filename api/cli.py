@@ -69,7 +69,9 @@ COMMANDS: tuple[Command, ...] = (
         "daemon.vision.cli",
         "measure the laser spot's sub-pixel centroid in image files",
     ),
-    Command("robot", "drivers.robot_check", "check the robot controller's console (moves nothing)"),
+    Command(
+        "robot", "drivers.c500c.robot_check", "check the robot controller's console (moves nothing)"
+    ),
     Command("emulate", "drivers.sim.cli", "serve an emulated device (the C500C robot console)"),
 )
 

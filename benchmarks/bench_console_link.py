@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import print_table, write_results
 from config.settings import RobotSettings
-from drivers.c500c import C500CRobot
+from drivers.c500c.robot import C500CRobot
 from drivers.errors import DeviceError
 from drivers.sim.emulator import BITS_PER_CHARACTER, C500CEmulator, EmulatorConfig
 

@@ -45,8 +45,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.common import print_table, write_results
 from config.settings import RobotSettings
 from daemon.heap import freeze_startup_heap
-from drivers import c500c_server_protocol as proto
-from drivers.c500c_server import C500CServerRobot
+from drivers.c500c import server_protocol as proto
+from drivers.c500c.server import C500CServerRobot
 from drivers.errors import DeviceReportedError
 from drivers.sim.emulator import BITS_PER_CHARACTER
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config

@@ -20,8 +20,8 @@ from config.settings import CameraSettings
 from daemon.vision.cameras import CameraFileError, load_cameras
 from daemon.vision.multiview import CameraModel
 from drivers.base import Camera, IrReader, Robot
-from drivers.c500c import C500CRobot
-from drivers.c500c_server import C500CServerRobot
+from drivers.c500c.robot import C500CRobot
+from drivers.c500c.server import C500CServerRobot
 from drivers.camera import OpenCvCamera, ReplayCamera
 from drivers.clock import Clock
 from drivers.genicam_camera import GenICamCamera

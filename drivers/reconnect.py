@@ -1,5 +1,5 @@
 """One reconnection state machine for every link that reconnects on its own: the console
-(drivers/c500c_link.py), the fast path (drivers/c500c_server_link.py) and the GenICam
+(drivers/c500c/link.py), the fast path (drivers/c500c/server_link.py) and the GenICam
 transport (drivers/genicam.py) each had a copy of it.
 
 After a link fault the driver calls :meth:`Reconnector.start`: one background task (never two:

@@ -1,5 +1,5 @@
 """Opening a serial port as asyncio streams, for both C500C links: the console
-(drivers/c500c_link.py) and the fast path (drivers/c500c_server_link.py) had a copy each.
+(drivers/c500c/link.py) and the fast path (drivers/c500c/server_link.py) had a copy each.
 
 The port is opened in a worker thread (opening can block: USB adapters, termios; never on the
 event loop), non-blocking (``timeout=0``) and without software flow control, then wrapped by

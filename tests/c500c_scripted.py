@@ -13,9 +13,9 @@ from collections.abc import Sequence
 from typing import Any
 
 from config.settings import RobotSettings
-from drivers import c500c_protocol as console_proto
-from drivers.c500c import C500CRobot
-from drivers.c500c_console import Connection
+from drivers.c500c import protocol as console_proto
+from drivers.c500c.console import Connection
+from drivers.c500c.robot import C500CRobot
 
 Script = Sequence[tuple[bytes, bytes]]
 PROMPT = b"ash> "

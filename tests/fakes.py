@@ -3,7 +3,7 @@ on them.
 
 The fake bench's physical truth is a second ThermalModel of the same network with the same
 heat, so with a noise-free robot the compensated spot must stay put (the analytic oracle).
-The fake robot locks like the real driver (drivers/c500c.py): one command at a time under one
+The fake robot locks like the real driver (drivers/c500c/robot.py): one command at a time under one
 lock, the hold checked under the lock right before a motion command is "written", so a move
 queued behind another command is refused once a hold came (issue 15). Gates let a test stop a
 device inside a call (``robot.pose_gate``, ``camera.gate``) to act during a step.
@@ -109,7 +109,7 @@ class FakeRobot:
             return GOAL
 
     def _check(self) -> None:
-        """Right before a motion command is written, under the lock (drivers/c500c.py)."""
+        """Right before a motion command is written, under the lock (drivers/c500c/robot.py)."""
         move = self.moves
         self.moves += 1
         if self.held:

@@ -26,8 +26,8 @@ from daemon.run.arm.robot import GoalRobotArm
 from daemon.run.setup import RunParameterError
 from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
-from drivers import c500c_protocol as proto
 from drivers.base import GoalRobot, LinkState, MoveResult, Pose
+from drivers.c500c import protocol as proto
 from drivers.clock import VirtualClock, make_clock
 from drivers.errors import DeviceError, MotionHeldError
 from drivers.factory import Devices

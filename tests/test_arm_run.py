@@ -128,7 +128,7 @@ class ArmTruth:
 
 class FakeArmRobot:
     """A robot driver with named taught goals (drivers/base.py GoalRobot), locking like
-    drivers/c500c.py: the hold is checked under the lock right before a motion command is
+    drivers/c500c/robot.py: the hold is checked under the lock right before a motion command is
     "written". The tool's position follows the moves; its error is the truth's (FakeMeter)."""
 
     def __init__(self, truth: ArmTruth) -> None:

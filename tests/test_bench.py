@@ -15,7 +15,7 @@ from config import ConfigError
 from config.settings import Settings
 from daemon.model import load_network
 from daemon.vision import measure_centroid
-from drivers.c500c import C500CRobot
+from drivers.c500c.robot import C500CRobot
 from drivers.clock import VirtualClock
 from drivers.factory import open_devices
 from drivers.sim.bench import Bench, scale_convection

@@ -9,11 +9,11 @@ from pathlib import Path
 import pytest
 
 from config import Settings
-from drivers import robot_check
-from drivers.c500c_console import Transcript
-from drivers.c500c_server_protocol import RequestType
-from drivers.robot_check import check, run_check
-from drivers.server_check import run_server_check
+from drivers.c500c import robot_check
+from drivers.c500c.console import Transcript
+from drivers.c500c.robot_check import check, run_check
+from drivers.c500c.server_check import run_server_check
+from drivers.c500c.server_protocol import RequestType
 from drivers.sim.emulator import START_POSE, C500CEmulator, EmulatorConfig
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
 from tests.c500c_scripted import ScriptedRobot

@@ -11,10 +11,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from config.settings import RobotSettings
-from drivers import c500c_server_protocol as proto
 from drivers.base import DEFAULT_GOAL, GoalRobot, Pose
-from drivers.c500c import C500CRobot
-from drivers.c500c_server import C500CServerRobot
+from drivers.c500c import server_protocol as proto
+from drivers.c500c.robot import C500CRobot
+from drivers.c500c.server import C500CServerRobot
 from drivers.errors import DeviceError, GoalLostError, MotionHeldError, ProtocolError
 from drivers.goals import goal_variable, rotation_zyx_deg
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig

@@ -13,8 +13,8 @@ import pytest
 
 from config.settings import RobotSettings
 from drivers.base import LinkState
-from drivers.c500c import C500CRobot
-from drivers.c500c_console import Transcript
+from drivers.c500c.console import Transcript
+from drivers.c500c.robot import C500CRobot
 from drivers.errors import (
     DeviceError,
     DeviceReportedError,

@@ -12,8 +12,8 @@ from typing import Any
 
 import pytest
 
-from drivers import c500c_protocol as proto
 from drivers.base import LinkState, Pose
+from drivers.c500c import protocol as proto
 from drivers.errors import (
     ConsoleQuestionError,
     DeviceError,

@@ -1,4 +1,4 @@
-"""The fast-path driver (drivers/c500c_server.py) against the emulated server program over a
+"""The fast-path driver (drivers/c500c/server.py) against the emulated server program over a
 real pseudo-terminal (and TCP): teach, move, read, errors, hold during a move, heartbeat loss,
 every injected fault, cancellation."""
 
@@ -13,9 +13,9 @@ import pytest
 import serial_asyncio
 
 from config.settings import RobotSettings
-from drivers import c500c_server_protocol as proto
 from drivers.base import LinkState
-from drivers.c500c_server import C500CServerRobot
+from drivers.c500c import server_protocol as proto
+from drivers.c500c.server import C500CServerRobot
 from drivers.errors import (
     DeviceError,
     DeviceReportedError,

@@ -14,7 +14,7 @@ import pytest
 from config import ConfigError, load_settings
 from config.settings import RobotSettings
 from daemon.storage.recorder import Recorder
-from drivers.c500c_server import C500CServerRobot
+from drivers.c500c.server import C500CServerRobot
 from drivers.clock import ScaledClock
 from drivers.factory import open_devices
 from drivers.sim.server_emulator import C500CServerEmulator

@@ -8,7 +8,7 @@ import struct
 import pytest
 
 from config.settings import RobotSettings
-from drivers import c500c_server_protocol as proto
+from drivers.c500c import server_protocol as proto
 from drivers.errors import ProtocolError
 from tests.helpers import REPO_ROOT
 

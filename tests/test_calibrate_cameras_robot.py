@@ -449,7 +449,7 @@ async def test_no_move_after_a_hold_reaches_the_controller() -> None:
         sent_at_hold: list[int] = []
 
         def hold() -> None:
-            robot.stop().close()  # the hold is set when stop() is called (drivers/c500c.py)
+            robot.stop().close()  # the hold is set when stop() is called (drivers/c500c/robot.py)
             sent_at_hold.append(len(emulator.state.motion_commands()))
 
         record = Recording("opgoal")

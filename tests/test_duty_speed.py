@@ -15,7 +15,7 @@ from config.settings import RobotSettings
 from daemon.arm.description import load_arm
 from daemon.arm.duty import trapezoid_timing
 from daemon.arm.kinematics import forward
-from drivers.c500c import C500CRobot
+from drivers.c500c.robot import C500CRobot
 from drivers.clock import FollowingClock, VirtualClock
 from drivers.errors import DeviceError, MotionHeldError
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
@@ -32,7 +32,7 @@ GOAL = (457.2, 0.0, 254.0, 0.0, 90.0, 0.0)
 
 
 def _speed_set_shift(speed: bytes | None) -> tuple[bytes, bytes]:
-    """One write: [speed N,] set cur = opgoal, wshift (drivers/c500c.py move_absolute)."""
+    """One write: [speed N,] set cur = opgoal, wshift (drivers/c500c/robot.py move_absolute)."""
     lines = [b"set cur = opgoal", b"wshift cur,0.000,0.000,0.000,0,0,0"]
     if speed is not None:
         lines.insert(0, speed)

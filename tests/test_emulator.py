@@ -17,9 +17,9 @@ from scipy import stats
 
 from api.cli import main
 from config.settings import RobotSettings
-from drivers import c500c_protocol as proto
 from drivers.base import LinkState
-from drivers.c500c import C500CRobot
+from drivers.c500c import protocol as proto
+from drivers.c500c.robot import C500CRobot
 from drivers.sim.emulator import (
     COMMAND_LOG_LINES,
     START_POSE,

@@ -17,10 +17,10 @@ from scipy.spatial.transform import Rotation
 from config.settings import RobotSettings
 from daemon.arm.description import load_arm
 from daemon.arm.kinematics import forward
-from drivers import c500c_protocol as console_proto
-from drivers import c500c_server_protocol as proto
-from drivers.c500c import C500CRobot
-from drivers.c500c_server import C500CServerRobot
+from drivers.c500c import protocol as console_proto
+from drivers.c500c import server_protocol as proto
+from drivers.c500c.robot import C500CRobot
+from drivers.c500c.server import C500CServerRobot
 from drivers.errors import DeviceReportedError
 from drivers.sim.arm_bench import true_arm
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig

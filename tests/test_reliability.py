@@ -20,7 +20,7 @@ from config import Settings
 from daemon.model import ThermalModel
 from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
-from drivers.c500c import C500CRobot
+from drivers.c500c.robot import C500CRobot
 from drivers.sim.emulator import FAULT_KINDS, C500CEmulator, FaultKind
 
 # As in tests/test_c500c_link.py: a fault outlasts the command timeout by a wide margin, and

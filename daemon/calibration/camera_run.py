@@ -9,7 +9,7 @@ whole and checked against the limits before anything moves (``PatternError``: no
 a move whose change from the previous one exceeds the arm's step limits is split along the
 straight line (which stays inside the pattern's convex hull, hence inside its limits); the robot
 returns to the goal whatever happened, as far as the driver lets it: after a hold the driver
-refuses every motion right before its bytes are written (drivers/c500c.py), so the return is
+refuses every motion right before its bytes are written (drivers/c500c/robot.py), so the return is
 refused too and the error says so.
 
 Where the tool is: the controller's read-back after each move (`w2`: the pose its kinematics

@@ -37,7 +37,7 @@ from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.vision.markers import marker_pixels
 from daemon.vision.multiview import CameraModel
 from drivers.base import Frame, IrReading, RegionTemperature
-from drivers.c500c import C500CRobot
+from drivers.c500c.robot import C500CRobot
 from drivers.clock import Clock
 from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
 from drivers.sim.arm_markers import CameraRig

@@ -1,8 +1,8 @@
 """The emulated C500C's `ash` command interpreter: one line in, answer lines out (no I/O).
 
 drivers/sim/emulator.py serves it on a pty or a TCP port. It follows the firmware's texts and
-layouts of C500C.md through drivers/c500c_protocol.py; what no source confirms is the
-``ASSUMED`` block of drivers/c500c_texts.py. Emulator-only simplifications (not protocol
+layouts of C500C.md through drivers/c500c/protocol.py; what no source confirms is the
+``ASSUMED`` block of drivers/c500c/texts.py. Emulator-only simplifications (not protocol
 assumptions): without an arm (EmulatorConfig.joint_arm) there are no kinematics (the PULSES and
 JOINTS rows are zeros), the reach check is a sphere of ``REACH_MM`` around the base and `wshift`
 adds its angles; with one, the arm lives in joint space (drivers/sim/joint_arm.py: inverse
@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers import c500c_protocol as proto
+from drivers.c500c import protocol as proto
 from drivers.sim.ash_state import (
     MOTION_WORDS,
     REACH_MM,

@@ -10,7 +10,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from drivers import c500c_protocol as proto
+from drivers.c500c import protocol as proto
 
 #: Emulator simplification: a location farther than this from the base is out of reach (mm).
 REACH_MM = 900.0

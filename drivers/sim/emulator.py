@@ -9,8 +9,8 @@ the host triggers them (`here`/`set` to a variable that does not exist: "-- crea
 without an application: "Application name > "), and a motion command without the point of
 control prints the PAUSE/CONTINUE request and blocks until the button is pressed
 (:meth:`C500CEmulator.press_pause_continue`, or SIGUSR1 to ``thermocomp emulate``).
-The byte-level conventions it follows are those of :mod:`drivers.c500c_protocol`; the
-``ASSUMED`` block of :mod:`drivers.c500c_texts` is the one place where unconfirmed parts of the
+The byte-level conventions it follows are those of :mod:`drivers.c500c.protocol`; the
+``ASSUMED`` block of :mod:`drivers.c500c.texts` is the one place where unconfirmed parts of the
 protocol are written down; the command interpreter (and the emulator's simplifications) is
 :mod:`drivers.sim.ash`.
 
@@ -45,7 +45,7 @@ import numpy as np
 
 from config.faults import Fault
 from daemon.arm.types import JointSample
-from drivers import c500c_protocol as proto
+from drivers.c500c import protocol as proto
 from drivers.sim.ash import Console
 from drivers.sim.ash_state import (
     COMMAND_LOG_LINES,

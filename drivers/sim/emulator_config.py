@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Literal
 
 from config import faults as fault_specs
 from config.faults import Fault
-from drivers import c500c_protocol as proto
+from drivers.c500c import protocol as proto
 from drivers.clock import Clock
 from drivers.sim.ash_state import START_POSE
 

@@ -35,8 +35,8 @@ from typing import Literal, Protocol, Self
 
 from config import faults as fault_specs
 from config.faults import Fault
-from drivers import c500c_protocol as console_proto
-from drivers import c500c_server_protocol as proto
+from drivers.c500c import protocol as console_proto
+from drivers.c500c import server_protocol as proto
 from drivers.errors import ProtocolError
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.emulator_link import BITS_PER_CHARACTER, Link, LinkClosed

@@ -132,7 +132,7 @@ class ArmPlayer:
     async def stop(self, grace_s: float | None = None) -> None:
         """Stop playing: now in a dwell or a wait; otherwise once the move being written has
         ended, or after ``grace_s`` (a move waiting for the operator's PAUSE/CONTINUE may wait
-        minutes): then it is cut, which holds the robot (drivers/c500c_link.py)."""
+        minutes): then it is cut, which holds the robot (drivers/c500c/link.py)."""
         task = self._task
         if task is None:
             self.error = None

@@ -6,7 +6,7 @@
 from __future__ import annotations
 
 from drivers.base import Vector3
-from drivers.c500c_texts import ANGLE_DECIMALS, POSITION_DECIMALS
+from drivers.c500c.texts import ANGLE_DECIMALS, POSITION_DECIMALS
 
 # --- command sequences -------------------------------------------------------------------------
 

@@ -10,8 +10,8 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from config import Settings
-from drivers import c500c_server_protocol as proto
-from drivers.c500c_server import C500CServerRobot
+from drivers.c500c import server_protocol as proto
+from drivers.c500c.server import C500CServerRobot
 from drivers.factory import emulated_server
 
 

@@ -1,5 +1,5 @@
 """The states of the two C500C links and every transition they may take (drivers.base.LinkState):
-the console link (drivers/c500c_link.py) and the fast path's (drivers/c500c_server_link.py).
+the console link (drivers/c500c/link.py) and the fast path's (drivers/c500c/server_link.py).
 Each link's ``_enter`` refuses any transition not listed here. :class:`LinkLifecycle` is what
 both links do alike around their states and the shared reconnector (drivers/reconnect.py).
 
@@ -19,7 +19,7 @@ import asyncio
 from types import TracebackType
 
 from drivers.base import LinkState
-from drivers.c500c_texts import DEVICE  # the fast path's too (c500c_server_protocol)
+from drivers.c500c.texts import DEVICE  # the fast path's too (c500c_server_protocol)
 from drivers.errors import DeviceTimeoutError
 from drivers.reconnect import Reconnector
 

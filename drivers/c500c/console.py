@@ -2,7 +2,7 @@
 command's reply read up to its prompt, with the point-of-control wait and the questions, and the
 probe-line synchronisation that finds where the console's output ends.
 
-The console link (drivers/c500c_link.py) builds its state machine on this; ``thermocomp robot check
+The console link (drivers/c500c/link.py) builds its state machine on this; ``thermocomp robot check
 --transcript FILE`` writes the :class:`Transcript`, and tests replay one (every byte the host
 sends must be the recorded one, every recorded answer is fed back).
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from drivers import c500c_protocol as proto
+from drivers.c500c import protocol as proto
 from drivers.errors import (
     DeviceError,
     DeviceTimeoutError,

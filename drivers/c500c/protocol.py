@@ -2,19 +2,19 @@
 prompts, a reply split into lines, the synchronisation probe), and the one name every user of
 the console protocol imports (``from drivers import c500c_protocol as proto``).
 
-No I/O here: the driver (drivers/c500c.py) and the emulator (drivers/sim/emulator.py) both build
-on these functions, and tests replay exact byte exchanges through them. The protocol is split by
-job, each part re-exported here: the firmware's texts and the single block ``ASSUMED`` of what
-no public source confirms (drivers/c500c_texts.py), questions and error lines
-(drivers/c500c_replies.py), the `w0`/`w2` read-out (drivers/c500c_position.py) and the command
-sequences (drivers/c500c_commands.py).
+No I/O here: the driver (drivers/c500c/robot.py) and the emulator (drivers/sim/emulator.py) both
+build on these functions, and tests replay exact byte exchanges through them. The protocol is split
+by job, each part re-exported here: the firmware's texts and the single block ``ASSUMED`` of what
+no public source confirms (drivers/c500c/texts.py), questions and error lines
+(drivers/c500c/replies.py), the `w0`/`w2` read-out (drivers/c500c/position.py) and the command
+sequences (drivers/c500c/commands.py).
 """
 
 from __future__ import annotations
 
 import re
 
-from drivers.c500c_commands import (
+from drivers.c500c.commands import (
     MAX_SPEED_PERCENT,
     MIN_SPEED_PERCENT,
     MOTION_COMMANDS,
@@ -28,14 +28,14 @@ from drivers.c500c_commands import (
     round_mm,
     speed_command,
 )
-from drivers.c500c_position import (
+from drivers.c500c.position import (
     Layout,
     PositionTable,
     format_w_table,
     parse_position_table,
     parse_world_pose,
 )
-from drivers.c500c_replies import (
+from drivers.c500c.replies import (
     KNOWN_QUESTIONS,
     ConsoleError,
     Question,
@@ -48,7 +48,7 @@ from drivers.c500c_replies import (
     parse_error_line,
     pending_line,
 )
-from drivers.c500c_texts import (
+from drivers.c500c.texts import (
     ACTUAL_TITLE,
     ANGLE_DECIMALS,
     ASH_ONLINE_ERROR,

@@ -1,9 +1,9 @@
 """The CRS C500C controller's `ash` console over RS-232 (pyserial-asyncio): the robot driver.
 
 Every exchange is one command line, its echo, its answer lines and a prompt
-(drivers/c500c_protocol.py). Each command has a timeout; a garbled or missing reply is an error,
+(drivers/c500c/protocol.py). Each command has a timeout; a garbled or missing reply is an error,
 never a guess. The link under it (states, synchronisation, resynchronisation after a cut
-command, reconnection, questions, the point-of-control wait) is drivers/c500c_link.py; this
+command, reconnection, questions, the point-of-control wait) is drivers/c500c/link.py; this
 module is what the daemon asks of a robot: teach, move (absolute from the taught goal, or
 incremental), read the pose, hold, resume.
 
@@ -29,7 +29,6 @@ from collections.abc import Coroutine
 from typing import Any
 
 from config.settings import RobotSettings
-from drivers import c500c_protocol as proto
 from drivers.base import (
     DEFAULT_GOAL,
     ZERO_ROTATION,
@@ -39,9 +38,10 @@ from drivers.base import (
     RobotStatus,
     Vector3,
 )
-from drivers.c500c_console import Transcript
-from drivers.c500c_link import DEVICE, TARGET_LOCATION, ConsoleLink
-from drivers.c500c_link_states import LINK_UP
+from drivers.c500c import protocol as proto
+from drivers.c500c.console import Transcript
+from drivers.c500c.link import DEVICE, TARGET_LOCATION, ConsoleLink
+from drivers.c500c.link_states import LINK_UP
 from drivers.errors import (
     DeviceError,
     GoalLostError,

@@ -1,7 +1,7 @@
 """The fast path's binary protocol (controller/PROTOCOL.md) as pure functions: frames, CRC,
 requests, replies and a streaming decoder that resynchronises after garbage.
 
-No I/O here: the host driver (drivers/c500c_server.py), the emulator
+No I/O here: the host driver (drivers/c500c/server.py), the emulator
 (drivers/sim/server_emulator.py) and the tests build on these functions; the RAPL-3 program
 (controller/thermocomp_server.r3) implements the same specification on the controller.
 
@@ -72,7 +72,7 @@ class Status(enum.IntEnum):
     BUSY = 1005  # a motion request while a motion is still in progress
 
 
-#: Texts of the program's own codes (catalogue texts are in drivers/c500c_protocol.py).
+#: Texts of the program's own codes (catalogue texts are in drivers/c500c/protocol.py).
 STATUS_TEXTS: dict[int, str] = {
     Status.NO_GOAL: "that goal was never taught",
     Status.HELD: "motion held until release",

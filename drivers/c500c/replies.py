@@ -9,7 +9,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from drivers.c500c_texts import (
+from drivers.c500c.texts import (
     ASH_ONLINE_ERROR,
     BLOCKING_MESSAGES,
     ERROR_PREFIX,

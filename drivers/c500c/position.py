@@ -1,6 +1,6 @@
 """The C500C console's `w0`/`w2` position read-out as pure functions: the parser the driver
 reads the pose with and the formatter the emulator prints with (C500C.md; ASSUMED 8 in
-drivers/c500c_texts.py where the layout is not exact).
+drivers/c500c/texts.py where the layout is not exact).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from drivers.base import Pose
-from drivers.c500c_texts import (
+from drivers.c500c.texts import (
     ACTUAL_TITLE,
     AXIS_HEADER,
     DEVICE,

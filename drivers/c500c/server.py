@@ -1,6 +1,6 @@
 """The fast path: the robot driver for controller/thermocomp_server.r3, the RAPL-3 program that
 serves the binary protocol of controller/PROTOCOL.md on the controller's second serial port
-(the link itself: drivers/c500c_server_link.py).
+(the link itself: drivers/c500c/server_link.py).
 
 One step is one MOVE_GOAL frame out and one reply in (68 bytes, ~6 ms of line at 115200) instead
 of the console's five commands and its `w2` table (C500C.md "The fast path"). A hold writes
@@ -15,8 +15,6 @@ import logging
 import time
 
 from config.settings import RobotSettings
-from drivers import c500c_protocol as console_proto
-from drivers import c500c_server_protocol as proto
 from drivers.base import (
     DEFAULT_GOAL,
     ZERO_ROTATION,
@@ -26,8 +24,10 @@ from drivers.base import (
     RobotStatus,
     Vector3,
 )
-from drivers.c500c import READBACK_TOLERANCE_MM
-from drivers.c500c_server_link import DEVICE, ServerLink
+from drivers.c500c import protocol as console_proto
+from drivers.c500c import server_protocol as proto
+from drivers.c500c.robot import READBACK_TOLERANCE_MM
+from drivers.c500c.server_link import DEVICE, ServerLink
 from drivers.errors import (
     DeviceError,
     DeviceReportedError,

@@ -6,7 +6,7 @@ homing, online mode and point of control, reads `w2` and prints what it parsed. 
 nothing and changes nothing on the controller: no variable is created and `online` is not
 switched (the console has no known query for arm power, homing or point of control: the first
 motion command tells, so they are reported as unknown). ``--transcript FILE`` writes every byte
-exchanged (JSON lines, drivers/c500c_console.py) so that a user can send a real controller's
+exchanged (JSON lines, drivers/c500c/console.py) so that a user can send a real controller's
 transcript back and a test can replay it.
 
 With ``robot.driver = "sim"`` it checks the emulator, started in-process on a pty.
@@ -25,9 +25,9 @@ from typing import Any
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument
-from drivers import c500c_protocol as proto
-from drivers.c500c import C500CRobot
-from drivers.c500c_console import Transcript
+from drivers.c500c import protocol as proto
+from drivers.c500c.console import Transcript
+from drivers.c500c.robot import C500CRobot
 from drivers.errors import DeviceError
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 
@@ -178,8 +178,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_server(settings: Settings, args: argparse.Namespace) -> int:
-    """The fast path: the program on the controller (drivers/server_check.py)."""
-    from drivers.server_check import run_server_check
+    """The fast path: the program on the controller (drivers/c500c/server_check.py)."""
+    from drivers.c500c.server_check import run_server_check
 
     if args.transcript is not None:
         print(

@@ -1,5 +1,5 @@
 """The fast path's link: frames to and from controller/thermocomp_server.r3 over
-pyserial-asyncio (controller/PROTOCOL.md), under the robot driver drivers/c500c_server.py.
+pyserial-asyncio (controller/PROTOCOL.md), under the robot driver drivers/c500c/server.py.
 
 Requests are sequence-numbered and several may be outstanding: a reader task matches every reply
 to its request by sequence number. So a HOLD is written while a move still awaits its reply,
@@ -11,7 +11,7 @@ before a motion frame is written.
 Any reply that cannot be trusted — bad CRC, garbage, an impossible length, a sequence number
 never used, a timeout, a lost port — is a link fault: every outstanding request fails with it,
 motion is held until the robot's ``resume()``, and the link reconnects in the background with a
-capped exponential back-off (drivers/c500c_link_states.py, as the console driver's).
+capped exponential back-off (drivers/c500c/link_states.py, as the console driver's).
 """
 
 from __future__ import annotations
@@ -26,10 +26,10 @@ from typing import Self
 import serial
 
 from config.settings import RobotSettings
-from drivers import c500c_server_protocol as proto
 from drivers.base import LinkState
-from drivers.c500c_link_states import SERVER_TRANSITIONS as TRANSITIONS
-from drivers.c500c_link_states import LinkLifecycle
+from drivers.c500c import server_protocol as proto
+from drivers.c500c.link_states import SERVER_TRANSITIONS as TRANSITIONS
+from drivers.c500c.link_states import LinkLifecycle
 from drivers.errors import (
     DeviceError,
     DeviceTimeoutError,

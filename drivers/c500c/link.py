@@ -1,9 +1,9 @@
-"""The C500C console link: the state machine under the robot driver (drivers/c500c.py).
+"""The C500C console link: the state machine under the robot driver (drivers/c500c/robot.py).
 
 It opens the port, synchronises on a prompt, exchanges commands under one lock, answers or
 interrupts the console's questions, waits for the operator when the controller asks for the
 point of control, resynchronises after a cut command and reconnects after a link fault. Its
-states and their transitions are drivers/c500c_link_states.py.
+states and their transitions are drivers/c500c/link_states.py.
 
 Synchronisation (connect, reconnect, after a cut command) never waits for the line to go
 quiet: it sends Ctrl-E and a probe line the console does not know, and waits, bounded and with
@@ -22,9 +22,9 @@ import time
 from typing import Self
 
 from config.settings import RobotSettings
-from drivers import c500c_protocol as proto
 from drivers.base import LinkState
-from drivers.c500c_console import (
+from drivers.c500c import protocol as proto
+from drivers.c500c.console import (
     ByteCounters,
     Connection,
     Prompts,
@@ -35,7 +35,7 @@ from drivers.c500c_console import (
     read_reply,
     synchronise,
 )
-from drivers.c500c_link_states import LINK_UP, TRANSITIONS, LinkLifecycle
+from drivers.c500c.link_states import LINK_UP, TRANSITIONS, LinkLifecycle
 from drivers.errors import (
     ConsoleQuestionError,
     DeviceError,

@@ -3,9 +3,9 @@
 The firmware's texts (prompts, line ends, error catalogues, the `w0`/`w2` layout) come from the
 project's shared notes (C500C.md, beside DESIGN.md); everything no public source confirms is
 collected in the single block ``ASSUMED`` below, so that a session on the real controller
-corrects it in one place. The functions built on them are :mod:`drivers.c500c_protocol` (framing),
-:mod:`drivers.c500c_replies` (questions, errors), :mod:`drivers.c500c_position` (`w0`/`w2`) and
-:mod:`drivers.c500c_commands` (command sequences).
+corrects it in one place. The functions built on them are :mod:`drivers.c500c.protocol` (framing),
+:mod:`drivers.c500c.replies` (questions, errors), :mod:`drivers.c500c.position` (`w0`/`w2`) and
+:mod:`drivers.c500c.commands` (command sequences).
 """
 
 from __future__ import annotations
