@@ -32,7 +32,7 @@ from config import Settings
 from config.settings import CameraSettings
 from daemon.commands.calibrate import bench_truth, calibrate, checked_pattern
 from drivers.clock import ScaledClock
-from drivers.genicam_camera import GenICamCamera
+from drivers.genicam.camera import GenICamCamera
 
 GRABS = 100
 SEEDS = (1, 2, 3, 4, 5)

@@ -24,9 +24,9 @@ from drivers.c500c.robot import C500CRobot
 from drivers.c500c.server import C500CServerRobot
 from drivers.camera import OpenCvCamera, ReplayCamera
 from drivers.clock import Clock
-from drivers.genicam_camera import GenICamCamera
+from drivers.genicam.camera import GenICamCamera
+from drivers.genicam.radiometric import GenICamRadiometricIrReader
 from drivers.ir import OpenCvIrReader, ReplayIrReader
-from drivers.radiometric import GenICamRadiometricIrReader
 from drivers.sim.arm_devices import ArmBenchControl, open_arm_bench
 from drivers.sim.bench import Bench
 from drivers.sim.devices import SimCamera, SimIrReader

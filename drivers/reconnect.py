@@ -1,6 +1,6 @@
 """One reconnection state machine for every link that reconnects on its own: the console
 (drivers/c500c/link.py), the fast path (drivers/c500c/server_link.py) and the GenICam
-transport (drivers/genicam.py) each had a copy of it.
+transport (drivers/genicam/transport.py) each had a copy of it.
 
 After a link fault the driver calls :meth:`Reconnector.start`: one background task (never two:
 a second start while one runs does nothing) tries ``attempt()`` until it succeeds, waiting a

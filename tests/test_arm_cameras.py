@@ -22,7 +22,7 @@ from daemon.vision.cameras import CameraModel, intrinsic_matrix, look_at, write_
 from drivers.base import LinkState
 from drivers.clock import ScaledClock
 from drivers.factory import open_devices
-from drivers.genicam_camera import GenICamCamera
+from drivers.genicam.camera import GenICamCamera
 
 SIM = str(Path(__file__).resolve().parents[1] / "config" / "sim.toml")
 EMULATED = ("0815-0000", "0815-0001")  # the emulation's serial numbers

@@ -33,7 +33,7 @@ from daemon.vision.cameras import write_cameras
 from daemon.vision.markers import marker_pixels
 from drivers.clock import make_clock
 from drivers.factory import Devices
-from drivers.genicam_camera import GenICamCamera
+from drivers.genicam.camera import GenICamCamera
 from drivers.sim.arm_devices import VIRTUAL_SPEED_FACTOR
 from drivers.sim.camemu import write_emulation_frames, write_feature_file
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig

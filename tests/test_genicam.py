@@ -24,8 +24,8 @@ from drivers.errors import (
     NotConnectedError,
     ProtocolError,
 )
-from drivers.genicam import CameraClockMap, choose_pixel_format
-from drivers.genicam_camera import GenICamCamera
+from drivers.genicam.camera import GenICamCamera
+from drivers.genicam.transport import CameraClockMap, choose_pixel_format
 
 pytestmark = pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,

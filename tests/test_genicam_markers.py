@@ -2,7 +2,7 @@
 (PYLON_CAMEMU) serve image files of the markers rendered as each camera of a camera file sees
 them at a known tool pose (drivers/sim/camemu.py: the files, and the feature file the driver
 loads to point each camera at its own), grabbed through the real driver
-(drivers/genicam_camera.py) and measured by the arm run's measurement (daemon/run/arm/measure.py).
+(drivers/genicam/camera.py) and measured by the arm run's measurement (daemon/run/arm/measure.py).
 
 The oracle is the pose the images were rendered at: the measured pose must match it within the
 measurement's own predicted uncertainty, and a second frame rendered with the tool moved by a
@@ -38,7 +38,7 @@ from daemon.vision.multiview import CameraModel, pose_difference
 from drivers.base import Frame
 from drivers.clock import ScaledClock
 from drivers.errors import DeviceError, DeviceTimeoutError, ProtocolError
-from drivers.genicam_camera import GenICamCamera
+from drivers.genicam.camera import GenICamCamera
 from drivers.sim.arm_markers import CameraRig
 from drivers.sim.camemu import (
     emulation_image,

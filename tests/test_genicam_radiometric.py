@@ -17,7 +17,7 @@ os.environ.setdefault("PYLON_CAMEMU", "2")  # before pylon starts (as in test_ge
 from config.settings import IrRegion, IrSettings
 from drivers.clock import ScaledClock
 from drivers.errors import ProtocolError
-from drivers.radiometric import (
+from drivers.genicam.radiometric import (
     KELVIN_AT_0C,
     GenICamRadiometricIrReader,
     PlanckConstants,

@@ -1,6 +1,6 @@
 """Frames for pylon's camera emulation (CamEmu, ``PYLON_CAMEMU=N``) to serve through the real
-GenICam driver (drivers/genicam.py): image files and the feature file that points an emulated
-camera at them (``camera.feature_file``).
+GenICam driver (drivers/genicam/transport.py): image files and the feature file that points an
+emulated camera at them (``camera.feature_file``).
 
 What the emulation does (measured with pypylon 26.9; tests/test_genicam_markers.py checks it):
 
@@ -15,7 +15,7 @@ What the emulation does (measured with pypylon 26.9; tests/test_genicam_markers.
   16-bit file of ``counts << (16 - bit_depth)`` (8-bit frames as 8-bit files) and arrives
   exactly, counts for counts.
 - A file larger than the ROI is cut to it; a smaller one arrives at its own size (the driver
-  refuses such a frame: drivers/genicam_camera.py); a file that cannot be read fails the grab.
+  refuses such a frame: drivers/genicam/camera.py); a file that cannot be read fails the grab.
 """
 
 from __future__ import annotations

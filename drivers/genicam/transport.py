@@ -1,5 +1,5 @@
 """GenICam cameras (GigE Vision, USB3 Vision) through pypylon: the transport under the spot
-camera (drivers/genicam_camera.py) and the radiometric IR reader (drivers/radiometric.py).
+camera (drivers/genicam/camera.py) and the radiometric IR reader (drivers/genicam/radiometric.py).
 
 pypylon is the optional extra ``genicam`` (``pip install 'thermocomp[genicam]'``); it needs no
 vendor SDK, reaches every GigE Vision / USB3 Vision camera through pylon's transport layers,
@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from drivers.base import LinkState
 from drivers.clock import Clock
 from drivers.errors import DeviceError, DeviceTimeoutError, NotConnectedError, ProtocolError
-from drivers.genicam_nodes import (
+from drivers.genicam.nodes import (
     INSTALL_HINT,
     MONO_FORMATS,
     choose_pixel_format,
@@ -52,7 +52,7 @@ from drivers.genicam_nodes import (
 )
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 
-# pylon's module and node helpers are drivers/genicam_nodes.py; the drivers import them here
+# pylon's module and node helpers are drivers/genicam/nodes.py; the drivers import them here
 # with the transport
 __all__ = [
     "CLOCK_RESYNC_S",

@@ -1,5 +1,5 @@
-"""pylon and the GenICam node map (drivers/genicam.py's transport, the spot camera's and the
-radiometric IR reader's configuration): importing pypylon once, choosing a pixel format,
+"""pylon and the GenICam node map (drivers/genicam/transport.py's transport, the spot camera's and
+the radiometric IR reader's configuration): importing pypylon once, choosing a pixel format,
 reading and writing nodes that may not exist on a given camera, loading a feature file."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Radiometric thermal cameras over GenICam (``ir.driver = "genicam-radiometric"``): FLIR
-A-series / Ax5 on GigE Vision, through the GenICam transport of drivers/genicam.py.
+A-series / Ax5 on GigE Vision, through the GenICam transport of drivers/genicam/transport.py.
 
 Two ways from counts to temperature, as the camera offers them:
 
@@ -44,7 +44,7 @@ from config.settings import IrSettings
 from drivers.base import IrReading, LinkState
 from drivers.clock import Clock
 from drivers.errors import ProtocolError
-from drivers.genicam import (
+from drivers.genicam.transport import (
     GenICamSelection,
     GenICamTransport,
     choose_pixel_format,

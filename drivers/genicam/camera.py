@@ -1,6 +1,6 @@
 """The spot camera over GenICam (``camera.driver = "genicam"``, and each of an arm's
 ``arm.camera_devices``): the settings' feature file, then pixel format, ROI, exposure and gain
-applied after every open, frames from the transport of drivers/genicam.py (its docstring:
+applied after every open, frames from the transport of drivers/genicam/transport.py (its docstring:
 threads, bounds, frame times, reconnection), each checked to be the ROI."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from config.settings import CameraSettings
 from drivers.base import Frame, LinkState
 from drivers.clock import Clock
 from drivers.errors import ProtocolError
-from drivers.genicam import (
+from drivers.genicam.transport import (
     GenICamSelection,
     GenICamTransport,
     choose_pixel_format,
