@@ -93,3 +93,24 @@ STEPS_SCHEMA = (
     + ", ".join(f"{f.name} {column_type(f)}" for f in dataclasses.fields(StepRecord))
     + ", PRIMARY KEY (run_id, step), FOREIGN KEY (run_id) REFERENCES runs(id))"
 )
+
+
+#: Every flag a step record's ``flags`` column can carry (comma-separated), with its meaning;
+#: the documentation's step reference is generated from this table, and a test checks that
+#: every flag the step code appends is listed here.
+STEP_FLAGS: dict[str, str] = {
+    "late": "the step began more than a tenth of a period after its deadline",
+    "unsafe-target": "the target (offset or 6-DOF correction) failed a check and was not sent; "
+    "the run pauses",
+    "robot-error": "the move or its read-back failed",
+    "no-readback": "the move was not read back (robot.readback_every > 1): no pose recorded",
+    "camera-error": "no frame within camera.grab_timeout_s, or the frame was refused",
+    "stale-frame": "the frame was older than camera.max_age_s: recorded, never used",
+    "host-timestamp": "the frame's time is when the driver received it, not its exposure "
+    "(the backend gave no better stamp)",
+    "centroid-error": "no spot could be measured in the frame",
+    "marker-error": "arm runs: the tool's markers could not be measured into a pose",
+    "ir-error": "no IR reading within ir.read_timeout_s, or the reading was refused",
+    "stale-ir": "the IR reading was older than ir.max_age_s: recorded, never fused",
+    "model-drifting": "the IR observer's innovations stay biased: consider identification",
+}
