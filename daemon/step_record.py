@@ -13,12 +13,12 @@ from typing import Any
 class StepRecord:
     """One step as recorded; field order is the column order of the steps table and CSV."""
 
-    run_id: int
-    step: int
-    scheduled_s: float
-    actual_s: float
-    lateness_s: float
-    model_time_s: float | None = None
+    run_id: int  # the run's number
+    step: int  # 0, 1, 2, ... in the run
+    scheduled_s: float  # the step's deadline on the run clock
+    actual_s: float  # when it began on the run clock
+    lateness_s: float  # actual_s - scheduled_s
+    model_time_s: float | None = None  # the time the model was advanced to (model time)
     predicted_x_um: float | None = None  # unscaled predicted deformation
     predicted_y_um: float | None = None
     predicted_z_um: float | None = None
@@ -28,16 +28,16 @@ class StepRecord:
     pose_x_mm: float | None = None  # actual pose read back
     pose_y_mm: float | None = None
     pose_z_mm: float | None = None
-    centroid_x_px: float | None = None
+    centroid_x_px: float | None = None  # the laser spot's centroid on the chip (px)
     centroid_y_px: float | None = None
-    centroid_x_um: float | None = None
+    centroid_x_um: float | None = None  # ... in um (camera.um_per_px)
     centroid_y_um: float | None = None
     drift_x_um: float | None = None  # centroid minus the reference (at the goal, before
     drift_y_um: float | None = None  # the first move; else step 0's centroid)
     residual_um: float | None = None  # drift projected on the link direction
     ir_json: str | None = None  # {"region": {"mean_c": .., "max_c": ..}}
     flags: str = ""  # comma-separated
-    error: str = ""
+    error: str = ""  # the flags' messages, "; "-separated
     # --- extra columns (after the contract's) ---
     deformation_scale: float | None = None  # the run's scale (residuals are scaled motion)
     model_temperatures_json: str | None = None  # {"node": predicted degC} of the model

@@ -40,7 +40,9 @@ logger = logging.getLogger("mkdocs.hooks.reference")
 
 # --- text helpers -------------------------------------------------------------------------
 
-_ISSUE_REF = re.compile(r"\s*\((?:issues? \d+(?:(?:, | and )\d+)*)\)|\s*\bissues? \d+(?:, \d+)*[;:,]?")
+_ISSUE_REF = re.compile(
+    r"\s*\((?:issues? \d+(?:(?:, | and )\d+)*)\)|\s*\bissues? \d+(?:, \d+)*[;:,]?"
+)
 
 
 def clean(text: str) -> str:
@@ -112,7 +114,9 @@ def _command_section(path: list[str], parser: argparse.ArgumentParser, lines: li
     if rows:
         lines.extend(["| argument | meaning |", "| --- | --- |"])
         for action in rows:
-            lines.append(f"| `{cell(_option_name(action))}` | {cell(clean(_help_text(parser, action)))} |")
+            lines.append(
+                f"| `{cell(_option_name(action))}` | {cell(clean(_help_text(parser, action)))} |"
+            )
         lines.append("")
     if parser.epilog:
         lines.extend([clean(parser.epilog.strip()), ""])
@@ -127,7 +131,9 @@ def cli_reference() -> str:
     os.environ["COLUMNS"] = USAGE_COLUMNS
     parser = build_parser()
     lines = ["| command | what it does |", "| --- | --- |"]
-    lines.extend(f"| [`thermocomp {c.name}`](#thermocomp-{c.name}) | {cell(c.help)} |" for c in COMMANDS)
+    lines.extend(
+        f"| [`thermocomp {c.name}`](#thermocomp-{c.name}) | {cell(c.help)} |" for c in COMMANDS
+    )
     lines.append("")
     _command_section(["thermocomp"], parser, lines)
     return "\n".join(lines)
@@ -145,7 +151,9 @@ def settings_reference() -> str:
 
     by_section: dict[str, list[tuple[str, str, str, str]]] = {}
     for key, type_name, default, description in rows():
-        by_section.setdefault(key.split(".", 1)[0], []).append((key, type_name, default, description))
+        by_section.setdefault(key.split(".", 1)[0], []).append(
+            (key, type_name, default, description)
+        )
     lines: list[str] = []
     for section, field in Settings.model_fields.items():
         model = field.annotation
@@ -155,9 +163,8 @@ def settings_reference() -> str:
             lines.extend([clean(" ".join(model.__doc__.split())), ""])
         lines.extend(["| key | type | default | meaning |", "| --- | --- | --- | --- |"])
         for key, type_name, default, description in by_section.get(section, []):
-            lines.append(
-                f"| `{key}` | {cell(type_name)} | {code(cell(default))} | {cell(clean(description))} |"
-            )
+            meaning = cell(clean(description))
+            lines.append(f"| `{key}` | {cell(type_name)} | {code(cell(default))} | {meaning} |")
         lines.append("")
     return "\n".join(lines)
 
@@ -240,7 +247,12 @@ def openapi_reference() -> str:
         lines.extend([description.strip(), "", f"Access: {_access(operation)}.", ""])
         parameters = operation.get("parameters", [])
         if parameters:
-            lines.extend(["| parameter | in | type | required | meaning |", "| --- | --- | --- | --- | --- |"])
+            lines.extend(
+                [
+                    "| parameter | in | type | required | meaning |",
+                    "| --- | --- | --- | --- | --- |",
+                ]
+            )
             for parameter in parameters:
                 schema = parameter.get("schema", {})
                 meaning = clean(parameter.get("description") or schema.get("description") or "")
@@ -254,14 +266,17 @@ def openapi_reference() -> str:
         body = operation.get("requestBody")
         if body:
             for media, content in body.get("content", {}).items():
-                lines.extend([f"Body ({code(media)}): {_schema_type(content.get('schema', {}))}.", ""])
+                lines.extend(
+                    [f"Body ({code(media)}): {_schema_type(content.get('schema', {}))}.", ""]
+                )
         lines.extend(["| status | meaning | body |", "| --- | --- | --- |"])
         for status, response in sorted(operation.get("responses", {}).items()):
             kinds = [
                 f"{code(media)} {_schema_type(content.get('schema', {}))}".strip()
                 for media, content in response.get("content", {}).items()
             ]
-            lines.append(f"| {status} | {cell(clean(response.get('description', '')))} | {cell(', '.join(kinds))} |")
+            meaning = cell(clean(response.get("description", "")))
+            lines.append(f"| {status} | {meaning} | {cell(', '.join(kinds))} |")
         lines.append("")
     lines.extend(["## Schemas", ""])
     for name, schema in sorted(openapi.get("components", {}).get("schemas", {}).items()):
@@ -286,8 +301,8 @@ def openapi_reference() -> str:
 
 def websocket_reference() -> str:
     """The WebSocket endpoint: its module's contract and the topics the hub serves."""
-    import api.routers.ws as ws
     from api.broadcast import MESSAGE_TYPE, TOPICS
+    from api.routers import ws
 
     lines = [clean(ws.__doc__ or "").strip().replace("``", "`"), ""]
     lines.extend(["| topic | message type | default |", "| --- | --- | --- |"])
@@ -335,7 +350,9 @@ def step_columns() -> list[ColumnDoc]:
     source_lines = source.splitlines()
     tree = ast.parse(source)
     (record_class,) = [
-        node for node in tree.body if isinstance(node, ast.ClassDef) and node.name == StepRecord.__name__
+        node
+        for node in tree.body
+        if isinstance(node, ast.ClassDef) and node.name == StepRecord.__name__
     ]
     docs: list[ColumnDoc] = []
     group = "every run"
@@ -408,18 +425,21 @@ def step_flags_reference() -> str:
 
 
 def run_states_reference() -> str:
-    import daemon.runs as runs
+    from daemon import runs
     from daemon.runs import RUN_STATE_MEANINGS, TRANSITIONS, RunState
 
     diagram = (runs.__doc__ or "").split("::", 1)[1].split("\n\n", 2)[1]
     lines = ["```text", textwrap.dedent(diagram).rstrip()]
-    lines.extend(["```", "", "| state | kind | next states | meaning |", "| --- | --- | --- | --- |"])
+    lines.extend(
+        ["```", "", "| state | kind | next states | meaning |", "| --- | --- | --- | --- |"]
+    )
     for state in RunState:
         kind = "final" if state.is_terminal else "active" if state.is_active else "idle"
-        targets = ", ".join(f"`{target.value}`" for target in RunState if target in TRANSITIONS[state])
-        lines.append(
-            f"| `{state.value}` | {kind} | {targets or '—'} | {cell(clean(RUN_STATE_MEANINGS[state]))} |"
+        targets = ", ".join(
+            f"`{target.value}`" for target in RunState if target in TRANSITIONS[state]
         )
+        meaning = cell(clean(RUN_STATE_MEANINGS[state]))
+        lines.append(f"| `{state.value}` | {kind} | {targets or '—'} | {meaning} |")
     return "\n".join(lines)
 
 
