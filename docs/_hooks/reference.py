@@ -164,7 +164,8 @@ def settings_reference() -> str:
         lines.extend(["| key | type | default | meaning |", "| --- | --- | --- | --- |"])
         for key, type_name, default, description in by_section.get(section, []):
             meaning = cell(clean(description))
-            lines.append(f"| `{key}` | {cell(type_name)} | {code(cell(default))} | {meaning} |")
+            kind = cell(type_name.replace("\\|", "|"))  # the schema's own text escapes it
+            lines.append(f"| `{key}` | {kind} | {code(cell(default))} | {meaning} |")
         lines.append("")
     return "\n".join(lines)
 
@@ -179,7 +180,7 @@ def _schema_type(schema: dict[str, Any]) -> str:
     if "anyOf" in schema:
         return " or ".join(_schema_type(part) for part in schema["anyOf"])
     if "enum" in schema:
-        return " \\| ".join(f"`{json.dumps(value)}`" for value in schema["enum"])
+        return " | ".join(f"`{json.dumps(value)}`" for value in schema["enum"])
     if "const" in schema:
         return f"`{json.dumps(schema['const'])}`"
     kind = schema.get("type", "any")
@@ -256,6 +257,7 @@ def openapi_reference() -> str:
             for parameter in parameters:
                 schema = parameter.get("schema", {})
                 meaning = clean(parameter.get("description") or schema.get("description") or "")
+                meaning = meaning.strip().rstrip(".")
                 extra = _constraints(schema)
                 lines.append(
                     f"| `{parameter['name']}` | {parameter['in']} | {cell(_schema_type(schema))} | "
@@ -288,7 +290,7 @@ def openapi_reference() -> str:
             required = set(schema.get("required", []))
             lines.extend(["| field | type | required | meaning |", "| --- | --- | --- | --- |"])
             for field_name, field in properties.items():
-                meaning = clean(field.get("description", ""))
+                meaning = clean(field.get("description", "")).strip().rstrip(".")
                 extra = _constraints(field)
                 lines.append(
                     f"| `{field_name}` | {cell(_schema_type(field))} | "
