@@ -17,7 +17,7 @@
 ;;   [lang] same repository, syntax_hilight/rapl-3.lang: the NAME is a RAPL-3 built-in, its
 ;;          signature is not shown anywhere -> marked UNCONFIRMED where used.
 ;; Compile on the controller: r3c -Wall thermocomp_server.r3 (simple_message/Makefile), run
-;; ./thermocomp_server. See README "The fast path (controller program)".
+;; ./thermocomp_server. See docs/how-to/fast-path.md.
 
 ;; --- constants (controller/PROTOCOL.md) ------------------------------------------------------
 

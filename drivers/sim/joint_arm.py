@@ -24,7 +24,7 @@ Conventions (ASSUMED where docs/reference/c500c-console.md is silent):
   solution of a location a few µrad off the singular set swings joints 4 and 6 by tens of degrees in
   opposite senses). Without it a µm-scale `wshift` at the camera station swung joints 4 and 6 by ~27
   degrees, and the bench's true arm (other DH values, as any real arm) moved the tool 25-45 µm
-  away from the commanded change (README "Running a duty cycle on an arm"). A location whose
+  away from the commanded change (docs/explanation/arm.md). A location whose
   orientation the locked wrist cannot reach within ``WRIST_LOCK_ROTATION_TOLERANCE_RAD`` (a
   real reorientation) is solved exactly as elsewhere.
 """
