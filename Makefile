@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 CONFIG ?= config/sim.toml
 SOURCES := daemon drivers api config
 
-.PHONY: run test lint bench soak clean lock
+.PHONY: run test lint docs bench soak clean lock
 
 # The exact, hashed dependency set (pip-compile --generate-hashes): every install uses it,
 # so a fresh clone, the Docker image and CI test and run the same versions. `make lock`
@@ -42,7 +42,12 @@ lint: $(VENV)/.installed-dev
 	$(BIN)/ruff format --check $(SOURCES) tests benchmarks
 	$(BIN)/mypy
 
-test: lint
+# The documentation site (mkdocs.yml): built with warnings as errors, offline; the reference
+# pages are generated from the code at build time (docs/_hooks/reference.py). Output: build/site.
+docs: $(VENV)/.installed-dev
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+
+test: lint docs
 	@command -v chromium >/dev/null || { echo "make test: the dashboard test drives Debian's" \
 		"chromium: sudo apt-get install chromium (.ci/run installs it)"; exit 1; }
 	$(BIN)/python -m pytest

@@ -97,8 +97,8 @@ def _authenticate(context: ApiContext, request: Request, scope: Scope) -> frozen
     nobody without the token can spend its allowance (issue 16: token-less requests charged
     the per-address bucket the operator's hold shared). Failures are not rate-limited: a
     limit a valid token skips cannot slow guessing, and one it obeys lets anyone on the
-    operator's address block the hold; guessing a long random token (README: openssl rand)
-    compared in constant time is hopeless anyway."""
+    operator's address block the hold; guessing a long random token (docs/reference/api.md: openssl
+    rand) compared in constant time is hopeless anyway."""
     try:
         token = parse_authorization(request.headers.get("authorization"))
         return context.auth.require(token, scope)

@@ -1,7 +1,7 @@
 """``thermocomp serve``'s checks before anything is served: the binding is safe, the port is
 free, the data directory and its database are usable, the devices are there, enough file
 descriptors. Each failure is one line naming the thing and what to do, and an exit status of
-its own (README "Command line"; deploy/thermocomp.service restarts on 3-5 with a back-off,
+its own (docs/reference/cli.md; deploy/thermocomp.service restarts on 3-5 with a back-off,
 never on 2):
 
 - 2 (``EXIT_USAGE``): invalid configuration, including an API reachable from the network

@@ -115,7 +115,7 @@ class ArmSettings(Section):
     @model_validator(mode="after")
     def _camera_devices_need_models(self) -> Self:
         # the 3-D measurement needs each real camera's calibrated model (intrinsics, pose):
-        # they come from the camera file, matched by position (README "Measuring in 3-D")
+        # they come from the camera file, matched by position (docs/explanation/measurement.md)
         if self.camera_devices and self.cameras_file is None:
             raise ValueError(
                 "arm.camera_devices needs arm.cameras_file (the cameras' models, from "

@@ -1,5 +1,5 @@
-"""The ``[bench]`` section: the simulated bench's truth and its clock (README "The simulated
-bench: truth and beliefs")."""
+"""The ``[bench]`` section: the simulated bench's truth and its clock
+(docs/explanation/simulated-benches.md, "The two-link bench: truth and beliefs")."""
 
 from __future__ import annotations
 

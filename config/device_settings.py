@@ -238,7 +238,7 @@ class IrSettings(Section):
 
 
 class RobotSettings(Section):
-    """The CRS C500C controller's serial console (C500C.md)."""
+    """The CRS C500C controller's serial console (docs/reference/c500c-console.md)."""
 
     driver: Literal["sim", "c500c", "c500c-server"] = Field(
         "sim",
@@ -253,8 +253,8 @@ class RobotSettings(Section):
     stopbits: Literal[1, 2] = Field(1, description="Stop bits.")
     flow_control: Literal["none", "rtscts"] = Field(
         "none",
-        description="Hardware flow control of the console port (C500C.md: RTS/CTS may not work "
-        "on the console; the controller's own 115200-baud programs use it).",
+        description="Hardware flow control of the console port (docs/reference/c500c-console.md: "
+        "RTS/CTS may not work on the console; the controller's own 115200-baud programs use it).",
     )
     command_timeout_s: Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S)] = Field(
         5.0, description="Timeout of one console command."

@@ -7,7 +7,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-#: Baud rates the C500C's `siocfg` and the host serial ports both offer (C500C.md).
+#: Baud rates the C500C's `siocfg` and the host serial ports both offer
+#: (docs/reference/c500c-console.md).
 SUPPORTED_BAUDRATES = (9600, 19200, 38400, 57600, 115200)
 
 #: Upper bounds of settings that have no natural one: far beyond any real use, low enough that

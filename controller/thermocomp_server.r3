@@ -2,7 +2,7 @@
 ;;
 ;; Serves the binary protocol of controller/PROTOCOL.md on the second serial port: one frame
 ;; per compensation step (goal k + offset, move, wait, answer the actual pose) instead of five
-;; console commands and a `w2` table (C500C.md "The fast path"). The absolute location command
+;; console commands and a `w2` table (docs/reference/c500c-console.md "The fast path"). The absolute location command
 ;; of the thesis (6.4.4): every target is the taught goal plus an offset, so an error in one
 ;; step is corrected by the next. HOLD halt()s a motion in progress; so does host silence.
 ;;
@@ -17,7 +17,7 @@
 ;;   [lang] same repository, syntax_hilight/rapl-3.lang: the NAME is a RAPL-3 built-in, its
 ;;          signature is not shown anywhere -> marked UNCONFIRMED where used.
 ;; Compile on the controller: r3c -Wall thermocomp_server.r3 (simple_message/Makefile), run
-;; ./thermocomp_server. See README "The fast path (controller program)".
+;; ./thermocomp_server. See docs/how-to/fast-path.md.
 
 ;; --- constants (controller/PROTOCOL.md) ------------------------------------------------------
 
@@ -38,7 +38,7 @@ const T_HOLD = 6
 const T_RELEASE = 7
 
 const S_OK = 0
-const S_HALTED = 44            ;; catalogue 044 `Halt() command invoked` (C500C.md)
+const S_HALTED = 44            ;; catalogue 044 `Halt() command invoked` (docs/reference/c500c-console.md)
 const S_NO_GOAL = 1001
 const S_HELD = 1002
 const S_BAD = 1003
@@ -196,7 +196,7 @@ end sub
 
 ;; --- motion ----------------------------------------------------------------------------------
 
-;; halt() ends the motion in progress with error 044 (C500C.md). UNCONFIRMED signature:
+;; halt() ends the motion in progress with error 044 (docs/reference/c500c-console.md). UNCONFIRMED signature:
 ;; `halt` is a name only [lang]; robot_control_server.r3 stops with robot_abort() [rcs].
 sub hold(int silence)
     if g_moving != 0 then
@@ -387,7 +387,7 @@ main
     conf.InX = 0
     ioctl(g_fd, IOCTL_PUTC, &conf)
 
-    ;; Point of control once, before serving (C500C.md: the library prints "Press the
+    ;; Point of control once, before serving (docs/reference/c500c-console.md: the library prints "Press the
     ;; PAUSE/CONTINUE button..." and waits for the operator) [rcs]: ctl_get() < 0 on failure.
     if ctl_get() < 0 then
         printf("thermocomp_server: no point of control; motion will be refused\n")

@@ -225,9 +225,10 @@ class GoalRobot(Robot, Protocol):
 
 class SpeedGoalRobot(GoalRobot, Protocol):
     """A GoalRobot whose absolute moves also set the controller's speed (issue 20: a duty cycle
-    plays each move at its pose's speed). The console driver is one (`speed N`, C500C.md
-    "Motion and locations"); the fast path is not: its MOVE_GOAL frame carries no speed
-    (controller/PROTOCOL.md), so an arm run does not play its duty cycle over it."""
+    plays each move at its pose's speed). The console driver is one (`speed N`,
+    docs/reference/c500c-console.md "Motion and locations"); the fast path is not: its MOVE_GOAL
+    frame carries no speed (controller/PROTOCOL.md), so an arm run does not play its duty cycle over
+    it."""
 
     async def move_absolute(
         self,

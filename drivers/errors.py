@@ -52,8 +52,9 @@ class MotionHeldError(DeviceError):
 
 
 class PointOfControlError(DeviceReportedError):
-    """The controller waited for the operator to press PAUSE/CONTINUE (C500C.md "Point of
-    control") longer than the configured timeout (robot.point_of_control_timeout_s)."""
+    """The controller waited for the operator to press PAUSE/CONTINUE
+    (docs/reference/c500c-console.md "Point of control") longer than the configured timeout
+    (robot.point_of_control_timeout_s)."""
 
     kind = "point-of-control"
 
@@ -74,7 +75,8 @@ class GoalLostError(DeviceError):
 
 
 class ConsoleQuestionError(DeviceError):
-    """The console asked a question (C500C.md "Questions") or printed a message after which it
-    will not do what was asked; the command ended with this error instead of waiting."""
+    """The console asked a question (docs/reference/c500c-console.md "Questions") or printed a
+    message after which it will not do what was asked; the command ended with this error instead of
+    waiting."""
 
     kind = "console-question"

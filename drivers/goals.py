@@ -21,7 +21,8 @@ from drivers.errors import DeviceError
 #: A goal's name: a letter, then letters, digits or underscores. Its console variable is
 #: ``GOAL_VARIABLE_PREFIX + name`` (or `opgoal` for the default goal), so no name can be a
 #: RAPL-3 keyword or the per-step target `cur`. ASSUMED: `ash` takes variable names of 16
-#: characters (C500C.md gives no limit; the repository's RAPL-3 code uses names up to 15).
+#: characters (docs/reference/c500c-console.md gives no limit; the repository's RAPL-3 code uses
+#: names up to 15).
 GOAL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,13}")
 GOAL_VARIABLE_PREFIX = "g_"
 #: How many goals the fast-path program holds (controller/thermocomp_server.r3 MAX_GOALS).
@@ -38,7 +39,8 @@ def check_goal_name(goal: str, device: str) -> str:
 
 
 def goal_variable(goal: str, device: str) -> str:
-    """The console location variable that holds ``goal`` (C500C.md: made with `new`)."""
+    """The console location variable that holds ``goal`` (docs/reference/c500c-console.md: made with
+    `new`)."""
     check_goal_name(goal, device)
     return goal if goal == DEFAULT_GOAL else GOAL_VARIABLE_PREFIX + goal
 
@@ -53,8 +55,9 @@ def require_finite(values: Vector3, what: str, device: str) -> None:
 def rotation_zyx_deg(rotation_rad: Vector3, device: str) -> Vector3:
     """A rotation vector (rad, base frame: daemon.arm.types.Pose6) as the controller's wshift
     angles z-rot, y-rot, x-rot in degrees (Pose6.zyx_deg, the contract of issue 20). ASSUMED
-    (C500C.md says only "shifts a location in world coordinates; units mm and degrees"): the
-    controller turns the location by these angles in the world frame, about its own position."""
+    (docs/reference/c500c-console.md says only "shifts a location in world coordinates; units mm and
+    degrees"): the controller turns the location by these angles in the world frame, about its own
+    position."""
     require_finite(rotation_rad, "rotation", device)
     if not any(rotation_rad):
         return (0.0, 0.0, 0.0)

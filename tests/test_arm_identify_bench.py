@@ -23,8 +23,8 @@ from tests.helpers import run_in_process
 
 SEED = 1
 STEPS = 12
-#: What a 12-step run identifies (the wrist joints' heat is not: README "Identifying the arm's
-#: model from a calibration run"); fitting only these keeps the test fast.
+#: What a 12-step run identifies (the wrist joints' heat is not: docs/explanation/arm.md,
+#: "Identifying the arm's model"); fitting only these keeps the test fast.
 PARAMS = (
     "--params",
     "heat:2",

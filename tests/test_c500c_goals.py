@@ -131,7 +131,8 @@ async def test_named_goals_exchange_and_resume_checks_every_goal() -> None:
         ok_exchange(b"new opgoal"),
         ok_exchange(b"here opgoal"),
         w2_exchange(GOAL),
-        ok_exchange(b"new g_p1"),  # C500C.md "Questions": created with `new` before `here`
+        # docs/reference/c500c-console.md "Questions": created with `new` before `here`
+        ok_exchange(b"new g_p1"),
         ok_exchange(b"here g_p1"),
         w2_exchange(P1),
         _set_and_shift(b"g_p1", b"wshift cur,0.001,0.000,-0.002,0,0,0"),

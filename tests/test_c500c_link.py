@@ -95,8 +95,8 @@ async def test_error_043_when_the_controller_is_not_online(emulator: C500CEmulat
 
 
 async def test_point_of_control_waits_for_the_operator(emulator: C500CEmulator) -> None:
-    """C500C.md: the PAUSE/CONTINUE request blocks the console until the button is pressed; the
-    driver says so in its status and carries on after the press."""
+    """docs/reference/c500c-console.md: the PAUSE/CONTINUE request blocks the console until the
+    button is pressed; the driver says so in its status and carries on after the press."""
     emulator.state.point_of_control = False
     async with C500CRobot(FAST, port=emulator.device_path) as robot:
         await robot.teach_goal()
@@ -108,7 +108,8 @@ async def test_point_of_control_waits_for_the_operator(emulator: C500CEmulator) 
         result = await move
         status = robot.status()
         assert status.link is LinkState.CONNECTED and status.point_of_control
-        assert result.actual.x == pytest.approx(robot.goal.x + 0.001, abs=0.005)  # type: ignore[union-attr]
+        # type: ignore[union-attr]
+        assert result.actual.x == pytest.approx(robot.goal.x + 0.001, abs=0.005)
 
 
 async def test_point_of_control_wait_is_bounded(emulator: C500CEmulator) -> None:
@@ -124,8 +125,9 @@ async def test_point_of_control_wait_is_bounded(emulator: C500CEmulator) -> None
         with pytest.raises(MotionHeldError):
             await robot.move_absolute((0.001, 0.0, 0.0))
         assert len(emulator.state.motion_commands()) == moves_before
-        # the operator comes: the waiting move carries on (no halt on the console, C500C.md),
-        # the link is resynchronised, and motion needs an explicit resume
+        # the operator comes: the waiting move carries on (no halt on the console,
+        # docs/reference/c500c-console.md), the link is resynchronised, and motion needs an explicit
+        # resume
         emulator.press_pause_continue()
         await robot.wait_link(LinkState.CONNECTED, 10.0)
         await robot.resume()
@@ -282,7 +284,8 @@ async def test_each_fault_is_reported_recovered_and_holds_motion(
 
         await robot.resume()
         result = await robot.move_absolute((0.004, 0.0, 0.0))
-        assert result.actual.x == pytest.approx(robot.goal.x + 0.004, abs=0.005)  # type: ignore[union-attr]
+        # type: ignore[union-attr]
+        assert result.actual.x == pytest.approx(robot.goal.x + 0.004, abs=0.005)
         assert not robot.status().motion_held
         assert int(robot.status().extra["reconnect_attempts"]) >= 1
     assert [k for _, k in emulator.faults_applied] == [kind]

@@ -1,5 +1,5 @@
-"""The C500C console protocol as the firmware speaks it (C500C.md): pure functions, and the
-driver replaying exact byte exchanges.
+"""The C500C console protocol as the firmware speaks it (docs/reference/c500c-console.md): pure
+functions, and the driver replaying exact byte exchanges.
 
 The driver tests work like pymeasure's ``expected_protocol``: a scripted console checks every
 byte the driver sends against the recorded exchange, answers with the recorded bytes, and the
@@ -144,9 +144,9 @@ def firmware_lines(world: tuple[float, ...] = WORLD) -> list[str]:
 
 
 def test_firmware_read_out_layout() -> None:
-    """C500C.md: title, blank line, axis header, PULSES integers, JOINTS decimals, blank line,
-    world header, the `WORLD (mm) ...` units line, and the values on the next line, indented 8
-    spaces, `%+10.3f` one space apart."""
+    """docs/reference/c500c-console.md: title, blank line, axis header, PULSES integers, JOINTS
+    decimals, blank line, world header, the `WORLD (mm) ...` units line, and the values on the next
+    line, indented 8 spaces, `%+10.3f` one space apart."""
     lines = firmware_lines()
     assert lines[0] == "Actual Position :" and lines[1] == "" and lines[5] == ""
     assert proto.AXIS_HEADER in lines[2] and proto.WORLD_HEADER in lines[6]
@@ -155,7 +155,8 @@ def test_firmware_read_out_layout() -> None:
     assert lines[7].split() == ["WORLD", "(mm)", "(mm)", "(mm)", "(deg)", "(deg)", "(deg)"]
     assert lines[8] == " " * 8 + " ".join(f"{v:+10.3f}" for v in WORLD)
     size = sum(len(line) + 2 for line in lines)
-    assert 450 <= size <= 600, size  # C500C.md: roughly 500-600 bytes with echo and prompt
+    # docs/reference/c500c-console.md: roughly 500-600 bytes with echo and prompt
+    assert 450 <= size <= 600, size
 
 
 def test_world_values_are_the_line_after_the_units_line() -> None:
@@ -531,9 +532,9 @@ async def test_readback_every_n_moves() -> None:
 async def test_each_known_question_ends_the_command_deliberately(
     question: proto.Question,
 ) -> None:
-    """C500C.md "Questions": a question the driver knows an answer for gets it (and the prompt
-    is awaited); one it must not answer (save, exit, which application) gets Ctrl-E and a
-    resynchronisation. Either way the command fails clearly and the next one works."""
+    """docs/reference/c500c-console.md "Questions": a question the driver knows an answer for gets
+    it (and the prompt is awaited); one it must not answer (save, exit, which application) gets
+    Ctrl-E and a resynchronisation. Either way the command fails clearly and the next one works."""
     asked = (b"w2\r", b"w2\r\nSomething happened.\r\n" + question.text.encode())
     if question.answer is not None:
         answer = question.answer.encode()

@@ -5,8 +5,7 @@ from pathlib import Path
 import pytest
 
 from config import CONFIG_DIR, ConfigError, Settings, load_settings
-from config.settings import README_BEGIN, README_END, settings_reference_markdown
-from tests.helpers import REPO_ROOT, run_cli
+from tests.helpers import run_cli
 
 
 def test_bundled_files_load() -> None:
@@ -87,14 +86,6 @@ def test_cli_exits_2_on_missing_file(tmp_path: Path) -> None:
     result = run_cli(["serve", "--config", str(tmp_path / "nope.toml")])
     assert result.returncode == 2
     assert "nope.toml: no such file" in result.stderr
-
-
-def test_readme_reference_matches_the_model() -> None:
-    readme = (REPO_ROOT / "README.md").read_text(encoding="utf-8")
-    section = readme.split(README_BEGIN, 1)[1].split(README_END, 1)[0].strip()
-    assert section == settings_reference_markdown(), (
-        "README's configuration reference is stale: run `python -m config --readme README.md`"
-    )
 
 
 def test_cli_exits_2_on_out_of_range_port_option() -> None:

@@ -90,7 +90,8 @@ async def test_console_errors_use_the_firmware_texts(command: str, answer: str |
 
 
 async def test_a_new_name_asks_create_it() -> None:
-    """C500C.md "Questions": `here`/`set` to a name that does not exist stops and asks."""
+    """docs/reference/c500c-console.md "Questions": `here`/`set` to a name that does not exist stops
+    and asks."""
     c = console(noise_um=0.0)
     assert await c.execute("here spot") == ["Variable 'spot' not found."]
     assert c.prompt == b"  -- create it? "

@@ -148,7 +148,7 @@ def test_simulate_uses_the_networks_own_heat(
 
 
 def test_several_heat_inputs_after_one_heat_option(capsys: pytest.CaptureFixture[str]) -> None:
-    """The README's form `--heat 2=0.5 9=0.5` equals `--heat 2=0.5 --heat 9=0.5`."""
+    """The documented form `--heat 2=0.5 9=0.5` equals `--heat 2=0.5 --heat 9=0.5`."""
     documents = []
     for heat in (["--heat", "2=0.5", "9=0.5"], ["--heat", "2=0.5", "--heat", "9=0.5"]):
         status, out, err = run(

@@ -1,6 +1,6 @@
 """Start-up failures as a user meets them (issue 16): the real ``thermocomp`` command in a
 subprocess; each failure is ONE line on stderr naming the device, path or port and what to
-do, with its documented exit status (README "Command line"), and nothing was served."""
+do, with its documented exit status (docs/reference/cli.md), and nothing was served."""
 
 from __future__ import annotations
 

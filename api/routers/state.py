@@ -90,7 +90,7 @@ async def stop_robot(daemon: DaemonDep) -> HoldResult:
     """Hold the robot where it is now, whatever the run state (a running run pauses, a
     starting one is cancelled). Answers ``held`` once the robot driver refuses every motion
     command: no motion command can be written any more. What that does to a motion already
-    under way depends on the link (README "Holding the robot")."""
+    under way depends on the link (docs/explanation/holds.md)."""
     try:
         await daemon.hold_robot()
     except DeviceError as err:

@@ -415,7 +415,7 @@
     if (robot && robot.link === "awaiting-point-of-control") {
       badges.push(badge("waiting for the operator: press PAUSE/CONTINUE", "waiting",
         "the controller waits for the point of control: press PAUSE/CONTINUE on the teach "
-        + "pendant (C500C.md)"));
+        + "pendant (docs/reference/c500c-console.md)"));
     }
     $("robot-badges").replaceChildren(...badges);
   }

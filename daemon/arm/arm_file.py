@@ -1,7 +1,7 @@
 """Arm files: the TOML schema of ``config/arms/*.toml`` and the builders from it.
 
-README "Describing an arm" lists the fields; ``daemon.arm.description`` holds the values they
-build and ``load_arm``, the entry point. Every problem is an :class:`ArmError` with one line
+docs/reference/files.md "Arm files" lists the fields; ``daemon.arm.description`` holds the values
+they build and ``load_arm``, the entry point. Every problem is an :class:`ArmError` with one line
 naming the file and the field (or the joint/link) at fault.
 """
 

@@ -1,6 +1,6 @@
 """What an arm is: its kinematic chain, its links' materials and sections, its joints' motors.
 
-An arm is described in one TOML file (``config/arms/*.toml``; README "Describing an arm"):
+An arm is described in one TOML file (``config/arms/*.toml``; docs/reference/files.md "Arm files"):
 either a Denavit-Hartenberg table (standard or modified convention) or a URDF file that the
 TOML names (its kinematics parsed with yourdfpy, without meshes), plus per-link material and
 section and per-joint motor/gearbox parameters. A bare ``.urdf`` loads too (kinematics only).

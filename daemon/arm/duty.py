@@ -292,7 +292,8 @@ def available_duty_cycles() -> list[str]:
 
 
 def tool_pose_matrix(tool_mm: Sequence[float], zyx_deg: Sequence[float]) -> FloatArray:
-    """4x4 pose from a position (mm) and the console's z-y-x angles (deg; C500C.md)."""
+    """4x4 pose from a position (mm) and the console's z-y-x angles (deg;
+    docs/reference/c500c-console.md)."""
     from scipy.spatial.transform import Rotation
 
     pose = np.eye(4)

@@ -2,7 +2,8 @@
 
 Conventions (every module of ``daemon.arm`` and ``daemon.vision.multiview`` follows them):
 
-- Lengths in mm, angles in rad inside the core (degrees only at the console, C500C.md
+- Lengths in mm, angles in rad inside the core (degrees only at the console,
+docs/reference/c500c-console.md
   ``wshift <loc>,<dx>,<dy>,<dz>,<zrot>,<yrot>,<xrot>`` in mm / degrees), time in s,
   temperatures in °C, power in W.
 - A pose is a 4×4 homogeneous transform (numpy float64) of the tool in the arm's base (world)

@@ -1,7 +1,7 @@
 """The observations of ``thermocomp calibrate cameras`` (issue 20): one camera's centroid of a
 marker with the tool at a known pose, as rows of ``moves.csv`` (columns
 ``camera,x_mm,y_mm,z_mm,x_px,y_px``, optionally ``rx_rad,ry_rad,rz_rad`` and
-``sigma_x_px,sigma_y_px``: README "Camera poses from robot moves"). Light: the CLI's
+``sigma_x_px,sigma_y_px``: docs/reference/files.md "Calibration observations"). Light: the CLI's
 ``--help`` imports it."""
 
 from __future__ import annotations

@@ -160,7 +160,7 @@ def run_with_robot(args: argparse.Namespace) -> int:
     size, turn = default_size_turn(settings)
     size = size if args.size is None else args.size
     # turns only make the markers' offset observable: without --fit-marker the tool keeps its
-    # orientation (an offset then shifts every camera alike; README)
+    # orientation (an offset then shifts every camera alike; docs/how-to/calibrate-cameras.md)
     turn = (turn if args.fit_marker else 0.0) if args.turn is None else args.turn
     if args.fit_marker and turn == 0.0:
         return _usage("--fit-marker needs the tool to turn: --turn must be above 0")

@@ -13,7 +13,7 @@ What the run recorded, read back READ-ONLY (as daemon/commands/identify.py reads
   (``correction_t*_mm``; zero in an uncompensated run): the arm's thermal displacement of the
   tool point, at the step's arm time ``actual_s * time_scale``. Only the translation is used:
   the preset model turns no tool (``arm.bending`` off) and the measured rotation is the 3-D
-  measurement's noise (README "Running a duty cycle on an arm");
+  measurement's noise (docs/explanation/arm.md);
 - each step's IR regions (``ir_json``) tied to the model's nodes by name
   (daemon/arm/ir_regions.py: ``<link>-mid``, ``<link>@<fraction>``).
 

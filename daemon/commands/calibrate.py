@@ -9,8 +9,8 @@ measures the spot at each, fits, and returns the robot to the goal whatever happ
 Safety: the whole pattern must lie within compensation.max_total_offset_mm of the goal or nothing
 moves (exit 2); a move longer than compensation.max_step_change_mm is split into steps along the
 straight line, which stays inside the (convex) pattern. Nothing moves beyond the declared pattern.
-Exit statuses (README): 0 calibrated; 1 a device, the spot (it left the chip) or the fit
-(singular) failed; 2 bad usage, a pattern beyond the limits, or an invalid configuration.
+Exit statuses (docs/reference/cli.md): 0 calibrated; 1 a device, the spot (it left the chip) or the
+fit (singular) failed; 2 bad usage, a pattern beyond the limits, or an invalid configuration.
 """
 
 from __future__ import annotations

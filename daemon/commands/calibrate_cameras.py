@@ -3,7 +3,7 @@ the robot visited (issue 20); the fits are the pure :mod:`daemon.vision.camera_p
 :mod:`daemon.vision.camera_rig`.
 
 The cameras' intrinsics and distortion come from ``--cameras FILE`` (a camera file, see
-README "Measuring in 3-D with several cameras"; the poses in it are not used). The observations
+docs/how-to/calibrate-cameras.md; the poses in it are not used). The observations
 are either
 
 * recorded: ``--observations CSV`` with one row per camera and tool pose, columns

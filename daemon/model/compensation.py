@@ -158,8 +158,8 @@ def _fmt(vector: NDArray[np.float64]) -> str:
 
 # --------------------------------------------------------------------------- incremental mode
 
-#: C500C.md: the console takes and prints positions as ``%.3f`` mm, so every commanded move is
-#: rounded to 0.001 mm (drivers/c500c/protocol.py ``round_mm``).
+#: docs/reference/c500c-console.md: the console takes and prints positions as ``%.3f`` mm, so every
+#: commanded move is rounded to 0.001 mm (drivers/c500c/protocol.py ``round_mm``).
 CONSOLE_RESOLUTION_MM = 0.001
 #: The share of the scaled deformation that the console's rounding of incremental moves may
 #: leave uncompensated before a run is refused. Thesis 6.3 scaled the deformation "to obtain

@@ -197,7 +197,8 @@ class RunSession:
         try:
             # 6.4.3: every offset is from the goal taught here. Taught first, while still held:
             # a resume checks the goal the controller holds, and after a controller restart the
-            # previous run's goal is gone (C500C.md), which must not refuse a new run.
+            # previous run's goal is gone (docs/reference/c500c-console.md), which must not refuse a
+            # new run.
             await teach_goals(self.work, services, moving=False)
             if robot.status().motion_held:
                 # the previous run ended with the robot held; starting is an explicit request to

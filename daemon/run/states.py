@@ -88,6 +88,26 @@ TRANSITIONS: dict[RunState, frozenset[RunState]] = {
 }
 
 
+#: What each state means, as the API, the CLI and the documentation say it.
+RUN_STATE_MEANINGS: dict[RunState, str] = {
+    RunState.IDLE: "no run yet: the daemon waits for a start",
+    RunState.STARTING: "the run is being prepared: devices checked, goal taught, reference "
+    "frame taken; a hold now cancels the start",
+    RunState.RUNNING: "steps are taken on their deadlines",
+    RunState.PAUSED: "no steps are taken; the robot stays where it is until a resume or stop",
+    RunState.STOPPING: "the run is ending: the robot is held, the step in progress finishes "
+    "or is abandoned after scheduler.stop_grace_s, the end is committed",
+    RunState.FAULT: "a device fault parked the run: an explicit resume continues it, a stop "
+    "ends it (aborted); a run still in fault when the daemon shuts down ends there",
+    RunState.FINISHED: "it ran to its end",
+    RunState.STOPPED: "someone stopped it (a stop request, a signal, the daemon shutting "
+    "down, a hold while starting): the reason says which",
+    RunState.ABORTED: "an error ended it: the recording failed, an unexpected error (its "
+    "traceback is in the log), or a stop while parked in fault",
+    RunState.INTERRUPTED: "the process died under it; marked at the next start, its steps kept",
+}
+
+
 class RunStateError(Exception):
     """A request that the run's current state does not allow (e.g. resume while running)."""
 

@@ -13,12 +13,12 @@ from typing import Any
 class StepRecord:
     """One step as recorded; field order is the column order of the steps table and CSV."""
 
-    run_id: int
-    step: int
-    scheduled_s: float
-    actual_s: float
-    lateness_s: float
-    model_time_s: float | None = None
+    run_id: int  # the run's number
+    step: int  # 0, 1, 2, ... in the run
+    scheduled_s: float  # the step's deadline on the run clock
+    actual_s: float  # when it began on the run clock
+    lateness_s: float  # actual_s - scheduled_s
+    model_time_s: float | None = None  # the time the model was advanced to (model time)
     predicted_x_um: float | None = None  # unscaled predicted deformation
     predicted_y_um: float | None = None
     predicted_z_um: float | None = None
@@ -28,16 +28,16 @@ class StepRecord:
     pose_x_mm: float | None = None  # actual pose read back
     pose_y_mm: float | None = None
     pose_z_mm: float | None = None
-    centroid_x_px: float | None = None
+    centroid_x_px: float | None = None  # the laser spot's centroid on the chip (px)
     centroid_y_px: float | None = None
-    centroid_x_um: float | None = None
+    centroid_x_um: float | None = None  # ... in um (camera.um_per_px)
     centroid_y_um: float | None = None
     drift_x_um: float | None = None  # centroid minus the reference (at the goal, before
     drift_y_um: float | None = None  # the first move; else step 0's centroid)
     residual_um: float | None = None  # drift projected on the link direction
     ir_json: str | None = None  # {"region": {"mean_c": .., "max_c": ..}}
     flags: str = ""  # comma-separated
-    error: str = ""
+    error: str = ""  # the flags' messages, "; "-separated
     # --- extra columns (after the contract's) ---
     deformation_scale: float | None = None  # the run's scale (residuals are scaled motion)
     model_temperatures_json: str | None = None  # {"node": predicted degC} of the model
@@ -93,3 +93,24 @@ STEPS_SCHEMA = (
     + ", ".join(f"{f.name} {column_type(f)}" for f in dataclasses.fields(StepRecord))
     + ", PRIMARY KEY (run_id, step), FOREIGN KEY (run_id) REFERENCES runs(id))"
 )
+
+
+#: Every flag a step record's ``flags`` column can carry (comma-separated), with its meaning;
+#: the documentation's step reference is generated from this table, and a test checks that
+#: every flag the step code appends is listed here.
+STEP_FLAGS: dict[str, str] = {
+    "late": "the step began more than a tenth of a period after its deadline",
+    "unsafe-target": "the target (offset or 6-DOF correction) failed a check and was not sent; "
+    "the run pauses",
+    "robot-error": "the move or its read-back failed",
+    "no-readback": "the move was not read back (robot.readback_every > 1): no pose recorded",
+    "camera-error": "no frame within camera.grab_timeout_s, or the frame was refused",
+    "stale-frame": "the frame was older than camera.max_age_s: recorded, never used",
+    "host-timestamp": "the frame's time is when the driver received it, not its exposure "
+    "(the backend gave no better stamp)",
+    "centroid-error": "no spot could be measured in the frame",
+    "marker-error": "arm runs: the tool's markers could not be measured into a pose",
+    "ir-error": "no IR reading within ir.read_timeout_s, or the reading was refused",
+    "stale-ir": "the IR reading was older than ir.max_age_s: recorded, never fused",
+    "model-drifting": "the IR observer's innovations stay biased: consider identification",
+}

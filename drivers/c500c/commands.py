@@ -1,6 +1,6 @@
 """The C500C console commands the driver sends, as pure functions: which ones move the arm
 (the hold refuses those), values rounded as the console takes them, and the move sequences
-(C500C.md "Motion and locations", "The absolute-move sequence").
+(docs/reference/c500c-console.md "Motion and locations", "The absolute-move sequence").
 """
 
 from __future__ import annotations
@@ -10,8 +10,9 @@ from drivers.c500c.texts import ANGLE_DECIMALS, POSITION_DECIMALS
 
 # --- command sequences -------------------------------------------------------------------------
 
-#: Console commands that move the arm (C500C.md "Motion and locations"): a held robot never
-#: sends them; everything else (`set`, `wshift`, `here`, `finish`, `w2`...) moves nothing.
+#: Console commands that move the arm (docs/reference/c500c-console.md "Motion and locations"): a
+#: held robot never sends them; everything else (`set`, `wshift`, `here`, `finish`, `w2`...) moves
+#: nothing.
 MOTION_COMMANDS = frozenset(
     {
         "move", "moves", "ready", "home", "appro", "appros", "depart", "departs",
@@ -36,7 +37,8 @@ def format_mm(value_mm: float) -> str:
 
 
 def round_deg(value_deg: float) -> float:
-    """An angle as `wshift` takes it: 0.001 degree (C500C.md: mm and degrees, 3 decimals)."""
+    """An angle as `wshift` takes it: 0.001 degree (docs/reference/c500c-console.md: mm and degrees,
+    3 decimals)."""
     return float(f"{value_deg:.{ANGLE_DECIMALS}f}") + 0.0
 
 
@@ -44,8 +46,9 @@ def format_deg(value_deg: float) -> str:
     return f"{round_deg(value_deg):.{ANGLE_DECIMALS}f}"
 
 
-#: One write to the console: the commands sent together (C500C.md: `set` and `wshift` may go in
-#: one write, the 1,024-byte kernel FIFO holds them), each answered by its own prompt.
+#: One write to the console: the commands sent together (docs/reference/c500c-console.md: `set` and
+#: `wshift` may go in one write, the 1,024-byte kernel FIFO holds them), each answered by its own
+#: prompt.
 Write = tuple[str, ...]
 
 
@@ -58,11 +61,11 @@ def absolute_move_commands(
     readback: bool = True,
     rotation_deg: Vector3 = (0.0, 0.0, 0.0),
 ) -> tuple[list[Write], Vector3]:
-    """The absolute-move sequence of C500C.md (thesis 6.4.4: every goal is defined from the
-    operational goal), as writes, and the offset actually commanded after rounding to 0.001 mm.
-    ``rotation_deg``: the wshift angles z-rot, y-rot, x-rot (degrees, sent with 0.001 degree:
-    :func:`round_deg`); zeros print as `0,0,0`, the bytes of a translation-only step. Without
-    ``readback`` the `w2` at the end is left out."""
+    """The absolute-move sequence of docs/reference/c500c-console.md (thesis 6.4.4: every goal is
+    defined from the operational goal), as writes, and the offset actually commanded after rounding
+    to 0.001 mm. ``rotation_deg``: the wshift angles z-rot, y-rot, x-rot (degrees, sent with 0.001
+    degree: :func:`round_deg`); zeros print as `0,0,0`, the bytes of a translation-only step.
+    Without ``readback`` the `w2` at the end is left out."""
     commanded = (round_mm(offset_mm[0]), round_mm(offset_mm[1]), round_mm(offset_mm[2]))
     dx, dy, dz = (format_mm(v) for v in commanded)
     angles = [round_deg(v) for v in rotation_deg]
@@ -77,16 +80,18 @@ def absolute_move_commands(
     return writes, commanded
 
 
-#: The console's speed setting (C500C.md "Motion and locations": `speed [%]`; catalogue 015
-#: `Illegal speed chosen` outside it): a whole percentage of the controller's maximum speed.
+#: The console's speed setting (docs/reference/c500c-console.md "Motion and locations": `speed [%]`;
+#: catalogue 015 `Illegal speed chosen` outside it): a whole percentage of the controller's maximum
+#: speed.
 MIN_SPEED_PERCENT = 1
 MAX_SPEED_PERCENT = 100
 
 
 def speed_command(percent: int) -> str:
-    """`speed N` (C500C.md "Motion and locations"): the controller's speed for the motions
-    that follow, in percent of its maximum. It moves nothing. The acceleration has no console
-    command (C500C.md lists none): the controller keeps its own."""
+    """`speed N` (docs/reference/c500c-console.md "Motion and locations"): the controller's speed
+    for the motions that follow, in percent of its maximum. It moves nothing. The acceleration has
+    no console command (docs/reference/c500c-console.md lists none): the controller keeps its
+    own."""
     if isinstance(percent, bool) or not isinstance(percent, int):
         raise ValueError(f"a speed is a whole percentage, not {percent!r}")
     if not MIN_SPEED_PERCENT <= percent <= MAX_SPEED_PERCENT:

@@ -308,10 +308,11 @@ async def read_reply(
     """The bytes of ``command``'s reply up to its prompt (the rest stays pending), and whether
     the system shell's prompt ended it.
 
-    The PAUSE/CONTINUE request means the controller waits for the operator (C500C.md "Point of
-    control"): the deadline becomes ``point_of_control_timeout_s`` and the callbacks say when
-    the wait starts and ends; past it, PointOfControlError. A question raises QuestionAsked at
-    once when known, after QUESTION_SETTLE_S of silence when it only looks like one."""
+    The PAUSE/CONTINUE request means the controller waits for the operator
+    (docs/reference/c500c-console.md "Point of control"): the deadline becomes
+    ``point_of_control_timeout_s`` and the callbacks say when the wait starts and ends; past it,
+    PointOfControlError. A question raises QuestionAsked at once when known, after QUESTION_SETTLE_S
+    of silence when it only looks like one."""
     loop = asyncio.get_running_loop()
     deadline = loop.time() + options.timeout_s
     awaiting_operator = False

@@ -160,8 +160,8 @@ class ConsoleLink(LinkLifecycle):
             bytesize=settings.bytesize,
             parity=settings.parity,
             stopbits=settings.stopbits,
-            # C500C.md: the notes say RTS/CTS "does not seem to work" on the console, the
-            # same repository's host service enables it: a setting, off by default
+            # docs/reference/c500c-console.md: the notes say RTS/CTS "does not seem to work" on the
+            # console, the same repository's host service enables it: a setting, off by default
             rtscts=settings.flow_control == "rtscts",
         )
         return Connection(reader, writer, self.transcript, self.counters)
@@ -176,9 +176,10 @@ class ConsoleLink(LinkLifecycle):
             self._dirty = None
             self._enter(LinkState.CONNECTED)
             self._connected_event.set()
-            # C500C.md "Questions": a new name in `set` may ask "-- create it?"; the target is
-            # created once per connection so it never does. The goal is not created here: it
-            # exists only once taught, so a controller that lost it says "variable not found."
+            # docs/reference/c500c-console.md "Questions": a new name in `set` may ask "-- create
+            # it?"; the target is created once per connection so it never does. The goal is not
+            # created here: it exists only once taught, so a controller that lost it says "variable
+            # not found."
             if self.prepare:
                 await self._create_variable(TARGET_LOCATION)
                 if self.settings.online:
@@ -263,7 +264,8 @@ class ConsoleLink(LinkLifecycle):
         return raw
 
     def _waiting_for_operator(self) -> None:
-        """C500C.md "Point of control": the controller waits for PAUSE/CONTINUE."""
+        """docs/reference/c500c-console.md "Point of control": the controller waits for
+        PAUSE/CONTINUE."""
         self._point_of_control = False
         self._enter(LinkState.AWAITING_POINT_OF_CONTROL)
         logger.warning(

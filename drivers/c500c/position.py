@@ -1,6 +1,6 @@
 """The C500C console's `w0`/`w2` position read-out as pure functions: the parser the driver
-reads the pose with and the formatter the emulator prints with (C500C.md; ASSUMED 8 in
-drivers/c500c/texts.py where the layout is not exact).
+reads the pose with and the formatter the emulator prints with (docs/reference/c500c-console.md;
+ASSUMED 8 in drivers/c500c/texts.py where the layout is not exact).
 """
 
 from __future__ import annotations
@@ -58,10 +58,10 @@ def _six(text: str, pattern: str, what: str) -> list[str]:
 
 
 def parse_position_table(lines: Sequence[str]) -> PositionTable:
-    """The read-out of `w0`/`w2` (C500C.md): the WORLD values are on the first non-empty line
-    after the `WORLD (mm) ...` units line; the older single-line form `WORLD  v v v v v v` is
-    accepted too. PULSES are integers, JOINTS and WORLD decimals. A read-out in inches is
-    refused: at 0.001 in (25.4 um) the console's resolution is too coarse to compensate with,
+    """The read-out of `w0`/`w2` (docs/reference/c500c-console.md): the WORLD values are on the
+    first non-empty line after the `WORLD (mm) ...` units line; the older single-line form `WORLD  v
+    v v v v v` is accepted too. PULSES are integers, JOINTS and WORLD decimals. A read-out in inches
+    is refused: at 0.001 in (25.4 um) the console's resolution is too coarse to compensate with,
     and a silent conversion would hide that (switch the controller to metric)."""
     world: tuple[float, ...] | None = None
     joints: tuple[float, ...] | None = None
@@ -129,8 +129,8 @@ def format_w_table(
     layout: Layout = "firmware",
 ) -> list[str]:
     """The lines of a `w0`/`w2` read-out as the emulator prints them: the firmware layout of
-    C500C.md (ASSUMED 8 where it is not exact), or the older single-line layout this project
-    used before (kept only for the parser's compatibility test)."""
+    docs/reference/c500c-console.md (ASSUMED 8 where it is not exact), or the older single-line
+    layout this project used before (kept only for the parser's compatibility test)."""
     for label, values in (("PULSES", pulses), ("JOINTS", joints), ("WORLD", world)):
         if len(values) != 6:
             raise ValueError(f"{label}: six values expected, not {len(values)}")

@@ -1,6 +1,6 @@
 """What the C500C console says besides data, as pure functions: its questions, the messages
 after which it does not do what was asked, its error lines (shell errors and the motion
-catalogue) and the point-of-control request (C500C.md "Questions", "Errors").
+catalogue) and the point-of-control request (docs/reference/c500c-console.md "Questions", "Errors").
 """
 
 from __future__ import annotations
@@ -30,9 +30,10 @@ class Question:
     answer: str | None  # what the driver answers deliberately; None: never answer it
 
 
-#: The questions the firmware can ask (C500C.md "Questions"), matched at the end of what the
-#: console printed. The driver creates its variables with `new` so "create it?" is not asked; if
-#: it is all the same, it answers "no": a variable the driver did not create is an error.
+#: The questions the firmware can ask (docs/reference/c500c-console.md "Questions"), matched at the
+#: end of what the console printed. The driver creates its variables with `new` so "create it?" is
+#: not asked; if it is all the same, it answers "no": a variable the driver did not create is an
+#: error.
 KNOWN_QUESTIONS: tuple[Question, ...] = (
     Question("create-variable", "  -- create it? ", "no"),
     Question("yes-or-no", "Please answer 'yes' or 'no': ", "no"),

@@ -12,11 +12,12 @@ command (`move`, `moves`, `wx`..., see ``c500c_protocol.MOTION_COMMANDS``) check
 the driver's lock immediately before its bytes are written, so a move queued behind another
 command (a read-back, a teach, the reconnection) is refused with MotionHeldError. Only
 :meth:`C500CRobot.resume` releases a hold. What a hold cannot do on this console: stop a motion
-already written. `ash` has no known command that halts a motion in progress (C500C.md), so the
-move under way (one small compensation step, `finish`ed before the next) runs to its end; the
-controller-side fast-path program can halt (RAPL-3 `halt()`), and the hardware E-stop remains
-the operator's way to stop the arm now. Likewise a motion command waiting for the point of
-control moves the arm when the operator presses PAUSE/CONTINUE, even after the driver gave up.
+already written. `ash` has no known command that halts a motion in progress
+(docs/reference/c500c-console.md), so the move under way (one small compensation step, `finish`ed
+before the next) runs to its end; the controller-side fast-path program can halt (RAPL-3 `halt()`),
+and the hardware E-stop remains the operator's way to stop the arm now. Likewise a motion command
+waiting for the point of control moves the arm when the operator presses PAUSE/CONTINUE, even after
+the driver gave up.
 
 After a link fault the driver reconnects in the background, but sends no motion until the caller
 explicitly resumes (a robot must never move on its own after something went wrong).
@@ -114,7 +115,8 @@ class C500CRobot(ConsoleLink):
         """`new <var>`, `here <var>`, then `w2`, with <var> the goal's location variable
         (`opgoal` for the default goal, `g_<name>` for the others: drivers/goals.py): moves
         nothing, so it is allowed while held. The variable is made with `new` the first time
-        it is taught (C500C.md "Questions": `here` to an unknown name would ask)."""
+        it is taught (docs/reference/c500c-console.md "Questions": `here` to an unknown name would
+        ask)."""
         variable = goal_variable(goal, DEVICE)
         async with self._lock:
             await self._create_variable(variable)
@@ -201,9 +203,10 @@ class C500CRobot(ConsoleLink):
         """Goal + offset (thesis 6.4.4): `set cur = <goal>` and `wshift cur,dx,dy,dz,zrot,yrot,
         xrot` in one write, `moves`, `finish`, and the `w2` read-back every
         robot.readback_every-th move. ``rotation_rad``: a rotation vector in the base frame
-        (daemon.arm.types.Pose6), sent as its z-y-x angles in degrees with 3 decimals (C500C.md;
-        drivers/goals.py). The read-back is checked on the position only: how the controller
-        composes wshift's angles with the goal's is not documented (C500C.md).
+        (daemon.arm.types.Pose6), sent as its z-y-x angles in degrees with 3 decimals
+        (docs/reference/c500c-console.md; drivers/goals.py). The read-back is checked on the
+        position only: how the controller composes wshift's angles with the goal's is not documented
+        (docs/reference/c500c-console.md).
 
         ``speed_percent`` (SpeedGoalRobot): `speed N` first, in the same write as `set` and
         `wshift`, only when N differs from the speed last sent (it moves nothing; a hold that
@@ -299,7 +302,8 @@ class C500CRobot(ConsoleLink):
         A lost goal is not re-created from the recorded pose: the console's read-out has only
         0.001 mm and no arm configuration (stance) for it, and after a restart the calibration
         it was taught in may be gone, so a goal rebuilt that way could differ from the taught
-        one without anything showing it (C500C.md); teaching it again is the operator's call.
+        one without anything showing it (docs/reference/c500c-console.md); teaching it again is the
+        operator's call.
 
         A hold requested while this runs wins: the hold stays and MotionHeldError is raised."""
         holds_before = self._holds

@@ -3,9 +3,9 @@ serves the binary protocol of controller/PROTOCOL.md on the controller's second 
 (the link itself: drivers/c500c/server_link.py).
 
 One step is one MOVE_GOAL frame out and one reply in (68 bytes, ~6 ms of line at 115200) instead
-of the console's five commands and its `w2` table (C500C.md "The fast path"). A hold writes
-HOLD at once, even while a move awaits its reply: the program polls the port during the move
-and halt()s it, and the move is answered with catalogue 044.
+of the console's five commands and its `w2` table (docs/reference/c500c-console.md "The fast path").
+A hold writes HOLD at once, even while a move awaits its reply: the program polls the port during
+the move and halt()s it, and the move is answered with catalogue 044.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
 
-#: Catalogue 044 (C500C.md); the console's table of texts may not carry it.
+#: Catalogue 044 (docs/reference/c500c-console.md); the console's table of texts may not carry it.
 HALT_TEXT = "Halt() command invoked"
 
 

@@ -39,8 +39,8 @@ SEQUENCE_MODULO = 1 << 16
 REPLY_BIT = 0x80
 
 #: Fixed-point units on the wire: 0.1 um and 0.0001 degree per count (int32, +-214 m range).
-#: Ten times finer than the console's 0.001 mm (C500C.md `%+10.3f`), so the fast path never
-#: rounds an offset the thesis's model asks for (sub-micrometre, thesis 6.4.4).
+#: Ten times finer than the console's 0.001 mm (docs/reference/c500c-console.md `%+10.3f`), so the
+#: fast path never rounds an offset the thesis's model asks for (sub-micrometre, thesis 6.4.4).
 COUNTS_PER_MM = 10_000
 COUNTS_PER_DEG = 10_000
 _INT32_MIN, _INT32_MAX = -(1 << 31), (1 << 31) - 1
@@ -61,7 +61,8 @@ class RequestType(enum.IntEnum):
 
 class Status(enum.IntEnum):
     """Reply status. 1..999 are the controller's motion catalogue numbers passed through
-    (C500C.md: 001, 003, 005, 007, 015, 027, 043, 044); the program's own codes are >= 1000."""
+    (docs/reference/c500c-console.md: 001, 003, 005, 007, 015, 027, 043, 044); the program's own
+    codes are >= 1000."""
 
     OK = 0
     HALTED = 44  # catalogue 044 `Halt() command invoked`: a hold or the silence timeout

@@ -1,18 +1,19 @@
 """The CRS C500C `ash` console's fixed texts and what this project had to assume about it.
 
 The firmware's texts (prompts, line ends, error catalogues, the `w0`/`w2` layout) come from the
-project's shared notes (C500C.md, beside DESIGN.md); everything no public source confirms is
-collected in the single block ``ASSUMED`` below, so that a session on the real controller
-corrects it in one place. The functions built on them are :mod:`drivers.c500c.protocol` (framing),
-:mod:`drivers.c500c.replies` (questions, errors), :mod:`drivers.c500c.position` (`w0`/`w2`) and
-:mod:`drivers.c500c.commands` (command sequences).
+project's shared notes (docs/reference/c500c-console.md, beside DESIGN.md); everything no public
+source confirms is collected in the single block ``ASSUMED`` below, so that a session on the real
+controller corrects it in one place. The functions built on them are :mod:`drivers.c500c.protocol`
+(framing), :mod:`drivers.c500c.replies` (questions, errors), :mod:`drivers.c500c.position`
+(`w0`/`w2`) and :mod:`drivers.c500c.commands` (command sequences).
 """
 
 from __future__ import annotations
 
 DEVICE = "robot"
 
-# --- from the firmware and the console capture (C500C.md) ---------------------------------------
+# --- from the firmware and the console capture (docs/reference/c500c-console.md)
+# ---------------------------------------
 
 #: Ctrl-E interrupts continuous displays; host scripts send it to get a clean line [capture].
 CTRL_E = b"\x05"
@@ -21,7 +22,7 @@ SHELL_PROMPT = b"$ "
 #: Every line the console prints ends with CR LF, echoes included [capture].
 REPLY_LINE_END = b"\r\n"
 #: The literal the firmware prints before shell errors [firmware]; motion errors may or may not
-#: carry it (C500C.md "Errors"), so both forms are accepted.
+#: carry it (docs/reference/c500c-console.md "Errors"), so both forms are accepted.
 ERROR_PREFIX = "error: "
 #: Shell error texts, exactly as the firmware prints them [firmware].
 SHELL_ERRORS: tuple[str, ...] = (
@@ -60,7 +61,8 @@ BLOCKING_MESSAGES: tuple[str, ...] = (
 )
 #: `w0`/`w2` print positions as `%+10.3f` [firmware]: 0.001 mm is the finest the console shows.
 POSITION_DECIMALS = 3
-#: Decimals of the angles `wshift` is given (C500C.md "The absolute-move sequence": 3).
+#: Decimals of the angles `wshift` is given (docs/reference/c500c-console.md "The absolute-move
+#: sequence": 3).
 ANGLE_DECIMALS = 3
 #: The read-out's fixed texts [firmware].
 ACTUAL_TITLE = "Actual Position :"
@@ -89,8 +91,8 @@ WORLD_VALUES_INDENT = 8
 #    probe follows Ctrl-E in the same write, later ones go alone (in case Ctrl-E made the
 #    console drop what was typed right after it).
 # 7. A question is printed without a line end and waits for one answer line; `new <name>`
-#    creates a location variable (C500C.md: `help new`) and prints nothing, or an error line
-#    when the name exists already (either is accepted).
+#    creates a location variable (docs/reference/c500c-console.md: `help new`) and prints nothing,
+# or an error line    when the name exists already (either is accepted).
 # 8. The PULSES and JOINTS rows are the row name padded to 8 characters, then six values one
 #    space apart (`%+10d` and `%+10.3f`); the lines for axes 7 and 8 are not printed on a
 #    six-axis arm; the WORLD units line is `WORLD` padded to 8 then the six units, each

@@ -1,10 +1,10 @@
 """The emulated C500C's `ash` command interpreter: one line in, answer lines out (no I/O).
 
 drivers/sim/emulator.py serves it on a pty or a TCP port. It follows the firmware's texts and
-layouts of C500C.md through drivers/c500c/protocol.py; what no source confirms is the
-``ASSUMED`` block of drivers/c500c/texts.py. Emulator-only simplifications (not protocol
-assumptions): without an arm (EmulatorConfig.joint_arm) there are no kinematics (the PULSES and
-JOINTS rows are zeros), the reach check is a sphere of ``REACH_MM`` around the base and `wshift`
+layouts of docs/reference/c500c-console.md through drivers/c500c/protocol.py; what no source
+confirms is the ``ASSUMED`` block of drivers/c500c/texts.py. Emulator-only simplifications (not
+protocol assumptions): without an arm (EmulatorConfig.joint_arm) there are no kinematics (the PULSES
+and JOINTS rows are zeros), the reach check is a sphere of ``REACH_MM`` around the base and `wshift`
 adds its angles; with one, the arm lives in joint space (drivers/sim/joint_arm.py: inverse
 kinematics, trapezoidal profiles, JOINTS and PULSES from the joints). Relative `w*` moves start
 from the actual (not the commanded) pose, so their positioning errors accumulate as the
@@ -49,7 +49,8 @@ class _Question:
 
 
 def _shell_error(text: str) -> str:
-    """A shell error as the firmware prints it: `error: ` and the text (C500C.md "Errors")."""
+    """A shell error as the firmware prints it: `error: ` and the text
+    (docs/reference/c500c-console.md "Errors")."""
     return proto.format_error(None, text)
 
 
@@ -203,7 +204,8 @@ class Console:
             if handler is None:
                 raise ConsoleCommandError(proto.format_error(None, "Unrecognized command."))
             if name in MOTION_WORDS and not self.state.point_of_control:
-                # C500C.md "Point of control": the request, then the wait for the button
+                # docs/reference/c500c-console.md "Point of control": the request, then the wait for
+                # the button
                 self.state.awaiting_button = True
                 self._after_button = line
                 return [proto.POINT_OF_CONTROL_MESSAGE]
@@ -344,8 +346,8 @@ class Console:
         return self._table(self.actual_pose(now_s), proto.ACTUAL_TITLE, joints)
 
     def _cmd_new(self, rest: str) -> list[str]:
-        """`new <name>` makes a location (C500C.md: `help new`); ASSUMED 7: silent, and an
-        error line when the name exists already (its value is kept)."""
+        """`new <name>` makes a location (docs/reference/c500c-console.md: `help new`); ASSUMED 7:
+        silent, and an error line when the name exists already (its value is kept)."""
         (name,) = self._arguments(rest, 1)
         if self._variable_name(name) in self.state.locations:
             raise ConsoleCommandError(_shell_error("variable already exists."))

@@ -17,8 +17,8 @@ REACH_MM = 900.0
 #: Where the emulated arm starts: x, y, z (mm), z-rot, y-rot, x-rot (degrees).
 START_POSE: tuple[float, ...] = (457.200, 0.000, 254.000, 0.000, 90.000, 0.000)
 #: The console's speed setting when the controller starts (`speed` prints it; `speed N` sets it,
-#: C500C.md "Motion and locations"). The emulated arm's joint speeds scale with it
-#: (drivers/sim/joint_arm.py).
+#: docs/reference/c500c-console.md "Motion and locations"). The emulated arm's joint speeds scale
+#: with it (drivers/sim/joint_arm.py).
 START_SPEED_PERCENT = 10
 #: Command lines the emulator keeps for inspection (tests, drills): the latest ones only.
 COMMAND_LOG_LINES = 10_000

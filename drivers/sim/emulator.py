@@ -1,13 +1,13 @@
 """An emulated CRS C500C console (`ash` shell) on a real pseudo-terminal or a TCP port.
 
-It serves the subset of C500C.md the driver uses: echo, prompts, CRLF replies, arm power /
-homed / online / point-of-control states, named locations, `new`, `here`, `set`, `wshift`,
-`move`, `moves` (error 043 when not online), `wx`/`wy`/`wz` (and their straight-line `s`
-forms), `finish`, `w0`/`w2` in the firmware's layout, `online`, `armpower`, `home`, `speed`,
-Ctrl-E, the shell `$ ` prompt and `ash [application]`. It asks the firmware's questions when
-the host triggers them (`here`/`set` to a variable that does not exist: "-- create it?"; `ash`
-without an application: "Application name > "), and a motion command without the point of
-control prints the PAUSE/CONTINUE request and blocks until the button is pressed
+It serves the subset of docs/reference/c500c-console.md the driver uses: echo, prompts, CRLF
+replies, arm power / homed / online / point-of-control states, named locations, `new`, `here`,
+`set`, `wshift`, `move`, `moves` (error 043 when not online), `wx`/`wy`/`wz` (and their
+straight-line `s` forms), `finish`, `w0`/`w2` in the firmware's layout, `online`, `armpower`,
+`home`, `speed`, Ctrl-E, the shell `$ ` prompt and `ash [application]`. It asks the firmware's
+questions when the host triggers them (`here`/`set` to a variable that does not exist: "-- create
+it?"; `ash` without an application: "Application name > "), and a motion command without the point
+of control prints the PAUSE/CONTINUE request and blocks until the button is pressed
 (:meth:`C500CEmulator.press_pause_continue`, or SIGUSR1 to ``thermocomp emulate``).
 The byte-level conventions it follows are those of :mod:`drivers.c500c.protocol`; the
 ``ASSUMED`` block of :mod:`drivers.c500c.texts` is the one place where unconfirmed parts of the
@@ -171,7 +171,7 @@ class C500CEmulator:
 
     def restart_controller(self) -> None:
         """The controller restarts now: it forgets every variable (the taught goal too) and its
-        console is at the system shell (C500C.md); the link itself stays."""
+        console is at the system shell (docs/reference/c500c-console.md); the link itself stays."""
         logger.info("emulated controller restarts")
         self.console.restart()
 

@@ -59,8 +59,8 @@ class EmulatorConfig:
     point_of_control: bool = True
     start_in_shell: bool = False  # start at the system shell `$ ` instead of the ash prompt
     start_pose: tuple[float, ...] = START_POSE
-    #: how `w0`/`w2` print: the firmware's layout (C500C.md); "single-line" is this project's
-    #: older layout, kept only for the driver's compatibility test
+    #: how `w0`/`w2` print: the firmware's layout (docs/reference/c500c-console.md); "single-line"
+    #: is this project's older layout, kept only for the driver's compatibility test
     layout: proto.Layout = "firmware"
     faults: tuple[Fault[FaultKind], ...] = ()
     #: an arm in joint space (issue 20; drivers/sim/joint_arm.py): its pose is its joints, world

@@ -103,7 +103,8 @@ class StreamLink:
 
 
 class Pacer:
-    """10 bit times per character at the baud rate (C500C.md: 0.17 ms per byte at 57600)."""
+    """10 bit times per character at the baud rate (docs/reference/c500c-console.md: 0.17 ms per
+    byte at 57600)."""
 
     def __init__(self, baudrate: int, enabled: bool) -> None:
         self.byte_s = BITS_PER_CHARACTER / baudrate

@@ -7,24 +7,24 @@ heat from the motion the emulator performed (drivers/sim/arm_bench.py, wt-armben
 
 No I/O here: drivers/sim/ash.py (the console) uses it when its EmulatorConfig has an arm.
 
-Conventions (ASSUMED where C500C.md is silent):
+Conventions (ASSUMED where docs/reference/c500c-console.md is silent):
 - A world location is x, y, z (mm) and z-rot, y-rot, x-rot (degrees): the tool's position
   and its rotation as intrinsic z-y-x angles (daemon.arm.types.Pose6.zyx_deg's convention).
 - `wshift loc,dx,dy,dz,zr,yr,xr` turns the location by the z-y-x rotation (zr, yr, xr) in the
-  world frame about its own position and moves it by (dx, dy, dz) (C500C.md: "shifts a location
-  in world coordinates").
+  world frame about its own position and moves it by (dx, dy, dz) (docs/reference/c500c-console.md:
+  "shifts a location in world coordinates").
 - A location the inverse kinematics cannot reach from the current joints within the joint
   limits (no change of branch: the controller keeps its stance) is catalogue 003.
 - At the wrist singularity (the last three joints' axes in one plane: the A465's joint 5 = 0,
   joints 4 and 6 aligned) the controller keeps the first wrist joint where it is and solves
   the other joints for the position exactly and for the orientation as closely as the wrist
-  allows (ASSUMED, C500C.md is silent; the usual closed-form treatment of a spherical wrist's
-  singularity, Siciliano et al., *Robotics: Modelling, Planning and Control*, 2009, § 2.12.2
-  and § 3.3.2: there only the sum of joints 4 and 6 is determined, and an exact solution of a
-  location a few µrad off the singular set swings joints 4 and 6 by tens of degrees in opposite
-  senses). Without it a µm-scale `wshift` at the camera station swung joints 4 and 6 by ~27
+  allows (ASSUMED, docs/reference/c500c-console.md is silent; the usual closed-form treatment of a
+  spherical wrist's singularity, Siciliano et al., *Robotics: Modelling, Planning and Control*,
+  2009, § 2.12.2 and § 3.3.2: there only the sum of joints 4 and 6 is determined, and an exact
+  solution of a location a few µrad off the singular set swings joints 4 and 6 by tens of degrees in
+  opposite senses). Without it a µm-scale `wshift` at the camera station swung joints 4 and 6 by ~27
   degrees, and the bench's true arm (other DH values, as any real arm) moved the tool 25-45 µm
-  away from the commanded change (README "Running a duty cycle on an arm"). A location whose
+  away from the commanded change (docs/explanation/arm.md). A location whose
   orientation the locked wrist cannot reach within ``WRIST_LOCK_ROTATION_TOLERANCE_RAD`` (a
   real reorientation) is solved exactly as elsewhere.
 """
@@ -58,7 +58,8 @@ DEFAULT_SPEED_DEG_S = 60.0
 DEFAULT_ACCELERATION_DEG_S2 = 240.0
 #: The console's speed setting at which ``speed_deg_s`` applies (drivers/sim/ash_state.py
 #: START_SPEED_PERCENT: the controller's setting at start-up, which the emulator of before never
-#: changed): at another setting the joint speed scales in proportion (`speed N`, C500C.md).
+#: changed): at another setting the joint speed scales in proportion (`speed N`,
+#: docs/reference/c500c-console.md).
 REFERENCE_SPEED_PERCENT = 10
 #: Encoder pulses per joint degree for the `PULSES` row. ESTIMATED: no public figure for the
 #: A465 was found; the order of a 1,000-line quadrature encoder (4,000 counts per motor turn)
@@ -113,8 +114,9 @@ class JointArmConfig:
     #: the bench's speed only, off by default
     cache_solutions: bool = False
     #: ... and acceleration limits (deg/s^2), NOT scaled by the speed setting: the console has
-    #: no acceleration command (C500C.md "Motion and locations" lists `speed [%]` only), so the
-    #: controller keeps its own (ASSUMED); None: ``acceleration_deg_s2`` for every joint
+    #: no acceleration command (docs/reference/c500c-console.md "Motion and locations" lists `speed
+    #: [%]` only), so the controller keeps its own (ASSUMED); None: ``acceleration_deg_s2`` for
+    #: every joint
     max_accel_deg_s2: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:

@@ -45,7 +45,8 @@ logger = logging.getLogger(__name__)
 
 #: The program's constant (controller/thermocomp_server.r3 SILENCE_MS) in seconds.
 DEFAULT_SILENCE_TIMEOUT_S = 1.0
-#: The fast path's port speed (C500C.md: the repository's programs open /dev/sio1 at 115200).
+#: The fast path's port speed (docs/reference/c500c-console.md: the repository's programs open
+#: /dev/sio1 at 115200).
 SERVER_BAUDRATE = 115200
 #: How long a `silence` fault lasts when the spec gives no duration (s).
 DEFAULT_SILENCE_FAULT_S = 5.0
@@ -362,7 +363,8 @@ class C500CServerEmulator(C500CEmulator):
         moves_to_goal = request.type is proto.RequestType.MOVE_GOAL
         base = self.goal_at(request.goal) if moves_to_goal else self.actual_pose()
         assert base is not None
-        # shift_w(cur, offset): world-frame shift of every coordinate (C500C.md `wshift`).
+        # shift_w(cur, offset): world-frame shift of every coordinate
+        # (docs/reference/c500c-console.md `wshift`).
         state.locations[TARGET_LOCATION] = self.console.shift_location(base, request.offset)
         # The motion starts once the request has arrived (paced line), in both arm models.
         self.console.motion_not_before = arrived

@@ -5,18 +5,18 @@ Each pose in the cycle's order: the move to its taught goal plus the latest corr
 step pipeline checked for that pose (daemon/run/arm/step.py: the correction of each taught pose at
 its own configuration, checked against the arm.max_* limits before it is handed here; a refused
 one never is), at the pose's speed (the console's `speed N`, sent by the driver only when it
-changes; the acceleration is the controller's own: C500C.md has no command for it), then the
-pose's dwell on the run clock. A step that measures a pose names it first (:meth:`expect`, before
-its model runs); the move into that pose waits until the step has handed over its corrections
-(:meth:`ready`); when the robot is there (:meth:`arrive`) the step measures the tool during the
-dwell, and the player waits for the step (:meth:`release`) before it moves on, so the robot
-never moves under a measurement.
+changes; the acceleration is the controller's own: docs/reference/c500c-console.md has no command
+for it), then the pose's dwell on the run clock. A step that measures a pose names it first
+(:meth:`expect`, before its model runs); the move into that pose waits until the step has handed
+over its corrections (:meth:`ready`); when the robot is there (:meth:`arrive`) the step measures the
+tool during the dwell, and the player waits for the step (:meth:`release`) before it moves on, so
+the robot never moves under a measurement.
 
 The player owns no run state: daemon/run/session.py starts it when the run runs and stops it on a
 pause, a fault and the end (:meth:`stop` lets a move already written end: cutting a console
 move mid-exchange would hold the robot and dirty the link; the console cannot halt a motion
-anyway, C500C.md), and restarts it on a resume from the pose after the last one reached. An
-error (a DeviceError, a move refused after a hold) ends the playing; the next step's
+anyway, docs/reference/c500c-console.md), and restarts it on a resume from the pose after the last
+one reached. An error (a DeviceError, a move refused after a hold) ends the playing; the next step's
 :meth:`arrive` raises it, so it reaches the run through that step's verdict. The hold contract
 is the driver's: after ``robot.stop()`` every move is refused right before its bytes are
 written, so no move of the cycle reaches the robot after a hold.

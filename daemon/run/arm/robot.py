@@ -3,13 +3,13 @@ absolute moves (drivers/base.py GoalRobot, both C500C drivers) behind the ArmRob
 daemon/run/arm/step.py.
 
 Teaching a measured pose of the duty cycle: the console teaches only where the robot stands
-(`here <var>`, C500C.md), so the robot is first brought to the pose. The pose where the robot
-stands at the start is taught as the default goal (`opgoal`, as the two-link bench does), and
-each measured pose is reached by one absolute move from it (``set cur = opgoal``, ``wshift``
-by the pose's tool position and orientation relative to it, ``moves cur``; C500C.md "The
-absolute-move sequence") and taught there under its own name. Every later step moves to "its
-goal + its correction". The driver's hold contract holds throughout: each of these is a
-motion command refused after a hold, right before its bytes are written.
+(`here <var>`, docs/reference/c500c-console.md), so the robot is first brought to the pose. The pose
+where the robot stands at the start is taught as the default goal (`opgoal`, as the two-link bench
+does), and each measured pose is reached by one absolute move from it (``set cur = opgoal``,
+``wshift`` by the pose's tool position and orientation relative to it, ``moves cur``;
+docs/reference/c500c-console.md "The absolute-move sequence") and taught there under its own name.
+Every later step moves to "its goal + its correction". The driver's hold contract holds throughout:
+each of these is a motion command refused after a hold, right before its bytes are written.
 """
 
 from __future__ import annotations
