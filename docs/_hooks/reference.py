@@ -348,7 +348,7 @@ def step_columns() -> list[ColumnDoc]:
     them (a comment on the line, or on the lines just above; ``# --- ... ---`` starts a group)."""
     from daemon.storage.step_record import STEP_COLUMNS, StepRecord
 
-    source = (REPO_ROOT / "daemon" / "step_record.py").read_text(encoding="utf-8")
+    source = (REPO_ROOT / "daemon" / "storage" / "step_record.py").read_text(encoding="utf-8")
     source_lines = source.splitlines()
     tree = ast.parse(source)
     (record_class,) = [
