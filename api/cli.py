@@ -62,7 +62,7 @@ COMMANDS: tuple[Command, ...] = (
         "measure the laser spot's sub-pixel centroid in image files",
     ),
     Command("robot", "drivers.robot_check", "check the robot controller's console (moves nothing)"),
-    Command("emulate", "drivers.sim.cli", "serve an emulated device (the C500C robot console)"),
+    Command("emulate", "drivers.sim.cli", "serve an emulated device (the C500C console, a UR)"),
 )
 
 
