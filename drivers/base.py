@@ -7,8 +7,8 @@ the device, leaving closes it whatever happened.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field
 from collections.abc import Coroutine
+from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any, Protocol, Self
 

@@ -64,7 +64,7 @@ def main(host: str) -> None:
                 break
             else:
                 answer = {"error": f"unknown command {words[0]}"}
-        except Exception as err:  # noqa: BLE001 - reported to the test, which fails on it
+        except Exception as err:  # reported to the test, which fails on it
             answer = {"error": f"{type(err).__name__}: {err}"}
         print(json.dumps(answer), flush=True)
     for client in (receiver, io, dashboard):

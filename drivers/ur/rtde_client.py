@@ -97,7 +97,10 @@ class RtdeClient:
             reader = self._reader
             if reader is None:
                 raise NotConnectedError(DEVICE, "RTDE connection closed")
-            data = await reader.read(READ_CHUNK_BYTES)
+            try:
+                data = await reader.read(READ_CHUNK_BYTES)
+            except OSError as err:  # reset by the controller, cable pulled
+                raise NotConnectedError(DEVICE, f"RTDE connection lost: {err}") from err
             if not data:
                 raise NotConnectedError(DEVICE, "the controller closed the RTDE connection")
             self.bytes_received += len(data)

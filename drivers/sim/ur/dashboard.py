@@ -21,6 +21,7 @@ from drivers.ur.modes import PROGRAM_STATE_WORDS, RuntimeState
 logger = logging.getLogger(__name__)
 
 DASHBOARD_PORT = 29999
+CLOSE_TIMEOUT_S = 2.0  # as the RTDE server's
 WELCOME = "Connected: Universal Robots Dashboard Server"
 #: The longest command line read (bytes): longer is garbage and closes the connection.
 MAX_LINE_BYTES = 4096
@@ -56,12 +57,15 @@ class DashboardServer:
     async def close(self) -> None:
         if self._server is not None:
             self._server.close()
-        self.drop_connections()
-        for task in list(self._tasks):
-            task.cancel()
-        for task in list(self._tasks):
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        self.drop_connections()  # each handler sees its connection end and returns
+        tasks = list(self._tasks)
+        if tasks:
+            _, pending = await asyncio.wait(tasks, timeout=CLOSE_TIMEOUT_S)
+            for task in pending:
+                task.cancel()
+            for task in pending:
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
         if self._server is not None:
             await self._server.wait_closed()
             self._server = None

@@ -38,6 +38,8 @@ from drivers.ur.rtde_protocol import PackageType, Recipe
 logger = logging.getLogger(__name__)
 
 RTDE_PORT = 30004
+#: How long a closing server waits for its connections' handlers to return (s).
+CLOSE_TIMEOUT_S = 2.0
 MAX_BUFFERED_BYTES = 256 * 1024
 #: Recipe ids a connection hands out (uint8; 0 is "invalid").
 MAX_RECIPE_ID = 255
@@ -93,12 +95,15 @@ class RtdeServer:
     async def close(self) -> None:
         if self._server is not None:
             self._server.close()
-        self.drop_connections()
-        for task in list(self._tasks):
-            task.cancel()
-        for task in list(self._tasks):
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        self.drop_connections()  # each handler sees its connection end and returns
+        tasks = list(self._tasks)
+        if tasks:
+            _, pending = await asyncio.wait(tasks, timeout=CLOSE_TIMEOUT_S)
+            for task in pending:
+                task.cancel()
+            for task in pending:
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
         if self._server is not None:
             await self._server.wait_closed()
             self._server = None
