@@ -5,6 +5,7 @@ pose" register over a whole cycle (no network)."""
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 
 import pytest
@@ -39,7 +40,7 @@ async def test_the_output_frequency_is_honoured_cycle_by_cycle(frequency_hz: flo
                 stamps.append(stamp)
         finally:
             await client.aclose()
-    steps = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
+    steps = [b - a for a, b in itertools.pairwise(stamps)]
     cycle = rtde.CONTROLLER_CYCLE_S
     # every package is one whole number of 2 ms cycles after the one before, none lost or
     # repeated, and on average exactly 1/f apart (a timestamp is its cycle's, not the wall's)
@@ -57,7 +58,7 @@ async def test_unknown_outputs_are_not_found_and_a_refused_recipe_gets_id_zero()
                 rtde.PackageType.CONTROL_PACKAGE_SETUP_OUTPUTS,
             )
             assert rtde.parse_setup_reply(reply) == (0, ("DOUBLE", "NOT_FOUND"))
-            with pytest.raises(ProtocolError, match="too_fast|refused"):
+            with pytest.raises(ProtocolError, match="recipe refused"):
                 await client.setup_outputs(["timestamp"], 501.0)  # over the 500 Hz loop
         finally:
             await client.aclose()
