@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import itertools
 import os
 import random
 import socket
@@ -40,19 +41,20 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.common import print_table, write_results  # noqa: E402
-from config.settings import RobotSettings  # noqa: E402
-from drivers.sim.ur.emulator import UREmulator  # noqa: E402
-from drivers.ur import registers as regs  # noqa: E402
-from drivers.ur import rtde_protocol as rtde  # noqa: E402
-from drivers.ur.registers import RegisterMap  # noqa: E402
-from drivers.ur.robot import STATE_OUTPUTS, URRobot  # noqa: E402
-from drivers.ur.rtde_client import RtdeClient  # noqa: E402
+from benchmarks.common import print_table, write_results
+from config.settings import RobotSettings
+from drivers.sim.ur.emulator import UREmulator
+from drivers.ur import registers as regs
+from drivers.ur import rtde_protocol as rtde
+from drivers.ur.registers import RegisterMap
+from drivers.ur.robot import STATE_OUTPUTS, URRobot
+from drivers.ur.rtde_client import RtdeClient
 
 HOST_PROCESS = "127.0.34.1"
 HOST_INLINE = "127.0.34.2"
 CYCLE_MS = rtde.CONTROLLER_CYCLE_S * 1000.0
 RECEIVE_HZ = 500.0
+REPO_ROOT = Path(__file__).resolve().parent.parent
 #: The driver's state rate in the latency scenarios: robot.rtde_frequency_hz's default.
 DRIVER_HZ = 125.0
 
@@ -75,7 +77,7 @@ async def emulator_process(host: str) -> AsyncIterator[None]:
         "--host",
         host,
         stdout=asyncio.subprocess.PIPE,
-        cwd=Path(__file__).resolve().parent.parent,
+        cwd=REPO_ROOT,
     )
     assert process.stdout is not None
     try:
@@ -94,7 +96,7 @@ def recipe_names() -> tuple[str, ...]:
 
 def timestamp_checks(stamps: list[float]) -> dict[str, int]:
     lost = reordered = 0
-    for a, b in zip(stamps, stamps[1:], strict=False):
+    for a, b in itertools.pairwise(stamps):
         step = round((b - a) / rtde.CONTROLLER_CYCLE_S)
         if step <= 0:
             reordered += 1
@@ -117,7 +119,7 @@ async def receive_client(duration_s: float) -> dict[str, Any]:
     finally:
         cpu = time.process_time() - cpu0
         await client.aclose()
-    result = timestamp_checks(stamps)
+    result: dict[str, Any] = dict(timestamp_checks(stamps))
     result["cpu_us_per_package"] = cpu / max(1, len(stamps)) * 1e6
     result["duration_s"] = duration_s
     return result
