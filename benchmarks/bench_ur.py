@@ -67,7 +67,9 @@ def percentile(values: list[float], q: float) -> float:
 
 
 @contextlib.asynccontextmanager
-async def emulator_process(host: str) -> AsyncIterator[None]:
+async def emulator_process(host: str, report: list[str]) -> AsyncIterator[None]:
+    """``thermocomp emulate ur`` on ``host``; its closing line (cycles skipped, packages
+    dropped at a full socket) is appended to ``report``."""
     process = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
@@ -87,7 +89,8 @@ async def emulator_process(host: str) -> AsyncIterator[None]:
         yield
     finally:
         process.terminate()
-        await process.wait()
+        rest, _ = await process.communicate()
+        report.extend(rest.decode().strip().splitlines()[-1:])
 
 
 def recipe_names() -> tuple[str, ...]:
@@ -271,7 +274,8 @@ def summary(values: list[float]) -> dict[str, float]:
 
 async def main(duration_s: float, quick: bool) -> dict[str, Any]:
     load_before = os.getloadavg()[0]
-    async with emulator_process(HOST_PROCESS):
+    emulator_report: list[str] = []
+    async with emulator_process(HOST_PROCESS, emulator_report):
         await asyncio.sleep(1.0)
         receive = await receive_client(duration_s)
         bare = await asyncio.to_thread(receive_bare, max(5.0, duration_s / 4))
@@ -293,7 +297,9 @@ async def main(duration_s: float, quick: bool) -> dict[str, Any]:
         ],
         ["loopback write->read ms p50/p99", f"{ref['p50']:.3f}/{ref['p99']:.3f}", "", ""],
     ]
+    print("emulator process:", *emulator_report)
     results: dict[str, Any] = {
+        "emulator_process": emulator_report,
         "receive": receive,
         "receive_bare_reference": bare,
         "loopback_reference_ms": ref,

@@ -91,7 +91,12 @@ async def _serve(emulator: object) -> None:
             flush=True,
         )
         await stop.wait()
-    print("thermocomp emulate: stopped", flush=True)
+    print(
+        f"thermocomp emulate: stopped after {emulator.controller.cycles} cycles "
+        f"({emulator.skipped_cycles} skipped); RTDE packages sent {emulator.rtde.sent_total}, "
+        f"dropped at a full socket {emulator.rtde.skipped_total}",
+        flush=True,
+    )
 
 
 def run(args: argparse.Namespace) -> int:

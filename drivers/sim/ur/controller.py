@@ -5,7 +5,8 @@ on the UR5e joint arm (drivers/sim/ur/player.py), and the RTDE outputs by name.
 The arm's joints are the played program's plus the path offset: the program's offset
 (metres, rotation vector, base frame, as path_offset_set type 1) turned into joint angles
 through the Jacobian, ``dq = J(q)^-1 [1000 d; r]`` (the arm's kinematics are in mm). The
-Jacobian is recomputed when the joints moved more than JACOBIAN_REUSE_RAD since the last one
+Jacobian (also for ``actual_TCP_speed``) is recomputed when the joints moved more than
+JACOBIAN_REUSE_RAD since the last one
 (the offset's joint delta is then off by <= 0.5 % of itself: 0.5 um of a 100 um correction;
 exact at the poses where the program dwells and the tool is measured). ``actual_TCP_pose`` is
 the forward kinematics of those joints (the nominal arm: what the controller believes).
@@ -194,17 +195,21 @@ class URController:
         applied = self.program.applied
         dq = np.zeros(6)
         if any(applied):
-            if (
-                self._jacobian_q is None
-                or np.max(np.abs(q - self._jacobian_q)) > JACOBIAN_REUSE_RAD
-            ):
-                self._jacobian = kinematics.jacobian(self.arm, q)
-                self._jacobian_q = q.copy()
             twist = np.array([*(1000.0 * v for v in applied[:3]), *applied[3:]])
-            dq = np.linalg.solve(self._jacobian, twist)
+            dq = np.linalg.solve(self._jacobian_at(q), twist)
         self._state_t = t_s
         self._state = (q + dq, np.asarray(sample.qd_rad_s, dtype=np.float64), q)
         return self._state
+
+    def _jacobian_at(self, q: FloatArray) -> FloatArray:
+        """The Jacobian at ``q``, reused while the joints stay within JACOBIAN_REUSE_RAD of
+        where it was computed (module docstring: the offset's joints and the TCP speed are
+        then off by <= 0.5 % of themselves; the Jacobian is most of a package's cost)."""
+        reused = self._jacobian_q
+        if reused is None or np.max(np.abs(q - reused)) > JACOBIAN_REUSE_RAD:
+            self._jacobian = kinematics.jacobian(self.arm, q)
+            self._jacobian_q = q.copy()
+        return self._jacobian
 
     def tcp_pose(self, t_s: float) -> tuple[float, ...]:
         """actual_TCP_pose: x, y, z (m) and a rotation vector (rad), base frame."""
@@ -217,7 +222,7 @@ class URController:
         q, qd, _ = self._joint_state(t_s)
         if not np.any(qd):
             return (0.0,) * 6
-        twist = kinematics.jacobian(self.arm, q) @ qd
+        twist = self._jacobian_at(q) @ qd
         return (*(float(v) / 1000.0 for v in twist[:3]), *(float(v) for v in twist[3:]))
 
     def joint_temperatures(self, t_s: float) -> tuple[float, ...]:

@@ -85,6 +85,9 @@ class RtdeServer:
         #: True: the network is silent (fault injection): nothing sent, inputs dropped
         self.silent = False
         self.inputs_received = 0
+        #: data packages sent, and skipped because a client's socket buffer was full
+        self.sent_total = 0
+        self.skipped_total = 0
 
     async def start(self) -> None:
         self._server = await asyncio.start_server(self._serve, self.host, self.port)
@@ -244,8 +247,10 @@ class RtdeServer:
                 continue
             if transport.get_write_buffer_size() > MAX_BUFFERED_BYTES:
                 session.skipped += 1
+                self.skipped_total += 1
                 continue
             recipe = session.output
             values = [self.controller.value(name, t_s) for name in recipe.names]
             session.writer.write(rtde.data_package(recipe, values))
             session.sent += 1
+            self.sent_total += 1
