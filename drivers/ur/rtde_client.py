@@ -172,8 +172,13 @@ class RtdeClient:
                 self._note_text(package)
 
     async def aclose(self) -> None:
-        """Pause synchronisation politely when the link is up, then close."""
-        if self.connected:
-            with contextlib.suppress(OSError, NotConnectedError):
+        """Pause synchronisation when the link is up, let what was written go out (a hold
+        flag written just before must reach the controller), then close."""
+        writer = self._writer
+        if writer is not None and self.connected:
+            with contextlib.suppress(OSError, NotConnectedError, TimeoutError):
                 self.send(rtde.pause())
+                async with asyncio.timeout(self.timeout_s):
+                    writer.close()
+                    await writer.wait_closed()
         self.close()
