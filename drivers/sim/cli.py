@@ -42,7 +42,7 @@ def _faults(text: str) -> tuple[Fault[FaultKind], ...]:
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "emulate",
-        help="serve an emulated device (the C500C robot console)",
+        help="serve an emulated device (the C500C console, a UR)",
         description="Serve the emulated CRS C500C console on a pseudo-terminal (prints the "
         "device path to open) or a TCP port (prints a socket:// URL pyserial opens). "
         "SIGINT or SIGTERM stops it; SIGUSR1 presses PAUSE/CONTINUE (gives the point of "
