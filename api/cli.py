@@ -72,7 +72,7 @@ COMMANDS: tuple[Command, ...] = (
     Command(
         "robot", "drivers.c500c.robot_check", "check the robot controller's console (moves nothing)"
     ),
-    Command("emulate", "drivers.sim.cli", "serve an emulated device (the C500C robot console)"),
+    Command("emulate", "drivers.sim.cli", "serve an emulated device (the C500C console, a UR)"),
 )
 
 

@@ -238,13 +238,17 @@ class IrSettings(Section):
 
 
 class RobotSettings(Section):
-    """The CRS C500C controller's serial console (docs/reference/c500c-console.md)."""
+    """The robot: the CRS C500C controller's serial console (docs/reference/c500c-console.md), or a
+    Universal Robots e-Series over RTDE (``driver = "ur-rtde"``, issue 31: the settings from
+    ``host`` to ``ur_timeout_s``)."""
 
-    driver: Literal["sim", "c500c", "c500c-server"] = Field(
+    driver: Literal["sim", "c500c", "c500c-server", "ur-rtde"] = Field(
         "sim",
         description="sim: the C500C emulator on a pseudo-terminal; c500c: a real port; "
         "c500c-server: the fast path, controller/thermocomp_server.r3 on the controller's second "
-        "port (robot.server_port; on the simulated bench, bench.enabled, its emulator on a pty).",
+        "port (robot.server_port; on the simulated bench, bench.enabled, its emulator on a pty); "
+        "ur-rtde: a UR e-Series over RTDE running controller/ur/thermocomp_offset.script "
+        "(robot.host; docs/how-to/universal-robots.md).",
     )
     port: str = Field("/dev/ttyS0", description="Serial device of the controller's console.")
     baudrate: int = Field(57600, description="Console baud rate (the C500C default is 57600).")
@@ -299,6 +303,50 @@ class RobotSettings(Section):
         1.0,
         description="c500c-server: the program halts and holds after this long without a frame "
         "(s); the emulator uses it, on the controller it is SILENCE_MS in the program.",
+    )
+
+    host: str = Field(
+        "127.0.0.1",
+        description="ur-rtde: the controller's address (the emulator's: 127.0.0.1).",
+        min_length=1,
+        max_length=253,
+    )
+    rtde_port: Annotated[int, Field(ge=1, le=65535)] = Field(
+        30004, description="ur-rtde: RTDE port (UR's fixed 30004)."
+    )
+    dashboard_port: Annotated[int, Field(ge=1, le=65535)] = Field(
+        29999, description="ur-rtde: Dashboard Server port (UR's fixed 29999)."
+    )
+    rtde_frequency_hz: Annotated[float, Field(gt=0, le=500)] = Field(
+        125.0,
+        description="ur-rtde: rate of the robot's state packages (Hz; at most the e-Series' "
+        "500 Hz controller cycle).",
+    )
+    register_base: Annotated[int, Field(ge=24, le=41)] = Field(
+        24,
+        description="ur-rtde: first of the RTDE registers the driver and the robot-side program "
+        "share (drivers/ur/registers.py); the upper range 24-41, since 0-23 collide with the "
+        "fieldbus adapters. Must equal REG_BASE in the program.",
+    )
+    correction_limit_mm: Annotated[float, Field(gt=0, le=2.0)] = Field(
+        1.0,
+        description="ur-rtde: a correction longer than this (mm) is refused before any byte "
+        "(the program refuses beyond its own 2 mm, MAX_OFFSET_M).",
+    )
+    correction_limit_rad: Annotated[float, Field(gt=0, le=0.002)] = Field(
+        0.001,
+        description="ur-rtde: a correction's rotation larger than this (rad) is refused before "
+        "any byte (the program: 2 mrad, MAX_ROTATION_RAD).",
+    )
+    ur_heartbeat_s: Annotated[float, Field(gt=0, le=0.2)] = Field(
+        0.1,
+        description="ur-rtde: the registers are written at least this often (s), so the "
+        "program's 0.5 s watchdog (WATCHDOG_S) never fires while the daemon runs.",
+    )
+    ur_timeout_s: Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S)] = Field(
+        1.0,
+        description="ur-rtde: no state package for this long (s), or a control reply later "
+        "than this, is a link fault: the correction is held and the link reconnects.",
     )
 
     @field_validator("baudrate", "server_baudrate")

@@ -7,9 +7,10 @@ the device, leaving closes it whatever happened.
 from __future__ import annotations
 
 import enum
+from collections.abc import Coroutine
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Protocol, Self
+from typing import Any, Protocol, Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -242,3 +243,63 @@ class SpeedGoalRobot(GoalRobot, Protocol):
         speed; refused outside before anything is sent); None: the speed the controller has.
         The speed is sent only when it differs from the last one sent on this connection."""
         ...
+
+
+# --- a robot that plays its own program (issue 31) -------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class OffsetRobotState:
+    """One state package of a robot that plays its own program (a UR over RTDE)."""
+
+    timestamp_s: float  # the controller's clock (s since it started)
+    received_s: float  # the host's monotonic clock when the package arrived
+    joints_rad: tuple[float, ...]  # actual joint positions
+    joint_speeds_rad_s: tuple[float, ...]
+    #: actual TCP pose, base frame: x, y, z (mm) and a rotation vector (rad)
+    tcp_pose: tuple[float, float, float, float, float, float]
+    #: TCP speed, base frame: mm/s and rad/s
+    tcp_speed: tuple[float, float, float, float, float, float]
+    joint_temperatures_c: tuple[float, ...]
+    robot_mode: int  # drivers.ur.modes.RobotMode
+    safety_mode: int  # drivers.ur.modes.SafetyMode
+    runtime_state: int  # drivers.ur.modes.RuntimeState (the program: playing, paused...)
+    #: the program's "at measured pose" output: k (1-based pose of the taught cycle) while it
+    #: dwells at a measured pose, 0 elsewhere
+    at_pose: int
+    #: what the robot-side program reports: the sequence it accepted, its status bits
+    #: (drivers/ur/registers.py STATUS_*) and the offset it applies (mm, rad)
+    accepted_sequence: int
+    program_status: int
+    applied_offset_mm: Vector3
+    applied_rotation_rad: Vector3
+
+
+class OffsetRobot(AsyncDevice, Protocol):
+    """A robot that runs its own taught program while the daemon corrects it with a 6-DOF
+    offset (issue 31: a UR with controller/ur/thermocomp_offset.script). The hold contract is
+    Robot's: from the moment stop() is called (before its first await) no correction is
+    written and the robot-side program is told to freeze its offset; only an explicit resume()
+    releases it, and a resume racing a later hold never releases that hold; a non-finite or
+    over-limit correction is refused before any byte; after a link fault the correction stays
+    held until resume()."""
+
+    async def set_correction(
+        self, offset_mm: Vector3, rotation_rad: Vector3 = ZERO_ROTATION
+    ) -> int:
+        """Write the correction (base frame: mm and a rotation vector in rad) for the program
+        to follow; returns the sequence number it was written with."""
+        ...
+
+    def robot_state(self) -> OffsetRobotState:
+        """The latest state package (NotConnectedError when there is none, or it is stale)."""
+        ...
+
+    def stop(self) -> Coroutine[Any, Any, None]:
+        """Hold (see the class docstring): effective when called, awaiting it drains the
+        hold's bytes."""
+        ...
+
+    async def resume(self) -> None: ...
+
+    def status(self) -> RobotStatus: ...

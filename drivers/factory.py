@@ -90,6 +90,14 @@ def emulated_server(settings: Settings, *, seed: int) -> C500CServerEmulator:
 @contextlib.asynccontextmanager
 async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
     """Open camera, IR reader and robot as the settings say; close them all on exit."""
+    if settings.robot.driver == "ur-rtde":
+        # A UR plays its own program: it is driven by the run kind that follows the robot
+        # (issue 31), through drivers.ur.robot.URRobot (a drivers.base.OffsetRobot), not as a
+        # Robot the daemon moves step by step.
+        raise ConfigError(
+            "robot.driver 'ur-rtde' is an OffsetRobot (drivers/ur/robot.py): the runs that "
+            "move the robot step by step need sim, c500c or c500c-server"
+        )
     simulated = _simulated(settings)
     if simulated and not settings.bench.enabled:
         raise ConfigError(

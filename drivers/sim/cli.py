@@ -1,4 +1,5 @@
-"""``thermocomp emulate c500c``: serve the emulated C500C console until a signal stops it.
+"""``thermocomp emulate c500c``: serve the emulated C500C console until a signal stops it
+(``thermocomp emulate ur``: the UR e-Series, drivers/sim/ur/cli.py).
 
 SIGINT/SIGTERM stop it (it prints that it stopped, within a fraction of a second); SIGUSR1
 presses the controller's PAUSE/CONTINUE button (a motion waiting for the point of control goes
@@ -25,6 +26,7 @@ from drivers.sim.server_emulator import (
     C500CServerEmulator,
     server_emulator_config,
 )
+from drivers.sim.ur import cli as ur_cli
 
 if TYPE_CHECKING:
     from drivers.sim.joint_arm import JointArmConfig
@@ -40,7 +42,7 @@ def _faults(text: str) -> tuple[Fault[FaultKind], ...]:
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "emulate",
-        help="serve an emulated device (the C500C robot console)",
+        help="serve an emulated device (the C500C console, a UR)",
         description="Serve the emulated CRS C500C console on a pseudo-terminal (prints the "
         "device path to open) or a TCP port (prints a socket:// URL pyserial opens). "
         "SIGINT or SIGTERM stops it; SIGUSR1 presses PAUSE/CONTINUE (gives the point of "
@@ -49,7 +51,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "corrupt, delay, stall, close, restart; @N strikes at the N-th command line, %P with "
         "probability P per command. Example: --faults 'drop@5,delay=2@9,corrupt%0.01'.",
     )
-    parser.add_argument("device", choices=["c500c"], help="the device to emulate")
+    parser.add_argument(
+        "device",
+        choices=["c500c", "ur"],
+        help="the device to emulate: c500c (the console) or ur (a UR e-Series over RTDE and "
+        "the Dashboard Server, drivers/sim/ur/)",
+    )
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal (default)")
     where.add_argument(
@@ -109,6 +116,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         default="firmware",
         help="w0/w2 layout: the firmware's (default) or this project's older single line",
     )
+    ur_cli.add_arguments(parser)
     parser.set_defaults(handler=run)
 
 
@@ -143,6 +151,9 @@ def _joint_arm(args: argparse.Namespace) -> JointArmConfig | None:
 
 def run(args: argparse.Namespace) -> int:
     from daemon.arm.description import ArmError
+
+    if args.device == "ur":
+        return ur_cli.run(args)
 
     try:
         joint_arm = _joint_arm(args)

@@ -417,6 +417,24 @@ class JointArm:
         self._commanded_q = q_target
         return motion.end_s
 
+    def move_joints(
+        self,
+        q_target: FloatArray,
+        now_s: float,
+        speed_rad_s: FloatArray,
+        accel_rad_s2: FloatArray,
+    ) -> float:
+        """Start a joint-space motion to ``q_target`` (rad) at ``now_s`` (after the current one
+        has ended), synchronised under per-joint limits (a UR program's `movej` between taught
+        joint positions: no inverse kinematics). Returns when the motion ends."""
+        start_s = max(now_s, self._last.end_s)
+        q_now = self.joints_at(start_s)
+        target = np.asarray(q_target, dtype=np.float64)
+        motion = synchronised(q_now, target, start_s, speed_rad_s, accel_rad_s2)
+        self._append(motion)
+        self._commanded_q = target.copy()
+        return motion.end_s
+
     def solve(self, target: Sequence[float], q_now: FloatArray) -> FloatArray:
         """The joints of the world location ``target`` from ``q_now``: on ``q_now``'s branch;
         at the wrist singularity (of the solution, or of ``q_now`` when no exact solution is

@@ -1,0 +1,1 @@
+"""The UR e-Series emulator (issue 31): RTDE, the Dashboard Server and the robot-side program."""

@@ -1,0 +1,305 @@
+"""The emulated UR e-Series controller without its network: registers, modes, the robot-side
+program (drivers/sim/ur/program.py) run every 2 ms controller cycle, the taught cycle played
+on the UR5e joint arm (drivers/sim/ur/player.py), and the RTDE outputs by name.
+
+The arm's joints are the played program's plus the path offset: the program's offset
+(metres, rotation vector, base frame, as path_offset_set type 1) turned into joint angles
+through the Jacobian, ``dq = J(q)^-1 [1000 d; r]`` (the arm's kinematics are in mm). The
+Jacobian (also for ``actual_TCP_speed``) is recomputed when the joints moved more than
+JACOBIAN_REUSE_RAD since the last one
+(the offset's joint delta is then off by <= 0.5 % of itself: 0.5 um of a 100 um correction;
+exact at the poses where the program dwells and the tool is measured). ``actual_TCP_pose`` is
+the forward kinematics of those joints (the nominal arm: what the controller believes).
+
+Joint temperatures come from the arm bench's thermal truth (drivers/sim/arm_bench.py) heated
+by the motion the emulated arm really made, read like a sensor: Gaussian noise of
+TEMPERATURE_NOISE_C and a resolution of TEMPERATURE_RESOLUTION_C (both ESTIMATES: UR publishes
+neither).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from daemon.arm import kinematics
+from daemon.arm.description import load_arm
+from daemon.arm.duty import DutyCycle, load_duty_cycle
+from daemon.arm.types import FloatArray
+from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
+from drivers.sim.joint_arm import JointArm, JointArmConfig
+from drivers.sim.ur.player import PlayerState, ProgramPlayer
+from drivers.sim.ur.program import OffsetProgram, ProgramInputs, ProgramLimits
+from drivers.ur import rtde_variables as names
+from drivers.ur.modes import (
+    ROBOT_STATUS_POWER_ON,
+    ROBOT_STATUS_PROGRAM_RUNNING,
+    SAFETY_STATUS_BIT,
+    RobotMode,
+    RuntimeState,
+    SafetyMode,
+)
+from drivers.ur.registers import RegisterMap
+from drivers.ur.rtde_protocol import CONTROLLER_CYCLE_S, DataType, Value
+
+JACOBIAN_REUSE_RAD = 5e-3
+TEMPERATURE_NOISE_C = 0.05  # ESTIMATE
+TEMPERATURE_RESOLUTION_C = 0.0625  # ESTIMATE: a 1/16 degC digital sensor
+#: The emulated controller's software version (PolyScope >= 5.6: path_offset_set exists).
+DEFAULT_VERSION = (5, 15, 0, 0)
+
+
+@dataclass(frozen=True)
+class URControllerConfig:
+    arm: str = "ur5e"
+    duty: str = "ur5e-pick-and-place"
+    register_base: int = 24
+    limits: ProgramLimits = field(default_factory=ProgramLimits)
+    seed: int = 0
+    version: tuple[int, int, int, int] = DEFAULT_VERSION
+    program_name: str = "thermocomp.urp"
+    #: the program plays from the start (a cell in production); else it waits for PLAY
+    autoplay: bool = True
+    #: a fieldbus adapter (EtherNet/IP...) is enabled: input registers 0-23 are IN_USE
+    fieldbus: bool = False
+    #: the thermal truth's node spacing (mm): coarser than the arm bench's 10 mm so that an
+    #: emulator starts in well under a second
+    node_spacing_mm: float = 25.0
+    temperature_noise_c: float = TEMPERATURE_NOISE_C
+    temperature_resolution_c: float = TEMPERATURE_RESOLUTION_C
+
+
+class URController:
+    """One emulated controller; ``cycle(t)`` runs one 2 ms cycle at emulator time ``t``."""
+
+    def __init__(self, config: URControllerConfig | None = None) -> None:
+        self.config = config = config or URControllerConfig()
+        self.registers = RegisterMap(config.register_base)
+        arm = load_arm(config.arm)
+        self.arm = arm
+        self.duty: DutyCycle = load_duty_cycle(config.duty)
+        start = tuple(math.degrees(v) for v in self.duty.poses[0].q_rad)
+        self.joint_arm = JointArm(JointArmConfig(arm, start_joints_deg=start))
+        self.player = ProgramPlayer(self.duty, self.joint_arm)
+        self.program = OffsetProgram(config.limits)
+        self.bench = ArmBench(
+            ArmBenchConfig(
+                arm=config.arm,
+                seed=config.seed,
+                node_spacing_mm=config.node_spacing_mm,
+                payload_kg=self.duty.payload_kg,
+            ),
+            motion=self.player,
+            arm=arm,
+        )
+        self._noise = np.random.default_rng(np.random.SeedSequence([config.seed, 31]))
+        self.inputs: dict[str, Value] = {
+            name: _zero(t) for name, t in names.INPUTS.items() if "register" in name
+        }
+        self.outputs: dict[str, Value] = {
+            name: _zero(names.OUTPUTS[name]) for name in self.registers.outputs
+        }
+        self.robot_mode = RobotMode.RUNNING
+        self.safety_mode = SafetyMode.NORMAL
+        self.time_s = 0.0
+        self.cycles = 0
+        self._jacobian_q: FloatArray | None = None
+        self._jacobian: FloatArray = np.eye(6)
+        self._state_t: float | None = None
+        self._state: tuple[FloatArray, FloatArray, FloatArray] = (np.zeros(6),) * 3
+        self._temperatures_t = -math.inf
+        self._temperatures: tuple[float, ...] = (self.bench.config.ambient_c,) * 6
+        if config.autoplay:
+            self.player.play(0.0)
+
+    # -- program and modes -------------------------------------------------------------------
+
+    @property
+    def runtime_state(self) -> RuntimeState:
+        return {
+            PlayerState.PLAYING: RuntimeState.PLAYING,
+            PlayerState.PAUSED: RuntimeState.PAUSED,
+            PlayerState.STOPPED: RuntimeState.STOPPED,
+        }[self.player.state]
+
+    def play(self, now_s: float) -> bool:
+        """The Dashboard's play: False when the robot cannot (not running, safety stop)."""
+        if self.robot_mode is not RobotMode.RUNNING or self.safety_mode is not SafetyMode.NORMAL:
+            return False
+        if self.player.state is PlayerState.STOPPED:
+            self.program = OffsetProgram(self.config.limits)  # a program starts afresh
+        self.player.play(now_s)
+        return True
+
+    def pause(self, now_s: float) -> bool:
+        if self.player.state is not PlayerState.PLAYING:
+            return False
+        self.player.pause(now_s)
+        return True
+
+    def stop(self, now_s: float) -> bool:
+        if self.player.state is PlayerState.STOPPED:
+            return False
+        self.player.stop(now_s)
+        return True
+
+    def protective_stop(self, now_s: float) -> None:
+        """A protective stop: the arm halts, the program pauses (fault injection)."""
+        self.safety_mode = SafetyMode.PROTECTIVE_STOP
+        self.player.pause(now_s)
+
+    def unlock_protective_stop(self) -> bool:
+        if self.safety_mode is not SafetyMode.PROTECTIVE_STOP:
+            return False
+        self.safety_mode = SafetyMode.NORMAL
+        return True
+
+    # -- the controller cycle ----------------------------------------------------------------
+
+    def write_input(self, name: str, value: Value) -> None:
+        """An RTDE client's input (already checked against the recipe's type)."""
+        self.inputs[name] = value
+
+    def cycle(self, t_s: float) -> None:
+        """One controller cycle at ``t_s``: the program thread reads the registers, steps,
+        applies the offset and writes its output registers; the taught program runs on."""
+        self.time_s = t_s
+        self.cycles += 1
+        regs = self.registers
+        if self.player.state is PlayerState.PLAYING:
+            self.player.advance(t_s)
+            sequence = self.inputs[regs.sequence]
+            hold = self.inputs[regs.hold]
+            assert isinstance(sequence, int) and isinstance(hold, int)
+            target = tuple(float(self.inputs[name]) for name in regs.target)  # type: ignore[arg-type]
+            self.program.step(ProgramInputs(sequence, hold, target))
+        program = self.program
+        self.outputs[regs.at_pose] = self.player.at_pose(t_s)
+        self.outputs[regs.accepted_sequence] = program.accepted_sequence
+        self.outputs[regs.status] = program.status
+        for name, value in zip(regs.applied, program.applied, strict=True):
+            self.outputs[name] = value
+
+    # -- outputs -----------------------------------------------------------------------------
+
+    def _joint_state(self, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Actual joints (nominal + the offset's), their speeds, and the nominal joints."""
+        if self._state_t == t_s:
+            return self._state
+        sample = self.player.sample(t_s)
+        q = np.asarray(sample.q_rad, dtype=np.float64)
+        applied = self.program.applied
+        dq = np.zeros(6)
+        if any(applied):
+            twist = np.array([*(1000.0 * v for v in applied[:3]), *applied[3:]])
+            dq = np.linalg.solve(self._jacobian_at(q), twist)
+        self._state_t = t_s
+        self._state = (q + dq, np.asarray(sample.qd_rad_s, dtype=np.float64), q)
+        return self._state
+
+    def _jacobian_at(self, q: FloatArray) -> FloatArray:
+        """The Jacobian at ``q``, reused while the joints stay within JACOBIAN_REUSE_RAD of
+        where it was computed (module docstring: the offset's joints and the TCP speed are
+        then off by <= 0.5 % of themselves; the Jacobian is most of a package's cost)."""
+        reused = self._jacobian_q
+        if reused is None or np.max(np.abs(q - reused)) > JACOBIAN_REUSE_RAD:
+            self._jacobian = kinematics.jacobian(self.arm, q)
+            self._jacobian_q = q.copy()
+        return self._jacobian
+
+    def tcp_pose(self, t_s: float) -> tuple[float, ...]:
+        """actual_TCP_pose: x, y, z (m) and a rotation vector (rad), base frame."""
+        q, _, _ = self._joint_state(t_s)
+        pose = kinematics.forward(self.arm, q)
+        rotvec = Rotation.from_matrix(pose[:3, :3]).as_rotvec()
+        return (*(float(v) / 1000.0 for v in pose[:3, 3]), *(float(v) for v in rotvec))
+
+    def tcp_speed(self, t_s: float) -> tuple[float, ...]:
+        q, qd, _ = self._joint_state(t_s)
+        if not np.any(qd):
+            return (0.0,) * 6
+        twist = self._jacobian_at(q) @ qd
+        return (*(float(v) / 1000.0 for v in twist[:3]), *(float(v) for v in twist[3:]))
+
+    def joint_temperatures(self, t_s: float) -> tuple[float, ...]:
+        """The joints' temperatures as the controller's sensors read them (degC)."""
+        step = self.bench.config.truth_step_s
+        if t_s - self._temperatures_t >= step:
+            self.bench.advance_to(t_s)
+            true_c = self.bench.thermal.joint_temperatures_c()
+            noisy = true_c + self._noise.normal(0.0, self.config.temperature_noise_c, true_c.size)
+            resolution = self.config.temperature_resolution_c
+            self._temperatures = tuple(float(round(v / resolution) * resolution) for v in noisy)
+            self._temperatures_t = t_s
+        return self._temperatures
+
+    def value(self, name: str, t_s: float) -> Value:
+        """The RTDE output ``name`` at ``t_s`` (a name in rtde_variables.OUTPUTS)."""
+        if name in self.outputs:
+            return self.outputs[name]
+        if name in self.inputs:
+            return self.inputs[name]
+        getter = _GETTERS.get(name)
+        if getter is not None:
+            return getter(self, t_s)
+        return _zero(names.OUTPUTS[name])
+
+
+def _zero(data_type: DataType) -> Value:
+    if data_type.width > 1:
+        return (0.0,) * data_type.width if data_type.format[-1] == "d" else (0,) * data_type.width
+    if data_type is DataType.DOUBLE:
+        return 0.0
+    if data_type is DataType.BOOL:
+        return False
+    return 0
+
+
+def _vector(values: Sequence[float] | FloatArray) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
+
+
+def _safety_bits(c: URController) -> int:
+    return 1 << SAFETY_STATUS_BIT.get(c.safety_mode, 10)
+
+
+def _robot_bits(c: URController) -> int:
+    running = c.player.state is PlayerState.PLAYING
+    return ROBOT_STATUS_POWER_ON | (ROBOT_STATUS_PROGRAM_RUNNING if running else 0)
+
+
+Getter = Callable[["URController", float], Value]
+
+_GETTERS: dict[str, Getter] = {
+    "timestamp": lambda c, t: t,
+    "actual_q": lambda c, t: _vector(c._joint_state(t)[0]),
+    "target_q": lambda c, t: _vector(c._joint_state(t)[0]),
+    "actual_qd": lambda c, t: _vector(c._joint_state(t)[1]),
+    "target_qd": lambda c, t: _vector(c._joint_state(t)[1]),
+    "actual_TCP_pose": lambda c, t: c.tcp_pose(t),
+    "target_TCP_pose": lambda c, t: c.tcp_pose(t),
+    "actual_TCP_speed": lambda c, t: c.tcp_speed(t),
+    "target_TCP_speed": lambda c, t: c.tcp_speed(t),
+    "joint_temperatures": lambda c, t: c.joint_temperatures(t),
+    "robot_mode": lambda c, t: int(c.robot_mode),
+    "safety_mode": lambda c, t: int(c.safety_mode),
+    "safety_status": lambda c, t: int(c.safety_mode),
+    "runtime_state": lambda c, t: int(c.runtime_state),
+    "robot_status_bits": lambda c, t: _robot_bits(c),
+    "safety_status_bits": lambda c, t: _safety_bits(c),
+    "speed_scaling": lambda c, t: 1.0,
+    "target_speed_fraction": lambda c, t: 1.0,
+    "actual_execution_time": lambda c, t: 0.1,
+    "joint_mode": lambda c, t: (253,) * 6,  # JOINT_RUNNING_MODE
+    "actual_main_voltage": lambda c, t: 48.0,
+    "actual_robot_voltage": lambda c, t: 48.0,
+    "actual_joint_voltage": lambda c, t: (48.0,) * 6,
+    "payload": lambda c, t: c.duty.payload_kg,
+    "actual_tool_accelerometer": lambda c, t: (0.0, 0.0, -9.81),
+}
+
+__all__ = ["CONTROLLER_CYCLE_S", "DEFAULT_VERSION", "URController", "URControllerConfig"]
