@@ -126,7 +126,7 @@ def _lab(colour: str) -> tuple[float, float, float]:
 
 def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Path) -> None:
     page, page_errors = open_dashboard(browser, server)
-    preset = page.locator("#network-select option", has_text="thesis-two-link")
+    preset = page.locator("#network-select option[value='thesis-two-link']")
     preset.wait_for(state="attached")
     assert preset.count() == 1
     # the device states of /health, as badges
@@ -231,7 +231,11 @@ def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Pa
     # no reference run was named: the figure is labelled relative to the model (issue 19)
     relative = run["summary"]["reduction_vs_prediction_percent"]
     cells = page.locator("#run-history tr:first-child td")
-    assert cells.nth(5).text_content() == f"{relative:.1f} % vs model"
+    said = f"{relative:.1f} % vs model" if relative >= 0 else "none: error above model"
+    assert cells.nth(8).text_content() == said
+    # the row says what the run was, besides its state and reason
+    assert cells.nth(2).text_content() == "two-link: stationary, thesis-two-link"
+    assert cells.nth(3).text_content() == "absolute"
     assert page_errors == []
 
 
@@ -419,7 +423,16 @@ def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
     steps = 12  # config/arm-sim.toml: 120 s at a 10 s step
     with running_server(["--config", "config/arm-sim.toml"], env=env) as server:
         page, page_errors = open_dashboard(browser, server)
-        assert page.locator("#arm-drift").is_hidden()  # a two-link page until an arm step
+        # an arm daemon's page from the start: its fields, none of the two-link's, and the
+        # 3-D drift and rotation at the top
+        page.wait_for_selector("#run-kind:text-is('arm run')")
+        for field in ("duty_cycle", "arm_model"):
+            assert page.locator(f"#start-form [name={field}]").is_visible()
+        for field in ("procedure", "network", "deformation_scale", "heater_off_s"):
+            assert page.locator(f"#start-form [name={field}]").is_hidden()
+        assert page.locator("#slot-residual").is_hidden()
+        first = page.locator("#plots .plot:visible").first
+        assert first.get_attribute("id") == "slot-drift3d"
         offered = page.locator("#arm-model-select option", has_text="cal (identified from run 7)")
         offered.wait_for(state="attached")
         assert page.locator("#arm-model-field").is_visible()
@@ -438,16 +451,25 @@ def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
             f"window.thermocomp.plots.drift3d.data[0].length >= {steps}",
             timeout=120_000,
         )
-        assert page.locator("#arm-drift").is_visible()
-        assert page.locator("#arm-rotation").is_visible()
+        assert page.locator("#slot-drift3d").is_visible()
+        assert page.locator("#slot-rotation").is_visible()
+        # one series per measured pose: each pose's points on its own line, none between
         names = page.evaluate("window.thermocomp.plots.drift3d.names")
-        assert names == ["|drift|", "x", "y", "z"]
-        norm, x, y, z = page.evaluate("window.thermocomp.plots.drift3d.data.slice(1)")
-        assert all(value is not None and value >= 0 for value in norm)
-        for k in range(len(norm)):  # the norm is of the components it is drawn with
-            assert math.isclose(norm[k], math.hypot(x[k], y[k], z[k]), rel_tol=1e-9)
-        rotation = page.evaluate("window.thermocomp.plots.rotation.data[1]")
-        assert len(rotation) == len(norm) and all(r is not None for r in rotation)
+        steps_json = httpx.get(f"{server}/api/v1/runs/1/steps?format=json", timeout=10).json()
+        recorded = steps_json["steps"]
+        poses = list(dict.fromkeys(step["arm_pose"] for step in recorded))
+        assert names == poses and len(poses) >= 2
+        hours, *columns = page.evaluate("window.thermocomp.plots.drift3d.data")
+        for pose, column in zip(poses, columns, strict=True):
+            mine = [s for s in recorded if s["arm_pose"] == pose]
+            drawn = [(h, v) for h, v in zip(hours, column, strict=True) if v is not None]
+            assert drawn == [(s["model_time_s"] / 3600, s["drift_3d_um"]) for s in mine]
+        rotation = page.evaluate("window.thermocomp.plots.rotation.data")
+        assert sum(v is not None for column in rotation[1:] for v in column) == len(recorded)
+        # the temperatures grouped per link and joint (~70 model nodes), the legend folded
+        groups = page.evaluate("window.thermocomp.plots.temperature.names")
+        assert "upper-arm" in groups and "forearm" in groups and len(groups) <= 16
+        assert page.locator("#slot-temperature details.legend:not([open])").count() == 1
         # the history row of the ended run states its 3-D drift and rotation error
         page.locator("#run-history tr td", has_text="3-D").first.wait_for(timeout=60_000)
         assert not page_errors
