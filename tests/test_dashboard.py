@@ -377,10 +377,11 @@ def test_the_dashboard_runs_under_its_own_csp(browser: Browser, server: str) -> 
     assert answer is not None and "default-src 'self'" in answer.headers["content-security-policy"]
     page.wait_for_selector("#stream-state.open")
     page.wait_for_selector("#daemon-state:text-is('idle')")
-    page.wait_for_selector("#plot-residual canvas, #plot-residual svg, #plot-residual .u-wrap")
+    # a first start: no empty plots, but what to do
+    page.wait_for_selector("#no-run:has-text('No run yet')")
     # the bring-up preview while idle (issue 18): the daemon's own devices, as a picture
     page.click("#btn-preview")
-    page.wait_for_selector("#preview-image:not([hidden])")
+    page.wait_for_selector("#preview-dialog[open] #preview-image:not([hidden])")
     page.wait_for_selector("#preview-caption:has-text('spot at')")
     assert page.locator("#preview-image").evaluate("image => image.naturalWidth") > 0
     assert violations == []
@@ -431,8 +432,10 @@ def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
         for field in ("procedure", "network", "deformation_scale", "heater_off_s"):
             assert page.locator(f"#start-form [name={field}]").is_hidden()
         assert page.locator("#slot-residual").is_hidden()
-        first = page.locator("#plots .plot:visible").first
-        assert first.get_attribute("id") == "slot-drift3d"
+        slots = page.evaluate(
+            "[...document.querySelectorAll('#plots .plot')].filter(e => !e.hidden).map(e => e.id)"
+        )
+        assert slots[:2] == ["slot-drift3d", "slot-rotation"]
         offered = page.locator("#arm-model-select option", has_text="cal (identified from run 7)")
         offered.wait_for(state="attached")
         assert page.locator("#arm-model-field").is_visible()
@@ -466,6 +469,10 @@ def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
             assert drawn == [(s["model_time_s"] / 3600, s["drift_3d_um"]) for s in mine]
         rotation = page.evaluate("window.thermocomp.plots.rotation.data")
         assert sum(v is not None for column in rotation[1:] for v in column) == len(recorded)
+        # every tool camera's view, its markers crossed (the camera panel was black)
+        lit = page.locator("#camera-grid .camera-tile:not([data-markers='0'])")
+        lit.first.wait_for(timeout=60_000)
+        assert "markers seen" in (lit.first.text_content() or "")
         # the temperatures grouped per link and joint (~70 model nodes), the legend folded
         groups = page.evaluate("window.thermocomp.plots.temperature.names")
         assert "upper-arm" in groups and "forearm" in groups and len(groups) <= 16

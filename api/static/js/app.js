@@ -45,6 +45,8 @@ async function showRun(run, { backfill = true } = {}) {
   plots.reset(runKind(run) === "arm" || state.kind === "arm" ? "arm" : "two-link",
     run.parameters || {});
   clearCameras();
+  $("no-run").hidden = true;
+  $("plots").classList.remove("empty");
   $("shown-run").textContent = `plots: run ${run.id} (${run.state})`;
   const reference = run.parameters && run.parameters.reference_run;
   if (reference) loadReference(run.id, reference);
@@ -215,6 +217,9 @@ async function refreshHistory() {
     $("run-history").replaceChildren(...page.runs.map((run) => historyRow(run,
       { onPlot: (chosen) => showRun(chosen), shown: run.id === state.runId })));
     offerReferences(page.runs, state.kind);
+    const none = !page.runs.length && state.runId === null;
+    $("no-run").hidden = !none; // a first start: what to do, instead of empty plots
+    $("plots").classList.toggle("empty", none);
     if (state.runId === null && page.runs.length) {
       showRun(page.runs[0]); // after a restart: the newest run's plots, from the database
     } else if (state.shownRun) {

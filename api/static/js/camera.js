@@ -156,6 +156,12 @@ async function showToolCamera(frame) {
     [...grid.children].sort((a, b) => a.dataset.camera.localeCompare(b.dataset.camera))
       .forEach((child) => grid.append(child));
   }
+  const markers = Array.isArray(frame.markers_px) ? frame.markers_px : [];
+  // a camera that watches another pose sees no marker at this one: its tile keeps the last
+  // frame in which it saw the tool
+  if (!markers.length && Number(tile.dataset.markers) > 0 && tile.dataset.pose !== frame.pose) {
+    return;
+  }
   const image = await loadImage(frame.png_base64);
   const canvas = tile.querySelector("canvas");
   canvas.width = frame.width;
@@ -163,14 +169,15 @@ async function showToolCamera(frame) {
   const context = canvas.getContext("2d");
   context.drawImage(image, 0, 0);
   const scale = Number(frame.scale) || 1;
-  const markers = Array.isArray(frame.markers_px) ? frame.markers_px : [];
   for (const [mx, my] of markers) {
     cross(context, (mx + 0.5) / scale, (my + 0.5) / scale, 2, 7, "#ffd60a");
   }
   const pose = frame.pose ? ` at ${frame.pose}` : "";
   tile.querySelector("figcaption").textContent =
-    `${frame.camera}${pose}: ${markers.length} marker${markers.length === 1 ? "" : "s"} seen`;
+    `${frame.camera}${pose} (step ${frame.step}): ${markers.length} marker`
+    + `${markers.length === 1 ? "" : "s"} seen`;
   tile.dataset.markers = String(markers.length);
+  tile.dataset.pose = frame.pose || "";
   $("frame-caption").textContent = `run ${frame.run_id} step ${frame.step}: the tool cameras`;
   $("frame-detail").textContent = "each camera's latest frame (brightest pixel per block, "
     + "contrast stretched); yellow crosses: the markers it measured";
@@ -195,12 +202,16 @@ export async function preview() {
     if (image.src) URL.revokeObjectURL(image.src);
     image.src = URL.createObjectURL(await response.blob());
     image.hidden = false;
+    const dialog = $("preview-dialog");
+    if (!dialog.open) dialog.showModal();
     const spot = response.headers.get("X-Thermocomp-Spot-Px");
     const cameras = response.headers.get("X-Thermocomp-Cameras");
     const errors = response.headers.get("X-Thermocomp-Device-Errors");
     const found = cameras ? `tool cameras: ${cameras}` : (spot ? `spot at (${spot}) px`
       : "no spot found");
-    $("preview-caption").textContent = found + (errors ? `; device errors: ${errors}` : "");
+    const caption = found + (errors ? `; device errors: ${errors}` : "");
+    $("preview-caption").textContent = caption;
+    $("preview-dialog-caption").textContent = caption;
     say(cameras ? "preview: every tool camera, one IR image and the robot pose"
       : "preview: one frame, one IR image and the robot pose");
   } catch (error) {

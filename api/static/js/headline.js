@@ -27,8 +27,11 @@ export function showDoing(snapshot, state) {
     if (run) text += ` (last: run ${run.id} ${run.state})`;
   }
   if (robot.motion_held) {
-    text += ". Robot HELD: no motion command can be sent";
-    tone = "held";
+    // after a run the robot stays held until the next one starts: normal, said calmly; during
+    // a run (a hold, a fault) it is what the operator must see first
+    text += tone === "idle" ? ". The robot is held: no motion can be sent until a run starts"
+      : ". Robot HELD: no motion command can be sent";
+    tone = tone === "idle" ? "held-idle" : "held";
   }
   if (robot.link === "awaiting-point-of-control") {
     text += ". The controller waits for PAUSE/CONTINUE on the teach pendant";
