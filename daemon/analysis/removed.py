@@ -39,6 +39,7 @@ def drift_removed(
     poses: Sequence[str | None] = (),
     reference: RunSteps | None = None,
     reference_run: int | None = None,
+    so_far: bool = True,
 ) -> dict[str, object]:
     """The run's figures so far: ``kind`` (arm, two-link), ``basis`` (reference: against a
     measured uncompensated run; prediction: only against the model; drift: this run is
@@ -96,7 +97,7 @@ def drift_removed(
             noise_um=None,
             rotation=None,
         )
-    result["headline"] = headline(result)
+    result["headline"] = headline(result, so_far=so_far)
     return result
 
 
@@ -104,8 +105,14 @@ def _um(value: float) -> str:
     return f"{value:.1f} µm" if abs(value) >= 10 else f"{value:.2f} µm"
 
 
-def headline(figures: dict[str, object]) -> str:
-    """One sentence: what the compensation removed so far, against what it is measured."""
+def headline(figures: dict[str, object], *, so_far: bool = True) -> str:
+    """One sentence: what the compensation removed (so far, while the run goes on), against
+    what it is measured."""
+    text = _headline(figures)
+    return text if so_far else text.replace(" so far", "")
+
+
+def _headline(figures: dict[str, object]) -> str:
     residual = _f(figures.get("residual_max_um"))
     basis = figures.get("basis")
     error = "3-D drift" if figures.get("kind") == "arm" else "error"
