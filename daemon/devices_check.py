@@ -11,6 +11,7 @@ import asyncio
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -282,7 +283,7 @@ def tool_caption(name: str, frame: Frame) -> str:
     bright is in view (at rest the tool is usually outside every camera's view)."""
     peak = int(frame.image.max())
     full = (1 << frame.bit_depth) - 1 if frame.bit_depth else peak or 1
-    dark = "; dark: no marker in view" if peak < DARK_FRACTION * full else ""
+    dark = "; dark: nothing in view" if peak < DARK_FRACTION * full else ""
     size = f"{frame.image.shape[1]} x {frame.image.shape[0]} px"
     return f"{name}: {size}, peak {peak} of {full}{dark}"
 
@@ -294,13 +295,16 @@ PANELS_PER_ROW = 3
 
 def block_max(image: NDArray[Any], max_width_px: int) -> NDArray[Any]:
     """``image`` reduced to at most ``max_width_px`` wide, each pixel the brightest of its
-    block: a marker a few pixels wide on a 5 MP frame survives (a plain resize loses it, and
-    the browser's scaling did: the preview showed a black frame)."""
+    block (then grown to 3 x 3): a marker a few pixels wide on a 5 MP frame survives (a
+    plain resize loses it, and the browser's scaling did: the preview showed a black frame)."""
     scale = max(1, -(-image.shape[1] // max_width_px))
     rows, cols = image.shape[0] // scale, image.shape[1] // scale
     blocks = image[: rows * scale, : cols * scale].reshape(rows, scale, cols, scale)
     reduced: NDArray[Any] = blocks.max(axis=(1, 3))
-    return reduced
+    # then each pixel the brightest of its 3 x 3 neighbours: a marker of one reduced pixel
+    # is a dot a person finds on a 480 px panel
+    grown: NDArray[Any] = cv2.dilate(reduced, np.ones((3, 3), np.uint8))
+    return grown
 
 
 def one_above_another(rows: list[NDArray[np.uint8]]) -> NDArray[np.uint8]:

@@ -98,7 +98,11 @@ def reference_steps(data_dir: Path, reference_run: int) -> RunSteps:
 
 
 def drift_removed_of(
-    database: Path, run_id: int, compensation: str | None, reference_run: int | None
+    database: Path,
+    run_id: int,
+    compensation: str | None,
+    reference_run: int | None,
+    so_far: bool = True,
 ) -> dict[str, Any]:
     """The dashboard's "drift removed so far" (daemon.analysis.removed) of a run, from its
     steps recorded until now and its named reference run's, read from ``database``
@@ -126,6 +130,7 @@ def drift_removed_of(
         poses=poses,
         reference=reference if reference is not None and reference.n_steps else None,
         reference_run=reference_run,
+        so_far=so_far,
     )
 
 

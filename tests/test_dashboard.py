@@ -426,7 +426,7 @@ def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
         page, page_errors = open_dashboard(browser, server)
         # an arm daemon's page from the start: its fields, none of the two-link's, and the
         # 3-D drift and rotation at the top
-        page.wait_for_selector("#run-kind:text-is('arm run')")
+        page.wait_for_selector("#run-kind:text-is('Start an arm run')")
         for field in ("duty_cycle", "arm_model"):
             assert page.locator(f"#start-form [name={field}]").is_visible()
         for field in ("procedure", "network", "deformation_scale", "heater_off_s"):

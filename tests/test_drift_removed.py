@@ -155,7 +155,7 @@ async def test_the_endpoint_gives_the_summarys_reduction_at_the_end(tmp_path: Pa
         assert math.isclose(figures["reference_max_um"], summary["reference_max_um"])
         assert summary["reduction_percent"] > 50  # the bench's compensation works
         assert figures["headline"].startswith(
-            f"{summary['reduction_percent']:.0f} % of the measured drift removed so far"
+            f"{summary['reduction_percent']:.0f} % of the measured drift removed:"
         )
         missing = await client.get("/api/v1/runs/99/drift-removed")
         assert missing.status_code == 404

@@ -54,7 +54,7 @@ def test_every_tool_camera_is_a_panel_with_a_caption_that_says_dark() -> None:
     assert image.shape[1] <= 3 * TOOL_PANEL_WIDTH_PX + 2 * 8
     assert image.shape[0] > 2 * (HEIGHT // -(-WIDTH // TOOL_PANEL_WIDTH_PX))
     assert tool_caption("s0-arm-1", frame(False)) == (
-        "s0-arm-1: 2448 x 2048 px, peak 12 of 4095; dark: no marker in view"
+        "s0-arm-1: 2448 x 2048 px, peak 12 of 4095; dark: nothing in view"
     )
     assert tool_caption("s0-arm-0", frame(True)).endswith("peak 4000 of 4095")
 

@@ -265,6 +265,7 @@ async def get_drift_removed(run_id: RunId, daemon: DaemonDep, context: ContextDe
             run_id,
             parameters.get("compensation"),
             int(reference) if isinstance(reference, int) else None,
+            active,  # an ended run's sentence says what it removed, not "so far"
         )
     except (sqlite3.Error, OSError) as err:
         raise ApiError(503, "storage", f"cannot read run {run_id}: {err}") from err

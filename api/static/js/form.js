@@ -95,7 +95,7 @@ export function adaptForm(kind) {
   for (const field of document.querySelectorAll("#start-form [data-kind]")) {
     field.hidden = field.dataset.kind !== kind;
   }
-  $("run-kind").textContent = kind === "arm" ? "arm run" : "two-link run";
+  $("run-kind").textContent = kind === "arm" ? "Start an arm run" : "Start a two-link run";
 }
 
 // the uncompensated ended runs of this kind: what a run's drift removed is measured against
