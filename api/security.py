@@ -271,7 +271,7 @@ def _new_token(path: Path) -> str:
 
 def dashboard_url(host: str, port: int, token: str | None = None) -> str:
     """The dashboard's address; with ``?token=`` the page takes the token and drops it from
-    the address bar (api/static/app.js)."""
+    the address bar (api/static/js/api.js)."""
     shown = f"[{host}]" if ":" in host else host
     if host in _WILDCARD_ADDRESSES:
         shown = "127.0.0.1"

@@ -407,6 +407,8 @@ def test_the_api_description_runs_under_its_own_csp(browser: Browser, server: st
     page.close()
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)  # an arm run renders 5 MP frames: minutes on a busy 2-core machine
 def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
     browser: Browser, tmp_path: Path
 ) -> None:

@@ -145,17 +145,22 @@ def test_past_runs_are_plotted_after_a_restart(browser: Browser, tmp_path: Path)
         while httpx.get(f"{server}/api/v1/runs/1", timeout=10).json()["summary"] is None:
             assert time.monotonic() < deadline
             time.sleep(0.2)
-        recorded = httpx.get(f"{server}/api/v1/runs/1", timeout=10).json()["steps_recorded"]
+        # (the first export starts an export process: seconds on a busy machine)
+        steps = httpx.get(f"{server}/api/v1/runs/1/steps", timeout=90).json()["steps"]
+        # what each plot must hold: the steps with a value (a busy machine skips some frames)
+        measured = sum(step["residual_um"] is not None for step in steps)
+        predicted = sum(step["predicted_x_um"] is not None for step in steps)
+        assert measured > 10
     with make_run(data, tmp_path / "second.log") as (address, _):
         page = new_page(browser)
         page.goto(address)
         page.wait_for_selector("#stream-state.open")
         page.wait_for_function(
             f"window.thermocomp.plots.residual && "
-            f"window.thermocomp.plots.residual.data[0].length === {recorded}",
+            f"window.thermocomp.plots.residual.data[0].length === {measured}",
             timeout=30_000,
         )
-        assert page.evaluate("window.thermocomp.plots.predicted.data[0].length") == recorded
+        assert page.evaluate("window.thermocomp.plots.predicted.data[0].length") == predicted
         assert "plots: run 1 (finished)" in (page.text_content("#shown-run") or "")
         row = page.locator("#run-history tr.shown td")
         assert row.nth(0).text_content() == "1"
