@@ -109,8 +109,9 @@ class Relay:
     def __init__(self, daemon: Daemon, context: ApiContext) -> None:
         self._daemon = daemon
         self._context = context
-        self._last_frame_s = -math.inf
-        self._thumbnail_task: asyncio.Task[None] | None = None
+        # per camera (None: the two-link bench's one camera; an arm's tool cameras by name)
+        self._last_frame_s: dict[str | None, float] = {}
+        self._thumbnail_tasks: dict[str | None, asyncio.Task[None]] = {}
         self._overruns_seen: tuple[int, int] = (-1, 0)  # (run id, scheduler overruns)
 
     async def run(self) -> None:
@@ -121,10 +122,10 @@ class Relay:
                     self._context.event_count += 1
                     self.handle(event.kind, event.data)
             finally:
-                if self._thumbnail_task is not None:
-                    self._thumbnail_task.cancel()
+                for task in self._thumbnail_tasks.values():
+                    task.cancel()
                     with contextlib.suppress(asyncio.CancelledError):
-                        await self._thumbnail_task
+                        await task
 
     def handle(self, kind: str, data: dict[str, Any]) -> None:
         context = self._context
@@ -152,16 +153,22 @@ class Relay:
     def _frame(self, data: dict[str, Any]) -> None:
         """A frame event of the daemon: the image is the daemon's array (never modified)."""
         image = data.get("image")
-        if isinstance(image, np.ndarray) and image.ndim == 2 and self._frame_wanted():
+        camera = data.get("camera")
+        camera = camera if isinstance(camera, str) else None
+        if isinstance(image, np.ndarray) and image.ndim == 2 and self._frame_wanted(camera):
             meta = {k: v for k, v in data.items() if not isinstance(v, np.ndarray)}
-            self._last_frame_s = time.monotonic()
-            self._thumbnail_task = asyncio.create_task(self._publish_thumbnail(image, meta))
+            self._last_frame_s[camera] = time.monotonic()
+            self._thumbnail_tasks[camera] = asyncio.create_task(
+                self._publish_thumbnail(image, meta)
+            )
 
-    def _frame_wanted(self) -> bool:
-        """Someone listens to frames, none is being made, and the interval has passed."""
-        busy = self._thumbnail_task is not None and not self._thumbnail_task.done()
+    def _frame_wanted(self, camera: str | None) -> bool:
+        """Someone listens to frames, none of this camera is being made, and its interval
+        has passed (each tool camera of an arm has its own)."""
+        task = self._thumbnail_tasks.get(camera)
+        busy = task is not None and not task.done()
         interval = self._context.settings.api.ws_frame_interval_s
-        due = time.monotonic() - self._last_frame_s >= interval
+        due = time.monotonic() - self._last_frame_s.get(camera, -math.inf) >= interval
         return not busy and due and self._context.hub.subscribed("frames")
 
     async def _publish_thumbnail(self, image: NDArray[np.integer], meta: dict[str, Any]) -> None:

@@ -5,16 +5,29 @@ A control token also grants ``read``. Tokens come from the settings (``api.contr
 every configured token, so neither a token's prefix nor which scope it has shows in the timing.
 Anonymous reads are allowed when ``api.anonymous_read`` says so; left unset, only when the
 server is bound to a loopback address (nobody else can reach it).
+
+A server on loopback without a configured control token makes one (:func:`local_control_token`):
+a random secret kept in the data directory (mode 0600) and printed at start-up as the
+dashboard's address with ``?token=`` (Jupyter's convention), so the dashboard can start, stop
+and hold from the first ``make run``. Control without any token on loopback was refused as the
+default: every local user and every web page the browser opens can reach 127.0.0.1 (a plain
+POST needs no CORS pre-flight), and a daemon that moves a robot must not be one of them's
+(docs/tutorials/dashboard.md).
 """
 
 from __future__ import annotations
 
+import errno
 import hmac
 import ipaddress
 import math
+import os
+import secrets
 import socket
+import stat
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Literal
 from urllib.parse import urlsplit
 
@@ -202,3 +215,65 @@ class HostAllowList:
             return True
         parts = urlsplit(origin)
         return parts.scheme in ("http", "https") and self.allows(parts.netloc)
+
+
+#: The generated control token's file in the data directory (mode 0600).
+CONTROL_TOKEN_FILE = "control-token"
+#: Random bytes of a generated token (256 bits; URL-safe base64, 43 characters).
+CONTROL_TOKEN_BYTES = 32
+
+
+class TokenFileError(Exception):
+    """The token file cannot be read, written, or is readable by other users (one line)."""
+
+
+def local_control_token(data_dir: Path) -> str:
+    """The control token kept in ``data_dir``/control-token, made on first use.
+
+    The file is created with mode 0600 (O_EXCL: two servers starting at once cannot both
+    write it). One that other users could read is refused, as ssh refuses such a key: the
+    token may have leaked, and only its owner can say so. An empty file gets a new token."""
+    path = Path(data_dir) / CONTROL_TOKEN_FILE
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        return _new_token(path)
+    except OSError as err:
+        raise TokenFileError(f"cannot read {path}: {err.strerror}") from err
+    if info.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise TokenFileError(
+            f"{path} is readable by other users (mode {stat.S_IMODE(info.st_mode):04o}): "
+            f"run `chmod 600 {path}`, or delete it for a new token"
+        )
+    try:
+        token = path.read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError) as err:
+        raise TokenFileError(f"cannot read {path}: {err}: delete it for a new token") from err
+    if not token:
+        path.unlink()
+        return _new_token(path)
+    return token
+
+
+def _new_token(path: Path) -> str:
+    token = secrets.token_urlsafe(CONTROL_TOKEN_BYTES)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except FileExistsError:  # another server made it meanwhile: use that one
+        return local_control_token(path.parent)
+    except OSError as err:
+        reason = "permission denied" if err.errno == errno.EACCES else err.strerror
+        raise TokenFileError(f"cannot write {path}: {reason}") from err
+    with os.fdopen(fd, "w", encoding="ascii") as file:
+        file.write(token + "\n")
+    return token
+
+
+def dashboard_url(host: str, port: int, token: str | None = None) -> str:
+    """The dashboard's address; with ``?token=`` the page takes the token and drops it from
+    the address bar (api/static/js/api.js)."""
+    shown = f"[{host}]" if ":" in host else host
+    if host in _WILDCARD_ADDRESSES:
+        shown = "127.0.0.1"
+    url = f"http://{shown}:{port}/"
+    return f"{url}?token={token}" if token else url

@@ -9,6 +9,7 @@ import logging
 import signal
 import socket
 import sys
+from collections.abc import Callable
 from types import FrameType
 
 import uvicorn
@@ -18,7 +19,13 @@ from pydantic import ValidationError
 from api.app import create_app
 from api.connections import guarded_protocol
 from api.deps import ApiContext
-from api.startup import StartupError, limit_repeated_logs, preflight
+from api.startup import (
+    StartupError,
+    dashboard_banner,
+    limit_repeated_logs,
+    preflight,
+    with_local_control_token,
+)
 from config import ConfigError, Settings, load_settings
 from daemon.heap import freeze_startup_heap
 from daemon.service import Daemon
@@ -95,6 +102,7 @@ async def supervise(
     context: ApiContext,
     notifier: SystemdNotifier,
     device_allowance_s: float = 0.0,
+    banner: Callable[[int], str] | None = None,
 ) -> None:
     """Tell systemd what the service does (issue 10, deploy/thermocomp.service).
 
@@ -110,6 +118,8 @@ async def supervise(
         if server.should_exit:
             return
         await asyncio.sleep(SUPERVISOR_POLL_S)
+    if banner is not None:  # the dashboard's address, on stdout whatever the log level
+        print(banner(_bound_port(server)), flush=True)
     daemon = context.service
     if daemon is None:  # cannot happen with a service factory; say so rather than lie
         notifier.status("started without a daemon")
@@ -139,6 +149,15 @@ async def supervise(
             status = current
         await asyncio.sleep(SUPERVISOR_POLL_S)
     notifier.stopping()
+
+
+def _bound_port(server: uvicorn.Server) -> int:
+    """The port the server listens on (api.port, or the one chosen for port 0)."""
+    for listener in getattr(server, "servers", ()):
+        for sock in listener.sockets:
+            port: int = sock.getsockname()[1]
+            return port
+    return server.config.port
 
 
 class DaemonServer(uvicorn.Server):
@@ -200,15 +219,26 @@ async def _hold(daemon: Daemon) -> None:
         logger.warning("could not hold the robot on the signal: %s", err)
 
 
-async def serve(settings: Settings, notifier: SystemdNotifier) -> bool:
-    """Run the server until a signal stops it; True when it had started."""
+async def serve(
+    settings: Settings, notifier: SystemdNotifier, generated_token: str | None = None
+) -> bool:
+    """Run the server until a signal stops it; True when it had started. Once it serves, the
+    dashboard's address is printed (with ``generated_token`` when the token was made for
+    this loopback server, api/startup.py)."""
     app = create_app(settings, service_factory=Daemon)
     context: ApiContext = app.state.context
     server = DaemonServer(server_config(settings, app), context)
     # the longest a step waits on the robot before it fails: a move, then the pose read
     allowance_s = settings.robot.move_timeout_s + settings.robot.command_timeout_s
     supervisor = asyncio.create_task(
-        supervise(server, context, notifier, allowance_s), name="systemd"
+        supervise(
+            server,
+            context,
+            notifier,
+            allowance_s,
+            banner=lambda port: dashboard_banner(settings, port, generated_token),
+        ),
+        name="systemd",
     )
     try:
         await server.serve()  # uvicorn handles SIGINT/SIGTERM and shuts down cleanly
@@ -234,6 +264,8 @@ def run(args: argparse.Namespace) -> int:
     notifier = SystemdNotifier()
     try:
         preflight(settings)  # binding, descriptors, devices, port, database: one line each
+        # on loopback without a configured token: the data directory's (made on first start)
+        settings, generated_token = with_local_control_token(settings)
     except StartupError as err:
         print(f"thermocomp serve: {err}", file=sys.stderr)
         notifier.status(f"failed to start: {err}")
@@ -245,7 +277,7 @@ def run(args: argparse.Namespace) -> int:
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     previous = signal.signal(signal.SIGTERM, _stopped_by_signal)
     try:
-        started = asyncio.run(serve(settings, notifier))
+        started = asyncio.run(serve(settings, notifier, generated_token))
     finally:
         signal.signal(signal.SIGTERM, previous)
     if not started:  # the daemon or the socket could not be opened (logged above)

@@ -25,7 +25,13 @@ from collections.abc import Callable
 from pathlib import Path
 
 from api.connections import ACCEPT_MARGIN
-from api.security import is_loopback
+from api.security import (
+    CONTROL_TOKEN_FILE,
+    TokenFileError,
+    dashboard_url,
+    is_loopback,
+    local_control_token,
+)
 from config import Settings
 from config.cli import EXIT_ADDRESS, EXIT_DEVICE, EXIT_STORAGE, EXIT_USAGE
 from daemon.storage.recorder import Recorder, RecorderError
@@ -58,6 +64,41 @@ def check_binding(settings: Settings) -> None:
         "/etc/thermocomp/env), or set api.anonymous_read = true to serve anonymous reads "
         "without control, or bind to 127.0.0.1",
     )
+
+
+def with_local_control_token(settings: Settings) -> tuple[Settings, str | None]:
+    """``settings`` with the data directory's control token when bound to loopback without a
+    configured one (api/security.py says why), and that token; else unchanged and None. A
+    configured token always wins; a server reachable from other machines never gets one made
+    (check_binding refuses it, or it serves anonymous reads only)."""
+    api = settings.api
+    if api.control_token or not is_loopback(api.host):
+        return settings, None
+    data_dir = settings.storage.data_dir
+    try:
+        token = local_control_token(data_dir)
+    except TokenFileError as err:
+        raise StartupError(EXIT_STORAGE, str(err)) from err
+    updated = api.model_copy(update={"control_token": token})
+    return settings.model_copy(update={"api": updated}), token
+
+
+def dashboard_banner(settings: Settings, port: int, generated_token: str | None) -> str:
+    """What ``thermocomp serve`` prints once it serves: where the dashboard is and how it
+    gets control. The generated token is printed in the address (its file is 0600 and only
+    this user's, like the terminal); a configured one never is (it may be a shared secret)."""
+    api = settings.api
+    if generated_token is not None:
+        token_file = settings.storage.data_dir / CONTROL_TOKEN_FILE
+        return (
+            f"dashboard (control): {dashboard_url(api.host, port, generated_token)}\n"
+            f"  the control token is kept in {token_file}; open this address (it keeps the "
+            "token), or send it as `Authorization: Bearer <token>`"
+        )
+    url = dashboard_url(api.host, port)
+    if api.control_token:
+        return f"dashboard: {url} (control with the configured api.control_token)"
+    return f"dashboard: {url} (read-only: no api.control_token is set)"
 
 
 def check_address(host: str, port: int) -> None:

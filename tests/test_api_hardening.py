@@ -202,7 +202,7 @@ async def test_security_headers_on_every_response() -> None:
         guarded_server(settings) as (host, port),
         httpx.AsyncClient(base_url=f"http://{host}:{port}") as client,
     ):
-        for path in ("/", "/docs", "/static/app.js", "/api/v1/health", "/api/v1/nothing"):
+        for path in ("/", "/docs", "/static/js/app.js", "/api/v1/health", "/api/v1/nothing"):
             response = await client.get(path)
             csp = response.headers["content-security-policy"]
             assert "frame-ancestors 'none'" in csp and "script-src 'self'" in csp, path
@@ -223,7 +223,7 @@ async def test_head_wherever_get_and_options_with_the_real_methods() -> None:
         guarded_server(settings) as (host, port),
         httpx.AsyncClient(base_url=f"http://{host}:{port}") as client,
     ):
-        for path in ("/docs", "/", "/api/v1/health", "/openapi.json", "/static/app.js"):
+        for path in ("/docs", "/", "/api/v1/health", "/openapi.json", "/static/js/app.js"):
             get, head = await client.get(path), await client.head(path)
             assert head.status_code == 200, path
             assert head.content == b""

@@ -80,7 +80,7 @@ async def receive_json(ws: ClientConnection, timeout_s: float = 10.0) -> dict[st
 
 
 def bearer_protocol(token: str) -> str:
-    """The subprotocol a browser sends its token in (api/static/app.js)."""
+    """The subprotocol a browser sends its token in (api/static/js/app.js)."""
     return "bearer." + base64.urlsafe_b64encode(token.encode()).decode().rstrip("=")
 
 

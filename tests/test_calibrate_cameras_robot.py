@@ -58,7 +58,7 @@ GUESS_TRANSLATION_MM = 3.0
 def lab_file(directory: Path, cameras_file: Path | None, **arm: object) -> Path:
     """config/arm-sim.toml with its camera file and a data directory in ``directory``."""
     text = ARM_SIM.read_text(encoding="utf-8").replace(
-        'data_dir = "data"', f'data_dir = "{directory / "data"}"'
+        'data_dir = "data-arm"', f'data_dir = "{directory / "data"}"'
     )
     lines = [f'cameras_file = "{cameras_file}"'] if cameras_file is not None else []
     lines += [f"{key} = {value}" for key, value in arm.items()]

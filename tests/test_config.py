@@ -20,6 +20,15 @@ def test_bundled_files_load() -> None:
     assert (lab.camera.device, lab.ir.device) == (0, 1)
 
 
+def test_each_bench_config_has_a_data_directory_of_its_own() -> None:
+    """Issue 28: the two-link and the arm benches' runs never share a run history."""
+    folders = [
+        load_settings(CONFIG_DIR / name, environ={}).storage.data_dir
+        for name in ("sim.toml", "arm-sim.toml", "arm-sim-played.toml")
+    ]
+    assert len(set(folders)) == len(folders), folders
+
+
 def test_defaults_need_no_file() -> None:
     assert load_settings(None, environ={}) == Settings()
 

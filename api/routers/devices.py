@@ -45,6 +45,8 @@ async def devices_preview(daemon: DaemonDep) -> Response:
         headers["X-Thermocomp-Spot-Px"] = (
             f"{check.centroid['x_px']:.3f},{check.centroid['y_px']:.3f}"
         )
+    if check.tool_frames:
+        headers["X-Thermocomp-Cameras"] = ", ".join(name for name, _ in check.tool_frames)
     if check.errors:
         headers["X-Thermocomp-Device-Errors"] = "; ".join(
             f"{device}: {error}" for device, error in check.errors.items()

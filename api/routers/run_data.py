@@ -7,6 +7,7 @@ import importlib.util
 import logging
 import sqlite3
 import tempfile
+import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Annotated, Literal
@@ -14,17 +15,18 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Query, Response
 from fastapi import Path as PathParam
 from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
-from pydantic import AfterValidator, GetJsonSchemaHandler
+from pydantic import AfterValidator, BaseModel, Field, GetJsonSchemaHandler
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema
 
-from api.deps import DaemonDep, ReadAccess
+from api.deps import ContextDep, DaemonDep, ReadAccess
 from api.errors import ApiError, ErrorBody
 from daemon.run.states import RunState
 from daemon.service import Daemon
 from daemon.storage.exports import CHUNK_STEPS, Chunk, csv_chunk, json_chunk
 from daemon.storage.recorder import Recorder, RecorderError, RunRow
 from daemon.storage.report_queue import ReportStatus
+from daemon.storage.reports import drift_removed_of
 
 logger = logging.getLogger(__name__)
 
@@ -201,6 +203,77 @@ async def _parquet(daemon: Daemon, recorder: Recorder, run_id: int) -> Response:
         media_type="application/vnd.apache.parquet",
         headers={"Content-Disposition": f'attachment; filename="run-{run_id}-steps.parquet"'},
     )
+
+
+#: An active run's "drift removed so far" is recomputed at most this often (s): at a 20 ms
+#: step every request would otherwise read the whole run again.
+REMOVED_REFRESH_S = 2.0
+
+
+class DriftRemoved(BaseModel):
+    """What the compensation has removed so far (daemon/analysis/removed.py)."""
+
+    run_id: int
+    kind: str = Field(description="arm or two-link.")
+    steps: int = Field(description="Steps the figures cover (the run's so far).")
+    measured: int = Field(description="Of them, steps with a measured error.")
+    compensation: str | None
+    basis: str = Field(
+        description="reference: against the measured drift of the uncompensated reference "
+        "run; prediction: no reference run, only the model's prediction; drift: this run is "
+        "uncompensated, its error is the drift."
+    )
+    reference_run: int | None
+    span_s: float | None = Field(description="Run time both runs cover (maxima over it).")
+    residual_max_um: float | None = Field(description="Largest |error| (arm: 3-D drift).")
+    reference_max_um: float | None = Field(description="Reference run's largest drift.")
+    removed_percent: float | None = Field(
+        description="100 (1 - residual max / reference max), on the reference basis only."
+    )
+    predicted_max_um: float | None
+    vs_prediction_percent: float | None = Field(
+        description="Against the model's prediction (not a measured reduction)."
+    )
+    noise_um: float | None = Field(description="Arm: the 3-D measurement's 1-sigma.")
+    rotation: dict[str, float | None] | None = Field(description="Arm: the same, rotation.")
+    headline: str = Field(description="One sentence for people.")
+
+
+@read_router.get("/runs/{run_id}/drift-removed", responses={404: {"model": ErrorBody}})
+async def get_drift_removed(run_id: RunId, daemon: DaemonDep, context: ContextDep) -> DriftRemoved:
+    """How much drift the compensation has removed so far, against the measured drift of the
+    run's uncompensated reference run (its ``reference_run`` parameter) over the time both
+    cover; without one, only the model's prediction is stated and nothing is called removed.
+    The end-of-run summary's own figures over the steps recorded until now."""
+    row = await run_row(daemon, run_id)
+    cache: dict[int, tuple[int, float, DriftRemoved]] = context.extras.setdefault(
+        "drift_removed", {}
+    )
+    cached = cache.get(run_id)
+    now = time.monotonic()
+    active = not RunState(row.state).is_terminal
+    if cached is not None and (
+        cached[0] == row.step_count or (active and now - cached[1] < REMOVED_REFRESH_S)
+    ):
+        return cached[2]
+    parameters = row.parameters
+    reference = parameters.get("reference_run")
+    try:
+        figures = await daemon.export(
+            drift_removed_of,
+            recorder_of(daemon).path,
+            run_id,
+            parameters.get("compensation"),
+            int(reference) if isinstance(reference, int) else None,
+            active,  # an ended run's sentence says what it removed, not "so far"
+        )
+    except (sqlite3.Error, OSError) as err:
+        raise ApiError(503, "storage", f"cannot read run {run_id}: {err}") from err
+    answer = DriftRemoved.model_validate({**figures, "run_id": run_id})
+    if len(cache) > 16:
+        cache.clear()
+    cache[run_id] = (row.step_count, now, answer)
+    return answer
 
 
 #: When to ask again for a report still being written (s).

@@ -12,14 +12,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from daemon.analysis.steps import FloatArray, RunSteps
-
-if TYPE_CHECKING:
-    from matplotlib.figure import Figure
 
 #: The arm summary's keys (each None when it cannot be computed).
 ARM_SUMMARY_KEYS: tuple[str, ...] = (
@@ -142,8 +138,6 @@ def summarize_arm_run(
     return summary
 
 
-#: The arm figure's file stem in a report (daemon/analysis/report.py).
-ARM_FIGURE = "arm_drift"
 ARM_LABELS: dict[str, tuple[str, str]] = {
     "arm_n": ("steps with a 3-D measurement", ""),
     "drift_3d_max_um": ("largest 3-D drift (residual when compensated)", "µm"),
@@ -154,34 +148,9 @@ ARM_LABELS: dict[str, tuple[str, str]] = {
     "predicted_rotation_max_urad": ("largest predicted tool error (rotation)", "µrad"),
     "reference_drift_3d_max_um": ("reference run: largest 3-D drift", "µm"),
     "reference_rotation_max_urad": ("reference run: largest rotation error", "µrad"),
-    "reference_span_s": ("time both runs cover", "s"),
+    "reference_span_s": ("run time both runs cover", "s"),
     "reduction_3d_percent": ("reduction of the 3-D drift", "%"),
     "reduction_rotation_percent": ("reduction of the rotation error", "%"),
     "measurement_sigma_um": ("3-D measurement 1-sigma (median)", "µm"),
     "measurement_rotation_sigma_urad": ("rotation measurement 1-sigma (median)", "µrad"),
 }
-
-
-def draw_arm_figure(steps: RunSteps) -> Figure:
-    """The tool's measured 3-D drift and rotation error over time (norm and components,
-    base frame), with the predicted tool error's norms dashed."""
-    from matplotlib.figure import Figure
-
-    figure = Figure(figsize=(10.0, 6.0), layout="constrained")
-    time_s = steps.time_s
-    panels = (
-        ("drift", "um", ("tx", "ty", "tz"), "drift_3d_um", "3-D drift (µm)"),
-        ("rotation", "urad", ("rx", "ry", "rz"), "rotation_error_urad", "rotation error (µrad)"),
-    )
-    for row, (what, unit, axes, norm_column, label) in enumerate(panels):
-        ax = figure.add_subplot(2, 1, row + 1)
-        ax.grid(True, color="#dddddd", linewidth=0.8)
-        ax.plot(time_s, _column(steps, norm_column), ".", color="#c62828", label=f"|{what}|")
-        for axis in axes:
-            ax.plot(time_s, _column(steps, f"measured_{axis}_{unit}"), ".", ms=2, label=axis)
-        predicted = _norms(steps, "predicted", unit, axes)
-        ax.plot(time_s, predicted, "--", color="#444444", label="|predicted|")
-        ax.set_ylabel(label)
-        ax.legend(loc="upper left", fontsize=8, ncols=5)
-    figure.axes[-1].set_xlabel("time since start (s)")
-    return figure

@@ -193,19 +193,48 @@ def plot_compensation(steps: RunSteps, stats: ErrorStatistics | None) -> Figure:
 
 
 def plot_compensated_vs_uncompensated(
-    steps: RunSteps, summary: Mapping[str, float | int | str | None]
+    steps: RunSteps,
+    summary: Mapping[str, float | int | str | None],
+    reference: RunSteps | None = None,
 ) -> Figure:
-    """Figure 6.9: where the tool would have gone (uncompensated) against where it went."""
+    """Figure 6.9: where the tool would have gone without compensation against where it went.
+    The uncompensated curve is *measured* (the uncompensated ``reference`` run's error, on
+    its own time axis) when there is one; otherwise it is the model's prediction, and its
+    label says so (the thesis plotted the prediction; a wrong model then looks good)."""
     figure, (ax,) = _figure()
     times, time_label = _time_axis(steps.time_s)
-    _line(
-        ax,
-        times,
-        steps.deformation_input_um,
-        color=DEFORMATION_COLOUR,
-        linewidth=2,
-        label="uncompensated (predicted deformation)",
-    )
+    if reference is not None:
+        reference_times, _ = _time_axis(reference.time_s)
+        if times.size and np.isfinite(steps.time_s).any():  # the same unit as this run's axis
+            reference_times = reference.time_s * (
+                np.nanmax(times) / np.nanmax(steps.time_s) if np.nanmax(steps.time_s) else 1.0
+            )
+        _line(
+            ax,
+            reference_times,
+            reference.residual_um,
+            color=DEFORMATION_COLOUR,
+            linewidth=2,
+            label=f"uncompensated (measured: run {summary.get('reference_run')}, compensation off)",
+        )
+        _line(
+            ax,
+            times,
+            steps.deformation_input_um,
+            color="#888888",
+            linewidth=1,
+            linestyle="--",
+            label="the model's predicted deformation",
+        )
+    else:
+        _line(
+            ax,
+            times,
+            steps.deformation_input_um,
+            color=DEFORMATION_COLOUR,
+            linewidth=2,
+            label="uncompensated (predicted by the model: no reference run)",
+        )
     _line(
         ax,
         times,

@@ -8,7 +8,6 @@ Writing is blocking (matplotlib, files): the daemon calls :func:`write_report` i
 from __future__ import annotations
 
 import base64
-import html
 import json
 import logging
 import math
@@ -19,13 +18,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from daemon.analysis.arm import (
-    ARM_FIGURE,
-    ARM_LABELS,
-    draw_arm_figure,
-    is_arm_run,
-    summarize_arm_run,
-)
+from daemon.analysis.arm import is_arm_run, summarize_arm_run
+from daemon.analysis.arm_plots import draw_arm_error, draw_arm_temperatures
 from daemon.analysis.fits import FitError, direction_of, fit_exponential
 from daemon.analysis.plots import (
     plot_compensated_vs_uncompensated,
@@ -34,77 +28,17 @@ from daemon.analysis.plots import (
     plot_lateness,
     plot_temperatures,
 )
+from daemon.analysis.removed import drift_removed
+from daemon.analysis.report_arm import arm_page
+from daemon.analysis.report_page import two_link_page
 from daemon.analysis.statistics import ErrorStatistics, error_statistics
-from daemon.analysis.steps import SUMMARY_KEYS, FloatArray, RunSteps, steps_from_rows, summarize_run
+from daemon.analysis.steps import FloatArray, RunSteps, steps_from_rows, summarize_run
 
 logger = logging.getLogger(__name__)
 
 SUMMARY_FILE = "summary.json"
 HTML_FILE = "report.html"
 DPI = 100
-
-#: Table 6.1's rows: summary key -> (label, symbol, unit).
-SUMMARY_LABELS: dict[str, tuple[str, str, str]] = {
-    "n": ("Sample size (steps with a measured error)", "N", ""),
-    "residual_max_um": ("Largest |error|", "max |x|", "µm"),
-    "residual_mean_um": ("Mean error", "x̄", "µm"),
-    "residual_std_um": ("Standard deviation", "S_x", "µm"),
-    "residual_std_mean_um": ("Standard deviation of the mean", "S_x̄ = S_x/√N", "µm"),
-    "measured_drift_max_um": ("Largest measured drift (compensation off)", "", "µm"),
-    "uncompensated_max_um": ("Largest predicted deformation (the model's)", "", "µm"),
-    "reduction_percent": (
-        "Reduction of the largest displacement, measured against the reference run",
-        "",
-        "%",
-    ),
-    "reduction_vs_prediction_percent": (
-        "Largest error relative to the largest predicted deformation (not a measured reduction)",
-        "1 − max|x| / max prediction",
-        "%",
-    ),
-    "reference_max_um": ("Largest measured drift of the reference run", "", "µm"),
-    "reference_span_s": ("Time both runs cover (maxima taken over it)", "", "s"),
-}
-
-#: The Table 6.1 rows shown for each ``reduction_basis`` (the rest would be empty).
-_BASIS_ROWS: dict[str, frozenset[str]] = {
-    "drift": frozenset({"measured_drift_max_um", "uncompensated_max_um"}),
-    "prediction": frozenset({"uncompensated_max_um", "reduction_vs_prediction_percent"}),
-    "reference": frozenset(
-        {
-            "uncompensated_max_um",
-            "reference_max_um",
-            "reference_span_s",
-            "reduction_percent",
-            "reduction_vs_prediction_percent",
-        }
-    ),
-}
-_TABLE_6_1_KEYS = frozenset(
-    {"n", "residual_max_um", "residual_mean_um", "residual_std_um", "residual_std_mean_um"}
-)
-
-
-def reduction_note(run_summary: Mapping[str, object]) -> str:
-    """One sentence saying what the summary's reduction figure is measured against."""
-    basis = run_summary.get("reduction_basis")
-    if basis == "drift":
-        return (
-            "This run was not compensated (compensation off): its error is the measured "
-            "thermal drift, and there is no reduction to state."
-        )
-    if basis == "reference":
-        return (
-            f"The reduction compares this run's largest error with the largest drift measured "
-            f"by the uncompensated reference run {run_summary.get('reference_run')}, both "
-            "over the time the two runs cover."
-        )
-    return (
-        "No uncompensated reference run was named (run parameter reference_run, "
-        "thermocomp report --reference RUN): the only figure is relative to the model's "
-        "own prediction, which says how well the moves followed the model, not how much of "
-        "the real drift they removed (a wrong model over-predicts and looks better)."
-    )
 
 
 @dataclass(frozen=True)
@@ -118,43 +52,117 @@ class ReportFiles:
 
 
 @dataclass(frozen=True)
+class _Inputs:
+    """What a figure is drawn from."""
+
+    steps: RunSteps
+    stats: ErrorStatistics | None
+    summary: dict[str, float | int | str | None]  # the run summary (Table 6.1's keys)
+    reference: RunSteps | None
+    reference_run: int | str | None
+
+
+@dataclass(frozen=True)
 class _Plot:
     name: str
-    caption: str
-    draw: Callable[[RunSteps, ErrorStatistics | None, dict[str, float | int | str | None]], Figure]
+    caption: Callable[[_Inputs], str]
+    draw: Callable[[_Inputs], Figure]
 
 
-PLOTS: tuple[_Plot, ...] = (
+def _uncompensated_caption(given: _Inputs) -> str:
+    if given.reference is not None:
+        return (
+            "Where the tool went without compensation, measured by the uncompensated run "
+            f"{given.reference_run}, against where it went with it (thesis Figure 6.9); the "
+            "model's prediction dashed."
+        )
+    return (
+        "Where the model predicts the tool would have gone without compensation (no "
+        "uncompensated reference run was named: the curve is predicted, not measured) against "
+        "where it went with it (thesis Figure 6.9)."
+    )
+
+
+LATENESS = _Plot(
+    "lateness",
+    lambda given: "How long after its scheduled time each step started.",
+    lambda given: plot_lateness(given.steps),
+)
+
+TWO_LINK_PLOTS: tuple[_Plot, ...] = (
     _Plot(
         "compensation",
-        "Deformation input (model prediction), commanded compensation and measured error over "
-        "time, as thesis Figures 6.5-6.7. A perfect compensation mirrors the deformation and "
-        "leaves zero error.",
-        lambda steps, stats, summary: plot_compensation(steps, stats),
+        lambda given: (
+            "Deformation input (model prediction), commanded compensation and "
+            "measured error over time, as thesis Figures 6.5-6.7. A perfect compensation mirrors "
+            "the deformation and leaves zero error."
+        ),
+        lambda given: plot_compensation(given.steps, given.stats),
     ),
     _Plot(
         "compensated_vs_uncompensated",
-        "Where the tool would have moved without compensation against where it moved with it "
-        "(thesis Figure 6.9).",
-        lambda steps, stats, summary: plot_compensated_vs_uncompensated(steps, summary),
+        _uncompensated_caption,
+        lambda given: plot_compensated_vs_uncompensated(
+            given.steps, given.summary, given.reference
+        ),
     ),
     _Plot(
         "error_histogram",
-        "Histogram of the error over K = 1.87 (N-1)^0.40 + 1 intervals with the normal "
-        "distribution of the sample's mean and S_x (thesis Figure 6.8, section 6.6).",
-        lambda steps, stats, summary: plot_error_histogram(stats),
+        lambda given: (
+            "Histogram of the error over K = 1.87 (N-1)^0.40 + 1 intervals with the "
+            "normal distribution of the sample's mean and S_x (thesis Figure 6.8, section 6.6)."
+        ),
+        lambda given: plot_error_histogram(given.stats),
     ),
     _Plot(
         "temperatures",
-        "Mean temperature of each infrared region (thick lines) and, when recorded, of "
-        "each model node (dashed, coloured by node number along the link).",
-        lambda steps, stats, summary: plot_temperatures(steps),
+        lambda given: (
+            "Mean temperature of each infrared region (thick lines) and, when "
+            "recorded, of each model node (dashed, coloured by node number along the link)."
+        ),
+        lambda given: plot_temperatures(given.steps),
+    ),
+    LATENESS,
+)
+
+ARM_PLOTS: tuple[_Plot, ...] = (
+    _Plot(
+        "arm_drift",
+        lambda given: (
+            "The tool's measured 3-D drift from its pose at the start, per measured "
+            "pose, over the hours of the arm's warm-up; the band is ±1σ of the measurement, "
+            "dotted the model's predicted tool error"
+            + (
+                f", dashed the uncompensated run {given.reference_run}'s measured drift."
+                if given.reference is not None
+                else "."
+            )
+        ),
+        lambda given: draw_arm_error(
+            given.steps, what="drift", reference=given.reference, reference_run=given.reference_run
+        ),
     ),
     _Plot(
-        "lateness",
-        "How long after its scheduled time each step started.",
-        lambda steps, stats, summary: plot_lateness(steps),
+        "arm_rotation",
+        lambda given: (
+            "The tool's measured rotation error per measured pose; the band is ±1σ "
+            "of the measurement (a rotation error inside it is the cameras' noise, not the arm's)."
+        ),
+        lambda given: draw_arm_error(
+            given.steps,
+            what="rotation",
+            reference=given.reference,
+            reference_run=given.reference_run,
+        ),
     ),
+    _Plot(
+        "arm_temperatures",
+        lambda given: (
+            "The model's mean temperature of each link and joint and the measured IR regions."
+        ),
+        lambda given: draw_arm_temperatures(given.steps),
+    ),
+    LATENESS,
 )
 
 
@@ -249,158 +257,6 @@ def build_summary(
     return summary, stats
 
 
-def _format(value: object, digits: int = 3) -> str:
-    if value is None:
-        return "–"
-    if isinstance(value, float):
-        return f"{value:.{digits}f}" if math.isfinite(value) else "–"
-    return html.escape(str(value))
-
-
-def _table(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join(
-        "<tr>" + "".join(f"<td>{_format(c)}</td>" for c in row) + "</tr>" for row in rows
-    )
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def _html_page(
-    title: str,
-    summary: dict[str, object],
-    stats: ErrorStatistics | None,
-    images: Mapping[str, str],
-    notes: Mapping[str, str],
-) -> str:
-    run_summary = summary["run_summary"]
-    flags = summary["flags"]
-    assert isinstance(run_summary, dict) and isinstance(flags, dict)
-    flag_text = ", ".join(f"{html.escape(name)}: {count}" for name, count in flags.items())
-    parts = [
-        f"<h1>{html.escape(title)}</h1>",
-        f"<p>Run <b>{_format(summary['run_id'])}</b>: {summary['steps']} steps, "
-        f"{summary['steps_with_error']} with an error; flagged steps: {flag_text or 'none'}.</p>",
-        "<h2>Statistical results (thesis Table 6.1)</h2>",
-        _table(
-            ("quantity", "symbol", "value", "unit"),
-            (
-                (label, symbol, run_summary.get(key), unit)
-                for key in SUMMARY_KEYS
-                if key in _TABLE_6_1_KEYS
-                or key in _BASIS_ROWS.get(str(run_summary.get("reduction_basis")), frozenset())
-                for label, symbol, unit in (SUMMARY_LABELS[key],)
-            ),
-        ),
-        f'<p class="note">{html.escape(reduction_note(run_summary))}</p>',
-    ]
-    arm = summary.get("arm")
-    if isinstance(arm, dict):
-        parts += [
-            "<h2>Whole arm: 3-D drift and rotation error of the tool</h2>",
-            _table(
-                ("quantity", "value", "unit"),
-                ((label, arm.get(key), unit) for key, (label, unit) in ARM_LABELS.items()),
-            ),
-            f'<figure><img src="{html.escape(images[ARM_FIGURE])}" alt="{ARM_FIGURE}">'
-            "<figcaption>The tool's measured drift from its pose at the start (norm and "
-            "components, base frame) and the predicted tool error (dashed).</figcaption>"
-            "</figure>",
-        ]
-    if stats is not None and stats.chi_squared is not None:
-        test = stats.chi_squared
-        parts += [
-            "<h2>Chi-squared test for normality (thesis Table C.4)</h2>",
-            f"<p>χ² = {test.chi_squared:.3f} with ν = K − 2 = {test.degrees_of_freedom}. "
-            f"Goodness-of-fit p-value (upper tail): <b>{test.p_value:.3f}</b> "
-            f"({'no evidence against' if test.p_value >= 0.05 else 'evidence against'} "
-            f"a normal distribution at 5 %). The thesis read the lower tail, "
-            f"P(χ²) = {test.thesis_lower_tail_p:.3f}, which is not a goodness-of-fit "
-            "p-value: a small upper tail rejects normality, while the lower tail only says how "
-            'unusually close the fit is (README "Run reports").</p>',
-            _table(
-                ("j", "interval (µm)", "n_j", "n'_j", "(n_j − n'_j)²/n'_j"),
-                (
-                    (
-                        j + 1,
-                        f"{test.edges[j]:.3f} ≤ x < {test.edges[j + 1]:.3f}",
-                        test.observed[j],
-                        test.expected[j],
-                        test.contributions[j],
-                    )
-                    for j in range(len(test.observed))
-                ),
-            ),
-        ]
-    elif stats is not None:
-        parts.append(f"<p>No chi-squared test: {html.escape(stats.note)}.</p>")
-    fits = summary["fits"]
-    assert isinstance(fits, dict)
-    fit_rows: list[tuple[object, ...]] = []
-    for name, fit in fits.items():
-        if "error" in fit:
-            fit_rows.append((name, "–", None, None, None, None, None, fit["error"]))
-        else:
-            steady = fit["steady_state_s"]
-            fit_rows.append(
-                (
-                    name,
-                    fit["kind"],
-                    fit["final_value"],
-                    fit["tau_s"],
-                    fit["tau_stderr_s"],
-                    steady
-                    if steady is not None
-                    else f"not steady within the run (τ = {fit['tau_s']:.4g} s)",
-                    fit.get("fit_settling_s"),
-                    f"band ±{fit['steady_band']:.3g}",
-                )
-            )
-    parts += [
-        "<h2>First-order exponential fits</h2>",
-        "<p>y = y0 + A (1 − e^(−(t − t0)/τ)) (or the decaying form). τ is the time constant "
-        "(63 % of the change); steady state is the first time after which the data (running "
-        "mean of 9 samples) stay within ±3σ of the mean of their final 20 % (thesis 3.5.1); "
-        "σ is that final segment's. A signal is called steady only when the fitted curve also "
-        "enters that band before the run ends (fit settles, s); otherwise it is still moving "
-        "and the time constant says how far it has to go.</p>",
-        _table(
-            (
-                "signal",
-                "form",
-                "final value",
-                "τ (s)",
-                "± (s)",
-                "steady from (s)",
-                "fit settles (s)",
-                "note",
-            ),
-            fit_rows,
-        ),
-        "<h2>Figures</h2>",
-    ]
-    for plot in PLOTS:
-        if plot.name in notes:  # a figure that would say nothing: one line saying why
-            parts.append(f'<p class="note">{html.escape(notes[plot.name])}</p>')
-            continue
-        parts.append(
-            f'<figure><img src="{html.escape(images[plot.name])}" alt="{plot.name}">'
-            f"<figcaption>{html.escape(plot.caption)}</figcaption></figure>"
-        )
-    style = (
-        "body{font-family:system-ui,sans-serif;max-width:1040px;margin:2em auto;padding:0 1em;"
-        "color:#222}table{border-collapse:collapse;margin:1em 0}th,td{border:1px solid #ccc;"
-        "padding:4px 10px;text-align:right}th{background:#f0f0f0}td:first-child{text-align:left}"
-        "img{max-width:100%;border:1px solid #ddd}figure{margin:2em 0}"
-        "figcaption{color:#555;font-size:.95em}.note{color:#555;font-style:italic}"
-    )
-    body = "\n".join(parts)
-    return (
-        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
-        f"<title>{html.escape(title)}</title><style>{style}</style></head>\n"
-        f"<body>\n{body}\n</body></html>\n"
-    )
-
-
 def write_report(
     rows: Iterable[Mapping[str, object]] | RunSteps,
     out_dir: Path,
@@ -428,38 +284,47 @@ def write_report(
     )
     run_summary = summary["run_summary"]
     assert isinstance(run_summary, dict)
+    arm = is_arm_run(steps)
+    if arm:  # issue 20: the tool's 3-D drift and rotation error lead
+        summary["arm"] = summarize_arm_run(
+            steps,
+            steps.poses,
+            compensation=compensation,
+            reference=reference,
+            reference_run=reference_run,
+        )
+        summary["headline"] = drift_removed(
+            steps,
+            poses=steps.poses,
+            compensation=compensation,
+            reference=reference,
+            reference_run=reference_run if isinstance(reference_run, int) else None,
+            so_far=False,
+        )["headline"]
     plots: dict[str, Path] = {}
     images: dict[str, str] = {}
     notes: dict[str, str] = {}
     note = lateness_note(steps, clock)
     if note is not None:
         notes["lateness"] = note
-    for plot in PLOTS:
-        if plot.name in notes:
-            (out_dir / f"{plot.name}.png").unlink(missing_ok=True)  # not a stale one
-            continue
-        figure = plot.draw(steps, stats, run_summary)
+    given = _Inputs(steps, stats, run_summary, reference, reference_run)
+    chosen = ARM_PLOTS if arm else TWO_LINK_PLOTS
+    for plot in ARM_PLOTS + TWO_LINK_PLOTS:  # none of the other kind's left from before
+        if plot not in chosen:
+            (out_dir / f"{plot.name}.png").unlink(missing_ok=True)
+    for plot in chosen:
         path = out_dir / f"{plot.name}.png"
-        figure.savefig(path, dpi=DPI)
+        if plot.name in notes:
+            path.unlink(missing_ok=True)  # not a stale one
+            continue
+        plot.draw(given).savefig(path, dpi=DPI)
         plots[plot.name] = path
         if embed_images:
             encoded = base64.b64encode(path.read_bytes()).decode("ascii")
             images[plot.name] = f"data:image/png;base64,{encoded}"
         else:
             images[plot.name] = path.name
-    if is_arm_run(steps):  # issue 20: the tool's 3-D drift and rotation error
-        summary["arm"] = summarize_arm_run(
-            steps, compensation=compensation, reference=reference, reference_run=reference_run
-        )
-        arm_figure = draw_arm_figure(steps)
-        path = out_dir / f"{ARM_FIGURE}.png"
-        arm_figure.savefig(path, dpi=DPI)
-        plots[ARM_FIGURE] = path
-        images[ARM_FIGURE] = (
-            f"data:image/png;base64,{base64.b64encode(path.read_bytes()).decode('ascii')}"
-            if embed_images
-            else path.name
-        )
+    figures = [(plot.name, plot.caption(given)) for plot in chosen]
     summary["plots"] = {name: path.name for name, path in plots.items()}
     summary["notes"] = notes
     summary_path = out_dir / SUMMARY_FILE
@@ -467,6 +332,11 @@ def write_report(
         json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n", encoding="utf-8"
     )
     html_path = out_dir / HTML_FILE
-    html_path.write_text(_html_page(title, summary, stats, images, notes), encoding="utf-8")
+    page = (
+        arm_page(title, summary, figures=figures, images=images, notes=notes)
+        if arm
+        else two_link_page(title, summary, stats=stats, figures=figures, images=images, notes=notes)
+    )
+    html_path.write_text(page, encoding="utf-8")
     logger.info("wrote the report of run %s to %s", steps.run_id, out_dir)
     return ReportFiles(directory=out_dir, html=html_path, summary=summary_path, plots=plots)

@@ -132,6 +132,8 @@ class RunSteps:
     model_temperatures_c: dict[str, FloatArray] = field(default_factory=dict)  # node -> series
     flags: tuple[tuple[str, ...], ...] = ()
     errors: tuple[str, ...] = ()
+    #: an arm run's measured pose of each step (arm_pose); empty when no row names one
+    poses: tuple[str | None, ...] = ()
 
     @property
     def n_steps(self) -> int:
@@ -224,6 +226,8 @@ def steps_from_rows(rows: Iterable[Mapping[str, object]]) -> RunSteps:
     flag_tuples: dict[str, tuple[str, ...]] = {}  # one shared tuple per distinct flags cell
     flags: list[tuple[str, ...]] = []
     errors: list[str] = []
+    poses: list[str | None] = []
+    pose_names: dict[str, str] = {}  # one shared string per pose name
     run_ids: set[str] = set()
     n = 0
     for row in rows:
@@ -256,6 +260,8 @@ def steps_from_rows(rows: Iterable[Mapping[str, object]]) -> RunSteps:
             flag_tuples[flags_text] = step_flags
         flags.append(step_flags)
         errors.append(str(row.get("error") or ""))
+        pose = row.get("arm_pose")
+        poses.append(pose_names.setdefault(str(pose), str(pose)) if pose else None)
         run_id = row.get("run_id")
         if run_id not in (None, ""):
             run_ids.add(str(run_id))
@@ -274,6 +280,7 @@ def steps_from_rows(rows: Iterable[Mapping[str, object]]) -> RunSteps:
         },
         flags=tuple(flags),
         errors=tuple(errors),
+        poses=tuple(poses) if any(poses) else (),
     )
 
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Protocol
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -103,6 +103,9 @@ class ToolMeasurement:
     #: 1-sigma of the orientation (rad, sqrt of the rotation block's trace); NaN when the
     #: orientation was not measured
     rotation_sigma_rad: float = math.nan
+    #: each camera's last frame of the measurement, by camera name (references to the
+    #: grabbed images, for the dashboard's live views; issue 28)
+    images: Mapping[str, Any] = field(default_factory=dict)
 
 
 class MeasurementError(ValueError):

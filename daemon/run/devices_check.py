@@ -11,6 +11,7 @@ import asyncio
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -57,6 +58,8 @@ class DeviceCheck:
     pose: Pose | None = None
     robot_link: str | None = None
     errors: dict[str, str] = field(default_factory=dict)
+    #: the arm bench's tool cameras (issue 28): one frame each, by camera name
+    tool_frames: list[tuple[str, Frame]] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -110,9 +113,40 @@ def ir_regions(devices: Devices, settings: Settings) -> tuple[IrRegion, ...]:
     return settings.ir.regions
 
 
+async def _tool_frames(devices: Devices, settings: Settings, check: DeviceCheck) -> bool:
+    """One frame of every tool camera of an arm (drivers.factory.Devices.cameras), all at
+    once; False when there are none (the two-link bench's spot camera is checked instead)."""
+    cameras = tuple(getattr(devices, "cameras", ()) or ())
+    if not cameras:
+        return False
+    models = tuple(getattr(devices, "camera_models", ()) or ())
+    names = (
+        [model.name for model in models]
+        if len(models) == len(cameras)
+        else [f"camera {k}" for k in range(len(cameras))]
+    )
+    timeout_s = settings.camera.grab_timeout_s
+    grabbed = await asyncio.gather(
+        *(asyncio.wait_for(camera.grab(), timeout_s) for camera in cameras),
+        return_exceptions=True,
+    )
+    for name, result in zip(names, grabbed, strict=True):
+        if isinstance(result, Frame):
+            check.tool_frames.append((name, result))
+        elif isinstance(result, DeviceError | TimeoutError):
+            check.errors[name] = str(result) or "no frame within camera.grab_timeout_s"
+        else:
+            raise result
+    return True
+
+
 async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
-    """Grab one frame, read one IR image and the robot's pose; measure the spot."""
+    """Grab one frame (of every tool camera on an arm), read one IR image and the robot's
+    pose; measure the spot."""
     check = DeviceCheck(regions=ir_regions(devices, settings))
+    if await _tool_frames(devices, settings, check):
+        await _ir_and_pose(devices, settings, check)
+        return check
     try:
         check.frame = await asyncio.wait_for(devices.camera.grab(), settings.camera.grab_timeout_s)
     except (DeviceError, TimeoutError) as err:
@@ -132,6 +166,11 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
             }
         except CentroidError as err:
             check.centroid_error = str(err)
+    await _ir_and_pose(devices, settings, check)
+    return check
+
+
+async def _ir_and_pose(devices: Devices, settings: Settings, check: DeviceCheck) -> None:
     try:
         check.reading = await asyncio.wait_for(devices.ir.read(), settings.ir.read_timeout_s)
     except (DeviceError, TimeoutError) as err:
@@ -141,13 +180,16 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
         check.robot_link = devices.robot.status().link.value
     except (DeviceError, TimeoutError) as err:
         check.errors["robot"] = str(err) or "no pose"
-    return check
 
 
 def describe(check: DeviceCheck) -> list[str]:
     """The check as lines for people."""
     data = check.as_dict()
-    lines = []
+    lines = [
+        f"camera {name}: {frame.image.shape[1]}x{frame.image.shape[0]} px, "
+        f"counts {int(frame.image.min())}..{int(frame.image.max())}"
+        for name, frame in check.tool_frames
+    ]
     camera = data["camera"]
     if camera is not None:
         lines.append(
@@ -194,6 +236,10 @@ def preview_image(check: DeviceCheck) -> NDArray[np.uint8]:
     """The preview: camera frame with the centroid, thermal image with the regions."""
     panels = []
     height = 480
+    for name, frame in check.tool_frames:  # an arm: every tool camera, markers kept visible
+        reduced = block_max(frame.image, TOOL_PANEL_WIDTH_PX)
+        panels.append(camera_panel(reduced, None, tool_caption(name, frame)))
+        height = reduced.shape[0]
     if check.frame is not None:
         centroid = check.centroid
         spot = None if centroid is None else (centroid["x_px"], centroid["y_px"])
@@ -222,7 +268,56 @@ def preview_image(check: DeviceCheck) -> NDArray[np.uint8]:
         panels.append(ir_panel(reading.frame_c, boxes, "ir: regions (mean degC)", height))
     if not panels:
         raise DeviceError("devices", "neither a frame nor a thermal image to preview")
-    return side_by_side(panels)
+    rows = [
+        side_by_side(panels[k : k + PANELS_PER_ROW]) for k in range(0, len(panels), PANELS_PER_ROW)
+    ]
+    return one_above_another(rows)
+
+
+#: Below this fraction of full scale a tool camera's brightest pixel is no lit marker.
+DARK_FRACTION = 0.1
+
+
+def tool_caption(name: str, frame: Frame) -> str:
+    """A tool camera's panel caption: its size, its brightest count, and whether anything
+    bright is in view (at rest the tool is usually outside every camera's view)."""
+    peak = int(frame.image.max())
+    full = (1 << frame.bit_depth) - 1 if frame.bit_depth else peak or 1
+    dark = "; dark: nothing in view" if peak < DARK_FRACTION * full else ""
+    size = f"{frame.image.shape[1]} x {frame.image.shape[0]} px"
+    return f"{name}: {size}, peak {peak} of {full}{dark}"
+
+
+#: The preview's tool camera panels: this wide at most, three to a row.
+TOOL_PANEL_WIDTH_PX = 480
+PANELS_PER_ROW = 3
+
+
+def block_max(image: NDArray[Any], max_width_px: int) -> NDArray[Any]:
+    """``image`` reduced to at most ``max_width_px`` wide, each pixel the brightest of its
+    block (then grown to 3 x 3): a marker a few pixels wide on a 5 MP frame survives (a
+    plain resize loses it, and the browser's scaling did: the preview showed a black frame)."""
+    scale = max(1, -(-image.shape[1] // max_width_px))
+    rows, cols = image.shape[0] // scale, image.shape[1] // scale
+    blocks = image[: rows * scale, : cols * scale].reshape(rows, scale, cols, scale)
+    reduced: NDArray[Any] = blocks.max(axis=(1, 3))
+    # then each pixel the brightest of its 3 x 3 neighbours: a marker of one reduced pixel
+    # is a dot a person finds on a 480 px panel
+    grown: NDArray[Any] = cv2.dilate(reduced, np.ones((3, 3), np.uint8))
+    return grown
+
+
+def one_above_another(rows: list[NDArray[np.uint8]]) -> NDArray[np.uint8]:
+    """Rows of panels stacked, left-aligned on a black background."""
+    if len(rows) == 1:
+        return rows[0]
+    width = max(row.shape[1] for row in rows)
+    canvas = np.zeros((sum(row.shape[0] for row in rows) + 8 * (len(rows) - 1), width, 3), np.uint8)
+    y = 0
+    for row in rows:
+        canvas[y : y + row.shape[0], : row.shape[1]] = row
+        y += row.shape[0] + 8
+    return canvas
 
 
 def preview_png(check: DeviceCheck) -> bytes:

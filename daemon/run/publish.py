@@ -67,6 +67,20 @@ class RunPublisher:
                     },
                 )
             )
+        for camera in outcome.views:  # an arm step: every tool camera's frame
+            services.bus.publish(
+                Event(
+                    "frame",
+                    {
+                        "run_id": self._run_id,
+                        "step": outcome.record.step,
+                        "image": camera.image,
+                        "camera": camera.camera,
+                        "pose": outcome.record.arm_pose,
+                        "markers_px": [list(xy) for xy in camera.markers_px],
+                    },
+                )
+            )
         services.on_view(view)
 
     def _state_written(self, write: asyncio.Future[None]) -> None:

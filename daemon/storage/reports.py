@@ -97,6 +97,43 @@ def reference_steps(data_dir: Path, reference_run: int) -> RunSteps:
     return read_run(data_dir, reference_run)[0]
 
 
+def drift_removed_of(
+    database: Path,
+    run_id: int,
+    compensation: str | None,
+    reference_run: int | None,
+    so_far: bool = True,
+) -> dict[str, Any]:
+    """The dashboard's "drift removed so far" (daemon.analysis.removed) of a run, from its
+    steps recorded until now and its named reference run's, read from ``database``
+    read-only. Picklable arguments: the API runs it in an export process, so reading a long
+    run never holds the daemon's GIL (issue 15, point 6)."""
+    from daemon.analysis.removed import REMOVED_COLUMNS, drift_removed
+
+    uri = f"{Path(database).resolve().as_uri()}?mode=ro"
+    with closing(sqlite3.connect(uri, uri=True)) as db:
+        steps = steps_from_rows(step_rows(db, run_id, REMOVED_COLUMNS))
+        poses = [
+            row[0]
+            for row in db.execute(
+                "SELECT arm_pose FROM steps WHERE run_id = ? ORDER BY step", (run_id,)
+            )
+        ]
+        reference = (
+            None
+            if reference_run is None
+            else steps_from_rows(step_rows(db, reference_run, REMOVED_COLUMNS))
+        )
+    return drift_removed(
+        steps,
+        compensation=compensation,
+        poses=poses,
+        reference=reference if reference is not None and reference.n_steps else None,
+        reference_run=reference_run,
+        so_far=so_far,
+    )
+
+
 def run_clock(data_dir: Path, run_id: int) -> str | None:
     """The run's ``bench.clock`` setting, from the settings the daemon recorded with it (None
     when the database does not say): the report drops the lateness figure on a virtual clock."""

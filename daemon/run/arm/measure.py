@@ -17,7 +17,7 @@ from __future__ import annotations
 import asyncio
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -261,12 +261,17 @@ class MultiCameraMeter:
         them, then the pose."""
         expected = np.asarray(expected_pose, dtype=np.float64)
         view_sets: list[list[MarkerView]] = []
+        grabbed: Sequence[Frame] = ()
         for _ in range(self._frames if frames is None else frames):
             grabbed = await asyncio.gather(
                 *(self._grab(c, t) for c, t in zip(self._cameras, self._timeouts_s, strict=True))
             )
             view_sets.append(await self._workers.step(self._views, grabbed, expected))
-        return await self._workers.step(self._solve, view_sets, expected)
+        measurement = await self._workers.step(self._solve, view_sets, expected)
+        # the last frames, for the live views (no copy: the images are not written to again)
+        # (none grabbed when frames == 0)
+        images = {m.name: f.image for m, f in zip(self._models, grabbed, strict=False)}
+        return replace(measurement, images=images)
 
     def _views(self, frames: Sequence[Frame], expected: FloatArray) -> list[MarkerView]:
         markers_world = self._markers @ expected[:3, :3].T + expected[:3, 3]

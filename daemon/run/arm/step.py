@@ -57,6 +57,7 @@ from daemon.run.sensors import Sensors
 from daemon.run.states import RunParameters
 from daemon.run.two_link.step import (
     SENSOR_ERROR_FLAGS,
+    CameraView,
     StepOutcome,
     begin_record,
     finish_record,
@@ -100,6 +101,24 @@ class ArmRobot(Protocol):
     async def actual_pose(self) -> Pose: ...
 
     def status(self) -> RobotStatus: ...
+
+
+def camera_views(measurement: ToolMeasurement | None) -> tuple[CameraView, ...]:
+    """Each camera's frame of the measurement with the marker centroids it found."""
+    if measurement is None:
+        return ()
+    return tuple(
+        CameraView(
+            camera,
+            image,
+            tuple(
+                (float(x), float(y))
+                for x, y in measurement.centroids_px.get(camera, ())
+                if math.isfinite(x) and math.isfinite(y)
+            ),
+        )
+        for camera, image in sorted(measurement.images.items())
+    )
 
 
 class ToolMeter(Protocol):
@@ -253,8 +272,9 @@ class ArmStepPipeline:
         # 4. measure the tool in every camera, and the IR regions
         # (played: the robot stays at the pose until the step is recorded, run() releases it:
         # a few ms beyond the dwell, and which arrival each step measures is reproducible)
+        measurement: ToolMeasurement | None = None
         if device_fault is None and unsafe is None:
-            await self._measure(
+            measurement = await self._measure(
                 work, pose=pose, record=record, flags=flags, errors=errors, stages=stages
             )
 
@@ -271,7 +291,9 @@ class ArmStepPipeline:
             record=record,
             sensor_error_flags=ARM_SENSOR_ERROR_FLAGS,
         )
-        return StepOutcome(record, None, verdict, round_trips_s, stages)
+        return StepOutcome(
+            record, None, verdict, round_trips_s, stages, views=camera_views(measurement)
+        )
 
     # --- 1. the model ------------------------------------------------------------------
 
@@ -376,7 +398,7 @@ class ArmStepPipeline:
         flags: list[str],
         errors: list[str],
         stages: dict[str, float],
-    ) -> None:
+    ) -> ToolMeasurement | None:
         started = time.perf_counter()
         measurement: ToolMeasurement | None = None
         try:
@@ -394,6 +416,7 @@ class ArmStepPipeline:
         started = time.perf_counter()
         await self._infrared(work, record, flags, errors)
         stages["ir"] = time.perf_counter() - started
+        return measurement
 
     async def _infrared(
         self, work: ArmRunWork, record: StepRecord, flags: list[str], errors: list[str]

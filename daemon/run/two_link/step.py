@@ -13,7 +13,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -72,6 +72,18 @@ class StepOutcome:
     verdict: Verdict
     round_trips_s: tuple[float, ...] = ()  # each console command of the move (s)
     stages_s: dict[str, float] = field(default_factory=dict)  # scheduler.STAGES timings
+    # an arm step: each tool camera's frame and the markers it measured, for live views
+    views: tuple[CameraView, ...] = ()
+
+
+@dataclass(frozen=True, eq=False)
+class CameraView:
+    """One tool camera's frame of an arm step, for the dashboard (issue 28): the camera's
+    name, its image (a reference, never written to again) and the marker centroids (px)."""
+
+    camera: str
+    image: NDArray[Any]
+    markers_px: tuple[tuple[float, float], ...] = ()
 
 
 @dataclass(eq=False)
