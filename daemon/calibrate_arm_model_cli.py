@@ -83,16 +83,20 @@ def _identify_and_save(
     outcome: dict[str, Any],
     *,
     params: list[str] | None,
+    force: bool = False,
 ) -> tuple[str, ArmRun, ArmIdentification]:
     """Step 2, blocking (SciPy, SQLite read-only, one file): the identification table, the
     run as identification read it, and the refit the saved model holds."""
     from daemon.arm.arm_model import arm_model_toml
     from daemon.arm_identify_cli import (
         ArmRunInputError,
+        ImplausibleModelError,
         arm_model_of,
+        checked_for_save,
         format_arm_result,
         identify_arm_run,
         load_arm_run,
+        progress_to_stderr,
     )
     from daemon.identify_run import write_outputs
     from daemon.model.identify import IdentificationError
@@ -102,21 +106,30 @@ def _identify_and_save(
     except (ArmRunInputError, OSError) as err:
         raise StepFailedError(f"identification: {err}", EXIT_FAILURE) from err
     try:
-        full, refit = identify_arm_run(run, params)
+        calibration = identify_arm_run(run, params, progress_to_stderr(f"{PROG}: identification"))
     except IdentificationError as err:
         raise StepFailedError(f"identification: {err}", EXIT_USAGE) from err
-    model = arm_model_of(name, run, full, refit)
+    table = format_arm_result(calibration)
+    try:
+        model = checked_for_save(arm_model_of(name, run, calibration), force)
+    except ImplausibleModelError as err:
+        print(table)
+        raise StepFailedError(f"identification: {err}", EXIT_FAILURE) from err
     header = f"identified by {PROG} from run {run_id} (arm {model.arm})"
     try:
         write_outputs([saved], arm_model_toml(model, header=header))
     except OSError as err:
         raise StepFailedError(f"cannot save {saved}: {err}", EXIT_FAILURE) from err
+    assert calibration.final is not None
     outcome["identified"] = {
-        "all": full.to_dict(),
-        "refit": refit.to_dict(),
+        "all": None if calibration.full is None else calibration.full.to_dict(),
+        "refit": calibration.final.to_dict(),
         "arm_model": model.provenance(),
     }
-    return format_arm_result(full, refit), run, refit
+    for line in (model.warning, *model.implausible):
+        if line:
+            table += f"\nWARNING: {line}"
+    return table, run, calibration.final
 
 
 def _prediction_check(

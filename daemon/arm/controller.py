@@ -33,6 +33,7 @@ from daemon.arm.arm_network import describe_arm
 from daemon.arm.description import Arm, load_arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
+from daemon.arm.identify_response import factored_description
 from daemon.arm.ir_regions import region_nodes
 from daemon.arm.kinematics import forward, inverse, tool_error, tool_errors
 from daemon.arm.run import CyclePose, FloatArray, MeasuredPose
@@ -84,13 +85,22 @@ class ArmController:
                     f"arm model {identified.name!r} has {len(identified.heat_scales)} joint "
                     f"heat factors, arm {arm.name!r} {joints} joints"
                 )
+            if identified.bending_shares and len(identified.bending_shares) != joints:
+                raise ValueError(
+                    f"arm model {identified.name!r} has {len(identified.bending_shares)} "
+                    f"bending shares, arm {arm.name!r} {joints} joints"
+                )
             self.heat_scales = np.array(identified.heat_scales, dtype=np.float64)
             self.alpha_scale = identified.alpha_scale
             convection = identified.convection_scale
         self.heat = heat or JointHeatProfile.from_duty(arm, duty, resolution_s=options.motion_dt_s)
         description = describe_arm(arm, plus_share=options.motor_side_share)
+        if identified is not None:  # issue 29: identified capacity and bending shares
+            description = factored_description(
+                description, identified.capacity_scale, identified.bending_shares or None
+            )
         self.thermal = thermal or ArmThermalModel(
-            description if options.bending else arm,
+            description if options.bending or identified is not None else arm,
             across_link=options.bending,
             node_spacing_mm=options.node_spacing_mm,
             ambient_c=options.ambient_c,
