@@ -40,6 +40,7 @@ import json
 import math
 import sqlite3
 import sys
+import time
 from contextlib import closing
 from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
@@ -206,11 +207,20 @@ def identify_arm_run(
     return calibration
 
 
-def progress_to_stderr(prefix: str) -> Progress:
-    """A progress sink printing each line on stderr (the fit takes seconds to tens of them)."""
+#: At most one progress line per this many seconds (the fit's iterations take milliseconds).
+PROGRESS_EVERY_S = 2.0
+
+
+def progress_to_stderr(prefix: str, every_s: float = PROGRESS_EVERY_S) -> Progress:
+    """A progress sink printing a line on stderr at most every ``every_s`` (and each refit's
+    announcement): the fit takes seconds to tens of them."""
+    last = [-math.inf]
 
     def show(line: str) -> None:
-        print(f"{prefix}: {line}", file=sys.stderr, flush=True)
+        now = time.monotonic()
+        if now - last[0] >= every_s or line.startswith("refit"):
+            last[0] = now
+            print(f"{prefix}: {line}", file=sys.stderr, flush=True)
 
     return show
 
