@@ -245,8 +245,7 @@ def implausible_values(model: ArmModel) -> list[str]:
     return [
         reason
         for p in model.parameters
-        if p.identifiable
-        and (reason := outside_physical_range(p.name, p.value)) is not None
+        if p.identifiable and (reason := outside_physical_range(p.name, p.value)) is not None
     ]
 
 
@@ -449,13 +448,9 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_FAILURE
     try:
-        calibration = identify_arm_run(
-            run, args.params, progress_to_stderr("thermocomp identify")
-        )
+        calibration = identify_arm_run(run, args.params, progress_to_stderr("thermocomp identify"))
         assert calibration.final is not None
-        validation = (
-            None if other is None else validate_arm_run(run, calibration.final, other)
-        )
+        validation = None if other is None else validate_arm_run(run, calibration.final, other)
     except IdentificationError as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_USAGE

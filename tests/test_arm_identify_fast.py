@@ -68,7 +68,9 @@ def synthetic(truth: dict[str, float], steps: int = 1080, noise: float = 0.001, 
     names = list(truth)
     specs = parse_parameters(names, 6, spec.regions)
     problem = _ArmProblem(blank, spec, specs)
-    values = np.array([np.log(v) if s.is_log else v for s, v in zip(specs, truth.values())])
+    values = np.array(
+        [np.log(v) if s.is_log else v for s, v in zip(specs, truth.values(), strict=True)]
+    )
     markers, regions = problem.predictions(values)
     rng = np.random.default_rng(seed)
     run = dataclasses.replace(
@@ -96,7 +98,12 @@ def test_projected_responses_are_the_arm_model_stepped() -> None:
     run = ArmRunData(STEP_S, heat, np.full(steps, 22.0), times, np.zeros(4, np.intp),
                      np.zeros((4, 1, 3)), {})  # fmt: skip
     outputs = output_responses(
-        description, 50.0, NetworkFactors(0.7, 1.3, shares), run, regions, True  # type: ignore[arg-type]
+        description,
+        50.0,
+        NetworkFactors(0.7, 1.3, shares),
+        run,
+        regions,
+        across_link=True,  # type: ignore[arg-type]
     )
     scales = np.array([1.2, 0.8, 1.0, 1.1, 0.9, 1.0])
     for k, t in enumerate(times):

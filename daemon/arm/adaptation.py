@@ -185,7 +185,9 @@ class ArmAdaptation:
         )
 
     def _update(self) -> None:
-        problem = _ArmProblem(self._run(self._times, np.array(self._markers)), self.spec, self.specs)
+        problem = _ArmProblem(
+            self._run(self._times, np.array(self._markers)), self.spec, self.specs
+        )
         problem.marker_sigma_mm = self.marker_sigma_mm
         problem.temperature_sigma_c = self.temperature_sigma_c
         information = np.diag(1.0 / self.prior_sigma**2)
@@ -212,7 +214,9 @@ class ArmAdaptation:
                 float(spec.value(float(value)) * s) if spec.is_log else float(s),
                 spec.value(float(prior)),
             )
-            for spec, value, s, prior in zip(self.specs, self.values, sigma, self.prior, strict=True)
+            for spec, value, s, prior in zip(
+                self.specs, self.values, sigma, self.prior, strict=True
+            )
         ]
 
     def link_states(self) -> tuple[LinkThermalState, ...]:
@@ -232,9 +236,11 @@ class ArmAdaptation:
             NetworkFactors(scales.convection, scales.capacity, scales.shares),
             run,
             {},
-            self.spec.across_link,
+            across_link=self.spec.across_link,
         )
-        combined = np.tensordot(scales.heat, outputs.per_input[:-1, 0], 1) + outputs.per_input[-1, 0]
+        combined = (
+            np.tensordot(scales.heat, outputs.per_input[:-1, 0], 1) + outputs.per_input[-1, 0]
+        )
         links = outputs.links
         states = []
         for k, link in enumerate(description.links):

@@ -11,8 +11,9 @@ error and identifiable flag (from the FINAL fit, issue 29), and where it came fr
 cycle, source run, date). A model whose parameters are not all identified carries a loud
 ``warning`` and the list ``not_identified``; one saved with ``--force`` despite a value outside
 its physical range (daemon/arm/identify_parameters.py PHYSICAL_RANGES) lists those values in
-``implausible``. Both are served by the API and recorded by a run that uses the model. Names follow the saved networks' rules (daemon.model.presets.check_network_name); the
-arm presets' names (config/arms) are refused.
+``implausible``. Both are served by the API and recorded by a run that uses the model.
+Names follow the saved networks' rules (daemon.model.presets.check_network_name); the arm
+presets' names (config/arms) are refused.
 """
 
 from __future__ import annotations

@@ -133,9 +133,7 @@ class ArmIdentification:
 class _ArmProblem:
     """Weighted residuals of a calibration cycle for a parameter vector, and their Jacobian."""
 
-    def __init__(
-        self, run: ArmRunData, model: ArmModelSpec, specs: Sequence[ArmParameter]
-    ) -> None:
+    def __init__(self, run: ArmRunData, model: ArmModelSpec, specs: Sequence[ArmParameter]) -> None:
         self.run, self.model, self.specs = run, model, list(specs)
         self.joints = run.joint_heat_w.shape[1]
         self.region_names = [r for r in model.regions if r in run.region_c]
@@ -181,7 +179,7 @@ class _ArmProblem:
                 factors,
                 self.run,
                 self.regions,
-                self.model.across_link,
+                across_link=self.model.across_link,
             )
             self.passes += 1
             cached = (self._markers(outputs), outputs.region_means)
@@ -194,18 +192,14 @@ class _ArmProblem:
         if gradients is not None:  # strain, alpha g_y, alpha g_z per link
             inputs, count, links = strains.shape
             bends = gradients.reshape(inputs, count, links, 2) * self.alphas[:, None]
-            strains = np.concatenate([strains[..., None], bends], axis=3).reshape(
-                inputs, count, -1
-            )
+            strains = np.concatenate([strains[..., None], bends], axis=3).reshape(inputs, count, -1)
         result: FloatArray = np.einsum("kml,ckl->ckm", self.sensitivity, strains)
         return result
 
     # -- predictions, residuals, Jacobian -------------------------------------------------------
 
     def scales(self, values: FloatArray) -> ArmScales:
-        return apply_values(
-            self.specs, values, self.joints, self.region_names, self.prior_shares
-        )
+        return apply_values(self.specs, values, self.joints, self.region_names, self.prior_shares)
 
     def _combine(
         self, scales: ArmScales, parts: tuple[FloatArray, FloatArray]
@@ -316,12 +310,14 @@ def identify_arm(
         problem.marker_sigma_mm, problem.temperature_sigma_c = sigmas
         evaluations = [0]
 
-        def jacobian(x: FloatArray, *_: object, _pass: int = attempt + 1) -> FloatArray:
-            evaluations[0] += 1
+        def jacobian(
+            x: FloatArray, *_: object, _pass: int = attempt + 1, _count: list[int] = evaluations
+        ) -> FloatArray:
+            _count[0] += 1
             if progress is not None:
                 cost = float(np.sum(problem.weighted(x) ** 2)) / 2.0
                 progress(
-                    f"{len(specs)} parameters, pass {_pass}/2, iteration {evaluations[0]}, "
+                    f"{len(specs)} parameters, pass {_pass}/2, iteration {_count[0]}, "
                     f"cost {cost:.4g}, {problem.passes} network passes"
                 )
             return problem.jacobian(x)
@@ -409,9 +405,9 @@ def silent_parameters(run: ArmRunData, names: Sequence[str]) -> dict[str, str]:
     for name in names:
         kind, _, argument = name.strip().partition(":")
         joint = int(argument) if argument.isdigit() else 0
-        if kind == "heat" and 1 <= joint <= run.joint_heat_w.shape[1]:
-            if not np.any(run.joint_heat_w[:, joint - 1] > SILENT_SHARE * largest):
-                silent[name] = f"this cycle releases no heat in joint {argument}"
+        heats = kind == "heat" and 1 <= joint <= run.joint_heat_w.shape[1]
+        if heats and not np.any(run.joint_heat_w[:, joint - 1] > SILENT_SHARE * largest):
+            silent[name] = f"this cycle releases no heat in joint {argument}"
     return silent
 
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from daemon.arm.arm_network import ArmThermalDescription, build_arm_network
+from daemon.arm.arm_network import ArmThermalDescription, IntArray, build_arm_network
 from daemon.arm.response import ArmRunData
 from daemon.arm.types import FloatArray
 from daemon.model.model import NetworkModes
@@ -88,12 +88,13 @@ class OutputResponses:
 def output_rows(
     description: ArmThermalDescription,
     regions: Mapping[str, Sequence[int]],
+    *,
     across_link: bool,
     node_count: int,
-    layout_links: Sequence[FloatArray],
+    layout_links: Sequence[IntArray],
     layout_lengths: Sequence[FloatArray],
-    plus_rows: Sequence[FloatArray],
-    minus_rows: Sequence[FloatArray],
+    plus_rows: Sequence[IntArray],
+    minus_rows: Sequence[IntArray],
 ) -> FloatArray:
     """The outputs as weights over the nodes (P x N), as ArmThermalModel.link_states and the
     IR regions compute them."""
@@ -111,9 +112,9 @@ def output_rows(
             per_mm = difference / (body.thickness_mm / 2.0)
             across = body.across_yz if body.across_yz is not None else body.across()[1:]
             rows += [per_mm * float(across[0]), per_mm * float(across[1])]
-    for nodes in regions.values():
+    for covered in regions.values():
         row = np.zeros(node_count)
-        row[list(nodes)] = 1.0 / len(nodes)
+        row[list(covered)] = 1.0 / len(covered)
         rows.append(row)
     return np.array(rows)
 
@@ -124,6 +125,7 @@ def output_responses(
     factors: NetworkFactors,
     run: ArmRunData,
     regions: Mapping[str, Sequence[int]],
+    *,
     across_link: bool = False,
 ) -> OutputResponses:
     """Every input's outputs at the run's measurements for the network of ``factors``
@@ -139,12 +141,12 @@ def output_responses(
     rows = output_rows(
         description,
         regions,
-        across_link and bool(layout.plus_rows),
-        network.node_count,
-        layout.link_nodes,
-        layout.link_lengths,
-        layout.plus_rows,
-        layout.minus_rows,
+        across_link=across_link and bool(layout.plus_rows),
+        node_count=network.node_count,
+        layout_links=layout.link_nodes,
+        layout_lengths=layout.link_lengths,
+        plus_rows=layout.plus_rows,
+        minus_rows=layout.minus_rows,
     )
     projection = (rows / modes.root_c[None, :]) @ modes.vectors  # P x N(modes)
     dt = run.heat_step_s
