@@ -491,7 +491,7 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
         print(json.dumps(finite_json(document), indent=2, allow_nan=False))
     else:
         print(format_arm_result(calibration))
-        for line in (model.warning, *model.implausible):
+        for line in model.implausible:
             if line:
                 print(f"WARNING: {line}")
         if validation is not None:

@@ -133,7 +133,7 @@ def _identify_and_save(
         "refit": calibration.final.to_dict(),
         "arm_model": model.provenance(),
     }
-    for line in (model.warning, *model.implausible):
+    for line in model.implausible:
         if line:
             table += f"\nWARNING: {line}"
     return table, run, calibration.final

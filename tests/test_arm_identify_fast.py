@@ -228,3 +228,46 @@ def test_adaptation_converges_from_the_preset_to_the_truth() -> None:
     for adapted, true in zip(adaptation.link_states(), model.link_states(), strict=True):
         assert abs(adapted.mean_rise_c - true.mean_rise_c) < 0.02 * abs(true.mean_rise_c) + 1e-3
         assert abs(adapted.alpha_per_c / true.alpha_per_c - 1.05) < 0.01
+
+
+@pytest.mark.slow
+def test_a_controller_with_adaptation_approaches_an_arm_it_was_not_told() -> None:
+    """arm.adapt on the controller (what an arm run's step feeds it): the truth is the same
+    controller given other factors (an arm model); fed the truth's tool displacement and IR
+    every 10 minutes, the adapted controller's prediction over the last third is much closer
+    to the truth's than the preset's is."""
+    from daemon.arm.arm_model import ArmModel
+    from daemon.arm.controller import ArmModelOptions, load_controller
+
+    options = ArmModelOptions(bending=True, motor_side_share=0.75, model_dt_s=60.0)
+    truth_model = ArmModel(
+        "truth", "CRS A465", (1.6, 0.7, 1.5, 1.0, 1.0, 1.0), convection_scale=1.3,
+        alpha_scale=0.94, bending_shares=(0.6,) * 6,
+    )  # fmt: skip
+    arm, task = "config/arms/crs-a465.toml", "a465-pick-and-place"
+    truth = load_controller(arm, task, options, truth_model)
+    preset = load_controller(arm, task, options)
+    adapted = load_controller(arm, task, options)
+    poses = adapted.measured_poses()
+    adapted.enable_adaptation(poses, 0.002, 0.05)
+    regions = regions_of(truth.thermal)
+    errors: dict[str, list[float]] = {"preset": [], "adapted": []}
+    hours = 6
+    for k in range(1, hours * 6 + 1):
+        t = k * 600.0
+        for controller in (truth, preset, adapted):
+            controller.advance_to(t)
+        pose = poses[k % len(poses)]
+        true_error = truth.tool_error(pose).translation_mm
+        temperatures = truth.thermal.temperatures_c
+        reading = {name: float(temperatures[list(n)].mean()) for name, n in regions.items()}
+        if k > hours * 4:
+            for name, controller in (("preset", preset), ("adapted", adapted)):
+                miss = controller.tool_error(pose).translation_mm - true_error
+                errors[name].append(float(np.linalg.norm(miss)))
+        adapted.adapt(pose, true_error, reading)
+    preset_rms = float(np.sqrt(np.mean(np.square(errors["preset"]))))
+    adapted_rms = float(np.sqrt(np.mean(np.square(errors["adapted"]))))
+    assert adapted_rms < 0.2 * preset_rms, (adapted_rms, preset_rms)
+    estimates = adapted.adaptation_estimates()
+    assert abs(estimates["heat:2"][0] - 0.7) < 0.1 and abs(estimates["alpha"][0] - 0.94) < 0.03

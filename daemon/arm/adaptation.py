@@ -40,7 +40,7 @@ from daemon.arm.identify_parameters import (
     initial_values,
     parse_parameters,
 )
-from daemon.arm.identify_response import NetworkFactors, output_responses
+from daemon.arm.identify_response import NetworkFactors, one_blas_thread, output_responses
 from daemon.arm.response import ArmModelSpec, ArmRunData
 from daemon.arm.types import FloatArray, LinkThermalState
 
@@ -125,6 +125,7 @@ class ArmAdaptation:
         self.temperature_sigma_c = float(temperature_sigma_c)
         self.update_every_s = float(update_every_s)
         self._updated_s = -math.inf
+        self.updates = 0
         self._heat: list[FloatArray] = []
         self._times: list[float] = []
         self._poses: list[int] = []
@@ -165,6 +166,7 @@ class ArmAdaptation:
         if len(self._times) >= 2 and self.time_s - self._updated_s >= self.update_every_s:
             self._updated_s = self.time_s
             self._update()
+            self.updates += 1
 
     # -- the estimate ---------------------------------------------------------------------------
 
@@ -185,6 +187,10 @@ class ArmAdaptation:
         )
 
     def _update(self) -> None:
+        with one_blas_thread():
+            self._gauss_newton()
+
+    def _gauss_newton(self) -> None:
         problem = _ArmProblem(
             self._run(self._times, np.array(self._markers)), self.spec, self.specs
         )
@@ -222,6 +228,10 @@ class ArmAdaptation:
     def link_states(self) -> tuple[LinkThermalState, ...]:
         """Each link's mean rise and gradient now (the end of the heat record) by the model
         with the current estimate, alpha included (kinematics.tool_error's input)."""
+        with one_blas_thread():
+            return self._link_states()
+
+    def _link_states(self) -> tuple[LinkThermalState, ...]:
         description = self.spec.description
         if not self._heat:
             return tuple(

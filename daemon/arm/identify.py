@@ -46,7 +46,12 @@ from daemon.arm.identify_parameters import (
     initial_values,
     parse_parameters,
 )
-from daemon.arm.identify_response import NetworkFactors, OutputResponses, output_responses
+from daemon.arm.identify_response import (
+    NetworkFactors,
+    OutputResponses,
+    one_blas_thread,
+    output_responses,
+)
 from daemon.arm.response import (
     SENSITIVITY_STRAIN,
     ArmModelSpec,
@@ -286,6 +291,29 @@ def _checked_specs(
 
 
 def identify_arm(
+    run: ArmRunData,
+    model: ArmModelSpec,
+    parameters: Sequence[str] | None = None,
+    *,
+    marker_sigma_mm: float = 0.005,
+    temperature_sigma_c: float = 0.1,
+    progress: Progress | None = None,
+) -> ArmIdentification:
+    """Fit ``parameters`` (default: identify_parameters.default_parameters) of the arm model
+    to ``run``; ``progress`` hears one line per Jacobian of the fit. One BLAS thread
+    (identify_response.one_blas_thread)."""
+    with one_blas_thread():
+        return _identify_arm(
+            run,
+            model,
+            parameters,
+            marker_sigma_mm=marker_sigma_mm,
+            temperature_sigma_c=temperature_sigma_c,
+            progress=progress,
+        )
+
+
+def _identify_arm(
     run: ArmRunData,
     model: ArmModelSpec,
     parameters: Sequence[str] | None = None,
