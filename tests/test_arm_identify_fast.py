@@ -250,7 +250,10 @@ def test_a_controller_with_adaptation_approaches_an_arm_it_was_not_told() -> Non
     adapted = load_controller(arm, task, options)
     poses = adapted.measured_poses()
     adapted.enable_adaptation(poses, 0.002, 0.05)
-    regions = regions_of(truth.thermal)
+    from daemon.arm.ir_regions import region_nodes
+
+    regions = region_nodes(truth.thermal, ["upper-arm-mid", "forearm-mid", "turret-mid"])
+    assert len(regions) == 3
     errors: dict[str, list[float]] = {"preset": [], "adapted": []}
     hours = 6
     for k in range(1, hours * 6 + 1):

@@ -170,17 +170,19 @@ class ArmAdaptation:
 
     # -- the estimate ---------------------------------------------------------------------------
 
-    def _run(self, times: Sequence[float], markers: FloatArray) -> ArmRunData:
+    def _run(self, times: Sequence[float], markers: FloatArray, poses: Sequence[int]) -> ArmRunData:
         heat = np.array(self._heat)
         return ArmRunData(
             heat_step_s=self.heat_step_s,
             joint_heat_w=heat,
             ambient_c=np.full(heat.shape[0], self.ambient_c),
             time_s=np.asarray(times, dtype=np.float64),
-            pose_index=np.array(self._poses[: len(times)] or [0] * len(times), dtype=np.intp),
+            pose_index=np.array(poses, dtype=np.intp),
             marker_displacement_mm=markers.reshape(len(times), -1, 3),
             region_c={
-                name: np.array(values[: len(times)] or [math.nan] * len(times))
+                name: np.array(values[: len(times)])
+                if len(values) >= len(times)
+                else np.full(len(times), math.nan)
                 for name, values in self._regions.items()
             },
             name="adaptation",
@@ -192,7 +194,7 @@ class ArmAdaptation:
 
     def _gauss_newton(self) -> None:
         problem = _ArmProblem(
-            self._run(self._times, np.array(self._markers)), self.spec, self.specs
+            self._run(self._times, np.array(self._markers), self._poses), self.spec, self.specs
         )
         problem.marker_sigma_mm = self.marker_sigma_mm
         problem.temperature_sigma_c = self.temperature_sigma_c
@@ -237,7 +239,7 @@ class ArmAdaptation:
             return tuple(
                 LinkThermalState(link.name, 0.0, link.alpha_per_c) for link in description.links
             )
-        run = self._run([self.time_s, self.time_s], np.zeros((2, 3)))
+        run = self._run([self.time_s, self.time_s], np.zeros((2, 3)), [0, 0])
         shares = tuple(joint.plus_share for joint in description.joints)
         scales = apply_values(self.specs, self.values, len(shares), [], shares)
         outputs = output_responses(
