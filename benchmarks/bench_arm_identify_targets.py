@@ -167,7 +167,10 @@ def main(argv: list[str] | None = None) -> int:
     load = os.getloadavg()
     print(f"\nload average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     print_table(["scenario", "controller", "removed", "RMS um", "RMS/meter sigma", "fit"], table)
-    write_results("bench_arm_identify_targets", {"scenarios": results, "load_average": list(load)})
+    label = "-".join(results)
+    write_results(
+        f"bench_arm_identify_targets_{label}", {"scenarios": results, "load_average": list(load)}
+    )
     return 0
 
 
