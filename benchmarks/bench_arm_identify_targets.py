@@ -46,7 +46,8 @@ from benchmarks.common import print_table, write_results
 from daemon.arm.adaptation import ArmAdaptation
 from daemon.arm.calibration_program import program_for_task
 from daemon.arm.duty import load_duty_cycle
-from daemon.arm.identify import ArmRunData, _ArmProblem, identify_arm_final
+from daemon.arm.identify import ArmRunData, _ArmProblem
+from daemon.arm.identify_final import identify_arm_final
 from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
 
 #: Truths within issue 29's plausible ranges (heats x0.5-2, expansion +-10 %, convection

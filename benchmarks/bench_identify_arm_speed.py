@@ -45,9 +45,9 @@ from daemon.arm.identify import (
     ArmRunData,
     evaluate_arm,
     identify_arm,
-    identify_arm_final,
     marker_sensitivity,
 )
+from daemon.arm.identify_final import identify_arm_final
 from daemon.arm.identify_parameters import apply_values, parse_parameters
 from daemon.arm.response import responses
 from daemon.model.identify import LOSS, LOSS_SCALE, rms

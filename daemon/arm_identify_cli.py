@@ -17,7 +17,7 @@ What the run recorded, read back READ-ONLY (as daemon/identify_cli.py reads a tw
 - each step's IR regions (``ir_json``) tied to the model's nodes by name
   (daemon/arm/ir_regions.py: ``<link>-mid``, ``<link>@<fraction>``).
 
-The fit (daemon/arm/identify.py identify_arm_final): every parameter first (heat per joint,
+The fit (daemon/arm/identify_final.py identify_arm_final): every parameter first (heat per joint,
 convection, alpha, the joints' capacity, with ``arm.bending`` the bending share, one IR offset
 per region), reported with its standard error and whether the run identifies it; then the
 identifiable ones refitted until the refit identifies each (the flags are the FINAL fit's),
@@ -54,16 +54,15 @@ from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from daemon.arm.arm_model import ArmModel, arm_model_toml, new_arm_model_path
 from daemon.arm.controller import ArmController, ArmModelOptions, load_controller
 from daemon.arm.identify import (
-    ArmCalibration,
     ArmFitQuality,
     ArmIdentification,
     ArmModelSpec,
     ArmRunData,
     Progress,
     evaluate_arm,
-    identify_arm_final,
     marker_sensitivity,
 )
+from daemon.arm.identify_final import ArmCalibration, identify_arm_final
 from daemon.arm.identify_parameters import default_parameters, outside_physical_range
 from daemon.arm.ir_regions import region_nodes
 from daemon.identify_run import finite_json, recorded_parameters, write_outputs
