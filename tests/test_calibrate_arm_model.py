@@ -112,7 +112,11 @@ def test_no_validate_prints_the_identification_table(
 ) -> None:
     status, out, err = calibrate(
         tmp_path / "data", capsys, "--duration", "30", "--save", "t", "--params", *PARAMS,
-        "--no-validate",
+        "--no-validate", "--calibration-cycle", "a465-pick-and-place",
+        # a 3-step calibration whose cold references time out under load (the first step is
+        # then the zero) can fit alpha outside its physical range: this test is about the
+        # table; the refusal has its own tests (tests/test_arm_model_warnings.py)
+        "--force",
     )  # fmt: skip
     assert status == 0, err
     assert "1. calibration run 1" in out and "3-D drift max" in out
