@@ -104,6 +104,12 @@ class ArmSettings(Section):
         description="With arm.bending: share of each joint's flange conductance on the link's "
         "motor-housing side (the arm's design; 0.5: symmetric, no gradient across a link).",
     )
+    adapt: bool = Field(
+        False,
+        description="Estimate each joint's heat, alpha, convection and (arm.bending) the bending "
+        "share online from the measured tool and the IR regions, from the preset's or the arm "
+        "model's values (daemon/arm/adaptation.py); the compensation uses the adapted links.",
+    )
     play_duty_cycle: bool | None = Field(
         None,
         description="The robot plays the whole duty cycle (every pose at its speed, its dwell) "

@@ -116,6 +116,15 @@ def arm_summary(
             "timing": _timing(timing, steps),
         }
     )
+    # issue 29: a model that is not fully calibrated says so in every run that uses it, and
+    # the online adaptation's last estimates (arm.adapt)
+    identified = getattr(work.predictor, "identified", None)
+    if identified is not None:
+        summary["arm_model_warning"] = identified.warning or None
+        summary["arm_model_implausible"] = list(identified.implausible)
+    estimates = getattr(work.predictor, "adaptation_estimates", None)
+    if callable(estimates) and getattr(work.predictor, "adapting", False):
+        summary["adaptation"] = estimates()
     return summary
 
 

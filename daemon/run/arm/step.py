@@ -33,6 +33,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import numpy as np
+
 from config import Settings
 from daemon.arm.correction import CorrectionLimits, check_correction, correction_for
 from daemon.arm.run import (
@@ -414,13 +416,34 @@ class ArmStepPipeline:
         if measurement is not None:
             record_measurement(work, pose, measurement, record)
         started = time.perf_counter()
-        await self._infrared(work, record, flags, errors)
+        means = await self._infrared(work, record, flags, errors)
         stages["ir"] = time.perf_counter() - started
+        adapt = getattr(work.predictor, "adapt", None)
+        if (
+            measurement is not None
+            and callable(adapt)
+            and getattr(work.predictor, "adapting", False)
+        ):
+            # arm.adapt (issue 29): the tool's thermal displacement (the drift less the
+            # correction commanded, as identification reads it) into the online estimate
+            displacement = np.array(
+                [
+                    (record.measured_tx_um or 0.0) / 1000.0 - (record.correction_tx_mm or 0.0),
+                    (record.measured_ty_um or 0.0) / 1000.0 - (record.correction_ty_mm or 0.0),
+                    (record.measured_tz_um or 0.0) / 1000.0 - (record.correction_tz_mm or 0.0),
+                ]
+            )
+            await self._workers.step(adapt, pose, displacement, means or {})
+            estimates = work.predictor.adaptation_estimates()  # type: ignore[attr-defined]
+            if estimates:
+                record.observer_json = json.dumps(
+                    {name: [round(v, 6) for v in pair] for name, pair in estimates.items()}
+                )
         return measurement
 
     async def _infrared(
         self, work: ArmRunWork, record: StepRecord, flags: list[str], errors: list[str]
-    ) -> None:
+    ) -> dict[str, float] | None:
         """The IR regions on the links, recorded (identification reads them back:
         daemon/commands/arm_identify.py) and, with prediction model+ir, fused into the model."""
         reading = await read_infrared(
@@ -432,12 +455,15 @@ class ArmStepPipeline:
             flags=flags,
             errors=errors,
         )
+        if reading is None:
+            return None
+        means = {name: region.mean_c for name, region in reading.regions.items()}
         observe = getattr(work.predictor, "observe", None)
-        if reading is not None and callable(observe):
+        if callable(observe):
             # prediction model+ir: the IR regions correct the arm model's nodes, for the next
             # step's prediction (on the step's worker: a Kalman update of tens of nodes)
-            means = {name: region.mean_c for name, region in reading.regions.items()}
             await self._workers.step(observe, means)
+        return means
 
 
 def record_measurement(
