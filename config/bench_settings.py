@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, StrictBool, field_validator
 
 from config.faults import parse_sensor_faults
 from config.section import MAX_DURATION_S, MAX_HEAT_W, NonNegativeFloat, PositiveFloat, Section
@@ -14,7 +14,7 @@ from config.section import MAX_DURATION_S, MAX_HEAT_W, NonNegativeFloat, Positiv
 class BenchSettings(Section):
     """The simulated bench and the clock every component shares."""
 
-    enabled: bool = Field(True, description="Use the simulated bench instead of hardware.")
+    enabled: StrictBool = Field(True, description="Use the simulated bench instead of hardware.")
     clock: Literal["real", "accelerated", "virtual"] = Field(
         "virtual",
         description="real: wall time; accelerated: wall time x time_factor; virtual: jump to "

@@ -139,8 +139,13 @@ def run_command(args: argparse.Namespace) -> int:
             heat_w=_heat_map(args.heat) if args.heat else None,
         )
     except ValidationError as err:
-        print(f"thermocomp run: invalid run parameters:\n{_describe(err)}", file=sys.stderr)
+        print(f"thermocomp run: invalid run parameters: {_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
+    from daemon.run.inputs import check_inputs
+
+    # every file the run names loads before a device opens: a mistake is one line, exit 2
+    # (raised as an InputError; api/cli.py prints it)
+    check_inputs(settings, arm_model=args.arm_model)
     try:
         return asyncio.run(_run(settings, parameters, args))
     except RecorderError as err:  # e.g. the data directory is another process's: one line
@@ -344,7 +349,7 @@ def _finite(value: Any) -> Any:
 
 
 def _describe(error: ValidationError) -> str:
-    return "\n".join(
+    return "; ".join(
         f"{'.'.join(str(p) for p in item['loc']) or 'parameters'}: "
         + str(item["msg"]).removeprefix("Value error, ")
         for item in error.errors()

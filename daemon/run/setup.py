@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from config import Settings
+from config.inputs import InputError
 from config.settings import IrRegion
 from daemon.model import ThermalModel, ThermalNetwork, load_network
 from daemon.model.adaptation import adaptation_priors, adapted_parameters
@@ -41,7 +42,7 @@ SECONDS_PER_HOUR = 3600.0
 MAX_CHECKED_STEPS = 200_000
 
 
-class RunParameterError(ValueError):
+class RunParameterError(InputError):
     """The run's parameters are not admissible (e.g. scale pushes the spot off the chip)."""
 
 
