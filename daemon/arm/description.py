@@ -42,7 +42,7 @@ MM_PER_M = 1000.0
 
 #: Moving joints an arm may have (issue 26): a 6-DOF tool correction needs a few, and the
 #: arm's thermal network, kinematics and duty cycle grow with each (3,000 crashed).
-MIN_ARM_JOINTS = 2
+MIN_ARM_JOINTS = 1
 MAX_ARM_JOINTS = 32
 
 

@@ -21,9 +21,14 @@ from daemon.arm.description import load_arm
 from daemon.model import load_network
 from daemon.run.arm.setup import arm_file
 from daemon.vision.cameras import load_cameras
+from drivers.sim.joint_arm import DEFAULT_START_JOINTS_DEG
 
 #: The bench's truth built from the thesis geometry (drivers/sim/bench.py), not a file.
 GEOMETRY_TRUTH = "thesis-two-link-geometry"
+
+
+class ArmBenchError(InputError):
+    """An arm the simulated arm bench cannot drive."""
 
 
 class CameraCountError(InputError):
@@ -46,6 +51,15 @@ def check_inputs(settings: Settings, arm_model: str | None = None) -> None:
         arm, _ = load_arm_and_duty(path, arm_settings.duty_cycle)
     else:
         arm = load_arm(path)
+    if bench.enabled and settings.robot.driver == "sim":
+        # the arm bench's controller is the C500C console's joint-space emulator: the A465's
+        # six axes (drivers/sim/joint_arm.py), which an arm of another count cannot drive
+        axes = len(DEFAULT_START_JOINTS_DEG)
+        if len(arm.joints) != axes:
+            raise ArmBenchError(
+                f"arm.arm_file {arm_settings.arm_file}: arm {arm.name!r} has "
+                f"{len(arm.joints)} joints; the arm bench's emulated C500C moves {axes}"
+            )
     if arm_settings.cameras_file is not None:
         cameras = load_cameras(Path(arm_settings.cameras_file))
         watching = (

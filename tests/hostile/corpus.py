@@ -253,7 +253,7 @@ ARM_CASES = [
     arm("d-inf", a465("d_mm = 330.2", "d_mm = inf"), r"joint 'waist': d_mm"),
     arm("alpha-1e308", a465("alpha_deg = -90.0", "alpha_deg = 1e308"), r"alpha_deg"),
     arm("a-1e300", a465("a_mm = 0.0", "a_mm = 1e300"), r"a_mm"),
-    arm("one-joint", dh_rows(1), r"1 joint"),
+    arm("one-joint", dh_rows(1), r"1 joints; the arm bench.s emulated C500C moves 6"),
     arm("zero-joints", 'name = "none"\nconvention = "standard"\n', r"joints"),
     arm("3000-joints", dh_rows(3000), r"3000 joints"),
     arm("limits-reversed", a465("lower_deg = -175.0", "lower_deg = 179.0"), r"lower limit above upper"),
