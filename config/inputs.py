@@ -32,7 +32,7 @@ class InputError(ValueError):
     shows it as it is and exits with status 2 (``config.cli.EXIT_USAGE``)."""
 
 
-def one_line(text: str) -> str:
+def one_line(text: object) -> str:
     """``text`` on one line: its lines joined by "; " (a validation error lists several)."""
     return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
 

@@ -209,10 +209,10 @@ def named_network_path(name: str, data_dir: Path | None = None) -> Path:
     listed = f"presets: {', '.join(presets)}"
     if data_dir is None:
         raise NetworkNotFoundError(no_such_name("network preset", name, presets, listed))
-    saved = available_saved(data_dir)
-    listed += f"; saved in {saved_networks_dir(data_dir)}: {', '.join(saved) or 'none'}"
+    names = available_saved(data_dir)
+    listed += f"; saved in {saved_networks_dir(data_dir)}: {', '.join(names) or 'none'}"
     raise NetworkNotFoundError(
-        no_such_name("network preset or saved network", name, [*presets, *saved], listed)
+        no_such_name("network preset or saved network", name, [*presets, *names], listed)
     )
 
 

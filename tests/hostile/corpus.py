@@ -206,10 +206,14 @@ NETWORK_CASES = [
         r"unobtainium",
     ),
     network("nested", "x = " + "[" * 3000 + "]" * 3000, r"nested over 16"),
-    network("position-string", nodes(2).replace("position_mm = 0.0", 'position_mm = "zero"'), r"position_mm"),
+    network(
+        "position-string",
+        nodes(2).replace("position_mm = 0.0", 'position_mm = "zero"'),
+        r"position_mm",
+    ),
     network("heater-unknown", 'heater_nodes = ["hot"]\n' + nodes(2), r"'hot'"),
     network("fifo", FIFO, r"not a regular file"),
-    network("not-utf8", b"name = \"\xff\"\n", r"not UTF-8"),
+    network("not-utf8", b'name = "\xff"\n', r"not UTF-8"),
     Case(
         "network/name-typo",
         "network",
@@ -256,7 +260,11 @@ ARM_CASES = [
     arm("one-joint", dh_rows(1), r"1 joints; the arm bench.s emulated C500C moves 6"),
     arm("zero-joints", 'name = "none"\nconvention = "standard"\n', r"joints"),
     arm("3000-joints", dh_rows(3000), r"3000 joints"),
-    arm("limits-reversed", a465("lower_deg = -175.0", "lower_deg = 179.0"), r"lower limit above upper"),
+    arm(
+        "limits-reversed",
+        a465("lower_deg = -175.0", "lower_deg = 179.0"),
+        r"lower limit above upper",
+    ),
     arm("limit-nan", a465("upper_deg = 175.0", "upper_deg = nan"), r"upper_deg"),
     arm("gear-negative", a465("gear_ratio = 100.0", "gear_ratio = -100.0"), r"gear_ratio"),
     arm("unknown-key", a465("a_mm = 0.0", "a_mm = 0.0\nlength = 3"), r"length: .*not permitted"),
@@ -308,19 +316,40 @@ LAUGHS = (
 
 URDF_CASES = [
     urdf("cycle", CYCLE, r"cycle|more than one parent|one root"),
-    urdf("two-parents", robot(link("a") + link("b") + link("c") + joint("x", "a", "c")
-                              + joint("y", "b", "c")), r"more than one parent|one root"),
-    urdf("self-joint", robot(link("a") + link("b") + joint("x", "a", "b") + joint("y", "b", "b")),
-         r"itself|cycle|more than one parent"),
-    urdf("all-cycle", robot(link("a") + link("b") + joint("x", "a", "b") + joint("y", "b", "a")),
-         r"one root|cycle"),
+    urdf(
+        "two-parents",
+        robot(link("a") + link("b") + link("c") + joint("x", "a", "c") + joint("y", "b", "c")),
+        r"more than one parent|one root",
+    ),
+    urdf(
+        "self-joint",
+        robot(link("a") + link("b") + joint("x", "a", "b") + joint("y", "b", "b")),
+        r"itself|cycle|more than one parent",
+    ),
+    urdf(
+        "all-cycle",
+        robot(link("a") + link("b") + joint("x", "a", "b") + joint("y", "b", "a")),
+        r"one root|cycle",
+    ),
     urdf("3000-joints", LONG, r"3000 (moving )?joints|over \d+ joints"),
     urdf("not-xml", "this is not XML at all", r"not a readable URDF"),
     urdf("billion-laughs", LAUGHS, r"not a readable URDF|entit"),
-    urdf("origin-nan", robot(link("a") + link("b") + link("c") + joint("x", "a", "b", xyz="nan 0 0")
-                             + joint("y", "b", "c")), r"finite|nan"),
-    urdf("prismatic", robot(link("a") + link("b") + joint("x", "a", "b", kind="prismatic")),
-         r"prismatic"),
+    urdf(
+        "origin-nan",
+        robot(
+            link("a")
+            + link("b")
+            + link("c")
+            + joint("x", "a", "b", xyz="nan 0 0")
+            + joint("y", "b", "c")
+        ),
+        r"finite|nan",
+    ),
+    urdf(
+        "prismatic",
+        robot(link("a") + link("b") + joint("x", "a", "b", kind="prismatic")),
+        r"prismatic",
+    ),
     urdf("huge", robot(link("a") + "<!--" + "x" * (5 * 1024 * 1024) + "-->"), r"over \d+ MiB"),
     urdf("fifo", FIFO, r"not a regular file"),
     urdf("unknown-parent", robot(link("a") + link("b") + joint("x", "zz", "b")), r"'zz'|root"),
@@ -363,26 +392,45 @@ DUTY_CASES = [
     duty("10000-poses", poses(10_000), r"10000 poses"),
     duty("joint-nan", a465_duty("[0.0, 35.0, 55.0", "[nan, 35.0, 55.0"), r"joints_deg"),
     duty("joint-1e308", a465_duty("[0.0, 35.0, 55.0", "[1e308, 35.0, 55.0"), r"joints_deg|limit"),
-    duty("five-joints", a465_duty("[0.0, 35.0, 55.0, 0.0, 0.0, 0.0]", "[0.0, 35.0, 55.0, 0.0, 0.0]"),
-         r"joint"),
+    duty(
+        "five-joints",
+        a465_duty("[0.0, 35.0, 55.0, 0.0, 0.0, 0.0]", "[0.0, 35.0, 55.0, 0.0, 0.0]"),
+        r"joint",
+    ),
     duty("other-arm", a465_duty('arm = "crs-a465"', 'arm = "ur5e"'), r"'ur5e'.*crs-a465|taught on"),
-    duty("max-speed-zero", a465_duty("max_speed_deg_s = [180.0", "max_speed_deg_s = [0.0"),
-         r"max_speed_deg_s|limits must be"),
-    duty("max-accel-inf", a465_duty("max_accel_deg_s2 = [360.0", "max_accel_deg_s2 = [inf"),
-         r"max_accel_deg_s2|limits must be"),
+    duty(
+        "max-speed-zero",
+        a465_duty("max_speed_deg_s = [180.0", "max_speed_deg_s = [0.0"),
+        r"max_speed_deg_s|limits must be",
+    ),
+    duty(
+        "max-accel-inf",
+        a465_duty("max_accel_deg_s2 = [360.0", "max_accel_deg_s2 = [inf"),
+        r"max_accel_deg_s2|limits must be",
+    ),
     duty("payload-1e308", a465_duty("payload_kg = 1.0", "payload_kg = 1e308"), r"payload_kg"),
     duty("measure-yes", a465_duty("measure = true", 'measure = "yes"'), r"measure: .*boolean"),
-    duty("tool-unreachable", a465_duty("joints_deg = [0.0, 35.0, 55.0, 0.0, 0.0, 0.0]",
-                                       "tool_mm = [9000.0, 0.0, 0.0]"), r"pose 'camera'"),
+    duty(
+        "tool-unreachable",
+        a465_duty("joints_deg = [0.0, 35.0, 55.0, 0.0, 0.0, 0.0]", "tool_mm = [9000.0, 0.0, 0.0]"),
+        r"pose 'camera'",
+    ),
     duty("fifo", FIFO, r"not a regular file"),
     duty("nested", "x = " + "[" * 4000 + "]" * 4000, r"nested over 16"),
-    Case("duty/name-typo", "duty",
-         ("run", "--config", "{t}/c.toml", "--duty-cycle", "pick-and-plce"),
-         r"no duty cycle 'pick-and-plce' \(did you mean 'a465-pick-and-place'\?;",
-         {"c.toml": DUTY_CONFIG}),
-    Case("duty/missing-file", "duty",
-         ("run", "--config", "{t}/c.toml", "--duty-cycle", "{t}/nope.toml"),
-         r"nope\.toml: no such file", {"c.toml": DUTY_CONFIG}),
+    Case(
+        "duty/name-typo",
+        "duty",
+        ("run", "--config", "{t}/c.toml", "--duty-cycle", "pick-and-plce"),
+        r"no duty cycle 'pick-and-plce' \(did you mean 'a465-pick-and-place'\?;",
+        {"c.toml": DUTY_CONFIG},
+    ),
+    Case(
+        "duty/missing-file",
+        "duty",
+        ("run", "--config", "{t}/c.toml", "--duty-cycle", "{t}/nope.toml"),
+        r"nope\.toml: no such file",
+        {"c.toml": DUTY_CONFIG},
+    ),
 ]
 
 
@@ -420,7 +468,10 @@ CAMERA_CONFIG = DUTY_CONFIG.replace(
 
 def cameras(id: str, text: str | bytes, says: str) -> Case:
     return Case(
-        f"camera/{id}", "camera", ("run", "--config", "{t}/c.toml"), says,
+        f"camera/{id}",
+        "camera",
+        ("run", "--config", "{t}/c.toml"),
+        says,
         {"c.toml": CAMERA_CONFIG, "cams.toml": text},
     )
 
@@ -461,8 +512,10 @@ alpha_scale = 1.0
 
 def model(id: str, text: str | bytes, says: str, name: str = "cal") -> Case:
     return Case(
-        f"arm-model/{id}", "arm-model",
-        ("run", "--config", "{t}/c.toml", "--arm-model", name), says,
+        f"arm-model/{id}",
+        "arm-model",
+        ("run", "--config", "{t}/c.toml", "--arm-model", name),
+        says,
         {"c.toml": DUTY_CONFIG, "data/arm-models/cal.toml": text},
     )
 
@@ -473,20 +526,29 @@ def model_with(old: str, new: str) -> str:
 
 
 MODEL_CASES = [
-    model("not-utf8", b"format = 1\nname = \"\xff\"\n", r"not UTF-8"),
+    model("not-utf8", b'format = 1\nname = "\xff"\n', r"not UTF-8"),
     model("nested", "x = " + "[" * 3000 + "]" * 3000, r"nested over 16"),
     model("format-2", model_with("format = 1", "format = 2"), r"format 2"),
     model("heat-nan", model_with("[1.0, 1.2", "[nan, 1.2"), r"heat_scales"),
     model("heat-string", model_with("[1.0, 1.2", '["hot", 1.2'), r"heat_scales"),
     model("heat-1e308", model_with("[1.0, 1.2", "[1e308, 1.2"), r"heat_scales"),
-    model("three-joints", model_with("[1.0, 1.2, 0.8, 1.0, 1.0, 1.0]", "[1.0, 1.2, 0.8]"),
-          r"3 heat_scales|joints"),
+    model(
+        "three-joints",
+        model_with("[1.0, 1.2, 0.8, 1.0, 1.0, 1.0]", "[1.0, 1.2, 0.8]"),
+        r"3 heat_scales|joints",
+    ),
     model("other-arm", model_with('arm = "CRS A465"', 'arm = "UR5e"'), r"identified on arm 'UR5e'"),
     model("no-name", model_with('name = "cal"\n', ""), r"name"),
-    model("convection-inf", model_with("convection_scale = 1.0", "convection_scale = inf"),
-          r"convection_scale"),
-    model("offset-text", model_with("[ir_offsets_c]\n", '[ir_offsets_c]\nwaist = "warm"\n'),
-          r"ir_offsets_c"),
+    model(
+        "convection-inf",
+        model_with("convection_scale = 1.0", "convection_scale = inf"),
+        r"convection_scale",
+    ),
+    model(
+        "offset-text",
+        model_with("[ir_offsets_c]\n", '[ir_offsets_c]\nwaist = "warm"\n'),
+        r"ir_offsets_c",
+    ),
     model("fifo", FIFO, r"not a regular file"),
     model("huge", "# " + "x" * (5 * 1024 * 1024), r"over 4 MiB"),
     model("name-typo", MODEL, r"no saved arm model 'cla' \(did you mean 'cal'\?;", name="cla"),
@@ -501,10 +563,14 @@ def png(width: int, height: int, body: bytes = b"", bit_depth: int = 8) -> bytes
     """A PNG header claiming ``width`` x ``height`` pixels, with ``body`` as its image data."""
 
     def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        return (
+            struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        )
 
     header = struct.pack(">IIBBBBB", width, height, bit_depth, 0, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", body) + chunk(b"IEND", b"")
+    return (
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", body) + chunk(b"IEND", b"")
+    )
 
 
 def tiny_png() -> bytes:
@@ -513,8 +579,9 @@ def tiny_png() -> bytes:
 
 
 def image(id: str, content: bytes | str, says: str, status: int = 1, name: str = "f.png") -> Case:
-    return Case(f"image/{id}", "image", ("centroid", f"{{t}}/{name}"), says, {name: content},
-                status=status)
+    return Case(
+        f"image/{id}", "image", ("centroid", f"{{t}}/{name}"), says, {name: content}, status=status
+    )
 
 
 IMAGE_CASES = [
@@ -522,18 +589,32 @@ IMAGE_CASES = [
     image("text-as-png", "this is no image", r"1 of 1 frames failed"),
     image("empty", b"", r"1 of 1 frames failed"),
     image("truncated", tiny_png()[:40], r"1 of 1 frames failed"),
-    image("bomb-header", png(100_000, 100_000, zlib.compress(b"\x00" * 1000)),
-          r"1 of 1 frames failed"),
-    image("deflate-bomb", png(20_000, 20_000, zlib.compress(b"\x00" * (20_001 * 20_000), 9)),
-          r"1 of 1 frames failed"),
+    image(
+        "bomb-header", png(100_000, 100_000, zlib.compress(b"\x00" * 1000)), r"1 of 1 frames failed"
+    ),
+    image(
+        "deflate-bomb",
+        png(20_000, 20_000, zlib.compress(b"\x00" * (20_001 * 20_000), 9)),
+        r"1 of 1 frames failed",
+    ),
     image("one-pixel", png(1, 1, zlib.compress(b"\x00\x80")), r"1 of 1 frames failed"),
     image("tiny", tiny_png(), r"1 of 1 frames failed"),
-    Case("image/no-images-folder", "image", ("centroid", "{t}/frames"), r"no image files",
-         {"frames/readme.txt": "nothing"}),
+    Case(
+        "image/no-images-folder",
+        "image",
+        ("centroid", "{t}/frames"),
+        r"no image files",
+        {"frames/readme.txt": "nothing"},
+    ),
     Case("image/glob-nothing", "image", ("centroid", "{t}/*.png"), r"no file matches"),
     Case("image/missing", "image", ("centroid", "{t}/nope.png"), r"no such file"),
-    Case("image/times-nan", "image", ("centroid", "{t}/f.png", "--times", "{t}/times.txt"),
-         r"finite times", {"f.png": tiny_png(), "times.txt": "nan\n"}),
+    Case(
+        "image/times-nan",
+        "image",
+        ("centroid", "{t}/f.png", "--times", "{t}/times.txt"),
+        r"finite times",
+        {"f.png": tiny_png(), "times.txt": "nan\n"},
+    ),
 ]
 
 

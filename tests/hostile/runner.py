@@ -8,6 +8,7 @@ a case costs tens of milliseconds instead of the half second of a fresh interpre
 
 from __future__ import annotations
 
+import functools
 import multiprocessing
 import os
 import resource
@@ -36,8 +37,6 @@ PRELOAD = [
 MEMORY_BUDGET_BYTES = 768 * 1024 * 1024
 #: Time a case may take (s): a refusal is milliseconds; this is a ceiling for a loaded machine.
 TIME_LIMIT_S = 60.0
-
-_context: ForkServerContext | None = None
 
 
 @dataclass(frozen=True)
@@ -92,13 +91,11 @@ def _child(argv: list[str], cwd: str, out_path: str, err_path: str, env: dict[st
     os._exit(status)
 
 
+@functools.cache
 def _fork_server() -> ForkServerContext:
-    global _context
-    if _context is None:
-        context = multiprocessing.get_context("forkserver")
-        context.set_forkserver_preload(PRELOAD)
-        _context = context
-    return _context
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(PRELOAD)
+    return context
 
 
 def run_bounded(
