@@ -35,6 +35,8 @@ from api.routers import (
 )
 from api.security import Authenticator, HostAllowList, RateLimiter
 from config import ConfigError, Settings
+from config.cli import EXIT_USAGE
+from config.inputs import InputError, one_line
 from daemon import __version__
 from daemon.service import Daemon
 from daemon.storage.recorder import RecorderError
@@ -81,6 +83,10 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
             if service_factory is not None:
                 try:
                     daemon = await stack.enter_async_context(service_factory(settings))
+                except InputError as err:  # a file or name of the settings: exit 2
+                    logger.error("cannot start the daemon: %s", one_line(err))
+                    context.start_failure_status = EXIT_USAGE
+                    raise DaemonStartFailed(one_line(err)) from None
                 except (DeviceError, RecorderError, ConfigError, OSError) as err:
                     # a device that is there but does not answer (the start-up checks,
                     # api/startup.py, found it present): one line, not a traceback; uvicorn

@@ -40,6 +40,9 @@ class ApiContext:
     metrics: ApiMetrics
     service: Daemon | None = None  # the daemon while the application runs
     event_count: int = 0  # daemon events seen: a cached answer older than the last is stale
+    #: the exit status a failed start asks for (api/app.py's lifespan): 2 for a bad file or
+    #: name, never uvicorn's 3 ("device absent", which systemd retries forever)
+    start_failure_status: int | None = None
     extras: dict[str, Any] = field(default_factory=dict)
 
 

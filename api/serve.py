@@ -182,7 +182,13 @@ class DaemonServer(uvicorn.Server):
         await super().serve(sockets)
 
     async def startup(self, sockets: list[socket.socket] | None = None) -> None:
-        await super().startup(sockets)  # the lifespan: the daemon and its devices are open
+        try:
+            await super().startup(sockets)  # the lifespan: the daemon and its devices are open
+        except SystemExit:  # uvicorn's 3 for any failed start; a bad file asks for 2
+            status = self._context.start_failure_status
+            if status is None:
+                raise
+            raise SystemExit(status) from None
         # Before any step: a full collection of the start-up heap stops the loop 10-15 ms,
         # the one cause of the fast path's overruns at a 20 ms step (daemon/heap.py).
         freeze_startup_heap()
@@ -261,6 +267,9 @@ GIL_SWITCH_INTERVAL_S = 0.0005
 
 def run(args: argparse.Namespace) -> int:
     settings = with_address(load_settings(args.config), args.host, args.port)
+    if getattr(args, "data_dir", None) is not None:  # --data-dir (issue 28)
+        storage = settings.storage.model_copy(update={"data_dir": args.data_dir})
+        settings = settings.model_copy(update={"storage": storage})
     notifier = SystemdNotifier()
     try:
         preflight(settings)  # binding, descriptors, devices, port, database: one line each

@@ -53,6 +53,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="write a PNG of the frame with the spot marked beside the thermal image with "
         "every IR region drawn and labelled",
     )
+    check.add_argument(
+        "--data-dir",
+        type=Path,
+        help="folder of the saved networks the bench may name (default: storage.data_dir)",
+    )
     check.add_argument("--json", action="store_true", help="print the result as JSON")
     check.set_defaults(handler=run_devices_check)
 
@@ -122,6 +127,9 @@ def run_devices_check(args: argparse.Namespace) -> int:
     from daemon.run.devices_check import describe, preview_png
 
     settings = load_settings(args.config)
+    if args.data_dir is not None:
+        storage = settings.storage.model_copy(update={"data_dir": args.data_dir})
+        settings = settings.model_copy(update={"storage": storage})
     try:
         check = asyncio.run(_check(settings))
     except OPEN_ERRORS as err:  # one device did not open: check every device on its own

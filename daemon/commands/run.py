@@ -272,7 +272,12 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
         ]
     )
     for label, value, unit in rows:
-        print(f"  {label:<28} {_format(value)} {unit}".rstrip())
+        text = f"{_format(value)} {unit}"
+        if unit == "%" and isinstance(value, float) and value < 0:
+            # a reduction below zero is an increase (a short run's residual above the
+            # prediction): said so, never printed as a negative reduction (issue 28)
+            text = f"not reduced: {-value:.3f} % larger"
+        print(f"  {label:<28} {text}".rstrip())
     lateness = (summary.get("timing") or {}).get("lateness_s") or {}
     if lateness:
         values = "/".join(_format(1e3 * v) for v in lateness.values() if isinstance(v, float))

@@ -231,6 +231,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="TOML settings file naming storage.data_dir (default: built-in defaults)",
     )
     parser.add_argument(
+        "--data-dir",
+        type=Path,
+        help="folder of the run database (default: storage.data_dir of --config), as for "
+        "`thermocomp run --data-dir`",
+    )
+    parser.add_argument(
         "--reference",
         metavar="RUN",
         help="an uncompensated run (run number, or an exported CSV for a CSV target) whose "
@@ -285,7 +291,7 @@ def run_report(args: argparse.Namespace) -> int:
                     file=sys.stderr,
                 )
                 return EXIT_USAGE
-            data_dir = load_settings(args.config).storage.data_dir
+            data_dir = args.data_dir or load_settings(args.config).storage.data_dir
             files = write_run_report(
                 data_dir,
                 int(args.target),
