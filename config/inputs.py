@@ -39,7 +39,8 @@ def one_line(text: object) -> str:
 
 def did_you_mean(name: str, names: Iterable[str]) -> str | None:
     """The name of ``names`` closest to ``name``, when one is close (difflib)."""
-    matches = difflib.get_close_matches(name, list(names), n=1, cutoff=SUGGESTION_CUTOFF)
+    others = [known for known in names if known != name]
+    matches = difflib.get_close_matches(name, others, n=1, cutoff=SUGGESTION_CUTOFF)
     return matches[0] if matches else None
 
 

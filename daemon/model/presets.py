@@ -203,7 +203,7 @@ def named_network_path(name: str, data_dir: Path | None = None) -> Path:
         return preset
     if data_dir is not None:
         saved = saved_networks_dir(data_dir) / f"{name}.toml"
-        if saved.is_file():
+        if saved.exists():  # anything there (a folder, a pipe): the loader says what it is
             return saved
     presets = available_presets()
     listed = f"presets: {', '.join(presets)}"

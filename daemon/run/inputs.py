@@ -19,6 +19,7 @@ from daemon.arm.arm_model import check_fits, load_arm_model, named_arm_model_pat
 from daemon.arm.controller import load_arm_and_duty
 from daemon.arm.description import load_arm
 from daemon.model import load_network
+from daemon.model.presets import named_network_path
 from daemon.run.arm.setup import arm_file
 from daemon.vision.cameras import load_cameras
 from drivers.sim.joint_arm import DEFAULT_START_JOINTS_DEG
@@ -75,4 +76,19 @@ def check_inputs(settings: Settings, arm_model: str | None = None) -> None:
             )
     if arm_model is not None:
         model = load_arm_model(named_arm_model_path(arm_model, data_dir))
+        check_fits(model, arm.name, len(arm.joints))
+
+
+def check_named_network(settings: Settings, name: str) -> None:
+    """A run's network by name (a preset or a network saved in the data directory) loads:
+    NetworkNotFoundError when nothing has that name, else an InputError naming the file."""
+    load_network(named_network_path(name, settings.storage.data_dir))
+
+
+def check_named_arm_model(settings: Settings, name: str) -> None:
+    """A run's arm model by name loads and fits the daemon's arm: ArmModelNotFoundError when
+    nothing has that name, else an InputError naming the file or the mismatch."""
+    model = load_arm_model(named_arm_model_path(name, settings.storage.data_dir))
+    if settings.arm.enabled:
+        arm = load_arm(arm_file(settings))
         check_fits(model, arm.name, len(arm.joints))

@@ -22,7 +22,14 @@ CONFIG = REPO_ROOT / "config"
 A465 = (CONFIG / "arms" / "crs-a465.toml").read_text("utf-8")
 UR5E_URDF = (CONFIG / "arms" / "ur5e.urdf").read_text("utf-8")
 DUTY = (CONFIG / "duty" / "a465-pick-and-place.toml").read_text("utf-8")
-ARM_SIM = (CONFIG / "arm-sim.toml").read_text("utf-8")
+# the arm bench's settings with its data directory in the case's folder ({t})
+ARM_SIM = re.sub(
+    r'^data_dir = ".*"$',
+    'data_dir = "{t}/data"',
+    (CONFIG / "arm-sim.toml").read_text("utf-8"),
+    flags=re.M,
+)
+assert 'data_dir = "{t}/data"' in ARM_SIM
 
 
 @dataclass(frozen=True)
@@ -231,9 +238,7 @@ NETWORK_CASES = [
 
 # -- arm files: DH tables and URDFs (``run`` with arm.arm_file) ----------------------------------
 
-ARM_CONFIG = ARM_SIM.replace('arm_file = "crs-a465"', 'arm_file = "{t}/arm.toml"').replace(
-    'data_dir = "data"', 'data_dir = "{t}/data"'
-)
+ARM_CONFIG = ARM_SIM.replace('arm_file = "crs-a465"', 'arm_file = "{t}/arm.toml"')
 URDF_CONFIG = ARM_CONFIG.replace("{t}/arm.toml", "{t}/arm.urdf")
 ARM_RUN = ("run", "--config", "{t}/c.toml")
 
@@ -360,7 +365,7 @@ URDF_CASES = [
 # -- duty cycles (``run --duty-cycle FILE`` on the arm bench) ------------------------------------
 
 DUTY_RUN = ("run", "--config", "{t}/c.toml", "--duty-cycle", "{t}/d.toml")
-DUTY_CONFIG = ARM_SIM.replace('data_dir = "data"', 'data_dir = "{t}/data"')
+DUTY_CONFIG = ARM_SIM
 
 
 def duty(id: str, text: str | bytes, says: str) -> Case:
