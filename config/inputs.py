@@ -37,19 +37,18 @@ def one_line(text: object) -> str:
     return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
 
 
-def did_you_mean(name: str, names: Iterable[str]) -> str | None:
-    """The name of ``names`` closest to ``name``, when one is close (difflib)."""
+def did_you_mean(name: str, names: Iterable[str]) -> list[str]:
+    """The names of ``names`` close to ``name`` (difflib), closest first, at most two."""
     others = [known for known in names if known != name]
-    matches = difflib.get_close_matches(name, others, n=1, cutoff=SUGGESTION_CUTOFF)
-    return matches[0] if matches else None
+    return difflib.get_close_matches(name, others, n=2, cutoff=SUGGESTION_CUTOFF)
 
 
 def no_such_name(kind: str, name: str, names: Iterable[str], listing: str | None = None) -> str:
     """The line for a name that names nothing: ``no <kind> 'x' (did you mean 'y'?; <kind>s:
     a, b, c)``. ``listing`` replaces the default list (e.g. "presets: a, b; saved in D: c")."""
     existing = sorted(set(names))
-    guess = did_you_mean(name, existing)
-    parts = [f"did you mean {guess!r}?"] if guess is not None else []
+    guesses = " or ".join(repr(guess) for guess in did_you_mean(name, existing))
+    parts = [f"did you mean {guesses}?"] if guesses else []
     parts.append(listing if listing is not None else f"{kind}s: {', '.join(existing) or 'none'}")
     return f"no {kind} {name!r} ({'; '.join(parts)})"
 
