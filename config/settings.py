@@ -21,7 +21,7 @@ from typing import Annotated, Any, Literal, Self, Union, get_args, get_origin
 from pydantic import BaseModel, ValidationError, model_validator
 
 from config.arm_settings import ArmSettings
-from config.bench_settings import BenchSettings
+from config.bench_settings import BenchSettings, two_link_settings_given
 from config.device_settings import CameraSettings, IrRegion, IrSettings, RobotSettings
 from config.model_settings import (
     CompensationSettings,
@@ -91,6 +91,20 @@ class Settings(Section):
                 raise ValueError(
                     "arm.play_duty_cycle needs compensation.time_scale 1: a played cycle "
                     "moves the arm in real time"
+                )
+        return self
+
+    @model_validator(mode="after")
+    def _arm_bench_truth(self) -> Self:
+        # the arm bench's truth is bench.arm_truth: a two-link truth setting would be ignored
+        if self.arm.enabled and self.bench.enabled and self.robot.driver == "sim":
+            given = two_link_settings_given(self.bench)
+            if given:
+                raise ValueError(
+                    f"bench.{given[0]}"
+                    + (f" (and {', '.join(given[1:])})" if given[1:] else "")
+                    + " is the two-link bench's truth, not the arm bench's: give the arm's "
+                    "in the file of bench.arm_truth (docs/explanation/bench-truth.md)"
                 )
         return self
 
@@ -166,7 +180,7 @@ def _describe(error: ValidationError, source: str, env_used: dict[str, str]) -> 
         if item["type"] == "extra_forbidden":
             reason = "unknown setting"
         origin = f"{env_used[path]} (environment)" if path in env_used else source
-        lines.append(f"{origin}: {path}: {reason}")
+        lines.append(f"{origin}: {path}: {reason}" if path else f"{origin}: {reason}")
     return "\n".join(lines)
 
 
