@@ -29,6 +29,7 @@ from config.model_settings import (
     ObserverSettings,
     SchedulerSettings,
 )
+from config.room_settings import RoomSettings
 from config.section import MAX_CONNECTIONS_LIMIT, SUPPORTED_BAUDRATES, Section
 from config.service_settings import ApiSettings, StorageSettings
 
@@ -53,6 +54,7 @@ __all__ = [
     "ModelSettings",
     "ObserverSettings",
     "RobotSettings",
+    "RoomSettings",
     "SchedulerSettings",
     "Settings",
     "StorageSettings",
@@ -108,6 +110,16 @@ class Settings(Section):
                 )
         return self
 
+    @model_validator(mode="after")
+    def _simulated_room_on_the_arm_bench(self) -> Self:
+        arm_bench = self.arm.enabled and self.bench.enabled and self.robot.driver == "sim"
+        if self.room.driver == "sim" and not arm_bench:
+            raise ValueError(
+                "room.driver 'sim' is the arm bench's room thermometer: it needs arm.enabled, "
+                "bench.enabled and robot.driver sim (on hardware: room.driver w1)"
+            )
+        return self
+
     bench: BenchSettings = BenchSettings()
     camera: CameraSettings = CameraSettings()
     ir: IrSettings = IrSettings()
@@ -119,6 +131,7 @@ class Settings(Section):
     storage: StorageSettings = StorageSettings()
     api: ApiSettings = ApiSettings()
     arm: ArmSettings = ArmSettings()
+    room: RoomSettings = RoomSettings()
 
 
 #: Setting names whose value is a secret: never stored (run rows) nor served (GET /config),

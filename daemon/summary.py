@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from daemon.analysis import NUMERIC_COLUMNS, RunSteps, summarize_run
-from daemon.analysis.arm import summarize_arm_run
+from daemon.analysis.arm import room_summary, summarize_arm_run
 from daemon.arm_step import ArmRunWork
 from daemon.recorder import Recorder
 from daemon.scheduler import percentiles
@@ -113,6 +113,7 @@ def arm_summary(
             "overruns": overruns,
             "skipped_deadlines": skipped,
             "reference": {"source": work.reference_source},
+            "room": room_summary(steps),
             "timing": _timing(timing, steps),
         }
     )

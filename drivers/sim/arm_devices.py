@@ -37,7 +37,7 @@ from daemon.arm.description import Arm, load_arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.vision.markers import marker_pixels
 from daemon.vision.multiview import CameraModel
-from drivers.base import Frame, IrReading, RegionTemperature
+from drivers.base import Frame, IrReading, RegionTemperature, RoomReading
 from drivers.c500c import C500CRobot
 from drivers.clock import Clock
 from drivers.sim.arm_bench import ArmBench, ArmBenchConfig, config_from_truth
@@ -65,6 +65,7 @@ class ArmBenchDevices:
     emulator: C500CEmulator
     cameras: tuple[SimArmCamera, ...]
     camera_models: tuple[CameraModel, ...]
+    room: SimArmRoom  # its thermometer in the truth's room (used with room.driver sim)
 
 
 def played(settings: Settings) -> bool:
@@ -240,6 +241,20 @@ class SimArmIr(_ArmBenchSensor):
         return self._control.sync(now_s).ir_read()
 
 
+class SimArmRoom(_ArmBenchSensor):
+    """The arm bench's room thermometer (drivers/sim/arm_room.py: the truth's room with the
+    sensor's lag, offset, noise and resolution)."""
+
+    async def read(self) -> RoomReading:
+        now = self._clock.now()
+        value = await asyncio.to_thread(self._read, now)
+        self._sequence += 1
+        return RoomReading(value, now, "sim")
+
+    def _read(self, now_s: float) -> float:
+        return self._control.sync(now_s).room_read()
+
+
 @contextlib.asynccontextmanager
 async def open_arm_bench(
     settings: Settings, clock: Clock, seed: int
@@ -297,4 +312,5 @@ async def open_arm_bench(
             emulator=emulator,
             cameras=cameras,
             camera_models=control.cameras,
+            room=SimArmRoom(control, clock),
         )
