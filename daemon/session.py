@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from daemon.arm_prepare import measure_references
+from daemon.arm_prepare import measure_references, reference_frames
 from daemon.arm_step import ArmRunWork
 from daemon.readmodel import RunView
 from daemon.recorder import RecorderError
@@ -245,7 +245,7 @@ class RunSession:
                 work,
                 self._services.arm_services(),
                 self._services.errors,
-                self._services.settings.arm.reference_frames,
+                reference_frames(self._services.settings),
             )
         except DeviceError as err:
             await self._fault(f"cannot measure the taught poses: {err}")
