@@ -16,9 +16,9 @@ from drivers.sim.joint_arm import JointArm, JointArmConfig, UnreachableError, lo
 
 A465 = load_arm("crs-a465")
 #: A 190 degree waist swing that the local solve from LEFT stalls on (the shoulder, elbow and
-#: wrist all change too).
-LEFT = np.radians([-95.0, 16.2, 51.9, -20.9, 30.1, -35.3])
-RIGHT = np.radians([95.0, 3.6, 74.8, 23.7, -21.5, -35.8])
+#: wrist all change too; the wrist stays on its side, as a controller's configuration keeps it).
+LEFT = np.radians([-95.0, 13.2, 87.3, 35.9, 16.7, -6.1])
+RIGHT = np.radians([95.0, 12.1, 67.2, -37.8, 30.2, 3.1])
 
 
 def test_a_190_degree_waist_swing_is_reached_on_the_same_stance() -> None:
@@ -50,3 +50,19 @@ def test_a_location_out_of_reach_is_still_refused() -> None:
     far = (2000.0, 0.0, 300.0, 0.0, 0.0, 0.0)
     with pytest.raises(UnreachableError):
         arm.solve(far, LEFT)
+
+
+@pytest.mark.parametrize("name", ["a465-pick-and-place", "a465-machine-tending"])
+def test_every_move_of_a_duty_cycle_lands_on_its_taught_joints(name: str) -> None:
+    """Pose to pose as the played bench sends them (world locations): each solved from the
+    previous pose's joints lands on the taught joints, not another branch (the machine-tending
+    cycle swings the waist 190 degrees back to the machine, and the local solve from the
+    turn-over pose flips the wrist)."""
+    from daemon.arm.duty import load_duty_cycle
+
+    duty = load_duty_cycle(name)
+    taught = [np.array(pose.q_rad) for pose in duty.poses]
+    arm = JointArm(JointArmConfig(arm=A465))
+    for previous, target in zip([taught[-1], *taught[:-1]], taught, strict=True):
+        q = arm.solve(location_of(forward(A465, target)), previous)
+        assert np.allclose(q, target, atol=1e-3), (np.degrees(previous), np.degrees(q))

@@ -1,8 +1,10 @@
-"""Reaching a location a controller would reach (issue 29): the emulator's inverse kinematics
-solves a location from the arm's current joints (drivers/sim/joint_arm.py, on their branch);
-a large waist swing stalls that local solve (a least-squares step turns the shoulder and
-wrist before the waist, and stops in a local minimum), where a real controller's closed-form
-solution of the same stance simply turns the waist. These seeds start from that stance. Pure.
+"""Reaching a location as a controller would (issue 29): the emulator's inverse kinematics
+solves a location from the arm's current joints (drivers/sim/joint_arm.py, on their branch).
+A large waist swing stalls that local solve (a least-squares step turns the shoulder and wrist
+before the waist, and stops in a local minimum), or lands it on another branch (the arm
+reaching over its shoulder, the wrist flipped), where a real controller's closed-form solution
+keeps its stance (its configuration: shoulder, elbow and wrist flags) and simply turns the
+waist. These seeds start from that stance. Pure.
 """
 
 from __future__ import annotations
@@ -22,35 +24,8 @@ WRIST_JOINTS = 3
 LARGE_SWING_RAD = math.pi / 2
 #: Two solutions this close (rad, every joint) are one: the local solve's is kept.
 SAME_SOLUTION_RAD = 1e-3
-
-
-def branch_seeds(
-    arm: Arm, pose: FloatArray, q_now: FloatArray, wrist_joints: int = WRIST_JOINTS
-) -> list[FloatArray]:
-    """Starting points near ``q_now``'s configuration for a location that a local solve from
-    ``q_now`` does not reach: a large waist swing (the least squares turn the other joints
-    before the waist and stall). The first joint turned by the difference between the target's
-    azimuth and the tool's (and that difference +-360 degrees, within the joint's limits: the
-    same stance facing the target), each with the wrist as it is and flipped (joints 4 and 6
-    by 180 degrees, joint 5 mirrored: a spherical wrist's other solution)."""
-    turn = waist_turn_rad(arm, pose, q_now)
-    lower, upper = arm.lower_rad, arm.upper_rad
-    seeds: list[FloatArray] = []
-    for delta in (turn, turn - 2.0 * math.pi, turn + 2.0 * math.pi):
-        waist = q_now[0] + delta
-        if not lower[0] <= waist <= upper[0]:
-            continue
-        seed = q_now.copy()
-        seed[0] = waist
-        seeds.append(seed)
-        if arm.dof >= wrist_joints + 3:
-            flipped = seed.copy()
-            first = arm.dof - wrist_joints
-            flipped[first] += math.pi if flipped[first] < 0.0 else -math.pi
-            flipped[first + 1] = -flipped[first + 1]
-            flipped[first + 2] += math.pi if flipped[first + 2] < 0.0 else -math.pi
-            seeds.append(flipped)
-    return seeds
+#: A wrist bent less than this (rad) has no flip side (it is at its singularity).
+WRIST_FLAT_RAD = math.radians(1.0)
 
 
 def waist_turn_rad(arm: Arm, pose: FloatArray, q_now: FloatArray) -> float:
@@ -61,26 +36,91 @@ def waist_turn_rad(arm: Arm, pose: FloatArray, q_now: FloatArray) -> float:
     return math.atan2(math.sin(turn), math.cos(turn))
 
 
+def wrist_side(arm: Arm, q: FloatArray) -> int:
+    """The spherical wrist's flip side: the sign of its middle joint (0: flat, or no wrist)."""
+    if arm.dof < WRIST_JOINTS + 3:
+        return 0
+    bend = float(q[arm.dof - 2])
+    return 0 if abs(bend) < WRIST_FLAT_RAD else (1 if bend > 0.0 else -1)
+
+
+def flipped_wrist(arm: Arm, q: FloatArray) -> FloatArray:
+    """The same tool pose with the wrist's other solution: its first and last joints turned
+    by 180 degrees (towards zero), the middle one mirrored."""
+    out = q.copy()
+    first = arm.dof - WRIST_JOINTS
+    out[first] += -math.pi if out[first] > 0.0 else math.pi
+    out[first + 1] = -out[first + 1]
+    out[first + 2] += -math.pi if out[first + 2] > 0.0 else math.pi
+    return out
+
+
+def branch_seeds(arm: Arm, pose: FloatArray, q_now: FloatArray) -> list[FloatArray]:
+    """Starting points on ``q_now``'s stance: the first joint turned by the difference between
+    the target's azimuth and the tool's (and that difference +-360 degrees, within the joint's
+    limits), each with the wrist as it is and flipped."""
+    turn = waist_turn_rad(arm, pose, q_now)
+    lower, upper = arm.lower_rad, arm.upper_rad
+    seeds: list[FloatArray] = []
+    for delta in (turn, turn - 2.0 * math.pi, turn + 2.0 * math.pi):
+        waist = q_now[0] + delta
+        if not lower[0] <= waist <= upper[0]:
+            continue
+        seed = q_now.copy()
+        seed[0] = waist
+        seeds.append(seed)
+        if arm.dof >= WRIST_JOINTS + 3:
+            seeds.append(flipped_wrist(arm, seed))
+    return seeds
+
+
+def needs_branch_search(
+    arm: Arm, pose: FloatArray, q_now: FloatArray, local: FloatArray | None
+) -> bool:
+    """Whether the local solve's answer is not what a controller keeping its stance does: no
+    solution, a waist swing past LARGE_SWING_RAD, or a flipped wrist."""
+    if local is None or abs(waist_turn_rad(arm, pose, q_now)) > LARGE_SWING_RAD:
+        return True
+    side = wrist_side(arm, q_now)
+    return side != 0 and wrist_side(arm, local) == -side
+
+
 def nearest_solution(
     arm: Arm, pose: FloatArray, q_now: FloatArray, local: FloatArray | None = None
 ) -> FloatArray | None:
-    """Of the exact solutions from :func:`branch_seeds` (each kept on its seed's branch: the
-    current stance facing the target), the one nearest ``q_now`` (least squared joint travel):
-    the configuration a controller keeping its stance moves to. None of them: ``local`` (the
-    local solve's solution, when it found one; over a large swing it may be another branch,
-    the arm reaching over its shoulder, which is why the seeds come first), else None."""
+    """The solution a controller keeping its stance moves to: of the exact solutions from
+    :func:`branch_seeds` and from ``local`` with its wrist flipped (``local``: the local
+    solve's own, when it found one), those on ``q_now``'s wrist side first, the one nearest
+    ``q_now`` (least squared joint travel), else ``local``; None when nothing converges.
+    ``local`` is kept when the choice is the same solution."""
+    seeds = branch_seeds(arm, pose, q_now)
+    if local is not None and arm.dof >= WRIST_JOINTS + 3:
+        seeds.append(flipped_wrist(arm, local))
     found: list[FloatArray] = []
-    for seed in branch_seeds(arm, pose, q_now):
+    for seed in seeds:
         try:
             found.append(inverse(arm, pose, seed, restarts=0))
         except ArmError:
             continue
-    if not found:
+    side = wrist_side(arm, q_now)
+    same = [q for q in found if side == 0 or wrist_side(arm, q) != -side]
+    if local is not None and (side == 0 or wrist_side(arm, local) != -side):
+        same.append(local)
+    pool = same or found
+    if not pool:
         return local
-    nearest = min(found, key=lambda q: float(np.sum(np.square(q - q_now))))
+    nearest = min(pool, key=lambda q: float(np.sum(np.square(q - q_now))))
     if local is not None and float(np.max(np.abs(nearest - local))) < SAME_SOLUTION_RAD:
         return local  # the same solution: the local solve's, as before the seeds
     return nearest
 
 
-__all__ = ["LARGE_SWING_RAD", "branch_seeds", "nearest_solution", "waist_turn_rad"]
+__all__ = [
+    "LARGE_SWING_RAD",
+    "branch_seeds",
+    "flipped_wrist",
+    "nearest_solution",
+    "needs_branch_search",
+    "waist_turn_rad",
+    "wrist_side",
+]
