@@ -170,6 +170,15 @@ async def bench(
     return results
 
 
+def verdict(met: bool | None, plausible: bool) -> str:
+    """A run's target in the table: none, met, or missed (not promised beyond plausible)."""
+    if met is None:
+        return "-"
+    if met:
+        return "met"
+    return "MISSED" if plausible else "missed (not promised)"
+
+
 def print_scenario(name: str, found: dict[str, Any]) -> None:
     load = found["load_average"]
     print(
@@ -186,7 +195,7 @@ def print_scenario(name: str, found: dict[str, Any]) -> None:
                 run["rms_over_sigma"],
                 run["meter_sigma_um"],
                 run["last_third_rms_3d_um"],
-                {None: "-", True: "met", False: "MISSED"}[target_met(controller, run)],
+                verdict(target_met(controller, run), found["plausible"]),
             ]
             for controller, run in found["runs"].items()
         ],
