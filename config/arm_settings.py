@@ -67,7 +67,7 @@ class ArmSettings(Section):
         None,
         description="Frames of each pose's reference (its zero, measured once before the first "
         "step): its error is in every later drift of that pose, and the meter measures its "
-        "cameras' scatter on them; none: arm.frames_per_measurement; at least 8.",
+        "cameras' scatter on them; none: arm.frames_per_measurement; at least 4.",
     )
     max_translation_mm: Annotated[float, Field(gt=0, le=MAX_ARM_TRANSLATION_MM)] = Field(
         2.0, description="Largest translation of a pose's correction (mm)."

@@ -48,7 +48,7 @@ MIN_VIEWS = 2
 MIN_FRAMES_FOR_SCATTER = 3
 #: Degrees of freedom of a camera's pooled scatter before it replaces the camera model's
 #: nominal ``pixel_sigma_px`` as the floor of its centroids' 1-sigma (issue 29): one reference
-#: of 8 frames and 4 markers gives 56 (its 1-sigma then known to ~10 %).
+#: of 4 frames at each of 2 poses, 4 markers, gives 48 (its 1-sigma then known to ~10 %).
 MIN_SCATTER_DOF = 20
 
 

@@ -50,9 +50,10 @@ async def teach_poses(work: ArmRunWork, robot: ArmRobot) -> None:
 
 #: Frames of each pose's reference at least (issue 29): enough for the meter to measure its
 #: cameras' scatter on the still tool before the first step (daemon/arm_measure.py
-#: ScatterLog: 2 poses x 4 markers x 7 degrees of freedom x 2 axes per camera), the floor of
-#: every later measurement's 1-sigma.
-MIN_REFERENCE_FRAMES = 8
+#: ScatterLog: 2 poses x 4 markers x 3 degrees of freedom x 2 axes = 48 per camera, the
+#: 1-sigma to ~10 %), the floor of every later measurement's 1-sigma. Each frame of the
+#: bench's 5 MP cameras is ~0.16 s of CPU to render: no more than needed.
+MIN_REFERENCE_FRAMES = 4
 
 
 def reference_frames(settings: Settings) -> int:
