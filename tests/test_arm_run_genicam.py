@@ -5,9 +5,10 @@ GenICam cameras (PYLON_CAMEMU) serving the tool's markers rendered at the run's 
 (drivers/sim/camemu.py, tests/test_genicam_markers.py for the measurement itself).
 
 Each emulated camera serves its own folder, one file per frame in name order: the reference's
-frames at the taught pose, then one frame per step, the first steps at the taught pose and the last ones
-with the tool moved by a known 6-DOF offset. So the run must record ~0 drift, then the offset,
-through the real driver, the factory's device order and the arm run's own measurement."""
+frames at the taught pose, then one frame per step, the first steps at the taught pose and the
+last ones with the tool moved by a known 6-DOF offset. So the run must record ~0 drift, then
+the offset, through the real driver, the factory's device order and the arm run's own
+measurement."""
 
 from __future__ import annotations
 
