@@ -129,7 +129,11 @@ class Daemon:
                 opener(self.settings, self.clock)
             )
             self._sensors = Sensors(
-                self.settings, self._devices.camera, self._devices.ir, self.error_log
+                self.settings,
+                self._devices.camera,
+                self._devices.ir,
+                self.error_log,
+                getattr(self._devices, "room", None),
             )
             self.reports.start()
             self._exit_stack.push_async_callback(self.reports.close)

@@ -77,6 +77,23 @@ class IrReader(AsyncDevice, Protocol):
     async def read(self) -> IrReading: ...
 
 
+# --- room thermometer (issue 29) --------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class RoomReading:
+    """The air's temperature where the arm stands (degC), when it was read (run clock), and
+    which sensor read it."""
+
+    temperature_c: float
+    timestamp_s: float
+    sensor: str
+
+
+class RoomThermometer(AsyncDevice, Protocol):
+    async def read(self) -> RoomReading: ...
+
+
 # --- robot -----------------------------------------------------------------------------
 
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from daemon.run.arm.prepare import measure_references
+from daemon.run.arm.prepare import measure_references, reference_frames
 from daemon.run.arm.step import ArmRunWork
 from daemon.run.publish import RunPublisher
 from daemon.run.readmodel import RunView
@@ -246,7 +246,7 @@ class RunSession:
                 work,
                 self._services.arm_services(),
                 self._services.errors,
-                self._services.settings.arm.reference_frames,
+                reference_frames(self._services.settings),
             )
         except DeviceError as err:
             await self._fault(f"cannot measure the taught poses: {err}")

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from daemon.analysis import NUMERIC_COLUMNS, RunSteps, summarize_run
-from daemon.analysis.arm import summarize_arm_run
+from daemon.analysis.arm import room_summary, summarize_arm_run
 from daemon.run.arm.step import ArmRunWork
 from daemon.run.scheduler import percentiles
 from daemon.run.two_link.step import RunWork
@@ -113,6 +113,7 @@ def arm_summary(
             "overruns": overruns,
             "skipped_deadlines": skipped,
             "reference": {"source": work.reference_source},
+            "room": room_summary(steps),
             "timing": _timing(timing, steps),
         }
     )
