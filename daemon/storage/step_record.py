@@ -115,5 +115,6 @@ STEP_FLAGS: dict[str, str] = {
     "marker-error": "arm runs: the tool's markers could not be measured into a pose",
     "ir-error": "no IR reading within ir.read_timeout_s, or the reading was refused",
     "stale-ir": "the IR reading was older than ir.max_age_s: recorded, never fused",
+    "room-error": "arm runs: the room thermometer gave no reading; the model kept the last room",
     "model-drifting": "the IR observer's innovations stay biased: consider identification",
 }
