@@ -45,6 +45,10 @@ class Frame:
     #: software trigger + exposure), "backend" (the capture backend's stamp), "host" (when the
     #: driver received the frame: late by readout and transfer; issue 18)
     timestamp_source: str = "host"
+    #: electrons per count of the sensor as the camera reports it, for the centroid's noise
+    #: model; None: the camera does not say (GenICam's SFNC has no node for it: ``Gain`` is a
+    #: relative dB figure), and the centroid measures it on the frame
+    gain_e_per_count: float | None = None
 
 
 class Camera(AsyncDevice, Protocol):

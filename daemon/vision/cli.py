@@ -71,6 +71,7 @@ NUMERIC_FIELDS = (
     "width_y_px",
     "snr",
     "saturated_fraction",
+    "gain_e_per_count",
 )
 TIME_FIELDS = ("t_s", "drift_x_um", "drift_y_um")
 
@@ -252,13 +253,18 @@ def measure_files(args: argparse.Namespace, files: Sequence[Path]) -> list[dict[
                 image, bit_depth=bit_depth, expected_shape=expected_shape, **options
             )
         except CentroidError as err:
-            record.update(dict.fromkeys(NUMERIC_FIELDS), histogram=None, flags=[])
+            record.update(dict.fromkeys(NUMERIC_FIELDS), gain_source=None, histogram=None, flags=[])
             record["error"] = str(err)
             logger.debug("%s: %s", path, err)
         else:
             data = result.as_dict()
             record.update({name: _finite_or_none(data[name]) for name in NUMERIC_FIELDS})
-            record.update(histogram=data["histogram"], flags=data["flags"], error=None)
+            record.update(
+                gain_source=data["gain_source"],
+                histogram=data["histogram"],
+                flags=data["flags"],
+                error=None,
+            )
         records.append(record)
     return records
 
@@ -282,7 +288,7 @@ def _finite_or_none(value: Any) -> Any:
 
 
 def write_csv(records: Sequence[dict[str, Any]], timed: bool) -> None:
-    columns = ["file", "method", *(TIME_FIELDS if timed else ()), *NUMERIC_FIELDS]
+    columns = ["file", "method", *(TIME_FIELDS if timed else ()), *NUMERIC_FIELDS, "gain_source"]
     writer = csv.writer(sys.stdout, lineterminator="\n")
     writer.writerow([*columns, *(f"histogram_{i}" for i in range(10)), "flags", "error"])
     for record in records:
@@ -303,6 +309,7 @@ def write_text(records: Sequence[dict[str, Any]], timed: bool) -> None:
         )
         if record["sigma_x_px"] is not None:
             line += f"  +-{record['sigma_x_px']:.4f}/{record['sigma_y_px']:.4f} px"
+            line += f" (gain {record['gain_e_per_count']:.3g} e-/count, {record['gain_source']})"
         if timed:
             line += (
                 f"  t {record['t_s']:g} s  drift {record['drift_x_um']:.3f} "
