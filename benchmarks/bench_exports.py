@@ -13,7 +13,9 @@ fetches, alternately in the same run (A B C D A B C D ...):
 - the JSON: every page of ``GET /api/v1/runs/{id}/steps?limit=5000`` from ``from=0`` to
   ``next_from`` null (target as CSV's).
 
-Each export's body is read to the end and counted; the server's resident memory (VmRSS of
+Each export's body is read to the end and counted; beside its wall time the CPU time it cost
+every process involved (the sqlite3 CLI; the server, its export process and this client) is
+reported, the figure that a loaded machine disturbs least. The server's resident memory (VmRSS of
 it and its export process) is sampled every 20 ms while it runs, and its peak over the
 idle level is reported (memory bounded: it must not grow with the run). The load average is
 printed before and after. Usage::
@@ -38,6 +40,8 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
+
+import resource
 
 import httpx
 
@@ -174,6 +178,24 @@ def _children(pid: int) -> list[int]:
     return [int(child) for child in text.split()]
 
 
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process (/proc/PID/stat, clock ticks)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def cpu_now(server: int) -> float:
+    """CPU seconds so far of this process, its finished children (the sqlite3 CLI) and the
+    server with its children (the export process)."""
+    own = time.process_time()
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    total = own + children.ru_utime + children.ru_stime
+    for process in (server, *_children(server)):
+        with contextlib.suppress(OSError):
+            total += _cpu_s(process)
+    return total
+
+
 def _rss_mib(pid: int) -> float:
     """Resident memory of the server and its (export) children."""
     total = 0.0
@@ -232,12 +254,14 @@ def main() -> int:
             for _ in range(args.rounds):
                 for name, way in ways.items():
                     with peak_rss(server.pid) as memory:
-                        begun = time.perf_counter()
+                        begun, begun_cpu = time.perf_counter(), cpu_now(server.pid)
                         size = way()
                         seconds = time.perf_counter() - begun
+                        cpu = cpu_now(server.pid) - begun_cpu
                     results[name].append(
                         {
                             "seconds": seconds,
+                            "cpu_s": cpu,
                             "mb": size / 1e6,
                             "rss_growth_mib": max(0.0, memory["peak"] - memory["idle"]),
                             "rss_idle_mib": memory["idle"],
@@ -248,11 +272,13 @@ def main() -> int:
             server.wait(timeout=30)
     load_after = os.getloadavg()
     reference = min(r["seconds"] for r in results["sqlite3 -csv (reference)"])
+    reference_cpu = min(r["cpu_s"] for r in results["sqlite3 -csv (reference)"])
     rows, summary = [], {}
     for name, runs in results.items():
         best = min(r["seconds"] for r in runs)
         worst = max(r["seconds"] for r in runs)
         ratio = best / reference
+        cpu = min(r["cpu_s"] for r in runs)
         growth = max(r["rss_growth_mib"] for r in runs)
         api = name.startswith("API")
         rows.append(
@@ -263,12 +289,20 @@ def main() -> int:
                 worst,
                 runs[0]["mb"] / best,
                 ratio,
+                cpu,
+                cpu / reference_cpu,
                 f"<= {TARGET_RATIO}" if api else "-",
                 (ratio <= TARGET_RATIO) if api else "-",
                 growth if api else "-",
             ]
         )
-        summary[name] = {"runs": runs, "best_s": best, "ratio_to_sqlite_cli": ratio}
+        summary[name] = {
+            "runs": runs,
+            "best_s": best,
+            "ratio_to_sqlite_cli": ratio,
+            "cpu_s": cpu,
+            "cpu_ratio_to_sqlite_cli": cpu / reference_cpu,
+        }
     print(f"\n{args.steps} steps, {args.rounds} rounds alternated; best and worst of the rounds\n")
     print_table(
         [
@@ -278,6 +312,8 @@ def main() -> int:
             "worst s",
             "MB/s",
             "best / sqlite3",
+            "CPU s",
+            "CPU / sqlite3",
             "target",
             "met",
             "server RSS growth MiB",
