@@ -31,6 +31,7 @@ import contextlib
 import csv
 import json
 import os
+import resource
 import sqlite3
 import subprocess
 import sys
@@ -40,8 +41,6 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
-
-import resource
 
 import httpx
 
