@@ -19,8 +19,8 @@ from typing import Any
 
 from config.cli import EXIT_OK, EXIT_USAGE, finite_float, non_negative_float, positive_float
 from daemon.model.model import STEPPERS, ModelError, Stepper, ThermalModel
-from daemon.model.network import NetworkError, ThermalNetwork, network_facts
-from daemon.model.presets import available_presets, load_network
+from daemon.model.network import NetworkError, NetworkFacts, ThermalNetwork, network_facts
+from daemon.model.presets import available_presets, load_network, network_file
 
 DEFAULT_AMBIENT_C = 22.0
 
@@ -117,7 +117,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="preset name, identified network saved in --data-dir, or TOML file",
     )
     info.add_argument(
-        "--data-dir", type=Path, help="data directory whose saved networks NAME may be"
+        "--data-dir",
+        type=Path,
+        help="data directory whose saved networks NAME may be; its cache/ keeps the facts "
+        "of each network file seen (a large network's eigenvalues are paid once)",
     )
     info.add_argument("--json", action="store_true", help="JSON on stdout")
     info.set_defaults(handler=run_info)
@@ -231,9 +234,9 @@ def _print_simulation(
         print("  ".join(c.rjust(w) for c, w in zip(cells, widths, strict=True)))
 
 
-def describe(network: ThermalNetwork) -> dict[str, Any]:
-    """The ``info`` document."""
-    facts = network_facts(network)
+def describe(network: ThermalNetwork, facts: NetworkFacts | None = None) -> dict[str, Any]:
+    """The ``info`` document (``facts``: the network's, when already known)."""
+    facts = facts or network_facts(network)
     inputs: Sequence[str] = network.heater_nodes or network.node_names
     return {
         "network": network.name,
@@ -253,8 +256,11 @@ def describe(network: ThermalNetwork) -> dict[str, Any]:
 
 def run_info(args: argparse.Namespace) -> int:
     try:
+        from daemon.network_cache import cached_network_facts  # I/O: outside the pure core
+
         network = load_network(args.network, args.data_dir)
-        document = describe(network)
+        path = network_file(args.network, args.data_dir)
+        document = describe(network, cached_network_facts(path, network, args.data_dir))
     except NetworkError as err:
         return _fail(str(err))
     if args.json:
