@@ -35,16 +35,18 @@ COMMANDS: tuple[Command, ...] = (
     Command("run", "daemon.run_cli", "run one compensation run to its end and print its summary"),
     Command(
         "stats",
-        "daemon.reports",
+        "daemon.reports_options",
         "error statistics of a column (thesis 6.6: N, mean, S_x, chi-squared)",
     ),
     Command(
         "fit",
-        "daemon.reports",
+        "daemon.reports_options",
         "first-order exponential fit of a column: time constant and steady state",
     ),
     Command(
-        "report", "daemon.reports", "write a run's report: figures, summary.json and an HTML page"
+        "report",
+        "daemon.reports_options",
+        "write a run's report: figures, summary.json and an HTML page",
     ),
     Command(
         "identify", "daemon.identify_cli", "fit a thermal network's parameters to a recorded run"
@@ -55,10 +57,10 @@ COMMANDS: tuple[Command, ...] = (
         "daemon.calibrate_cli",
         "calibrate with the robot: the camera, several cameras in 3-D, or the model",
     ),
-    Command("model", "daemon.model.cli", "simulate a thermal network or report its facts"),
+    Command("model", "daemon.model_options", "simulate a thermal network or report its facts"),
     Command(
         "centroid",
-        "daemon.vision.cli",
+        "daemon.centroid_options",
         "measure the laser spot's sub-pixel centroid in image files",
     ),
     Command("robot", "drivers.robot_check", "check the robot controller's console (moves nothing)"),

@@ -27,8 +27,6 @@ from config.cli import (
     add_config_argument,
     positive_float,
 )
-from daemon.recorder import RecorderError
-from daemon.report_queue import ReportStatus
 from daemon.runs import RunParameters, RunState, RunStateError
 
 if TYPE_CHECKING:  # the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not
@@ -141,6 +139,8 @@ def run_command(args: argparse.Namespace) -> int:
     except ValidationError as err:
         print(f"thermocomp run: invalid run parameters:\n{_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
+    from daemon.recorder import RecorderError  # NumPy: loaded to run, not for --help
+
     try:
         return asyncio.run(_run(settings, parameters, args))
     except RecorderError as err:  # e.g. the data directory is another process's: one line
@@ -233,6 +233,8 @@ async def _supervise(daemon: Daemon, stop_requested: asyncio.Event) -> dict[str,
     final = await daemon.wait_run()
     if daemon.settings.storage.report_at_end:  # a run that ran to its end: with its report
         written = await daemon.reports.wait(final["id"])
+        from daemon.report_queue import ReportStatus
+
         if written is ReportStatus.WRITTEN:
             final["report"] = str(daemon.reports.html_path(final["id"]))
     return final

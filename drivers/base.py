@@ -9,10 +9,11 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Protocol, Self
+from typing import TYPE_CHECKING, Protocol, Self
 
-import numpy as np
-from numpy.typing import NDArray
+if TYPE_CHECKING:  # annotations only: `thermocomp <command> --help` loads no NumPy
+    import numpy as np
+    from numpy.typing import NDArray
 
 from drivers.errors import DeviceError
 

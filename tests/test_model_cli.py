@@ -188,3 +188,14 @@ def test_info_reports_the_network_facts(capsys: pytest.CaptureFixture[str]) -> N
 
     status, out, err = run(["model", "info", "nonesuch.toml"], capsys)
     assert status == 2 and "nonesuch.toml" in err and out == ""
+
+
+def test_the_light_options_agree_with_the_model() -> None:
+    """`thermocomp model --help` builds its parser without the model (daemon/model_options.py
+    repeats two of its facts): they must agree."""
+    from daemon.model.model import STEPPERS
+    from daemon.model.presets import available_presets
+    from daemon.model_options import STEPPER_CHOICES, _presets
+
+    assert STEPPER_CHOICES == STEPPERS
+    assert _presets() == available_presets()
