@@ -11,13 +11,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from daemon.vision.photon_transfer import NoiseModel
+from daemon.vision.photon_transfer import NoiseModel, estimate_noise_model
 from daemon.vision.synthetic import pixel_gaussian
 
 #: the fit has converged when its step moves the centre by less than this (the robust
 #: centroid's own tolerance)
 TOLERANCE_PX = 1e-5
 _MAX_ITERATIONS = 30
+#: The fit that gives the photon-transfer residuals stops at this step: its residuals then
+#: differ from the converged ones by ~1e-3 of the spot's slope, far under the noise.
+_TRANSFER_TOLERANCE_PX = 1e-3
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,6 +119,36 @@ def fit_spot(
             degrees = max(1, data.size - 5)
             return SpotFit(x, y, flux, sx, sy, chi2 / degrees)
     return None
+
+
+def frame_noise_model(
+    excess: NDArray[np.float64],
+    usable: NDArray[np.bool_],
+    columns: NDArray[np.float64],
+    rows: NDArray[np.float64],
+    start: tuple[float, float, float, float],
+    *,
+    offset: float,
+) -> tuple[NoiseModel | None, tuple[float, float, float, float]]:
+    """The frame's own noise model (photon transfer, daemon/vision/photon_transfer.py) on
+    the residuals of a fit with equal weights (the weights being what is measured), or None
+    if that fit fails; and where a refining fit should start: where this one ended, when it
+    stayed within a pixel of ``start``."""
+    plain = fit_spot(
+        excess,
+        usable,
+        columns,
+        rows,
+        start,
+        noise_model=NoiseModel(offset, 0.0),
+        tolerance_px=_TRANSFER_TOLERANCE_PX,
+    )
+    if plain is None:
+        return None, start
+    measured = estimate_noise_model(excess, plain.model(columns, rows), usable, offset=offset)
+    if abs(plain.x - start[0]) < 1.0 and abs(plain.y - start[1]) < 1.0:
+        start = (plain.x, plain.y, plain.sigma_x, plain.sigma_y)  # a step or two to go
+    return measured, start
 
 
 def _separable_equations(

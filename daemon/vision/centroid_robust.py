@@ -11,9 +11,14 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from daemon.vision.centroid_fit import TOLERANCE_PX, centroid_uncertainty, fit_spot
+from daemon.vision.centroid_fit import (
+    TOLERANCE_PX,
+    centroid_uncertainty,
+    fit_spot,
+    frame_noise_model,
+)
 from daemon.vision.centroid_result import CentroidError, CentroidResult, GainSource
-from daemon.vision.photon_transfer import QUANTISATION_VARIANCE, NoiseModel, estimate_noise_model
+from daemon.vision.photon_transfer import QUANTISATION_VARIANCE, NoiseModel
 from daemon.vision.synthetic import full_scale
 
 # Robust method tuning (see robust_centroid for the reasoning behind each).
@@ -41,9 +46,6 @@ _QUANTISED_NOISE_COUNTS = 0.5
 # whose fitted centre would then be biased; those keep their moments (flag
 # "quantised-moments").
 _FIT_MAX_REDUCED_CHI2 = 4.0
-# The fit that gives the photon-transfer residuals (gain unknown) stops at this step: its
-# residuals then differ from the converged ones by ~1e-3 of the spot's slope, far under noise.
-_TRANSFER_TOLERANCE_PX = 1e-3
 #: the 8 neighbours of a pixel (dilating with it gives their maximum)
 _NEIGHBOURS = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], dtype=np.uint8)
 _MIN_REDUCED_FRAME_PX = 64  # smaller frames are searched at full resolution
@@ -400,34 +402,15 @@ def robust_centroid(
         math.sqrt(max(var_y - 1.0 / 12.0, 0.1)),
     )
     measured: NoiseModel | None = None
-    if gain_e_per_count is None:
-        # photon transfer (step 7): a fit with equal weights, since the weights are what is
-        # being measured; its residuals give the noise model, the refining fit its weights
-        plain = fit_spot(
-            above_all,
-            unsaturated,
-            window_columns,
-            window_rows,
-            start,
-            noise_model=NoiseModel(noise * noise + QUANTISATION_VARIANCE, 0.0),
-            tolerance_px=_TRANSFER_TOLERANCE_PX,
+    if gain_e_per_count is None:  # photon transfer (step 7)
+        offset = max(noise * noise, QUANTISATION_VARIANCE if quantised else 0.0)
+        measured, start = frame_noise_model(
+            above_all, unsaturated, window_columns, window_rows, start, offset=offset
         )
-        if plain is not None:
-            measured = estimate_noise_model(
-                above_all,
-                plain.model(window_columns, window_rows),
-                unsaturated,
-                offset=max(noise * noise, QUANTISATION_VARIANCE if quantised else 0.0),
-            )
-            if abs(plain.x - x) < 1.0 and abs(plain.y - y) < 1.0:
-                # the refining fit starts where this one ended: a step or two to go
-                start = (plain.x, plain.y, plain.sigma_x, plain.sigma_y)
+        gain_source = "unknown" if measured is None else "frames"
         if measured is None:
-            gain_source = "unknown"
             flags.append("gain-unestimated")
             measured = NoiseModel(noise * noise + QUANTISATION_VARIANCE, 0.0)
-        else:
-            gain_source = "frames"
         fit_noise = measured
     else:
         fit_noise = NoiseModel(noise * noise + QUANTISATION_VARIANCE, 1.0 / gain_e_per_count)
