@@ -30,8 +30,9 @@ def _run_simulate(args: argparse.Namespace) -> int:
 
 def _run_info(args: argparse.Namespace) -> int:
     from daemon.model.cli import run_info
+    from daemon.network_cache import cached_network_facts  # the cache: outside the pure core
 
-    return run_info(args)
+    return run_info(args, lambda path, network: cached_network_facts(path, network, args.data_dir))
 
 
 def _heat(text: str) -> tuple[str, float]:

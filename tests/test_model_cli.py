@@ -10,15 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from daemon import model_options
 from daemon.model import ThermalModel, load_network, network_facts
-from daemon.model import cli as model_cli
 from tests.helpers import run_cli, run_in_process
 
 
 def run(command: str | list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
     """The model command alone, in-process (the real entry point is tested once below)."""
     argv = command.split() if isinstance(command, str) else command
-    return run_in_process(model_cli.register, argv, capsys)
+    return run_in_process(model_options.register, argv, capsys)
 
 
 def test_the_done_when_command_runs_through_the_real_entry_point() -> None:

@@ -13,7 +13,8 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 from config.cli import EXIT_OK, EXIT_USAGE
@@ -22,10 +23,7 @@ from daemon.model.network import NetworkError, NetworkFacts, ThermalNetwork, net
 from daemon.model.presets import load_network, network_file
 
 # the options live in daemon/model_options.py (light: `thermocomp model --help` loads no
-# NumPy or SciPy); re-exported for the callers that build the parser from here
-from daemon.model_options import DEFAULT_AMBIENT_C, register
-
-__all__ = ["DEFAULT_AMBIENT_C", "describe", "register", "run_info", "run_simulate", "simulate"]
+# NumPy or SciPy), which calls run_simulate and run_info when the command runs
 
 
 def _fail(message: str) -> int:
@@ -156,13 +154,16 @@ def describe(network: ThermalNetwork, facts: NetworkFacts | None = None) -> dict
     }
 
 
-def run_info(args: argparse.Namespace) -> int:
+def run_info(
+    args: argparse.Namespace,
+    facts_of: Callable[[Path, ThermalNetwork], NetworkFacts] | None = None,
+) -> int:
+    """``model info``; ``facts_of(file, network)`` gives the facts when the caller keeps
+    them (daemon/model_options.py: the data directory's cache), else they are computed."""
     try:
-        from daemon.network_cache import cached_network_facts  # I/O: outside the pure core
-
         network = load_network(args.network, args.data_dir)
-        path = network_file(args.network, args.data_dir)
-        document = describe(network, cached_network_facts(path, network, args.data_dir))
+        facts = facts_of(network_file(args.network, args.data_dir), network) if facts_of else None
+        document = describe(network, facts)
     except NetworkError as err:
         return _fail(str(err))
     if args.json:

@@ -45,7 +45,7 @@ from daemon.vision.centroid import CentroidError, measure_centroid
 logger = logging.getLogger(__name__)
 
 # the options live in daemon/centroid_options.py (light: `thermocomp centroid --help` loads
-# neither OpenCV nor NumPy); re-exported for the callers that build the parser from here
+# neither OpenCV nor NumPy), which calls run when the command runs
 
 #: Files a folder contributes (what OpenCV reads and a frame grabber writes).
 IMAGE_SUFFIXES = frozenset(
