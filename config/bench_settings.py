@@ -140,6 +140,14 @@ class BenchSettings(Section):
         "(a thermal frame that is not finite); @N: the N-th read since it opened.",
     )
 
+    camera_gain_e_per_count: PositiveFloat = Field(
+        1.0, description="Truth: electrons per count of the sim camera's sensor."
+    )
+    camera_reports_gain: bool = Field(
+        True,
+        description="The sim camera reports its gain with each frame (a camera that knows "
+        "its sensor); false: it does not, as a GenICam camera, and the centroid measures it.",
+    )
     camera_rotation_deg: float = Field(
         0.0,
         description="Sim camera: rotation of the image from the robot's world x / -z axes "

@@ -88,11 +88,18 @@ class CameraSettings(Section):
         "spot falls on the bare chip, so calibration = pixel pitch. The thesis's optics "
         "measured 10.22, 9.72 (lab.toml).",
     )
-    gain_e_per_count: PositiveFloat = Field(
-        1.0, description="Electrons per count, for the centroid's uncertainty estimate."
+    gain_e_per_count: PositiveFloat | None = Field(
+        None,
+        description="Electrons per count of the sensor, for the centroid's noise model (its "
+        "1-sigma and, on 8-bit or saturated frames, its fit's weights). none: the camera's "
+        "where it reports one, else measured on each frame by photon transfer "
+        "(docs/explanation/measurement-noise.md); set it only from an EMVA 1288 figure or "
+        "a photon-transfer series at the camera's gain and pixel format.",
     )
     read_noise_e: NonNegativeFloat = Field(
-        5.0, description="Read noise (electrons RMS), for the centroid's uncertainty estimate."
+        5.0,
+        description="Read noise (electrons RMS), for the centroid's noise model when the gain "
+        "is known (set or the camera's); a measured one takes the background's own noise.",
     )
     centroid_method: Literal["robust", "thesis"] = Field(
         "robust", description="robust: background-subtracted, re-centred; thesis: its replica."

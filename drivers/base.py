@@ -10,10 +10,11 @@ import enum
 from collections.abc import Coroutine
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Any, Protocol, Self
+from typing import TYPE_CHECKING, Any, Protocol, Self
 
-import numpy as np
-from numpy.typing import NDArray
+if TYPE_CHECKING:  # annotations only: `thermocomp <command> --help` loads no NumPy
+    import numpy as np
+    from numpy.typing import NDArray
 
 from drivers.errors import DeviceError
 
@@ -46,6 +47,10 @@ class Frame:
     #: software trigger + exposure), "backend" (the capture backend's stamp), "host" (when the
     #: driver received the frame: late by readout and transfer; issue 18)
     timestamp_source: str = "host"
+    #: electrons per count of the sensor as the camera reports it, for the centroid's noise
+    #: model; None: the camera does not say (GenICam's SFNC has no node for it: ``Gain`` is a
+    #: relative dB figure), and the centroid measures it on the frame
+    gain_e_per_count: float | None = None
 
 
 class Camera(AsyncDevice, Protocol):

@@ -12,9 +12,6 @@ from __future__ import annotations
 import math
 import re
 
-import numpy as np
-
-from daemon.arm.types import Pose6
 from drivers.base import DEFAULT_GOAL, Vector3
 from drivers.errors import DeviceError
 
@@ -61,5 +58,9 @@ def rotation_zyx_deg(rotation_rad: Vector3, device: str) -> Vector3:
     require_finite(rotation_rad, "rotation", device)
     if not any(rotation_rad):
         return (0.0, 0.0, 0.0)
+    import numpy as np  # here: the console's checks and `--help` load without NumPy
+
+    from daemon.arm.types import Pose6
+
     z, y, x = Pose6(np.zeros(3), np.array(rotation_rad, dtype=np.float64)).zyx_deg()
     return (z, y, x)

@@ -181,6 +181,8 @@ class FakeCamera:
         self.sequence = 0
         self.age_s = 0.0
         self.gates: dict[int, Gate] = {}  # grab number (0 = the reference frame) -> gate
+        # as the sim camera, it reports its sensor's gain; None: as a GenICam camera
+        self.gain_e_per_count: float | None = 1.0
 
     async def __aenter__(self) -> Self:
         return self
@@ -198,7 +200,14 @@ class FakeCamera:
         self.sequence += 1
         # stamped at its exposure, as the sim camera: the fake knows the time exactly
         timestamp_s = self.bench.clock.now() - self.age_s
-        return Frame(image, 16, timestamp_s, self.sequence, timestamp_source="camera")
+        return Frame(
+            image,
+            16,
+            timestamp_s,
+            self.sequence,
+            timestamp_source="camera",
+            gain_e_per_count=self.gain_e_per_count,
+        )
 
 
 class FakeIr:
@@ -257,9 +266,12 @@ class Harness:
         self.clock = make_clock(settings.bench.clock, settings.bench.time_factor)
         self.devices: FakeDevices | None = None
         self.daemon = Daemon(settings, clock=self.clock, open_devices=self._open)
+        #: what the camera reports of its sensor's gain (None: nothing, as GenICam)
+        self.camera_gain_e_per_count: float | None = 1.0
 
     def _open(self, settings: Settings, clock: Clock) -> FakeDevices:
         self.devices = FakeDevices(clock, dict(settings.model.heat_w))
+        self.devices.camera.gain_e_per_count = self.camera_gain_e_per_count
         return self.devices
 
     @property

@@ -65,7 +65,11 @@ async def capture_reference(work: RunWork, services: SessionServices) -> None:
     try:
         frame = await services.sensors.grab()
         result = await services.workers.step(
-            measure_with_camera_settings, frame.image, services.settings.camera
+            functools.partial(
+                measure_with_camera_settings, camera_gain_e_per_count=frame.gain_e_per_count
+            ),
+            frame.image,
+            services.settings.camera,
         )
     except (DeviceError, CentroidError) as err:
         if isinstance(err, DeviceError):

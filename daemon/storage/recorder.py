@@ -16,10 +16,8 @@ never share a lock).
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import fcntl
-import io
 import json
 import logging
 import os
@@ -37,6 +35,7 @@ from numpy.typing import NDArray
 from config import redact_secrets
 from daemon.analysis import RunSteps, steps_from_rows
 from daemon.storage.step_record import STEP_COLUMNS, STEPS_SCHEMA, StepRecord, column_type
+from daemon.storage.step_text import CSV_HEADER, step_text
 
 # StepRecord and STEP_COLUMNS (daemon/storage/step_record.py) are what this module records: exported
 # with it
@@ -53,7 +52,6 @@ __all__ = [
     "StepRecord",
     "read_steps",
     "step_rows",
-    "write_steps_csv",
 ]
 
 logger = logging.getLogger(__name__)
@@ -309,9 +307,8 @@ class Recorder:
     def export_csv(self, run_id: int, path: Path | None = None) -> str:
         """The run's steps as CSV (header = STEP_COLUMNS, empty cell = missing); written to
         ``path`` when given. Returns the text."""
-        buffer = io.StringIO()
-        write_steps_csv(self.steps(run_id), buffer)
-        text = buffer.getvalue()
+        with self._read() as db:
+            text = CSV_HEADER + "\n" + step_text(db, run_id, 0, None, json=False)[0]
         if path is not None:
             Path(path).write_text(text, encoding="utf-8")
         return text
@@ -390,17 +387,6 @@ def step_rows(
     )
     for row in cursor:
         yield dict(zip(columns, row, strict=True))
-
-
-def write_steps_csv(records: Sequence[StepRecord], stream: io.TextIOBase | Any) -> None:
-    writer = csv.writer(stream, lineterminator="\n")
-    writer.writerow(STEP_COLUMNS)
-    for record in records:
-        writer.writerow("" if v is None else _csv_cell(v) for v in dataclasses.astuple(record))
-
-
-def _csv_cell(value: object) -> object:
-    return repr(value) if isinstance(value, float) else value
 
 
 def _claim(lock_path: Path) -> IO[str]:

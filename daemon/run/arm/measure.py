@@ -65,9 +65,10 @@ class MarkerView:
 
 @dataclass(frozen=True, slots=True)
 class SensorNoise:
-    """What the centroid's 1-sigma needs of a camera's sensor (its [camera] settings)."""
+    """What the centroid's 1-sigma needs of a camera's sensor (its [camera] settings); no
+    gain: the frame's (the camera's), else measured on the frame."""
 
-    gain_e_per_count: float = 1.0
+    gain_e_per_count: float | None = None
     read_noise_e: float = 5.0
 
 
@@ -118,8 +119,11 @@ def marker_views(
                 result = measure_centroid(
                     image[r0:r1, c0:c1],
                     bit_depth=frame.bit_depth,
-                    gain_e_per_count=noise.gain_e_per_count,
+                    gain_e_per_count=noise.gain_e_per_count
+                    if noise.gain_e_per_count is not None
+                    else frame.gain_e_per_count,
                     read_noise_e=noise.read_noise_e,
+                    gain_source="config" if noise.gain_e_per_count is not None else "camera",
                 )
             except CentroidError:
                 continue
