@@ -28,7 +28,6 @@ from config.cli import (
     positive_float,
 )
 from daemon.run.states import RunParameters, RunState, RunStateError
-from daemon.storage.recorder import RecorderError
 
 if TYPE_CHECKING:  # the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not
     # for `thermocomp run --help`
@@ -140,6 +139,8 @@ def run_command(args: argparse.Namespace) -> int:
     except ValidationError as err:
         print(f"thermocomp run: invalid run parameters:\n{_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
+
+    from daemon.storage.recorder import RecorderError  # NumPy: loaded to run, not for --help
 
     try:
         return asyncio.run(_run(settings, parameters, args))
