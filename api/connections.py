@@ -11,11 +11,10 @@ How it works (docs/explanation/api-connections.md has the numbers):
   protocol. Silent and trickling sockets never take one of uvicorn's ``api.max_connections``
   slots.
 - **Pending connections are bounded, oldest out first.** Beyond ``PENDING_MAX`` the oldest
-  pending connections are closed (silent ones before those that sent part of a head) once
-  they are ``PENDING_MIN_AGE_S`` old, and only after the event loop has read what the newest
-  ones sent: a flood of held-open sockets pushes out its own oldest members, while a client
-  that sends its request with its connection (a hold) is served. ``PENDING_HARD_MAX`` bounds
-  the descriptors at every moment, whatever the ages.
+  pending connections are closed (silent ones before those that sent part of a head), and
+  only after the event loop has read what the newest ones sent: a flood of held-open sockets
+  pushes out its own oldest members, while a client that sends its request with its
+  connection (a hold) is served.
 - **The cap answers 503, except to a hold.** A connection whose head arrives while
   ``api.max_connections`` connections are served gets a 503 and is closed -- unless the head
   is a request that holds the robot (``POST /robot/stop``, ``/runs/{id}/stop``,
@@ -59,24 +58,26 @@ from uvicorn.importer import import_from_string
 
 logger = logging.getLogger(__name__)
 
-#: Connections whose first request head has not arrived yet, kept at most once they are
-#: PENDING_MIN_AGE_S old (the oldest beyond it are closed, silent ones first).
-PENDING_MAX = 128
-#: Every pending connection gets this long to send its request before it may be closed for
-#: being one too many (s): a client sends its request one round trip after connecting, a
-#: flood's sockets are older. Only PENDING_HARD_MAX cuts it shorter.
-PENDING_MIN_AGE_S = 2.0
-#: Pending connections beyond which the oldest is closed at once, however young: the bound
-#: on descriptors. A hold survives a storm of new connections for at least
-#: min(PENDING_MIN_AGE_S, PENDING_HARD_MAX / rate): 2 s up to 512 connections/s.
-PENDING_HARD_MAX = 1024
+#: Connections whose first request head has not arrived yet, kept at most: beyond it the
+#: oldest are closed, silent ones first, after the event loop's round of reads (see
+#: ConnectionGuard.arrived). The bound on their descriptors; until it is reached every
+#: connection has its whole request deadline to send its request, which a client whose
+#: packets the kernel dropped in a flood (and TCP resent 1-3 s later) needs. A hold survives
+#: a storm of new connections for at least min(api.request_timeout_s, PENDING_MAX / rate).
+PENDING_MAX = 1024
+#: The listen backlog (uvicorn's default): the kernel queues this many connections not yet
+#: accepted, and asyncio accepts up to this many in one go.
+LISTEN_BACKLOG = 2048
 #: Connections served beyond ``api.max_connections`` for requests that hold the robot.
 CONTROL_RESERVE = 16
 #: Descriptors the server may hold beyond ``api.max_connections`` (api/startup.py's
-#: descriptor check and deploy/thermocomp.service's LimitNOFILE count them).
-ACCEPT_MARGIN = PENDING_HARD_MAX + CONTROL_RESERVE
+#: descriptor check and deploy/thermocomp.service's LimitNOFILE count them): the pending
+#: bound, two accept bursts on their way to it (accepted, not yet judged), the reserve.
+ACCEPT_MARGIN = PENDING_MAX + 2 * LISTEN_BACKLOG + CONTROL_RESERVE
 #: Largest first request head read before handing over (bytes): browsers send a few KiB.
 MAX_HEAD_BYTES = 64 * 1024
+#: asyncio may run a timer this early (its clock resolution, rounded up) (s).
+CLOCK_SLACK_S = 0.001
 #: At most one warning about closed connections per this many seconds (no journal floods).
 WARN_INTERVAL_S = 10.0
 
@@ -134,16 +135,12 @@ class ConnectionGuard:
         *,
         http: str = "auto",
         pending_max: int = PENDING_MAX,
-        pending_min_age_s: float = PENDING_MIN_AGE_S,
-        pending_hard_max: int = PENDING_HARD_MAX,
         control_reserve: int = CONTROL_RESERVE,
     ) -> None:
         self.max_connections = max_connections
         self.request_timeout_s = request_timeout_s
         self.admits_hold = admits_hold
         self.pending_max = pending_max
-        self.pending_min_age_s = pending_min_age_s
-        self.pending_hard_max = max(pending_hard_max, pending_max)
         self.control_reserve = control_reserve
         # uvicorn's own HTTP protocol, by the public name its Config takes ("auto" is
         # httptools when installed, else h11)
@@ -187,14 +184,7 @@ class ConnectionGuard:
         now = loop.time()
         self._silent[connection] = now
         self._loop = loop
-        pending = len(self._silent) + len(self._started)
-        if pending > self.pending_hard_max:  # the descriptor bound holds at every moment
-            evicted = self._close(self._silent, pending - self.pending_hard_max, float("inf"))
-            evicted += self._close(self._started, self.pending - self.pending_hard_max, now)
-            if evicted:
-                self.counts["evicted"] += evicted
-                self.note_dropped("the oldest connections without a request: too many", evicted)
-        if pending > self.pending_max:
+        if len(self._silent) + len(self._started) > self.pending_max:
             self._wake_at(now)
         else:
             self._wake_at(now + self.request_timeout_s)
@@ -223,34 +213,28 @@ class ConnectionGuard:
         assert self._loop is not None
         now = self._loop.time()
         # silent beyond the request deadline (the ones that began have their own timer)
-        timed_out = self._close(self._silent, len(self._silent), now - self.request_timeout_s)
+        deadline = now - self.request_timeout_s + CLOCK_SLACK_S
+        timed_out = self._close(self._silent, len(self._silent), deadline)
         if timed_out:
             self.counts["timed_out"] += timed_out
             self.note_dropped(f"no request within {self.request_timeout_s:g} s", timed_out)
-        evicted = 0
         excess = self.pending - self.pending_max
-        young_excess = excess
-        for queue in (self._silent, self._started):
-            young_excess -= self._close(queue, young_excess, now - self.pending_min_age_s)
-        evicted += excess - young_excess
+        evicted = self._close(self._silent, excess, float("inf"))
+        evicted += self._close(self._started, excess - evicted, float("inf"))
         if evicted:
             self.counts["evicted"] += evicted
             self.note_dropped("the oldest connections without a request: too many", evicted)
-        if self._silent or self._started:
-            oldest = min(next(iter(q.values())) for q in (self._silent, self._started) if q)
-            when = next(iter(self._silent.values()), now) + self.request_timeout_s
-            if young_excess > 0:  # too many, all too young: again when the oldest is not
-                when = min(when, oldest + self.pending_min_age_s)
-            self._wake_at(max(when, now))
+        if self._silent:
+            self._wake_at(max(next(iter(self._silent.values())) + self.request_timeout_s, now))
 
     @staticmethod
     def _close(queue: dict[GuardedConnection, float], count: int, arrived_before: float) -> int:
-        """Close up to ``count`` connections of ``queue`` (oldest first) that arrived before
-        ``arrived_before``; how many."""
+        """Close up to ``count`` connections of ``queue`` (oldest first) that arrived at or
+        before ``arrived_before``; how many."""
         closed = 0
         while closed < count and queue:
             oldest, arrived = next(iter(queue.items()))
-            if arrived >= arrived_before:
+            if arrived > arrived_before:
                 break
             del queue[oldest]
             closed += 1
@@ -407,7 +391,10 @@ class GuardedConnection(asyncio.Protocol):
         inner = self.inner
         if inner is not None:
             return inner.eof_received()  # type: ignore[attr-defined,no-any-return]
-        return None  # a pending client that gave up: the transport closes
+        if self.pending:  # a client that gave up (the transport closes): not one to evict
+            self.pending = False
+            self.guard.left_pending(self)
+        return None
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._disarm()

@@ -35,7 +35,7 @@ from fastapi import FastAPI
 from pydantic import ValidationError
 
 from api.app import DaemonStartFailed, create_app, open_service, serving
-from api.connections import ConnectionGuard
+from api.connections import LISTEN_BACKLOG, ConnectionGuard
 from api.deps import ApiContext, grants_control, holds_robot
 from api.startup import StartupError, limit_repeated_logs, preflight
 from config import ConfigError, Settings, load_settings
@@ -110,6 +110,7 @@ def server_config(settings: Settings, app: FastAPI, guard: ConnectionGuard) -> u
         # own HTTP protocol, so uvicorn's limit_concurrency (whose 503 would meet the hold
         # too) is not used; an idle keep-alive connection closes after 5 s
         http=guard.protocol,
+        backlog=LISTEN_BACKLOG,
         timeout_keep_alive=KEEP_ALIVE_S,
     )
 

@@ -11,6 +11,8 @@ Scenarios (the last two written to break the guard):
 - ``none``: no flood (the reference);
 - ``held-300``: 300 silent sockets kept open, each one the server closes opened again
   (issue 26: 0 of 75 holds got through);
+- ``held-1500``: the same with 1,500, more than the guard keeps pending (PENDING_MAX): the
+  oldest are closed and reopened all the time;
 - ``connect-close``: connect and close back to back (issue 26: 5 of 26 holds dropped);
 - ``cap-full``: ``api.max_connections`` (256) connections kept served with a request every
   second each, plus ordinary requests beyond them (which must get 503);
@@ -76,8 +78,8 @@ def flood(kind: str, port: int, seconds: float, results: Any) -> None:
     """One flood process: runs ``kind`` for ``seconds``, puts its counts on ``results``."""
     stats: dict[str, int] = {}
     until = time.monotonic() + seconds
-    if kind == "held-300":
-        with HeldSockets(port, 300, limit_s=seconds) as held:
+    if kind.startswith("held-"):
+        with HeldSockets(port, int(kind.split("-")[1]), limit_s=seconds) as held:
             time.sleep(seconds)
         stats = {"opened": held.opened, "closed_by_server": held.closed_by_server}
     elif kind == "churn-300":
@@ -161,6 +163,7 @@ def main() -> int:
     scenarios = [
         ("none", 0),
         ("held-300", 1),
+        ("held-1500", 1),
         ("connect-close", 1),
         ("cap-full", 1),
         ("churn-300", 2),

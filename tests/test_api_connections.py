@@ -20,7 +20,7 @@ import uvicorn
 from websockets.asyncio.client import connect
 
 from api.app import create_app
-from api.connections import PENDING_MAX, ConnectionGuard
+from api.connections import ConnectionGuard
 from api.serve import connection_guard, server_config
 from config import Settings
 from tests.flood import FloodProcess, exchange, request, send_hold
@@ -52,7 +52,10 @@ def settings(**api: Any) -> Settings:
 
 @asynccontextmanager
 async def guarded(
-    config: Settings, http: str = "auto", keep_alive_s: int | None = None
+    config: Settings,
+    http: str = "auto",
+    keep_alive_s: int | None = None,
+    pending_max: int | None = None,
 ) -> AsyncIterator[tuple[int, ConnectionGuard, HoldCounter]]:
     """The application under the daemon's own uvicorn configuration (api.serve) on a free
     loopback port, with ``http`` as uvicorn's HTTP implementation behind the guard."""
@@ -60,6 +63,8 @@ async def guarded(
     daemon = HoldCounter()
     app.state.context.service = cast(Any, daemon)
     guard = connection_guard(config, app.state.context, http)
+    if pending_max is not None:
+        guard.pending_max = pending_max
     uvicorn_config = server_config(config, app, guard)
     if keep_alive_s is not None:
         uvicorn_config.timeout_keep_alive = keep_alive_s
@@ -121,6 +126,9 @@ async def holds_through(port: int, token: str | None = CONTROL, count: int = HOL
 # --- the hold gets through ------------------------------------------------------------------
 
 
+#: Pending connections kept at most in the floods below: fewer than the flood's sockets, so
+#: that the pool is full and turns over (api.connections.PENDING_MAX is larger).
+POOL = 128
 #: New connections a second in the storms below: well within what the server accepts on a
 #: busy 2-core machine, so that what is tested is the guard, not the kernel's listen queue
 #: (beyond it the kernel drops connections, a hold's too, and TCP retries them a second
@@ -134,12 +142,11 @@ async def test_300_held_open_sockets_never_keep_the_hold_out(http: str) -> None:
     """Issue 26: 300 sockets kept open let 0 of 75 holds in. They never reach uvicorn now:
     the oldest are closed, the holds are served, each one."""
     config = settings(request_timeout_s=60.0)  # the sockets are not dropped by the deadline
-    async with guarded(config, http) as (port, guard, daemon):
+    async with guarded(config, http, pending_max=POOL) as (port, guard, daemon):
         with FloodProcess("held", port, count=300, limit_s=60.0) as flood:
             statuses = await holds_through(port)
             assert guard.served == 0  # not one silent socket was handed to uvicorn
-            # the pool is trimmed to PENDING_MAX once its sockets are old enough
-            await until(lambda: guard.counts["evicted"] >= 300 - PENDING_MAX)
+            await until(lambda: guard.counts["evicted"] >= 300 - POOL)  # the oldest went
         assert statuses == [200] * HOLDS, (flood.counts, guard.counts)
         assert daemon.holds == HOLDS
         await settle(guard, served=0, pending=0)
@@ -150,7 +157,8 @@ async def test_300_held_open_sockets_never_keep_the_hold_out(http: str) -> None:
 async def test_a_storm_of_new_silent_connections_never_keeps_the_hold_out(http: str) -> None:
     """300 silent sockets open at any time, new ones opened back to back: the pending pool
     turns over, and the holds still get in."""
-    async with guarded(settings(request_timeout_s=60.0), http) as (port, guard, daemon):
+    config = settings(request_timeout_s=60.0)
+    async with guarded(config, http, pending_max=POOL) as (port, guard, daemon):
         with FloodProcess(
             "churn", port, count=300, limit_s=60.0, rate_per_s=STORM_RATE_PER_S
         ) as flood:
@@ -164,7 +172,7 @@ async def test_a_storm_of_new_silent_connections_never_keeps_the_hold_out(http: 
 @pytest.mark.parametrize("http", IMPLEMENTATIONS)
 async def test_a_connect_close_storm_never_keeps_the_hold_out(http: str) -> None:
     """Issue 26: a plain connect/close flood dropped 5 of 26 holds."""
-    async with guarded(settings(), http) as (port, guard, daemon):
+    async with guarded(settings(), http, pending_max=POOL) as (port, guard, daemon):
         with FloodProcess(
             "connect-close", port, limit_s=60.0, rate_per_s=STORM_RATE_PER_S
         ) as flood:
@@ -277,9 +285,7 @@ async def test_the_oldest_silent_connections_go_first() -> None:
     """Beyond the pending pool the oldest silent sockets are closed; one that has begun its
     request outlives silent ones that came after it."""
     app = create_app(settings())
-    guard = ConnectionGuard(
-        8, 30.0, lambda *_: False, pending_max=4, pending_min_age_s=0.0, pending_hard_max=6
-    )
+    guard = ConnectionGuard(8, 30.0, lambda *_: False, pending_max=4)
     server = uvicorn.Server(server_config(settings(), app, guard))
     task = asyncio.create_task(server.serve())
     sockets: list[socket.socket] = []
