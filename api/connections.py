@@ -189,9 +189,9 @@ class ConnectionGuard:
         else:
             self._wake_at(now + self.request_timeout_s)
 
-    def began(self, connection: GuardedConnection) -> float:
+    def began(self, connection: GuardedConnection, now: float) -> float:
         """``connection`` sent its first bytes (it is still pending): when it arrived."""
-        arrived = self._silent.pop(connection)
+        arrived = self._silent.pop(connection, now)
         self._started[connection] = arrived
         return arrived
 
@@ -356,7 +356,7 @@ class GuardedConnection(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         if self.pending and not self._head:
             # its first bytes: the request deadline still counts from the connection's start
-            arrived = self.guard.began(self)
+            arrived = self.guard.began(self, self._now())
             self._parser = httptools.HttpRequestParser(self)
             self._arm(arrived + self.guard.request_timeout_s)
         parser = self._parser
