@@ -155,6 +155,10 @@ class ConnectionGuard:
         self._started: dict[GuardedConnection, float] = {}
         self._sweep: asyncio.TimerHandle | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
+        # served connections with a request under way -> when it began, oldest first (a
+        # request is added when it begins, so insertion order is time order)
+        self._in_request: dict[GuardedConnection, float] = {}
+        self._request_sweep: asyncio.TimerHandle | None = None
         self.counts = {"evicted": 0, "refused": 0, "timed_out": 0, "held_beyond_cap": 0}
         self._last_warning = -WARN_INTERVAL_S
         self._unreported = 0
@@ -241,6 +245,42 @@ class ConnectionGuard:
             oldest.evict()
         return closed
 
+    # --- requests on served connections -----------------------------------------------------
+    #
+    # One timer for all of them, at the oldest request's deadline: a timer per request (armed
+    # and cancelled around every request) cost /state a measurable share of its throughput.
+
+    def request_began(self, connection: GuardedConnection, now: float) -> None:
+        self._in_request.pop(connection, None)
+        self._in_request[connection] = now
+        if self._request_sweep is None:
+            assert self._loop is not None
+            self._request_sweep = self._loop.call_at(
+                now + self.request_timeout_s, self._sweep_requests
+            )
+
+    def request_ended(self, connection: GuardedConnection) -> None:
+        self._in_request.pop(connection, None)
+
+    def _sweep_requests(self) -> None:
+        self._request_sweep = None
+        assert self._loop is not None
+        now = self._loop.time()
+        limit = now - self.request_timeout_s + CLOCK_SLACK_S
+        expired = []
+        for connection, began in self._in_request.items():
+            if began > limit:
+                break
+            expired.append(connection)
+        for connection in expired:
+            del self._in_request[connection]
+            connection.timed_out()
+        if self._in_request:
+            oldest = next(iter(self._in_request.values()))
+            self._request_sweep = self._loop.call_at(
+                max(oldest + self.request_timeout_s, now), self._sweep_requests
+            )
+
     # --- served connections ----------------------------------------------------------------
 
     def admit(self, method: str, path: str, authorization: str | None) -> bool | None:
@@ -269,9 +309,11 @@ class ConnectionGuard:
 
     def close(self) -> None:
         """Close every pending connection (the server has stopped serving)."""
-        if self._sweep is not None:
-            self._sweep.cancel()
-            self._sweep = None
+        for sweep in (self._sweep, self._request_sweep):
+            if sweep is not None:
+                sweep.cancel()
+        self._sweep = self._request_sweep = None
+        self._in_request.clear()
         for connection in [*self._silent, *self._started]:
             self.left_pending(connection)
             connection.evict()
@@ -338,8 +380,6 @@ class GuardedConnection(asyncio.Protocol):
         self._parser: httptools.HttpRequestParser | None = None
         self._deadline: asyncio.TimerHandle | None = None
         self._head = bytearray()  # the first request's bytes, while pending
-        self._url = b""
-        self._authorization: bytes | None = None
         self._head_complete = False
         self.pending = True
         self._served = False
@@ -369,11 +409,13 @@ class GuardedConnection(asyncio.Protocol):
                 # the request deadline, or be closed.
                 self._parser = None
                 self._disarm()
+                self.guard.request_ended(self)
                 self._arm(self._now() + self.guard.request_timeout_s)
             except httptools.HttpParserError:
                 # malformed: uvicorn's own parser answers 400 and closes
                 self._parser = None
                 self._disarm()
+                self.guard.request_ended(self)
                 self._head_complete = True
         inner = self.inner
         if inner is not None:
@@ -398,6 +440,7 @@ class GuardedConnection(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._disarm()
+        self.guard.request_ended(self)
         self._parser = None
         if self.pending:
             self.pending = False
@@ -419,23 +462,22 @@ class GuardedConnection(asyncio.Protocol):
 
     # --- httptools parser callbacks ----------------------------------------------------------
 
+    # Only these three: a callback per header or URL piece would cost every request; the first
+    # request's head is read from its bytes once (_decide).
+
     def on_message_begin(self) -> None:
-        if self._deadline is None:  # (the first request's is armed already)
-            self._arm(self._now() + self.guard.request_timeout_s)
-
-    def on_url(self, url: bytes) -> None:
-        if self.pending:
-            self._url += url
-
-    def on_header(self, name: bytes, value: bytes) -> None:
-        if self.pending and name.lower() == b"authorization":
-            self._authorization = value
+        if self._deadline is None:  # (the first request's runs from the connection's start)
+            assert self._loop is not None
+            self.guard.request_began(self, self._loop.time())
 
     def on_headers_complete(self) -> None:
         self._head_complete = True
 
     def on_message_complete(self) -> None:
-        self._disarm()
+        if self._deadline is not None:
+            self._disarm()
+        else:
+            self.guard.request_ended(self)
 
     # --- the guard's decisions ---------------------------------------------------------------
 
@@ -443,6 +485,7 @@ class GuardedConnection(asyncio.Protocol):
         """uvicorn switched the connection to ``protocol`` (a WebSocket)."""
         self.inner = protocol
         self._disarm()
+        self.guard.request_ended(self)
 
     def evict(self) -> None:
         self.pending = False
@@ -453,12 +496,8 @@ class GuardedConnection(asyncio.Protocol):
     def _decide(self) -> None:
         self.pending = False
         self.guard.left_pending(self)
-        method = self._parser.get_method().decode("latin-1") if self._parser else ""
-        path = self._url.split(b"?", 1)[0].decode("latin-1")
-        token = self._authorization
-        admitted = self.guard.admit(
-            method, path, token.decode("latin-1") if token is not None else None
-        )
+        method, path, authorization = _head_facts(self._head)
+        admitted = self.guard.admit(method, path, authorization)
         if admitted is None:
             self._answer_and_close(_busy(self.guard.max_connections))
             return
@@ -497,6 +536,10 @@ class GuardedConnection(asyncio.Protocol):
 
     def _timed_out(self) -> None:
         self._deadline = None
+        self.timed_out()
+
+    def timed_out(self) -> None:
+        """The request deadline has passed: close the connection."""
         transport = self._transport
         if transport is not None and not transport.is_closing():
             self.guard.counts["timed_out"] += 1
@@ -504,3 +547,22 @@ class GuardedConnection(asyncio.Protocol):
                 f"no complete request within {self.guard.request_timeout_s:g} s"
             )
             transport.close()
+
+
+def _head_facts(head: bytes | bytearray) -> tuple[str, str, str | None]:
+    """The method, the path (without the query) and the Authorization header of the first
+    request in ``head``, which the parser has found whole (its head, that is; body bytes may
+    follow)."""
+    lines = bytes(head).split(b"\n")
+    method, _, rest = lines[0].rstrip(b"\r").partition(b" ")
+    target = rest.partition(b" ")[0]
+    authorization = None
+    for raw in lines[1:]:
+        line = raw.rstrip(b"\r")
+        if not line:
+            break
+        name, _, value = line.partition(b":")
+        if name.strip().lower() == b"authorization":
+            authorization = value.strip().decode("latin-1")
+    path = target.partition(b"?")[0].decode("latin-1")
+    return method.decode("latin-1"), path, authorization
