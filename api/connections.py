@@ -64,7 +64,7 @@ logger = logging.getLogger(__name__)
 #: connection has its whole request deadline to send its request, which a client whose
 #: packets the kernel dropped in a flood (and TCP resent 1-3 s later) needs. A hold survives
 #: a storm of new connections for at least min(api.request_timeout_s, PENDING_MAX / rate).
-PENDING_MAX = 1024
+PENDING_MAX = 2048
 #: The listen backlog (uvicorn's default): the kernel queues this many connections not yet
 #: accepted, and asyncio accepts up to this many in one go.
 LISTEN_BACKLOG = 2048

@@ -11,7 +11,7 @@ Scenarios (the last two written to break the guard):
 - ``none``: no flood (the reference);
 - ``held-300``: 300 silent sockets kept open, each one the server closes opened again
   (issue 26: 0 of 75 holds got through);
-- ``held-1500``: the same with 1,500, more than the guard keeps pending (PENDING_MAX): the
+- ``held-3000``: the same with 3,000, more than the guard keeps pending (PENDING_MAX): the
   oldest are closed and reopened all the time;
 - ``connect-close``: connect and close back to back (issue 26: 5 of 26 holds dropped);
 - ``cap-full``: ``api.max_connections`` (256) connections kept served with a request every
@@ -163,7 +163,7 @@ def main() -> int:
     scenarios = [
         ("none", 0),
         ("held-300", 1),
-        ("held-1500", 1),
+        ("held-3000", 1),
         ("connect-close", 1),
         ("cap-full", 1),
         ("churn-300", 2),
