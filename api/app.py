@@ -76,28 +76,13 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        if service_factory is None:
+            yield
+            return
         async with AsyncExitStack() as stack:
-            relay: asyncio.Task[None] | None = None
-            if service_factory is not None:
-                try:
-                    daemon = await stack.enter_async_context(service_factory(settings))
-                except (DeviceError, RecorderError, ConfigError, OSError) as err:
-                    # a device that is there but does not answer (the start-up checks,
-                    # api/startup.py, found it present): one line, not a traceback; uvicorn
-                    # exits with 3, the status of a device failure
-                    logger.error("cannot start the daemon: %s", err)
-                    raise DaemonStartFailed(str(err)) from None
-                logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
-                context.service = daemon
-                relay = asyncio.create_task(Relay(daemon, context).run(), name="api-relay")
-            try:
+            daemon = await open_service(stack, settings, service_factory)
+            async with serving(context, daemon):
                 yield
-            finally:
-                context.service = None
-                if relay is not None:
-                    relay.cancel()
-                    with contextlib.suppress(asyncio.CancelledError):
-                        await relay
 
     app = FastAPI(
         title="thermocomp",
@@ -139,6 +124,39 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
     app.router.routes.insert(0, _polled_state_route(context))
     install_openapi(app, context.auth.anonymous_read)
     return app
+
+
+async def open_service(
+    stack: AsyncExitStack, settings: Settings, service_factory: ServiceFactory
+) -> Daemon:
+    """Open the daemon (devices, recording) on ``stack``, which closes it; a device or
+    recording that fails is logged in one line and raised as :class:`DaemonStartFailed`."""
+    try:
+        return await stack.enter_async_context(service_factory(settings))
+    except (DeviceError, RecorderError, ConfigError, OSError) as err:
+        # a device that is there but does not answer (the start-up checks, api/startup.py,
+        # found it present): one line, not a traceback; `serve` exits with 3, the status of
+        # a device failure
+        logger.error("cannot start the daemon: %s", err)
+        raise DaemonStartFailed(str(err)) from None
+
+
+@asynccontextmanager
+async def serving(context: ApiContext, daemon: Daemon) -> AsyncIterator[None]:
+    """The application's routes and WebSocket relay drive ``daemon`` while inside; then they
+    answer 503 again (the application's lifespan, or ``thermocomp serve``, which owns the
+    daemon itself: api/serve.py)."""
+    settings = context.settings
+    logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
+    context.service = daemon
+    relay = asyncio.create_task(Relay(daemon, context).run(), name="api-relay")
+    try:
+        yield
+    finally:
+        context.service = None
+        relay.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await relay
 
 
 def _polled_state_route(context: ApiContext) -> Route:
