@@ -23,6 +23,7 @@ from daemon.arm.run import CyclePose, MeasuredPose
 from daemon.arm.types import Pose6
 from daemon.run.arm.player import ArmPlayer
 from daemon.run.arm.robot import GoalRobotArm
+from daemon.run.arm.step import ArmRunWork, ArmStepPipeline
 from daemon.run.setup import RunParameterError
 from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
@@ -436,3 +437,46 @@ async def test_a_played_run_with_a_scaled_clock_is_refused(tmp_path: Path) -> No
     async with Daemon(settings, clock=make_clock("virtual")) as daemon:
         with pytest.raises(RunParameterError, match="time_scale 1"):
             await daemon.start_run(RunParameters.from_settings(settings, time_scale=240.0))
+
+
+async def test_the_played_step_limit_is_against_the_correction_sent() -> None:
+    """Issue 26: with two steps between visits of a pose, each accepted change was within
+    the step limit of the last ACCEPTED correction, but the player sent both at once: the
+    robot jumped by their sum. The limit is against the correction the robot was sent."""
+    settings = Settings.model_validate({"arm": {"max_step_translation_mm": 0.2}})
+    clock = VirtualClock()
+    cycle = fake_cycle()
+    player = ArmPlayer(FakeRobot(clock), cycle, clock, run_id=1)
+    pipeline = ArmStepPipeline(
+        settings,
+        robot=cast(Any, None),
+        meter=cast(Any, None),
+        sensors=cast(Any, None),
+        recorder=cast(Any, None),
+        workers=cast(Any, None),
+        errors=cast(Any, None),
+        clock_now=clock.now,
+        player=player,
+    )
+    work = ArmRunWork(
+        1,
+        RunParameters.from_settings(settings),
+        cast(Any, None),
+        tuple(entry.pose for entry in cycle if entry.measured),
+        cycle=cycle,
+    )
+
+    def errors(x_mm: float) -> dict[str, Pose6]:
+        return {entry.name: Pose6(np.array([x_mm, 0.0, 0.0]), np.zeros(3)) for entry in cycle}
+
+    assert pipeline._hand_to_player(work, player, errors(0.15)) is None  # 0.15 from 0: sent
+    assert not player.sent_correction("c").translation_mm.any()  # ... once the robot goes
+    refused = pipeline._hand_to_player(work, player, errors(0.30))  # 0.15 from the last
+    assert refused is not None and "refused" in refused  # accepted, 0.30 from the last sent
+    assert float(player.correction("c").translation_mm[0]) == pytest.approx(-0.15)
+    player.start()
+    arrival = await player.arrive("c")  # the robot goes there with -0.15: now it was sent
+    player.release()
+    await player.stop()
+    assert float(arrival.correction.translation_mm[0]) == pytest.approx(-0.15)
+    assert pipeline._hand_to_player(work, player, errors(0.30)) is None  # 0.15 from -0.15

@@ -89,6 +89,10 @@ class ArmPlayer:
         self._clock = clock
         self._run_id = run_id
         self._corrections: dict[str, Pose6] = {}
+        #: the correction of the latest move into each cycle pose that the robot made: the
+        #: step limits apply against it (daemon/run/arm/step.py), not against the latest one
+        #: handed over, which the robot may not have been sent yet (issue 26)
+        self._sent: dict[str, Pose6] = {}
         self.next_index = 0  # the pose the next move goes to
         self.moves = 0
         self.error: DeviceError | None = None
@@ -115,6 +119,11 @@ class ArmPlayer:
 
     def correction(self, name: str) -> Pose6:
         return self._corrections.get(name, Pose6.zero())
+
+    def sent_correction(self, name: str) -> Pose6:
+        """The correction the robot last moved into the cycle pose ``name`` with (zero: only
+        taught so far)."""
+        return self._sent.get(name, Pose6.zero())
 
     # --- the session's side --------------------------------------------------------------
 
@@ -220,6 +229,7 @@ class ArmPlayer:
                         )
                     finally:
                         self._moving = False
+                    self._sent[entry.name] = correction
                     arrived_s = clock.now()
                     self.next_index = (self.next_index + 1) % count
                     self.moves += 1
