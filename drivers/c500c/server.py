@@ -239,7 +239,9 @@ class C500CServerRobot(ServerLink):
 
     async def resume(self) -> None:
         """Allow motion again: the link must be up and the program must still hold the goal
-        taught (it forgets it when restarted); then RELEASE."""
+        taught (it forgets it when restarted); then RELEASE. A hold that comes while this runs
+        wins: MotionHeldError, and the hold stays (HOLD is written after RELEASE)."""
+        holds_before = self._holds
         if self._link is not LinkState.CONNECTED:
             raise NotConnectedError(DEVICE, f"cannot resume while {self._link.value}")
         reply = self._check(
@@ -256,6 +258,10 @@ class C500CServerRobot(ServerLink):
             ),
             motion=False,
         )
+        if self._holds != holds_before:
+            raise MotionHeldError(
+                DEVICE, f"held again while resuming, stays held: {self._hold_reason}"
+            )
         self._motion_held = False
         self._hold_reason = None
         logger.info("robot motion resumed")

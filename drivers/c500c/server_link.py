@@ -91,6 +91,7 @@ class ServerLink(LinkLifecycle):
         self._link = LinkState.DISCONNECTED
         self.link_history: list[LinkState] = [self._link]
         self._motion_held = False
+        self._holds = 0  # every hold ever: a resume releases none that came after it began
         self._last_error: str | None = None
         self._flags: proto.Flag | None = None  # of the latest reply
         self._reconnector = Reconnector(  # drivers/reconnect.py, as the console driver's
@@ -276,6 +277,7 @@ class ServerLink(LinkLifecycle):
             log("robot motion held until resume(): %s", reason)
             self._hold_reason = reason
         self._motion_held = True
+        self._holds += 1
         if error:
             self._last_error = reason
 
