@@ -54,6 +54,7 @@ from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue, ReportStatus
 from drivers.clock import Clock, make_clock
+from drivers.permit import MotionPermit, Ticket
 
 __all__ = [
     "Daemon",
@@ -111,7 +112,6 @@ class Daemon:
         self._view: RunView | None = None  # the current or last run, as the API sees it
         self.view_version = 0  # bumped at each new view: caches of the state key on it
         self._requests = asyncio.Lock()  # serialises start/pause/resume/stop
-        self._hold_generation = 0
         #: monotonic time of the control loop's last sign of life (systemd watchdog, issue 10)
         self.last_progress_monotonic = time.monotonic()
         self._unrecorded_end = UnrecordedEnd(self._storage, UNRECORDED_END_RETRY_S)
@@ -158,7 +158,7 @@ class Daemon:
         than once (a second signal): each call holds again and waits for the same ending."""
         if self._devices is None:
             return
-        await self.hold_robot(reason, pause=False)
+        await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
         session = self._session
         if session is None or session.task is None:
             return
@@ -171,6 +171,11 @@ class Daemon:
         return self._recorder().path
 
     @property
+    def permit(self) -> MotionPermit:
+        """The robot's permit (drivers/permit.py): the one owner of "may the robot move"."""
+        return self.devices.robot.permit
+
+    @property
     def devices(self) -> Devices:
         if self._devices is None:
             raise RuntimeError("the daemon is not started (use `async with Daemon(...)`)")
@@ -178,10 +183,17 @@ class Daemon:
 
     # --- commands ----------------------------------------------------------------------
 
-    async def start_run(self, parameters: RunParameters) -> dict[str, Any]:
+    async def start_run(
+        self, parameters: RunParameters, ticket: Ticket | None = None
+    ) -> dict[str, Any]:
         """Start a run; return its info. RunConflictError when one is active,
         RunParameterError when the parameters are not admissible, RecorderError when the
-        database cannot record it (e.g. the last run's end is still unrecorded)."""
+        database cannot record it (e.g. the last run's end is still unrecorded).
+
+        ``ticket``: the robot's permit when the request arrived (api/tickets.py), else now,
+        before anything is awaited: the run may release a hold from before it, never one that
+        comes while it is built (drivers/permit.py)."""
+        ticket = ticket if ticket is not None else self.permit.ticket()
         async with self._requests:
             session = self._session
             if session is not None and session.state.is_active:
@@ -202,25 +214,31 @@ class Daemon:
                 bus=self.bus,
                 timing=self.timing,
                 reports=self.reports,
-                hold_generation=lambda: self._hold_generation,
                 on_view=self._set_view,
                 on_progress=self._progress,
                 on_unrecorded_end=self._unrecorded_end.remember,
             )
-            session = RunSession(work, services)
+            session = RunSession(work, services, ticket)
             self._session = session
             session.start()
             logger.info("run %d started: %s", work.run_id, parameters.model_dump())
             return session.view().info(self.clock.now())
 
     async def pause(self, reason: str = "paused by request") -> None:
+        """Hold the robot first (before anything is awaited), then pause the run: paused
+        means held (docs/explanation/hold.md). A start still preparing is parked."""
+        self._active_session()  # RunStateError (nothing held) when no run is active
+        await self.hold_robot(reason, pause=False)
         async with self._requests:
             self._active_session().pause(reason)
 
-    async def resume(self) -> None:
-        """Resume a paused or faulted run (ResumeRefusedError when it cannot continue)."""
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        """Resume a paused or faulted run (ResumeRefusedError when it cannot continue).
+        ``ticket``: the permit when the request arrived (else now): a hold that came after it
+        wins."""
+        ticket = ticket if ticket is not None else self.permit.ticket()
         async with self._requests:
-            await self._active_session().resume()
+            await self._active_session().resume(ticket)
 
     async def stop(
         self, reason: str = "stopped by request", final: RunState = RunState.STOPPED
@@ -236,11 +254,14 @@ class Daemon:
         return session.view().info(self.clock.now())
 
     async def hold_robot(self, reason: str = HOLD_REASON, *, pause: bool = True) -> None:
-        """Hold the robot now, whatever the run state, behind nothing: the hold is counted and
-        the driver refuses motion before this awaits anything (drivers.base.Robot.stop); then
-        a running run pauses and a starting one is cancelled."""
-        self._hold_generation += 1
-        await self.devices.robot.stop()
+        """Hold the robot now, whatever the run state, behind nothing: the permit is held
+        (its generation bumped) before this awaits anything, so the driver refuses motion and
+        no request already in flight can release it (drivers/permit.py); then the driver's own
+        hold (the fast path's HOLD frame), then a running run pauses and a starting one is
+        cancelled."""
+        robot = self.devices.robot
+        robot.permit.hold(reason)
+        await robot.stop()
         session = self._session
         if pause and session is not None:
             session.robot_held(reason)

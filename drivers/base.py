@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit, Ticket
 
 Vector3 = tuple[float, float, float]
 
@@ -163,6 +164,14 @@ class RobotStatus:
 
 
 class Robot(AsyncDevice, Protocol):
+    """A robot link. Its ``permit`` (drivers/permit.py) is the one owner of "may the robot
+    move": every hold goes through it, every motion command checks it under the driver's lock
+    right before its bytes are written, and only a release with a ticket taken after the latest
+    hold undoes a hold. tests/contract/ checks every driver and fake against this."""
+
+    @property
+    def permit(self) -> MotionPermit: ...
+
     async def teach_goal(self) -> Pose:
         """Remember the current pose as the operational goal (`here opgoal`)."""
         ...
@@ -178,18 +187,19 @@ class Robot(AsyncDevice, Protocol):
     async def actual_pose(self) -> Pose: ...
 
     async def stop(self) -> None:
-        """Hold: from the moment this is called (before its first await) every motion command
-        is refused (MotionHeldError), checked under the driver's lock right before its bytes
-        are written; it returns once no motion command can be written any more. What it does to
-        a motion already under way depends on the link (see the driver). Only resume()
-        releases a hold."""
+        """Hold: from the moment this is called (before its first await) the permit is held
+        and every motion command is refused (MotionHeldError), checked under the driver's lock
+        right before its bytes are written; it returns once no motion command can be written
+        any more. What it does to a motion already under way depends on the link (see the
+        driver). Only resume() releases a hold."""
         ...
 
-    async def resume(self) -> None:
-        """Allow motion again after a hold or a fault (an explicit request, never automatic).
-        Raises GoalLostError when the controller no longer holds the taught goal: teach a new
-        goal (teach_goal(), which moves nothing and is allowed while held) before resuming a
-        new run."""
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        """Allow motion again after a hold or a fault (an explicit request, never automatic),
+        on behalf of the request that took ``ticket`` when it arrived (None: now). A hold that
+        came after the ticket wins: MotionHeldError, the hold stays. Raises GoalLostError when
+        the controller no longer holds the taught goal: teach a new goal (teach_goal(), which
+        moves nothing and is allowed while held) before resuming a new run."""
         ...
 
     def status(self) -> RobotStatus: ...

@@ -35,7 +35,8 @@ from drivers.base import (
     Vector3,
 )
 from drivers.clock import Clock, make_clock
-from drivers.errors import DeviceError, DeviceTimeoutError, MotionHeldError
+from drivers.errors import DeviceError, DeviceTimeoutError
+from drivers.permit import MotionPermit, Ticket
 
 
 class Gate:
@@ -87,7 +88,7 @@ class FakeRobot:
         self.hung_moves: set[int] = set()  # move numbers that never finish
         self.hanging = asyncio.Event()
         self.position_errors_um: dict[int, float] = {}  # move number -> x error of that move
-        self.held = False
+        self.permit = MotionPermit()
         self.resumes = 0
         self.pose_reads = 0
         self.moves = 0
@@ -112,10 +113,9 @@ class FakeRobot:
         """Right before a motion command is written, under the lock (drivers/c500c/robot.py)."""
         move = self.moves
         self.moves += 1
-        if self.held:
-            raise MotionHeldError("robot", "motion held")
+        self.permit.require()
         if move in self.fail_moves:
-            self.held = True
+            self.permit.hold(f"no answer to move {move}")
             raise DeviceTimeoutError("robot", f"no answer to move {move}")
 
     def _result(self, requested: Vector3) -> MoveResult:
@@ -160,19 +160,26 @@ class FakeRobot:
                 await self.pose_gate.pass_through()
             return self._pose()
 
-    async def stop(self) -> None:
-        self.held = True  # at once, before any await: no motion command can be written now
+    @property
+    def held(self) -> bool:
+        return self.permit.held
 
-    async def resume(self) -> None:
+    async def stop(self) -> None:
+        self.permit.hold("stopped by request")  # at once, before any await
+
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        ticket = ticket if ticket is not None else self.permit.ticket()
         if self.resume_gate is not None:
             await self.resume_gate.pass_through()
         if self.resume_error is not None:
             raise self.resume_error
+        self.permit.release(ticket)
         self.resumes += 1
-        self.held = False
 
     def status(self) -> RobotStatus:
-        return RobotStatus(LinkState.CONNECTED, motion_held=self.held)
+        return RobotStatus(
+            LinkState.CONNECTED, motion_held=self.permit.held, hold_reason=self.permit.reason
+        )
 
 
 class FakeCamera:

@@ -33,7 +33,7 @@ from daemon.run.workers import Workers
 from daemon.service import Daemon, RunParameterError
 from drivers.base import DEFAULT_GOAL, GoalRobot, LinkState, MoveResult, Pose, RobotStatus, Vector3
 from drivers.clock import Clock, make_clock
-from drivers.errors import MotionHeldError
+from drivers.permit import MotionPermit, Ticket
 from tests.fakes import FakeBench, FakeCamera, FakeIr, Gate, OpenedDevices
 
 WAIT_S = 30.0
@@ -134,7 +134,7 @@ class FakeArmRobot:
     def __init__(self, truth: ArmTruth) -> None:
         self.truth = truth
         self.lock = asyncio.Lock()
-        self.held = False
+        self.permit = MotionPermit()
         self.written: list[tuple[str, Pose6]] = []  # motion commands that reached the writer
         self.taught: dict[str, Pose] = {}
         self.position = np.array([400.0, 0.0, 300.0])  # where the tool stands at the start
@@ -149,8 +149,11 @@ class FakeArmRobot:
         return None
 
     def _check(self) -> None:
-        if self.held:
-            raise MotionHeldError("robot", "motion held")
+        self.permit.require()
+
+    @property
+    def held(self) -> bool:
+        return self.permit.held
 
     async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
         """Moves nothing: the goal is where the robot stands."""
@@ -187,13 +190,13 @@ class FakeArmRobot:
         return Pose(0.0, 0.0, 0.0)
 
     async def stop(self) -> None:
-        self.held = True  # at once, before any await
+        self.permit.hold("stopped by request")  # at once, before any await
 
-    async def resume(self) -> None:
-        self.held = False
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        self.permit.release(ticket if ticket is not None else self.permit.ticket())
 
     def status(self) -> RobotStatus:
-        return RobotStatus(LinkState.CONNECTED, motion_held=self.held)
+        return RobotStatus(LinkState.CONNECTED, motion_held=self.permit.held)
 
 
 class FakeMeter:

@@ -242,7 +242,7 @@ async def test_a_hold_while_starting_cancels_the_start(tmp_path: Path) -> None:
     settings = make_settings(tmp_path)
     harness = Harness(settings)
     async with harness.daemon as daemon:
-        harness.robot.held = True  # the previous run ended held: the start resumes it
+        harness.robot.permit.hold("the previous run ended")  # the start resumes it
         gate = Gate()
         harness.robot.resume_gate = gate
         await daemon.start_run(params(settings))

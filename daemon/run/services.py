@@ -52,7 +52,6 @@ class SessionServices:
     errors: ErrorLog
     timing: TimingStats
     reports: ReportQueue
-    hold_generation: Callable[[], int]  # bumped by every hold, before the robot is held
     on_view: Callable[[RunView], None]  # the daemon's read model
     on_progress: Callable[[], None]  # the control loop is alive (systemd watchdog)
     on_unrecorded_end: Callable[[int, str, dict[str, Any] | None, str | None], None]

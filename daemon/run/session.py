@@ -22,6 +22,7 @@ import asyncio
 import functools
 import logging
 import math
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 import numpy as np
@@ -36,13 +37,15 @@ from daemon.run.session_devices import (
     capture_reference,
     play_duty_cycle,
     start_bench,
+    stop_duty_cycle,
     teach_goals,
 )
 from daemon.run.states import RunState, RunStateError, StateMachine
 from daemon.run.summary import run_summary
 from daemon.run.two_link.step import RunWork, StepOutcome, Verdict
 from daemon.storage.recorder import RecorderError
-from drivers.errors import DeviceError, GoalLostError
+from drivers.errors import DeviceError, GoalLostError, MotionHeldError
+from drivers.permit import MotionPermit, Ticket
 
 __all__ = ["BenchControl", "ResumeRefusedError", "RunSession", "SessionServices"]
 
@@ -54,7 +57,12 @@ class ResumeRefusedError(RunStateError):
 
 
 class RunSession:
-    def __init__(self, work: RunWork | ArmRunWork, services: SessionServices) -> None:
+    """``ticket``: the robot's permit (drivers/permit.py) as it was when the start request
+    arrived: the start may release a hold that came before it, never one that came after."""
+
+    def __init__(
+        self, work: RunWork | ArmRunWork, services: SessionServices, ticket: Ticket
+    ) -> None:
         self.work = work
         self.id = work.run_id
         self._services = services
@@ -69,13 +77,20 @@ class RunSession:
         self._final_on_stop = RunState.STOPPED
         self.finishing = False  # holding the robot, writing the summary and the final state
         self._wake = asyncio.Event()
-        self._start_generation = services.hold_generation()
+        #: the ticket of the request that last allowed this run to move (its start, then each
+        #: resume): motion goes on only while no hold came after it
+        self._grant = ticket
+        self._prepared = False  # the start's teaching and references are done
         self._publisher = RunPublisher(self.id, services)
         self.task: asyncio.Task[None] | None = None
 
     @property
     def state(self) -> RunState:
         return self.machine.state
+
+    @property
+    def permit(self) -> MotionPermit:
+        return self._services.robot.permit
 
     def start(self) -> None:
         self._go(RunState.STARTING, None)
@@ -84,23 +99,27 @@ class RunSession:
     # --- operator requests (the daemon serialises them) -----------------------------------
 
     def pause(self, reason: str) -> None:
-        if self.state is not RunState.RUNNING:
+        """Pause (the daemon has held the robot first). A start still preparing is parked:
+        its teaching and references go on after the resume (docs/explanation/hold.md)."""
+        if self.state not in (RunState.RUNNING, RunState.STARTING):
             raise RunStateError(f"run {self.id} is {self.state.value}, not running")
         self._go(RunState.PAUSED, reason)
 
-    async def resume(self) -> None:
-        """Motion is allowed again only on this explicit request; the actual pose is read back
-        first. A hold or stop that arrives meanwhile wins; a controller that lost the taught
-        goal refuses the resume (issue 15, point 9) instead of answering running and then
-        faulting at the next step."""
+    async def resume(self, ticket: Ticket) -> None:
+        """Motion is allowed again only on this explicit request, made when ``ticket`` was
+        taken; the actual pose is read back first. A hold or stop that came after the request
+        wins; a controller that lost the taught goal refuses the resume (issue 15, point 9)
+        instead of answering running and then faulting at the next step."""
         if self.state not in (RunState.PAUSED, RunState.FAULT):
             raise RunStateError(f"run {self.id} is {self.state.value}: nothing to resume")
+        if not self.permit.is_current(ticket):
+            raise RunStateError(f"run {self.id}: the robot was held after the resume was asked")
         robot = self._services.robot
-        generation = self._services.hold_generation()
         try:
-            if self.state is RunState.FAULT or robot.status().motion_held:
-                await robot.resume()
+            await robot.resume(ticket)  # a pause held it: released only if no hold came since
             pose = await robot.actual_pose()
+        except MotionHeldError as err:
+            raise RunStateError(f"run {self.id}: a hold came during the resume") from err
         except GoalLostError as err:
             self._services.errors.note(err)
             await self._hold_quietly()
@@ -120,14 +139,15 @@ class RunSession:
         if (
             self.stop_requested
             or self.state not in (RunState.PAUSED, RunState.FAULT)
-            or self._services.hold_generation() != generation
+            or not self.permit.is_current(ticket)
         ):
             await self._hold_quietly()  # re-assert: the resume must not undo a later hold
             raise RunStateError(f"run {self.id}: a hold or stop came during the resume")
+        self._grant = ticket
         if isinstance(self.work, RunWork) and self.work.goal is not None:
             # the incremental mode continues from where the robot really is
             self.work.last_target_mm = np.subtract(pose.position, self.work.goal.position)
-        self._go(RunState.RUNNING, None)
+        self._go(RunState.RUNNING if self._prepared else RunState.STARTING, None)
 
     def request_stop(self, reason: str, final: RunState = RunState.STOPPED) -> None:
         """End the run at the next opportunity (the step in progress may finish)."""
@@ -191,41 +211,42 @@ class RunSession:
             await self._finish(final, reason)
 
     async def _prepare(self) -> bool:
-        """Teach the goal, wait for the camera, take the reference; False if stopped meanwhile."""
+        """Teach the goal, release the robot for this start, teach the poses, wait for the
+        camera, start the bench, take the references; False if stopped meanwhile.
+
+        A pause or a fault while preparing holds the robot and parks the start; the phase it
+        interrupted is done again after the resume, which comes back to ``starting``
+        (docs/explanation/hold.md). Every move of a phase is refused by the driver after a hold
+        (drivers/permit.py), so nothing of the start moves while it is parked."""
         services = self._services
-        robot, parameters = services.robot, self.work.parameters
-        try:
-            # 6.4.3: every offset is from the goal taught here. Taught first, while still held:
-            # a resume checks the goal the controller holds, and after a controller restart the
-            # previous run's goal is gone (C500C.md), which must not refuse a new run.
-            await teach_goals(self.work, services, moving=False)
-            if robot.status().motion_held:
-                # the previous run ended with the robot held; starting is an explicit request to
-                # move again -- unless a hold came after that request (it wins)
-                if self._hold_since_start():
-                    return False
-                await robot.resume()
-            if self._hold_since_start():
+        work, parameters = self.work, self.work.parameters
+        # 6.4.3: every offset is from the goal taught here. Taught first, while still held: a
+        # resume checks the goal the controller holds, and after a controller restart the
+        # previous run's goal is gone (C500C.md), which must not refuse a new run.
+        phases: list[tuple[str, Callable[[], Awaitable[None]]]] = [
+            ("teach the operational goal", lambda: teach_goals(work, services, moving=False)),
+            ("release the robot", self._release),
+            ("teach the operational goal", lambda: teach_goals(work, services, moving=True)),
+        ]
+        for name, action in phases:
+            if not await self._phase(name, action):
                 return False
-            await teach_goals(self.work, services, moving=True)
-        except DeviceError as err:
-            services.errors.note(err)
-            await self._fault(f"cannot teach the operational goal: {err}")
-            if not await self._wait_while_held():
-                return False
-            await teach_goals(self.work, services, moving=False)
-            await teach_goals(self.work, services, moving=True)
         if parameters.warmup_wait_s > 0:
             logger.info("run %d: camera warm-up wait %.0f s", self.id, parameters.warmup_wait_s)
-            await self._sleep_until(services.clock.now() + parameters.warmup_wait_s)
-        if self.stop_requested:
+            deadline_s = services.clock.now() + parameters.warmup_wait_s
+            while services.clock.now() < deadline_s:
+                if not await self._wait_while_held():
+                    return False
+                await self._sleep_until(deadline_s)
+        if not await self._phase("start the bench", lambda: start_bench(work, services)):
             return False
-        await start_bench(self.work, services)
-        if isinstance(self.work, ArmRunWork):
-            if not await self._arm_references(self.work):
-                return False
+        references: Callable[[], Awaitable[None]]
+        if isinstance(work, ArmRunWork):
+            references = functools.partial(self._arm_references, work)
         else:
-            await capture_reference(self.work, services)
+            references = functools.partial(capture_reference, work, services)
+        if not await self._phase("measure the references", references):
+            return False
         self.work.start_s = services.clock.now()
         self.timer = FixedStepTimer(
             services.clock,
@@ -233,31 +254,56 @@ class RunSession:
             self.work.start_s,
             precise_wake_s=services.settings.scheduler.precise_wake_ms / 1000.0,
         )
+        self._prepared = True
         if self.state is RunState.STARTING:
             self._go(RunState.RUNNING, None)
         return not self.stop_requested
 
-    async def _arm_references(self, work: ArmRunWork) -> bool:
-        """Each pose's zero, measured at its taught goal; a robot fault meanwhile parks the
-        run in fault (the poses' first steps are then their references). False if stopped."""
-        try:
-            await measure_references(
-                work,
-                self._services.arm_services(),
-                self._services.errors,
-                self._services.settings.arm.reference_frames,
-            )
-        except DeviceError as err:
-            await self._fault(f"cannot measure the taught poses: {err}")
+    async def _phase(self, name: str, action: Callable[[], Awaitable[None]]) -> bool:
+        """One phase of the start, done again after a pause or a fault that interrupts it;
+        False when the run was stopped instead."""
+        while True:
             if not await self._wait_while_held():
                 return False
-        return not self.stop_requested
+            try:
+                await action()
+            except MotionHeldError as err:
+                if self.stop_requested:
+                    return False
+                if self.state not in (RunState.PAUSED, RunState.FAULT):
+                    await self._fault(f"cannot {name}: {err}")
+                continue  # done again after the resume
+            except DeviceError as err:
+                self._services.errors.note(err)
+                await self._fault(f"cannot {name}: {err}")
+                continue
+            return not self.stop_requested
 
-    def _hold_since_start(self) -> bool:
-        if self._services.hold_generation() == self._start_generation:
-            return False
-        self.request_stop("start cancelled: the robot was held after the start was requested")
-        return True
+    async def _release(self) -> None:
+        """Motion for this run: a hold from before its start request is released (starting is
+        an explicit request to move again); one that came after it never is -- the start is
+        cancelled (issue 15, point 2; issue 26)."""
+        permit = self.permit
+        if not permit.held and permit.is_current(self._grant):
+            return
+        try:
+            await self._services.robot.resume(self._grant)
+        except MotionHeldError:
+            if self.state is RunState.STARTING and not permit.is_current(self._grant):
+                self.request_stop(
+                    "start cancelled: the robot was held after the start was requested"
+                )
+            raise
+
+    async def _arm_references(self, work: ArmRunWork) -> None:
+        """Each pose's zero, measured at its taught goal (a robot error raises: the phase
+        faults, and is done again after the resume)."""
+        await measure_references(
+            work,
+            self._services.arm_services(),
+            self._services.errors,
+            self._services.settings.arm.reference_frames,
+        )
 
     async def _loop(self) -> None:
         timer = self.timer
@@ -267,14 +313,14 @@ class RunSession:
             if self.stop_requested or self.state is RunState.STOPPING:
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
-                await play_duty_cycle(self._services, False)
+                await stop_duty_cycle(self._services)
                 if not await self._wait_while_held():
                     return
                 timer.resync()
                 continue
             if timer.next_deadline_s >= end_s - 1e-9:
                 return
-            await play_duty_cycle(self._services, True)
+            play_duty_cycle(self._services, self._grant)
             await self._sleep_until(timer.next_wake_s)
             if self.stop_requested or self.state is not RunState.RUNNING:
                 continue  # woken by a request: handled at the top
@@ -305,6 +351,7 @@ class RunSession:
             return
         logger.warning("run %d step %d: %s", self.id, step, verdict.reason)
         if self.state is RunState.RUNNING:
+            await self._hold_quietly()  # paused means held (docs/explanation/hold.md)
             self._go(RunState.PAUSED, verdict.reason)
         else:
             logger.info(
@@ -355,7 +402,7 @@ class RunSession:
         services = self._services
         try:
             await self._hold_quietly()
-            await play_duty_cycle(self._services, False)
+            await stop_duty_cycle(self._services)
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
             try:

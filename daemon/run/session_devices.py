@@ -18,6 +18,7 @@ from daemon.run.services import SessionServices
 from daemon.run.two_link.step import RunWork
 from daemon.vision import CentroidError, measure_with_camera_settings
 from drivers.errors import DeviceError
+from drivers.permit import Ticket
 
 logger = logging.getLogger(__name__)
 
@@ -76,15 +77,19 @@ async def capture_reference(work: RunWork, services: SessionServices) -> None:
     work.reference_source = "goal before the first move"
 
 
-async def play_duty_cycle(services: SessionServices, playing: bool) -> None:
-    """A played duty cycle (daemon/run/arm/player.py) runs while the run runs: started (from
-    the pose after the last one reached) when it runs, stopped when it pauses, faults or
-    ends. The player changes no state: its errors come back through the next step."""
+def play_duty_cycle(services: SessionServices, grant: Ticket) -> None:
+    """Start a played duty cycle (daemon/run/arm/player.py; from the pose after the last one
+    reached) on behalf of the request that holds ``grant``: it plays until a hold comes after
+    that request. The player changes no state: its errors come back through the next step."""
     arm = services.arm
     player = None if arm is None else arm.player
-    if player is None:
-        return
-    if playing:
-        player.start()
-    else:
+    if player is not None:
+        player.start(grant)
+
+
+async def stop_duty_cycle(services: SessionServices) -> None:
+    """Stop a played duty cycle: the run pauses, faults or ends."""
+    arm = services.arm
+    player = None if arm is None else arm.player
+    if player is not None:
         await player.stop(services.settings.scheduler.stop_grace_s)

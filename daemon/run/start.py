@@ -126,7 +126,8 @@ class RunBuilder:
         )
         sensors = self.sensors
         assert sensors is not None
-        player = ArmPlayer(robot, plan.cycle, self.clock, run_id) if played else None
+        permit = self.devices().robot.permit
+        player = ArmPlayer(robot, plan.cycle, self.clock, run_id, permit) if played else None
         pipeline = ArmStepPipeline(
             self.settings,
             robot=robot,
@@ -150,7 +151,6 @@ class RunBuilder:
         bus: EventBus,
         timing: TimingStats,
         reports: ReportQueue,
-        hold_generation: Callable[[], int],
         on_view: Callable[[RunView], None],
         on_progress: Callable[[], None],
         on_unrecorded_end: Callable[[int, str, dict[str, Any] | None, str | None], None],
@@ -185,7 +185,6 @@ class RunBuilder:
             errors=self.errors,
             timing=timing,
             reports=reports,
-            hold_generation=hold_generation,
             on_view=on_view,
             on_progress=on_progress,
             on_unrecorded_end=on_unrecorded_end,

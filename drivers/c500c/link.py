@@ -42,11 +42,11 @@ from drivers.errors import (
     DeviceReportedError,
     DeviceTimeoutError,
     GoalLostError,
-    MotionHeldError,
     NotConnectedError,
     PointOfControlError,
     ProtocolError,
 )
+from drivers.permit import MotionPermit
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.serial_port import open_serial
 
@@ -71,8 +71,11 @@ class ConsoleLink(LinkLifecycle):
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
         transcript: Transcript | None = None,
         prepare: bool = True,
+        permit: MotionPermit | None = None,
     ) -> None:
         self.settings = settings
+        #: the one owner of "may the robot move" (drivers/permit.py): every hold goes through it
+        self.permit = permit if permit is not None else MotionPermit(DEVICE)
         #: create the per-step target and go online at connect; without it (a check that must
         #: change nothing on the controller) motion is held from the start
         self.prepare = prepare
@@ -87,9 +90,6 @@ class ConsoleLink(LinkLifecycle):
         self._link = LinkState.DISCONNECTED
         self.link_history: list[LinkState] = [self._link]  # every state entered, in order
         self._link_changed = asyncio.Event()  # set (and replaced) at every transition
-        self._motion_held = False
-        self._hold_reason: str | None = None
-        self._holds = 0  # every hold ever requested: a resume releases none that came after it
         self._dirty: str | None = None  # why the link must be resynchronised, if it must
         self._last_error: str | None = None
         self._arm_power: bool | None = None
@@ -290,13 +290,11 @@ class ConsoleLink(LinkLifecycle):
 
     def _hold(self, reason: str, *, error: bool = True) -> None:
         """Refuse motion from now on until resume() (synchronous: no await in here)."""
-        if not self._motion_held:
+        if not self.permit.held:
             # a fault's hold is news; a requested one (every run's end) is routine
             log = logger.warning if error else logger.info
             log("robot motion held until resume(): %s", reason)
-            self._hold_reason = reason
-        self._motion_held = True
-        self._holds += 1
+        self.permit.hold(reason)
         if error:
             self._last_error = reason
 
@@ -385,8 +383,8 @@ class ConsoleLink(LinkLifecycle):
         if self._dirty is not None:
             await self._resync(connection)
         motion = any(proto.is_motion_command(command) for command in commands)
-        if motion and self._motion_held:
-            raise MotionHeldError(DEVICE, f"motion is held until resume(): {self._hold_reason}")
+        if motion:
+            self.permit.require()  # the hold contract: here, under the lock, before the write
         data = b"".join(proto.encode_command(command) for command in commands)
         replies: list[list[str]] = []
         current = commands[0]

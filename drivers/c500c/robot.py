@@ -50,6 +50,7 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.goals import goal_variable, require_finite, rotation_zyx_deg
+from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
@@ -77,6 +78,7 @@ class C500CRobot(ConsoleLink):
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
         transcript: Transcript | None = None,
         prepare: bool = True,
+        permit: MotionPermit | None = None,
     ) -> None:
         super().__init__(
             settings,
@@ -84,9 +86,10 @@ class C500CRobot(ConsoleLink):
             first_backoff_s=first_backoff_s,
             transcript=transcript,
             prepare=prepare,
+            permit=permit,
         )
         if not prepare:  # a check: nothing may move (silently: nothing went wrong)
-            self._motion_held, self._hold_reason = True, "connected to check only"
+            self.permit.hold("connected to check only")
         self._goals: dict[str, Pose] = {}  # taught goals by name (drivers/goals.py)
         self._moves = 0  # moves since the goal was taught (robot.readback_every counts them)
         #: the speed (%) last set with `speed N` on this connection; None: unknown (the
@@ -105,8 +108,7 @@ class C500CRobot(ConsoleLink):
 
     def _require_motion_allowed(self) -> None:
         """A quick refusal before waiting for the lock; the binding check is in _exchange."""
-        if self._motion_held:
-            raise MotionHeldError(DEVICE, f"motion is held until resume(): {self._hold_reason}")
+        self.permit.require()
         if self._link not in (LinkState.CONNECTED, LinkState.RESYNCHRONISING):
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
 
@@ -291,19 +293,22 @@ class C500CRobot(ConsoleLink):
         self._hold("stopped by request", error=False)
         return _done()
 
-    async def resume(self) -> None:
-        """Allow motion again. The link must be up; the console is checked first: every taught
-        goal must still exist on the controller (`set cur = <goal>` each), else GoalLostError
-        and the hold stays; then a `w2`.
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        """Allow motion again, for the request that took ``ticket`` (None: now). The link
+        must be up; the console is checked first: every taught goal must still exist on the
+        controller (`set cur = <goal>` each), else GoalLostError and the hold stays; then a `w2`.
 
         A lost goal is not re-created from the recorded pose: the console's read-out has only
         0.001 mm and no arm configuration (stance) for it, and after a restart the calibration
         it was taught in may be gone, so a goal rebuilt that way could differ from the taught
         one without anything showing it (C500C.md); teaching it again is the operator's call.
 
-        A hold requested while this runs wins: the hold stays and MotionHeldError is raised."""
-        holds_before = self._holds
+        A hold that came after the ticket wins: the hold stays and MotionHeldError is raised
+        (drivers/permit.py)."""
+        ticket = ticket if ticket is not None else self.permit.ticket()
         async with self._lock:
+            if not self.permit.is_current(ticket):
+                self.permit.release(ticket)  # raises: a hold came after the request
             if self._link not in LINK_UP:
                 raise NotConnectedError(DEVICE, f"cannot resume while {self._link.value}")
             for goal in self._goals:
@@ -316,15 +321,10 @@ class C500CRobot(ConsoleLink):
                     self._last_error = str(err)
                     raise
             await self._read_pose()
-            if self._holds != holds_before:
-                raise MotionHeldError(
-                    DEVICE, f"held again while resuming, stays held: {self._hold_reason}"
-                )
+            self.permit.release(ticket)  # MotionHeldError if a hold came meanwhile
             if self._link is LinkState.AWAITING_POINT_OF_CONTROL:
                 self._enter(LinkState.CONNECTED)
             self._point_of_control = None  # unknown until the next motion command
-            self._motion_held = False
-            self._hold_reason = None
             self._moves = 0  # the first move after a resume reads the pose back
             self._speed_percent = None  # a restarted controller is back at its own speed
         logger.info("robot motion resumed")
@@ -336,9 +336,9 @@ class C500CRobot(ConsoleLink):
             homed=self._homed,
             online=self._online,
             point_of_control=self._point_of_control,
-            motion_held=self._motion_held,
+            motion_held=self.permit.held,
             last_error=self._last_error,
-            hold_reason=self._hold_reason if self._motion_held else None,
+            hold_reason=self.permit.reason,
             extra={
                 "port": self.port,
                 "application": self.settings.application,

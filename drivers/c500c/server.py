@@ -38,6 +38,7 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.goals import check_goal_name, require_finite, rotation_zyx_deg
+from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
@@ -67,8 +68,9 @@ class C500CServerRobot(ServerLink):
         *,
         port: str | None = None,
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
+        permit: MotionPermit | None = None,
     ) -> None:
-        super().__init__(settings, port=port, first_backoff_s=first_backoff_s)
+        super().__init__(settings, port=port, first_backoff_s=first_backoff_s, permit=permit)
         self._motion_lock = asyncio.Lock()  # one motion at a time (the program refuses two)
         # taught goals by name, each with its index in the program (the default goal is 0)
         self._goals: dict[str, tuple[int, Pose]] = {}
@@ -237,11 +239,13 @@ class C500CServerRobot(ServerLink):
         except DeviceError as err:
             logger.warning("HOLD not acknowledged (%s); the program's silence timeout halts", err)
 
-    async def resume(self) -> None:
+    async def resume(self, ticket: Ticket | None = None) -> None:
         """Allow motion again: the link must be up and the program must still hold the goal
         taught (it forgets it when restarted); then RELEASE. A hold that comes while this runs
-        wins: MotionHeldError, and the hold stays (HOLD is written after RELEASE)."""
-        holds_before = self._holds
+        wins: MotionHeldError, and the hold stays: RELEASE is not written for a ticket older
+        than the latest hold (checked under the write lock), and a HOLD that comes after it is
+        written after it (drivers/permit.py)."""
+        ticket = ticket if ticket is not None else self.permit.ticket()
         if self._link is not LinkState.CONNECTED:
             raise NotConnectedError(DEVICE, f"cannot resume while {self._link.value}")
         reply = self._check(
@@ -254,16 +258,13 @@ class C500CServerRobot(ServerLink):
             raise GoalLostError(DEVICE, "program restarted?")
         self._check(
             await self._request(
-                proto.RequestType.RELEASE, timeout_s=self.settings.command_timeout_s
+                proto.RequestType.RELEASE,
+                timeout_s=self.settings.command_timeout_s,
+                ticket=ticket,
             ),
             motion=False,
         )
-        if self._holds != holds_before:
-            raise MotionHeldError(
-                DEVICE, f"held again while resuming, stays held: {self._hold_reason}"
-            )
-        self._motion_held = False
-        self._hold_reason = None
+        self.permit.release(ticket)  # MotionHeldError if a hold came meanwhile
         logger.info("robot motion resumed")
 
     def status(self) -> RobotStatus:
@@ -274,9 +275,9 @@ class C500CServerRobot(ServerLink):
             homed=self._homed,
             online=self.settings.online,
             point_of_control=None if flags is None else bool(flags & proto.Flag.POINT_OF_CONTROL),
-            motion_held=self._motion_held,
+            motion_held=self.permit.held,
             last_error=self._last_error,
-            hold_reason=self._hold_reason if self._motion_held else None,
+            hold_reason=self.permit.reason,
             extra={
                 "port": self.port,
                 "program": "thermocomp_server",

@@ -33,10 +33,10 @@ from drivers.c500c.link_states import LinkLifecycle
 from drivers.errors import (
     DeviceError,
     DeviceTimeoutError,
-    MotionHeldError,
     NotConnectedError,
     ProtocolError,
 )
+from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.serial_port import open_serial
 
@@ -78,8 +78,11 @@ class ServerLink(LinkLifecycle):
         *,
         port: str | None = None,
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
+        permit: MotionPermit | None = None,
     ) -> None:
         self.settings = settings
+        #: the one owner of "may the robot move" (drivers/permit.py): every hold goes through it
+        self.permit = permit if permit is not None else MotionPermit(DEVICE)
         self.port = port if port is not None else settings.server_port
         self.first_backoff_s = first_backoff_s
         self._connection: _Connection | None = None
@@ -90,8 +93,6 @@ class ServerLink(LinkLifecycle):
         self._sequence = itertools.count()
         self._link = LinkState.DISCONNECTED
         self.link_history: list[LinkState] = [self._link]
-        self._motion_held = False
-        self._holds = 0  # every hold ever: a resume releases none that came after it began
         self._last_error: str | None = None
         self._flags: proto.Flag | None = None  # of the latest reply
         self._reconnector = Reconnector(  # drivers/reconnect.py, as the console driver's
@@ -108,7 +109,6 @@ class ServerLink(LinkLifecycle):
         self._last_write = 0.0  # loop time of the latest frame written
         self._bytes_sent = 0
         self._bytes_received = 0
-        self._hold_reason: str | None = None  # why motion is held (a request is no error)
         self.heartbeats = 0
         self.stray_replies = 0  # late replies of cancelled requests or an old link, dropped
         self._synchronised = False
@@ -263,7 +263,7 @@ class ServerLink(LinkLifecycle):
 
     def _note_flags(self, flags: proto.Flag) -> None:
         self._flags = flags
-        if flags & proto.Flag.HELD and not self._motion_held:
+        if flags & proto.Flag.HELD and not self.permit.held:
             reason = "host silent" if flags & proto.Flag.SILENCE_HALTED else "hold"
             self._hold(f"the controller program is holding motion ({reason})")
 
@@ -272,12 +272,10 @@ class ServerLink(LinkLifecycle):
     def _hold(self, reason: str, *, error: bool = True) -> None:
         """Refuse motion from now on until resume() (synchronous). A requested hold (every
         run's end) is routine: logged at INFO, and not an error in ``last_error``."""
-        if not self._motion_held:
+        if not self.permit.held:
             log = logger.warning if error else logger.info
             log("robot motion held until resume(): %s", reason)
-            self._hold_reason = reason
-        self._motion_held = True
-        self._holds += 1
+        self.permit.hold(reason)
         if error:
             self._last_error = reason
 
@@ -307,6 +305,7 @@ class ServerLink(LinkLifecycle):
         timeout_s: float,
         handshake: bool = False,
         goal: int = 0,
+        ticket: Ticket | None = None,
     ) -> proto.Reply:
         """Write one request and await its reply (other requests may be outstanding). A timeout
         or a garbled link is a link fault (the handshake's failure is its caller's). A cancelled
@@ -326,6 +325,9 @@ class ServerLink(LinkLifecycle):
                 if request_type in _MOTION:
                     # The hold contract: checked under the lock, immediately before the write.
                     self._require_motion_allowed()
+                if ticket is not None and not self.permit.is_current(ticket):
+                    # a RELEASE for a request older than the latest hold is never written
+                    self.permit.release(ticket)  # raises MotionHeldError
                 if self._connection is not connection:
                     raise NotConnectedError(DEVICE, f"link lost on {self.port}")
                 self._pending[sequence] = (request_type, future)
@@ -353,10 +355,7 @@ class ServerLink(LinkLifecycle):
             self._pending.pop(sequence, None)
 
     def _require_motion_allowed(self) -> None:
-        if self._motion_held:
-            raise MotionHeldError(
-                DEVICE, f"motion is held after a fault until resume(): {self._last_error}"
-            )
+        self.permit.require()
         if self._link is not LinkState.CONNECTED:
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
 

@@ -67,6 +67,7 @@ from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, StepRecord
 from drivers.base import MoveResult, Pose, RobotStatus
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit, Ticket
 
 logger = logging.getLogger(__name__)
 
@@ -93,9 +94,12 @@ class ArmRobot(Protocol):
         ``speed_percent`` of the controller's speed (None: its current one)."""
         ...
 
+    @property
+    def permit(self) -> MotionPermit: ...
+
     async def stop(self) -> None: ...
 
-    async def resume(self) -> None: ...
+    async def resume(self, ticket: Ticket | None = None) -> None: ...
 
     async def actual_pose(self) -> Pose: ...
 
@@ -333,8 +337,9 @@ class ArmStepPipeline:
         self, work: ArmRunWork, player: ArmPlayer, errors_by_pose: dict[str, Pose6]
     ) -> str | None:
         """Each played pose's correction, checked against the limits and the correction the
-        robot was last sent into that pose (ArmPlayer.sent_correction); the accepted ones go to the player (the next move into each pose uses it), a
-        refused one never does: the first refusal is returned for the step's verdict."""
+        robot was last sent into that pose (ArmPlayer.sent_correction); the accepted ones go
+        to the player (the next move into each pose uses it), a refused one never does: the
+        first refusal is returned for the step's verdict."""
         if work.parameters.compensation == "off":
             return None
         accepted: dict[str, Pose6] = {}
