@@ -71,6 +71,10 @@ _T = TypeVar("_T")
 #: written again, until it is (s; daemon/run/unrecorded_end.py).
 UNRECORDED_END_RETRY_S = 2.0
 SHUTDOWN_REASON = "daemon shut down"
+#: At a shutdown, how long the summary of the run that ends may take beyond the step's grace
+#: (s): the run's end is recorded before it, and systemd's TimeoutStopSec is 30 s
+#: (deploy/thermocomp.service), so a long run's summary is given up rather than the end lost.
+SHUTDOWN_SUMMARY_BUDGET_S = 15.0
 HOLD_REASON = "robot held by request"
 
 
@@ -164,7 +168,7 @@ class Daemon:
             return
         if session.state.is_active:
             session.request_stop(reason)
-        await session.wait_ended(self.settings.scheduler.stop_grace_s)
+        await session.wait_ended(self.settings.scheduler.stop_grace_s, SHUTDOWN_SUMMARY_BUDGET_S)
 
     @property
     def recorder_path(self) -> Path:

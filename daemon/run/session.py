@@ -22,6 +22,7 @@ import asyncio
 import functools
 import logging
 import math
+import threading
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -44,6 +45,7 @@ from daemon.run.states import RunState, RunStateError, StateMachine
 from daemon.run.summary import run_summary
 from daemon.run.two_link.step import RunWork, StepOutcome, Verdict
 from daemon.storage.recorder import RecorderError
+from daemon.storage.series import SummaryAbandonedError
 from drivers.errors import DeviceError, GoalLostError, MotionHeldError
 from drivers.permit import MotionPermit, Ticket
 
@@ -75,7 +77,8 @@ class RunSession:
         self.stop_requested = False
         self._stop_reason: str | None = None
         self._final_on_stop = RunState.STOPPED
-        self.finishing = False  # holding the robot, writing the summary and the final state
+        self.finishing = False  # holding the robot, writing the final state and the summary
+        self._abandon_summary = threading.Event()  # a shutdown that cannot wait for it
         self._wake = asyncio.Event()
         #: the ticket of the request that last allowed this run to move (its start, then each
         #: resume): motion goes on only while no hold came after it
@@ -171,8 +174,10 @@ class RunSession:
         elif self.state is RunState.STARTING:
             self.request_stop(f"start cancelled: {reason}")
 
-    async def wait_ended(self, grace_s: float) -> None:
-        """Wait for the run task; a step stuck on a device is abandoned after ``grace_s``."""
+    async def wait_ended(self, grace_s: float, summary_budget_s: float | None = None) -> None:
+        """Wait for the run task; a step stuck on a device is abandoned after ``grace_s``.
+        ``summary_budget_s`` (a shutdown): the summary of a long run is given up after that
+        much more -- its end is recorded before the summary (see :meth:`_finish`)."""
         task = self.task
         if task is None:
             return
@@ -180,6 +185,11 @@ class RunSession:
         if pending and not self.finishing:
             logger.warning("run %d: abandoning the step in progress to stop", self.id)
             task.cancel()
+        if summary_budget_s is not None:
+            _, pending = await asyncio.wait({task}, timeout=summary_budget_s)
+            if pending:
+                logger.warning("run %d: the summary is given up to shut down in time", self.id)
+                self._abandon_summary.set()
         await asyncio.wait({task})
 
     # --- the run task ------------------------------------------------------------------------
@@ -397,35 +407,29 @@ class RunSession:
             sleeper.result()  # the clock's own error (a deadline it refuses) is the run's
 
     async def _finish(self, final: RunState, reason: str | None) -> None:
-        """Hold the robot, write the summary and the final state. Never raises: whatever fails
-        here, the run still ends in ``final`` with the daemon idle (issue 15, point 5)."""
+        """Hold the robot, record the final state, then the summary. Never raises: whatever
+        fails here, the run still ends in ``final`` with the daemon idle (issue 15, point 5).
+        The end is written before the summary: a day at a 20 ms step is 4.32 M steps to read
+        back, and a shutdown must end within systemd's TimeoutStopSec (issue 26)."""
         services = self._services
         try:
             await self._hold_quietly()
-            await stop_duty_cycle(self._services)
+            await stop_duty_cycle(services)
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
-            try:
-                summarize = functools.partial(
-                    run_summary,
-                    services.recorder,
-                    self.work,
-                    overruns=0 if self.timer is None else self.timer.overruns,
-                    skipped=0 if self.timer is None else self.timer.skipped,
-                    timing=services.timing.summary(fresh=True),
-                )
-                self.summary = await services.workers.db(summarize)
-            except Exception as err:
-                logger.exception("run %d: no summary", self.id)
-                services.errors.note(err, device="storage")
-            try:
-                await services.workers.db(
-                    services.recorder.finish_run, self.id, final.value, self.summary, reason
-                )
-            except Exception as err:
-                logger.error("run %d: cannot record its end yet: %s", self.id, err)
-                services.errors.note(err, device="storage")
-                services.on_unrecorded_end(self.id, final.value, self.summary, reason)
+            recorded = await self._record_end(final, reason)
+            self.summary = await self._summarize()
+            if self.summary is not None:
+                if recorded:
+                    try:
+                        await services.workers.db(
+                            services.recorder.set_summary, self.id, self.summary
+                        )
+                    except Exception as err:
+                        logger.error("run %d: cannot record its summary: %s", self.id, err)
+                        services.errors.note(err, device="storage")
+                else:
+                    services.on_unrecorded_end(self.id, final.value, self.summary, reason)
         except Exception as err:  # a bug in the ending itself: still end (traceback logged)
             logger.exception("run %d: error while ending", self.id)
             services.errors.note(err, device="daemon")
@@ -436,6 +440,41 @@ class RunSession:
             if services.settings.storage.report_at_end and self.step >= 0:
                 services.reports.submit(self.id)
             logger.info("run %d %s%s", self.id, final.value, f" ({reason})" if reason else "")
+
+    async def _record_end(self, final: RunState, reason: str | None) -> bool:
+        """The final state, committed; False when it could not be (kept and written again by
+        daemon/run/unrecorded_end.py, with the summary once there is one)."""
+        services = self._services
+        try:
+            await services.workers.db(
+                services.recorder.finish_run, self.id, final.value, None, reason
+            )
+        except Exception as err:
+            logger.error("run %d: cannot record its end yet: %s", self.id, err)
+            services.errors.note(err, device="storage")
+            services.on_unrecorded_end(self.id, final.value, None, reason)
+            return False
+        return True
+
+    async def _summarize(self) -> dict[str, Any] | None:
+        services = self._services
+        summarize = functools.partial(
+            run_summary,
+            services.recorder,
+            self.work,
+            overruns=0 if self.timer is None else self.timer.overruns,
+            skipped=0 if self.timer is None else self.timer.skipped,
+            timing=services.timing.summary(fresh=True),
+            abandon=self._abandon_summary,
+        )
+        try:
+            return await services.workers.db(summarize)
+        except SummaryAbandonedError as err:
+            logger.warning("run %d: no summary: %s", self.id, err)
+        except Exception as err:
+            logger.exception("run %d: no summary", self.id)
+            services.errors.note(err, device="storage")
+        return None
 
     # --- the one place a state changes ----------------------------------------------------
 

@@ -48,12 +48,17 @@ async def start_bench(work: RunWork | ArmRunWork, services: SessionServices) -> 
                 functools.partial(start, services.clock.now(), duty_cycle=parameters.duty_cycle)
             )
     elif services.bench is not None:
-        # the simulated links start cold with this run, at its scale and procedure
-        services.bench.start_run(
-            services.clock.now(),
-            deformation_scale=parameters.deformation_scale,
-            procedure=parameters.procedure,
-            heater_off_s=parameters.heater_off_s,
+        # the simulated links start cold with this run, at its scale and procedure: built on a
+        # worker thread (0.25-0.55 s of truth model under load, which on the event loop held up
+        # every hold behind it; issue 26). Nothing reads the bench until the reference frame.
+        await services.workers.step(
+            functools.partial(
+                services.bench.start_run,
+                services.clock.now(),
+                deformation_scale=parameters.deformation_scale,
+                procedure=parameters.procedure,
+                heater_off_s=parameters.heater_off_s,
+            )
         )
 
 

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from config import redact_secrets
 from daemon.analysis import RunSteps, steps_from_rows
+from daemon.storage.series import read_series
 from daemon.storage.step_record import STEP_COLUMNS, STEPS_SCHEMA, StepRecord, column_type
 
 # StepRecord and STEP_COLUMNS (daemon/storage/step_record.py) are what this module records: exported
@@ -296,6 +297,25 @@ class Recorder:
         ``columns`` limits what is read (the JSON columns cost the most to parse)."""
         with self._read() as db:
             return steps_from_rows(step_rows(db, run_id, columns))
+
+    def run_series(
+        self,
+        run_id: int,
+        columns: Sequence[str] = STEP_COLUMNS,
+        abandon: threading.Event | None = None,
+    ) -> RunSteps:
+        """The run's numeric steps, flags and errors as columns read chunk by chunk
+        (daemon/storage/series.py: the end of a 24-h run); ``abandon`` gives the read up."""
+        with self._read() as db:
+            return read_series(db, run_id, columns, abandon)
+
+    def set_summary(self, run_id: int, summary: Mapping[str, Any] | None) -> None:
+        """The summary of a run whose end is recorded already (it is written after it)."""
+        with self._write() as db:
+            db.execute(
+                "UPDATE runs SET summary_json = ? WHERE id = ?",
+                (None if summary is None else _dumps(summary), run_id),
+            )
 
     def arm_poses(self, run_id: int) -> list[str | None]:
         """The measured pose of each step of an arm run, in step order (None: a two-link
