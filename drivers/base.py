@@ -146,6 +146,9 @@ class LinkState(enum.Enum):
     #: before the next command (Ctrl-E, then a probe line and its prompt)
     RESYNCHRONISING = "resynchronising"
     RECONNECTING = "reconnecting"
+    #: a move's reply did not come within its own timeout (drivers/move_timeout.py): the link is
+    #: reconnecting after a stall (reported by status() until it is connected again)
+    STALLED = "stalled"
     FAULT = "fault"
 
 

@@ -91,6 +91,7 @@ class ConsoleLink(LinkLifecycle):
         self.link_history: list[LinkState] = [self._link]  # every state entered, in order
         self._link_changed = asyncio.Event()  # set (and replaced) at every transition
         self._dirty: str | None = None  # why the link must be resynchronised, if it must
+        self._stall: str | None = None  # a move's reply that never came, until reconnected
         self._last_error: str | None = None
         self._arm_power: bool | None = None
         self._homed: bool | None = None
@@ -174,6 +175,7 @@ class ConsoleLink(LinkLifecycle):
         try:
             await self._handshake(connection)
             self._dirty = None
+            self._stall = None
             self._enter(LinkState.CONNECTED)
             self._connected_event.set()
             # C500C.md "Questions": a new name in `set` may ask "-- create it?"; the target is
@@ -351,6 +353,13 @@ class ConsoleLink(LinkLifecycle):
         self._enter(LinkState.RECONNECTING)
         self._reconnector.start()
 
+    def _reported_link(self) -> LinkState:
+        """The link state status() reports: ``stalled`` after a move's reply timed out, until
+        the link is connected again."""
+        if self._stall is not None and self._link is not LinkState.CONNECTED:
+            return LinkState.STALLED
+        return self._link
+
     async def wait_link(self, state: LinkState, timeout_s: float) -> None:
         """Wait until the link is in ``state``; DeviceTimeoutError otherwise."""
         try:
@@ -406,6 +415,8 @@ class ConsoleLink(LinkLifecycle):
             self._mark_dirty(str(err))
             raise
         except (DeviceTimeoutError, NotConnectedError, ProtocolError) as err:
+            if isinstance(err, DeviceTimeoutError) and (motion or current == "finish"):
+                self._stall = str(err)  # the link reports "stalled" until it reconnects
             self._link_fault(err)
             raise
         for command, lines in zip(commands, replies, strict=True):

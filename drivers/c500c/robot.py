@@ -50,6 +50,7 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.goals import goal_variable, require_finite, rotation_zyx_deg
+from drivers.move_timeout import move_timeout_s
 from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
@@ -95,14 +96,19 @@ class C500CRobot(ConsoleLink):
         #: the speed (%) last set with `speed N` on this connection; None: unknown (the
         #: controller's own: after a connect, a resume or a restart), so the next is sent
         self._speed_percent: int | None = None
+        #: where the tool was last read or sent (position mm, z-y-x angles deg): a move's
+        #: timeout follows from its distance from here (drivers/move_timeout.py)
+        self._at: tuple[Vector3, Vector3] | None = None
 
     async def _read_pose(self) -> Pose:
         lines = await self._command("w2", self.settings.command_timeout_s)
         try:
-            return proto.parse_world_pose(lines)
+            pose = proto.parse_world_pose(lines)
         except ProtocolError as err:
             self._link_fault(err)
             raise
+        self._at = (pose.position, (pose.z_rot, pose.y_rot, pose.x_rot))
+        return pose
 
     # --- the Robot protocol ---
 
@@ -141,18 +147,24 @@ class C500CRobot(ConsoleLink):
         *,
         rotation_deg: Vector3 = (0.0, 0.0, 0.0),
         goal: str = DEFAULT_GOAL,
+        target: tuple[Vector3, Vector3] | None = None,
+        speed_percent: int | None = None,
     ) -> MoveResult:
         """The writes of one move (the last is the `w2` read-back when ``expected`` is given);
-        called with the lock held."""
+        called with the lock held. ``target``: where the move goes (position, angles), for its
+        timeout (drivers/move_timeout.py); None: unknown (robot.move_timeout_s)."""
+        finish_timeout_s = (
+            self.settings.move_timeout_s
+            if target is None
+            else move_timeout_s(self.settings, self._at, target, speed_percent)
+        )
         sent0, received0 = self.counters.sent, self.counters.received
         round_trips_s: list[float] = []
         actual: Pose | None = None
         try:
             for write in writes:
                 timeout_s = (
-                    self.settings.move_timeout_s
-                    if "finish" in write
-                    else self.settings.command_timeout_s
+                    finish_timeout_s if "finish" in write else self.settings.command_timeout_s
                 )
                 if write == ("w2",):
                     actual = await self._read_pose()
@@ -164,6 +176,8 @@ class C500CRobot(ConsoleLink):
         except DeviceError as err:
             self._hold(str(err))
             raise
+        if actual is None and target is not None:
+            self._at = target  # no read-back: where it was sent
         self._moves += 1
         self._arm_power, self._homed = True, True
         self._point_of_control = True
@@ -241,6 +255,11 @@ class C500CRobot(ConsoleLink):
             else:
                 speed = None
             expected = (taught.x + commanded[0], taught.y + commanded[1], taught.z + commanded[2])
+            turned = (
+                taught.z_rot + rotation_deg[0],
+                taught.y_rot + rotation_deg[1],
+                taught.x_rot + rotation_deg[2],
+            )
             if speed is not None:
                 # unknown until the write is answered: a failed write sends it again
                 self._speed_percent = None
@@ -255,6 +274,8 @@ class C500CRobot(ConsoleLink):
                     proto.round_deg(rotation_deg[2]),
                 ),
                 goal=goal,
+                target=(expected, turned),
+                speed_percent=speed_percent if speed_percent is not None else self._speed_percent,
             )
             if speed_percent is not None:
                 self._speed_percent = speed_percent
@@ -272,7 +293,18 @@ class C500CRobot(ConsoleLink):
             if readback:
                 start = await self._read_pose()
                 expected = (start.x + commanded[0], start.y + commanded[1], start.z + commanded[2])
-            return await self._run_motion(writes, delta_mm, commanded, expected)
+            target = None
+            if self._at is not None:
+                (x, y, z), angles = self._at
+                target = ((x + commanded[0], y + commanded[1], z + commanded[2]), angles)
+            return await self._run_motion(
+                writes,
+                delta_mm,
+                commanded,
+                expected,
+                target=target,
+                speed_percent=self._speed_percent,
+            )
 
     async def read_position_lines(self) -> list[str]:
         """The raw lines of one `w2` read-out (``thermocomp robot check`` prints them)."""
@@ -331,7 +363,7 @@ class C500CRobot(ConsoleLink):
 
     def status(self) -> RobotStatus:
         return RobotStatus(
-            link=self._link,
+            link=self._reported_link(),
             arm_power=self._arm_power,
             homed=self._homed,
             online=self._online,

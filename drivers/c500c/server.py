@@ -38,6 +38,7 @@ from drivers.errors import (
     ProtocolError,
 )
 from drivers.goals import check_goal_name, require_finite, rotation_zyx_deg
+from drivers.move_timeout import move_timeout_s
 from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
@@ -76,9 +77,14 @@ class C500CServerRobot(ServerLink):
         self._goals: dict[str, tuple[int, Pose]] = {}
         self._arm_power: bool | None = None
         self._homed: bool | None = None
+        #: where the tool was last read (position mm, z-y-x angles deg): a move's timeout
+        #: follows from its distance from here (drivers/move_timeout.py)
+        self._at: tuple[Vector3, Vector3] | None = None
 
     def _check(self, reply: proto.Reply, *, motion: bool) -> proto.Reply:
         """Raise the controller's error, if any (catalogue numbers passed through)."""
+        pose = reply.pose
+        self._at = ((pose[0], pose[1], pose[2]), (pose[3], pose[4], pose[5]))
         if reply.ok:
             if motion:
                 self._arm_power, self._homed = True, True
@@ -146,6 +152,12 @@ class C500CServerRobot(ServerLink):
         self._require_motion_allowed()
         offset6 = proto.quantise((*offset, *rotation_deg))
         commanded = (offset6[0], offset6[1], offset6[2])
+        base = expected_from
+        target = (
+            (base.x + offset6[0], base.y + offset6[1], base.z + offset6[2]),
+            (base.z_rot + offset6[3], base.y_rot + offset6[4], base.x_rot + offset6[5]),
+        )
+        timeout_s = move_timeout_s(self.settings, self._at, target)  # its frame has no speed
         async with self._motion_lock:
             started = time.perf_counter()
             try:
@@ -153,7 +165,7 @@ class C500CServerRobot(ServerLink):
                     await self._request(
                         request_type,
                         offset6,
-                        timeout_s=self.settings.move_timeout_s,
+                        timeout_s=timeout_s,
                         goal=goal_index,
                     ),
                     motion=True,
@@ -270,7 +282,7 @@ class C500CServerRobot(ServerLink):
     def status(self) -> RobotStatus:
         flags = self._flags
         return RobotStatus(
-            link=self._link,
+            link=self._reported_link(),
             arm_power=self._arm_power,
             homed=self._homed,
             online=self.settings.online,

@@ -112,6 +112,7 @@ class ServerLink(LinkLifecycle):
         self.heartbeats = 0
         self.stray_replies = 0  # late replies of cancelled requests or an old link, dropped
         self._synchronised = False
+        self._stall: str | None = None  # a move's reply that never came, until reconnected
 
     # --- lifecycle ---
 
@@ -182,6 +183,7 @@ class ServerLink(LinkLifecycle):
             self._drop_connection(NotConnectedError(DEVICE, "handshake failed"))
             raise
         self._enter(LinkState.CONNECTED)
+        self._stall = None
         self._connected_event.set()
         logger.info(
             "connected to the C500C server program on %s (flags %s)", self.port, reply.flags
@@ -343,6 +345,8 @@ class ServerLink(LinkLifecycle):
                     DEVICE, f"no reply {timeout_s:g} s after {request_type.name} #{sequence}"
                 )
                 if not handshake:
+                    if request_type in _MOTION:
+                        self._stall = str(error)  # reported "stalled" until reconnected
                     self._link_fault(error)
                 raise error from err
         except asyncio.CancelledError:
@@ -353,6 +357,12 @@ class ServerLink(LinkLifecycle):
             raise
         finally:
             self._pending.pop(sequence, None)
+
+    def _reported_link(self) -> LinkState:
+        """``stalled`` after a move's reply timed out, until connected again."""
+        if self._stall is not None and self._link is not LinkState.CONNECTED:
+            return LinkState.STALLED
+        return self._link
 
     def _require_motion_allowed(self) -> None:
         self.permit.require()
