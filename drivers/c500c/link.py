@@ -107,6 +107,7 @@ class ConsoleLink(LinkLifecycle):
             lock=self._lock,
             on_failure=lambda _: self._enter(LinkState.RECONNECTING),
             on_success=lambda: logger.info("reconnected; motion stays held until resume()"),
+            on_fatal=self._reconnection_failed,
             task_name="c500c-reconnect",
         )
         self._resync_task: asyncio.Task[None] | None = None
@@ -359,6 +360,12 @@ class ConsoleLink(LinkLifecycle):
         if self._stall is not None and self._link is not LinkState.CONNECTED:
             return LinkState.STALLED
         return self._link
+
+    def _reconnection_failed(self, error: BaseException) -> None:
+        """The reconnection ended on an unexpected error (logged with its traceback): the
+        link is failed, motion held, until it is closed and opened again."""
+        self._hold(f"the reconnection failed: {error!r}")
+        self._enter(LinkState.FAULT)
 
     async def wait_link(self, state: LinkState, timeout_s: float) -> None:
         """Wait until the link is in ``state``; DeviceTimeoutError otherwise."""

@@ -102,6 +102,7 @@ class ServerLink(LinkLifecycle):
             max_backoff_s=lambda: self.settings.reconnect_max_backoff_s,
             on_failure=lambda _: self._enter(LinkState.RECONNECTING),
             on_success=lambda: logger.info("reconnected; motion stays held until resume()"),
+            on_fatal=self._reconnection_failed,
             task_name="c500c-server-reconnect",
         )
         self._heartbeat_task: asyncio.Task[None] | None = None
@@ -357,6 +358,12 @@ class ServerLink(LinkLifecycle):
             raise
         finally:
             self._pending.pop(sequence, None)
+
+    def _reconnection_failed(self, error: BaseException) -> None:
+        """The reconnection ended on an unexpected error (logged with its traceback): the
+        link is failed, motion held, until it is closed and opened again."""
+        self._hold(f"the reconnection failed: {error!r}")
+        self._enter(LinkState.FAULT)
 
     def _reported_link(self) -> LinkState:
         """``stalled`` after a move's reply timed out, until connected again."""
