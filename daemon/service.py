@@ -276,7 +276,9 @@ class Daemon:
         if session is None:
             raise RunStateError("no run")
         if session.task is not None:
-            await asyncio.shield(session.task)
+            # asyncio.wait, not the task itself: a run task ended by cancellation (a step
+            # abandoned to stop) must not raise CancelledError into a caller nobody cancelled
+            await asyncio.wait({session.task})
         return session.view().info(self.clock.now())
 
     async def wait_state(self, *states: RunState) -> RunState:

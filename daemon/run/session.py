@@ -361,7 +361,7 @@ class RunSession:
             return
         logger.warning("run %d step %d: %s", self.id, step, verdict.reason)
         if self.state is RunState.RUNNING:
-            await self._hold_quietly()  # paused means held (docs/explanation/hold.md)
+            await self._hold_quietly(f"run {self.id} paused: {verdict.reason}")  # paused: held
             self._go(RunState.PAUSED, verdict.reason)
         else:
             logger.info(
@@ -375,7 +375,7 @@ class RunSession:
     async def _fault(self, reason: str) -> None:
         """A device fault: hold motion first, then park the run in ``fault`` until an explicit
         resume -- unless a request (pause, stop) came first: then the fault is on the step."""
-        await self._hold_quietly()
+        await self._hold_quietly(f"run {self.id} fault: {reason}")
         if self.state in (RunState.RUNNING, RunState.STARTING):
             self._go(RunState.FAULT, reason)
         else:
@@ -413,7 +413,11 @@ class RunSession:
         back, and a shutdown must end within systemd's TimeoutStopSec (issue 26)."""
         services = self._services
         try:
-            await self._hold_quietly()
+            # the hold says why when nothing asked for it first (issue 26: not "stopped by
+            # request" after a recording failure aborted the run)
+            await self._hold_quietly(
+                f"run {self.id} {final.value}" + (f": {reason}" if reason else "")
+            )
             await stop_duty_cycle(services)
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
@@ -511,7 +515,11 @@ class RunSession:
             last_record=self.last_record,
         )
 
-    async def _hold_quietly(self) -> None:
+    async def _hold_quietly(self, reason: str | None = None) -> None:
+        """Hold the robot; ``reason`` is what its status says when this hold is the first
+        since the last release (a request's own hold keeps its reason)."""
+        if reason is not None:
+            self.permit.hold(reason)
         try:
             await self._services.robot.stop()
         except DeviceError as err:
