@@ -158,6 +158,16 @@ def _idle(client: httpx.Client) -> None:
     raise SystemExit("the daemon did not become idle")
 
 
+def _until_running(client: httpx.Client, timeout_s: float = 300.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while (state := _state(client))["state"] != "running":
+        if state["state"] == "idle" and state.get("run") and time.monotonic() > deadline - 290:
+            raise SystemExit(f"the run ended before it ran: {state['run'].get('reason')}")
+        if time.monotonic() > deadline:
+            raise SystemExit("the run did not start")
+        time.sleep(0.05)
+
+
 def _hold(client: httpx.Client) -> tuple[float, float]:
     sent = time.monotonic()
     answer = client.post("/robot/stop")
@@ -201,11 +211,7 @@ def holds_during_builds(client: httpx.Client, log: Path, trials: int) -> dict[st
 def holds_during_play(client: httpx.Client, log: Path, trials: int) -> dict[str, Any]:
     _idle(client)
     run_id = client.post("/runs", json={}).raise_for_status().json()["id"]
-    deadline = time.monotonic() + 300
-    while _state(client)["state"] != "running":
-        if time.monotonic() > deadline:
-            raise SystemExit("the arm run did not start")
-        time.sleep(0.1)
+    _until_running(client)
     latencies: list[float] = []
     followed = 0
     for _ in range(trials):
@@ -266,8 +272,7 @@ def random_control(base: str, log: Path, requests: int, clients: int) -> dict[st
 def day_run_stop(folder: Path, steps: int) -> dict[str, Any]:
     with server(folder) as (client, _log, process):
         run_id = client.post("/runs", json={}).raise_for_status().json()["id"]
-        while _state(client)["state"] != "running":
-            time.sleep(0.05)
+        _until_running(client)
         client.post(f"/runs/{run_id}/pause").raise_for_status()
         began = time.monotonic()
         add_steps(folder / "data", run_id, steps, first_step=10_000_000)

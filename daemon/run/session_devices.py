@@ -48,18 +48,24 @@ async def start_bench(work: RunWork | ArmRunWork, services: SessionServices) -> 
                 functools.partial(start, services.clock.now(), duty_cycle=parameters.duty_cycle)
             )
     elif services.bench is not None:
-        # the simulated links start cold with this run, at its scale and procedure: built on a
-        # worker thread (0.25-0.55 s of truth model under load, which on the event loop held up
-        # every hold behind it; issue 26). Nothing reads the bench until the reference frame.
-        await services.workers.step(
-            functools.partial(
-                services.bench.start_run,
-                services.clock.now(),
-                deformation_scale=parameters.deformation_scale,
-                procedure=parameters.procedure,
-                heater_off_s=parameters.heater_off_s,
-            )
+        # the simulated links start cold with this run, at its scale and procedure: the truth
+        # built on a worker thread (0.25-0.55 s under load, which on the event loop held up
+        # every hold behind it; issue 26), the spot aligned on the loop, where the emulated
+        # robot lives. Nothing reads the bench until the reference frame.
+        bench = services.bench
+        start = functools.partial(
+            bench.start_run,
+            services.clock.now(),
+            deformation_scale=parameters.deformation_scale,
+            procedure=parameters.procedure,
+            heater_off_s=parameters.heater_off_s,
         )
+        build, align = getattr(bench, "build_run", None), getattr(bench, "align_spot", None)
+        if build is None or align is None:
+            start()  # a bench with no split (a test's)
+            return
+        await services.workers.step(functools.partial(build, *start.args, **start.keywords))
+        align()
 
 
 async def capture_reference(work: RunWork, services: SessionServices) -> None:
