@@ -37,13 +37,16 @@ from drivers.errors import (
     PointOfControlError,
     ProtocolError,
 )
-from drivers.goals import check_goal_name, require_finite, rotation_zyx_deg
+from drivers.goals import MAX_MOVE_OFFSET_MM, check_goal_name, require_target, rotation_zyx_deg
 from drivers.move_timeout import move_timeout_s
 from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
 
+#: The farthest offset a MOVE frame carries (mm): the drivers' bound, or the int32 of 0.1 um
+#: counts (controller/PROTOCOL.md), whichever is smaller.
+MAX_FRAME_OFFSET_MM = min(MAX_MOVE_OFFSET_MM, (2**31 - 1) / proto.COUNTS_PER_MM)
 #: Catalogue 044 (C500C.md); the console's table of texts may not carry it.
 HALT_TEXT = "Halt() command invoked"
 
@@ -148,7 +151,7 @@ class C500CServerRobot(ServerLink):
     ) -> MoveResult:
         """One motion frame and its reply; ``exchanges_before``: plain requests this step
         made first (counted in the step's bytes: other traffic such as heartbeats is not)."""
-        require_finite(offset, "motion target", DEVICE)
+        require_target(offset, "motion target", DEVICE, MAX_FRAME_OFFSET_MM)
         self._require_motion_allowed()
         offset6 = proto.quantise((*offset, *rotation_deg))
         commanded = (offset6[0], offset6[1], offset6[2])
@@ -172,6 +175,11 @@ class C500CServerRobot(ServerLink):
                 )
             except DeviceError as err:
                 self._hold(str(err))
+                raise
+            except asyncio.CancelledError:
+                # the frame may be on the wire: the program may move; hold until a resume
+                # (the console driver holds a cut move likewise; tests/contract/)
+                self._hold("a move was cut before its reply")
                 raise
             round_trip_s = time.perf_counter() - started
         actual = _pose(reply.pose)
@@ -207,7 +215,7 @@ class C500CServerRobot(ServerLink):
         values (x, y, z mm; z-rot, y-rot, x-rot degrees: ``rotation_rad``, a rotation vector in
         the base frame, as its z-y-x angles, drivers/goals.py), moves, waits for the end of the
         motion and answers the actual pose. The read-back is checked on the position."""
-        require_finite(offset_mm, "motion target", DEVICE)
+        require_target(offset_mm, "motion target", DEVICE, MAX_FRAME_OFFSET_MM)
         rotation_deg = rotation_zyx_deg(rotation_rad, DEVICE)
         check_goal_name(goal, DEVICE)
         taught = self._goals.get(goal)
