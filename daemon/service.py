@@ -29,9 +29,7 @@ from types import TracebackType
 from typing import Any, TypeVar
 
 from config import Settings
-from daemon.run.arm.prepare import ArmServices
 from daemon.run.arm.setup import ArmMeterFactory, ArmSetup, default_arm_meter, default_arm_setup
-from daemon.run.arm.step import ArmRunWork
 from daemon.run.devices_check import DeviceCheck, Devices, check_devices
 from daemon.run.events import (
     ERROR_HISTORY,
@@ -41,14 +39,15 @@ from daemon.run.events import (
     EventBus,
     Subscription,
 )
-from daemon.run.readmodel import RunView
+from daemon.run.kinds import build_kind
+from daemon.run.readmodel import RunReadModel, RunView
 from daemon.run.scheduler import TimingStats
 from daemon.run.sensors import Sensors
+from daemon.run.services import SessionServices
 from daemon.run.session import ResumeRefusedError, RunSession
 from daemon.run.setup import RunParameterError
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters, RunState, RunStateError
-from daemon.run.two_link.step import RunWork
 from daemon.run.unrecorded_end import UnrecordedEnd
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
@@ -113,11 +112,9 @@ class Daemon:
         self.error_log = ErrorLog(self.bus, ERROR_HISTORY)
         self.timing = TimingStats()
         self._session: RunSession | None = None
-        self._view: RunView | None = None  # the current or last run, as the API sees it
-        self.view_version = 0  # bumped at each new view: caches of the state key on it
+        #: the current or last run as the API sees it, and the control loop's liveness
+        self.read_model = RunReadModel()
         self._requests = asyncio.Lock()  # serialises start/pause/resume/stop
-        #: monotonic time of the control loop's last sign of life (systemd watchdog, issue 10)
-        self.last_progress_monotonic = time.monotonic()
         self._unrecorded_end = UnrecordedEnd(self._storage, UNRECORDED_END_RETRY_S)
 
     # --- lifecycle ---------------------------------------------------------------------
@@ -205,27 +202,24 @@ class Daemon:
                     f"run {session.id} is {session.state.value}: one run at a time"
                 )
             await self._unrecorded_end.record(raise_on_failure=True)
-            builder = self._run_builder()
-            work: RunWork | ArmRunWork
-            arm: ArmServices | None = None
-            if parameters.duty_cycle is not None:
-                work, arm = await builder.arm_work(parameters)
-            else:
-                work = await builder.two_link_work(parameters)
+            kind = await build_kind(self._run_builder(), parameters)
             self.timing = TimingStats()
-            services = builder.session_services(
-                arm,
+            services = SessionServices(
+                settings=self.settings,
+                robot=self.devices.robot,
+                recorder=self._recorder(),
+                workers=self._workers_(),
                 bus=self.bus,
+                errors=self.error_log,
                 timing=self.timing,
                 reports=self.reports,
-                on_view=self._set_view,
-                on_progress=self._progress,
-                on_unrecorded_end=self._unrecorded_end.remember,
+                read_model=self.read_model,
+                unrecorded_end=self._unrecorded_end,
             )
-            session = RunSession(work, services, ticket)
+            session = RunSession(kind, services, ticket)
             self._session = session
             session.start()
-            logger.info("run %d started: %s", work.run_id, parameters.model_dump())
+            logger.info("run %d (%s) started: %s", kind.run_id, kind.name, parameters.model_dump())
             return session.view().info(self.clock.now())
 
     async def pause(self, reason: str = "paused by request") -> None:
@@ -323,9 +317,18 @@ class Daemon:
     # --- observation -------------------------------------------------------------------
 
     @property
+    def view_version(self) -> int:
+        """Bumped at each new view: caches of the state key on it."""
+        return self.read_model.version
+
+    @property
+    def last_progress_monotonic(self) -> float:
+        return self.read_model.last_progress_monotonic
+
+    @property
     def run(self) -> RunView | None:
         """The current or last run, as a frozen view (never the live run)."""
-        return self._view
+        return self.read_model.view
 
     @property
     def errors(self) -> deque[ErrorEntry]:
@@ -343,10 +346,10 @@ class Daemon:
     def control_loop_alive(self, max_silence_s: float) -> bool:
         """For the systemd watchdog (issue 10): False when a running run has recorded no step
         for ``max_silence_s`` beyond its step period, i.e. the control loop hangs."""
-        view = self._view
+        view = self.read_model.view
         if view is None or view.state is not RunState.RUNNING:
             return True
-        silence_s = time.monotonic() - self.last_progress_monotonic
+        silence_s = time.monotonic() - self.read_model.last_progress_monotonic
         return silence_s <= max_silence_s + view.parameters.step_s
 
     def recent_errors(self, limit: int = ERROR_HISTORY) -> list[dict[str, Any]]:
@@ -355,7 +358,7 @@ class Daemon:
 
     def snapshot(self) -> dict[str, Any]:
         """Everything the daemon knows now: state, run, last step, devices, timing, errors."""
-        view = self._view
+        view = self.read_model.view
         robot_status = self.devices.robot.status() if self._devices is not None else None
         return {
             "state": RunState.IDLE.value
@@ -393,13 +396,6 @@ class Daemon:
             arm_setup=self._arm_setup,
             arm_meter=self._arm_meter,
         )
-
-    def _set_view(self, view: RunView) -> None:
-        self._view = view
-        self.view_version += 1
-
-    def _progress(self) -> None:
-        self.last_progress_monotonic = time.monotonic()
 
     def _storage(self) -> tuple[Workers, Recorder] | None:
         if self._workers is None or self.recorder is None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Protocol, Self
+from typing import Protocol, Self, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -254,3 +254,43 @@ class SpeedGoalRobot(GoalRobot, Protocol):
         speed; refused outside before anything is sent); None: the speed the controller has.
         The speed is sent only when it differs from the last one sent on this connection."""
         ...
+
+
+# --- a robot that plays its own program (issue 27: run kind "followed") ------------------
+
+
+class FollowedState(Protocol):
+    """What the daemon reads of a robot that plays its own program: where in it the robot is."""
+
+    @property
+    def at_pose(self) -> int:
+        """The program's measured pose k (1-based) while the robot dwells there, 0 elsewhere."""
+        ...
+
+
+@runtime_checkable
+class OffsetRobot(AsyncDevice, Protocol):
+    """A robot that runs its own taught program while the daemon corrects it with a 6-DOF
+    offset (a UR over RTDE; daemon/run/followed/). Minimal: the UR driver's own definition is
+    the fuller one. The hold contract is Robot's: its ``permit`` (drivers/permit.py) is held
+    by stop() before its first await, every correction is refused after a hold right before
+    its bytes are written, and only a resume() with a ticket newer than the hold releases it;
+    a non-finite or over-limit correction is refused before any byte."""
+
+    @property
+    def permit(self) -> MotionPermit: ...
+
+    async def set_correction(
+        self, offset_mm: Vector3, rotation_rad: Vector3 = ZERO_ROTATION
+    ) -> int:
+        """Write the correction (base frame: mm, a rotation vector in rad) for the program to
+        follow; returns the sequence number it was written with."""
+        ...
+
+    def robot_state(self) -> FollowedState: ...
+
+    async def stop(self) -> None: ...
+
+    async def resume(self, ticket: Ticket | None = None) -> None: ...
+
+    def status(self) -> RobotStatus: ...

@@ -21,6 +21,7 @@ from pydantic import ValidationError
 from config import Settings
 from daemon.arm.run import CyclePose, MeasuredPose
 from daemon.arm.types import Pose6
+from daemon.run.arm.kind import ArmKind
 from daemon.run.arm.player import ArmPlayer
 from daemon.run.arm.robot import GoalRobotArm
 from daemon.run.arm.step import ArmRunWork, ArmStepPipeline
@@ -97,8 +98,8 @@ def performed(
 
 def player_of(daemon: Daemon) -> ArmPlayer:
     session = daemon._session  # the run's own player, to see that it stopped
-    assert session is not None and session._services.arm is not None
-    player = session._services.arm.player
+    assert session is not None and isinstance(session.kind, ArmKind)
+    player = session.kind.arm.player
     assert player is not None
     return player
 

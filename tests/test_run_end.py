@@ -19,8 +19,8 @@ import pytest
 from benchmarks.run_database import add_steps
 from daemon import service as service_module
 from daemon.analysis import NUMERIC_COLUMNS
-from daemon.run import session as session_module
 from daemon.run.states import RunState
+from daemon.run.two_link.kind import TwoLinkKind
 from daemon.storage.recorder import DATABASE_NAME, Recorder
 from daemon.storage.series import SummaryAbandonedError, read_series
 from tests.fakes import Harness, make_settings, params
@@ -67,13 +67,13 @@ async def test_a_runs_end_is_committed_before_its_summary(
     """A day at 20 ms is 4.32 M steps to read back for the summary: the final state must not
     wait for it."""
     release = threading.Event()
-    summarize = session_module.run_summary
+    summarize = TwoLinkKind.summary
 
     def slow_summary(*args: Any, **kwargs: Any) -> dict[str, Any]:
         release.wait(WAIT_S)
         return summarize(*args, **kwargs)
 
-    monkeypatch.setattr(session_module, "run_summary", slow_summary)
+    monkeypatch.setattr(TwoLinkKind, "summary", slow_summary)
     settings = make_settings(tmp_path)
     harness = Harness(settings)
     async with harness.daemon as daemon:
@@ -102,7 +102,7 @@ async def test_a_shutdown_gives_up_a_summary_it_cannot_wait_for(
             pass
         raise SummaryAbandonedError("abandoned")
 
-    monkeypatch.setattr(session_module, "run_summary", endless_summary)
+    monkeypatch.setattr(TwoLinkKind, "summary", endless_summary)
     monkeypatch.setattr(service_module, "SHUTDOWN_SUMMARY_BUDGET_S", 0.2)
     settings = make_settings(tmp_path)
     harness = Harness(settings)

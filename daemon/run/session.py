@@ -1,7 +1,10 @@
 """One run, from its start to its final state: the only code that changes a run's state.
 
-prepare (teach the goal, warm-up, reference frame) -> loop (one step per deadline:
-daemon/run/two_link/step.py) -> finish (hold, summary, final state committed). Operator requests
+prepare (teach, release the robot, warm-up, bench, references) -> loop (one step per
+deadline) -> finish (hold, final state committed, summary). The same for every kind of run: what
+a run does to its devices and data is its kind (daemon/run/kind.py, chosen only by
+daemon/run/kinds.py). The robot may move only while no hold came after the request that last
+allowed this run to (its grant: drivers/permit.py; docs/explanation/hold.md). Operator requests
 (pause, resume, stop, a robot hold) and the steps' verdicts meet here, in :meth:`RunSession._go`,
 against the state machine of daemon/run/states.py: a request is refused with RunStateError when the
 state does not allow it; a verdict that arrives after a request (a step that ends in its own
@@ -11,9 +14,8 @@ and error) and changes nothing, so it never turns a run into ``aborted`` (issue 
 Every state change happens synchronously (no await between check and change), is published at
 once, and is persisted in order on the recorder's one thread (daemon/run/publish.py); the
 run's frozen view (daemon/run/readmodel.py) is replaced at each change for the API to read. What
-the session does to the devices outside a step (teach, the bench's start, the reference frame,
-a played duty cycle) is daemon/run/session_devices.py; what the daemon gives it,
-daemon/run/services.py. Those compute and do I/O; the state changes only here.
+the daemon gives every run is daemon/run/services.py. The kind computes and does I/O; the state
+changes only here.
 """
 
 from __future__ import annotations
@@ -26,24 +28,13 @@ import threading
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-import numpy as np
-
-from daemon.run.arm.prepare import measure_references
-from daemon.run.arm.step import ArmRunWork
+from daemon.run.kind import RunKind
 from daemon.run.publish import RunPublisher
 from daemon.run.readmodel import RunView
 from daemon.run.scheduler import FixedStepTimer
 from daemon.run.services import BenchControl, SessionServices
-from daemon.run.session_devices import (
-    capture_reference,
-    play_duty_cycle,
-    start_bench,
-    stop_duty_cycle,
-    teach_goals,
-)
 from daemon.run.states import RunState, RunStateError, StateMachine
-from daemon.run.summary import run_summary
-from daemon.run.two_link.step import RunWork, StepOutcome, Verdict
+from daemon.run.two_link.step import StepOutcome, Verdict
 from daemon.storage.recorder import RecorderError
 from daemon.storage.series import SummaryAbandonedError
 from drivers.errors import DeviceError, GoalLostError, MotionHeldError
@@ -62,11 +53,9 @@ class RunSession:
     """``ticket``: the robot's permit (drivers/permit.py) as it was when the start request
     arrived: the start may release a hold that came before it, never one that came after."""
 
-    def __init__(
-        self, work: RunWork | ArmRunWork, services: SessionServices, ticket: Ticket
-    ) -> None:
-        self.work = work
-        self.id = work.run_id
+    def __init__(self, kind: RunKind, services: SessionServices, ticket: Ticket) -> None:
+        self.kind = kind  # what this run does to its devices and data (daemon/run/kind.py)
+        self.id = kind.run_id
         self._services = services
         self.machine = StateMachine()
         self.timer: FixedStepTimer | None = None
@@ -120,7 +109,7 @@ class RunSession:
         robot = self._services.robot
         try:
             await robot.resume(ticket)  # a pause held it: released only if no hold came since
-            pose = await robot.actual_pose()
+            await self.kind.resumed()
         except MotionHeldError as err:
             raise RunStateError(f"run {self.id}: a hold came during the resume") from err
         except GoalLostError as err:
@@ -147,9 +136,6 @@ class RunSession:
             await self._hold_quietly()  # re-assert: the resume must not undo a later hold
             raise RunStateError(f"run {self.id}: a hold or stop came during the resume")
         self._grant = ticket
-        if isinstance(self.work, RunWork) and self.work.goal is not None:
-            # the incremental mode continues from where the robot really is
-            self.work.last_target_mm = np.subtract(pose.position, self.work.goal.position)
         self._go(RunState.RUNNING if self._prepared else RunState.STARTING, None)
 
     def request_stop(self, reason: str, final: RunState = RunState.STOPPED) -> None:
@@ -229,39 +215,34 @@ class RunSession:
         (docs/explanation/hold.md). Every move of a phase is refused by the driver after a hold
         (drivers/permit.py), so nothing of the start moves while it is parked."""
         services = self._services
-        work, parameters = self.work, self.work.parameters
+        kind, parameters = self.kind, self.kind.parameters
         # 6.4.3: every offset is from the goal taught here. Taught first, while still held: a
         # resume checks the goal the controller holds, and after a controller restart the
         # previous run's goal is gone (C500C.md), which must not refuse a new run.
         phases: list[tuple[str, Callable[[], Awaitable[None]]]] = [
-            ("teach the operational goal", lambda: teach_goals(work, services, moving=False)),
+            ("teach the operational goal", functools.partial(kind.teach, moving=False)),
             ("release the robot", self._release),
-            ("teach the operational goal", lambda: teach_goals(work, services, moving=True)),
+            ("teach the operational goal", functools.partial(kind.teach, moving=True)),
         ]
         for name, action in phases:
             if not await self._phase(name, action):
                 return False
         if parameters.warmup_wait_s > 0:
             logger.info("run %d: camera warm-up wait %.0f s", self.id, parameters.warmup_wait_s)
-            deadline_s = services.clock.now() + parameters.warmup_wait_s
-            while services.clock.now() < deadline_s:
+            deadline_s = kind.clock.now() + parameters.warmup_wait_s
+            while kind.clock.now() < deadline_s:
                 if not await self._wait_while_held():
                     return False
                 await self._sleep_until(deadline_s)
-        if not await self._phase("start the bench", lambda: start_bench(work, services)):
+        if not await self._phase("start the bench", kind.start_bench):
             return False
-        references: Callable[[], Awaitable[None]]
-        if isinstance(work, ArmRunWork):
-            references = functools.partial(self._arm_references, work)
-        else:
-            references = functools.partial(capture_reference, work, services)
-        if not await self._phase("measure the references", references):
+        if not await self._phase("measure the references", kind.references):
             return False
-        self.work.start_s = services.clock.now()
+        kind.start_s = kind.clock.now()
         self.timer = FixedStepTimer(
-            services.clock,
+            kind.clock,
             parameters.step_s,
-            self.work.start_s,
+            kind.start_s,
             precise_wake_s=services.settings.scheduler.precise_wake_ms / 1000.0,
         )
         self._prepared = True
@@ -305,46 +286,33 @@ class RunSession:
                 )
             raise
 
-    async def _arm_references(self, work: ArmRunWork) -> None:
-        """Each pose's zero, measured at its taught goal (a robot error raises: the phase
-        faults, and is done again after the resume)."""
-        await measure_references(
-            work,
-            self._services.arm_services(),
-            self._services.errors,
-            self._services.settings.arm.reference_frames,
-        )
-
     async def _loop(self) -> None:
         timer = self.timer
         assert timer is not None
-        end_s = self.work.start_s + self.work.parameters.duration_s
+        end_s = self.kind.start_s + self.kind.parameters.duration_s
         while True:
             if self.stop_requested or self.state is RunState.STOPPING:
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
-                await stop_duty_cycle(self._services)
+                await self.kind.stop_playing(self._services.settings.scheduler.stop_grace_s)
                 if not await self._wait_while_held():
                     return
                 timer.resync()
                 continue
             if timer.next_deadline_s >= end_s - 1e-9:
                 return
-            play_duty_cycle(self._services, self._grant)
+            self.kind.play(self._grant)  # what moves between the steps, for this grant
             await self._sleep_until(timer.next_wake_s)
             if self.stop_requested or self.state is not RunState.RUNNING:
                 continue  # woken by a request: handled at the top
             # a request that lands during the last yield before the deadline finds this step
             # under way (it completes): skipping it would leave a gap in the step numbers
             tick = await timer.wait()
-            if isinstance(self.work, ArmRunWork):
-                outcome = await self._services.arm_services().pipeline.run(self.work, tick)
-            else:
-                outcome = await self._services.pipeline.run(self.work, tick)
+            outcome = await self.kind.step(tick)
             self._recorded(outcome)
             await self._judge(tick.step, outcome.verdict)
             timer.step_done()
-            self._services.on_progress()
+            self._services.read_model.progress()
 
     def _recorded(self, outcome: StepOutcome) -> None:
         """A committed step: the session's last step, then its publication."""
@@ -390,7 +358,7 @@ class RunSession:
 
     async def _sleep_until(self, deadline_s: float) -> None:
         """Sleep on the run clock, waking early for any request."""
-        clock = self._services.clock
+        clock = self.kind.clock
         if clock.now() >= deadline_s:
             return
         self._wake.clear()
@@ -418,7 +386,7 @@ class RunSession:
             await self._hold_quietly(
                 f"run {self.id} {final.value}" + (f": {reason}" if reason else "")
             )
-            await stop_duty_cycle(services)
+            await self.kind.stop_playing(services.settings.scheduler.stop_grace_s)
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
             recorded = await self._record_end(final, reason)
@@ -433,12 +401,12 @@ class RunSession:
                         logger.error("run %d: cannot record its summary: %s", self.id, err)
                         services.errors.note(err, device="storage")
                 else:
-                    services.on_unrecorded_end(self.id, final.value, self.summary, reason)
+                    services.unrecorded_end.remember(self.id, final.value, self.summary, reason)
         except Exception as err:  # a bug in the ending itself: still end (traceback logged)
             logger.exception("run %d: error while ending", self.id)
             services.errors.note(err, device="daemon")
         finally:
-            self.ended_s = services.clock.now()
+            self.ended_s = self.kind.clock.now()
             self.machine.state, self.machine.reason = final, reason
             self._publisher.state(self.view())
             if services.settings.storage.report_at_end and self.step >= 0:
@@ -456,16 +424,15 @@ class RunSession:
         except Exception as err:
             logger.error("run %d: cannot record its end yet: %s", self.id, err)
             services.errors.note(err, device="storage")
-            services.on_unrecorded_end(self.id, final.value, None, reason)
+            services.unrecorded_end.remember(self.id, final.value, None, reason)
             return False
         return True
 
     async def _summarize(self) -> dict[str, Any] | None:
         services = self._services
         summarize = functools.partial(
-            run_summary,
+            self.kind.summary,
             services.recorder,
-            self.work,
             overruns=0 if self.timer is None else self.timer.overruns,
             skipped=0 if self.timer is None else self.timer.skipped,
             timing=services.timing.summary(fresh=True),
@@ -487,7 +454,7 @@ class RunSession:
         the new view, and persist it in order on the recorder's thread."""
         self.machine.go(state, reason)
         if state is RunState.RUNNING:
-            self._services.on_progress()  # a pause is not a hung loop
+            self._services.read_model.progress()  # a pause is not a hung loop
         self._wake.set()
         logger.info("run %d: %s%s", self.id, state.value, f" ({reason})" if reason else "")
         self._announce(state, reason)
@@ -506,8 +473,8 @@ class RunSession:
             state=self.state,
             reason=self.machine.reason,
             step=self.step,
-            parameters=self.work.parameters,
-            start_s=self.work.start_s,
+            parameters=self.kind.parameters,
+            start_s=self.kind.start_s,
             end_s=self.ended_s,
             summary=self.summary,
             overruns=0 if self.timer is None else self.timer.overruns,

@@ -19,9 +19,9 @@ from daemon.storage.recorder import Recorder
 SUMMARY_COLUMNS = (*NUMERIC_COLUMNS, "run_id", "flags", "error")
 
 
-def run_summary(
+def two_link_summary(
     recorder: Recorder,
-    work: RunWork | ArmRunWork,
+    work: RunWork,
     *,
     overruns: int,
     skipped: int,
@@ -31,10 +31,6 @@ def run_summary(
     """Table 6.1's figures and the run's timing. The steps are columns read chunk by chunk
     (daemon/storage/series.py), never one record object per step: a day at a 20 ms step is
     4.32 M steps (benchmarks/bench_stop.py). ``abandon`` gives the read up (shutdown)."""
-    if isinstance(work, ArmRunWork):
-        return arm_summary(
-            recorder, work, overruns=overruns, skipped=skipped, timing=timing, abandon=abandon
-        )
     steps = recorder.run_series(work.run_id, SUMMARY_COLUMNS, abandon)
     parameters = work.parameters
     reference = work.reference_um.get(0, (None, None))
