@@ -34,11 +34,13 @@ from api.routers import (
     ws,
 )
 from api.security import Authenticator, HostAllowList, RateLimiter
+from api.tickets import TicketAtArrival
 from config import ConfigError, Settings
 from daemon import __version__
 from daemon.service import Daemon
 from daemon.storage.recorder import RecorderError
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit
 
 API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).resolve().parent / "static"
@@ -105,6 +107,8 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         max_body_bytes=api.max_body_bytes,
         api_prefixes=(API_PREFIX, "/metrics", "/openapi.json"),
     )
+    # outermost: a start's or resume's ticket is taken before the Gate reads its body
+    app.add_middleware(TicketAtArrival, permit=lambda: _permit(context))
     for router in (
         health.router,
         state.read_router,
@@ -157,6 +161,15 @@ async def serving(context: ApiContext, daemon: Daemon) -> AsyncIterator[None]:
         relay.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await relay
+
+
+def _permit(context: ApiContext) -> MotionPermit | None:
+    """The robot's permit while the daemon runs with its devices open."""
+    daemon = context.service
+    try:
+        return None if daemon is None else daemon.permit
+    except RuntimeError:  # the daemon's devices are not open
+        return None
 
 
 def _polled_state_route(context: ApiContext) -> Route:
