@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from config import Settings
-from daemon.run.arm.prepare import ArmServices, measure_references, teach_poses
+from daemon.run.arm.prepare import ArmServices, measure_references, reference_frames, teach_poses
 from daemon.run.arm.step import ArmRunWork
 from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
