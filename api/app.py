@@ -34,13 +34,15 @@ from api.routers import (
     ws,
 )
 from api.security import Authenticator, HostAllowList, RateLimiter
+from api.tickets import TicketAtArrival
 from config import ConfigError, Settings
-from config.cli import EXIT_USAGE
+from config.cli import EXIT_DEVICE, EXIT_USAGE
 from config.inputs import InputError, one_line
 from daemon import __version__
 from daemon.service import Daemon
 from daemon.storage.recorder import RecorderError
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit
 
 API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).resolve().parent / "static"
@@ -51,7 +53,12 @@ logger = logging.getLogger(__name__)
 
 class DaemonStartFailed(Exception):
     """The daemon could not open its devices or recording; already logged in one line (the
-    traceback uvicorn would log is dropped by api.startup's log filter)."""
+    traceback uvicorn would log is dropped by api.startup's log filter). ``status`` is the
+    exit status it asks of ``serve``: 3 for a device, 2 for a file or name of the settings."""
+
+    def __init__(self, message: str, status: int = EXIT_DEVICE) -> None:
+        super().__init__(message)
+        self.status = status
 
 
 #: Builds the daemon service from the settings; entered at startup, left at shutdown.
@@ -78,32 +85,13 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        if service_factory is None:
+            yield
+            return
         async with AsyncExitStack() as stack:
-            relay: asyncio.Task[None] | None = None
-            if service_factory is not None:
-                try:
-                    daemon = await stack.enter_async_context(service_factory(settings))
-                except InputError as err:  # a file or name of the settings: exit 2
-                    logger.error("cannot start the daemon: %s", one_line(err))
-                    context.start_failure_status = EXIT_USAGE
-                    raise DaemonStartFailed(one_line(err)) from None
-                except (DeviceError, RecorderError, ConfigError, OSError) as err:
-                    # a device that is there but does not answer (the start-up checks,
-                    # api/startup.py, found it present): one line, not a traceback; uvicorn
-                    # exits with 3, the status of a device failure
-                    logger.error("cannot start the daemon: %s", err)
-                    raise DaemonStartFailed(str(err)) from None
-                logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
-                context.service = daemon
-                relay = asyncio.create_task(Relay(daemon, context).run(), name="api-relay")
-            try:
+            daemon = await open_service(stack, settings, service_factory)
+            async with serving(context, daemon):
                 yield
-            finally:
-                context.service = None
-                if relay is not None:
-                    relay.cancel()
-                    with contextlib.suppress(asyncio.CancelledError):
-                        await relay
 
     app = FastAPI(
         title="thermocomp",
@@ -126,6 +114,8 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         max_body_bytes=api.max_body_bytes,
         api_prefixes=(API_PREFIX, "/metrics", "/openapi.json"),
     )
+    # outermost: a start's or resume's ticket is taken before the Gate reads its body
+    app.add_middleware(TicketAtArrival, permit=lambda: _permit(context))
     for router in (
         health.router,
         state.read_router,
@@ -145,6 +135,54 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
     app.router.routes.insert(0, _polled_state_route(context))
     install_openapi(app, context.auth.anonymous_read)
     return app
+
+
+async def open_service(
+    stack: AsyncExitStack, settings: Settings, service_factory: ServiceFactory
+) -> Daemon:
+    """Open the daemon (devices, recording) on ``stack``, which closes it; a device or
+    recording that fails is logged in one line and raised as :class:`DaemonStartFailed`."""
+    try:
+        return await stack.enter_async_context(service_factory(settings))
+    except InputError as err:
+        # a file or name of the settings (network, arm, duty cycle ...) that the start-up
+        # checks did not meet: a configuration error, exit 2 -- never 3, which systemd
+        # retries forever
+        logger.error("cannot start the daemon: %s", one_line(err))
+        raise DaemonStartFailed(one_line(err), EXIT_USAGE) from None
+    except (DeviceError, RecorderError, ConfigError, OSError) as err:
+        # a device that is there but does not answer (the start-up checks, api/startup.py,
+        # found it present): one line, not a traceback; `serve` exits with 3, the status of
+        # a device failure
+        logger.error("cannot start the daemon: %s", err)
+        raise DaemonStartFailed(str(err)) from None
+
+
+@asynccontextmanager
+async def serving(context: ApiContext, daemon: Daemon) -> AsyncIterator[None]:
+    """The application's routes and WebSocket relay drive ``daemon`` while inside; then they
+    answer 503 again (the application's lifespan, or ``thermocomp serve``, which owns the
+    daemon itself: api/serve.py)."""
+    settings = context.settings
+    logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
+    context.service = daemon
+    relay = asyncio.create_task(Relay(daemon, context).run(), name="api-relay")
+    try:
+        yield
+    finally:
+        context.service = None
+        relay.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await relay
+
+
+def _permit(context: ApiContext) -> MotionPermit | None:
+    """The robot's permit while the daemon runs with its devices open."""
+    daemon = context.service
+    try:
+        return None if daemon is None else daemon.permit
+    except RuntimeError:  # the daemon's devices are not open
+        return None
 
 
 def _polled_state_route(context: ApiContext) -> Route:

@@ -66,8 +66,8 @@ class ArmSettings(Section):
     reference_frames: Annotated[int, Field(ge=1, le=MAX_FRAMES_PER_MEASUREMENT)] | None = Field(
         None,
         description="Frames of each pose's reference (its zero, measured once before the first "
-        "step): its error is in every later drift of that pose; none: "
-        "arm.frames_per_measurement.",
+        "step): its error is in every later drift of that pose, and the meter measures its "
+        "cameras' scatter on them; none: arm.frames_per_measurement; at least 4.",
     )
     max_translation_mm: Annotated[float, Field(gt=0, le=MAX_ARM_TRANSLATION_MM)] = Field(
         2.0, description="Largest translation of a pose's correction (mm)."

@@ -21,7 +21,7 @@ from typing import Annotated, Any, Literal, Self, Union, get_args, get_origin
 from pydantic import BaseModel, ValidationError, model_validator
 
 from config.arm_settings import ArmSettings
-from config.bench_settings import BenchSettings
+from config.bench_settings import BenchSettings, two_link_settings_given
 from config.device_settings import CameraSettings, IrRegion, IrSettings, RobotSettings
 from config.inputs import MAX_TOML_DEPTH, InputError, nesting_depth, read_regular_file
 from config.model_settings import (
@@ -30,6 +30,7 @@ from config.model_settings import (
     ObserverSettings,
     SchedulerSettings,
 )
+from config.room_settings import RoomSettings
 from config.section import MAX_CONNECTIONS_LIMIT, SUPPORTED_BAUDRATES, Section
 from config.service_settings import ApiSettings, StorageSettings
 
@@ -54,6 +55,7 @@ __all__ = [
     "ModelSettings",
     "ObserverSettings",
     "RobotSettings",
+    "RoomSettings",
     "SchedulerSettings",
     "Settings",
     "StorageSettings",
@@ -96,6 +98,30 @@ class Settings(Section):
                 )
         return self
 
+    @model_validator(mode="after")
+    def _arm_bench_truth(self) -> Self:
+        # the arm bench's truth is bench.arm_truth: a two-link truth setting would be ignored
+        if self.arm.enabled and self.bench.enabled and self.robot.driver == "sim":
+            given = two_link_settings_given(self.bench)
+            if given:
+                raise ValueError(
+                    f"bench.{given[0]}"
+                    + (f" (and {', '.join(given[1:])})" if given[1:] else "")
+                    + " is the two-link bench's truth, not the arm bench's: give the arm's "
+                    "in the file of bench.arm_truth (docs/explanation/bench-truth.md)"
+                )
+        return self
+
+    @model_validator(mode="after")
+    def _simulated_room_on_the_arm_bench(self) -> Self:
+        arm_bench = self.arm.enabled and self.bench.enabled and self.robot.driver == "sim"
+        if self.room.driver == "sim" and not arm_bench:
+            raise ValueError(
+                "room.driver 'sim' is the arm bench's room thermometer: it needs arm.enabled, "
+                "bench.enabled and robot.driver sim (on hardware: room.driver w1)"
+            )
+        return self
+
     bench: BenchSettings = BenchSettings()
     camera: CameraSettings = CameraSettings()
     ir: IrSettings = IrSettings()
@@ -107,6 +133,7 @@ class Settings(Section):
     storage: StorageSettings = StorageSettings()
     api: ApiSettings = ApiSettings()
     arm: ArmSettings = ArmSettings()
+    room: RoomSettings = RoomSettings()
 
 
 #: Setting names whose value is a secret: never stored (run rows) nor served (GET /config),
@@ -168,7 +195,7 @@ def _describe(error: ValidationError, source: str, env_used: dict[str, str]) -> 
         if item["type"] == "extra_forbidden":
             reason = "unknown setting"
         origin = f"{env_used[path]} (environment)" if path in env_used else source
-        lines.append(f"{origin}: {path}: {reason}")
+        lines.append(f"{origin}: {path}: {reason}" if path else f"{origin}: {reason}")
     return "\n".join(lines)
 
 

@@ -110,6 +110,10 @@ class ArmController:
         self._adapt_poses: dict[str, int] = {}
         self._adapt_sensitivities: list[FloatArray] = []
         self._adapted_links: tuple[float, tuple[LinkThermalState, ...]] | None = None
+        #: the room thermometer's last two readings (degC): the ambient of the next advance
+        #: is their mean (follow_room); None: no thermometer, options.ambient_c throughout
+        self._room_last: float | None = None
+        self._room_next: float | None = None
 
     def attach_observer(
         self, regions: Mapping[str, Sequence[int]], ir_noise_c: float
@@ -221,10 +225,32 @@ class ArmController:
         """Each joint's mean motor heat (W) over ``[start_s, end_s]`` of the duty cycle."""
         return self.heat.step_power_w(start_s, end_s)
 
+    def follow_room(self, room_c: float) -> None:
+        """A reading of the room thermometer, taken now (before the next advance): the arm
+        model's ambient follows the room instead of ``options.ambient_c``. The first reading,
+        before the model has moved, is the cold arm's temperature and reference (it stood in
+        that room); each advance then holds the mean of the readings at its two ends (the
+        trapezoid rule: a room changing linearly is followed exactly)."""
+        if not np.isfinite(room_c):
+            raise ValueError(f"room temperature must be finite, got {room_c}")
+        if self._room_last is None and self.time_s == 0.0:
+            self.thermal.start_at(room_c)
+            self._room_last = room_c
+        self._room_next = room_c
+
+    @property
+    def follows_room(self) -> bool:
+        """Whether a room thermometer's readings drive the model's ambient."""
+        return self._room_next is not None
+
     def advance_to(self, t_s: float) -> None:
         start = self.time_s
         if t_s <= start:
             return
+        if self._room_next is not None:
+            last = self._room_next if self._room_last is None else self._room_last
+            self.thermal.set_ambient(0.5 * (last + self._room_next))
+            self._room_last = self._room_next
         self.last_heat_w = self.mean_heat_w(start, t_s) * self.heat_scales
         self.thermal.advance_to(t_s, self.last_heat_w)
         self._feed_adaptation(t_s)

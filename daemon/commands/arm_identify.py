@@ -65,6 +65,7 @@ from daemon.arm.identify import (
 from daemon.arm.identify_final import ArmCalibration, identify_arm_final
 from daemon.arm.identify_parameters import default_parameters, outside_physical_range
 from daemon.arm.ir_regions import region_nodes
+from daemon.arm.room import ambient_series, readings_of
 from daemon.calibration.identify_run import (
     finite_json,
     recorded_parameters,
@@ -105,7 +106,7 @@ def is_arm_run(parameters: dict[str, Any]) -> bool:
 
 _STEP_COLUMNS = (
     "actual_s, arm_pose, measured_tx_um, measured_ty_um, measured_tz_um, "
-    "correction_tx_mm, correction_ty_mm, correction_tz_mm, ir_json"
+    "correction_tx_mm, correction_ty_mm, correction_tz_mm, ir_json, room_c"
 )
 
 
@@ -151,8 +152,11 @@ def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     time_scale = float(parameters.get("time_scale", 1.0))
     times, pose_index, displacement = [], [], []
     readings: list[dict[str, float]] = []
+    rooms: list[tuple[float | None, float | None]] = []  # the room thermometer (issue 29)
     for row in _steps(data_dir, run_id):
         actual_s, pose = row[0], row[1]
+        if actual_s is not None:
+            rooms.append((float(actual_s) * time_scale, row[9]))
         if pose not in index or actual_s is None:
             continue
         measured = np.array([_number(v) for v in row[2:5]]) / 1000.0
@@ -176,7 +180,9 @@ def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     data = ArmRunData(
         heat_step_s=IDENTIFY_STEP_S,
         joint_heat_w=heat,
-        ambient_c=np.full(steps, settings.model.ambient_c),
+        ambient_c=ambient_series(
+            *readings_of(rooms), IDENTIFY_STEP_S, steps, settings.model.ambient_c
+        ),
         time_s=np.array([round(t / IDENTIFY_STEP_S) * IDENTIFY_STEP_S for t in times]),
         pose_index=np.array(pose_index, dtype=np.intp),
         marker_displacement_mm=np.array(displacement),

@@ -28,8 +28,6 @@ from config.cli import (
     positive_float,
 )
 from daemon.run.states import RunParameters, RunState, RunStateError
-from daemon.storage.recorder import RecorderError
-from daemon.storage.report_queue import ReportStatus
 
 if TYPE_CHECKING:  # the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not
     # for `thermocomp run --help`
@@ -142,6 +140,7 @@ def run_command(args: argparse.Namespace) -> int:
         print(f"thermocomp run: invalid run parameters: {_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
     from daemon.run.inputs import check_inputs
+    from daemon.storage.recorder import RecorderError  # NumPy: loaded to run, not for --help
 
     # every file the run names loads before a device opens: a mistake is one line, exit 2
     # (raised as an InputError; api/cli.py prints it)
@@ -238,6 +237,8 @@ async def _supervise(daemon: Daemon, stop_requested: asyncio.Event) -> dict[str,
     final = await daemon.wait_run()
     if daemon.settings.storage.report_at_end:  # a run that ran to its end: with its report
         written = await daemon.reports.wait(final["id"])
+        from daemon.storage.report_queue import ReportStatus
+
         if written is ReportStatus.WRITTEN:
             final["report"] = str(daemon.reports.html_path(final["id"]))
     return final

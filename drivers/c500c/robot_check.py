@@ -29,7 +29,6 @@ from drivers.c500c import protocol as proto
 from drivers.c500c.console import Transcript
 from drivers.c500c.robot import C500CRobot
 from drivers.errors import DeviceError
-from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 
 UNKNOWN = "unknown (no console query; the first motion command tells)"
 
@@ -118,6 +117,9 @@ async def run_check(
     robot_settings = settings.robot
     async with AsyncExitStack() as stack:
         if port is None and robot_settings.driver == "sim":
+            # here: the emulator (NumPy) loads only when it is checked, not for --help
+            from drivers.sim.emulator import C500CEmulator, EmulatorConfig
+
             emulator = C500CEmulator(
                 EmulatorConfig(
                     application=robot_settings.application,

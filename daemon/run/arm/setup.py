@@ -125,6 +125,7 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
         "mean_joint_heat_w": controller.heat.mean_power_w.tolist(),
         "motion_dt_s": arm_settings.motion_dt_s,
         "ambient_c": settings.model.ambient_c,
+        "room": settings.room.driver,  # none: the model holds ambient_c (issue 29)
         "bending": arm_settings.bending,
         "arm_model": None if identified is None else identified.provenance(),
         "prediction": parameters.prediction,

@@ -70,13 +70,16 @@ from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, StepRecord
 from drivers.base import MoveResult, Pose, RobotStatus
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit, Ticket
 
 logger = logging.getLogger(__name__)
 
 #: The flag of a step whose markers could not give a tool pose (a sensor error, like a
 #: centroid error of the two-link bench).
 MARKER_ERROR = "marker-error"
-ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR}
+#: The flag of a step whose room thermometer failed (the model keeps the last room).
+ROOM_ERROR = "room-error"
+ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR, ROOM_ERROR}
 
 
 class ArmRobot(Protocol):
@@ -96,9 +99,12 @@ class ArmRobot(Protocol):
         ``speed_percent`` of the controller's speed (None: its current one)."""
         ...
 
+    @property
+    def permit(self) -> MotionPermit: ...
+
     async def stop(self) -> None: ...
 
-    async def resume(self) -> None: ...
+    async def resume(self, ticket: Ticket | None = None) -> None: ...
 
     async def actual_pose(self) -> Pose: ...
 
@@ -222,15 +228,17 @@ class ArmStepPipeline:
         errors: list[str] = []
         stages: dict[str, float] = {}
 
-        # 1. the model to the time the move is expected to execute, then the tool error there
+        # 1. the room now (the model's ambient, issue 29), the model to the time the move is
+        # expected to execute, then the tool error there
         started = time.perf_counter()
+        room_c = await self._read_room(record, flags, errors)
         model_s = (run_time_s + self._settings.compensation.latency_s) * parameters.time_scale
         player = self._player
         if player is None:
-            error = await self._workers.step(self._predict, work, model_s, pose)
+            error = await self._workers.step(self._predict, work, model_s, pose, room_c)
             errors_by_pose = {pose.name: error}
         else:  # every pose of the played cycle at its own configuration, the arm warmed once
-            errors_by_pose = await self._workers.step(self._predict_cycle, work, model_s)
+            errors_by_pose = await self._workers.step(self._predict_cycle, work, model_s, room_c)
             error = errors_by_pose[pose.name]
         self._record_model(work, record, error)
         stages["model"] = time.perf_counter() - started
@@ -299,21 +307,51 @@ class ArmStepPipeline:
 
     # --- 1. the model ------------------------------------------------------------------
 
+    async def _read_room(
+        self, record: StepRecord, flags: list[str], errors: list[str]
+    ) -> float | None:
+        """The room thermometer's reading (recorded), or None: no thermometer, or it failed
+        (flagged room-error; the model keeps the last room)."""
+        if not getattr(self._sensors, "has_room", False):
+            return None
+        try:
+            reading = await self._sensors.read_room()
+        except DeviceError as err:
+            self._errors.note(err)
+            flags.append(ROOM_ERROR)
+            errors.append(str(err))
+            return None
+        record.room_c = reading.temperature_c
+        return reading.temperature_c
+
     @staticmethod
-    def _predict(work: ArmRunWork, model_s: float, pose: MeasuredPose) -> Pose6:
+    def _follow_room(predictor: ArmPredictor, room_c: float | None) -> None:
+        """The room's reading to a predictor that follows one (daemon/arm/controller.py)."""
+        follow = getattr(predictor, "follow_room", None)
+        if room_c is not None and callable(follow):
+            follow(room_c)
+
+    @staticmethod
+    def _predict(
+        work: ArmRunWork, model_s: float, pose: MeasuredPose, room_c: float | None = None
+    ) -> Pose6:
         """On the step's worker thread: the arm's model is tens of nodes per link and the
         motor heat integrates the duty cycle's motion over the step."""
         predictor = work.predictor
+        ArmStepPipeline._follow_room(predictor, room_c)
         if model_s > predictor.time_s:
             predictor.advance_to(model_s)
         return predictor.tool_error(pose)
 
     @staticmethod
-    def _predict_cycle(work: ArmRunWork, model_s: float) -> dict[str, Pose6]:
+    def _predict_cycle(
+        work: ArmRunWork, model_s: float, room_c: float | None = None
+    ) -> dict[str, Pose6]:
         """The tool error at every pose of the played cycle (kinematics.tool_errors through
         the predictor's ``tool_errors`` when it has one), by cycle pose name; the measured
         poses under their names too."""
         predictor = work.predictor
+        ArmStepPipeline._follow_room(predictor, room_c)
         if model_s > predictor.time_s:
             predictor.advance_to(model_s)
         poses = [entry.pose for entry in work.cycle]
@@ -356,9 +394,10 @@ class ArmStepPipeline:
     def _hand_to_player(
         self, work: ArmRunWork, player: ArmPlayer, errors_by_pose: dict[str, Pose6]
     ) -> str | None:
-        """Each played pose's correction, checked against the limits and the pose's previous
-        one; the accepted ones go to the player (the next move into each pose uses it), a
-        refused one never does: the first refusal is returned for the step's verdict."""
+        """Each played pose's correction, checked against the limits and the correction the
+        robot was last sent into that pose (ArmPlayer.sent_correction); the accepted ones go
+        to the player (the next move into each pose uses it), a refused one never does: the
+        first refusal is returned for the step's verdict."""
         if work.parameters.compensation == "off":
             return None
         accepted: dict[str, Pose6] = {}
@@ -368,7 +407,9 @@ class ArmStepPipeline:
                 correction = correction_for(
                     errors_by_pose[entry.name], work.parameters.deformation_scale
                 )
-                previous = work.last_correction.get(entry.name, Pose6.zero())
+                # against what the robot was last SENT into this pose: two handovers between
+                # its visits must not add up to more than one step's change (issue 26)
+                previous = player.sent_correction(entry.name)
                 accepted[entry.name] = check_correction(correction, previous, self._limits)
             except UnsafeTargetError as err:
                 refused = refused or f"correction of pose {entry.name!r} refused: {err}"
