@@ -171,9 +171,21 @@ def heating_pad_source() -> Source:
     )
 
 
-def recording_sources(scatter: Scatter | None, axis: int = 0, why_not: str = "") -> list[Source]:
+def recording_sources(
+    scatter: Scatter | None, axis: int = 0, why_not: str = "", *, centroid: bool = True
+) -> list[Source]:
     """4.6 and 4.7 from a stationary recording: the centroid at its Cramér-Rao bound, and the
-    scatter the bound does not explain (the robot idling, anything else moving the spot)."""
+    scatter the bound does not explain (the robot idling, anything else moving the spot).
+    ``centroid`` False (an arm: the centroids are in its 3-D measurement's row): 4.6 only,
+    the scatter of the tool's position against the pose fit's own 1-sigma."""
+    return [
+        s
+        for s in _recording_sources(scatter, axis, why_not)
+        if centroid or s.key != "centroid"
+    ]
+
+
+def _recording_sources(scatter: Scatter | None, axis: int, why_not: str) -> list[Source]:
     vibration_remedy = "hold the robot still with its power off for stationary measurements (4.6)"
     centroid_remedy = "a larger, brighter spot; the robust centroid (4.7); average frames"
     if scatter is None:
@@ -211,7 +223,8 @@ def recording_sources(scatter: Scatter | None, axis: int = 0, why_not: str = "")
             basis=(
                 f"{scatter.frames} frames over {scatter.duration_s:.0f} s, robot powered and "
                 f"held: scatter along {names[axis]} {scatter.std_um[axis]:.3g} µm less the "
-                f"centroid's bound {scatter.bound_um[axis]:.3g} µm in quadrature, x {COVERAGE:g}"
+                f"measurement's own 1-sigma {scatter.bound_um[axis]:.3g} µm in quadrature, "
+                f"x {COVERAGE:g}"
             ),
             detail=detail,
         ),
@@ -242,21 +255,32 @@ def camera_drift_source(drift: Drift | None, why_not: str = "") -> Source:
             effect, remedy, why_not or "no recording on a fixed target",
         )  # fmt: skip
     tau = f", τ {drift.tau_s:.0f} s" if drift.tau_s is not None else ""
+    limit = COVERAGE * drift.change_se_um
+    seen = (
+        f"change {drift.change_um:+.3g} ± {drift.change_se_um:.2g} µm "
+        f"({'first-order fit' if drift.how == 'fit' else 'ends'}{tau})"
+    )
+    if not drift.resolved:
+        seen = (
+            f"no drift resolved ({seen}): the recording's limit, {COVERAGE:g} x its standard "
+            "error"
+        )
     return Source(
         key="camera-drift",
         name="Thermal drift of the camera",
         section="4.8",
         evidence="measured",
-        delta_l_um=abs(drift.change_um),
+        delta_l_um=abs(drift.change_um) if drift.resolved else limit,
         effect=effect,
         remedy=remedy,
         basis=(
-            f"{drift.frames} frames of a fixed target over {drift.duration_s:.0f} s: change "
-            f"{drift.change_um:+.3g} µm ({'first-order fit' if drift.how == 'fit' else 'ends'}"
-            f"{tau}), scatter {drift.residual_std_um:.3g} µm"
+            f"{drift.frames} frames of a fixed target over {drift.duration_s:.0f} s: {seen}, "
+            f"scatter {drift.residual_std_um:.3g} µm"
         ),
         detail={
             "change_um": drift.change_um,
+            "change_se_um": drift.change_se_um,
+            "resolved": str(drift.resolved).lower(),
             "tau_s": drift.tau_s,
             "residual_std_um": drift.residual_std_um,
             "how": drift.how,

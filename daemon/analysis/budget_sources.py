@@ -168,6 +168,13 @@ class Drift:
     tau_s: float | None
     residual_std_um: float
     how: str
+    change_se_um: float = 0.0  # standard error of the change
+
+    @property
+    def resolved(self) -> bool:
+        """Whether the change stands out of the recording's noise (twice its standard error,
+        the thesis's 95 %); if not, the recording only bounds the drift."""
+        return abs(self.change_um) > 2.0 * self.change_se_um
 
 
 #: Share of a drift recording averaged at each end for the end-to-start change.
@@ -193,10 +200,18 @@ def camera_drift(t_s: ArrayLike, x_um: ArrayLike) -> Drift:
         fit = fit_exponential(t, x, "rising", t0_s=float(t[0]))
     except (FitError, ValueError, RuntimeError):
         fit = None
-    if fit is not None and math.isfinite(fit.curve.amplitude) and fit.curve.tau_s < 10 * duration:
+    if (
+        fit is not None
+        and math.isfinite(fit.curve.amplitude)
+        and math.isfinite(fit.amplitude_stderr)
+        and fit.curve.tau_s < 10 * duration
+    ):
         # the amplitude the curve has reached by the end (a tau far past the recording would
-        # extrapolate a drift the recording never saw)
-        reached = float(fit.curve(np.array([t[-1]]))[0] - fit.curve(np.array([t[0]]))[0])
-        return Drift(int(t.size), duration, reached, fit.curve.tau_s, fit.residual_std, "fit")
+        # extrapolate a drift the recording never saw), its error the amplitude's scaled alike
+        share = 1.0 - math.exp(-duration / fit.curve.tau_s)
+        reached = fit.curve.amplitude * share
+        se = max(fit.amplitude_stderr * share, fit.residual_std * math.sqrt(2.0 / edge))
+        return Drift(int(t.size), duration, reached, fit.curve.tau_s, fit.residual_std, "fit", se)
     residual = float((x - np.interp(t, [t[0], t[-1]], [x[:edge].mean(), x[-edge:].mean()])).std())
-    return Drift(int(t.size), duration, endpoint, None, residual, "ends")
+    se = residual * math.sqrt(2.0 / edge)
+    return Drift(int(t.size), duration, endpoint, None, residual, "ends", se)

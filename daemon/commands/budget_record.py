@@ -58,6 +58,7 @@ class Recordings:
     scatter: Scatter | None
     why_not: str = ""
     camera_models: tuple[CameraModel, ...] = ()
+    recorded: bool = True
 
 
 def recording_settings(settings: Settings) -> Settings:
@@ -97,6 +98,28 @@ async def _tool(devices: Devices, settings: Settings) -> tuple[tuple[float, floa
         return (x, y, z), (1000.0 * measured.sigma_mm, 0.0)
 
     return await asyncio.to_thread(solve)
+
+
+#: The first frame of a simulated camera builds its noise bank (seconds for a 5 MP arm camera
+#: on a busy machine): the priming grab, not recorded, may take this many grab timeouts.
+PRIME_TIMEOUTS = 10.0
+
+
+async def _prime(devices: Devices, settings: Settings) -> None:
+    """One frame from every camera, not recorded, before the recordings start (what a run's
+    reference measurement does): a camera's first frame may be slow."""
+    from daemon.run.arm.measure import device_sensors
+
+    cameras = devices.cameras or (devices.camera,)
+    _, timeouts = device_sensors(settings, len(cameras))
+    if not devices.cameras:
+        timeouts = (settings.camera.grab_timeout_s,)
+    await asyncio.gather(
+        *(
+            asyncio.wait_for(camera.grab(), PRIME_TIMEOUTS * timeout)
+            for camera, timeout in zip(cameras, timeouts, strict=True)
+        )
+    )
 
 
 async def _record(
@@ -171,12 +194,14 @@ async def record(
         arm = bool(models)
         start = clock.now()
         try:
+            await _prime(devices, chosen)
             drifting = await _record(devices, chosen, clock, start, drift_s, drift_frames)
             still = await _record(
                 devices, chosen, clock, clock.now(), stationary_s, stationary_frames
             )
         except (DeviceError, TimeoutError) as err:
-            return Recordings(None, None, f"the recording stopped: {err}", models)
+            reason = str(err) or "a camera gave no frame in time"
+            return Recordings(None, None, f"the recording stopped: {reason}", models)
     notes = []
     try:
         drift: Drift | None = camera_drift(drifting.t_s, _along_drift(drifting, arm))

@@ -133,7 +133,7 @@ def _recording_notes(recordings: Recordings | None, settings: Settings) -> tuple
     notes = []
     if recordings is not None and recordings.why_not:
         notes.append(recordings.why_not)
-    if recordings is not None and settings.bench.enabled:
+    if recordings is not None and recordings.recorded and settings.bench.enabled:
         notes.append("recorded on the simulated bench with its heaters off, on its own clock")
     return tuple(notes)
 
@@ -213,6 +213,14 @@ def arm_budget(
         )
     worst = max(rows, key=lambda r: r.measurement_um or 0.0) if rows else None
     cameras = f"{len(models)} cameras" if models else "no camera models"
+    held = ""
+    if recordings is not None and recordings.scatter is not None:
+        scatter = recordings.scatter
+        held = (
+            f"; checked where the robot is held: one measurement's scatter "
+            f"{scatter.std_um[0]:.3g} µm over {scatter.frames} frames, the fit's own 1-sigma "
+            f"{scatter.bound_um[0]:.3g} µm"
+        )
     sources: list[Source] = [
         Source(
             key="measurement-3d",
@@ -226,7 +234,7 @@ def arm_budget(
             basis=(
                 f"worst pose {worst.pose}: {len(markers)} markers in {cameras}, each camera's "
                 f"pixel_sigma_px, {frames} frame(s) per measurement and {reference} for the "
-                f"reference, x {COVERAGE:g}"
+                f"reference, x {COVERAGE:g}{held}"
                 if worst and worst.measurement_um is not None
                 else f"no pose measurable from {cameras}"
             ),
@@ -256,7 +264,7 @@ def arm_budget(
         )
     scatter = recordings.scatter if recordings else None
     drift = recordings.drift if recordings else None
-    sources += recording_sources(scatter, 0, why_not)
+    sources += recording_sources(scatter, 0, why_not, centroid=False)
     sources.append(camera_drift_source(drift, why_not))
     reason = "a 3-D measurement sees every component: no projection to be short of"
     sources += [
@@ -306,7 +314,9 @@ def make_budget(settings: Settings, args: argparse.Namespace) -> Budget:
         )
         why_not = recordings.why_not or "not measured"
     elif arm:
-        recordings = Recordings(None, None, "", asyncio.run(camera_models(settings)))
+        recordings = Recordings(
+            None, None, "", asyncio.run(camera_models(settings)), recorded=False
+        )
     if arm:
         data_dir = args.data_dir or settings.storage.data_dir
         return arm_budget(settings, target, args.arm_model, data_dir, recordings, why_not)
