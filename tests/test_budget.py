@@ -18,8 +18,8 @@ from daemon.analysis.budget_bench import (
 )
 from daemon.analysis.budget_sources import (
     G_M_PER_S2,
-    cantilever_deflection_m,
     camera_drift,
+    cantilever_deflection_m,
     deflection_for_shortening_m,
     diode_tilt_rad,
     foreshortening_m,

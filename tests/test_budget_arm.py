@@ -96,8 +96,12 @@ def test_an_alpha_error_scales_the_drift() -> None:
     poses = controller.measured_poses()
     model = _model((CalibratedParameter("alpha", 1.0, 0.03, relative_error=0.03),))
     end = 3600.0
-    nominal = tool_drifts_um(controller.arm, controller.duty, poses, end, options, model)
-    result = model_uncertainty(controller.arm, controller.duty, poses, end, options, model)
+    nominal = tool_drifts_um(
+        controller.arm, controller.duty, poses, end_s=end, options=options, identified=model
+    )
+    result = model_uncertainty(
+        controller.arm, controller.duty, poses, end_s=end, options=options, identified=model
+    )
     expected = np.linalg.norm(nominal, axis=1) * (math.exp(0.03) - 1)
     assert np.all(expected > 0.1)
     assert result.sigma_um == pytest.approx(tuple(expected), rel=1e-6)

@@ -57,9 +57,7 @@ def test_a_target_the_set_up_cannot_resolve_says_so(capsys: pytest.CaptureFixtur
     assert "not recorded (--no-record)" in out
 
 
-def test_a_bad_setup_file_is_one_line(
-    capsys: pytest.CaptureFixture[str], tmp_path: Path
-) -> None:
+def test_a_bad_setup_file_is_one_line(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     setup = tmp_path / "setup.toml"
     setup.write_text("cantilever_length_mm = -3\n")
     status, out, err = run_in_process(
@@ -69,7 +67,9 @@ def test_a_bad_setup_file_is_one_line(
     assert err.count("\n") == 1 and "cantilever_length_mm" in err
 
 
-def test_the_setup_file_changes_the_rows(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+def test_the_setup_file_changes_the_rows(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
     setup = tmp_path / "setup.toml"
     setup.write_text("play_z_deg = 2.0\ndiode_lever_mm = 150\nheating_pads = false\n")
     _, base, _ = _budget(capsys, "--no-record")
@@ -77,7 +77,9 @@ def test_the_setup_file_changes_the_rows(capsys: pytest.CaptureFixture[str], tmp
     before = {row["key"]: row["delta_l_um"] for row in base["sources"]}
     after = {row["key"]: row["delta_l_um"] for row in changed["sources"]}
     assert after["misalignment-z"] == pytest.approx(
-        before["misalignment-z"] * (1 - math.cos(math.radians(2))) / (1 - math.cos(math.radians(0.2))),
+        before["misalignment-z"]
+        * (1 - math.cos(math.radians(2)))
+        / (1 - math.cos(math.radians(0.2))),
         rel=1e-9,
     )
     assert after["diode-hole"] == pytest.approx(2 * before["diode-hole"], rel=1e-6)

@@ -112,6 +112,7 @@ def tool_drifts_um(
     arm: Arm,
     duty: DutyCycle,
     poses: Sequence[MeasuredPose],
+    *,
     end_s: float,
     options: ArmModelOptions,
     identified: ArmModel | None = None,
@@ -165,16 +166,21 @@ def model_uncertainty(
     arm: Arm,
     duty: DutyCycle,
     poses: Sequence[MeasuredPose],
+    *,
     end_s: float,
     options: ArmModelOptions,
     identified: ArmModel,
 ) -> ModelUncertainty:
     """The identified model's parameter uncertainty carried to the tool (module docstring)."""
     heat = JointHeatProfile.from_duty(arm, duty, resolution_s=options.motion_dt_s)
-    nominal = tool_drifts_um(arm, duty, poses, end_s, options, identified, heat)
+    nominal = tool_drifts_um(
+        arm, duty, poses, end_s=end_s, options=options, identified=identified, heat=heat
+    )
     contributions: dict[str, tuple[float, ...]] = {}
     for name, variant in perturbed_models(identified, len(arm.joints)):
-        moved = tool_drifts_um(arm, duty, poses, end_s, options, variant, heat)
+        moved = tool_drifts_um(
+            arm, duty, poses, end_s=end_s, options=options, identified=variant, heat=heat
+        )
         contributions[name] = tuple(np.linalg.norm(moved - nominal, axis=1).tolist())
     total = np.sqrt(sum((np.square(v) for v in contributions.values()), np.zeros(len(poses))))
     return ModelUncertainty(tuple(float(v) for v in total), contributions)

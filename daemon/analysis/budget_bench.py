@@ -179,9 +179,7 @@ def recording_sources(
     ``centroid`` False (an arm: the centroids are in its 3-D measurement's row): 4.6 only,
     the scatter of the tool's position against the pose fit's own 1-sigma."""
     return [
-        s
-        for s in _recording_sources(scatter, axis, why_not)
-        if centroid or s.key != "centroid"
+        s for s in _recording_sources(scatter, axis, why_not) if centroid or s.key != "centroid"
     ]
 
 
@@ -262,8 +260,7 @@ def camera_drift_source(drift: Drift | None, why_not: str = "") -> Source:
     )
     if not drift.resolved:
         seen = (
-            f"no drift resolved ({seen}): the recording's limit, {COVERAGE:g} x its standard "
-            "error"
+            f"no drift resolved ({seen}): the recording's limit, {COVERAGE:g} x its standard error"
         )
     return Source(
         key="camera-drift",

@@ -78,7 +78,9 @@ def hole_expansion_m(alpha_per_k: float, diameter_m: float, delta_t_k: float) ->
     return alpha_per_k * diameter_m * abs(delta_t_k)
 
 
-def diode_tilt_rad(link_thickness_m: float, hole_diameter_m: float, diode_diameter_m: float) -> float:
+def diode_tilt_rad(
+    link_thickness_m: float, hole_diameter_m: float, diode_diameter_m: float
+) -> float:
     """Eq. 4.2: the largest tilt of a diode of diameter ``c`` in a hole of diameter ``2b``
     through a link of thickness ``a``. The thesis's two relations, ``tan α = (b - x) / a`` and
     ``cos α = c / (b + x)``, add up to ``c + a sin α = 2b cos α``, whose root is
@@ -125,7 +127,8 @@ class Scatter:
 
 def _detrended(t: NDArray[np.float64], values: NDArray[np.float64]) -> NDArray[np.float64]:
     if t.size < 3 or float(np.ptp(t)) == 0.0:
-        return values - values.mean()
+        centred: NDArray[np.float64] = values - values.mean()
+        return centred
     slope, intercept = np.polyfit(t, values, 1)
     residual: NDArray[np.float64] = values - (slope * t + intercept)
     return residual
@@ -135,7 +138,9 @@ def stationary_scatter(
     t_s: ArrayLike, x_um: ArrayLike, y_um: ArrayLike, sigma_x_um: ArrayLike, sigma_y_um: ArrayLike
 ) -> Scatter:
     """:class:`Scatter` of the frames of a stationary recording (NaN frames left out)."""
-    t, x, y, sx, sy = (np.asarray(a, dtype=np.float64) for a in (t_s, x_um, y_um, sigma_x_um, sigma_y_um))
+    t, x, y, sx, sy = (
+        np.asarray(a, dtype=np.float64) for a in (t_s, x_um, y_um, sigma_x_um, sigma_y_um)
+    )
     good = np.isfinite(t) & np.isfinite(x) & np.isfinite(y)
     if int(good.sum()) < 3:
         raise ValueError("a stationary recording needs at least three measured frames")

@@ -69,7 +69,9 @@ def recording_settings(settings: Settings) -> Settings:
     return settings.model_copy(update={"bench": bench})
 
 
-async def _spot(devices: Devices, settings: Settings) -> tuple[tuple[float, float, float], tuple[float, float]]:
+async def _spot(
+    devices: Devices, settings: Settings
+) -> tuple[tuple[float, float, float], tuple[float, float]]:
     from daemon.vision.centroid import measure_with_camera_settings
 
     frame = await asyncio.wait_for(devices.camera.grab(), settings.camera.grab_timeout_s)
@@ -77,7 +79,9 @@ async def _spot(devices: Devices, settings: Settings) -> tuple[tuple[float, floa
     return (result.x_um, result.y_um, 0.0), (result.sigma_x_um, result.sigma_y_um)
 
 
-async def _tool(devices: Devices, settings: Settings) -> tuple[tuple[float, float, float], tuple[float, float]]:
+async def _tool(
+    devices: Devices, settings: Settings
+) -> tuple[tuple[float, float, float], tuple[float, float]]:
     from daemon.run.arm.measure import device_sensors, marker_views, tool_pose
     from daemon.run.arm.robot import pose_matrix
 
@@ -123,7 +127,13 @@ async def _prime(devices: Devices, settings: Settings) -> None:
 
 
 async def _record(
-    devices: Devices, settings: Settings, clock: Clock, start_s: float, duration_s: float, count: int
+    devices: Devices,
+    settings: Settings,
+    clock: Clock,
+    *,
+    start_s: float,
+    duration_s: float,
+    count: int,
 ) -> Samples:
     from daemon.arm.run import MeasurementError
     from daemon.vision import CentroidError
@@ -175,7 +185,9 @@ def _scatter(samples: Samples, arm: bool) -> Scatter:
     ]
     std = float(np.sqrt(sum(p.std_um[0] ** 2 for p in parts)))
     spread = float(np.sqrt(sum(p.range_um[0] ** 2 for p in parts)))
-    return Scatter(parts[0].frames, parts[0].duration_s, (std, 0.0), (spread, 0.0), (parts[0].bound_um[0], 0.0))
+    return Scatter(
+        parts[0].frames, parts[0].duration_s, (std, 0.0), (spread, 0.0), (parts[0].bound_um[0], 0.0)
+    )
 
 
 async def record(
@@ -195,9 +207,16 @@ async def record(
         start = clock.now()
         try:
             await _prime(devices, chosen)
-            drifting = await _record(devices, chosen, clock, start, drift_s, drift_frames)
+            drifting = await _record(
+                devices, chosen, clock, start_s=start, duration_s=drift_s, count=drift_frames
+            )
             still = await _record(
-                devices, chosen, clock, clock.now(), stationary_s, stationary_frames
+                devices,
+                chosen,
+                clock,
+                start_s=clock.now(),
+                duration_s=stationary_s,
+                count=stationary_frames,
             )
         except (DeviceError, TimeoutError) as err:
             reason = str(err) or "a camera gave no frame in time"

@@ -63,7 +63,7 @@ def load_setup(path: Path | None) -> SpotSetup:
         if key not in fields:
             raise BudgetError(f"{chosen}: {key}: unknown key; known: {', '.join(fields)}")
         default = getattr(SpotSetup(), key)
-        if isinstance(default, bool) or isinstance(default, str):
+        if isinstance(default, bool | str):
             if type(value) is not type(default):
                 raise BudgetError(f"{chosen}: {key}: expected a {type(default).__name__}")
         elif isinstance(value, bool) or not isinstance(value, int | float):
@@ -87,7 +87,11 @@ def _ir_pixels(settings: Settings) -> int:
 
 
 def bench_budget(
-    settings: Settings, setup: SpotSetup, target_um: float, recordings: Recordings | None, why_not: str
+    settings: Settings,
+    setup: SpotSetup,
+    target_um: float,
+    recordings: Recordings | None,
+    why_not: str,
 ) -> Budget:
     from daemon.model import load_network, steady_state_c
     from daemon.run.setup import resolve_heat
@@ -114,8 +118,10 @@ def bench_budget(
     drift = recordings.drift if recordings else None
     sources += recording_sources(scatter, 0, why_not)
     sources.append(camera_drift_source(drift, why_not))
-    used = "model+ir: the observer's input" if settings.model.prediction == "model+ir" else (
-        "the cte analysis and identification use them; the open-loop model does not"
+    used = (
+        "model+ir: the observer's input"
+        if settings.model.prediction == "model+ir"
+        else ("the cte analysis and identification use them; the open-loop model does not")
     )
     sources.append(ir_source(alpha, length_mm, settings.ir.noise_c, _ir_pixels(settings), used))
     return Budget(
@@ -148,6 +154,7 @@ def _not_applicable(key: str, name: str, section: str, why: str) -> Source:
 def arm_budget(
     settings: Settings,
     target_um: float,
+    *,
     arm_model: str | None,
     data_dir: Path,
     recordings: Recordings | None,
@@ -182,7 +189,13 @@ def arm_budget(
     controller = load_controller(arm_file(settings), settings.arm.duty_cycle, options, identified)
     poses = controller.measured_poses(settings.arm.measured_poses)
     drifts = tool_drifts_um(
-        controller.arm, controller.duty, poses, end_s, options, identified, controller.heat
+        controller.arm,
+        controller.duty,
+        poses,
+        end_s=end_s,
+        options=options,
+        identified=identified,
+        heat=controller.heat,
     )
     expected = np.linalg.norm(drifts, axis=1)
     models = recordings.camera_models if recordings is not None else ()
@@ -190,7 +203,14 @@ def arm_budget(
     frames = settings.arm.frames_per_measurement
     reference = settings.arm.reference_frames or frames
     uncertainty = (
-        model_uncertainty(controller.arm, controller.duty, poses, end_s, options, identified)
+        model_uncertainty(
+            controller.arm,
+            controller.duty,
+            poses,
+            end_s=end_s,
+            options=options,
+            identified=identified,
+        )
         if identified is not None
         else None
     )
@@ -215,11 +235,11 @@ def arm_budget(
     cameras = f"{len(models)} cameras" if models else "no camera models"
     held = ""
     if recordings is not None and recordings.scatter is not None:
-        scatter = recordings.scatter
+        still = recordings.scatter
         held = (
             f"; checked where the robot is held: one measurement's scatter "
-            f"{scatter.std_um[0]:.3g} µm over {scatter.frames} frames, the fit's own 1-sigma "
-            f"{scatter.bound_um[0]:.3g} µm"
+            f"{still.std_um[0]:.3g} µm over {still.frames} frames, the fit's own 1-sigma "
+            f"{still.bound_um[0]:.3g} µm"
         )
     sources: list[Source] = [
         Source(
@@ -319,7 +339,14 @@ def make_budget(settings: Settings, args: argparse.Namespace) -> Budget:
         )
     if arm:
         data_dir = args.data_dir or settings.storage.data_dir
-        return arm_budget(settings, target, args.arm_model, data_dir, recordings, why_not)
+        return arm_budget(
+            settings,
+            target,
+            arm_model=args.arm_model,
+            data_dir=data_dir,
+            recordings=recordings,
+            why_not=why_not,
+        )
     return bench_budget(settings, load_setup(args.setup), target, recordings, why_not)
 
 
