@@ -109,3 +109,18 @@ def test_help_imports_no_numeric_stack() -> None:
     for command in ("budget", "cte"):
         heavy = imported_modules(command, "--help") & (SERVER_MODULES | {"scipy", "cv2"})
         assert not heavy, (command, heavy)
+
+
+def test_save_keeps_the_latest_for_the_api(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    from daemon.commands.budget_run import read_saved_budget
+
+    status, _, err = run_in_process(
+        budget.register,
+        ["budget", "--no-record", "--save", "--data-dir", str(tmp_path), "--target", "0.1"],
+        capsys,
+    )
+    assert status == 1 and "budget.json" in err
+    saved = read_saved_budget(tmp_path)
+    assert saved is not None and saved["recorded"] is False and saved["target_um"] == 0.1

@@ -26,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "through the configured devices (the daemon must not hold them). For an arm: the 3-D "
         "measurement's uncertainty at each measured pose from the cameras' geometry and the "
         "markers, and an identified arm model's parameter uncertainties carried to the tool. "
-        "Random errors count twice their 1-sigma (95 %%), analytic ones at their worst case; "
+        "Random errors count twice their 1-sigma (95 %), analytic ones at their worst case; "
         "the resolution is their root sum of squares. Exit status 0 when the set-up resolves "
         "the target, 1 when it cannot.",
     )
@@ -88,7 +88,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument(
         "--data-dir",
         type=Path,
-        help="folder of the saved arm models (default: storage.data_dir of --config)",
+        help="folder of the saved arm models and of --save (default: storage.data_dir of --config)",
+    )
+    parser.add_argument(
+        "--save",
+        action="store_true",
+        help="also keep it as the data directory's latest budget, which GET /api/v1/budget "
+        "serves (the daemon cannot record: its devices belong to its runs)",
     )
     parser.add_argument("--json", action="store_true", help="print the budget as JSON")
     parser.set_defaults(handler=run_budget)

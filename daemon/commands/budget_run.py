@@ -312,6 +312,56 @@ def arm_budget(
     )
 
 
+# --- saved budgets (the API serves the latest) ----------------------------------------------
+
+#: The latest ``thermocomp budget --save`` in the data directory (GET /api/v1/budget).
+BUDGET_FILE = "budget.json"
+
+
+def save_budget(data_dir: Path, budget: Budget, recorded: bool) -> Path:
+    """Write ``budget`` as the data directory's latest (atomically: a reader never sees half)."""
+    from datetime import UTC, datetime
+
+    path = Path(data_dir) / BUDGET_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    document = {
+        "made_at": datetime.now(UTC).isoformat(timespec="seconds"),
+        "recorded": recorded,
+        **budget.to_dict(),
+    }
+    partial = path.with_suffix(".json.partial")
+    partial.write_text(json.dumps(document, indent=2), encoding="utf-8")
+    partial.replace(path)
+    return path
+
+
+def read_saved_budget(data_dir: Path) -> dict[str, Any] | None:
+    """The latest saved budget, None when there is none or it does not read as one."""
+    path = Path(data_dir) / BUDGET_FILE
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    return data if isinstance(data, dict) and "sources" in data else None
+
+
+def live_budget(settings: Settings, target_um: float | None) -> Budget:
+    """The budget the daemon can make without its devices (the API's): the analytic and
+    model rows; the measured ones say how to get them."""
+    why = "not recorded here: `thermocomp budget --save` records it and the API then serves it"
+    target = target_um or settings.compensation.target_um
+    if settings.arm.enabled:
+        return arm_budget(
+            settings,
+            target,
+            arm_model=None,
+            data_dir=settings.storage.data_dir,
+            recordings=None,
+            why_not=why,
+        )
+    return bench_budget(settings, load_setup(None), target, None, why)
+
+
 # --- the command -----------------------------------------------------------------------------
 
 
@@ -366,6 +416,14 @@ def run_budget(args: argparse.Namespace) -> int:
     except DeviceError as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return EXIT_FAILURE
+    if args.save:
+        data_dir = args.data_dir or settings.storage.data_dir
+        try:
+            where = save_budget(data_dir, budget, recorded=not args.no_record)
+        except OSError as err:
+            print(f"{PROG}: cannot save in {data_dir}: {err.strerror or err}", file=sys.stderr)
+            return EXIT_FAILURE
+        print(f"# saved as {where} (GET /api/v1/budget serves it)", file=sys.stderr)
     if args.json:
         print(json.dumps(budget.to_dict(), indent=2))
     else:
