@@ -61,7 +61,7 @@ def test_the_text_is_laid_out_like_table_2_7(capsys: pytest.CaptureFixture[str])
     status, out, _ = _cte(capsys, str(TABLE), "--geometry", str(KUKA), "--digits", "2")
     assert status == 0
     assert "alpha_B           21.63" in out and "mean              21.75" in out
-    assert "alpha_B     B       Run 3              -37.67       -41.00    -8.12" in out
+    assert "alpha_B       B       Run 3              -37.67       -41.00    -8.12" in out
 
 
 def test_another_calibration_run(capsys: pytest.CaptureFixture[str]) -> None:

@@ -172,18 +172,27 @@ def heating_pad_source() -> Source:
 
 
 def recording_sources(
-    scatter: Scatter | None, axis: int = 0, why_not: str = "", *, centroid: bool = True
+    scatter: Scatter | None,
+    axis: int = 0,
+    why_not: str = "",
+    *,
+    centroid: bool = True,
+    along: str | None = None,
 ) -> list[Source]:
     """4.6 and 4.7 from a stationary recording: the centroid at its Cramér-Rao bound, and the
     scatter the bound does not explain (the robot idling, anything else moving the spot).
     ``centroid`` False (an arm: the centroids are in its 3-D measurement's row): 4.6 only,
     the scatter of the tool's position against the pose fit's own 1-sigma."""
     return [
-        s for s in _recording_sources(scatter, axis, why_not) if centroid or s.key != "centroid"
+        s
+        for s in _recording_sources(scatter, axis, why_not, along or f"along {'xy'[axis]}")
+        if centroid or s.key != "centroid"
     ]
 
 
-def _recording_sources(scatter: Scatter | None, axis: int, why_not: str) -> list[Source]:
+def _recording_sources(
+    scatter: Scatter | None, axis: int, why_not: str, along: str
+) -> list[Source]:
     vibration_remedy = "hold the robot still with its power off for stationary measurements (4.6)"
     centroid_remedy = "a larger, brighter spot; the robust centroid (4.7); average frames"
     if scatter is None:
@@ -220,7 +229,7 @@ def _recording_sources(scatter: Scatter | None, axis: int, why_not: str) -> list
             remedy=vibration_remedy,
             basis=(
                 f"{scatter.frames} frames over {scatter.duration_s:.0f} s, robot powered and "
-                f"held: scatter along {names[axis]} {scatter.std_um[axis]:.3g} µm less the "
+                f"held: scatter {along} {scatter.std_um[axis]:.3g} µm less the "
                 f"measurement's own 1-sigma {scatter.bound_um[axis]:.3g} µm in quadrature, "
                 f"x {COVERAGE:g}"
             ),
@@ -252,7 +261,7 @@ def camera_drift_source(drift: Drift | None, why_not: str = "") -> Source:
             "camera-drift", "Thermal drift of the camera", "4.8", "not quantified", None,
             effect, remedy, why_not or "no recording on a fixed target",
         )  # fmt: skip
-    tau = f", τ {drift.tau_s:.0f} s" if drift.tau_s is not None else ""
+    tau = f", τ {drift.tau_s:.0f} s" if drift.tau_s is not None and drift.resolved else ""
     limit = COVERAGE * drift.change_se_um
     seen = (
         f"change {drift.change_um:+.3g} ± {drift.change_se_um:.2g} µm "

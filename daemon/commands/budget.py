@@ -15,7 +15,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser = subparsers.add_parser(
         "budget",
         help=HELP,
-        description="Thesis chapter 4 (Table 4.5) for the configured set-up (issue 32): every "
+        description="Thesis chapter 4 (Table 4.5) for the configured set-up: every "
         "source of measurement error that applies, its error dL along the measured "
         "deformation against the deformation dL the model expects, ranked, with what would "
         "reduce it, and whether the set-up can resolve the compensation target. Analytic "

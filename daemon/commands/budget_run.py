@@ -284,7 +284,9 @@ def arm_budget(
         )
     scatter = recordings.scatter if recordings else None
     drift = recordings.drift if recordings else None
-    sources += recording_sources(scatter, 0, why_not, centroid=False)
+    sources += recording_sources(
+        scatter, 0, why_not, centroid=False, along="of the tool's position"
+    )
     sources.append(camera_drift_source(drift, why_not))
     reason = "a 3-D measurement sees every component: no projection to be short of"
     sources += [

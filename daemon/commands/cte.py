@@ -295,7 +295,7 @@ def to_text(
         how = "of the values shown" if digits is not None else "full precision"
         lines += [
             "",
-            f"{'alpha':<12}{'camera':<8}{'run':<12}{'predicted um':>13}{'measured um':>13}"
+            f"{'alpha':<14}{'camera':<8}{'run':<12}{'predicted um':>13}{'measured um':>13}"
             f"{'% error':>9}   (% error {how})",
         ]
         for row in table.rows:
@@ -305,7 +305,7 @@ def to_text(
                 else row.percent_error
             )
             lines.append(
-                f"{row.alpha_label:<12}{row.camera:<8}{row.run[:12]:<12}{row.predicted_um:>13.2f}"
+                f"{row.alpha_label:<14}{row.camera:<8}{row.run[:12]:<12}{row.predicted_um:>13.2f}"
                 f"{row.measured_um:>13.2f}{percent:>9.2f}"
             )
     return "\n".join(lines)
