@@ -56,3 +56,20 @@ async def test_budget_live_then_saved(tmp_path: Path) -> None:
         (data_dir / BUDGET_FILE).write_text("{not json")
         broken = await client.get("/api/v1/budget", headers=READ_AUTH)
         assert broken.status_code == 200 and broken.json()["source"] == "live"
+
+
+async def test_an_arms_live_budget_has_its_poses(tmp_path: Path) -> None:
+    app = create_app(settings_for(tmp_path / "data", arm=True), service_factory=Daemon)
+    async with (
+        serve(app) as address,
+        httpx.AsyncClient(base_url=f"http://{address}", timeout=60) as client,
+    ):
+        answer = await client.get("/api/v1/budget", headers=READ_AUTH)
+        assert answer.status_code == 200, answer.text
+        body = answer.json()
+        assert body["source"] == "live" and body["setup"].startswith("arm CRS A465")
+        poses = body["poses"]
+        assert poses and all(p["measurement_um"] > 0 and p["cameras_seeing"] for p in poses)
+        rows = {row["key"]: row for row in body["sources"]}
+        assert rows["measurement-3d"]["evidence"] == "model"
+        assert rows["camera-drift"]["evidence"] == "not quantified"

@@ -58,7 +58,6 @@ class Recordings:
     scatter: Scatter | None
     why_not: str = ""
     camera_models: tuple[CameraModel, ...] = ()
-    recorded: bool = True
 
 
 def recording_settings(settings: Settings) -> Settings:
@@ -233,11 +232,3 @@ async def record(
         scatter = None
         notes.append(f"stationary: {err} ({still.failures} frames not measured)")
     return Recordings(drift, scatter, "; ".join(notes), models)
-
-
-async def camera_models(settings: Settings) -> tuple[CameraModel, ...]:
-    """The arm's camera models as the devices give them (the bench's rig, or the camera
-    file's), without recording."""
-    clock = make_clock(settings.bench.clock, settings.bench.time_factor)
-    async with open_devices(settings, clock) as devices:
-        return devices.camera_models

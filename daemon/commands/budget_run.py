@@ -18,8 +18,9 @@ import json
 import math
 import sys
 import tomllib
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,6 +38,9 @@ from daemon.analysis.budget_bench import (
     recording_sources,
 )
 from daemon.commands.budget_record import Recordings
+
+if TYPE_CHECKING:
+    from daemon.arm.run import MeasuredPose
 
 PROG = "thermocomp budget"
 DEFAULT_SETUP = CONFIG_DIR / "budget" / "thesis-two-link.toml"
@@ -139,12 +143,28 @@ def _recording_notes(recordings: Recordings | None, settings: Settings) -> tuple
     notes = []
     if recordings is not None and recordings.why_not:
         notes.append(recordings.why_not)
-    if recordings is not None and recordings.recorded and settings.bench.enabled:
+    if recordings is not None and settings.bench.enabled:
         notes.append("recorded on the simulated bench with its heaters off, on its own clock")
     return tuple(notes)
 
 
 # --- an arm ----------------------------------------------------------------------------------
+
+
+def configured_cameras(settings: Settings, poses: Sequence[MeasuredPose]) -> tuple[Any, ...]:
+    """The arm's camera models without opening a device: the camera file's, else on the arm
+    bench its rig at each measured pose as drivers/sim/arm_devices.py sets it up (aimed at the
+    controller's tool pose there, which is the truth's to a fraction of a millimetre)."""
+    if settings.arm.cameras_file is not None:
+        from daemon.vision.cameras import load_cameras
+
+        return tuple(load_cameras(settings.arm.cameras_file))
+    if not settings.bench.enabled:
+        return ()
+    from drivers.sim.arm_markers import CameraRig
+
+    rig = CameraRig(count=settings.arm.cameras)
+    return tuple(camera for pose in poses for camera in rig.cameras(pose.tool_pose[:3, 3]))
 
 
 def _not_applicable(key: str, name: str, section: str, why: str) -> Source:
@@ -198,7 +218,8 @@ def arm_budget(
         heat=controller.heat,
     )
     expected = np.linalg.norm(drifts, axis=1)
-    models = recordings.camera_models if recordings is not None else ()
+    recorded_models = recordings.camera_models if recordings is not None else ()
+    models = recorded_models or configured_cameras(settings, poses)
     markers = np.array(settings.arm.markers_mm, dtype=np.float64)
     frames = settings.arm.frames_per_measurement
     reference = settings.arm.reference_frames or frames
@@ -368,7 +389,7 @@ def live_budget(settings: Settings, target_um: float | None) -> Budget:
 
 
 def make_budget(settings: Settings, args: argparse.Namespace) -> Budget:
-    from daemon.commands.budget_record import camera_models, record
+    from daemon.commands.budget_record import record
 
     target = args.target or settings.compensation.target_um
     arm = settings.arm.enabled
@@ -385,10 +406,6 @@ def make_budget(settings: Settings, args: argparse.Namespace) -> Budget:
             )
         )
         why_not = recordings.why_not or "not measured"
-    elif arm:
-        recordings = Recordings(
-            None, None, "", asyncio.run(camera_models(settings)), recorded=False
-        )
     if arm:
         data_dir = args.data_dir or settings.storage.data_dir
         return arm_budget(
