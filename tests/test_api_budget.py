@@ -11,8 +11,8 @@ import pytest
 
 from api.app import create_app
 from daemon.analysis.budget import Budget, Source
-from daemon.commands.budget_run import BUDGET_FILE, save_budget
 from daemon.service import Daemon
+from daemon.storage.budgets import BUDGET_FILE, save_budget
 from tests.test_api_arm_models import READ_AUTH, settings_for
 from tests.test_api_server import serve
 

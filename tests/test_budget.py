@@ -215,3 +215,35 @@ def test_poses_over_the_target_are_warned() -> None:
     warnings = budget.warnings()
     assert len(warnings) == 1 and "pose b" in warnings[0]
     assert "pose" in budget.to_text()
+
+
+# --- the run report's section ------------------------------------------------------------------
+
+
+@pytest.mark.slow  # two reports: Matplotlib figures
+def test_a_run_report_shows_the_saved_budget(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from daemon.analysis import write_report
+    from daemon.storage.budgets import read_saved_budget, save_budget
+    from tests.test_analysis_cte import _recorded_run
+
+    budget = Budget(
+        "the bench",
+        142.0,
+        "model",
+        5.0,
+        (_source("tilt", 43.8, "if disturbed"), _source("drift", 1.5)),
+    )
+    save_budget(tmp_path, budget, recorded=True)
+    saved = read_saved_budget(tmp_path)
+    assert saved is not None and saved["recorded"] is True and saved["made_at"]
+    files = write_report(_recorded_run(23.6e-6, False), tmp_path / "report", budget=saved)
+    page = files.html.read_text(encoding="utf-8")
+    section = page[page.index("Measurement error budget (thesis Table 4.5)") :]
+    assert "tilt *" in section and "43.8" in section and "30.8" in section  # % of 142 µm
+    assert "RESOLVES the target" in section and section.rstrip().endswith("</html>")
+    summary = json.loads(files.summary.read_text(encoding="utf-8"))
+    assert summary["budget"]["resolves"] is True and summary["budget"]["setup"] == "the bench"
+    plain = write_report(_recorded_run(23.6e-6, False), tmp_path / "plain")
+    assert "error budget" not in plain.html.read_text(encoding="utf-8")

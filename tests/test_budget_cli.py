@@ -114,7 +114,7 @@ def test_help_imports_no_numeric_stack() -> None:
 def test_save_keeps_the_latest_for_the_api(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    from daemon.commands.budget_run import read_saved_budget
+    from daemon.storage.budgets import read_saved_budget
 
     status, _, err = run_in_process(
         budget.register,

@@ -89,7 +89,8 @@ async def get_budget(
 ) -> BudgetAnswer:
     """The set-up's error budget: each source's error against the expected deformation,
     ranked, with what would reduce it, and whether the set-up resolves its target."""
-    from daemon.commands.budget_run import BudgetError, read_saved_budget
+    from daemon.commands.budget_run import BudgetError
+    from daemon.storage.budgets import read_saved_budget
 
     if target_um is None and not fresh:
         saved = await daemon.read(read_saved_budget, settings.storage.data_dir)
