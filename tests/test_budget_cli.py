@@ -8,6 +8,7 @@ import pytest
 
 from config import load_settings
 from daemon.commands import budget
+from daemon.vision.synthetic import cramer_rao_bound
 from drivers.clock import VirtualClock
 from drivers.sim.bench import Bench
 from tests.helpers import REPO_ROOT, run_in_process
@@ -19,6 +20,7 @@ def _budget(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict, 
     return status, (json.loads(out) if out.strip() else {}), err
 
 
+@pytest.mark.slow  # half an hour of the bench's camera on its virtual clock
 def test_bench_budget_measures_the_camera_drift_the_bench_has(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -40,6 +42,20 @@ def test_bench_budget_measures_the_camera_drift_the_bench_has(
         centroid["detail"]["bound_x_um"], rel=0.4
     )
     assert vibration["delta_l_um"] < centroid["delta_l_um"]
+    # the bound the frames report is the Cramér-Rao bound of the bench's spot (daemon/vision/
+    # synthetic.py: 3 px, half of a 16-bit full scale, 5 e read noise, 8.6 um pixels)
+    settings = load_settings()
+    crb_px, _ = cramer_rao_bound(
+        (settings.camera.height_px, settings.camera.width_px),
+        ((settings.camera.width_px - 1) / 2, (settings.camera.height_px - 1) / 2),
+        settings.bench.spot_sigma_px,
+        settings.bench.spot_peak_fraction,
+        settings.camera.bit_depth,
+        read_noise_counts=settings.camera.read_noise_e / settings.camera.gain_e_per_count,
+        gain_e_per_count=settings.camera.gain_e_per_count,
+    )
+    bound_um = crb_px * settings.camera.um_per_px[0]
+    assert centroid["detail"]["bound_x_um"] == pytest.approx(bound_um, rel=0.05)
     # the expected deformation is the controller's model at steady state, 0.5 W per pad
     assert 100 < data["expected_um"] < 200
     assert rows["bending"]["delta_l_um"] == pytest.approx(0.00123, rel=0.02)
