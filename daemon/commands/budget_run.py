@@ -294,7 +294,7 @@ def arm_budget(
             Source(
                 key="model-parameters",
                 name="Identified model's parameters",
-                section="6.5",
+                section="-",
                 evidence="model",
                 delta_l_um=COVERAGE * max(uncertainty.sigma_um, default=0.0),
                 effect="the compensation follows a model known to its parameters' errors",
