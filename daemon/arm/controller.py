@@ -378,10 +378,16 @@ def load_arm_and_duty(arm_path: str | Path, duty_cycle: str | Path) -> tuple[Arm
     """The arm file and a duty cycle taught on it (tool poses in the file solved on this arm);
     ArmError or DutyCycleError in one line (``check_taught_on``)."""
     arm = load_arm(arm_path)
+    return arm, load_duty_on(arm, arm_path, duty_cycle)
+
+
+def load_duty_on(arm: Arm, arm_path: str | Path, duty_cycle: str | Path) -> DutyCycle:
+    """A duty cycle taught on ``arm`` (loaded from ``arm_path``): its tool poses solved on
+    it; DutyCycleError in one line (``check_taught_on``)."""
 
     def solve(pose: FloatArray, seed: FloatArray) -> FloatArray:
         return inverse(arm, pose, seed)
 
     duty = load_duty_cycle(duty_cycle, solve)
     check_taught_on(duty, arm, arm_path)
-    return arm, duty
+    return duty

@@ -321,8 +321,8 @@ def check_taught_on(duty: DutyCycle, arm: Arm, arm_file: str | Path) -> None:
     number of joints."""
     if duty.joint_count != len(arm.joints):
         raise DutyCycleError(
-            f"duty cycle {duty.name!r} has {duty.joint_count} joints, arm {arm.name!r} "
-            f"{len(arm.joints)}"
+            f"duty cycle {duty.name!r} has {duty.joint_count} joints, arm {arm.name!r} has "
+            f"{len(arm.joints)}: give a duty cycle of this arm"
         )
     if not duty.arm:
         return

@@ -16,7 +16,7 @@ from pathlib import Path
 from config import Settings
 from config.inputs import InputError
 from daemon.arm.arm_model import check_fits, load_arm_model, named_arm_model_path
-from daemon.arm.controller import load_arm_and_duty
+from daemon.arm.controller import load_duty_on
 from daemon.arm.description import load_arm
 from daemon.model import load_network
 from daemon.model.presets import named_network_path
@@ -48,10 +48,7 @@ def check_inputs(settings: Settings, arm_model: str | None = None) -> None:
     if not arm_settings.enabled:
         return
     path = arm_file(settings)
-    if arm_settings.duty_cycle is not None:
-        arm, _ = load_arm_and_duty(path, arm_settings.duty_cycle)
-    else:
-        arm = load_arm(path)
+    arm = load_arm(path)
     if bench.enabled and settings.robot.driver == "sim":
         # the arm bench's controller is the C500C console's joint-space emulator: the A465's
         # six axes (drivers/sim/joint_arm.py), which an arm of another count cannot drive
@@ -61,6 +58,10 @@ def check_inputs(settings: Settings, arm_model: str | None = None) -> None:
                 f"arm.arm_file {arm_settings.arm_file}: arm {arm.name!r} has "
                 f"{len(arm.joints)} joints; the arm bench's emulated C500C moves {axes}"
             )
+    # after the bench's check: an arm the bench cannot drive is the mistake to name, not
+    # the duty cycle's joint count that follows from it
+    if arm_settings.duty_cycle is not None:
+        load_duty_on(arm, path, arm_settings.duty_cycle)
     if arm_settings.cameras_file is not None:
         cameras = load_cameras(Path(arm_settings.cameras_file))
         watching = (
