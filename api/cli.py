@@ -17,6 +17,7 @@ from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from config.cli import EXIT_FAILURE, EXIT_USAGE
+from daemon import __version__
 
 Register = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], None]
 
@@ -77,8 +78,6 @@ COMMANDS: tuple[Command, ...] = (
 
 
 def _version() -> str:
-    from daemon import __version__
-
     return __version__
 
 
@@ -130,6 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    # lazy: pydantic (the settings) loads for a command that runs, not for --help (issue 16)
     from config import ConfigError
 
     try:

@@ -13,8 +13,8 @@ import pytest
 from api.app import create_app
 from config import Settings
 from daemon.arm.arm_model import ArmModel, arm_model_toml, saved_arm_models_dir
-from daemon.arm.description import available_arms
 from daemon.arm.duty import available_duty_cycles
+from daemon.arm.loading import available_arms
 from daemon.model.calibration import CalibratedParameter
 from daemon.service import Daemon
 from tests.test_api_server import CONTROL, READ, serve

@@ -25,7 +25,7 @@ import pytest
 os.environ.setdefault("PYLON_CAMEMU", "2")
 
 from config import Settings
-from daemon.arm.description import load_arm
+from daemon.arm.loading import load_arm
 from daemon.run.arm.setup import default_arm_setup
 from daemon.run.states import RunParameters
 from daemon.service import Daemon

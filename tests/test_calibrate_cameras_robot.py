@@ -23,8 +23,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from config import Settings, load_settings
-from daemon.arm.description import load_arm
 from daemon.arm.duty import load_duty_cycle
+from daemon.arm.loading import load_arm
 from daemon.arm.run import MeasuredPose
 from daemon.calibration import cameras_robot as calibrate_cameras_robot
 from daemon.calibration.camera_pattern import Shift, check_pattern, robot_pattern, split_shift

@@ -21,7 +21,7 @@ from config import Settings
 from config.settings import IrRegion
 from daemon.commands import identify as identify_cli
 from daemon.model import load_network, network_facts
-from daemon.model.identify import network_toml
+from daemon.model.identified_network import network_toml
 from daemon.model.observer import OFFSET_SIGMA_C
 from daemon.model.presets import saved_networks_dir
 from daemon.run.setup import (

@@ -77,6 +77,10 @@ def imported_modules(*args: str) -> set[str]:
         (["stats", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
         (["fit", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
         (["report", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
+        # their `# lazy:` imports (tests/test_layering.py) are for this
+        (["identify", "--help"], HEAVY_MODULES | SERVER_MODULES),
+        (["devices", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
+        (["calibrate", "--help"], HEAVY_MODULES | {"fastapi", "uvicorn"}),
     ],
 )
 def test_help_imports_nothing_heavy(args: list[str], forbidden: frozenset[str]) -> None:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from daemon.arm.description import available_arms
+from daemon.arm.loading import available_arms
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.presets import check_network_name, new_saved_path
 

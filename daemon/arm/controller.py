@@ -30,11 +30,12 @@ import numpy as np
 
 from daemon.arm.arm_model import ArmModel
 from daemon.arm.arm_network import describe_arm
-from daemon.arm.description import Arm, load_arm
+from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.ir_regions import region_nodes
 from daemon.arm.kinematics import forward, inverse, tool_error, tool_errors
+from daemon.arm.loading import load_arm
 from daemon.arm.run import CyclePose, FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel
 from daemon.arm.types import LinkThermalState, Pose6

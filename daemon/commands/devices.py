@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, add_config_argument
+from drivers.clock import make_clock
 from drivers.errors import DeviceError
 
 if TYPE_CHECKING:
@@ -54,8 +55,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 async def _check(settings: Settings) -> DeviceCheck:
+    # lazy: the devices (the simulated bench: SciPy, OpenCV) load when the check runs, not
+    # for --help (issue 16)
     from daemon.run.devices_check import check_devices
-    from drivers.clock import make_clock
     from drivers.factory import open_devices
 
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
@@ -64,6 +66,7 @@ async def _check(settings: Settings) -> DeviceCheck:
 
 
 def run_devices_check(args: argparse.Namespace) -> int:
+    # lazy: OpenCV (the preview PNG) loads when the check runs, not for --help (issue 16)
     from daemon.run.devices_check import describe, preview_png
 
     settings = load_settings(args.config)

@@ -27,6 +27,7 @@ from config.cli import (
     add_config_argument,
     positive_float,
 )
+from daemon.heap import freeze_startup_heap
 from daemon.run.states import RunParameters, RunState, RunStateError
 from daemon.storage.recorder import RecorderError
 from daemon.storage.report_queue import ReportStatus
@@ -181,7 +182,7 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 
 async def _run(settings: Settings, parameters: RunParameters, args: argparse.Namespace) -> int:
-    from daemon.heap import freeze_startup_heap
+    # lazy: the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not for --help
     from daemon.service import Daemon, RunParameterError
 
     loop = asyncio.get_running_loop()

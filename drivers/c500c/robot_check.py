@@ -28,6 +28,7 @@ from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument
 from drivers.c500c import protocol as proto
 from drivers.c500c.console import Transcript
 from drivers.c500c.robot import C500CRobot
+from drivers.c500c.server_check import run_server_check
 from drivers.errors import DeviceError
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 
@@ -179,8 +180,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_server(settings: Settings, args: argparse.Namespace) -> int:
     """The fast path: the program on the controller (drivers/c500c/server_check.py)."""
-    from drivers.c500c.server_check import run_server_check
-
     if args.transcript is not None:
         print(
             "thermocomp robot check: --transcript records the console's text; the fast path "

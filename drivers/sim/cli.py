@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 from config.cli import non_negative_float, non_negative_int, port_number
 from config.faults import Fault
 from config.settings import SUPPORTED_BAUDRATES
+from daemon.arm.description import ArmError
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig, FaultKind, parse_faults
 from drivers.sim.server_emulator import (
     SERVER_BAUDRATE,
@@ -142,16 +143,14 @@ def _joint_arm(args: argparse.Namespace) -> JointArmConfig | None:
     """The --arm option's arm; ArmError (a bad name or file) is the caller's."""
     if args.arm is None:
         return None
-    # imported here: the kinematics (SciPy) load only for an emulator with an arm
-    from daemon.arm.description import load_arm
+    # lazy: the kinematics (SciPy) load only for an emulator with an arm
+    from daemon.arm.loading import load_arm
     from drivers.sim.joint_arm import JointArmConfig
 
     return JointArmConfig(load_arm(args.arm))
 
 
 def run(args: argparse.Namespace) -> int:
-    from daemon.arm.description import ArmError
-
     if args.device == "ur":
         return ur_cli.run(args)
 
