@@ -52,7 +52,8 @@ from daemon.vision.markers import marker_pixels
 from daemon.vision.multiview import CameraModel, project
 from drivers.base import Camera, Frame, GoalRobot
 from drivers.clock import make_clock
-from drivers.errors import DeviceError, DeviceTimeoutError
+from drivers.deadline import bounded
+from drivers.errors import DeviceError
 from drivers.factory import open_devices
 
 logger = logging.getLogger(__name__)
@@ -175,14 +176,9 @@ class Recording:
 
 
 async def grab(camera: Camera, timeout_s: float) -> Frame:
-    """One frame within ``timeout_s`` (a DeviceTimeoutError beyond, as arm_measure's)."""
-    try:
-        async with asyncio.timeout(timeout_s) as scope:
-            return await camera.grab()
-    except TimeoutError as err:
-        if not scope.expired():
-            raise
-        raise DeviceTimeoutError("camera", f"no frame within {timeout_s:g} s") from err
+    """One frame within ``timeout_s`` (a DeviceTimeoutError beyond, as arm_measure's; the
+    bench's render does not count: drivers/deadline.py)."""
+    return await bounded(camera.grab(), "camera", "frame", timeout_s)
 
 
 async def record_pattern(

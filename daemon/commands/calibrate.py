@@ -30,6 +30,7 @@ from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument, p
 from daemon.commands import calibrate_cameras, calibrate_model  # light: heavy where they run
 from drivers.base import Vector3
 from drivers.clock import make_clock
+from drivers.deadline import bounded
 from drivers.errors import DeviceError
 
 if TYPE_CHECKING:
@@ -162,7 +163,7 @@ async def measure_pattern(
             for point in split_move(where, target, max_step_mm):
                 await robot.move_absolute(point)
                 where = point
-            frame = await asyncio.wait_for(camera.grab(), settings.camera.grab_timeout_s)
+            frame = await bounded(camera.grab(), "camera", "frame", settings.camera.grab_timeout_s)
             try:
                 result = measure_with_camera_settings(frame.image, settings.camera)
             except CentroidError as err:

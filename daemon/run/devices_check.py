@@ -27,6 +27,7 @@ from daemon.vision.preview import (
     side_by_side,
 )
 from drivers.base import Camera, Frame, IrReader, IrReading, Pose, Robot
+from drivers.deadline import bounded
 from drivers.errors import DeviceError
 
 #: The robot's pose is read within this time (s), like a console command.
@@ -127,7 +128,7 @@ async def _tool_frames(devices: Devices, settings: Settings, check: DeviceCheck)
     )
     timeout_s = settings.camera.grab_timeout_s
     grabbed = await asyncio.gather(
-        *(asyncio.wait_for(camera.grab(), timeout_s) for camera in cameras),
+        *(bounded(camera.grab(), "camera", "frame", timeout_s) for camera in cameras),
         return_exceptions=True,
     )
     for name, result in zip(names, grabbed, strict=True):
@@ -148,7 +149,9 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
         await _ir_and_pose(devices, settings, check)
         return check
     try:
-        check.frame = await asyncio.wait_for(devices.camera.grab(), settings.camera.grab_timeout_s)
+        check.frame = await bounded(
+            devices.camera.grab(), "camera", "frame", settings.camera.grab_timeout_s
+        )
     except (DeviceError, TimeoutError) as err:
         check.errors["camera"] = str(err) or "no frame within camera.grab_timeout_s"
     if check.frame is not None:
@@ -172,7 +175,9 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
 
 async def _ir_and_pose(devices: Devices, settings: Settings, check: DeviceCheck) -> None:
     try:
-        check.reading = await asyncio.wait_for(devices.ir.read(), settings.ir.read_timeout_s)
+        check.reading = await bounded(
+            devices.ir.read(), "ir", "reading", settings.ir.read_timeout_s
+        )
     except (DeviceError, TimeoutError) as err:
         check.errors["ir"] = str(err) or "no reading within ir.read_timeout_s"
     try:
