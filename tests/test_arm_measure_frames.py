@@ -172,9 +172,65 @@ async def test_the_references_are_measured_with_arm_reference_frames() -> None:
             asked.append((robot.goal, frames))
             return ToolMeasurement(np.asarray(expected_pose), 0.001, True, {})
 
-    work: Any = type("Work", (), {"poses": POSES, "reference": {}, "run_id": 1})()
+    work: Any = type(
+        "Work", (), {"poses": POSES, "reference": {}, "missing_references": {}, "run_id": 1}
+    )()
     services = ArmServices(robot, Meter(), pipeline=None)  # type: ignore[arg-type]
     await measure_references(work, services, ErrorLog(EventBus()), 32)
     assert asked == [(pose.name, 32) for pose in POSES]
     assert set(work.reference) == {pose.name for pose in POSES}
     assert work.reference_source == "each taught goal before the first correction"
+
+
+async def test_a_missing_reference_is_said_never_a_silent_zero(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A pose whose reference cannot be measured (its markers, or a camera timing out on a
+    busy machine) takes its first step's measurement as its zero: the pose and why are kept,
+    that step is flagged, and the run's summary prints a line for it."""
+    from daemon.arm.run import MeasurementError, ToolMeasurement
+    from daemon.arm.types import Pose6
+    from daemon.commands.run import _print_result
+    from daemon.run.arm.prepare import ArmServices, measure_references
+    from daemon.run.arm.step import REFERENCE_MISSING, record_measurement
+    from daemon.run.events import ErrorLog, EventBus
+    from daemon.storage.recorder import StepRecord
+    from daemon.storage.step_record import STEP_FLAGS
+    from tests.test_arm_run import POSES
+
+    class Robot:
+        goal = ""
+
+        async def move_to_goal(self, goal: str, correction: Pose6) -> None:
+            self.goal = goal
+
+    robot = Robot()
+
+    class Meter:
+        async def measure(self, expected_pose: Any, frames: int | None = None) -> Any:
+            if robot.goal == POSES[1].name:
+                raise MeasurementError("2 markers seen, 3 needed")
+            return ToolMeasurement(np.asarray(expected_pose), 0.001, True, {})
+
+    work: Any = type(
+        "Work", (), {"poses": POSES, "reference": {}, "missing_references": {}, "run_id": 1}
+    )()
+    await measure_references(work, ArmServices(robot, Meter(), pipeline=None), ErrorLog(EventBus()))  # type: ignore[arg-type]
+    assert set(work.reference) == {POSES[0].name}
+    assert work.missing_references == {POSES[1].name: "markers: 2 markers seen, 3 needed"}
+    assert work.reference_source == "taught goals before the first correction, else first steps"
+
+    measured = ToolMeasurement(np.asarray(POSES[1].tool_pose), 0.001, True, {})
+    record = StepRecord(run_id=1, step=0, scheduled_s=0.0, actual_s=0.0, lateness_s=0.0)
+    assert record_measurement(work, POSES[1], measured, record)  # the zero: flagged
+    assert not record_measurement(work, POSES[1], measured, record)  # a drift from it
+    assert not record_measurement(work, POSES[0], measured, record)  # had its reference
+    assert REFERENCE_MISSING in STEP_FLAGS
+
+    summary = {"drift_3d_max_um": 1.0, "reference": {"missing": work.missing_references}}
+    _print_result({"id": 3, "state": "finished", "reason": None, "summary": summary}, False)
+    lines = [line for line in capsys.readouterr().out.splitlines() if "NO REFERENCE" in line]
+    assert lines == [
+        f"  NO REFERENCE at {POSES[1].name:<12} its first step is its zero "
+        "(markers: 2 markers seen, 3 needed)"
+    ]

@@ -269,6 +269,9 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
     )
     for label, value, unit in rows:
         print(f"  {label:<28} {_format(value)} {unit}".rstrip())
+    missing = (summary.get("reference") or {}).get("missing") or {}
+    for pose, why in missing.items():  # an arm run: a pose's zero is its first step
+        print(f"  {'NO REFERENCE at ' + pose:<28} its first step is its zero ({why})")
     lateness = (summary.get("timing") or {}).get("lateness_s") or {}
     if lateness:
         values = "/".join(_format(1e3 * v) for v in lateness.values() if isinstance(v, float))
