@@ -25,6 +25,13 @@ EDITOR_SUFFIXES = (".swp", ".swx", "~")
 #: without them, so that a test creating one fails, but `make run` beside the suite does not.
 RUNTIME_DIRS = ("data", "build")
 
+#: A test slower than this (s, setup and teardown included) belongs under @pytest.mark.slow:
+#: `make test-fast` leaves those out and must stay within a few minutes on 2 cores.
+SLOW_S = 5.0
+#: The timeout of a slow test (pytest-timeout; the others keep pyproject's 120 s): a minute
+#: of work on an idle machine takes several on a loaded one.
+SLOW_TIMEOUT_S = 600.0
+
 _watch: dict[str, frozenset[str]] = {}
 _HYPOTHESIS_HOME = pytest.StashKey[str]()
 
@@ -67,6 +74,38 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     home = config.stash.get(_HYPOTHESIS_HOME, None)
     if home is not None:
         shutil.rmtree(home, ignore_errors=True)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A slow test without its own timeout gets SLOW_TIMEOUT_S."""
+    for item in items:
+        if item.get_closest_marker("slow") and not item.get_closest_marker("timeout"):
+            item.add_marker(pytest.mark.timeout(SLOW_TIMEOUT_S))
+
+
+_seconds: dict[str, float] = {}  # each test's setup + call + teardown this session
+_marked_slow: set[str] = set()
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    _seconds[report.nodeid] = _seconds.get(report.nodeid, 0.0) + report.duration
+    if "slow" in report.keywords:
+        _marked_slow.add(report.nodeid)
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """Name the tests that took over SLOW_S without the slow marker (`make test-fast` runs
+    them): mark them, or make them faster. A loaded machine inflates every figure: read
+    them beside the load."""
+    over = sorted(
+        ((seconds, nodeid) for nodeid, seconds in _seconds.items() if nodeid not in _marked_slow),
+        reverse=True,
+    )
+    over = [(seconds, nodeid) for seconds, nodeid in over if seconds > SLOW_S]
+    if over:
+        terminalreporter.write_sep("-", f"over {SLOW_S:g} s without @pytest.mark.slow")
+        for seconds, nodeid in over:
+            terminalreporter.write_line(f"{seconds:7.1f} s  {nodeid}")
 
 
 @pytest.fixture(autouse=True)
