@@ -10,6 +10,7 @@ import pytest
 
 from daemon.analysis.steps import steps_from_rows
 from daemon.model import ThermalModel, ThermalNetwork, load_network
+from daemon.model.identified_network import network_toml
 from daemon.model.identify import (
     IdentificationError,
     RunData,
@@ -17,7 +18,6 @@ from daemon.model.identify import (
     heat_schedule,
     identify,
     measured_deformation_um,
-    network_toml,
     parse_parameters,
     simulate_temperatures,
     validate,
