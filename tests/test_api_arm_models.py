@@ -106,6 +106,7 @@ async def test_saved_arm_models_are_listed_with_their_identification(tmp_path: P
         assert broken.status_code == 422 and "does not load" in broken.json()["message"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "status", "says"),
     [
