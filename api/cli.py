@@ -38,17 +38,17 @@ COMMANDS: tuple[Command, ...] = (
     ),
     Command(
         "stats",
-        "daemon.storage.reports",
+        "daemon.commands.report_options",
         "error statistics of a column (thesis 6.6: N, mean, S_x, chi-squared)",
     ),
     Command(
         "fit",
-        "daemon.storage.reports",
+        "daemon.commands.report_options",
         "first-order exponential fit of a column: time constant and steady state",
     ),
     Command(
         "report",
-        "daemon.storage.reports",
+        "daemon.commands.report_options",
         "write a run's report: figures, summary.json and an HTML page",
     ),
     Command(
@@ -64,10 +64,12 @@ COMMANDS: tuple[Command, ...] = (
         "daemon.commands.calibrate",
         "calibrate with the robot: the camera, several cameras in 3-D, or the model",
     ),
-    Command("model", "daemon.model.cli", "simulate a thermal network or report its facts"),
+    Command(
+        "model", "daemon.commands.model_options", "simulate a thermal network or report its facts"
+    ),
     Command(
         "centroid",
-        "daemon.vision.cli",
+        "daemon.commands.centroid_options",
         "measure the laser spot's sub-pixel centroid in image files",
     ),
     Command(

@@ -66,8 +66,8 @@ class ArmSettings(Section):
     reference_frames: Annotated[int, Field(ge=1, le=MAX_FRAMES_PER_MEASUREMENT)] | None = Field(
         None,
         description="Frames of each pose's reference (its zero, measured once before the first "
-        "step): its error is in every later drift of that pose; none: "
-        "arm.frames_per_measurement.",
+        "step): its error is in every later drift of that pose, and the meter measures its "
+        "cameras' scatter on them; none: arm.frames_per_measurement; at least 4.",
     )
     max_translation_mm: Annotated[float, Field(gt=0, le=MAX_ARM_TRANSLATION_MM)] = Field(
         2.0, description="Largest translation of a pose's correction (mm)."
@@ -103,6 +103,12 @@ class ArmSettings(Section):
         0.5,
         description="With arm.bending: share of each joint's flange conductance on the link's "
         "motor-housing side (the arm's design; 0.5: symmetric, no gradient across a link).",
+    )
+    adapt: bool = Field(
+        False,
+        description="Estimate each joint's heat, alpha, convection and (arm.bending) the bending "
+        "share online from the measured tool and the IR regions, from the preset's or the arm "
+        "model's values (daemon/arm/adaptation.py); the compensation uses the adapted links.",
     )
     play_duty_cycle: bool | None = Field(
         None,

@@ -7,6 +7,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
 
+from config.arm_truth import ArmTruthError, load_arm_truth
 from config.faults import parse_sensor_faults
 from config.section import MAX_DURATION_S, MAX_HEAT_W, NonNegativeFloat, PositiveFloat, Section
 
@@ -139,6 +140,14 @@ class BenchSettings(Section):
         "(a thermal frame that is not finite); @N: the N-th read since it opened.",
     )
 
+    camera_gain_e_per_count: PositiveFloat = Field(
+        1.0, description="Truth: electrons per count of the sim camera's sensor."
+    )
+    camera_reports_gain: bool = Field(
+        True,
+        description="The sim camera reports its gain with each frame (a camera that knows "
+        "its sensor); false: it does not, as a GenICam camera, and the centroid measures it.",
+    )
     camera_rotation_deg: float = Field(
         0.0,
         description="Sim camera: rotation of the image from the robot's world x / -z axes "
@@ -151,8 +160,65 @@ class BenchSettings(Section):
         "calibration is pixel_pitch_um / camera_scale.",
     )
 
+    arm_truth: str | None = Field(
+        None,
+        max_length=4096,
+        description="Arm bench: the truth of the simulated arm, a preset in config/truths "
+        "(e.g. hot-motors) or a TOML file (docs/explanation/bench-truth.md); none: the "
+        "default truth. The two-link bench's truth settings do not apply to the arm bench.",
+    )
+
+    @field_validator("arm_truth")
+    @classmethod
+    def _valid_arm_truth(cls, value: str | None) -> str | None:
+        if value is not None:
+            try:
+                load_arm_truth(value)
+            except ArmTruthError as err:
+                raise ValueError(str(err)) from err
+        return value
+
     @field_validator("camera_faults", "ir_faults")
     @classmethod
     def _valid_fault_spec(cls, value: str) -> str:
         parse_sensor_faults(value)  # ValueError names the bad item
         return value
+
+
+#: The two-link bench's truth: none of it reaches the arm bench, whose truth is bench.arm_truth
+#: (a setting given here on an arm config would be silently ignored: it is refused instead).
+TWO_LINK_TRUTH_SETTINGS = (
+    "heater_power_w",
+    "heater_on_delay_s",
+    "heater_off_delay_s",
+    "ambient_c",
+    "ambient_drift_c_per_h",
+    "ambient_swing_c",
+    "ambient_swing_period_h",
+    "ir_noise_c",
+    "direction",
+    "truth_network",
+    "truth_heat_scale",
+    "truth_convection_scale",
+    "stand_drift_um",
+    "stand_drift_tau_s",
+    "stand_drift_spread",
+    "truth_node_spacing_mm",
+    "moving_convection_scale",
+    "spot_sigma_px",
+    "spot_peak_fraction",
+    "camera_faults",
+    "ir_faults",
+    "camera_rotation_deg",
+    "camera_scale",
+)
+
+
+def two_link_settings_given(bench: BenchSettings) -> list[str]:
+    """The two-link bench's truth settings that differ from their defaults."""
+    fields = BenchSettings.model_fields
+    return [
+        name
+        for name in TWO_LINK_TRUTH_SETTINGS
+        if getattr(bench, name) != fields[name].get_default(call_default_factory=True)
+    ]

@@ -88,11 +88,18 @@ class CameraSettings(Section):
         "spot falls on the bare chip, so calibration = pixel pitch. The thesis's optics "
         "measured 10.22, 9.72 (lab.toml).",
     )
-    gain_e_per_count: PositiveFloat = Field(
-        1.0, description="Electrons per count, for the centroid's uncertainty estimate."
+    gain_e_per_count: PositiveFloat | None = Field(
+        None,
+        description="Electrons per count of the sensor, for the centroid's noise model (its "
+        "1-sigma and, on 8-bit or saturated frames, its fit's weights). none: the camera's "
+        "where it reports one, else measured on each frame by photon transfer "
+        "(docs/explanation/measurement-noise.md); set it only from an EMVA 1288 figure or "
+        "a photon-transfer series at the camera's gain and pixel format.",
     )
     read_noise_e: NonNegativeFloat = Field(
-        5.0, description="Read noise (electrons RMS), for the centroid's uncertainty estimate."
+        5.0,
+        description="Read noise (electrons RMS), for the centroid's noise model when the gain "
+        "is known (set or the camera's); a measured one takes the background's own noise.",
     )
     centroid_method: Literal["robust", "thesis"] = Field(
         "robust", description="robust: background-subtracted, re-centred; thesis: its replica."
@@ -264,7 +271,25 @@ class RobotSettings(Section):
         5.0, description="Timeout of one console command."
     )
     move_timeout_s: Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S)] = Field(
-        60.0, description="Timeout of a move and its finish."
+        60.0,
+        description="Longest timeout of a move and its finish (s): each move's own timeout "
+        "follows from its distance and speed (robot.move_margin_s, robot.min_speed_mm_s), "
+        "capped here; a move of unknown length waits this long.",
+    )
+    move_margin_s: Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S)] = Field(
+        3.0,
+        description="A move's timeout beyond its motion (s): settling, the controller's own "
+        "overhead and the replies on the wire. A compensating step of micrometres gets this.",
+    )
+    min_speed_mm_s: Annotated[float, Field(gt=0, le=10_000)] = Field(
+        20.0,
+        description="Slowest tool speed of a move at 100 % speed (mm/s), scaled by the move's "
+        "speed percent (a move of unknown speed: 10 %): a move longer than its distance at "
+        "this speed plus robot.move_margin_s is a stall (issue 26).",
+    )
+    min_rotation_deg_s: Annotated[float, Field(gt=0, le=10_000)] = Field(
+        10.0,
+        description="Slowest tool rotation of a move at 100 % speed (deg/s), as min_speed_mm_s.",
     )
     online: bool = Field(True, description="Use straight-line moves (needs `online on`).")
     application: str = Field("ash", description="Name of the ash application (prompt).")

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Generic, Literal, TypeVar
+from typing import TYPE_CHECKING, Generic, Literal, TypeVar
 
-import numpy as np
+if TYPE_CHECKING:  # settings load without NumPy: `thermocomp <command> --help` stays light
+    import numpy as np
 
 KindT = TypeVar("KindT", bound=str)
 

@@ -30,8 +30,9 @@ class ModelSettings(Section):
     )
     ambient_c: Annotated[float, Field(ge=-60, le=150)] = Field(
         22.0,
-        description="Ambient temperature the controller's model assumes (degC); the sim "
-        "bench's real room is bench.ambient_c (none: this).",
+        description="Ambient temperature the controller's model assumes (degC); an arm run "
+        "with a room thermometer (room.driver) follows its readings instead. The two-link "
+        "bench's real room is bench.ambient_c (none: this), the arm bench's its truth file's.",
     )
     heat_w: dict[str, Annotated[float, Field(ge=0, le=MAX_HEAT_W)]] = Field(
         default_factory=dict,

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from types import UnionType
@@ -21,7 +20,7 @@ from typing import Annotated, Any, Literal, Self, Union, get_args, get_origin
 from pydantic import BaseModel, ValidationError, model_validator
 
 from config.arm_settings import ArmSettings
-from config.bench_settings import BenchSettings
+from config.bench_settings import BenchSettings, two_link_settings_given
 from config.device_settings import CameraSettings, IrRegion, IrSettings, RobotSettings
 from config.model_settings import (
     CompensationSettings,
@@ -29,8 +28,10 @@ from config.model_settings import (
     ObserverSettings,
     SchedulerSettings,
 )
+from config.room_settings import RoomSettings
 from config.section import MAX_CONNECTIONS_LIMIT, SUPPORTED_BAUDRATES, Section
 from config.service_settings import ApiSettings, StorageSettings
+from config.toml_file import MAX_TOML_BYTES, read_toml
 
 # The settings tree's sections live in their own modules (one job each); they are part of this
 # module's interface, as the tree they make up.
@@ -53,6 +54,7 @@ __all__ = [
     "ModelSettings",
     "ObserverSettings",
     "RobotSettings",
+    "RoomSettings",
     "SchedulerSettings",
     "Settings",
     "StorageSettings",
@@ -65,10 +67,6 @@ __all__ = [
 
 ENV_PREFIX = "THERMOCOMP_"
 ENV_NESTING = "__"
-
-#: Largest settings or network file read (bytes): the biggest preset is a few KiB, so anything
-#: this large is the wrong file, refused before it is parsed.
-MAX_TOML_BYTES = 4 * 1024 * 1024
 
 
 class ConfigError(Exception):
@@ -94,6 +92,30 @@ class Settings(Section):
                 )
         return self
 
+    @model_validator(mode="after")
+    def _arm_bench_truth(self) -> Self:
+        # the arm bench's truth is bench.arm_truth: a two-link truth setting would be ignored
+        if self.arm.enabled and self.bench.enabled and self.robot.driver == "sim":
+            given = two_link_settings_given(self.bench)
+            if given:
+                raise ValueError(
+                    f"bench.{given[0]}"
+                    + (f" (and {', '.join(given[1:])})" if given[1:] else "")
+                    + " is the two-link bench's truth, not the arm bench's: give the arm's "
+                    "in the file of bench.arm_truth (docs/explanation/bench-truth.md)"
+                )
+        return self
+
+    @model_validator(mode="after")
+    def _simulated_room_on_the_arm_bench(self) -> Self:
+        arm_bench = self.arm.enabled and self.bench.enabled and self.robot.driver == "sim"
+        if self.room.driver == "sim" and not arm_bench:
+            raise ValueError(
+                "room.driver 'sim' is the arm bench's room thermometer: it needs arm.enabled, "
+                "bench.enabled and robot.driver sim (on hardware: room.driver w1)"
+            )
+        return self
+
     bench: BenchSettings = BenchSettings()
     camera: CameraSettings = CameraSettings()
     ir: IrSettings = IrSettings()
@@ -105,6 +127,7 @@ class Settings(Section):
     storage: StorageSettings = StorageSettings()
     api: ApiSettings = ApiSettings()
     arm: ArmSettings = ArmSettings()
+    room: RoomSettings = RoomSettings()
 
 
 #: Setting names whose value is a secret: never stored (run rows) nor served (GET /config),
@@ -166,34 +189,8 @@ def _describe(error: ValidationError, source: str, env_used: dict[str, str]) -> 
         if item["type"] == "extra_forbidden":
             reason = "unknown setting"
         origin = f"{env_used[path]} (environment)" if path in env_used else source
-        lines.append(f"{origin}: {path}: {reason}")
+        lines.append(f"{origin}: {path}: {reason}" if path else f"{origin}: {reason}")
     return "\n".join(lines)
-
-
-def read_toml(path: Path, error: type[Exception]) -> dict[str, Any]:
-    """A TOML file's tables; any failure is ``error("<path>: <why>")`` (missing, not TOML,
-    unreadable), so settings and network files report bad files the same way."""
-    try:
-        with open(path, "rb") as handle:
-            raw = handle.read(MAX_TOML_BYTES + 1)
-    except FileNotFoundError as err:
-        raise error(f"{path}: no such file") from err
-    except IsADirectoryError as err:
-        raise error(f"{path}: is a folder, not a TOML file") from err
-    except OSError as err:
-        raise error(f"{path}: cannot read: {err.strerror}") from err
-    if len(raw) > MAX_TOML_BYTES:
-        raise error(f"{path}: over {MAX_TOML_BYTES // 1024} KiB: not a settings or network file")
-    if b"\0" in raw:
-        raise error(f"{path}: a binary file, not TOML text")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise error(f"{path}: not UTF-8 text (byte {err.start}): save it as UTF-8") from err
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise error(f"{path}: not valid TOML: {err}") from err
 
 
 def load_settings(path: Path | None = None, environ: Mapping[str, str] | None = None) -> Settings:

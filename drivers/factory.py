@@ -19,7 +19,7 @@ from config import ConfigError, Settings
 from config.settings import CameraSettings
 from daemon.vision.cameras import CameraFileError, load_cameras
 from daemon.vision.multiview import CameraModel
-from drivers.base import Camera, IrReader, Robot
+from drivers.base import Camera, IrReader, Robot, RoomThermometer
 from drivers.c500c.robot import C500CRobot
 from drivers.c500c.server import C500CServerRobot
 from drivers.camera import OpenCvCamera, ReplayCamera
@@ -27,6 +27,7 @@ from drivers.clock import Clock
 from drivers.genicam.camera import GenICamCamera
 from drivers.genicam.radiometric import GenICamRadiometricIrReader
 from drivers.ir import OpenCvIrReader, ReplayIrReader
+from drivers.room import W1Thermometer
 from drivers.sim.arm_devices import ArmBenchControl, open_arm_bench
 from drivers.sim.bench import Bench
 from drivers.sim.devices import SimCamera, SimIrReader
@@ -48,6 +49,8 @@ class Devices:
     cameras: tuple[Camera, ...] = ()
     camera_models: tuple[CameraModel, ...] = ()
     arm_bench: ArmBenchControl | None = None
+    #: the thermometer in the room's air (issue 29, room.driver); None: none
+    room: RoomThermometer | None = None
 
 
 def _arm_bench(settings: Settings) -> bool:
@@ -105,7 +108,11 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             "is 'sim': choose real drivers or enable the bench"
         )
     if _arm_bench(settings):
-        async with open_arm_bench(settings, clock, settings.bench.seed) as arm:
+        async with contextlib.AsyncExitStack() as arm_stack:
+            arm = await arm_stack.enter_async_context(
+                open_arm_bench(settings, clock, settings.bench.seed)
+            )
+            room = await _open_room(settings, clock, arm_stack, arm.room)
             logger.info("devices open: the arm bench, %d cameras", len(arm.cameras))
             yield Devices(
                 camera=arm.camera,
@@ -115,6 +122,7 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
                 cameras=arm.cameras,
                 camera_models=arm.camera_models,
                 arm_bench=arm.bench,
+                room=room,
             )
         return
     async with contextlib.AsyncExitStack() as stack:
@@ -166,6 +174,7 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
         await stack.enter_async_context(camera)
         await stack.enter_async_context(ir)
         cameras, camera_models = await _open_arm_cameras(settings, clock, stack)
+        room = await _open_room(settings, clock, stack, None)
         logger.info(
             "devices open: camera=%s ir=%s robot=%s arm cameras=%d",
             settings.camera.driver,
@@ -181,7 +190,25 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             emulator=emulator,
             cameras=cameras,
             camera_models=camera_models,
+            room=room,
         )
+
+
+async def _open_room(
+    settings: Settings,
+    clock: Clock,
+    stack: contextlib.AsyncExitStack,
+    simulated: RoomThermometer | None,
+) -> RoomThermometer | None:
+    """The room thermometer of room.driver, opened in ``stack``: the arm bench's simulated one
+    (``simulated``), a 1-Wire sensor, or none."""
+    driver = settings.room.driver
+    if driver == "none":
+        return None
+    if driver == "sim":
+        assert simulated is not None  # Settings' validator: sim only on the arm bench
+        return simulated
+    return await stack.enter_async_context(W1Thermometer(settings.room, clock))
 
 
 def camera_driver(camera: CameraSettings, clock: Clock, bench: Bench | None) -> Camera:

@@ -411,7 +411,7 @@ def test_a_whole_frame_has_every_marker_where_the_camera_sees_it() -> None:
 
 def test_ambient_drift_warms_and_cools_a_still_arm() -> None:
     period = 4 * 3600.0
-    bench = ArmBench(bench_config(ambient_drift_c=2.0, ambient_period_s=period))
+    bench = ArmBench(bench_config(ambient_swing_c=2.0, ambient_swing_period_s=period))
     bench.advance_to(period / 4)  # the air at its warmest
     assert bench.ambient_c(period / 4) == pytest.approx(24.0)
     warm = bench.thermal.temperatures_c.copy()

@@ -4,10 +4,11 @@ opened by the factory as a real port: no bench), and ``arm.camera_devices`` = py
 GenICam cameras (PYLON_CAMEMU) serving the tool's markers rendered at the run's measured pose
 (drivers/sim/camemu.py, tests/test_genicam_markers.py for the measurement itself).
 
-Each emulated camera serves its own folder, one file per frame in name order: the reference at
-the taught pose, then one frame per step, the first steps at the taught pose and the last ones
-with the tool moved by a known 6-DOF offset. So the run must record ~0 drift, then the offset,
-through the real driver, the factory's device order and the arm run's own measurement."""
+Each emulated camera serves its own folder, one file per frame in name order: the reference's
+frames at the taught pose, then one frame per step, the first steps at the taught pose and the
+last ones with the tool moved by a known 6-DOF offset. So the run must record ~0 drift, then
+the offset, through the real driver, the factory's device order and the arm run's own
+measurement."""
 
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ os.environ.setdefault("PYLON_CAMEMU", "2")
 
 from config import Settings
 from daemon.arm.loading import load_arm
+from daemon.run.arm.prepare import reference_frames
 from daemon.run.arm.setup import default_arm_setup
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
@@ -134,8 +136,10 @@ async def test_an_arm_run_on_the_console_measures_the_known_drift_on_genicam_fra
         models = rig(len(EMULATED), taught[:3, 3])
         write_cameras(tmp_path / "cameras.toml", models)
         rng = np.random.default_rng(11)
-        # frame 0: the reference before the first step; frame k: step k
-        poses = [taught] * (1 + STATIC_STEPS) + [drifted] * (STEPS - STATIC_STEPS)
+        # the reference's frames before the first step (at least MIN_REFERENCE_FRAMES: the
+        # meter measures its cameras' scatter on them), then one frame per step
+        references = reference_frames(probe)
+        poses = [taught] * (references + STATIC_STEPS) + [drifted] * (STEPS - STATIC_STEPS)
         devices = []
         for serial, model in zip(EMULATED, models, strict=True):
             assert marker_pixels(model, markers_world(taught, probe))[1].all()

@@ -14,7 +14,7 @@ import pytest
 from config import ConfigError
 from config.settings import Settings
 from daemon.model import load_network
-from daemon.vision import measure_centroid
+from daemon.vision import measure_centroid, measure_with_camera_settings
 from drivers.c500c.robot import C500CRobot
 from drivers.clock import VirtualClock
 from drivers.factory import open_devices
@@ -106,6 +106,8 @@ async def test_spot_goes_where_physics_puts_it() -> None:
         assert centre[1] == pytest.approx(290.5 + expected_y, abs=1e-9)
         frame = await devices.camera.grab()
         assert frame.timestamp_s == 600.0 and frame.image.dtype == np.uint16
+        # the bench's camera knows its sensor and says so (bench.camera_gain_e_per_count)
+        assert frame.gain_e_per_count == 1.0
     measured = measure_centroid(frame.image, bit_depth=16)
     assert measured.x_px == pytest.approx(centre[0], abs=0.05)
     assert measured.y_px == pytest.approx(centre[1], abs=0.05)
@@ -187,3 +189,16 @@ def test_a_run_starts_from_cold_at_its_own_time() -> None:
     assert x_um == pytest.approx(
         4.0 * fresh.true_deformation_um(600.0)[0] + reused.stand_drift_um(1600.0), rel=1e-9
     )
+
+
+async def test_sim_camera_can_keep_its_gain_to_itself() -> None:
+    """As a GenICam camera does (SFNC has no electrons-per-count node): no gain on the frame,
+    and the centroid measures it on the frame."""
+    config = settings(bench={"camera_reports_gain": False, "camera_gain_e_per_count": 4.0})
+    clock = VirtualClock()
+    async with open_devices(config, clock) as devices:
+        frame = await devices.camera.grab()
+    assert frame.gain_e_per_count is None
+    result = measure_with_camera_settings(frame.image, config.camera)
+    assert result.gain_source == "frames"
+    assert result.gain_e_per_count == pytest.approx(4.0, rel=0.3)

@@ -356,10 +356,12 @@ def test_calibrate_model_chains_the_three_steps(tmp_path: Path) -> None:
 def test_model_info_and_simulate_reach_a_saved_network(
     data_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from daemon.model import cli as model_cli
+    from daemon.commands import model_options
 
     status, out, err = run_in_process(
-        model_cli.register, ["model", "info", SAVED, "--data-dir", str(data_dir), "--json"], capsys
+        model_options.register,
+        ["model", "info", SAVED, "--data-dir", str(data_dir), "--json"],
+        capsys,
     )
     assert status == 0, err
     facts = network_facts(load_network(SAVED, data_dir))
@@ -367,11 +369,11 @@ def test_model_info_and_simulate_reach_a_saved_network(
         facts.slowest_time_constant_s
     )
     status, out, err = run_in_process(
-        model_cli.register,
+        model_options.register,
         ["model", "simulate", "--network", SAVED, "--data-dir", str(data_dir), "--duration",
          "60", "--json"],
         capsys,
     )  # fmt: skip
     assert status == 0, err  # the saved network's own heat: no --heat needed
-    status, _, err = run_in_process(model_cli.register, ["model", "info", SAVED], capsys)
+    status, _, err = run_in_process(model_options.register, ["model", "info", SAVED], capsys)
     assert status == 2 and f"no network preset '{SAVED}'" in err

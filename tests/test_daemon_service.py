@@ -57,6 +57,23 @@ async def test_compensated_run_keeps_the_spot_still_and_records_every_step(
     assert all(kind == "absolute" for kind, _ in harness.robot.commands)
 
 
+async def test_a_camera_without_a_gain_flags_the_steps_it_measured_its_own(
+    tmp_path: Path,
+) -> None:
+    """A GenICam camera gives no gain (issue 30): the centroid measures it on each frame, and
+    every measured step says so (flag gain-from-frame); the run is otherwise the same."""
+    settings = make_settings(tmp_path)
+    harness = Harness(settings)
+    harness.camera_gain_e_per_count = None
+    async with harness.daemon as daemon:
+        info = await daemon.start_run(params(settings))
+        await daemon.wait_run()
+        assert daemon.recorder is not None
+        steps = daemon.recorder.steps(info["id"])
+    assert steps and all(s.flags == "gain-from-frame" and s.error == "" for s in steps)
+    assert all(s.centroid_x_px is not None for s in steps)
+
+
 async def test_without_compensation_the_spot_drifts_with_the_deformation(tmp_path: Path) -> None:
     settings = make_settings(tmp_path)
     harness = Harness(settings)

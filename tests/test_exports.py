@@ -1,10 +1,13 @@
-"""Step exports encoded in worker processes (daemon/storage/exports.py): the same records as the
-recorder's own reads, in bounded chunks that join into the whole run."""
+"""Step exports encoded in worker processes (daemon/storage/exports.py,
+daemon/storage/step_text.py): the same records as the recorder's own reads, in bounded chunks that
+join into the whole run, as Python's csv module and json.dumps write them (the oracles), awkward
+values included."""
 
 from __future__ import annotations
 
 import asyncio
 import csv
+import dataclasses
 import io
 import json
 import math
@@ -17,10 +20,20 @@ from daemon.storage.recorder import (
     STEP_COLUMNS,
     Recorder,
     StepRecord,
-    write_steps_csv,
 )
 
 STEPS = 25
+
+
+#: values whose text is easy to get wrong: shortest round-trip digits (16 and 17), an
+#: exponent, infinities, text to quote in CSV and escape in JSON
+AWKWARD: dict[int, dict[str, object]] = {
+    5: {"pose_x_mm": 1.2345678901234568e17, "pose_y_mm": 1e-05, "pose_z_mm": 1e16},
+    6: {"drift_x_um": math.inf, "drift_y_um": -math.inf, "centroid_x_px": 1 / 3},
+    8: {"error": 'camera: "no frame", retried\nthen gave up', "flags": "late,stale-frame"},
+    9: {"ir_json": '{"link": {"mean_c": 21.5}}', "frame_path": "frames/1/9.png"},
+    11: {"error": "tab\there, a \\ backslash and \u00e9"},
+}
 
 
 def _recorded_run(data_dir: Path) -> tuple[int, list[StepRecord]]:
@@ -28,17 +41,38 @@ def _recorded_run(data_dir: Path) -> tuple[int, list[StepRecord]]:
         run_id = recorder.create_run({}, {}, None, "test")
         for step in range(STEPS):
             recorder.write_step(
-                StepRecord(
-                    run_id=run_id,
-                    step=step,
-                    scheduled_s=float(step),
-                    actual_s=step + 1e-3,
-                    lateness_s=1e-3,
-                    residual_um=math.nan if step == 3 else 0.1 * step,
-                    flags="late" if step == 7 else "",
+                dataclasses.replace(
+                    StepRecord(
+                        run_id=run_id,
+                        step=step,
+                        scheduled_s=float(step),
+                        actual_s=step + 1e-3,
+                        lateness_s=1e-3,
+                        residual_um=math.nan if step == 3 else 0.1 * step,
+                        flags="late" if step == 7 else "",
+                    ),
+                    **AWKWARD.get(step, {}),
                 )
             )
         return run_id, recorder.steps(run_id)
+
+
+def _python_csv(records: list[StepRecord]) -> str:
+    """The oracle: Python's csv module, empty cell for a missing value, repr for floats."""
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(STEP_COLUMNS)
+    for record in records:
+        writer.writerow("" if v is None else v for v in dataclasses.astuple(record))
+    return text.getvalue()
+
+
+def _python_json(record: StepRecord) -> dict[str, object]:
+    """The oracle: the record's fields, non-finite numbers as null."""
+    return {
+        k: None if isinstance(v, float) and not math.isfinite(v) else v
+        for k, v in dataclasses.asdict(record).items()
+    }
 
 
 def test_json_chunks_join_into_the_whole_run_with_nan_as_null(tmp_path: Path) -> None:
@@ -53,7 +87,10 @@ def test_json_chunks_join_into_the_whole_run_with_nan_as_null(tmp_path: Path) ->
             break
         start = chunk.next_start
     assert counts == [10, 10, 5]
-    steps = json.loads("[" + ",".join(parts) + "]")
+    text = "[" + ",".join(parts) + "]"
+    steps = json.loads(text)
+    assert steps == [_python_json(r) for r in records]
+    assert "Infinity" not in text and "NaN" not in text  # strict JSON
     assert [s["step"] for s in steps] == list(range(STEPS))
     assert steps[3]["residual_um"] is None and steps[4]["residual_um"] == records[4].residual_um
     assert list(steps[0]) == list(STEP_COLUMNS) and steps[7]["flags"] == "late"
@@ -65,10 +102,35 @@ def test_csv_chunks_equal_the_recorders_csv(tmp_path: Path) -> None:
     first = csv_chunk(database, run_id, 0, 20, True)
     rest = csv_chunk(database, run_id, first.next_start or 0, 20, False)
     assert (first.count, first.next_start, rest.count, rest.next_start) == (20, 20, 5, None)
-    expected = io.StringIO()
-    write_steps_csv(records, expected)
-    assert (first.data + rest.data).decode() == expected.getvalue()
-    assert len(list(csv.reader(io.StringIO(expected.getvalue())))) == STEPS + 1
+    expected = _python_csv(records)
+    assert (first.data + rest.data).decode() == expected
+    rows = list(csv.reader(io.StringIO(expected)))
+    assert len(rows) == STEPS + 1
+    # every float reads back as the same double
+    pose = STEP_COLUMNS.index("pose_x_mm")
+    assert float(rows[6][pose]) == 1.2345678901234568e17
+    assert rows[7][STEP_COLUMNS.index("drift_x_um")] == "inf"
+
+
+def test_the_recorders_csv_is_the_exports(tmp_path: Path) -> None:
+    run_id, records = _recorded_run(tmp_path)
+    with Recorder(tmp_path) as recorder:
+        assert recorder.export_csv(run_id) == _python_csv(records)
+
+
+def test_an_empty_or_finished_range(tmp_path: Path) -> None:
+    run_id, _ = _recorded_run(tmp_path)
+    database = tmp_path / DATABASE_NAME
+    past = csv_chunk(database, run_id, STEPS + 10, 5, True)
+    assert (past.data.decode(), past.count, past.next_start) == (
+        ",".join(STEP_COLUMNS) + "\n",
+        0,
+        None,
+    )
+    exact = json_chunk(database, run_id, STEPS - 5, 5)
+    # a full chunk cannot know it was the last: the next one is empty
+    assert (exact.count, exact.next_start) == (5, STEPS)
+    assert json_chunk(database, run_id, STEPS, 5).count == 0
 
 
 async def test_exports_run_in_a_worker_process(tmp_path: Path) -> None:

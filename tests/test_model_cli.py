@@ -10,15 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from daemon.commands import model_options
 from daemon.model import ThermalModel, load_network, network_facts
-from daemon.model import cli as model_cli
 from tests.helpers import run_cli, run_in_process
 
 
 def run(command: str | list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
     """The model command alone, in-process (the real entry point is tested once below)."""
     argv = command.split() if isinstance(command, str) else command
-    return run_in_process(model_cli.register, argv, capsys)
+    return run_in_process(model_options.register, argv, capsys)
 
 
 def test_the_done_when_command_runs_through_the_real_entry_point() -> None:
@@ -188,3 +188,14 @@ def test_info_reports_the_network_facts(capsys: pytest.CaptureFixture[str]) -> N
 
     status, out, err = run(["model", "info", "nonesuch.toml"], capsys)
     assert status == 2 and "nonesuch.toml" in err and out == ""
+
+
+def test_the_light_options_agree_with_the_model() -> None:
+    """`thermocomp model --help` builds its parser without the model
+    (daemon/commands/model_options.py repeats two of its facts): they must agree."""
+    from daemon.commands.model_options import STEPPER_CHOICES, _presets
+    from daemon.model.model import STEPPERS
+    from daemon.model.presets import available_presets
+
+    assert STEPPER_CHOICES == STEPPERS
+    assert _presets() == available_presets()

@@ -206,3 +206,10 @@ def test_the_installed_command_exits_2_on_bad_paths_without_a_traceback(tmp_path
     result = run_cli(["centroid", str(tmp_path / "missing.png")])
     assert result.returncode == 2
     assert "no such file or folder" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_the_light_options_agree_with_the_methods() -> None:
+    from daemon.commands.centroid_options import METHOD_CHOICES
+    from daemon.vision import METHODS
+
+    assert METHOD_CHOICES == METHODS

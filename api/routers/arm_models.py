@@ -47,7 +47,9 @@ ArmModelName = Annotated[
 
 
 class ArmModelParameter(BaseModel):
-    name: str = Field(description="heat:J, convection, alpha or offset:REGION.")
+    name: str = Field(
+        description="heat:J, convection, alpha, capacity, share[:J] or offset:REGION."
+    )
     value: float = Field(description="The factor (x the preset's) or the offset (degC).")
     standard_error: float | None = Field(description="None: unbounded (nothing seen).")
     relative_error: float | None
@@ -69,6 +71,18 @@ class ArmModelInfo(BaseModel):
     heat_scales: list[float] = Field(description="Per joint, x the motor model's heat.")
     convection_scale: float
     alpha_scale: float
+    capacity_scale: float = Field(description="The joints' heat capacity, x the preset's.")
+    bending_shares: list[float] = Field(
+        description="Each joint's bending share (empty: the run's arm.motor_side_share)."
+    )
+    calibrated: bool = Field(
+        description="Every parameter identified by the final fit and every value physical."
+    )
+    warning: str = Field(description="Empty, or why this model is NOT fully calibrated.")
+    not_identified: list[str] = Field(description="Parameters left at the preset's value.")
+    implausible: list[str] = Field(
+        description="Values outside their physical range, saved with --force."
+    )
     ir_offsets_c: dict[str, float]
     ir_offset_sigma_c: dict[str, float]
     parameters: list[ArmModelParameter]
@@ -115,6 +129,12 @@ def _info(model: ArmModel, name: str) -> ArmModelInfo:
         heat_scales=list(model.heat_scales),
         convection_scale=model.convection_scale,
         alpha_scale=model.alpha_scale,
+        capacity_scale=model.capacity_scale,
+        bending_shares=list(model.bending_shares),
+        calibrated=model.calibrated,
+        warning=model.warning,
+        not_identified=list(model.not_identified),
+        implausible=list(model.implausible),
         ir_offsets_c=_finite_map(model.ir_offsets_c),
         ir_offset_sigma_c=_finite_map(model.ir_offset_sigma_c),
         parameters=[

@@ -19,9 +19,9 @@ from daemon.model import (
     ThermalNetwork,
     available_presets,
     load_network,
-    network_facts,
 )
-from daemon.model.presets import available_saved, saved_networks_dir
+from daemon.model.presets import available_saved, network_file, saved_networks_dir
+from daemon.storage.network_cache import cached_network_facts
 
 logger = logging.getLogger(__name__)
 
@@ -109,12 +109,13 @@ def _identification(network: ThermalNetwork) -> Identification | None:
 def _describe(
     names: list[str], source: Literal["preset", "identified"], data_dir: Path | None
 ) -> NetworkList:
-    """Load each network (blocking: TOML and an eigenvalue problem each)."""
+    """Load each network (blocking: TOML and an eigenvalue problem each, the latter cached
+    in the data directory by file content when there is one: daemon/storage/network_cache.py)."""
     networks, problems = [], []
     for name in names:
         try:
             network = load_network(name, data_dir)
-            facts = network_facts(network)
+            facts = cached_network_facts(network_file(name, data_dir), network, data_dir)
         except NetworkError as err:
             problems.append(NetworkProblem(name=name, error=str(err)))
             continue

@@ -3,6 +3,8 @@ archived frames. The row lookup and the run id's type are shared with api/router
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import importlib.util
 import logging
 import sqlite3
@@ -152,19 +154,32 @@ async def _json_stream(
     """``{"run_id", "steps": [...], "next_from"}``, the steps chunk by chunk."""
     yield b'{"run_id":%d,"steps":[' % run_id
     chunk, sent = first, 0
-    while True:
-        if chunk.data:
-            yield (b"," if sent else b"") + chunk.data
-        sent += chunk.count
+
+    def following(chunk: Chunk, sent: int) -> asyncio.Task[Chunk] | None:
         if chunk.next_start is None or sent >= page:
-            break
-        try:
-            chunk = await daemon.export(
-                json_chunk, database, run_id, chunk.next_start, min(CHUNK_STEPS, page - sent)
-            )
-        except (sqlite3.Error, OSError):
-            logger.exception("run %d: JSON page cut short", run_id)
-            return  # the client sees JSON that does not parse: never a silent short page
+            return None
+        count = min(CHUNK_STEPS, page - sent)
+        return asyncio.create_task(
+            daemon.export(json_chunk, database, run_id, chunk.next_start, count)
+        )
+
+    coming = following(chunk, chunk.count)
+    try:
+        while True:
+            if chunk.data:
+                yield (b"," if sent else b"") + chunk.data
+            sent += chunk.count
+            if coming is None:
+                break
+            try:
+                chunk = await coming
+            except (sqlite3.Error, OSError):
+                logger.exception("run %d: JSON page cut short", run_id)
+                return  # the client sees JSON that does not parse: never a silent short page
+            # the export process encodes the next chunk while this one is sent
+            coming = following(chunk, sent + chunk.count)
+    finally:
+        await _drop(coming)
     next_from = "null" if chunk.next_start is None else str(chunk.next_start)
     yield f'],"next_from":{next_from}}}'.encode()
 
@@ -174,17 +189,38 @@ async def _csv_stream(
 ) -> AsyncIterator[bytes]:
     chunk = first
     remaining = None if limit is None else limit - chunk.count
-    yield chunk.data
-    while chunk.next_start is not None and remaining != 0:
-        try:
-            chunk = await daemon.export(
-                csv_chunk, database, run_id, chunk.next_start, _chunk(remaining), False
-            )
-        except (sqlite3.Error, OSError):
-            logger.exception("run %d: CSV export cut short", run_id)
-            return
-        remaining = None if remaining is None else remaining - chunk.count
+
+    def following(chunk: Chunk, remaining: int | None) -> asyncio.Task[Chunk] | None:
+        if chunk.next_start is None or remaining == 0:
+            return None
+        return asyncio.create_task(
+            daemon.export(csv_chunk, database, run_id, chunk.next_start, _chunk(remaining), False)
+        )
+
+    # the export process encodes the next chunk while this one is sent
+    coming = following(chunk, remaining)
+    try:
         yield chunk.data
+        while coming is not None:
+            try:
+                chunk = await coming
+            except (sqlite3.Error, OSError):
+                coming = None
+                logger.exception("run %d: CSV export cut short", run_id)
+                return
+            remaining = None if remaining is None else remaining - chunk.count
+            coming = following(chunk, remaining)
+            yield chunk.data
+    finally:
+        await _drop(coming)
+
+
+async def _drop(task: asyncio.Task[Chunk] | None) -> None:
+    """A chunk encoded ahead that the client will not get (it left): cancelled, waited for."""
+    if task is not None:
+        task.cancel()  # a no-op once done; awaiting it then collects its outcome
+        with contextlib.suppress(asyncio.CancelledError, sqlite3.Error, OSError):
+            await task
 
 
 async def _parquet(daemon: Daemon, recorder: Recorder, run_id: int) -> Response:
@@ -293,17 +329,23 @@ REPORT_RETRY_AFTER_S = 2
 async def get_report(run_id: RunId, daemon: DaemonDep) -> Response:
     """The analysis report of an ended run (a self-contained HTML page). Only the daemon
     writes reports (storage.report_at_end, or ``thermocomp report RUN``): 202 while it is
-    being written, 404 when there is none; a request never renders one."""
+    being written; a request never renders one. An ended run without one (never written, or
+    its writer killed: a shutdown, a crash) gets it queued now: 202 (issue 26). 404 when
+    writing it failed in this daemon's lifetime."""
     row = await run_row(daemon, run_id)
     status = daemon.report_status(run_id)
+    ended = RunState(row.state).is_terminal
+    html = daemon.reports.html_path(run_id)
+    if ended and status is None and row.step_count > 0 and not html.is_file():
+        daemon.reports.submit(run_id)  # regenerated on demand, by the daemon's one writer
+        status = daemon.report_status(run_id)
     if status in (ReportStatus.QUEUED, ReportStatus.WRITING):
         message = f"the report of run {run_id} is being written; ask again shortly"
         body = {"status": 202, "kind": "pending", "message": message, "details": None}
         headers = {"Retry-After": str(REPORT_RETRY_AFTER_S)}
         return JSONResponse(body, status_code=202, headers=headers)
-    if not RunState(row.state).is_terminal:
+    if not ended:
         raise ApiError(409, "conflict", f"run {run_id} is {row.state}: no report before it ends")
-    html = daemon.reports.html_path(run_id)
     if not html.is_file():
         hint = f"`thermocomp report {run_id}` writes one"
         if status is ReportStatus.FAILED:

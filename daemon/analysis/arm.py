@@ -154,3 +154,27 @@ ARM_LABELS: dict[str, tuple[str, str]] = {
     "measurement_sigma_um": ("3-D measurement 1-sigma (median)", "µm"),
     "measurement_rotation_sigma_urad": ("rotation measurement 1-sigma (median)", "µrad"),
 }
+
+
+#: What the summary of a run without a room thermometer says (issue 29).
+NO_ROOM_NOTE = (
+    "no room thermometer: the arm model held its configured ambient (model.ambient_c) for "
+    "the whole run, so a room that warms or cools was not followed (room.driver)"
+)
+
+
+def room_summary(steps: RunSteps) -> dict[str, object]:
+    """The room as the run's thermometer read it (issue 29): ``measured`` and the readings'
+    count, first, last, lowest and highest (degC), or ``measured`` False and a note saying the
+    model held its configured ambient."""
+    room = _finite(_column(steps, "room_c"))
+    if not room.size:
+        return {"measured": False, "readings": 0, "note": NO_ROOM_NOTE}
+    return {
+        "measured": True,
+        "readings": int(room.size),
+        "first_c": float(room[0]),
+        "last_c": float(room[-1]),
+        "min_c": float(room.min()),
+        "max_c": float(room.max()),
+    }

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, positive_float, positive_int
+from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from daemon.analysis.steps import RESIDUAL_COLUMN, natural_key, number_or_nan
 
 if TYPE_CHECKING:  # SciPy loads when stats or fit runs, not for `thermocomp --help`
@@ -29,7 +29,7 @@ if TYPE_CHECKING:  # SciPy loads when stats or fit runs, not for `thermocomp --h
 
 #: fits.KINDS, spelled out so that registering the commands imports no SciPy
 #: (tests/test_cli.py checks they agree).
-FIT_KINDS = ("rising", "decaying")
+FIT_KINDS = ("rising", "decaying")  # daemon/commands/report_options.py repeats it for --help
 
 logger = logging.getLogger(__name__)
 
@@ -128,92 +128,6 @@ def column_values(rows: list[dict[str, str]], name: str, source: Path) -> NDArra
 def default_column(rows: list[dict[str, str]]) -> str:
     """The error column of an exported run, or the only column of a plain list."""
     return PLAIN_COLUMN if rows and PLAIN_COLUMN in rows[0] else RESIDUAL_COLUMN
-
-
-def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    stats = subparsers.add_parser(
-        "stats",
-        help="error statistics of a column (thesis 6.6: N, mean, S_x, chi-squared)",
-        description="N, mean, standard deviation S_x, standard deviation of the mean "
-        "S_x/sqrt(N), the histogram over K = 1.87 (N-1)^0.40 + 1 intervals and the "
-        "chi-squared test against the normal distribution with the sample's mean and S_x "
-        "(thesis 6.6). The p-value is the upper tail; the thesis's lower-tail reading is "
-        "shown beside it, labelled. Empty cells are skipped.",
-    )
-    stats.add_argument(
-        "file",
-        type=Path,
-        help="CSV with a header (e.g. an exported run), "
-        "a plain list of numbers, or - for standard input",
-    )
-    stats.add_argument(
-        "--column",
-        help=f"column to analyse (default {RESIDUAL_COLUMN}, the "
-        "measured error of an exported run; ir:<region>[:max] an IR region's mean [maximum])",
-    )
-    stats.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    stats.set_defaults(handler=run_stats)
-
-    fit = subparsers.add_parser(
-        "fit",
-        help="first-order exponential fit of a column: time constant and steady state",
-        description="Least-squares fit of y = y0 + A (1 - exp(-(t - t0)/tau)) (rising) or "
-        "y = y0 + A exp(-(t - t0)/tau) (decaying) with the parameters' standard errors, the "
-        "time constant tau and the steady-state time: the first time after which the data "
-        "stay within a band around their final level (default +-3 sigma of the last 20 %, "
-        "thesis 3.5.1).",
-    )
-    fit.add_argument("file", type=Path, help="CSV with a header, a plain list, or -")
-    fit.add_argument(
-        "--column",
-        required=True,
-        help="column to fit; ir:<region> fits an IR region's mean temperature from an "
-        "exported run's ir_json column (ir:<region>:max its maximum)",
-    )
-    fit.add_argument(
-        "--time-column",
-        help="time column in s (default scheduled_s or actual_s; "
-        "else the row index times --step-s)",
-    )
-    fit.add_argument(
-        "--step-s",
-        type=positive_float,
-        default=1.0,
-        help="time between rows when there is no time column (default 1 s)",
-    )
-    fit.add_argument(
-        "--kind",
-        choices=("auto", *FIT_KINDS),
-        default="auto",
-        help="rising or decaying; auto: from the first and last values",
-    )
-    fit.add_argument(
-        "--band",
-        type=positive_float,
-        help="steady-state half-band in the column's unit (default: --sigmas of the final segment)",
-    )
-    fit.add_argument(
-        "--sigmas",
-        type=positive_float,
-        default=3.0,
-        help="band in standard deviations "
-        "of the final segment when --band is not given (default 3)",
-    )
-    fit.add_argument(
-        "--final-fraction",
-        type=float,  # range (and nan) checked by run_fit: 0 < x <= 1
-        default=0.2,
-        help="final segment as a fraction of the data (default 0.2)",
-    )
-    fit.add_argument(
-        "--smoothing",
-        type=positive_int,
-        default=9,
-        help="judge 'stays within the band' on a running mean of this many samples "
-        "(default 9; 1: raw samples)",
-    )
-    fit.add_argument("--json", action="store_true", help="print JSON instead of text")
-    fit.set_defaults(handler=run_fit)
 
 
 def _fail(command: str, message: str, status: int) -> int:

@@ -62,6 +62,7 @@ NUMERIC_COLUMNS: tuple[str, ...] = (
     "rotation_error_urad",
     "measured_sigma_um",
     "measured_rotation_sigma_urad",
+    "room_c",
 )
 #: The 6-DOF columns of an arm run (issue 20); a two-link run leaves them empty.
 ARM_COLUMNS: tuple[str, ...] = NUMERIC_COLUMNS[NUMERIC_COLUMNS.index("deformation_sigma_um") + 1 :]

@@ -3,12 +3,17 @@ an arm run's identification (daemon/arm/identify.py) and what ``thermocomp run -
 NAME`` (``"arm_model"`` in POST /runs) gives the controller's model (daemon/arm/controller.py).
 
 The file (``<storage.data_dir>/arm-models/NAME.toml``) carries the factors applied to the
-preset arm's model: each joint's heat per watt of the motor model, the convection and the
-expansion coefficient (1.0 where the calibration could not identify the factor: the preset's
-value stays), each IR region's offset with its 1-sigma, every fitted parameter with its
-standard error and identifiable flag, and where it came from (arm, duty cycle, source run,
-date). Names follow the saved networks' rules (daemon.model.presets.check_network_name); the
-arm presets' names (config/arms) are refused.
+preset arm's model: each joint's heat per watt of the motor model, the convection, the
+expansion coefficient, the joints' heat capacity and each joint's bending share (1.0, or the
+settings' share, where the calibration could not identify the factor: the preset's value
+stays), each IR region's offset with its 1-sigma, every fitted parameter with its standard
+error and identifiable flag (from the FINAL fit, issue 29), and where it came from (arm, duty
+cycle, source run, date). A model whose parameters are not all identified carries a loud
+``warning`` and the list ``not_identified``; one saved with ``--force`` despite a value outside
+its physical range (daemon/arm/identify_parameters.py PHYSICAL_RANGES) lists those values in
+``implausible``. Both are served by the API and recorded by a run that uses the model.
+Names follow the saved networks' rules (daemon.model.presets.check_network_name); the arm
+presets' names (config/arms) are refused.
 """
 
 from __future__ import annotations
@@ -62,6 +67,21 @@ class ArmModel:
     validation_marker_rms_um: float | None = None
     validation_temperature_rms_c: float | None = None
     validation_preset_marker_rms_um: float | None = None
+    #: issue 29: the joints' heat capacity factor and each joint's bending share (empty: the
+    #: run's arm.motor_side_share)
+    capacity_scale: float = 1.0
+    bending_shares: tuple[float, ...] = ()
+    #: not empty when the model is not fully calibrated (what the calibration could not
+    #: identify and what that means), with the parameters concerned
+    warning: str = ""
+    not_identified: tuple[str, ...] = ()
+    #: values outside their physical range saved anyway (``--force``), each with its range
+    implausible: tuple[str, ...] = ()
+
+    @property
+    def calibrated(self) -> bool:
+        """Every parameter identified and every value physical."""
+        return not self.not_identified and not self.implausible
 
     def provenance(self) -> dict[str, Any]:
         """What a run records of the model it used."""
@@ -75,8 +95,14 @@ class ArmModel:
             "convection_scale": self.convection_scale,
             "alpha_scale": self.alpha_scale,
             "ir_offsets_c": dict(self.ir_offsets_c),
+            "capacity_scale": self.capacity_scale,
+            "bending_shares": list(self.bending_shares),
             "identifiable": {p.name: p.identifiable for p in self.parameters},
             "validation_runs": list(self.validation_runs),
+            "calibrated": self.calibrated,
+            "warning": self.warning,
+            "not_identified": list(self.not_identified),
+            "implausible": list(self.implausible),
         }
 
 
@@ -148,6 +174,12 @@ def arm_model_toml(model: ArmModel, header: str = "") -> str:
         "heat_scales": list(model.heat_scales),
         "convection_scale": model.convection_scale,
         "alpha_scale": model.alpha_scale,
+        "capacity_scale": model.capacity_scale,
+        "bending_shares": list(model.bending_shares),
+        "calibrated": model.calibrated,
+        "warning": model.warning,
+        "not_identified": list(model.not_identified),
+        "implausible": list(model.implausible),
     }
     if model.marker_rms_um is not None:
         top["marker_rms_um"] = model.marker_rms_um
@@ -229,9 +261,17 @@ def load_arm_model(path: Path) -> ArmModel:
             )
             for p in data.get("parameters", [])
         )
-        scales = (float(data.get("convection_scale", 1.0)), float(data.get("alpha_scale", 1.0)))
+        scales = (
+            float(data.get("convection_scale", 1.0)),
+            float(data.get("alpha_scale", 1.0)),
+            float(data.get("capacity_scale", 1.0)),
+        )
         if not all(math.isfinite(v) and v > 0 for v in scales):
-            raise ArmModelError("convection_scale and alpha_scale must be positive")
+            raise ArmModelError("convection_scale, alpha_scale and capacity_scale must be > 0")
+        shares = data.get("bending_shares", [])
+        bending = _floats(shares, "bending_shares") if shares else ()
+        if not all(0.0 < v < 1.0 for v in bending):
+            raise ArmModelError("bending_shares must lie between 0 and 1")
         return ArmModel(
             name=str(data["name"]),
             arm=str(data["arm"]),
@@ -250,6 +290,11 @@ def load_arm_model(path: Path) -> ArmModel:
             validation_marker_rms_um=_optional(data, "validation_marker_rms_um"),
             validation_temperature_rms_c=_optional(data, "validation_temperature_rms_c"),
             validation_preset_marker_rms_um=_optional(data, "validation_preset_marker_rms_um"),
+            capacity_scale=scales[2],
+            bending_shares=bending,
+            warning=str(data.get("warning", "")),
+            not_identified=tuple(str(n) for n in data.get("not_identified", [])),
+            implausible=tuple(str(n) for n in data.get("implausible", [])),
         )
     except ArmModelError as err:
         raise ArmModelError(f"{path}: {err}") from err

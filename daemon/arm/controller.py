@@ -28,14 +28,17 @@ from pathlib import Path
 
 import numpy as np
 
+from daemon.arm.adaptation import PRIOR_LOG_SIGMA, ArmAdaptation, adapted_names
 from daemon.arm.arm_model import ArmModel
 from daemon.arm.arm_network import describe_arm
 from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
+from daemon.arm.identify_response import factored_description
 from daemon.arm.ir_regions import region_nodes
 from daemon.arm.kinematics import forward, inverse, tool_error, tool_errors
 from daemon.arm.loading import load_arm
+from daemon.arm.response import ArmModelSpec, marker_sensitivity
 from daemon.arm.run import CyclePose, FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel
 from daemon.arm.types import LinkThermalState, Pose6
@@ -44,6 +47,8 @@ from daemon.model.observer import IrObserver
 #: The observer's prior on an IR offset the model file gives no uncertainty for (degC): the
 #: FLIR's +-2 degC accuracy, as the two-link observer (daemon/model/observer.py).
 DEFAULT_OFFSET_SIGMA_C = 2.0
+#: The adaptation's heat record step (s of arm time; identification's IDENTIFY_STEP_S).
+ADAPTATION_STEP_S = 20.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,13 +90,22 @@ class ArmController:
                     f"arm model {identified.name!r} has {len(identified.heat_scales)} joint "
                     f"heat factors, arm {arm.name!r} {joints} joints"
                 )
+            if identified.bending_shares and len(identified.bending_shares) != joints:
+                raise ValueError(
+                    f"arm model {identified.name!r} has {len(identified.bending_shares)} "
+                    f"bending shares, arm {arm.name!r} {joints} joints"
+                )
             self.heat_scales = np.array(identified.heat_scales, dtype=np.float64)
             self.alpha_scale = identified.alpha_scale
             convection = identified.convection_scale
         self.heat = heat or JointHeatProfile.from_duty(arm, duty, resolution_s=options.motion_dt_s)
         description = describe_arm(arm, plus_share=options.motor_side_share)
+        if identified is not None:  # issue 29: identified capacity and bending shares
+            description = factored_description(
+                description, identified.capacity_scale, identified.bending_shares or None
+            )
         self.thermal = thermal or ArmThermalModel(
-            description if options.bending else arm,
+            description if options.bending or identified is not None else arm,
             across_link=options.bending,
             node_spacing_mm=options.node_spacing_mm,
             ambient_c=options.ambient_c,
@@ -101,6 +115,15 @@ class ArmController:
         self.last_heat_w: FloatArray = np.zeros(joints)
         self.observer: IrObserver | None = None
         self._observer_noise_c: float | None = None
+        self.description = description
+        self.adaptation: ArmAdaptation | None = None
+        self._adapt_poses: dict[str, int] = {}
+        self._adapt_sensitivities: list[FloatArray] = []
+        self._adapted_links: tuple[float, tuple[LinkThermalState, ...]] | None = None
+        #: the room thermometer's last two readings (degC): the ambient of the next advance
+        #: is their mean (follow_room); None: no thermometer, options.ambient_c throughout
+        self._room_last: float | None = None
+        self._room_next: float | None = None
 
     def attach_observer(
         self, regions: Mapping[str, Sequence[int]], ir_noise_c: float
@@ -130,16 +153,117 @@ class ArmController:
     def time_s(self) -> float:
         return float(self.thermal.time_s)
 
+    # -- online adaptation (issue 29, daemon/arm/adaptation.py) ---------------------------------
+
+    def enable_adaptation(
+        self, poses: Sequence[MeasuredPose], marker_sigma_mm: float, ir_noise_c: float
+    ) -> None:
+        """Adapt the factors online (arm.adapt): the adaptation starts at the first measured
+        tool (:meth:`adapt`), with the IR regions of that step, from this model's factors (the
+        preset's, or the arm model's with its standard errors) as the prior."""
+        self._adapt_poses = {pose.name: k for k, pose in enumerate(poses)}
+        self._adapt_sensitivities = [
+            marker_sensitivity(self.arm, pose.q_rad, np.zeros((1, 3)), self.options.bending)
+            for pose in poses
+        ]
+        self._adapt_noise = (float(marker_sigma_mm), float(ir_noise_c))
+
+    @property
+    def adapting(self) -> bool:
+        return bool(self._adapt_poses)
+
+    def _priors(self) -> dict[str, tuple[float, float]]:
+        """The adaptation's prior: this model's factors; the 1-sigma of an identified one its
+        relative standard error (the default where not identified)."""
+        fitted = {} if self.identified is None else {p.name: p for p in self.identified.parameters}
+        values = {f"heat:{j + 1}": float(v) for j, v in enumerate(self.heat_scales)}
+        values["alpha"] = self.alpha_scale
+        values["convection"] = 1.0 if self.identified is None else self.identified.convection_scale
+        priors = {}
+        for name, value in values.items():
+            p = fitted.get(name)
+            sigma = PRIOR_LOG_SIGMA
+            if p is not None and p.identifiable and p.relative_error is not None:
+                sigma = max(float(p.relative_error), 0.01)
+            priors[name] = (value, sigma)
+        return priors
+
+    def adapt(
+        self, pose: MeasuredPose, displacement_mm: FloatArray, reading_c: Mapping[str, float]
+    ) -> None:
+        """One measurement into the adaptation: the tool's thermal displacement at ``pose``
+        (measured drift less the correction commanded, mm) and the IR regions' means."""
+        if pose.name not in self._adapt_poses:
+            return
+        if self.adaptation is None:
+            regions = region_nodes(self.thermal, reading_c)
+            spec = ArmModelSpec(
+                self.description,
+                self.thermal.node_spacing_mm,
+                regions,
+                self._adapt_sensitivities,
+                across_link=self.options.bending,
+            )
+            self.adaptation = ArmAdaptation(
+                spec,
+                ADAPTATION_STEP_S,
+                self.options.ambient_c,
+                adapted_names(len(self.arm.joints), self.options.bending),
+                self._priors(),
+                marker_sigma_mm=self._adapt_noise[0],
+                temperature_sigma_c=self._adapt_noise[1],
+            )
+            self._feed_adaptation(self.time_s)
+        self.adaptation.observe(self._adapt_poses[pose.name], displacement_mm, reading_c)
+        self._adapted_links = None
+
+    def _feed_adaptation(self, t_s: float) -> None:
+        adaptation = self.adaptation
+        if adaptation is None:
+            return
+        while adaptation.time_s + ADAPTATION_STEP_S <= t_s + 1e-9:
+            start = adaptation.time_s
+            adaptation.add_heat(self.mean_heat_w(start, start + ADAPTATION_STEP_S))
+
+    def adaptation_estimates(self) -> dict[str, list[float]]:
+        """The adapted factors now: name -> [value, 1-sigma] (empty before the first)."""
+        if self.adaptation is None:
+            return {}
+        return {e.name: [e.value, e.sigma] for e in self.adaptation.estimates()}
+
     def mean_heat_w(self, start_s: float, end_s: float) -> FloatArray:
         """Each joint's mean motor heat (W) over ``[start_s, end_s]`` of the duty cycle."""
         return self.heat.step_power_w(start_s, end_s)
+
+    def follow_room(self, room_c: float) -> None:
+        """A reading of the room thermometer, taken now (before the next advance): the arm
+        model's ambient follows the room instead of ``options.ambient_c``. The first reading,
+        before the model has moved, is the cold arm's temperature and reference (it stood in
+        that room); each advance then holds the mean of the readings at its two ends (the
+        trapezoid rule: a room changing linearly is followed exactly)."""
+        if not np.isfinite(room_c):
+            raise ValueError(f"room temperature must be finite, got {room_c}")
+        if self._room_last is None and self.time_s == 0.0:
+            self.thermal.start_at(room_c)
+            self._room_last = room_c
+        self._room_next = room_c
+
+    @property
+    def follows_room(self) -> bool:
+        """Whether a room thermometer's readings drive the model's ambient."""
+        return self._room_next is not None
 
     def advance_to(self, t_s: float) -> None:
         start = self.time_s
         if t_s <= start:
             return
+        if self._room_next is not None:
+            last = self._room_next if self._room_last is None else self._room_last
+            self.thermal.set_ambient(0.5 * (last + self._room_next))
+            self._room_last = self._room_next
         self.last_heat_w = self.mean_heat_w(start, t_s) * self.heat_scales
         self.thermal.advance_to(t_s, self.last_heat_w)
+        self._feed_adaptation(t_s)
         if self.observer is not None:  # the covariance follows the model's step
             self.observer.predict(self.thermal.time_s)
 
@@ -158,6 +282,11 @@ class ArmController:
             self.observer.update(reading_c)
 
     def _link_states(self) -> tuple[LinkThermalState, ...]:
+        adaptation = self.adaptation
+        if adaptation is not None and adaptation.updates > 0:  # the adapted model's links
+            if self._adapted_links is None or self._adapted_links[0] != adaptation.time_s:
+                self._adapted_links = (adaptation.time_s, adaptation.link_states())
+            return self._adapted_links[1]
         states = tuple(self.thermal.link_states())
         if self.alpha_scale != 1.0:
             states = tuple(

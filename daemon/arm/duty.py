@@ -203,7 +203,14 @@ class DutyCycle:
         return tuple(times)
 
     def measured_poses(self) -> tuple[TaughtPose, ...]:
-        return tuple(pose for pose in self.poses if pose.measure)
+        """The poses measured, each name once (its first visit): a program that visits a
+        camera station many times per cycle (daemon/arm/calibration_program.py) has one
+        station there, not one per visit."""
+        seen: dict[str, TaughtPose] = {}
+        for pose in self.poses:
+            if pose.measure and pose.name not in seen:
+                seen[pose.name] = pose
+        return tuple(seen.values())
 
     def state(self, times_s: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Joint positions, speeds and accelerations (rows: times; columns: joints) at any
@@ -218,10 +225,9 @@ class DutyCycle:
         # The move whose dwell-then-motion window holds each time (dwell i precedes move i).
         index = np.clip(np.searchsorted(starts, local, side="right") - 1, 0, len(self.moves) - 1)
         before_first = local < starts[0]
-        for m, move in enumerate(self.moves):
+        for m in np.unique(index).tolist():  # only the moves these times fall in: a long
+            move = self.moves[m]  # program (calibration_program.py) has hundreds
             mask = index == m
-            if not mask.any():
-                continue
             s, sd, sdd = _profile(local[mask] - move.t0, move.duration, move.blend, move.peak)
             q[mask] = move.start + np.outer(s, move.delta)
             qd[mask] = np.outer(sd, move.delta)

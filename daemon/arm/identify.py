@@ -1,43 +1,58 @@
-"""Grey-box identification of the arm's thermal model from a calibration cycle (issue 20).
+"""Grey-box identification of the arm's thermal model from a calibration cycle (issues 20, 29).
 
 The arm generalisation of :mod:`daemon.model.identify`: the controller's arm model
 (:class:`daemon.arm.thermal.ArmThermalModel`) keeps its structure; a few physically meaningful
-groups of its parameters are scaled to fit what a calibration cycle (compensation off)
-measured: the 3-D displacement of the tool's markers at each measured pose of the cycle
-(daemon.vision.multiview, several cameras) and the IR region temperatures on several links.
+groups of its parameters (daemon/arm/identify_parameters.py: each joint's heat, convection,
+alpha, the joints' capacity, the bending share, the IR offsets) are fitted to what a calibration
+cycle (compensation off) measured: the 3-D displacement of the tool's markers at each measured
+pose of the cycle (daemon.vision.multiview, several cameras) and the IR region temperatures on
+several links.
 
-Parameters (names as in the two-link identification):
-
-* ``heat:J`` (joint J, 1-based) or ``heat`` (every joint, one factor): the heat really released
-  in the joint per watt the motor model predicts from the motion;
-* ``convection``: h of every surface (links and joint housings), ArmThermalModel's
-  ``convection_scale``;
-* ``alpha``: the expansion coefficient of every link;
-* ``offset`` (one for every IR region) or ``offset:REGION``: an additive IR offset (degC).
-
-Scale factors are fitted as logarithms within [1/10, 10], offsets within +-5 degC, with
-``scipy.optimize.least_squares`` and a robust loss, two passes (the second weighs markers and
+``scipy.optimize.least_squares`` with a robust loss, two passes (the second weighs markers and
 temperatures by their own residual RMS); standard errors, correlations and what is not
 identifiable from ``J`` at the solution exactly as daemon.model.identify reports them (its
 :func:`~daemon.model.identify.uncertainty`: normalised J^T J, near-singular directions,
 |correlation| > 0.995, relative SE > 0.5, parameters at a bound).
 
-The forward model (:mod:`daemon.arm.response`) is cheap because the arm's network is linear
-and a link's growth tiny: every input's response in one pass of the network's modes, and the
-markers' displacement linear in each link's strain and bend.
+Speed (issue 29: an 8-hour cycle took 2-13 minutes by finite differences of whole simulations):
+the model is linear between changes of the network's factors, so the fit's Jacobian is
+analytic in the heats (their own responses), alpha (the prediction itself) and the offsets (1),
+and only a network factor (convection, capacity, share) needs new responses: one pass of the
+network's modes on the measured outputs alone (daemon/arm/identify_response.py), cached per
+factor set, central differences of those. The markers' displacement is linear in each link's
+strain and bend (daemon/arm/response.py marker_sensitivity).
+
+:func:`daemon.arm.identify_final.identify_arm_final` is the calibration's whole fit: every
+parameter, then the identifiable ones refitted until the refit's own report says each is
+identified; the flags come from that FINAL fit, and a parameter dropped on the way keeps its
+prior and says why.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
 
+from daemon.arm.identify_parameters import (
+    ArmParameter,
+    ArmScales,
+    apply_values,
+    default_parameters,
+    initial_values,
+    parse_parameters,
+)
+from daemon.arm.identify_response import (
+    NetworkFactors,
+    OutputResponses,
+    one_blas_thread,
+    output_responses,
+)
 from daemon.arm.response import (
     SENSITIVITY_STRAIN,
     ArmModelSpec,
@@ -52,8 +67,6 @@ from daemon.model.identify import (
     LOSS_SCALE,
     FittedParameter,
     IdentificationError,
-    Parameter,
-    central_jacobian,
     conditioning,
     find_parameter,
     parameters_report,
@@ -62,85 +75,15 @@ from daemon.model.identify import (
     uncertainty,
 )
 
-#: The step of the central differences of the reported Jacobian (absolute: the fitted vector
-#: is log scales and offsets of order 1).
-JACOBIAN_STEP = 1e-5
+#: The step of the central differences in a network factor (fitted units: a log factor or a
+#: share): the responses are smooth in them, and 1e-4 keeps rounding far below the signal.
+NETWORK_STEP = 1e-4
+#: Network factor sets whose responses are kept (the current point and its differences).
+CACHE_SIZE = 64
 
 
-# -- parameters ----------------------------------------------------------------------------------
-
-
-def default_parameters(joints: int, regions: Mapping[str, Sequence[int]]) -> list[str]:
-    """Each joint's heat, convection, alpha and (with IR regions) one common IR offset."""
-    names = [*(f"heat:{j + 1}" for j in range(joints)), "convection", "alpha"]
-    return [*names, "offset"] if regions else names
-
-
-def parse_parameters(
-    names: Sequence[str], joints: int, regions: Mapping[str, Sequence[int]]
-) -> list[Parameter]:
-    """The parameters from their names (module docstring); raises IdentificationError."""
-    parsed: list[Parameter] = []
-    for raw in names:
-        spec = raw.strip()
-        kind, _, argument = spec.partition(":")
-        if kind == "heat":
-            if argument:
-                if not argument.isdigit() or not 1 <= int(argument) <= joints:
-                    raise IdentificationError(f"{spec!r}: joints are numbered 1..{joints}")
-                indices: tuple[int, ...] = (int(argument) - 1,)
-            else:
-                indices = tuple(range(joints))
-            parsed.append(Parameter(spec, "heat", (), indices))
-        elif kind in ("convection", "alpha"):
-            if argument:
-                raise IdentificationError(f"{spec!r}: {kind} takes no argument")
-            parsed.append(Parameter(spec, kind, ()))  # type: ignore[arg-type]
-        elif kind == "offset":
-            if not regions:
-                raise IdentificationError(f"{spec!r}: the run has no IR region")
-            if argument and argument not in regions:
-                raise IdentificationError(f"{spec!r}: unknown region {argument!r}")
-            parsed.append(Parameter(spec, "offset", (argument,) if argument else tuple(regions)))
-        else:
-            raise IdentificationError(
-                f"unknown parameter {spec!r}; kinds: heat[:J], convection, alpha, offset[:R]"
-            )
-    if len({p.name for p in parsed}) != len(parsed):
-        raise IdentificationError("a parameter is given twice")
-    if not parsed:
-        raise IdentificationError("no parameter to fit")
-    return parsed
-
-
-@dataclass(frozen=True)
-class ArmScales:
-    """A parameter vector applied: heat factor per joint, convection and alpha factors, IR
-    offset per region."""
-
-    heat: FloatArray
-    convection: float
-    alpha: float
-    offsets_c: dict[str, float]
-
-
-def apply_values(
-    specs: Sequence[Parameter], values: FloatArray, joints: int, regions: Sequence[str]
-) -> ArmScales:
-    heat = np.ones(joints)
-    convection = alpha = 1.0
-    offsets = dict.fromkeys(regions, 0.0)
-    for spec, value in zip(specs, values, strict=True):
-        if spec.kind == "heat":
-            heat[list(spec.node_indices)] *= math.exp(value)
-        elif spec.kind == "convection":
-            convection *= math.exp(value)
-        elif spec.kind == "alpha":
-            alpha *= math.exp(value)
-        else:
-            for region in spec.targets:
-                offsets[region] += float(value)
-    return ArmScales(heat, convection, alpha, offsets)
+#: Reports the fit's progress (one line: pass, evaluations, cost).
+Progress = Callable[[str], None]
 
 
 # -- the fit -------------------------------------------------------------------------------------
@@ -161,11 +104,12 @@ class ArmIdentification:
     scales: ArmScales
     fit: ArmFitQuality
     values: FloatArray
-    specs: tuple[Parameter, ...]
+    specs: tuple[ArmParameter, ...]
     conditioning: float  # largest / smallest singular value of the normalised J^T J
     success: bool
     message: str
     warnings: tuple[str, ...] = ()
+    evaluations: int = 0  # network passes (new responses) the fit took
 
     def parameter(self, name: str) -> FittedParameter:
         return find_parameter(self.parameters, name)
@@ -176,6 +120,8 @@ class ArmIdentification:
             "heat_scales": self.scales.heat.tolist(),
             "convection_scale": self.scales.convection,
             "alpha_scale": self.scales.alpha,
+            "capacity_scale": self.scales.capacity,
+            "bending_shares": None if self.scales.shares is None else list(self.scales.shares),
             "offsets_c": self.scales.offsets_c,
             "fit": dataclasses.asdict(self.fit),
             "conditioning": self.conditioning,
@@ -186,76 +132,158 @@ class ArmIdentification:
 
 
 class _ArmProblem:
-    """Weighted residuals of a calibration cycle for a parameter vector."""
+    """Weighted residuals of a calibration cycle for a parameter vector, and their Jacobian."""
 
-    def __init__(self, run: ArmRunData, model: ArmModelSpec, specs: Sequence[Parameter]) -> None:
+    def __init__(self, run: ArmRunData, model: ArmModelSpec, specs: Sequence[ArmParameter]) -> None:
         self.run, self.model, self.specs = run, model, list(specs)
         self.joints = run.joint_heat_w.shape[1]
         self.region_names = [r for r in model.regions if r in run.region_c]
-        self._cache: dict[float, Responses] = {}
+        self.regions = {r: model.regions[r] for r in self.region_names}
+        self.prior_shares = tuple(joint.plus_share for joint in model.description.joints)
+        self._cache: dict[tuple[float, ...], tuple[FloatArray, FloatArray]] = {}
+        self.passes = 0
         displacement = run.marker_displacement_mm.reshape(run.time_s.size, -1)
         self.measured_markers = displacement
         self.marker_mask = np.isfinite(displacement)
-        self.region_masks = {r: np.isfinite(run.region_c[r]) for r in self.region_names}
+        self.measured_regions = (
+            np.column_stack([run.region_c[r] for r in self.region_names])
+            if self.region_names
+            else np.zeros((run.time_s.size, 0))
+        )
+        self.region_mask = np.isfinite(self.measured_regions)
         self.sensitivity = np.stack([model.sensitivities[int(p)] for p in run.pose_index])
+        self.alphas = np.array([link.alpha_per_c for link in model.description.links])
         self.marker_sigma_mm = 1.0
         self.temperature_sigma_c = 1.0
+        self.network_specs = [k for k, spec in enumerate(self.specs) if spec.changes_network]
 
-    def _responses(self, convection: float) -> Responses:
-        key = round(math.log(convection), 12)
+    # -- the model's parts for one network -----------------------------------------------------
+
+    def _factors(self, scales: ArmScales) -> NetworkFactors:
+        return NetworkFactors(scales.convection, scales.capacity, scales.shares)
+
+    def _parts(self, factors: NetworkFactors) -> tuple[FloatArray, FloatArray]:
+        """Each input's markers ((J+1) x K x 3M, per W or for the ambient, at alpha x1) and
+        IR regions ((J+1) x K x R) for the network of ``factors`` (cached)."""
+        key = (
+            round(math.log(factors.convection), 12),
+            round(math.log(factors.capacity), 12),
+            *(round(v, 12) for v in factors.shares or ()),
+        )
         cached = self._cache.get(key)
         if cached is None:
-            if len(self._cache) > 64:
+            if len(self._cache) >= CACHE_SIZE:
                 self._cache.clear()
-            cached = responses(
+            outputs = output_responses(
                 self.model.description,
                 self.model.node_spacing_mm,
-                convection,
+                factors,
                 self.run,
-                self.model.across_link,
+                self.regions,
+                across_link=self.model.across_link,
             )
+            self.passes += 1
+            cached = (self._markers(outputs), outputs.region_means)
             self._cache[key] = cached
         return cached
 
-    def predictions(self, values: FloatArray) -> tuple[FloatArray, dict[str, FloatArray]]:
-        scales = apply_values(self.specs, values, self.joints, self.region_names)
-        response = self._responses(scales.convection)
-        temperatures = response.ambient + np.einsum("j,jkn->kn", scales.heat, response.per_joint)
-        rise = temperatures - response.reference_c
-        alphas = scales.alpha * np.array(
-            [link.alpha_per_c for link in self.model.description.links]
+    def _markers(self, outputs: OutputResponses) -> FloatArray:
+        strains = outputs.link_means * self.alphas  # (J+1) x K x L
+        gradients = outputs.link_gradients
+        if gradients is not None:  # strain, alpha g_y, alpha g_z per link
+            inputs, count, links = strains.shape
+            bends = gradients.reshape(inputs, count, links, 2) * self.alphas[:, None]
+            strains = np.concatenate([strains[..., None], bends], axis=3).reshape(inputs, count, -1)
+        result: FloatArray = np.einsum("kml,ckl->ckm", self.sensitivity, strains)
+        return result
+
+    # -- predictions, residuals, Jacobian -------------------------------------------------------
+
+    def scales(self, values: FloatArray) -> ArmScales:
+        return apply_values(self.specs, values, self.joints, self.region_names, self.prior_shares)
+
+    def _combine(
+        self, scales: ArmScales, parts: tuple[FloatArray, FloatArray]
+    ) -> tuple[FloatArray, FloatArray]:
+        markers, regions = parts
+        j = self.joints
+        predicted_markers = scales.alpha * (np.tensordot(scales.heat, markers[:j], 1) + markers[j])
+        predicted_regions = np.tensordot(scales.heat, regions[:j], 1) + regions[j]
+        offsets = np.array([scales.offsets_c[r] for r in self.region_names])
+        return predicted_markers, predicted_regions + offsets
+
+    def predictions(self, values: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The markers (K x 3M) and IR regions (K x R) the model predicts for ``values``."""
+        scales = self.scales(values)
+        return self._combine(scales, self._parts(self._factors(scales)))
+
+    def _weigh(self, markers: FloatArray, regions: FloatArray) -> FloatArray:
+        return np.concatenate(
+            [
+                markers[self.marker_mask] / self.marker_sigma_mm,
+                regions[self.region_mask] / self.temperature_sigma_c,
+            ]
         )
-        strains = rise @ response.link_rows.T * alphas  # K x L
-        if response.gradient_rows is not None:  # strain, alpha g_y, alpha g_z per link
-            bends = (rise @ response.gradient_rows.T).reshape(rise.shape[0], -1, 2)
-            strains = np.concatenate(
-                [strains[:, :, None], bends * alphas[None, :, None]], axis=2
-            ).reshape(rise.shape[0], -1)
-        markers = np.einsum("kml,kl->km", self.sensitivity, strains)
-        regions = {
-            name: temperatures[:, list(self.model.regions[name])].mean(axis=1)
-            + scales.offsets_c[name]
-            for name in self.region_names
-        }
-        return markers, regions
 
     def raw(self, values: FloatArray) -> tuple[FloatArray, FloatArray]:
         markers, regions = self.predictions(values)
-        marker = (markers - self.measured_markers)[self.marker_mask]
-        temperature = [
-            (regions[r] - self.run.region_c[r])[self.region_masks[r]] for r in self.region_names
-        ]
-        return marker, np.concatenate(temperature) if temperature else np.zeros(0)
+        return (
+            (markers - self.measured_markers)[self.marker_mask],
+            (regions - self.measured_regions)[self.region_mask],
+        )
 
     def weighted(self, values: FloatArray) -> FloatArray:
-        marker, temperature = self.raw(values)
-        return np.concatenate(
-            [marker / self.marker_sigma_mm, temperature / self.temperature_sigma_c]
-        )
+        markers, regions = self.predictions(values)
+        return self._weigh(markers - self.measured_markers, regions - self.measured_regions)
+
+    def jacobian(self, values: FloatArray) -> FloatArray:
+        """d weighted / d values: analytic for heats, alpha and offsets, central differences
+        of the network's responses for its factors (module docstring)."""
+        scales = self.scales(values)
+        parts = self._parts(self._factors(scales))
+        markers, regions = parts
+        j = self.joints
+        predicted_markers, _ = self._combine(scales, parts)
+        columns = []
+        for k, spec in enumerate(self.specs):
+            if spec.kind == "heat":
+                chosen = list(spec.indices)
+                weights = scales.heat[chosen]
+                d_markers = scales.alpha * np.tensordot(weights, markers[chosen], 1)
+                d_regions = np.tensordot(weights, regions[chosen], 1)
+            elif spec.kind == "alpha":
+                d_markers, d_regions = predicted_markers, np.zeros_like(regions[j])
+            elif spec.kind == "offset":
+                d_markers = np.zeros_like(predicted_markers)
+                d_regions = np.zeros_like(regions[j])
+                for region in spec.targets:
+                    d_regions[:, self.region_names.index(region)] = 1.0
+            else:
+                up, down = values.copy(), values.copy()
+                up[k] += NETWORK_STEP
+                down[k] -= NETWORK_STEP
+                plus_m, plus_r = self.predictions(up)
+                minus_m, minus_r = self.predictions(down)
+                d_markers = (plus_m - minus_m) / (2.0 * NETWORK_STEP)
+                d_regions = (plus_r - minus_r) / (2.0 * NETWORK_STEP)
+            columns.append(self._weigh(d_markers, d_regions))
+        return np.column_stack(columns)
 
     def quality(self, values: FloatArray) -> ArmFitQuality:
         marker, temperature = self.raw(values)
         return ArmFitQuality(rms(marker), rms(temperature), marker.size, temperature.size)
+
+
+def _checked_specs(
+    run: ArmRunData, model: ArmModelSpec, parameters: Sequence[str] | None
+) -> list[ArmParameter]:
+    joints = run.joint_heat_w.shape[1]
+    used = {r: nodes for r, nodes in model.regions.items() if r in run.region_c}
+    names = parameters or default_parameters(joints, used, model.across_link)
+    specs = parse_parameters(names, joints, used, model.across_link)
+    if len(model.sensitivities) <= int(run.pose_index.max()):
+        raise IdentificationError(f"{run.name}: a measurement names a pose with no sensitivity")
+    return specs
 
 
 def identify_arm(
@@ -265,32 +293,67 @@ def identify_arm(
     *,
     marker_sigma_mm: float = 0.005,
     temperature_sigma_c: float = 0.1,
+    progress: Progress | None = None,
 ) -> ArmIdentification:
-    """Fit ``parameters`` (default :func:`default_parameters`) of the arm model to ``run``."""
-    joints = run.joint_heat_w.shape[1]
-    used = {r: nodes for r, nodes in model.regions.items() if r in run.region_c}
-    specs = parse_parameters(parameters or default_parameters(joints, used), joints, used)
-    if len(model.sensitivities) <= int(run.pose_index.max()):
-        raise IdentificationError("a measurement names a pose with no sensitivity")
+    """Fit ``parameters`` (default: identify_parameters.default_parameters) of the arm model
+    to ``run``; ``progress`` hears one line per Jacobian of the fit. One BLAS thread
+    (identify_response.one_blas_thread)."""
+    with one_blas_thread():
+        return _identify_arm(
+            run,
+            model,
+            parameters,
+            marker_sigma_mm=marker_sigma_mm,
+            temperature_sigma_c=temperature_sigma_c,
+            progress=progress,
+        )
+
+
+def _identify_arm(
+    run: ArmRunData,
+    model: ArmModelSpec,
+    parameters: Sequence[str] | None = None,
+    *,
+    marker_sigma_mm: float = 0.005,
+    temperature_sigma_c: float = 0.1,
+    progress: Progress | None = None,
+) -> ArmIdentification:
+    """Fit ``parameters`` (default: identify_parameters.default_parameters) of the arm model
+    to ``run``; ``progress`` hears one line per Jacobian of the fit."""
+    specs = _checked_specs(run, model, parameters)
     problem = _ArmProblem(run, model, specs)
-    count = int(problem.marker_mask.sum() + sum(m.sum() for m in problem.region_masks.values()))
+    count = int(problem.marker_mask.sum() + problem.region_mask.sum())
     if count <= len(specs):
         raise IdentificationError(f"{count} measurements cannot fit {len(specs)} parameters")
     lower = np.array([s.bounds[0] for s in specs])
     upper = np.array([s.bounds[1] for s in specs])
-    values = np.zeros(len(specs))
+    values = np.clip(initial_values(specs, problem.prior_shares), lower, upper)
     sigmas = (marker_sigma_mm, temperature_sigma_c)
     result: Any = None
-    for _ in range(2):  # the second pass weighs each kind by its own residual RMS
+    for attempt in range(2):  # the second pass weighs each kind by its own residual RMS
         problem.marker_sigma_mm, problem.temperature_sigma_c = sigmas
+        evaluations = [0]
+
+        def jacobian(
+            x: FloatArray, *_: object, _pass: int = attempt + 1, _count: list[int] = evaluations
+        ) -> FloatArray:
+            _count[0] += 1
+            if progress is not None:
+                cost = float(np.sum(problem.weighted(x) ** 2)) / 2.0
+                progress(
+                    f"{len(specs)} parameters, pass {_pass}/2, iteration {_count[0]}, "
+                    f"cost {cost:.4g}, {problem.passes} network passes"
+                )
+            return problem.jacobian(x)
+
         result = least_squares(
             problem.weighted,
             values,
+            jac=jacobian,
             bounds=(lower, upper),
             loss=LOSS,
             f_scale=LOSS_SCALE,
             x_scale=1.0,
-            diff_step=1e-6,
             max_nfev=100 * len(specs),
         )
         values = np.asarray(result.x, dtype=np.float64)
@@ -299,20 +362,21 @@ def identify_arm(
             max(quality.marker_rms_mm or marker_sigma_mm, 1e-6),
             max(quality.temperature_rms_c or temperature_sigma_c, 1e-4),
         )
-    jacobian = central_jacobian(problem.weighted, values, JACOBIAN_STEP, relative=False)
+    jacobian_at = problem.jacobian(values)
     variance = residual_variance(problem.weighted(values), len(specs))
-    fitted, correlation, warnings = uncertainty(specs, values, jacobian, variance)
+    fitted, correlation, warnings = uncertainty(specs, values, jacobian_at, variance)
     return ArmIdentification(
         parameters=tuple(fitted),
         correlation=correlation,
-        scales=apply_values(specs, values, joints, problem.region_names),
+        scales=problem.scales(values),
         fit=problem.quality(values),
         values=values,
         specs=tuple(specs),
-        conditioning=conditioning(jacobian),
+        conditioning=conditioning(jacobian_at),
         success=bool(result.success),
         message=str(result.message),
         warnings=tuple(warnings),
+        evaluations=problem.passes,
     )
 
 
@@ -326,7 +390,7 @@ def evaluate_arm(
     left out; a region it recorded with no identified offset is predicted with none."""
     used = [r for r in model.regions if r in run.region_c]
     if identification is None:
-        specs: list[Parameter] = []
+        specs: list[ArmParameter] = []
         values = np.zeros(0)
     else:
         pairs = [

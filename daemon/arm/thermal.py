@@ -110,6 +110,19 @@ class ArmThermalModel:
             self._schedule = None
             self._model.set_ambient(float(ambient_c))
 
+    def start_at(self, ambient_c: float) -> None:
+        """Before the first step: every node at ``ambient_c``, which becomes the ambient and
+        the links' cold reference (a cold arm in equilibrium with the room it was taught in,
+        the room a thermometer reads at the run's start)."""
+        if self.time_s != 0.0:
+            raise ModelError(f"the start temperature is set at time 0, not at {self.time_s} s")
+        if not np.isfinite(ambient_c):
+            raise ModelError(f"ambient must be finite, got {ambient_c}")
+        self._schedule = None
+        self._model.set_ambient(float(ambient_c))
+        self._model.set_temperatures(float(ambient_c))
+        self._reference = self._model.temperatures_c.copy()
+
     def set_joint_heat(self, joint_heat_w: ArrayLike) -> None:
         """Heat released in each joint (W, one per joint), held from now on."""
         heat = np.asarray(joint_heat_w, dtype=np.float64).reshape(-1)

@@ -17,9 +17,14 @@ What the run recorded, read back READ-ONLY (as daemon/commands/identify.py reads
 - each step's IR regions (``ir_json``) tied to the model's nodes by name
   (daemon/arm/ir_regions.py: ``<link>-mid``, ``<link>@<fraction>``).
 
-The fit is benchmarks/bench_arm.py's: every parameter first (heat per joint, convection,
-alpha, one IR offset per region), reported with its standard error and whether the run
-identifies it; then the identifiable ones refitted, the others left at the preset's 1.0.
+The fit (daemon/arm/identify_final.py identify_arm_final): every parameter first (heat per joint,
+convection, alpha, the joints' capacity, with ``arm.bending`` the bending share, one IR offset
+per region), reported with its standard error and whether the run identifies it; then the
+identifiable ones refitted until the refit identifies each (the flags are the FINAL fit's),
+the others left at the preset's value. A model that is not fully identified is saved with a
+warning in the file (and the API, and every run that uses it); a value outside its physical
+range (daemon/arm/identify_parameters.py) refuses the save unless ``--force``. Progress goes
+to stderr while the fit runs.
 
 ``--validate RUN_ID`` is the two-link meaning on the arm: another recorded run of the same arm
 (any duty cycle, compensated or not: its correction is taken out as above) is predicted by the
@@ -35,6 +40,7 @@ import json
 import math
 import sqlite3
 import sys
+import time
 from contextlib import closing
 from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
@@ -52,15 +58,17 @@ from daemon.arm.identify import (
     ArmIdentification,
     ArmModelSpec,
     ArmRunData,
+    Progress,
     evaluate_arm,
-    identify_arm,
     marker_sensitivity,
 )
+from daemon.arm.identify_final import ArmCalibration, identify_arm_final
+from daemon.arm.identify_parameters import default_parameters, outside_physical_range
 from daemon.arm.ir_regions import region_nodes
+from daemon.arm.room import ambient_series, readings_of
 from daemon.calibration.identify_run import (
     finite_json,
     recorded_parameters,
-    warning_lines,
     write_outputs,
 )
 from daemon.model.calibration import CalibratedParameter
@@ -99,7 +107,7 @@ def is_arm_run(parameters: dict[str, Any]) -> bool:
 
 _STEP_COLUMNS = (
     "actual_s, arm_pose, measured_tx_um, measured_ty_um, measured_tz_um, "
-    "correction_tx_mm, correction_ty_mm, correction_tz_mm, ir_json"
+    "correction_tx_mm, correction_ty_mm, correction_tz_mm, ir_json, room_c"
 )
 
 
@@ -143,8 +151,11 @@ def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     time_scale = float(parameters.get("time_scale", 1.0))
     times, pose_index, displacement = [], [], []
     readings: list[dict[str, float]] = []
+    rooms: list[tuple[float | None, float | None]] = []  # the room thermometer (issue 29)
     for row in _steps(data_dir, run_id):
         actual_s, pose = row[0], row[1]
+        if actual_s is not None:
+            rooms.append((float(actual_s) * time_scale, row[9]))
         if pose not in index or actual_s is None:
             continue
         measured = np.array([_number(v) for v in row[2:5]]) / 1000.0
@@ -168,7 +179,9 @@ def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     data = ArmRunData(
         heat_step_s=IDENTIFY_STEP_S,
         joint_heat_w=heat,
-        ambient_c=np.full(steps, settings.model.ambient_c),
+        ambient_c=ambient_series(
+            *readings_of(rooms), IDENTIFY_STEP_S, steps, settings.model.ambient_c
+        ),
         time_s=np.array([round(t / IDENTIFY_STEP_S) * IDENTIFY_STEP_S for t in times]),
         pose_index=np.array(pose_index, dtype=np.intp),
         marker_displacement_mm=np.array(displacement),
@@ -189,64 +202,121 @@ def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
 
 
 def identify_arm_run(
-    run: ArmRun, parameters: list[str] | None
-) -> tuple[ArmIdentification, ArmIdentification]:
-    """Every parameter (``parameters``, default: each joint's heat, convection, alpha, one
-    offset per region), then the identifiable ones refitted (module docstring)."""
+    run: ArmRun, parameters: list[str] | None, progress: Progress | None = None
+) -> ArmCalibration:
+    """Every parameter (``parameters``, default identify_parameters.default_parameters), then
+    the identifiable ones refitted until each is identified (module docstring); raises
+    IdentificationError when none is."""
     joints = run.data.joint_heat_w.shape[1]
-    names = parameters or [
-        *(f"heat:{j + 1}" for j in range(joints)),
-        "convection",
-        "alpha",
-        *(f"offset:{region}" for region in run.spec.regions),
-    ]
-    full = identify_arm(run.data, run.spec, names)
-    kept = [p.name for p in full.parameters if p.identifiable]
-    if not kept:
+    names = parameters or default_parameters(joints, run.spec.regions, run.spec.across_link)
+    calibration = identify_arm_final(run.data, run.spec, names, progress=progress)
+    if calibration.final is None:
         raise IdentificationError(f"{run.name} identifies none of {', '.join(names)}")
-    refit = full if len(kept) == len(names) else identify_arm(run.data, run.spec, kept)
-    return full, refit
+    return calibration
 
 
-def arm_model_of(
-    name: str, run: ArmRun, full: ArmIdentification, refit: ArmIdentification
-) -> ArmModel:
-    """The arm model file's content: the refit's factors (1.0 where not identifiable), the
-    full fit's report of every parameter, the offsets' 1-sigma from the refit."""
-    refitted = {p.name: p for p in refit.parameters}
+#: At most one progress line per this many seconds (the fit's iterations take milliseconds).
+PROGRESS_EVERY_S = 2.0
+
+
+def progress_to_stderr(prefix: str, every_s: float = PROGRESS_EVERY_S) -> Progress:
+    """A progress sink printing a line on stderr at most every ``every_s`` (and each refit's
+    announcement): the fit takes seconds to tens of them."""
+    last = [-math.inf]
+
+    def show(line: str) -> None:
+        now = time.monotonic()
+        if now - last[0] >= every_s or line.startswith("refit"):
+            last[0] = now
+            print(f"{prefix}: {line}", file=sys.stderr, flush=True)
+
+    return show
+
+
+def not_identified_warning(calibration: ArmCalibration) -> str:
+    """The file's loud warning for a model not fully identified (empty when it is)."""
+    missing = calibration.not_identified
+    if not missing:
+        return ""
+    return (
+        f"NOT FULLY CALIBRATED: {', '.join(missing)} could not be identified from the "
+        "calibration run and keep the preset's values; the compensation relies on them "
+        "unchecked. Calibrate on the arm's calibration program (thermocomp calibrate model) "
+        "to identify them."
+    )
+
+
+def implausible_values(model: ArmModel) -> list[str]:
+    """The identified values outside their physical range (identify_parameters), each with
+    its range; only parameters the final fit identified are checked (the others keep their
+    prior)."""
+    return [
+        reason
+        for p in model.parameters
+        if p.identifiable and (reason := outside_physical_range(p.name, p.value)) is not None
+    ]
+
+
+def arm_model_of(name: str, run: ArmRun, calibration: ArmCalibration) -> ArmModel:
+    """The arm model file's content: the final fit's factors (the preset's where not
+    identified), every parameter's report from the final fit (or why it was dropped), the
+    offsets' 1-sigma, the warning when not all are identified."""
+    final = calibration.final
+    assert final is not None  # identify_arm_run refuses a calibration that identifies nothing
+    refitted = {p.name: p for p in final.parameters}
     sigmas = {
         region: float(refitted[f"offset:{region}"].standard_error)
-        for region in refit.scales.offsets_c
+        for region in final.scales.offsets_c
         if f"offset:{region}" in refitted
     }
-    offsets = {r: float(v) for r, v in refit.scales.offsets_c.items() if r in sigmas}
+    offsets = {r: float(v) for r, v in final.scales.offsets_c.items() if r in sigmas}
+    shares = final.scales.shares if any(s.kind == "share" for s in final.specs) else None
+    parameters = tuple(
+        CalibratedParameter(
+            name=p.name,
+            value=p.value,
+            standard_error=p.standard_error,
+            relative_error=p.relative_error,
+            identifiable=p.identifiable,
+            reason=p.reason,
+        )
+        for p in calibration.parameters()
+    )
     return ArmModel(
         name=name,
         arm=run.controller.arm.name,
-        heat_scales=tuple(float(v) for v in refit.scales.heat),
-        convection_scale=float(refit.scales.convection),
-        alpha_scale=float(refit.scales.alpha),
+        heat_scales=tuple(float(v) for v in final.scales.heat),
+        convection_scale=float(final.scales.convection),
+        alpha_scale=float(final.scales.alpha),
         ir_offsets_c=offsets,
         ir_offset_sigma_c=sigmas,
-        parameters=tuple(
-            CalibratedParameter(
-                name=p.name,
-                value=float(refitted[p.name].value) if p.name in refitted else p.value,
-                standard_error=(
-                    float(refitted[p.name].standard_error) if p.name in refitted else None
-                ),
-                relative_error=refitted[p.name].relative_error if p.name in refitted else None,
-                identifiable=p.identifiable,
-                reason=p.reason,
-            )
-            for p in full.parameters
-        ),
+        parameters=parameters,
         duty_cycle=run.duty_cycle,
         source_runs=(run.name,),
         identified_at=datetime.now(UTC).isoformat(timespec="seconds"),
-        marker_rms_um=None if refit.fit.marker_rms_mm is None else 1000 * refit.fit.marker_rms_mm,
-        temperature_rms_c=refit.fit.temperature_rms_c,
+        marker_rms_um=None if final.fit.marker_rms_mm is None else 1000 * final.fit.marker_rms_mm,
+        temperature_rms_c=final.fit.temperature_rms_c,
+        capacity_scale=float(final.scales.capacity),
+        bending_shares=() if shares is None else tuple(float(v) for v in shares),
+        warning=not_identified_warning(calibration),
+        not_identified=calibration.not_identified,
     )
+
+
+def checked_for_save(model: ArmModel, force: bool) -> ArmModel:
+    """``model`` ready to save: ArmRunInputError naming every value outside its physical range
+    unless ``force`` (then those values are listed in the file's ``implausible``)."""
+    implausible = tuple(implausible_values(model))
+    if implausible and not force:
+        raise ImplausibleModelError(
+            f"not saved: {'; '.join(implausible)} (the model absorbed something it does not "
+            "describe: a warming room, a wrong arm file; --force saves it anyway, flagged)"
+        )
+    return replace(model, implausible=implausible)
+
+
+class ImplausibleModelError(Exception):
+    """An identified value outside its physical range, and no ``--force`` (exit status 1)."""
 
 
 @dataclass(frozen=True)
@@ -268,8 +338,8 @@ class ArmValidation:
 
 
 def validate_arm_run(run: ArmRun, refit: ArmIdentification, other: ArmRun) -> ArmValidation:
-    """``other`` predicted by the refit and by the preset (module docstring); ArmRunInputError
-    when it is a run of another arm."""
+    """``other`` predicted by the final fit and by the preset (module docstring);
+    ArmRunInputError when it is a run of another arm."""
     if other.controller.arm.name != run.controller.arm.name:
         raise ArmRunInputError(
             f"{other.name} ran arm {other.controller.arm.name!r}, {run.name} arm "
@@ -316,29 +386,38 @@ def format_validation(validation: ArmValidation) -> str:
     )
 
 
-def format_arm_result(full: ArmIdentification, refit: ArmIdentification) -> str:
-    refitted = {p.name: p for p in refit.parameters}
+def format_arm_result(calibration: ArmCalibration) -> str:
+    full, final = calibration.full, calibration.final
+    assert full is not None and final is not None
+    firsts = {p.name: p for p in full.parameters}
     lines = [
-        f"{'parameter':<22} {'value':>10} {'std error':>10} {'rel.':>8}  {'refit':>10}  "
-        "identifiable"
+        f"{'parameter':<22} {'first fit':>10} {'value':>10} {'std error':>10} {'rel.':>8}  "
+        "identifiable (final fit)"
     ]
-    for p in full.parameters:
-        relative = _percent(p.relative_error)
-        verdict = "yes" if p.identifiable else f"NO: {p.reason}"
-        again = f"{refitted[p.name].value:>10.4g}" if p.name in refitted else "  (preset)"
-        lines.append(
-            f"{p.name:<22} {p.value:>10.4g} {p.standard_error:>10.3g} {relative:>8}  {again}  "
-            f"{verdict}"
-        )
-    fit = refit.fit
+    for p in calibration.parameters():
+        first = f"{firsts[p.name].value:>10.4g}" if p.name in firsts else f"{'-':>10}"
+        if p.identifiable:
+            value = f"{p.value:>10.4g} {p.standard_error:>10.3g} {_percent(p.relative_error):>8}"
+            verdict = "yes"
+        else:
+            value = f"{'(preset)':>10} {'':>10} {'':>8}"
+            verdict = f"NO: {p.reason}"
+        lines.append(f"{p.name:<22} {first} {value}  {verdict}")
+    fit = final.fit
     marker = "n/a" if fit.marker_rms_mm is None else f"{1000 * fit.marker_rms_mm:.3g}"
     temperature = "n/a" if fit.temperature_rms_c is None else f"{fit.temperature_rms_c:.3g}"
     lines.append(
         f"fit: tool translation RMS {marker} um ({fit.marker_samples} values), IR RMS "
         f"{temperature} degC ({fit.temperature_samples} values); conditioning "
-        f"{full.conditioning:.3g}"
+        f"{final.conditioning:.3g} (first fit {full.conditioning:.3g})"
     )
-    lines += warning_lines(full.warnings, refit.success, refit.message)
+    if not final.success:
+        lines.append(f"WARNING: the final fit did not converge: {final.message}")
+    if calibration.not_identified:
+        lines.append(
+            f"WARNING: NOT FULLY CALIBRATED: {', '.join(calibration.not_identified)} not "
+            "identified; they keep the preset's values (the saved model says so)"
+        )
     return "\n".join(lines)
 
 
@@ -377,8 +456,9 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_FAILURE
     try:
-        full, refit = identify_arm_run(run, args.params)
-        validation = None if other is None else validate_arm_run(run, refit, other)
+        calibration = identify_arm_run(run, args.params, progress_to_stderr("thermocomp identify"))
+        assert calibration.final is not None
+        validation = None if other is None else validate_arm_run(run, calibration.final, other)
     except IdentificationError as err:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -386,8 +466,16 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
         print(f"thermocomp identify: {err}", file=sys.stderr)
         return EXIT_FAILURE
     model = validated_model(
-        arm_model_of(args.save or f"run-{args.target}", run, full, refit), validation
+        arm_model_of(args.save or f"run-{args.target}", run, calibration), validation
     )
+    try:
+        model = checked_for_save(model, bool(args.force))
+    except ImplausibleModelError as err:
+        if saved is not None or args.out is not None:
+            print(format_arm_result(calibration))
+            print(f"thermocomp identify: {err}", file=sys.stderr)
+            return EXIT_FAILURE
+        model = replace(model, implausible=tuple(implausible_values(model)))
     header = f"identified by thermocomp identify {args.target} (arm {model.arm})"
     written = [path for path in (args.out, saved) if path is not None]
     try:
@@ -400,8 +488,9 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
             "run": run.name,
             "arm": model.arm,
             "duty_cycle": run.duty_cycle,
-            "all": full.to_dict(),
-            "refit": refit.to_dict(),
+            "all": None if calibration.full is None else calibration.full.to_dict(),
+            "refit": calibration.final.to_dict(),
+            "not_identified": {n: calibration.dropped.get(n, "") for n in model.not_identified},
             "arm_model": model.provenance(),
             "validation": None if validation is None else validation.to_dict(),
             "saved_arm_model": args.save,
@@ -409,7 +498,10 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
         }
         print(json.dumps(finite_json(document), indent=2, allow_nan=False))
     else:
-        print(format_arm_result(full, refit))
+        print(format_arm_result(calibration))
+        for line in model.implausible:
+            if line:
+                print(f"WARNING: {line}")
         if validation is not None:
             print(format_validation(validation))
         if saved is not None:

@@ -165,7 +165,9 @@ async def measure_pattern(
                 where = point
             frame = await bounded(camera.grab(), "camera", "frame", settings.camera.grab_timeout_s)
             try:
-                result = measure_with_camera_settings(frame.image, settings.camera)
+                result = measure_with_camera_settings(
+                    frame.image, settings.camera, camera_gain_e_per_count=frame.gain_e_per_count
+                )
             except CentroidError as err:
                 raise SpotLostError(
                     f"no spot at offset ({offset[0]:+.1f}, {offset[1]:+.1f}) um: {err} (the "

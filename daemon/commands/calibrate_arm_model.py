@@ -1,14 +1,18 @@
 """``thermocomp calibrate model`` on an arm (``[arm] enabled``, issue 20): the two-link chain
 (daemon/commands/calibrate_model.py) with the arm's steps, each still a command of its own:
 
-1. an uncompensated calibration run of the duty cycle
-   (``thermocomp run --compensation off``);
+1. an uncompensated calibration run of the arm's CALIBRATION PROGRAM (issue 29,
+   daemon/arm/calibration_program.py: each joint worked in turn, a gravity hold, a rest,
+   measured at the task's camera stations), generated from the arm and the task's duty cycle
+   into ``<data_dir>/calibration-programs/``; ``--calibration-cycle NAME|PATH`` runs another
+   cycle instead (the task's own: ``--calibration-cycle TASK``);
 2. the arm's identification from it, saved in the data directory as arm model NAME
    (``thermocomp identify RUN --save NAME``; daemon/commands/arm_identify.py): each joint's heat,
    convection, alpha and the IR offsets, the identifiable ones refitted;
-3. a compensated validation run with that model (``thermocomp run --arm-model NAME
-   --reference-run RUN``): its 3-D residual, the reduction against the calibration run's
-   drift (same arm, same duty cycle, uncompensated), and the residual RMS over the 3-D
+3. a compensated validation run of the task's duty cycle with that model (``thermocomp run
+   --arm-model NAME``, with ``--reference-run RUN`` when the calibration ran the task itself):
+   its 3-D residual, the reduction against the calibration run's drift (only then: same arm,
+   same duty cycle, uncompensated), and the residual RMS over the 3-D
    measurement's own 1-sigma; then, as ``identify --validate`` does, the validation run's
    thermal displacement (its measured drift minus the correction commanded) predicted by the
    identified model and by the preset, nothing refitted.
@@ -32,6 +36,9 @@ from config import Settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from daemon.commands.calibrate_chain import PROG, StepFailedError, run_alone
 from daemon.commands.run import _finite
+
+#: Where ``calibrate model`` writes the calibration programs it generates (data directory).
+CALIBRATION_PROGRAMS_FOLDER = "calibration-programs"
 
 if TYPE_CHECKING:
     from daemon.arm.identify import ArmIdentification
@@ -83,6 +90,7 @@ def _identify_and_save(
     outcome: dict[str, Any],
     *,
     params: list[str] | None,
+    force: bool = False,
 ) -> tuple[str, ArmRun, ArmIdentification]:
     """Step 2, blocking (SciPy, SQLite read-only, one file): the identification table, the
     run as identification read it, and the refit the saved model holds."""
@@ -91,10 +99,13 @@ def _identify_and_save(
     from daemon.calibration.identify_run import write_outputs
     from daemon.commands.arm_identify import (
         ArmRunInputError,
+        ImplausibleModelError,
         arm_model_of,
+        checked_for_save,
         format_arm_result,
         identify_arm_run,
         load_arm_run,
+        progress_to_stderr,
     )
     from daemon.model.identify import IdentificationError
 
@@ -103,21 +114,58 @@ def _identify_and_save(
     except (ArmRunInputError, OSError) as err:
         raise StepFailedError(f"identification: {err}", EXIT_FAILURE) from err
     try:
-        full, refit = identify_arm_run(run, params)
+        calibration = identify_arm_run(run, params, progress_to_stderr(f"{PROG}: identification"))
     except IdentificationError as err:
         raise StepFailedError(f"identification: {err}", EXIT_USAGE) from err
-    model = arm_model_of(name, run, full, refit)
+    table = format_arm_result(calibration)
+    try:
+        model = checked_for_save(arm_model_of(name, run, calibration), force)
+    except ImplausibleModelError as err:
+        print(table)
+        raise StepFailedError(f"identification: {err}", EXIT_FAILURE) from err
     header = f"identified by {PROG} from run {run_id} (arm {model.arm})"
     try:
         write_outputs([saved], arm_model_toml(model, header=header))
     except OSError as err:
         raise StepFailedError(f"cannot save {saved}: {err}", EXIT_FAILURE) from err
+    assert calibration.final is not None
     outcome["identified"] = {
-        "all": full.to_dict(),
-        "refit": refit.to_dict(),
+        "all": None if calibration.full is None else calibration.full.to_dict(),
+        "refit": calibration.final.to_dict(),
         "arm_model": model.provenance(),
     }
-    return format_arm_result(full, refit), run, refit
+    for line in model.implausible:
+        if line:
+            table += f"\nWARNING: {line}"
+    return table, run, calibration.final
+
+
+def calibration_cycle(settings: Settings, chosen: str | None) -> str:
+    """The calibration run's duty cycle: ``chosen`` (a name or path), else the arm's
+    calibration program generated for the task (module docstring), written into the data
+    directory (StepFailedError when the arm or the task cannot be read)."""
+    if chosen:
+        return chosen
+    # lazy: the arm's kinematics and run set-up (NumPy, SciPy) load to calibrate, not for --help
+    from daemon.arm.calibration_program import duty_cycle_toml, program_for_task
+    from daemon.arm.duty import arm_inverse, load_duty_cycle
+    from daemon.arm.loading import load_arm
+    from daemon.run.arm.setup import arm_file
+
+    assert settings.arm.duty_cycle is not None
+    try:
+        arm = load_arm(arm_file(settings))
+        task = load_duty_cycle(settings.arm.duty_cycle, arm_inverse(arm))
+        name = f"{task.name}-calibration"
+        program = program_for_task(arm, task, settings.arm.arm_file, name)
+        folder = Path(settings.storage.data_dir) / CALIBRATION_PROGRAMS_FOLDER
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{name}.toml"
+        header = f"Generated by {PROG} for {arm.name} and {task.name} (issue 29)."
+        path.write_text(duty_cycle_toml(program, settings.arm.arm_file, header), "utf-8")
+    except (OSError, ValueError) as err:
+        raise StepFailedError(f"calibration program: {err}", EXIT_FAILURE) from err
+    return str(path)
 
 
 def _prediction_check(
@@ -140,12 +188,30 @@ async def _chain(
     settings: Settings, args: argparse.Namespace, saved: Path
 ) -> tuple[dict[str, Any], str]:
     outcome: dict[str, Any] = {"arm_model": args.save, "arm_model_file": str(saved)}
-    calibration = await run_alone(settings, "calibration run", compensation="off")
+    program = calibration_cycle(settings, getattr(args, "calibration_cycle", None))
+    outcome["calibration_cycle"] = program
+    same_cycle = program == settings.arm.duty_cycle
+    program_settings = settings.model_copy(
+        update={
+            "arm": settings.arm.model_copy(
+                update={"duty_cycle": program, "measured_poses": settings.arm.measured_poses}
+                if same_cycle
+                else {"duty_cycle": program, "measured_poses": ()}
+            )
+        }
+    )
+    calibration = await run_alone(program_settings, "calibration run", compensation="off")
     outcome["calibration_run"] = _run_view(calibration)
     calibration_id = int(calibration["id"])
     # blocking: nothing else runs meanwhile (no daemon is open)
     table, run, refit = _identify_and_save(
-        settings, calibration_id, args.save, saved, outcome, params=args.params
+        settings,
+        calibration_id,
+        args.save,
+        saved,
+        outcome,
+        params=args.params,
+        force=bool(getattr(args, "force", False)),
     )
     if args.no_validate:
         return outcome, table
@@ -156,10 +222,10 @@ async def _chain(
         "validation run",
         compensation="absolute",
         arm_model=args.save,
-        reference_run=calibration_id,
+        reference_run=calibration_id if same_cycle else None,
     )
     view = _run_view(validation)
-    drift_rms = outcome["calibration_run"]["drift_3d_rms_um"]
+    drift_rms = outcome["calibration_run"]["drift_3d_rms_um"] if same_cycle else None
     residual_rms = view["drift_3d_rms_um"]
     view["reduction_3d_rms_percent"] = (
         100.0 * (1.0 - residual_rms / drift_rms) if residual_rms is not None and drift_rms else None

@@ -95,6 +95,17 @@ def add_parser(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
         help="the parameters identification fits, as `thermocomp identify --params` (default: "
         "identify's)",
     )
+    parser.add_argument(
+        "--calibration-cycle",
+        metavar="NAME|PATH",
+        help="an arm: the calibration run's duty cycle (default: the arm's calibration "
+        "program, generated for the task's stations; daemon/arm/calibration_program.py)",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="an arm: save the model even with a value outside its physical range (flagged)",
+    )
     parser.add_argument("--no-validate", action="store_true", help="stop after identification")
     parser.add_argument("--data-dir", type=Path, help="folder of the run database")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")

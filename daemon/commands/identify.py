@@ -66,6 +66,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="folder of the run database (default: storage.data_dir of --config), as for "
         "`thermocomp run --data-dir`",
     )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="an arm run: save the arm model even with a value outside its physical range "
+        "(flagged in the file as implausible)",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.set_defaults(handler=run_identify)
 

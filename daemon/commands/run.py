@@ -29,8 +29,6 @@ from config.cli import (
 )
 from daemon.heap import freeze_startup_heap
 from daemon.run.states import RunParameters, RunState, RunStateError
-from daemon.storage.recorder import RecorderError
-from daemon.storage.report_queue import ReportStatus
 
 if TYPE_CHECKING:  # the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not
     # for `thermocomp run --help`
@@ -142,6 +140,9 @@ def run_command(args: argparse.Namespace) -> int:
     except ValidationError as err:
         print(f"thermocomp run: invalid run parameters:\n{_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
+
+    from daemon.storage.recorder import RecorderError  # lazy: NumPy, loaded to run, not for --help
+
     try:
         return asyncio.run(_run(settings, parameters, args))
     except RecorderError as err:  # e.g. the data directory is another process's: one line
@@ -234,6 +235,8 @@ async def _supervise(daemon: Daemon, stop_requested: asyncio.Event) -> dict[str,
     final = await daemon.wait_run()
     if daemon.settings.storage.report_at_end:  # a run that ran to its end: with its report
         written = await daemon.reports.wait(final["id"])
+        from daemon.storage.report_queue import ReportStatus  # lazy: as RecorderError above
+
         if written is ReportStatus.WRITTEN:
             final["report"] = str(daemon.reports.html_path(final["id"]))
     return final

@@ -13,114 +13,17 @@ import argparse
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from config.cli import EXIT_OK, EXIT_USAGE, finite_float, non_negative_float, positive_float
-from daemon.model.model import STEPPERS, ModelError, Stepper, ThermalModel
-from daemon.model.network import NetworkError, ThermalNetwork, network_facts
-from daemon.model.presets import available_presets, load_network
+from config.cli import EXIT_OK, EXIT_USAGE
+from daemon.model.model import ModelError, Stepper, ThermalModel
+from daemon.model.network import NetworkError, NetworkFacts, ThermalNetwork, network_facts
+from daemon.model.presets import load_network, network_file
 
-DEFAULT_AMBIENT_C = 22.0
-
-
-def _heat(text: str) -> tuple[str, float]:
-    node, equals, watts = text.partition("=")
-    if not equals or not node.strip():
-        raise argparse.ArgumentTypeError(f"expected NODE=WATTS, got {text!r}")
-    try:
-        value = float(watts)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: {watts!r} is not a number of watts") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"{text!r}: heat must be finite")
-    return node.strip(), value
-
-
-def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    presets = ", ".join(available_presets()) or "none installed"
-    parser = subparsers.add_parser(
-        "model",
-        help="simulate a thermal network or report its facts",
-        description="The finite-difference thermal model of the links (thesis 5.4). "
-        f"NETWORK is a preset ({presets}) or a TOML file.",
-    )
-    actions = parser.add_subparsers(dest="model_command", metavar="ACTION", required=True)
-
-    simulate = actions.add_parser(
-        "simulate",
-        help="temperatures and deformation over time",
-        description="Advance the network from ambient with constant heat inputs and print the "
-        "deformation between the reference nodes and every node's temperature.",
-    )
-    simulate.add_argument(
-        "--network",
-        default="thesis-two-link",
-        help="preset name, identified network saved in --data-dir, or TOML file "
-        "(default %(default)s)",
-    )
-    simulate.add_argument(
-        "--data-dir", type=Path, help="data directory whose saved networks NAME may be"
-    )
-    simulate.add_argument(
-        "--duration", type=non_negative_float, required=True, help="simulated time (s)"
-    )
-    simulate.add_argument(
-        "--dt", type=positive_float, default=1.0, help="step length (s, default %(default)s)"
-    )
-    simulate.add_argument(
-        "--stepper",
-        choices=STEPPERS,
-        default="exact",
-        help="exact: zero-order hold, any dt; explicit: Eq. 5.1 (dt within its bound); "
-        "implicit: sparse backward Euler (default %(default)s)",
-    )
-    simulate.add_argument(
-        "--substeps",
-        action="store_true",
-        help="explicit only: split a dt above Eq. 5.1's bound into sub-steps instead of refusing",
-    )
-    simulate.add_argument(
-        "--heat",
-        type=_heat,
-        nargs="+",
-        action="extend",
-        default=[],
-        metavar="NODE=WATTS",
-        help="heat inputs; NODE is the node's name (several after one "
-        "--heat, or --heat repeated; default: the network's own heat inputs; the presets have "
-        "none, and a simulation without any heat input is refused)",
-    )
-    simulate.add_argument(
-        "--ambient",
-        type=finite_float,
-        default=DEFAULT_AMBIENT_C,
-        help="ambient and initial temperature (degC, default %(default)s)",
-    )
-    simulate.add_argument(
-        "--every", type=positive_float, help="output interval (s, default: every step)"
-    )
-    simulate.add_argument("--json", action="store_true", help="JSON on stdout")
-    simulate.set_defaults(handler=run_simulate)
-
-    info = actions.add_parser(
-        "info",
-        help="node count, explicit bound and limit, time constants, deformation per watt",
-        description="Facts of a network: Eq. 5.1's positivity bound, the true explicit "
-        "stability limit, the slowest and fastest time constants, and the steady deformation "
-        "per watt of each heat input (the network's heaters, or every node if it names none).",
-    )
-    info.add_argument(
-        "network",
-        metavar="NAME|PATH",
-        help="preset name, identified network saved in --data-dir, or TOML file",
-    )
-    info.add_argument(
-        "--data-dir", type=Path, help="data directory whose saved networks NAME may be"
-    )
-    info.add_argument("--json", action="store_true", help="JSON on stdout")
-    info.set_defaults(handler=run_info)
+# the options live in daemon/commands/model_options.py (light: `thermocomp model --help` loads no
+# NumPy or SciPy), which calls run_simulate and run_info when the command runs
 
 
 def _fail(message: str) -> int:
@@ -231,9 +134,9 @@ def _print_simulation(
         print("  ".join(c.rjust(w) for c, w in zip(cells, widths, strict=True)))
 
 
-def describe(network: ThermalNetwork) -> dict[str, Any]:
-    """The ``info`` document."""
-    facts = network_facts(network)
+def describe(network: ThermalNetwork, facts: NetworkFacts | None = None) -> dict[str, Any]:
+    """The ``info`` document (``facts``: the network's, when already known)."""
+    facts = facts or network_facts(network)
     inputs: Sequence[str] = network.heater_nodes or network.node_names
     return {
         "network": network.name,
@@ -251,10 +154,16 @@ def describe(network: ThermalNetwork) -> dict[str, Any]:
     }
 
 
-def run_info(args: argparse.Namespace) -> int:
+def run_info(
+    args: argparse.Namespace,
+    facts_of: Callable[[Path, ThermalNetwork], NetworkFacts] | None = None,
+) -> int:
+    """``model info``; ``facts_of(file, network)`` gives the facts when the caller keeps
+    them (daemon/commands/model_options.py: the data directory's cache), else they are computed."""
     try:
         network = load_network(args.network, args.data_dir)
-        document = describe(network)
+        facts = facts_of(network_file(args.network, args.data_dir), network) if facts_of else None
+        document = describe(network, facts)
     except NetworkError as err:
         return _fail(str(err))
     if args.json:

@@ -12,6 +12,7 @@ from typing import Literal
 
 import numpy as np
 
+from daemon.model.identify_uncertainty import OFFSET_SE_LIMIT_C
 from daemon.model.network import FloatArray, NetworkError, ThermalNetwork
 
 ParameterKind = Literal["convection", "heat", "contact", "alpha", "offset"]
@@ -45,6 +46,15 @@ class Parameter:
         if self.is_log:
             return math.log(SCALE_BOUNDS[0]), math.log(SCALE_BOUNDS[1])
         return -OFFSET_BOUND_C, OFFSET_BOUND_C
+
+    @property
+    def absolute_se_limit(self) -> float:
+        """An offset's largest standard error (degC) to count as identified."""
+        return OFFSET_SE_LIMIT_C
+
+    @property
+    def unit(self) -> str:
+        return " degC"
 
 
 def default_parameters(network: ThermalNetwork, regions: Mapping[str, Sequence[str]]) -> list[str]:

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.sparse.csgraph import connected_components
 
 from daemon.model.calibration import Calibration
+from daemon.model.spectrum import largest_eigenvalue, smallest_eigenvalue
 
 FloatArray = NDArray[np.float64]
 
@@ -358,19 +359,19 @@ def positivity_bound_s(network: ThermalNetwork) -> float:
     return float(np.min(network.capacitance_j_per_c / total_conductance))
 
 
-def decay_rates_per_s(network: ThermalNetwork) -> tuple[float, float]:
+def decay_rates_per_s(
+    network: ThermalNetwork, dense_limit: int = DENSE_LIMIT
+) -> tuple[float, float]:
     """(smallest, largest) eigenvalue of ``C^-1 K``; real and positive because
-    ``C^-1/2 K C^-1/2`` is symmetric positive definite."""
+    ``C^-1/2 K C^-1/2`` is symmetric positive definite. Dense up to ``dense_limit`` nodes,
+    sparse solvers above (daemon/model/spectrum.py: seconds at 10,000 nodes)."""
     scale = 1.0 / np.sqrt(network.capacitance_j_per_c)
     symmetric = sp.diags(scale) @ network.conductance_matrix @ sp.diags(scale)
-    if network.node_count <= DENSE_LIMIT:
+    if network.node_count <= dense_limit:
         eigenvalues = np.linalg.eigvalsh(symmetric.toarray())
         return float(eigenvalues[0]), float(eigenvalues[-1])
-    from scipy.sparse.linalg import eigsh
-
-    largest = eigsh(symmetric, k=1, which="LA", return_eigenvectors=False)
-    smallest = eigsh(symmetric, k=1, sigma=0.0, which="LM", return_eigenvectors=False)
-    return float(smallest[0]), float(largest[0])
+    # sparse: shift-invert for the slowest, inertia bisection for the fastest (spectrum.py)
+    return smallest_eigenvalue(symmetric), largest_eigenvalue(symmetric)
 
 
 def steady_state_c(network: ThermalNetwork, heat_w: ArrayLike, ambient_c: float) -> FloatArray:

@@ -209,10 +209,8 @@ def named_network_path(name: str, data_dir: Path | None = None) -> Path:
     )
 
 
-def load_network(name_or_path: str | Path, data_dir: Path | None = None) -> ThermalNetwork:
-    """A preset by name (``"thesis-two-link"``), an identified network saved in ``data_dir``
-    by name, or a TOML file by path; raises :class:`NetworkError` with a message naming the
-    file and the faulty node or key."""
+def network_file(name_or_path: str | Path, data_dir: Path | None = None) -> Path:
+    """The file :func:`load_network` reads for ``name_or_path``; NetworkError if none."""
     text = str(name_or_path)
     path = Path(text)
     if not (text.endswith(".toml") or path.is_file()):
@@ -220,6 +218,14 @@ def load_network(name_or_path: str | Path, data_dir: Path | None = None) -> Ther
             path = named_network_path(text, data_dir)
         except (ValueError, NetworkNotFoundError) as err:
             raise NetworkError(f"{err} and no such file") from err
+    return path
+
+
+def load_network(name_or_path: str | Path, data_dir: Path | None = None) -> ThermalNetwork:
+    """A preset by name (``"thesis-two-link"``), an identified network saved in ``data_dir``
+    by name, or a TOML file by path; raises :class:`NetworkError` with a message naming the
+    file and the faulty node or key."""
+    path = network_file(name_or_path, data_dir)
     data = read_toml(path, NetworkError)
     try:
         return network_from_mapping(data, default_name=path.stem)

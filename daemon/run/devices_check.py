@@ -158,7 +158,10 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
         try:
             # off the event loop: a full-frame centroid is tens of milliseconds of CPU
             result = await asyncio.to_thread(
-                measure_with_camera_settings, check.frame.image, settings.camera
+                measure_with_camera_settings,
+                check.frame.image,
+                settings.camera,
+                camera_gain_e_per_count=check.frame.gain_e_per_count,
             )
             check.centroid = {
                 "x_px": result.x_px,
@@ -166,6 +169,8 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
                 "peak_fraction": result.peak_fraction,
                 "snr": result.snr,
                 "flags": list(result.flags),
+                "gain_e_per_count": result.gain_e_per_count,
+                "gain_source": result.gain_source,
             }
         except CentroidError as err:
             check.centroid_error = str(err)

@@ -1,4 +1,5 @@
-"""The camera and the IR reader as a step uses them: bounded waits and how each last went."""
+"""The camera, the IR reader and the room thermometer as a step uses them: bounded waits and
+how each last went."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from typing import TypeVar
 
 from config import Settings
 from daemon.run.events import ErrorLog
-from drivers.base import Camera, Frame, IrReader, IrReading
+from drivers.base import Camera, Frame, IrReader, IrReading, RoomReading, RoomThermometer
 from drivers.deadline import bounded
 from drivers.errors import DeviceError
 
@@ -19,12 +20,34 @@ class Sensors:
     grab/read for GET /health: "open" before the first, then "ok", "stale" or
     "<error kind> error" (e.g. "timeout error")."""
 
-    def __init__(self, settings: Settings, camera: Camera, ir: IrReader, errors: ErrorLog) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        camera: Camera,
+        ir: IrReader,
+        errors: ErrorLog,
+        room: RoomThermometer | None = None,
+    ) -> None:
         self._settings = settings
         self._camera = camera
         self._ir = ir
         self._errors = errors
+        self._room = room
         self.states: dict[str, str] = {"camera": "open", "ir": "open"}
+        if room is not None:
+            self.states["room"] = "open"
+
+    @property
+    def has_room(self) -> bool:
+        """Whether a room thermometer is open (room.driver is not none)."""
+        return self._room is not None
+
+    async def read_room(self) -> RoomReading:
+        """One reading of the room thermometer (DeviceError: none, or it failed)."""
+        if self._room is None:
+            raise DeviceError("room", "no room thermometer (room.driver none)")
+        timeout_s = self._settings.room.read_timeout_s
+        return await self._bounded(self._room.read(), "room", "reading", timeout_s)
 
     async def grab(self) -> Frame:
         timeout_s = self._settings.camera.grab_timeout_s

@@ -208,46 +208,6 @@ def write_run_report(
     )
 
 
-def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Register ``stats``, ``fit`` and ``report``."""
-    analysis_cli.register(subparsers)
-    parser = subparsers.add_parser(
-        "report",
-        help="write a run's report: figures, summary.json and an HTML page",
-        description="Write the report of a run: PNG figures (deformation, compensation and "
-        "error over time; compensated vs uncompensated; error histogram with the normal "
-        "curve; temperatures; step lateness), summary.json (thesis Table 6.1, chi-squared "
-        "test, exponential fits) and report.html showing them. TARGET is an exported run "
-        "(CSV) or a run number in the run database of --config's storage.data_dir.",
-    )
-    parser.add_argument("target", metavar="RUN_ID|EXPORTED_FILE", help="run number or CSV file")
-    parser.add_argument(
-        "--out",
-        type=Path,
-        help="output folder (default: <data_dir>/reports/run-NNNNN for a run, "
-        "<file>-report beside an exported file)",
-    )
-    parser.add_argument(
-        "--config",
-        type=Path,
-        help="TOML settings file naming storage.data_dir (default: built-in defaults)",
-    )
-    parser.add_argument(
-        "--reference",
-        metavar="RUN",
-        help="an uncompensated run (run number, or an exported CSV for a CSV target) whose "
-        "measured drift the reduction is computed against (default: the run's own "
-        "reference_run parameter; none: the figure is only relative to the prediction)",
-    )
-    parser.add_argument(
-        "--embed-images",
-        action="store_true",
-        help="embed the PNGs in report.html so the page is a single file (always done for "
-        "a run's default folder, which the API serves)",
-    )
-    parser.set_defaults(handler=run_report)
-
-
 def run_report(args: argparse.Namespace) -> int:
     from daemon.analysis import write_report  # lazy: Matplotlib, not for `report --help`
 

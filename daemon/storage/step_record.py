@@ -74,6 +74,9 @@ class StepRecord:
     # 1-sigma of the measured orientation (sqrt trace of the pose covariance's rotation block;
     # arm runs, issue 20): the rotation error's noise, as measured_sigma_um is the drift's
     measured_rotation_sigma_urad: float | None = None
+    # the room thermometer's reading at the step (degC; issue 29, room.driver): the ambient
+    # the arm model followed; empty without a thermometer (the model held model.ambient_c)
+    room_c: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -115,5 +118,6 @@ STEP_FLAGS: dict[str, str] = {
     "run's summary lists the pose under reference.missing",
     "ir-error": "no IR reading within ir.read_timeout_s, or the reading was refused",
     "stale-ir": "the IR reading was older than ir.max_age_s: recorded, never fused",
+    "room-error": "arm runs: the room thermometer gave no reading; the model kept the last room",
     "model-drifting": "the IR observer's innovations stay biased: consider identification",
 }

@@ -18,7 +18,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from daemon.vision.centroid_result import METHODS, CentroidError, CentroidResult, Method
+from daemon.vision.centroid_result import (
+    METHODS,
+    CentroidError,
+    CentroidResult,
+    GainSource,
+    Method,
+)
 from daemon.vision.centroid_robust import robust_centroid
 from daemon.vision.centroid_thesis import thesis_centroid, threshold_counts
 
@@ -78,16 +84,19 @@ def measure_centroid(
     high: float | None = None,
     box: int = 400,
     binary: bool = False,
-    gain_e_per_count: float = 1.0,
+    gain_e_per_count: float | None = None,
     read_noise_e: float = 5.0,
+    gain_source: GainSource = "config",
     expected_shape: tuple[int, int] | None = None,
 ) -> CentroidResult:
     """Measure the laser spot of one frame; raise :class:`CentroidError` on a bad frame.
 
     ``low``, ``high``, ``box`` and ``binary`` configure the thesis method only (thresholds as
-    fractions of full scale, or counts when above 1); ``gain_e_per_count`` and ``read_noise_e``
-    give the robust method's uncertainty estimate. ``expected_shape`` (rows, columns), when
-    given, rejects frames of other dimensions.
+    fractions of full scale, or counts when above 1). The robust method's noise model (its
+    1-sigma and fit weights) takes the sensor's ``gain_e_per_count`` and ``read_noise_e``
+    when a gain is given (``gain_source`` says whose: "config" or "camera"), else measures it
+    on the frame (photon transfer, daemon/vision/photon_transfer.py); the result says which.
+    ``expected_shape`` (rows, columns), when given, rejects frames of other dimensions.
     """
     frame = _validated(image, bit_depth, expected_shape)
     if method == "thesis":
@@ -95,15 +104,32 @@ def measure_centroid(
             frame, bit_depth, um_per_px, low=low, high=high, box=box, binary=binary
         )
     if method == "robust":
-        return robust_centroid(frame, bit_depth, um_per_px, gain_e_per_count, read_noise_e)
+        return robust_centroid(
+            frame,
+            bit_depth,
+            um_per_px,
+            gain_e_per_count=gain_e_per_count,
+            read_noise_e=read_noise_e,
+            gain_source=gain_source,
+        )
     raise ValueError(f"unknown centroid method {method!r}; use one of {', '.join(METHODS)}")
 
 
 def measure_with_camera_settings(
-    image: NDArray[Any], camera: CameraSettings, *, check_dimensions: bool = False
+    image: NDArray[Any],
+    camera: CameraSettings,
+    *,
+    check_dimensions: bool = False,
+    camera_gain_e_per_count: float | None = None,
 ) -> CentroidResult:
     """:func:`measure_centroid` configured from the ``[camera]`` settings section; with
-    ``check_dimensions`` a frame must be ``width_px`` x ``height_px``."""
+    ``check_dimensions`` a frame must be ``width_px`` x ``height_px``. The gain: the
+    settings' ``gain_e_per_count`` when set, else the camera's (``camera_gain_e_per_count``,
+    from the frame), else measured on the frame."""
+    gain: float | None = camera.gain_e_per_count
+    source: GainSource = "config"
+    if gain is None:
+        gain, source = camera_gain_e_per_count, "camera"
     return measure_centroid(
         image,
         bit_depth=camera.bit_depth,
@@ -113,7 +139,8 @@ def measure_with_camera_settings(
         high=camera.centroid_high,
         box=camera.centroid_box,
         binary=camera.centroid_binary,
-        gain_e_per_count=camera.gain_e_per_count,
+        gain_e_per_count=gain,
         read_noise_e=camera.read_noise_e,
+        gain_source=source,
         expected_shape=(camera.height_px, camera.width_px) if check_dimensions else None,
     )

@@ -6,6 +6,9 @@ from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 Method = Literal["robust", "thesis"]
+#: whose gain the noise model uses: the settings' (camera.gain_e_per_count), the camera's (a
+#: driver that knows its sensor), measured on the frame (photon transfer), or none could be had
+GainSource = Literal["config", "camera", "frames", "unknown"]
 METHODS: tuple[Method, ...] = ("robust", "thesis")
 
 
@@ -42,11 +45,16 @@ class CentroidResult:
     saturated_fraction: float  # share of the spot's pixels at full scale
     histogram: tuple[int, ...]  # 10 bins of pixel value / full scale over the measured area
     # "saturated", "saturation-fit-failed", "edge" (window clipped by the frame, spot whole),
-    # "low-snr" (snr < 20), "hot-pixels" (some replaced in the window), "quantised-moments"
+    # "low-snr" (snr < 20), "gain-unestimated" (no photon transfer: sigma counts the
+    # background's noise only), "hot-pixels" (some replaced in the window), "quantised-moments"
     # (noise under half a count, but the refining fit did not converge or the spot is not
     # Gaussian: the moments stand, up to ~1.5x the Cramér-Rao bound)
     flags: tuple[str, ...]
     iterations: int
+    # electrons per count of the noise model behind sigma_*, and whose (GainSource); the
+    # thesis method has no noise model (0.0, "unknown")
+    gain_e_per_count: float = 0.0
+    gain_source: GainSource = "unknown"
 
     def as_dict(self) -> dict[str, Any]:
         data = asdict(self)

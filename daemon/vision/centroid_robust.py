@@ -11,8 +11,14 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from daemon.vision.centroid_fit import TOLERANCE_PX, centroid_uncertainty, fit_spot
-from daemon.vision.centroid_result import CentroidError, CentroidResult
+from daemon.vision.centroid_fit import (
+    TOLERANCE_PX,
+    centroid_uncertainty,
+    fit_spot,
+    frame_noise_model,
+)
+from daemon.vision.centroid_result import CentroidError, CentroidResult, GainSource
+from daemon.vision.photon_transfer import QUANTISATION_VARIANCE, NoiseModel
 from daemon.vision.synthetic import full_scale
 
 # Robust method tuning (see robust_centroid for the reasoning behind each).
@@ -246,8 +252,10 @@ def robust_centroid(
     image: NDArray[Any],
     bit_depth: int,
     um_per_px: tuple[float, float],
-    gain_e_per_count: float,
+    *,
+    gain_e_per_count: float | None,
     read_noise_e: float,
+    gain_source: GainSource = "config",
 ) -> CentroidResult:
     """Background-subtracted, threshold-subtracted, iteratively re-centred windowed moments.
 
@@ -272,6 +280,12 @@ def robust_centroid(
        (:func:`_without_hot_pixels`), and a frame edge that cuts the window is tolerated only
        while the part it hides cannot move the centroid by 0.001 px
        (:func:`_truncation_shift`).
+    7. The pixels' noise model (reported 1-sigma, fit weights, SNR): from the sensor's gain
+       ``gain_e_per_count`` when given (``gain_source`` says whose: the settings' or the
+       camera's), else measured on this frame by photon transfer
+       (:func:`daemon.vision.photon_transfer.estimate_noise_model`) on the residuals of a fit
+       of the spot (``gain_source`` "frames"; "unknown", flag ``gain-unestimated``, when the
+       fit fails: then only the background's noise is counted and the 1-sigma is low).
     """
     white = full_scale(bit_depth)
     height, width = image.shape
@@ -380,20 +394,34 @@ def robust_centroid(
     saturated = int(np.count_nonzero(raw >= white))
     if saturated:
         flags.insert(0, "saturated")
+    unsaturated = raw < white
+    start = (
+        x,
+        y,
+        math.sqrt(max(var_x - 1.0 / 12.0, 0.1)),
+        math.sqrt(max(var_y - 1.0 / 12.0, 0.1)),
+    )
+    measured: NoiseModel | None = None
+    if gain_e_per_count is None:  # photon transfer (step 7)
+        offset = max(noise * noise, QUANTISATION_VARIANCE if quantised else 0.0)
+        measured, start = frame_noise_model(
+            above_all, unsaturated, window_columns, window_rows, start, offset=offset
+        )
+        gain_source = "unknown" if measured is None else "frames"
+        if measured is None:
+            flags.append("gain-unestimated")
+            measured = NoiseModel(noise * noise + QUANTISATION_VARIANCE, 0.0)
+        fit_noise = measured
+    else:
+        fit_noise = NoiseModel(noise * noise + QUANTISATION_VARIANCE, 1.0 / gain_e_per_count)
     if saturated or noise < _QUANTISED_NOISE_COUNTS:
         fit = fit_spot(
             above_all,
-            raw < white,
+            unsaturated,
             window_columns,
             window_rows,
-            (
-                x,
-                y,
-                math.sqrt(max(var_x - 1.0 / 12.0, 0.1)),
-                math.sqrt(max(var_y - 1.0 / 12.0, 0.1)),
-            ),
-            noise=noise,
-            gain_e_per_count=gain_e_per_count,
+            start,
+            noise_model=fit_noise,
         )
         usable = (
             fit is not None
@@ -409,7 +437,10 @@ def robust_centroid(
     if hot_pixels:
         flags.append("hot-pixels")
     background = level + slope_x * (x - centre_x) + slope_y * (y - centre_y)
-    snr = signal / math.sqrt(signal / gain_e_per_count + spot_pixels * noise**2 + 1e-300)
+    noise_model = measured or NoiseModel.from_gain(
+        gain_e_per_count or 1.0, read_noise_e, max(background, 0.0)
+    )
+    snr = signal / math.sqrt(signal * noise_model.slope + spot_pixels * noise**2 + 1e-300)
     if snr < _LOW_SNR:
         flags.append("low-snr")
     sigma_x, sigma_y = centroid_uncertainty(
@@ -420,8 +451,7 @@ def robust_centroid(
         var_y=max(var_y - 1.0 / 12.0, 0.25),
         background=max(background, 0.0),
         white=white,
-        gain_e_per_count=gain_e_per_count,
-        read_noise_e=read_noise_e,
+        noise_model=noise_model,
     )
     peak = float(raw.max())
     scaled = np.clip(raw * (10.0 / white), 0, 9).astype(np.intp)
@@ -448,4 +478,6 @@ def robust_centroid(
         histogram=histogram,
         flags=tuple(flags),
         iterations=iterations,
+        gain_e_per_count=noise_model.gain_e_per_count,
+        gain_source=gain_source,
     )

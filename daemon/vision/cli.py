@@ -39,14 +39,13 @@ from config.cli import (
     EXIT_FAILURE,
     EXIT_OK,
     EXIT_USAGE,
-    non_negative_float,
-    positive_float,
-    positive_int,
 )
-from daemon.vision.centroid import METHODS, CentroidError, measure_centroid
+from daemon.vision.centroid import CentroidError, measure_centroid
 
 logger = logging.getLogger(__name__)
 
+# the options live in daemon/commands/centroid_options.py (light: `thermocomp centroid --help` loads
+# neither OpenCV nor NumPy), which calls run when the command runs
 
 #: Files a folder contributes (what OpenCV reads and a frame grabber writes).
 IMAGE_SUFFIXES = frozenset(
@@ -71,81 +70,13 @@ NUMERIC_FIELDS = (
     "width_y_px",
     "snr",
     "saturated_fraction",
+    "gain_e_per_count",
 )
 TIME_FIELDS = ("t_s", "drift_x_um", "drift_y_um")
 
 
 class UsageError(Exception):
     """The command line cannot be carried out; ``str()`` says why."""
-
-
-def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = subparsers.add_parser(
-        "centroid",
-        help="measure the laser spot's sub-pixel centroid in image files",
-        description="Measure the laser spot in each image (thesis 3.2.3, A.1): position in px "
-        "and um, peak, 10-bin histogram, uncertainty and flags. PATH: files, folders or globs, "
-        "taken in natural order (image2 before image10). Defaults come from the [camera] "
-        "section of --config (or the built-in defaults).",
-    )
-    parser.add_argument("paths", nargs="+", metavar="PATH", help="image file, folder or glob")
-    parser.add_argument(
-        "--method", choices=METHODS, help="robust (default) or thesis: the A.1 replica"
-    )
-    parser.add_argument(
-        "--low",
-        type=non_negative_float,
-        metavar="F",
-        help="thesis method: low threshold, fraction of full scale (<= 1) or counts (> 1); "
-        "darker pixels count as 0 (default 0.8, as in A.1)",
-    )
-    parser.add_argument(
-        "--high",
-        type=non_negative_float,
-        metavar="F",
-        help="thesis method: high threshold (fraction or counts); brighter pixels count as white",
-    )
-    parser.add_argument(
-        "--box", type=positive_int, metavar="N", help="thesis method: box half-size (px)"
-    )
-    parser.add_argument(
-        "--binary",
-        action="store_true",
-        default=None,
-        help="thesis method: pixels at or above the low threshold count as white",
-    )
-    parser.add_argument(
-        "--um-per-px",
-        nargs=2,
-        type=positive_float,
-        metavar=("X", "Y"),
-        help="micrometres per pixel in x and y (default: camera.um_per_px of the settings; "
-        "the thesis's optics measured 10.22 9.72)",
-    )
-    parser.add_argument(
-        "--bit-depth",
-        type=int,
-        choices=(8, 12, 16),
-        help="bits per pixel (default: 8 for 8-bit files, 16 for 16-bit ones; 12-bit frames "
-        "stored in 16-bit files need 12)",
-    )
-    timing = parser.add_mutually_exclusive_group()
-    timing.add_argument(
-        "--interval", type=positive_float, metavar="S", help="seconds between consecutive frames"
-    )
-    timing.add_argument(
-        "--times", type=Path, metavar="FILE", help="file of frame times in seconds, one per line"
-    )
-    output = parser.add_mutually_exclusive_group()
-    output.add_argument("--json", action="store_true", help="print a JSON list, one per file")
-    output.add_argument("--csv", action="store_true", help="print CSV, one row per file")
-    parser.add_argument(
-        "--config",
-        type=Path,
-        help="TOML settings file for the [camera] defaults (um_per_px, gain, read noise, "
-        "centroid_*); THERMOCOMP_CAMERA__<FIELD> environment variables override it",
-    )
-    parser.set_defaults(handler=run)
 
 
 def natural_key(path: Path) -> list[tuple[int, int | str]]:
@@ -252,13 +183,18 @@ def measure_files(args: argparse.Namespace, files: Sequence[Path]) -> list[dict[
                 image, bit_depth=bit_depth, expected_shape=expected_shape, **options
             )
         except CentroidError as err:
-            record.update(dict.fromkeys(NUMERIC_FIELDS), histogram=None, flags=[])
+            record.update(dict.fromkeys(NUMERIC_FIELDS), gain_source=None, histogram=None, flags=[])
             record["error"] = str(err)
             logger.debug("%s: %s", path, err)
         else:
             data = result.as_dict()
             record.update({name: _finite_or_none(data[name]) for name in NUMERIC_FIELDS})
-            record.update(histogram=data["histogram"], flags=data["flags"], error=None)
+            record.update(
+                gain_source=data["gain_source"],
+                histogram=data["histogram"],
+                flags=data["flags"],
+                error=None,
+            )
         records.append(record)
     return records
 
@@ -282,7 +218,7 @@ def _finite_or_none(value: Any) -> Any:
 
 
 def write_csv(records: Sequence[dict[str, Any]], timed: bool) -> None:
-    columns = ["file", "method", *(TIME_FIELDS if timed else ()), *NUMERIC_FIELDS]
+    columns = ["file", "method", *(TIME_FIELDS if timed else ()), *NUMERIC_FIELDS, "gain_source"]
     writer = csv.writer(sys.stdout, lineterminator="\n")
     writer.writerow([*columns, *(f"histogram_{i}" for i in range(10)), "flags", "error"])
     for record in records:
@@ -303,6 +239,7 @@ def write_text(records: Sequence[dict[str, Any]], timed: bool) -> None:
         )
         if record["sigma_x_px"] is not None:
             line += f"  +-{record['sigma_x_px']:.4f}/{record['sigma_y_px']:.4f} px"
+            line += f" (gain {record['gain_e_per_count']:.3g} e-/count, {record['gain_source']})"
         if timed:
             line += (
                 f"  t {record['t_s']:g} s  drift {record['drift_x_um']:.3f} "

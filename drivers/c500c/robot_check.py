@@ -30,7 +30,6 @@ from drivers.c500c.console import Transcript
 from drivers.c500c.robot import C500CRobot
 from drivers.c500c.server_check import run_server_check
 from drivers.errors import DeviceError
-from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 
 UNKNOWN = "unknown (no console query; the first motion command tells)"
 
@@ -119,6 +118,9 @@ async def run_check(
     robot_settings = settings.robot
     async with AsyncExitStack() as stack:
         if port is None and robot_settings.driver == "sim":
+            # lazy: the emulator (NumPy) loads only when it is checked, not for --help
+            from drivers.sim.emulator import C500CEmulator, EmulatorConfig
+
             emulator = C500CEmulator(
                 EmulatorConfig(
                     application=robot_settings.application,

@@ -19,8 +19,13 @@ What is true here and what the controller believes differ, as on a real arm:
   in ``[1 - heat_spread, 1 + heat_spread]`` (copper at another temperature, a gearbox run in
   or not), unless ``heat_scales`` gives them. The heat comes from the motion the arm really
   performs (drivers.sim.arm_motion: the emulator's joints or a duty cycle played in process).
-- Ambient: ``ambient_c`` plus an optional sinusoidal drift (``ambient_drift_c`` amplitude over
-  ``ambient_period_s``; a lab's day), the same air for the arm and its heat loss.
+- Ambient: ``ambient_c`` at the start, a linear drift (``ambient_drift_c_per_h``) and a
+  sinusoidal swing (``ambient_swing_c`` amplitude over ``ambient_swing_period_s``; a lab's
+  day), the same air for the arm and its heat loss; a room thermometer reads it with its own
+  lag, noise and resolution (drivers/sim/arm_room.py, ``room_*``).
+
+:func:`config_from_truth` makes these from a truth file (``bench.arm_truth``,
+config/arm_truth.py); the defaults here are that file's defaults.
 
 Everything random comes from seeded generators: the truth's parameters from ``seed``, the
 measurements' noise from ``noise_seed`` (default ``seed``), one generator per device (each
@@ -43,9 +48,11 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from config.arm_truth import ArmTruth
 from daemon.arm import kinematics
 from daemon.arm.description import Arm
 from daemon.arm.loading import load_arm
@@ -69,6 +76,7 @@ from drivers.sim.arm_motion import (
     PowerFunction,
     StillMotion,
 )
+from drivers.sim.arm_room import SimRoomSensor
 
 #: Default markers on the tool (tool frame, mm): four LEDs on a 120 mm cross plate, two raised,
 #: so that no three are on a line and the rotation is seen about every axis.
@@ -110,8 +118,14 @@ class ArmBenchConfig:
     heat_scales: tuple[float, ...] | None = None
     heat_spread: float = 0.25
     ambient_c: float = 22.0
-    ambient_drift_c: float = 0.0
-    ambient_period_s: float = 86_400.0
+    ambient_drift_c_per_h: float = 0.0
+    ambient_swing_c: float = 0.0
+    ambient_swing_period_s: float = 86_400.0
+    # the room thermometer (drivers/sim/arm_room.py)
+    room_noise_c: float = 0.02
+    room_resolution_c: float = 0.0625
+    room_lag_s: float = 120.0
+    room_offset_c: float = 0.0
     # motion
     motion_step_s: float = 0.01
     #: carried at the tool point (a duty cycle's gripper and part: DutyCycle.payload_kg)
@@ -128,6 +142,40 @@ class ArmBenchConfig:
     ir_half_width_mm: float = 15.0
     ir_noise_c: float = 0.05
     ir_offset_sigma_c: float = 0.3
+
+
+HOUR_S = 3600.0
+
+
+def config_from_truth(truth: ArmTruth, seed: int, **rest: Any) -> ArmBenchConfig:
+    """The bench's make-up from a truth file (config/arm_truth.py; its seed, else ``seed``)
+    and the rest of the bench (``rest``: the arm, stations, markers, rig, IR regions, ...)."""
+    kinematics, motors, thermal = truth.kinematics, truth.motors, truth.thermal
+    room, measurement = truth.room, truth.measurement
+    return ArmBenchConfig(
+        seed=seed if truth.seed is None else truth.seed,
+        dh_length_sigma_mm=kinematics.dh_length_sigma_mm,
+        dh_angle_sigma_rad=kinematics.dh_angle_sigma_rad,
+        node_spacing_mm=thermal.node_spacing_mm,
+        plus_share=thermal.bending_share,
+        convection_scale=thermal.convection_scale,
+        alpha_scale=thermal.expansion_scale,
+        capacity_scale=thermal.capacity_scale,
+        heat_scales=motors.heat_scales,
+        heat_spread=motors.heat_spread,
+        ambient_c=room.start_c,
+        ambient_drift_c_per_h=room.drift_c_per_h,
+        ambient_swing_c=room.swing_c,
+        ambient_swing_period_s=room.swing_period_h * HOUR_S,
+        jitter_px=measurement.jitter_px,
+        ir_noise_c=measurement.ir_noise_c,
+        ir_offset_sigma_c=measurement.ir_offset_sigma_c,
+        room_noise_c=measurement.room_noise_c,
+        room_resolution_c=measurement.room_resolution_c,
+        room_lag_s=measurement.room_lag_s,
+        room_offset_c=measurement.room_offset_c,
+        **rest,
+    )
 
 
 def true_arm(
@@ -233,10 +281,18 @@ class ArmBench:
         # The truth's parameters from ``seed``; every device's noise from ``noise_seed``.
         truth_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(1)[0])
         noise_seed = config.seed if config.noise_seed is None else config.noise_seed
-        streams = np.random.SeedSequence([noise_seed, 1]).spawn(
-            1 + config.rig.count * len(stations)
-        )
+        cameras = config.rig.count * len(stations)
+        # the room thermometer's stream last: the others are those of before it existed
+        streams = np.random.SeedSequence([noise_seed, 1]).spawn(2 + cameras)
         self.ir_rng = np.random.default_rng(streams[0])
+        self.room_sensor = SimRoomSensor(
+            self.ambient_c,
+            np.random.default_rng(streams[1 + cameras]),
+            lag_s=config.room_lag_s,
+            noise_c=config.room_noise_c,
+            resolution_c=config.room_resolution_c,
+            offset_c=config.room_offset_c,
+        )
         if config.heat_scales is not None:
             if len(config.heat_scales) != joints:
                 raise ValueError(f"heat_scales: {joints} joints, {len(config.heat_scales)} given")
@@ -282,7 +338,7 @@ class ArmBench:
         )
         self._renderers = [
             MarkerRenderer(camera, config.rig, np.random.default_rng(stream))
-            for camera, stream in zip(self.cameras, streams[1:], strict=True)
+            for camera, stream in zip(self.cameras, streams[1 : 1 + cameras], strict=True)
         ]
         self._sequences = [0] * len(self.cameras)
         self.time_s = 0.0
@@ -309,10 +365,11 @@ class ArmBench:
     def ambient_c(self, t_s: float) -> float:
         """The air's temperature at ``t_s`` (degC)."""
         config = self.config
-        if config.ambient_drift_c == 0.0:
-            return config.ambient_c
-        return config.ambient_c + config.ambient_drift_c * math.sin(
-            2.0 * math.pi * t_s / config.ambient_period_s
+        room = config.ambient_c + config.ambient_drift_c_per_h * t_s / HOUR_S
+        if config.ambient_swing_c == 0.0:
+            return room
+        return room + config.ambient_swing_c * math.sin(
+            2.0 * math.pi * t_s / config.ambient_swing_period_s
         )
 
     def advance_to(self, t_s: float) -> None:
@@ -415,6 +472,10 @@ class ArmBench:
             rows[name] = row
         return rows
 
+    def room_read(self) -> float:
+        """One reading of the room thermometer now (degC; drivers/sim/arm_room.py)."""
+        return self.room_sensor.read(self.time_s)
+
     def ir_true_c(self) -> dict[str, float]:
         """Each region's true mean temperature now (no offset, no noise)."""
         temperatures = self.thermal.temperatures_c
@@ -433,6 +494,7 @@ __all__ = [
     "DEFAULT_MARKERS_MM",
     "ArmBench",
     "ArmBenchConfig",
+    "config_from_truth",
     "motion_power",
     "motion_power_batch",
     "true_arm",

@@ -31,16 +31,17 @@ from typing import Self
 import numpy as np
 
 from config import Settings
+from config.arm_truth import ArmTruth, load_arm_truth
 from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.arm.loading import load_arm
 from daemon.vision.markers import marker_pixels
 from daemon.vision.multiview import CameraModel
-from drivers.base import Frame, IrReading, RegionTemperature
+from drivers.base import Frame, IrReading, RegionTemperature, RoomReading
 from drivers.c500c.robot import C500CRobot
 from drivers.clock import Clock
 from drivers.deadline import off_the_clock
-from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
+from drivers.sim.arm_bench import ArmBench, ArmBenchConfig, config_from_truth
 from drivers.sim.arm_markers import CameraRig
 from drivers.sim.arm_motion import DutyCycleMotion, JointMotionSource, ShiftedMotion
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
@@ -65,6 +66,7 @@ class ArmBenchDevices:
     emulator: C500CEmulator
     cameras: tuple[SimArmCamera, ...]
     camera_models: tuple[CameraModel, ...]
+    room: SimArmRoom  # its thermometer in the truth's room (used with room.driver sim)
 
 
 def played(settings: Settings) -> bool:
@@ -87,7 +89,8 @@ def speed_factor(settings: Settings) -> float:
 
 
 def bench_config(settings: Settings, arm: Arm, duty: DutyCycle | None, seed: int) -> ArmBenchConfig:
-    """The arm bench's make-up from the settings: the arm file, a camera station of
+    """The arm bench's make-up from the settings: its truth (``bench.arm_truth``, checked
+    when the settings loaded; none: the default truth), the arm file, a camera station of
     ``arm.cameras`` cameras at each measured pose of the default duty cycle (else at the zero
     configuration), the tool's markers, IR regions in the middle of IR_LINKS."""
     stations: tuple[tuple[float, ...], ...] = ()
@@ -96,9 +99,12 @@ def bench_config(settings: Settings, arm: Arm, duty: DutyCycle | None, seed: int
     regions = tuple(
         (f"{arm.links[i].name}-mid", arm.links[i].name, 0.5) for i in IR_LINKS if i < arm.dof
     )
-    return ArmBenchConfig(
+    name = settings.bench.arm_truth
+    truth = ArmTruth() if name is None else load_arm_truth(name)
+    return config_from_truth(
+        truth,
+        seed,
         arm=settings.arm.arm_file,
-        seed=seed,
         noise_seed=settings.bench.noise_seed,
         stations_q_rad=stations,
         markers_tool_mm=settings.arm.markers_mm,
@@ -237,6 +243,20 @@ class SimArmIr(_ArmBenchSensor):
         return self._control.sync(now_s).ir_read()
 
 
+class SimArmRoom(_ArmBenchSensor):
+    """The arm bench's room thermometer (drivers/sim/arm_room.py: the truth's room with the
+    sensor's lag, offset, noise and resolution)."""
+
+    async def read(self) -> RoomReading:
+        now = self._clock.now()
+        value = await off_the_clock(self._read, now)
+        self._sequence += 1
+        return RoomReading(value, now, "sim")
+
+    def _read(self, now_s: float) -> float:
+        return self._control.sync(now_s).room_read()
+
+
 @contextlib.asynccontextmanager
 async def open_arm_bench(
     settings: Settings, clock: Clock, seed: int
@@ -294,4 +314,5 @@ async def open_arm_bench(
             emulator=emulator,
             cameras=cameras,
             camera_models=control.cameras,
+            room=SimArmRoom(control, clock),
         )

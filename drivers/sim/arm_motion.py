@@ -153,6 +153,11 @@ class MotorEnergy:
 
     def _powers(self, times: NDArray[np.floating[Any]]) -> FloatArray:
         """Power per joint at each time (rows)."""
+        if self.batch is not None and isinstance(self.source, DutyCycleMotion) and times.size:
+            # a played duty cycle's states at once (issue 29: a calibration program's period
+            # is 1,300 s, 130,000 samples one by one took minutes)
+            q, qd, qdd = self.source.duty.state(times)
+            return np.asarray(self.batch(q, qd, qdd), dtype=np.float64).reshape(-1, self.joints)
         samples = [self.source.joint_sample(float(t)) for t in times]
         if not samples:
             return np.zeros((0, self.joints))

@@ -20,20 +20,16 @@ from typing import TYPE_CHECKING
 from config.cli import non_negative_float, non_negative_int, port_number
 from config.faults import Fault
 from config.settings import SUPPORTED_BAUDRATES
-from daemon.arm.description import ArmError
-from drivers.sim.emulator import C500CEmulator, EmulatorConfig, FaultKind, parse_faults
-from drivers.sim.server_emulator import (
-    SERVER_BAUDRATE,
-    C500CServerEmulator,
-    server_emulator_config,
-)
-from drivers.sim.ur import cli as ur_cli
+from drivers.sim.ur import cli as ur_cli  # light: its work is imported when it runs
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the emulators (NumPy) load when one is served, not for --help
+    from drivers.sim.emulator import C500CEmulator, FaultKind
     from drivers.sim.joint_arm import JointArmConfig
 
 
 def _faults(text: str) -> tuple[Fault[FaultKind], ...]:
+    from drivers.sim.emulator import parse_faults  # lazy: NumPy loads to serve, not for --help
+
     try:
         return parse_faults(text)
     except ValueError as err:
@@ -151,6 +147,9 @@ def _joint_arm(args: argparse.Namespace) -> JointArmConfig | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: the arm's description (NumPy) loads when an emulator runs, not for --help
+    from daemon.arm.description import ArmError
+
     if args.device == "ur":
         return ur_cli.run(args)
 
@@ -161,6 +160,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.server:
         return _run_server(args, joint_arm)
+    # lazy: the emulators (NumPy) load when one is served, not for --help
+    from drivers.sim.emulator import C500CEmulator, EmulatorConfig
+
     config = EmulatorConfig(
         seed=args.seed,
         noise_um=args.noise_um,
@@ -197,6 +199,13 @@ def _run_server(args: argparse.Namespace, joint_arm: JointArmConfig | None) -> i
     if args.faults or args.shell:
         print("thermocomp emulate: --faults and --shell are the console's", file=sys.stderr)
         return 2
+    # lazy: the emulators (NumPy) load when one is served, not for --help
+    from drivers.sim.server_emulator import (
+        SERVER_BAUDRATE,
+        C500CServerEmulator,
+        server_emulator_config,
+    )
+
     config = server_emulator_config(
         seed=args.seed,
         noise_um=args.noise_um,

@@ -123,9 +123,9 @@ class SimCamera:
             "sigma_px": bench.spot_sigma_px,
             "bit_depth": camera.bit_depth,
             "rng": self.bench.camera_rng,
-            "read_noise_counts": camera.read_noise_e / camera.gain_e_per_count,
+            "read_noise_counts": camera.read_noise_e / bench.camera_gain_e_per_count,
             "photon_noise": True,
-            "gain_e_per_count": camera.gain_e_per_count,
+            "gain_e_per_count": bench.camera_gain_e_per_count,
         }
 
     def render(self, centre_xy: tuple[float, float]) -> NDArray[np.generic]:
@@ -185,6 +185,11 @@ class SimCamera:
                 timestamp_s=t_s,
                 sequence=self._sequence,
                 timestamp_source="camera",  # rendered at its exposure time exactly
+                gain_e_per_count=(
+                    self.bench.settings.bench.camera_gain_e_per_count
+                    if self.bench.settings.bench.camera_reports_gain
+                    else None
+                ),
             )
             self._sequence += 1
         return frame

@@ -13,8 +13,12 @@ Conventions (ASSUMED where docs/reference/c500c-console.md is silent):
 - `wshift loc,dx,dy,dz,zr,yr,xr` turns the location by the z-y-x rotation (zr, yr, xr) in the
   world frame about its own position and moves it by (dx, dy, dz) (docs/reference/c500c-console.md:
   "shifts a location in world coordinates").
-- A location the inverse kinematics cannot reach from the current joints within the joint
-  limits (no change of branch: the controller keeps its stance) is catalogue 003.
+- A location is solved from the current joints (the controller keeps its stance); when that
+  local solve does not reach it (a large waist swing: a 190 degree turn stalled, issue 29),
+  from the same stance turned to face the target, the wrist as it is or flipped, the solution
+  nearest the current joints on the same wrist side (drivers/sim/arm_reach.py); so too over a
+  swing of more than 90 degrees or when the local solve flipped the wrist (another branch).
+  A location none of these reach within the joint limits is catalogue 003.
 - At the wrist singularity (the last three joints' axes in one plane: the A465's joint 5 = 0,
   joints 4 and 6 aligned) the controller keeps the first wrist joint where it is and solves
   the other joints for the position exactly and for the orientation as closely as the wrist
@@ -45,6 +49,7 @@ from scipy.spatial.transform import Rotation
 from daemon.arm.description import Arm, ArmError
 from daemon.arm.kinematics import IK_SOLVER_OPTIONS, forward, inverse, jacobian
 from daemon.arm.types import JointSample, pose_difference, zyx_deg_of
+from drivers.sim.arm_reach import nearest_solution, needs_branch_search
 
 FloatArray = NDArray[np.float64]
 Location = tuple[float, float, float, float, float, float]
@@ -449,11 +454,12 @@ class JointArm:
                 exact = inverse(arm, pose, q_now, restarts=0)
             except ArmError as err:
                 failure = err
-            else:
-                if self.config.cache_solutions:
-                    if len(self._solutions) >= SOLUTION_CACHE:
-                        self._solutions.clear()
-                    self._solutions[key] = exact
+            if needs_branch_search(arm, pose, q_now, exact):  # module docstring
+                exact = nearest_solution(arm, pose, q_now, exact)
+            if exact is not None and self.config.cache_solutions:
+                if len(self._solutions) >= SOLUTION_CACHE:
+                    self._solutions.clear()
+                self._solutions[key] = exact
         seed = q_now if exact is None else exact
         if wrist_singular(arm, seed):
             locked = wrist_locked_inverse(arm, pose, seed, q_now)

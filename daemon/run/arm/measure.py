@@ -15,8 +15,9 @@ of a millimetre, a pixel or two).
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -45,6 +46,10 @@ WINDOW_HALF_PX = 24
 MIN_VIEWS = 2
 #: Frames from which an average's 1-sigma also looks at the centroids' scatter.
 MIN_FRAMES_FOR_SCATTER = 3
+#: Degrees of freedom of a camera's pooled scatter before it replaces the camera model's
+#: nominal ``pixel_sigma_px`` as the floor of its centroids' 1-sigma (issue 29): one reference
+#: of 4 frames at each of 2 poses, 4 markers, gives 48 (its 1-sigma then known to ~10 %).
+MIN_SCATTER_DOF = 20
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,13 +59,16 @@ class MarkerView:
     x_px: float
     y_px: float
     sigma_px: float
+    #: the centroid's own 1-sigma (its photons and read noise), before the camera's floor
+    centroid_sigma_px: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class SensorNoise:
-    """What the centroid's 1-sigma needs of a camera's sensor (its [camera] settings)."""
+    """What the centroid's 1-sigma needs of a camera's sensor (its [camera] settings); no
+    gain: the frame's (the camera's), else measured on the frame."""
 
-    gain_e_per_count: float = 1.0
+    gain_e_per_count: float | None = None
     read_noise_e: float = 5.0
 
 
@@ -85,12 +93,18 @@ def marker_views(
     *,
     sensors: Sequence[SensorNoise] | None = None,
     window_half_px: int = WINDOW_HALF_PX,
+    floors_px: Mapping[str, float] | None = None,
 ) -> list[MarkerView]:
     """Every marker's centroid in every camera whose frame shows it near its expected pixel,
-    at the frame's own bit depth and the camera's sensor noise (``sensors``, same order)."""
+    at the frame's own bit depth and the camera's sensor noise (``sensors``, same order). Each
+    centroid's 1-sigma is at least its camera's floor: ``floors_px`` (by camera name: the
+    scatter the meter measured, :class:`ScatterLog`), else the camera model's nominal
+    ``pixel_sigma_px``."""
     views: list[MarkerView] = []
     noises = tuple(sensors) if sensors is not None else (SensorNoise(),) * len(cameras)
+    floors = floors_px or {}
     for camera, frame, noise in zip(cameras, frames, noises, strict=True):
+        floor = floors.get(camera.name, camera.pixel_sigma_px)
         image = np.asarray(frame.image)
         height, width = image.shape[:2]
         for marker, (x, y) in enumerate(project(camera, markers_world)):
@@ -105,13 +119,25 @@ def marker_views(
                 result = measure_centroid(
                     image[r0:r1, c0:c1],
                     bit_depth=frame.bit_depth,
-                    gain_e_per_count=noise.gain_e_per_count,
+                    gain_e_per_count=noise.gain_e_per_count
+                    if noise.gain_e_per_count is not None
+                    else frame.gain_e_per_count,
                     read_noise_e=noise.read_noise_e,
+                    gain_source="config" if noise.gain_e_per_count is not None else "camera",
                 )
             except CentroidError:
                 continue
-            sigma = max(result.sigma_x_px, result.sigma_y_px, camera.pixel_sigma_px)
-            views.append(MarkerView(camera.name, marker, result.x_px + c0, result.y_px + r0, sigma))
+            own = max(result.sigma_x_px, result.sigma_y_px)
+            views.append(
+                MarkerView(
+                    camera.name,
+                    marker,
+                    result.x_px + c0,
+                    result.y_px + r0,
+                    max(own, floor),
+                    own,
+                )
+            )
     return views
 
 
@@ -140,6 +166,47 @@ def mean_views(view_sets: Sequence[Sequence[MarkerView]]) -> list[MarkerView]:
             )
         )
     return averaged
+
+
+class ScatterLog:
+    """Each camera's centroid scatter from frame to frame, pooled over its markers and every
+    averaged measurement (issue 29): what moves a spot between frames of a still tool (air,
+    vibration, photon noise) whatever the camera model's nominal ``pixel_sigma_px`` says. Per
+    axis, ``sum (x - mean)^2`` over ``frames - 1`` degrees of freedom per marker."""
+
+    def __init__(self) -> None:
+        self._sums: dict[str, float] = {}
+        self._dof: dict[str, int] = {}
+
+    def add(self, view_sets: Sequence[Sequence[MarkerView]]) -> None:
+        """The frames of one measurement of a still tool (three or more: fewer say little)."""
+        if len(view_sets) < MIN_FRAMES_FOR_SCATTER:
+            return
+        grouped: dict[tuple[str, int], list[MarkerView]] = {}
+        for views in view_sets:
+            for view in views:
+                grouped.setdefault((view.camera, view.marker), []).append(view)
+        for (camera, _), views in grouped.items():
+            if len(views) < 2:
+                continue
+            xs = np.array([view.x_px for view in views])
+            ys = np.array([view.y_px for view in views])
+            squares = float(np.sum((xs - xs.mean()) ** 2) + np.sum((ys - ys.mean()) ** 2))
+            self._sums[camera] = self._sums.get(camera, 0.0) + squares
+            self._dof[camera] = self._dof.get(camera, 0) + 2 * (len(views) - 1)
+
+    def sigma_px(self, camera: str) -> float | None:
+        """The camera's measured 1-sigma per centroid axis (px), once MIN_SCATTER_DOF degrees
+        of freedom are in; else None."""
+        dof = self._dof.get(camera, 0)
+        if dof < MIN_SCATTER_DOF:
+            return None
+        return math.sqrt(self._sums[camera] / dof)
+
+    def floors_px(self) -> dict[str, float]:
+        """Every camera's measured 1-sigma that is known."""
+        known = {camera: self.sigma_px(camera) for camera in self._dof}
+        return {camera: sigma for camera, sigma in known.items() if sigma is not None}
 
 
 def tool_pose(
@@ -252,6 +319,8 @@ class MultiCameraMeter:
         self._markers: NDArray[np.float64] = np.array(settings.arm.markers_mm, dtype=np.float64)
         self._sensors, self._timeouts_s = device_sensors(settings, len(models))
         self._frames = settings.arm.frames_per_measurement
+        #: the cameras' measured scatter (owned by the step's worker: _views and _solve)
+        self.scatter = ScatterLog()
 
     async def measure(
         self, expected_pose: FloatArray, frames: int | None = None
@@ -275,11 +344,37 @@ class MultiCameraMeter:
 
     def _views(self, frames: Sequence[Frame], expected: FloatArray) -> list[MarkerView]:
         markers_world = self._markers @ expected[:3, :3].T + expected[:3, 3]
-        return marker_views(self._models, frames, markers_world, sensors=self._sensors)
+        return marker_views(
+            self._models,
+            frames,
+            markers_world,
+            sensors=self._sensors,
+            floors_px=self.scatter.floors_px(),
+        )
 
     def _solve(
         self, view_sets: Sequence[Sequence[MarkerView]], expected: FloatArray
     ) -> ToolMeasurement:
+        """The pose from the frames' views; several frames of the still tool first teach the
+        cameras' scatter (:class:`ScatterLog`), the floor of every later centroid's 1-sigma
+        (their own views were floored by what was known before: floored again by the new)."""
+        self.scatter.add(view_sets)
+        floors = self.scatter.floors_px()
+        view_sets = [
+            [
+                dataclasses.replace(
+                    view,
+                    sigma_px=max(
+                        view.sigma_px if view.centroid_sigma_px is None else view.centroid_sigma_px,
+                        floors[view.camera],
+                    ),
+                )
+                if view.camera in floors
+                else view
+                for view in views
+            ]
+            for views in view_sets
+        ]
         views = list(view_sets[0]) if len(view_sets) == 1 else mean_views(view_sets)
         return tool_pose(self._models, views, self._markers, expected)
 

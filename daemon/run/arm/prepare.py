@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
+from config import Settings
 from daemon.arm.run import MeasurementError
 from daemon.arm.types import Pose6
 from daemon.run.arm.player import ArmPlayer
@@ -45,6 +46,22 @@ async def teach_poses(work: ArmRunWork, robot: ArmRobot) -> None:
     for pose in poses.values():
         work.taught[pose.name] = await robot.teach_pose(pose)
         logger.info("run %d: taught pose %r", work.run_id, pose.name)
+
+
+#: Frames of each pose's reference at least (issue 29): enough for the meter to measure its
+#: cameras' scatter on the still tool before the first step (daemon/run/arm/measure.py
+#: ScatterLog: 2 poses x 4 markers x 3 degrees of freedom x 2 axes = 48 per camera, the
+#: 1-sigma to ~10 %), the floor of every later measurement's 1-sigma. Each frame of the
+#: bench's 5 MP cameras is ~0.16 s of CPU to render: no more than needed.
+MIN_REFERENCE_FRAMES = 4
+
+
+def reference_frames(settings: Settings) -> int:
+    """The frames of a reference: arm.reference_frames (none: arm.frames_per_measurement),
+    at least MIN_REFERENCE_FRAMES."""
+    arm = settings.arm
+    asked = arm.reference_frames or arm.frames_per_measurement
+    return max(asked, MIN_REFERENCE_FRAMES)
 
 
 async def measure_references(

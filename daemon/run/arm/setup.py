@@ -83,6 +83,11 @@ def check_arm_run(settings: Settings, duty_cycle: str | None) -> None:
         raise ArmSetupError("an arm run needs a duty cycle (run duty_cycle or arm.duty_cycle)")
 
 
+#: The tool measurement's 1-sigma per axis the adaptation weighs it by (mm): the 3-D meter's
+#: ~5 um (benchmarks/bench_arm.py's measured noise) over sqrt(3).
+ADAPT_MARKER_SIGMA_MM = 0.003
+
+
 def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
     """The controller's model of the arm from the arm file and the run's duty cycle
     (daemon/arm/controller.py), stepped at the run's step in model time."""
@@ -108,6 +113,8 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
     if parameters.prediction == "model+ir":
         controller.enable_observer(settings.ir.noise_c)
     poses = controller.measured_poses(arm_settings.measured_poses)
+    if arm_settings.adapt:  # issue 29: the factors estimated online (daemon/arm/adaptation.py)
+        controller.enable_adaptation(poses, ADAPT_MARKER_SIGMA_MM, settings.ir.noise_c)
     snapshot = {
         "arm": controller.arm.name,
         "arm_file": str(arm_file(settings)),
@@ -118,9 +125,11 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
         "mean_joint_heat_w": controller.heat.mean_power_w.tolist(),
         "motion_dt_s": arm_settings.motion_dt_s,
         "ambient_c": settings.model.ambient_c,
+        "room": settings.room.driver,  # none: the model holds ambient_c (issue 29)
         "bending": arm_settings.bending,
         "arm_model": None if identified is None else identified.provenance(),
         "prediction": parameters.prediction,
+        "adapt": arm_settings.adapt,
     }
     cycle = controller.cycle_poses(poses)
     if plays_duty_cycle(settings):

@@ -33,6 +33,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import numpy as np
+
 from config import Settings
 from daemon.arm.correction import CorrectionLimits, check_correction, correction_for
 from daemon.arm.run import (
@@ -68,6 +70,7 @@ from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, StepRecord
 from drivers.base import MoveResult, Pose, RobotStatus
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit, Ticket
 
 logger = logging.getLogger(__name__)
 
@@ -77,7 +80,9 @@ MARKER_ERROR = "marker-error"
 #: The step whose measurement became its pose's zero: no reference was measured there before
 #: the first correction (daemon/run/arm/prepare.py), so its drift is zero by construction.
 REFERENCE_MISSING = "first-step-reference"
-ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR}
+#: The flag of a step whose room thermometer failed (the model keeps the last room).
+ROOM_ERROR = "room-error"
+ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR, ROOM_ERROR}
 
 
 class ArmRobot(Protocol):
@@ -97,9 +102,12 @@ class ArmRobot(Protocol):
         ``speed_percent`` of the controller's speed (None: its current one)."""
         ...
 
+    @property
+    def permit(self) -> MotionPermit: ...
+
     async def stop(self) -> None: ...
 
-    async def resume(self) -> None: ...
+    async def resume(self, ticket: Ticket | None = None) -> None: ...
 
     async def actual_pose(self) -> Pose: ...
 
@@ -227,15 +235,17 @@ class ArmStepPipeline:
         errors: list[str] = []
         stages: dict[str, float] = {}
 
-        # 1. the model to the time the move is expected to execute, then the tool error there
+        # 1. the room now (the model's ambient, issue 29), the model to the time the move is
+        # expected to execute, then the tool error there
         started = time.perf_counter()
+        room_c = await self._read_room(record, flags, errors)
         model_s = (run_time_s + self._settings.compensation.latency_s) * parameters.time_scale
         player = self._player
         if player is None:
-            error = await self._workers.step(self._predict, work, model_s, pose)
+            error = await self._workers.step(self._predict, work, model_s, pose, room_c)
             errors_by_pose = {pose.name: error}
         else:  # every pose of the played cycle at its own configuration, the arm warmed once
-            errors_by_pose = await self._workers.step(self._predict_cycle, work, model_s)
+            errors_by_pose = await self._workers.step(self._predict_cycle, work, model_s, room_c)
             error = errors_by_pose[pose.name]
         self._record_model(work, record, error)
         stages["model"] = time.perf_counter() - started
@@ -304,21 +314,51 @@ class ArmStepPipeline:
 
     # --- 1. the model ------------------------------------------------------------------
 
+    async def _read_room(
+        self, record: StepRecord, flags: list[str], errors: list[str]
+    ) -> float | None:
+        """The room thermometer's reading (recorded), or None: no thermometer, or it failed
+        (flagged room-error; the model keeps the last room)."""
+        if not getattr(self._sensors, "has_room", False):
+            return None
+        try:
+            reading = await self._sensors.read_room()
+        except DeviceError as err:
+            self._errors.note(err)
+            flags.append(ROOM_ERROR)
+            errors.append(str(err))
+            return None
+        record.room_c = reading.temperature_c
+        return reading.temperature_c
+
     @staticmethod
-    def _predict(work: ArmRunWork, model_s: float, pose: MeasuredPose) -> Pose6:
+    def _follow_room(predictor: ArmPredictor, room_c: float | None) -> None:
+        """The room's reading to a predictor that follows one (daemon/arm/controller.py)."""
+        follow = getattr(predictor, "follow_room", None)
+        if room_c is not None and callable(follow):
+            follow(room_c)
+
+    @staticmethod
+    def _predict(
+        work: ArmRunWork, model_s: float, pose: MeasuredPose, room_c: float | None = None
+    ) -> Pose6:
         """On the step's worker thread: the arm's model is tens of nodes per link and the
         motor heat integrates the duty cycle's motion over the step."""
         predictor = work.predictor
+        ArmStepPipeline._follow_room(predictor, room_c)
         if model_s > predictor.time_s:
             predictor.advance_to(model_s)
         return predictor.tool_error(pose)
 
     @staticmethod
-    def _predict_cycle(work: ArmRunWork, model_s: float) -> dict[str, Pose6]:
+    def _predict_cycle(
+        work: ArmRunWork, model_s: float, room_c: float | None = None
+    ) -> dict[str, Pose6]:
         """The tool error at every pose of the played cycle (kinematics.tool_errors through
         the predictor's ``tool_errors`` when it has one), by cycle pose name; the measured
         poses under their names too."""
         predictor = work.predictor
+        ArmStepPipeline._follow_room(predictor, room_c)
         if model_s > predictor.time_s:
             predictor.advance_to(model_s)
         poses = [entry.pose for entry in work.cycle]
@@ -361,9 +401,10 @@ class ArmStepPipeline:
     def _hand_to_player(
         self, work: ArmRunWork, player: ArmPlayer, errors_by_pose: dict[str, Pose6]
     ) -> str | None:
-        """Each played pose's correction, checked against the limits and the pose's previous
-        one; the accepted ones go to the player (the next move into each pose uses it), a
-        refused one never does: the first refusal is returned for the step's verdict."""
+        """Each played pose's correction, checked against the limits and the correction the
+        robot was last sent into that pose (ArmPlayer.sent_correction); the accepted ones go
+        to the player (the next move into each pose uses it), a refused one never does: the
+        first refusal is returned for the step's verdict."""
         if work.parameters.compensation == "off":
             return None
         accepted: dict[str, Pose6] = {}
@@ -373,7 +414,9 @@ class ArmStepPipeline:
                 correction = correction_for(
                     errors_by_pose[entry.name], work.parameters.deformation_scale
                 )
-                previous = work.last_correction.get(entry.name, Pose6.zero())
+                # against what the robot was last SENT into this pose: two handovers between
+                # its visits must not add up to more than one step's change (issue 26)
+                previous = player.sent_correction(entry.name)
                 accepted[entry.name] = check_correction(correction, previous, self._limits)
             except UnsafeTargetError as err:
                 refused = refused or f"correction of pose {entry.name!r} refused: {err}"
@@ -421,13 +464,34 @@ class ArmStepPipeline:
         if measurement is not None and record_measurement(work, pose, measurement, record):
             flags.append(REFERENCE_MISSING)
         started = time.perf_counter()
-        await self._infrared(work, record, flags, errors)
+        means = await self._infrared(work, record, flags, errors)
         stages["ir"] = time.perf_counter() - started
+        adapt = getattr(work.predictor, "adapt", None)
+        if (
+            measurement is not None
+            and callable(adapt)
+            and getattr(work.predictor, "adapting", False)
+        ):
+            # arm.adapt (issue 29): the tool's thermal displacement (the drift less the
+            # correction commanded, as identification reads it) into the online estimate
+            displacement = np.array(
+                [
+                    (record.measured_tx_um or 0.0) / 1000.0 - (record.correction_tx_mm or 0.0),
+                    (record.measured_ty_um or 0.0) / 1000.0 - (record.correction_ty_mm or 0.0),
+                    (record.measured_tz_um or 0.0) / 1000.0 - (record.correction_tz_mm or 0.0),
+                ]
+            )
+            await self._workers.step(adapt, pose, displacement, means or {})
+            estimates = work.predictor.adaptation_estimates()  # type: ignore[attr-defined]
+            if estimates:
+                record.observer_json = json.dumps(
+                    {name: [round(v, 6) for v in pair] for name, pair in estimates.items()}
+                )
         return measurement
 
     async def _infrared(
         self, work: ArmRunWork, record: StepRecord, flags: list[str], errors: list[str]
-    ) -> None:
+    ) -> dict[str, float] | None:
         """The IR regions on the links, recorded (identification reads them back:
         daemon/commands/arm_identify.py) and, with prediction model+ir, fused into the model."""
         reading = await read_infrared(
@@ -439,12 +503,15 @@ class ArmStepPipeline:
             flags=flags,
             errors=errors,
         )
+        if reading is None:
+            return None
+        means = {name: region.mean_c for name, region in reading.regions.items()}
         observe = getattr(work.predictor, "observe", None)
-        if reading is not None and callable(observe):
+        if callable(observe):
             # prediction model+ir: the IR regions correct the arm model's nodes, for the next
             # step's prediction (on the step's worker: a Kalman update of tens of nodes)
-            means = {name: region.mean_c for name, region in reading.regions.items()}
             await self._workers.step(observe, means)
+        return means
 
 
 def record_measurement(

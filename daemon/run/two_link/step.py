@@ -7,6 +7,7 @@ operator's requests that may have arrived meanwhile.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -346,12 +347,20 @@ class StepPipeline:
             errors.append(self._sensors.stale("camera", "frame", age_s))
         try:
             result = await self._workers.step(
-                measure_with_camera_settings, frame.image, camera_settings
+                functools.partial(
+                    measure_with_camera_settings,
+                    camera_gain_e_per_count=frame.gain_e_per_count,
+                ),
+                frame.image,
+                camera_settings,
             )
         except CentroidError as err:
             flags.append("centroid-error")
             errors.append(f"centroid: {err}")
             return
+        if result.gain_source not in {"config", "camera"}:
+            # the noise model was measured on this frame (or could not be): say so
+            flags.append("gain-from-frame" if result.gain_source == "frames" else "gain-unknown")
         record.centroid_x_px, record.centroid_y_px = result.x_px, result.y_px
         record.centroid_x_um, record.centroid_y_um = result.x_um, result.y_um
         if stale:  # a stale frame is recorded and flagged, never used
