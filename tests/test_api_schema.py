@@ -305,6 +305,7 @@ def described_operations(description: dict[str, Any]) -> dict[str, bool]:
     }
 
 
+@pytest.mark.slow
 async def test_every_operation_holds_to_its_description(bench: Bench) -> None:
     async with httpx.AsyncClient(base_url=bench.base_url, headers=READ_AUTH, timeout=30) as client:
         described = described_operations((await client.get("/openapi.json")).json())
@@ -360,6 +361,7 @@ def test_parquet_is_described_only_when_pyarrow_is_installed(
     assert "501" not in description["paths"]["/api/v1/runs/{run_id}/steps"]["get"]["responses"]
 
 
+@pytest.mark.slow
 async def test_parquet_export_without_and_with_pyarrow(
     bench: Bench, monkeypatch: pytest.MonkeyPatch
 ) -> None:

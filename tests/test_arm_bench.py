@@ -254,6 +254,7 @@ def observe(bench: ArmBench, t_s: float) -> list[str]:
     return seen
 
 
+@pytest.mark.slow
 def test_same_seed_same_run_other_seed_other_run() -> None:
     first = [observe(ArmBench(bench_config(), DutyCycleMotion(SWING)), t) for t in (0.0, 600.0)]
     again = [observe(ArmBench(bench_config(), DutyCycleMotion(SWING)), t) for t in (0.0, 600.0)]

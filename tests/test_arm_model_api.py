@@ -9,6 +9,7 @@ import asyncio
 from pathlib import Path
 
 import httpx
+import pytest
 
 from api.app import create_app
 from config import Settings
@@ -36,6 +37,7 @@ def arm_settings(data_dir: Path) -> Settings:
     )
 
 
+@pytest.mark.slow
 async def test_arm_model_by_name_over_the_api(tmp_path: Path) -> None:
     data_dir = tmp_path / "data"
     folder = saved_arm_models_dir(data_dir)

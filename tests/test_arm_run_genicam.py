@@ -122,6 +122,7 @@ def joint_space_emulator(seed: int) -> C500CEmulator:
     )
 
 
+@pytest.mark.slow
 @needs_pylon
 async def test_an_arm_run_on_the_console_measures_the_known_drift_on_genicam_frames(
     tmp_path: Path,

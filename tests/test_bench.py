@@ -113,6 +113,7 @@ async def test_spot_goes_where_physics_puts_it() -> None:
     assert measured.y_px == pytest.approx(centre[1], abs=0.05)
 
 
+@pytest.mark.slow
 def test_truth_is_linear_in_heat_and_follows_the_heater_schedule() -> None:
     clock = VirtualClock()
     base = Bench(settings(), clock)

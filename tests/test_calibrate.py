@@ -238,6 +238,7 @@ async def test_a_spot_leaving_the_chip_stops_and_returns_to_the_goal() -> None:
     assert pose is not None
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,
     reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",

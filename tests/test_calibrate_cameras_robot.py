@@ -142,6 +142,7 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
     return Calibrated(status, data, err, guess, written, observations, lab, truth)
 
 
+@pytest.mark.slow
 def test_the_robot_recovers_the_station_cameras_from_a_perturbed_file(
     calibrated: Calibrated,
 ) -> None:
@@ -200,6 +201,7 @@ def test_the_saved_observations_give_the_same_fit(
         assert np.allclose(again[camera["camera"]], camera["centre_mm"], atol=1e-4)
 
 
+@pytest.mark.slow
 async def test_the_written_file_measures_the_tool_where_the_controller_puts_it(
     calibrated: Calibrated,
 ) -> None:
@@ -226,6 +228,7 @@ async def test_the_written_file_measures_the_tool_where_the_controller_puts_it(
     assert errors["guess"] > 0.5, errors
 
 
+@pytest.mark.slow
 def test_a_station_at_the_wrist_singularity_is_refused_and_nothing_written(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -260,6 +263,7 @@ def test_a_station_at_the_wrist_singularity_is_refused_and_nothing_written(
         assert f"{name} its fit leaves" in line
 
 
+@pytest.mark.slow
 def test_the_camera_stations_cameras_from_a_goal_off_the_wrist_singularity(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -69,6 +69,7 @@ def test_unknown_key_is_an_error(tmp_path: Path) -> None:
         load_settings(path, environ={})
 
 
+@pytest.mark.slow
 def test_cli_exits_2_on_broken_toml(tmp_path: Path) -> None:
     path = tmp_path / "broken.toml"
     path.write_text("[robot\nbaudrate = 57600\n")

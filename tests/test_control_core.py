@@ -530,6 +530,7 @@ async def test_final_states_say_what_happened(
 # --- 3. shutdown order of a machine that moves (the real server, a real process) --------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signals", [(signal.SIGTERM,), (signal.SIGINT, signal.SIGINT)])
 def test_a_signal_holds_and_ends_the_run_before_http_drains(
     tmp_path: Path, signals: tuple[signal.Signals, ...]

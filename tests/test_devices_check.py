@@ -77,6 +77,7 @@ def test_check_on_the_bench_prints_every_device_and_draws_the_preview(tmp_path: 
     assert not box[60 * factor, 25 * factor]  # inside: the image, not the frame
 
 
+@pytest.mark.slow
 def test_json_output_and_a_failing_device_named_in_one_line(tmp_path: Path) -> None:
     # a region beyond the 160 x 120 thermal image: the IR read fails, the rest is described
     config = write_config(
@@ -92,6 +93,7 @@ def test_json_output_and_a_failing_device_named_in_one_line(tmp_path: Path) -> N
     assert len(failures) == 1
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,
     reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",
@@ -112,6 +114,7 @@ def test_a_missing_camera_is_one_line_and_exit_status_1(tmp_path: Path) -> None:
     ]
 
 
+@pytest.mark.slow
 async def test_preview_endpoint_while_idle_and_refused_during_a_run(tmp_path: Path) -> None:
     app = create_app(bench_settings(tmp_path / "data"), service_factory=Daemon)
     async with (

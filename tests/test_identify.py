@@ -130,6 +130,7 @@ def test_recovers_known_parameters_within_their_uncertainty(preset: ThermalNetwo
     assert np.all(np.abs(result.correlation) <= 1.0 + 1e-9)
 
 
+@pytest.mark.slow
 def test_the_standard_errors_are_honest_over_repeated_runs(preset: ThermalNetwork) -> None:
     """Over independent noise draws the fitted alpha scatters as its reported SE says."""
     truth = truth_network(preset)

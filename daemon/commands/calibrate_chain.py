@@ -11,7 +11,6 @@ from config import Settings
 from config.cli import EXIT_FAILURE, EXIT_USAGE
 from daemon.commands.run import _supervise
 from daemon.run.states import RunParameters, RunState
-from daemon.storage.recorder import RecorderError
 from drivers.errors import DeviceError
 
 if TYPE_CHECKING:
@@ -51,6 +50,7 @@ async def run_alone(settings: Settings, what: str, **values: Any) -> dict[str, A
     the runs with no device open, so a virtual clock never jumps while it computes)."""
     # lazy: the daemon (NumPy, SciPy, the drivers) loads when a run starts, not for --help
     from daemon.service import Daemon
+    from daemon.storage.recorder import RecorderError
 
     try:
         async with Daemon(settings) as daemon:

@@ -28,7 +28,6 @@ from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument
 from drivers.c500c import protocol as proto
 from drivers.c500c.console import Transcript
 from drivers.c500c.robot import C500CRobot
-from drivers.c500c.server_check import run_server_check
 from drivers.errors import DeviceError
 
 UNKNOWN = "unknown (no console query; the first motion command tells)"
@@ -189,6 +188,10 @@ def _run_server(settings: Settings, args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
+    # lazy: the fast path's check opens devices (drivers.factory: NumPy, OpenCV) when it runs,
+    # not for --help
+    from drivers.c500c.server_check import run_server_check
+
     try:
         report = asyncio.run(run_server_check(settings, port=args.port))
     except DeviceError as err:
