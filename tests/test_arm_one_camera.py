@@ -105,6 +105,7 @@ async def test_an_arm_run_with_one_camera_measures_and_compensates(tmp_path: Pat
     assert np.sqrt(np.mean(along**2)) < 2.0 * sigma.mean()
 
 
+@pytest.mark.slow
 @needs_pylon
 async def test_on_hardware_one_camera_and_a_one_camera_file_make_the_meter(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path

@@ -51,6 +51,7 @@ async def record_run(config: Settings) -> list[str]:
     return observed
 
 
+@pytest.mark.slow
 async def test_same_seed_same_run_other_seed_other_run() -> None:
     first = await record_run(settings(bench={"seed": 11}))
     assert first == await record_run(settings(bench={"seed": 11}))

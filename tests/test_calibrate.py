@@ -140,6 +140,7 @@ def bench_settings(tmp_path: Path, **camera: Any) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_the_bench_calibration_recovers_pitch_and_rotation(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

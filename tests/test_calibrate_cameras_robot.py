@@ -176,6 +176,7 @@ def test_the_robot_recovers_the_station_cameras_from_a_perturbed_file(
             assert np.allclose(camera.centre_mm, guesses[camera.name].centre_mm, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_the_saved_observations_give_the_same_fit(
     calibrated: Calibrated, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -594,6 +594,7 @@ async def test_an_ended_run_stops_making_progress(tmp_path: Path) -> None:
     assert later["progress_percent"] == stopped["progress_percent"] < 100.0
 
 
+@pytest.mark.slow
 async def test_a_run_on_the_real_driver_ends_without_a_warning(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

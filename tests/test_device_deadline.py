@@ -81,6 +81,7 @@ async def test_outside_a_deadline_off_the_clock_is_a_thread() -> None:
     assert not scope.expired()
 
 
+@pytest.mark.slow
 async def test_the_bench_camera_renders_past_a_deadline_shorter_than_its_render() -> None:
     """A full 5 MP frame takes far longer than SHORT_S to draw (more on a loaded machine):
     the step's sensors bound the camera's latency, which on the bench is none."""

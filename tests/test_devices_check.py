@@ -37,6 +37,7 @@ def colour_mask(image: np.ndarray, colour: tuple[int, int, int]) -> np.ndarray:
     return mask
 
 
+@pytest.mark.slow
 def test_check_on_the_bench_prints_every_device_and_draws_the_preview(tmp_path: Path) -> None:
     config = write_config(
         tmp_path,
@@ -143,6 +144,7 @@ async def test_preview_endpoint_while_idle_and_refused_during_a_run(tmp_path: Pa
         assert stop.status_code in (200, 202), stop.text
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,
     reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",

@@ -117,6 +117,7 @@ def test_no_legend_hides_a_line_text_or_bar(rows: list[dict[str, Any]]) -> None:
     assert legends >= 5  # two compensation panels, figure 6.9, histogram, temperatures
 
 
+@pytest.mark.slow
 def test_a_legend_with_no_free_corner_goes_outside_the_axes() -> None:
     figure = _figures(_noisy_rows())["compensation"]
     figure.draw_without_rendering()
