@@ -27,7 +27,8 @@ from typing import Any
 
 from config.inputs import InputError, no_such_name
 from config.settings import read_toml
-from daemon.arm.description import MAX_ARM_JOINTS, available_arms
+from daemon.arm.description import MAX_ARM_JOINTS
+from daemon.arm.loading import available_arms
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.presets import check_network_name, new_saved_path
 

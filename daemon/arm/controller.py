@@ -31,12 +31,13 @@ import numpy as np
 from daemon.arm.adaptation import PRIOR_LOG_SIGMA, ArmAdaptation, adapted_names
 from daemon.arm.arm_model import ArmModel, check_fits
 from daemon.arm.arm_network import describe_arm
-from daemon.arm.description import Arm, load_arm
+from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle, check_taught_on, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.identify_response import factored_description
 from daemon.arm.ir_regions import region_nodes
 from daemon.arm.kinematics import forward, inverse, tool_error, tool_errors
+from daemon.arm.loading import load_arm
 from daemon.arm.response import ArmModelSpec, marker_sensitivity
 from daemon.arm.run import CyclePose, FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel

@@ -44,6 +44,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 from config.inputs import InputError, no_such_name
 from config.settings import read_toml
 from daemon.arm.description import MAX_ARM_JOINTS, Arm
+from daemon.arm.kinematics import inverse
 from daemon.arm.types import FloatArray, JointSample
 
 PRESET_PACKAGE = "config"
@@ -358,7 +359,6 @@ def tool_pose_matrix(tool_mm: Sequence[float], zyx_deg: Sequence[float]) -> Floa
 
 def arm_inverse(arm: Arm) -> InverseKinematics:
     """The arm's inverse kinematics (``kinematics.inverse``) for tool poses in a duty file."""
-    from daemon.arm.kinematics import inverse
 
     def solve(pose: FloatArray, seed: FloatArray) -> FloatArray:
         return inverse(arm, pose, seed)
