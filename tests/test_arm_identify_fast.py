@@ -275,3 +275,52 @@ def test_a_controller_with_adaptation_approaches_an_arm_it_was_not_told() -> Non
     assert adapted_rms < 0.2 * preset_rms, (adapted_rms, preset_rms)
     estimates = adapted.adaptation_estimates()
     assert abs(estimates["heat:2"][0] - 0.7) < 0.1 and abs(estimates["alpha"][0] - 0.94) < 0.03
+
+
+@pytest.mark.slow
+def test_adaptation_follows_the_room_the_controller_follows() -> None:
+    """A room warming 0.5 degC an hour: the truth (the controller given other factors) and the
+    adapted controller follow the same thermometer. The adaptation's record of the air is the
+    room's, so the room is not soaked into the factors: alpha and convection come back, and the
+    adapted prediction over the last third is far closer to the truth's than the preset's."""
+    from daemon.arm.arm_model import ArmModel
+    from daemon.arm.controller import ArmModelOptions, load_controller
+    from daemon.arm.ir_regions import region_nodes
+
+    options = ArmModelOptions(bending=True, motor_side_share=0.75, model_dt_s=60.0)
+    truth_model = ArmModel(
+        "truth", "CRS A465", (1.6, 0.7, 1.5, 1.0, 1.0, 1.0), convection_scale=1.3,
+        alpha_scale=0.94, bending_shares=(0.6,) * 6,
+    )  # fmt: skip
+    arm, task = "config/arms/crs-a465.toml", "a465-pick-and-place"
+    truth = load_controller(arm, task, options, truth_model)
+    preset = load_controller(arm, task, options)
+    adapted = load_controller(arm, task, options)
+    poses = adapted.measured_poses()
+    adapted.enable_adaptation(poses, 0.002, 0.05)
+    regions = region_nodes(truth.thermal, ["upper-arm-mid", "forearm-mid", "turret-mid"])
+    errors: dict[str, list[float]] = {"preset": [], "adapted": []}
+    hours = 6
+    for k in range(0, hours * 6 + 1):
+        t = k * 600.0
+        room = 21.0 + 0.5 * t / 3600.0
+        for controller in (truth, preset, adapted):
+            controller.follow_room(room)
+            controller.advance_to(t)
+        if k == 0:
+            continue
+        pose = poses[k % len(poses)]
+        true_error = truth.tool_error(pose).translation_mm
+        temperatures = truth.thermal.temperatures_c
+        reading = {name: float(temperatures[list(n)].mean()) for name, n in regions.items()}
+        if k > hours * 4:
+            for name, controller in (("preset", preset), ("adapted", adapted)):
+                miss = controller.tool_error(pose).translation_mm - true_error
+                errors[name].append(float(np.linalg.norm(miss)))
+        adapted.adapt(pose, true_error, reading)
+    preset_rms = float(np.sqrt(np.mean(np.square(errors["preset"]))))
+    adapted_rms = float(np.sqrt(np.mean(np.square(errors["adapted"]))))
+    assert adapted_rms < 0.1 * preset_rms, (adapted_rms, preset_rms)
+    estimates = adapted.adaptation_estimates()
+    assert abs(estimates["alpha"][0] - 0.94) < 0.02, estimates
+    assert abs(estimates["convection"][0] - 1.3) < 0.15, estimates

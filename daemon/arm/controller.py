@@ -123,6 +123,10 @@ class ArmController:
         #: is their mean (follow_room); None: no thermometer, options.ambient_c throughout
         self._room_last: float | None = None
         self._room_next: float | None = None
+        #: the ambient the model held over each advance: (start s, end s, degC), for the
+        #: adaptation's record of the air (it follows the room as the model does)
+        self._ambient_held: list[tuple[float, float, float]] = []
+        self._ambient_start_c = options.ambient_c
 
     def attach_observer(
         self, regions: Mapping[str, Sequence[int]], ir_noise_c: float
@@ -206,7 +210,7 @@ class ArmController:
             self.adaptation = ArmAdaptation(
                 spec,
                 ADAPTATION_STEP_S,
-                self.options.ambient_c,
+                self._ambient_start_c,
                 adapted_names(len(self.arm.joints), self.options.bending),
                 self._priors(),
                 marker_sigma_mm=self._adapt_noise[0],
@@ -222,7 +226,17 @@ class ArmController:
             return
         while adaptation.time_s + ADAPTATION_STEP_S <= t_s + 1e-9:
             start = adaptation.time_s
-            adaptation.add_heat(self.mean_heat_w(start, start + ADAPTATION_STEP_S))
+            adaptation.add_heat(
+                self.mean_heat_w(start, start + ADAPTATION_STEP_S),
+                self._ambient_at(start + ADAPTATION_STEP_S / 2.0),
+            )
+
+    def _ambient_at(self, t_s: float) -> float:
+        """The ambient the model held at ``t_s`` (its start's before the first advance)."""
+        for start, end, ambient in reversed(self._ambient_held):
+            if start <= t_s <= end:
+                return ambient
+        return self._ambient_start_c
 
     def adaptation_estimates(self) -> dict[str, list[float]]:
         """The adapted factors now: name -> [value, 1-sigma] (empty before the first)."""
@@ -245,6 +259,7 @@ class ArmController:
         if self._room_last is None and self.time_s == 0.0:
             self.thermal.start_at(room_c)
             self._room_last = room_c
+            self._ambient_start_c = room_c
         self._room_next = room_c
 
     @property
@@ -256,10 +271,13 @@ class ArmController:
         start = self.time_s
         if t_s <= start:
             return
+        ambient = self._ambient_held[-1][2] if self._ambient_held else self._ambient_start_c
         if self._room_next is not None:
             last = self._room_next if self._room_last is None else self._room_last
-            self.thermal.set_ambient(0.5 * (last + self._room_next))
+            ambient = 0.5 * (last + self._room_next)
+            self.thermal.set_ambient(ambient)
             self._room_last = self._room_next
+        self._ambient_held.append((start, t_s, ambient))
         self.last_heat_w = self.mean_heat_w(start, t_s) * self.heat_scales
         self.thermal.advance_to(t_s, self.last_heat_w)
         self._feed_adaptation(t_s)
