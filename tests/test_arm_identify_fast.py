@@ -13,10 +13,18 @@ import pytest
 
 from daemon.arm.adaptation import ArmAdaptation
 from daemon.arm.arm_network import describe_arm
-from daemon.arm.calibration_program import calibration_program, duty_cycle_toml, hold_pose
+from daemon.arm.calibration_program import (
+    BLOCK_S,
+    HOLD_MIN_SHARE,
+    calibration_program,
+    duty_cycle_toml,
+    hold_pose,
+    hold_poses,
+)
 from daemon.arm.description import load_arm
 from daemon.arm.duty import duty_cycle_from_mapping, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
+from daemon.arm.motors import joint_heat_batch_w
 from daemon.arm.identify import _ArmProblem, identify_arm
 from daemon.arm.identify_final import identify_arm_final
 from daemon.arm.identify_parameters import outside_physical_range, parse_parameters
@@ -191,6 +199,16 @@ def test_the_calibration_program_works_each_joint_in_turn_and_plays_as_a_duty_cy
         power = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.01).cycle_energy_j
         assert int(np.argmax(power)) == j or j == 1, (joint.name, power)  # shoulder: gravity
     assert hold_pose(arm, 1.0)[1] != 0.0  # the shoulder holds the arm out
+    # a hold of its own for each joint that can hold the weight alone: shoulder and elbow,
+    # each releasing most of the holding heat in its pose, for a block of minutes
+    holds = hold_poses(arm, 1.0)
+    assert [j for j, _ in holds][:2] == [1, 2]
+    for j, q in holds:
+        still = np.zeros((1, arm.dof))
+        heat = np.asarray(joint_heat_batch_w(arm, q[None, :], still, still, payload_kg=1.0))[0]
+        assert heat[j] > HOLD_MIN_SHARE * heat.sum(), (j, heat)
+        block = [p for p in program.poses if p.name == f"{arm.joints[j].name}-hold"]
+        assert sum(p.dwell_s for p in block) >= 0.8 * BLOCK_S
     text = duty_cycle_toml(program, "crs-a465")
     import tomllib
 
