@@ -41,11 +41,15 @@ from daemon.arm.response import ArmModelSpec, marker_sensitivity
 from daemon.arm.run import CyclePose, FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel
 from daemon.arm.types import LinkThermalState, Pose6
+from daemon.model.adaptation import adapted_parameters
 from daemon.model.observer import IrObserver
 
 #: The observer's prior on an IR offset the model file gives no uncertainty for (degC): the
 #: FLIR's +-2 degC accuracy, as the two-link observer (daemon/model/observer.py).
 DEFAULT_OFFSET_SIGMA_C = 2.0
+#: The least prior 1-sigma of a log factor the IR observer adapts (an identified factor's
+#: relative standard error can be tiny; the observer must still be able to move it).
+OBSERVER_MIN_LOG_SIGMA = 0.05
 #: The adaptation's heat record step (s of arm time; identification's IDENTIFY_STEP_S).
 ADAPTATION_STEP_S = 20.0
 
@@ -143,14 +147,40 @@ class ArmController:
             sigmas = [self.identified.ir_offset_sigma_c.get(r, np.inf) for r in regions]
             largest = max(sigmas, default=np.inf)
             sigma = float(largest) if np.isfinite(largest) else DEFAULT_OFFSET_SIGMA_C
+        model = self.thermal.thermal_model
         self.observer = IrObserver(
-            self.thermal.thermal_model,
+            model,
             {region: tuple(names[i] for i in group) for region, group in regions.items()},
             ir_noise_c,
             offsets_c=offsets,
             offset_sigma_c=sigma,
+            adapt=adapted_parameters(model.network, *self._observer_adapted()),
         )
         return self.observer
+
+    def _observer_adapted(self) -> tuple[list[str], dict[str, tuple[float, float]]]:
+        """What the IR observer estimates with the temperatures (issue 29): each joint's heat
+        (at its node) and the convection, as factors of this model's (prior 1), each with
+        the 1-sigma its identification left (PRIOR_LOG_SIGMA where not identified). Without
+        them a wrong heat or convection comes back between two IR readings: the filter
+        corrected the temperatures, never what drives them (corner-low truth, preset with the
+        IR: 43 % of the drift removed with the temperatures alone)."""
+        fitted = {} if self.identified is None else {p.name: p for p in self.identified.parameters}
+
+        def sigma(name: str) -> float:
+            p = fitted.get(name)
+            if p is not None and p.identifiable and p.relative_error is not None:
+                return max(float(p.relative_error), OBSERVER_MIN_LOG_SIGMA)
+            return PRIOR_LOG_SIGMA
+
+        names: list[str] = []
+        priors: dict[str, tuple[float, float]] = {}
+        for j, node in enumerate(self.thermal.joint_node_names):
+            names.append(f"heat:{node}")
+            priors[f"heat:{node}"] = (1.0, sigma(f"heat:{j + 1}"))
+        names.append("convection")
+        priors["convection"] = (1.0, sigma("convection"))
+        return names, priors
 
     @property
     def time_s(self) -> float:
