@@ -23,6 +23,7 @@ from api.openapi import install_openapi
 from api.relay import Relay
 from api.routers import (
     arm_models,
+    budget,
     configuration,
     devices,
     health,
@@ -34,11 +35,13 @@ from api.routers import (
     ws,
 )
 from api.security import Authenticator, HostAllowList, RateLimiter
+from api.tickets import TicketAtArrival
 from config import ConfigError, Settings
 from daemon import __version__
 from daemon.service import Daemon
 from daemon.storage.recorder import RecorderError
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit
 
 API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).resolve().parent / "static"
@@ -76,28 +79,13 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        if service_factory is None:
+            yield
+            return
         async with AsyncExitStack() as stack:
-            relay: asyncio.Task[None] | None = None
-            if service_factory is not None:
-                try:
-                    daemon = await stack.enter_async_context(service_factory(settings))
-                except (DeviceError, RecorderError, ConfigError, OSError) as err:
-                    # a device that is there but does not answer (the start-up checks,
-                    # api/startup.py, found it present): one line, not a traceback; uvicorn
-                    # exits with 3, the status of a device failure
-                    logger.error("cannot start the daemon: %s", err)
-                    raise DaemonStartFailed(str(err)) from None
-                logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
-                context.service = daemon
-                relay = asyncio.create_task(Relay(daemon, context).run(), name="api-relay")
-            try:
+            daemon = await open_service(stack, settings, service_factory)
+            async with serving(context, daemon):
                 yield
-            finally:
-                context.service = None
-                if relay is not None:
-                    relay.cancel()
-                    with contextlib.suppress(asyncio.CancelledError):
-                        await relay
 
     app = FastAPI(
         title="thermocomp",
@@ -120,6 +108,8 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         max_body_bytes=api.max_body_bytes,
         api_prefixes=(API_PREFIX, "/metrics", "/openapi.json"),
     )
+    # outermost: a start's or resume's ticket is taken before the Gate reads its body
+    app.add_middleware(TicketAtArrival, permit=lambda: _permit(context))
     for router in (
         health.router,
         state.read_router,
@@ -130,6 +120,7 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         configuration.router,
         networks.router,
         arm_models.router,
+        budget.router,
         devices.router,
         ws.router,
     ):
@@ -139,6 +130,48 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
     app.router.routes.insert(0, _polled_state_route(context))
     install_openapi(app, context.auth.anonymous_read)
     return app
+
+
+async def open_service(
+    stack: AsyncExitStack, settings: Settings, service_factory: ServiceFactory
+) -> Daemon:
+    """Open the daemon (devices, recording) on ``stack``, which closes it; a device or
+    recording that fails is logged in one line and raised as :class:`DaemonStartFailed`."""
+    try:
+        return await stack.enter_async_context(service_factory(settings))
+    except (DeviceError, RecorderError, ConfigError, OSError) as err:
+        # a device that is there but does not answer (the start-up checks, api/startup.py,
+        # found it present): one line, not a traceback; `serve` exits with 3, the status of
+        # a device failure
+        logger.error("cannot start the daemon: %s", err)
+        raise DaemonStartFailed(str(err)) from None
+
+
+@asynccontextmanager
+async def serving(context: ApiContext, daemon: Daemon) -> AsyncIterator[None]:
+    """The application's routes and WebSocket relay drive ``daemon`` while inside; then they
+    answer 503 again (the application's lifespan, or ``thermocomp serve``, which owns the
+    daemon itself: api/serve.py)."""
+    settings = context.settings
+    logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
+    context.service = daemon
+    relay = asyncio.create_task(Relay(daemon, context).run(), name="api-relay")
+    try:
+        yield
+    finally:
+        context.service = None
+        relay.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await relay
+
+
+def _permit(context: ApiContext) -> MotionPermit | None:
+    """The robot's permit while the daemon runs with its devices open."""
+    daemon = context.service
+    try:
+        return None if daemon is None else daemon.permit
+    except RuntimeError:  # the daemon's devices are not open
+        return None
 
 
 def _polled_state_route(context: ApiContext) -> Route:

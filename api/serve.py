@@ -1,5 +1,22 @@
 """``thermocomp serve``: run the daemon and its API under uvicorn until a signal stops it
-(the command line is api/serve_cli.py, which imports this module only when it runs)."""
+(the command line is api/serve_cli.py, which imports this module only when it runs).
+
+uvicorn is used through its public surface only (issue 27): ``Config`` (with the connection
+guard as its ``http`` protocol class, api/connections.py), ``Server.serve()``, and the
+``started`` / ``should_exit`` / ``force_exit`` attributes its documentation uses to run and
+stop a server from code. Nothing of it is subclassed or overridden, so a uvicorn release
+within the locked range cannot silently undo the shutdown order or the connection bounds.
+What the old ``Server`` subclass did is done here, at the entry point:
+
+- the daemon is opened before the server listens and closed after it has stopped, by this
+  module (not by uvicorn's lifespan, which a forced exit skips): devices and database are
+  closed on every exit;
+- the signals, once the server is up, are this module's (:class:`SignalStop`): the first
+  holds the robot at once, ends the run (``stopped``, "daemon shut down", committed), and only
+  then lets uvicorn drain its connections; a second skips that drain (uvicorn's forced exit);
+  a third leaves at once;
+- the start-up heap is frozen once the daemon is open, before the first step (daemon/heap.py).
+"""
 
 from __future__ import annotations
 
@@ -7,18 +24,19 @@ import argparse
 import asyncio
 import logging
 import signal
-import socket
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
+from contextlib import AsyncExitStack
 from types import FrameType
+from typing import Any
 
 import uvicorn
 from fastapi import FastAPI
 from pydantic import ValidationError
 
-from api.app import create_app
-from api.connections import guarded_protocol
-from api.deps import ApiContext
+from api.app import DaemonStartFailed, create_app, open_service, serving
+from api.connections import LISTEN_BACKLOG, ConnectionGuard
+from api.deps import ApiContext, grants_control, holds_robot
 from api.startup import (
     StartupError,
     dashboard_banner,
@@ -27,6 +45,7 @@ from api.startup import (
     with_local_control_token,
 )
 from config import ConfigError, Settings, load_settings
+from config.cli import EXIT_DEVICE
 from daemon.heap import freeze_startup_heap
 from daemon.service import Daemon
 from daemon.systemd import SystemdNotifier
@@ -60,28 +79,44 @@ KEEP_ALIVE_S = 5
 SUPERVISOR_POLL_S = 0.1
 
 
-def server_config(settings: Settings, app: FastAPI | None = None) -> uvicorn.Config:
-    """The uvicorn configuration of the daemon's server: the application's lifespan opens the
-    daemon (devices, recording) at startup and closes it at shutdown (robot held, recording
-    committed), so the server is "up" only with the daemon."""
+def connection_guard(
+    settings: Settings, context: ApiContext, http: str = "auto"
+) -> ConnectionGuard:
+    """The server's connection bounds (api/connections.py): at most ``api.max_connections``
+    served, requests whole within ``api.request_timeout_s``, and beyond the cap only requests
+    that hold the robot, with a control token of this application. ``http`` names uvicorn's
+    HTTP implementation behind the guard ("auto": httptools, else h11)."""
+
+    def admits_hold(method: str, path: str, authorization: str | None) -> bool:
+        return holds_robot(method, path) and grants_control(context, authorization)
+
+    return ConnectionGuard(
+        settings.api.max_connections, settings.api.request_timeout_s, admits_hold, http=http
+    )
+
+
+def server_config(settings: Settings, app: FastAPI, guard: ConnectionGuard) -> uvicorn.Config:
+    """The uvicorn configuration of the daemon's server. The daemon is not uvicorn's to open
+    or close (``lifespan="off"``): :func:`serve` opens it before the server listens and
+    closes it after the server has stopped."""
     return uvicorn.Config(
-        create_app(settings, service_factory=Daemon) if app is None else app,
+        app,
         host=settings.api.host,
         port=settings.api.port,
         log_config=None,  # logging is configured once, by the entry point
         access_log=False,  # step data goes to the recording, not the log
-        lifespan="on",  # a daemon that cannot start fails the server's startup
+        lifespan="off",
         # the protocol layer refuses larger client messages before buffering them
         ws_max_size=settings.api.ws_max_message_bytes,
         # compressing every step message once per client costs the shared event loop more
         # than the lab network saves (50 clients: milliseconds per step)
         ws_per_message_deflate=False,
         timeout_graceful_shutdown=10,
-        # bounded connections (issue 16; api/connections.py says what uvicorn lacks): 503
-        # beyond max_connections, closed on accept a little beyond, a request must arrive
-        # whole within request_timeout_s, an idle keep-alive connection closes after 5 s
-        http=guarded_protocol(settings.api.max_connections, settings.api.request_timeout_s),
-        limit_concurrency=settings.api.max_connections,
+        # bounded connections (issues 16, 26; api/connections.py): the guard wraps uvicorn's
+        # own HTTP protocol, so uvicorn's limit_concurrency (whose 503 would meet the hold
+        # too) is not used; an idle keep-alive connection closes after 5 s
+        http=guard.protocol,
+        backlog=LISTEN_BACKLOG,
         timeout_keep_alive=KEEP_ALIVE_S,
     )
 
@@ -102,17 +137,20 @@ async def supervise(
     context: ApiContext,
     notifier: SystemdNotifier,
     device_allowance_s: float = 0.0,
+    stopping: Callable[[], bool] = lambda: False,
+    *,
     banner: Callable[[int], str] | None = None,
 ) -> None:
     """Tell systemd what the service does (issue 10, deploy/thermocomp.service).
 
-    READY=1 only once uvicorn's lifespan has opened the daemon (devices, recording) AND the
-    socket listens (``server.started``); WATCHDOG=1 only while the control loop makes
-    progress (``Daemon.control_loop_alive``), so a hung loop -- or a blocked event loop, on
-    which this task runs too -- gets the service restarted after WatchdogSec; STOPPING=1 as
-    soon as a signal asks the server to exit, before the daemon holds the robot and commits.
-    ``device_allowance_s`` is how long one step may legitimately wait on a device before it
-    fails (a timed-out move is a fault the run reports, not a hung loop).
+    READY=1 only once the daemon is open (devices, recording) AND the socket listens
+    (``server.started``); WATCHDOG=1 only while the control loop makes progress
+    (``Daemon.control_loop_alive``), so a hung loop -- or a blocked event loop, on which this
+    task runs too -- gets the service restarted after WatchdogSec; STOPPING=1 as soon as a
+    signal asks the service to stop (``stopping()``) or the server exits, before the daemon
+    holds the robot and commits. ``device_allowance_s`` is how long one step may
+    legitimately wait on a device before it fails (a timed-out move is a fault the run
+    reports, not a hung loop).
     """
     while not server.started:
         if server.should_exit:
@@ -129,7 +167,7 @@ async def supervise(
     loop = asyncio.get_running_loop()
     next_keepalive = loop.time()
     status = ""
-    while not server.should_exit:
+    while not (server.should_exit or stopping()):
         now = loop.time()
         if interval_s is not None and now >= next_keepalive:
             # half of WatchdogSec without a step beyond the device timeouts (and one step
@@ -151,65 +189,91 @@ async def supervise(
     notifier.stopping()
 
 
-def _bound_port(server: uvicorn.Server) -> int:
-    """The port the server listens on (api.port, or the one chosen for port 0)."""
-    for listener in getattr(server, "servers", ()):
-        for sock in listener.sockets:
-            port: int = sock.getsockname()[1]
-            return port
-    return server.config.port
+#: How often :func:`serve` looks whether uvicorn has started, to take the signals over.
+SIGNAL_TAKEOVER_POLL_S = 0.01
 
 
-class DaemonServer(uvicorn.Server):
-    """uvicorn's server with the shutdown order of a machine that moves (issue 15, point 3).
+class SignalStop:
+    """SIGINT and SIGTERM while the server runs (issue 15, point 3: a machine that moves).
 
     uvicorn alone would keep the daemon driving the robot while HTTP connections drain (up to
-    ``timeout_graceful_shutdown``) and stop it only in the application's lifespan shutdown,
-    which a second Ctrl-C (a forced exit) skips. Here every signal holds the robot at once,
-    the first also ends the run (``stopped``, "daemon shut down", committed), and the
-    connections drain only after that; on a forced exit the lifespan shutdown (devices and
-    database closed) still runs. Signals stay uvicorn's: this only adds to its handler.
+    ``timeout_graceful_shutdown``). Here the first signal holds the robot at once and ends the
+    run (``Daemon.shutdown``: hold first, then ``stopped``, committed), and only then asks
+    uvicorn to exit, which drains the connections; a second signal makes that exit skip the
+    drain (uvicorn's forced exit, like its second Ctrl-C) and holds again; a third exits now.
+
+    Installed once uvicorn has started (:meth:`take_over`: uvicorn installs its own handlers
+    when it begins to serve), again once it has stopped (it restores the ones it found),
+    until the daemon is closed (:meth:`restore`).
     """
 
-    def __init__(self, config: uvicorn.Config, context: ApiContext) -> None:
-        super().__init__(config)
-        self._context = context
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._daemon_stopping: asyncio.Task[None] | None = None
-
-    async def serve(self, sockets: list[socket.socket] | None = None) -> None:
+    def __init__(self, server: uvicorn.Server, daemon: Daemon) -> None:
+        self._server = server
+        self._daemon = daemon
         self._loop = asyncio.get_running_loop()
-        await super().serve(sockets)
+        self._signals = 0
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._stopping: asyncio.Task[None] | None = None
+        self._previous: dict[int, Any] = {}
 
-    async def startup(self, sockets: list[socket.socket] | None = None) -> None:
-        await super().startup(sockets)  # the lifespan: the daemon and its devices are open
-        # Before any step: a full collection of the start-up heap stops the loop 10-15 ms,
-        # the one cause of the fast path's overruns at a 20 ms step (daemon/heap.py).
-        freeze_startup_heap()
+    @property
+    def requested(self) -> bool:
+        return self._signals > 0
 
-    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
-        super().handle_exit(sig, frame)
-        if self._loop is not None:  # a signal handler may only schedule, thread-safely
-            self._loop.call_soon_threadsafe(self._stop_daemon)
+    async def take_over(self) -> None:
+        """Replace uvicorn's signal handlers once it has installed them (it has, once it has
+        started); return without doing so if it exits first."""
+        while not self._server.started:
+            if self._server.should_exit:
+                return
+            await asyncio.sleep(SIGNAL_TAKEOVER_POLL_S)
+        self.install()
 
-    def _stop_daemon(self) -> None:
-        daemon = self._context.service
-        if daemon is None or self._loop is None:
-            return
-        self._loop.create_task(_hold(daemon), name="hold-on-signal")
-        if self._daemon_stopping is None:
-            self._daemon_stopping = self._loop.create_task(daemon.shutdown(), name="daemon-stop")
+    def install(self) -> None:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            previous = signal.signal(signum, self._on_signal)
+            self._previous.setdefault(signum, previous)
 
-    async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
-        self._stop_daemon()  # also when the exit was not a signal
-        if self._daemon_stopping is not None:
-            try:
-                await self._daemon_stopping
-            except Exception:  # the lifespan shutdown below still closes everything
-                logger.exception("stopping the daemon failed")
-        await super().shutdown(sockets)
-        if self.force_exit:  # uvicorn skips the lifespan shutdown on a forced exit
-            await self.lifespan.shutdown()
+    def restore(self) -> None:
+        """Put back the handlers found at the first :meth:`install`."""
+        for signum, previous in self._previous.items():
+            signal.signal(signum, previous)
+        self._previous.clear()
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        # a signal handler runs between two bytecodes of whatever the loop was doing: it may
+        # only schedule, thread-safely
+        self._loop.call_soon_threadsafe(self.stop, signum)
+
+    def stop(self, signum: int) -> None:
+        self._signals += 1
+        logger.info("%s: holding the robot and stopping", signal.Signals(signum).name)
+        self._spawn(_hold(self._daemon), "hold-on-signal")
+        if self._stopping is None:
+            self._stopping = self._spawn(self._stop_daemon(), "daemon-stop")
+        elif self._signals == 2:
+            self._server.force_exit = True  # the exit, once the run has ended, skips the drain
+        else:
+            self._server.should_exit = True
+
+    async def _stop_daemon(self) -> None:
+        try:
+            await self._daemon.shutdown()
+        except Exception:  # the daemon is closed by serve() all the same
+            logger.exception("stopping the daemon failed")
+        finally:
+            self._server.should_exit = True
+
+    def _spawn(self, coroutine: Coroutine[Any, Any, None], name: str) -> asyncio.Task[None]:
+        task = self._loop.create_task(coroutine, name=name)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    async def finished(self) -> None:
+        """Wait for what the signals started (the hold, the run's end)."""
+        while self._tasks:
+            await asyncio.gather(*self._tasks, return_exceptions=True)
 
 
 async def _hold(daemon: Daemon) -> None:
@@ -219,39 +283,68 @@ async def _hold(daemon: Daemon) -> None:
         logger.warning("could not hold the robot on the signal: %s", err)
 
 
+def _bound_port(server: uvicorn.Server) -> int:
+    """The port the server listens on (api.port, or the one chosen for port 0). uvicorn keeps
+    its listeners in ``Server.servers`` once started; should that ever go, api.port is the
+    answer but for port 0 (tests), which then prints 0 rather than failing."""
+    for listener in getattr(server, "servers", ()):
+        for sock in listener.sockets:
+            port: int = sock.getsockname()[1]
+            return port
+    return server.config.port
+
+
 async def serve(
     settings: Settings, notifier: SystemdNotifier, generated_token: str | None = None
 ) -> bool:
-    """Run the server until a signal stops it; True when it had started. Once it serves, the
-    dashboard's address is printed (with ``generated_token`` when the token was made for
-    this loopback server, api/startup.py)."""
-    app = create_app(settings, service_factory=Daemon)
+    """Run the server until a signal stops it; True when it had started. Raises
+    :class:`DaemonStartFailed` when the daemon cannot be opened (logged in one line). Once it
+    serves, the dashboard's address is printed (with ``generated_token`` when the token was
+    made for this loopback server, api/startup.py)."""
+    app = create_app(settings)
     context: ApiContext = app.state.context
-    server = DaemonServer(server_config(settings, app), context)
+    guard = connection_guard(settings, context)
+    server = uvicorn.Server(server_config(settings, app, guard))
     # the longest a step waits on the robot before it fails: a move, then the pose read
     allowance_s = settings.robot.move_timeout_s + settings.robot.command_timeout_s
-    supervisor = asyncio.create_task(
-        supervise(
-            server,
-            context,
-            notifier,
-            allowance_s,
-            banner=lambda port: dashboard_banner(settings, port, generated_token),
-        ),
-        name="systemd",
-    )
-    try:
-        await server.serve()  # uvicorn handles SIGINT/SIGTERM and shuts down cleanly
-    finally:
-        server.should_exit = True  # lets the supervisor send STOPPING=1 if it has not yet
-        await supervisor
+    async with AsyncExitStack() as stack:  # closes the daemon last, whatever happened
+        daemon = await open_service(stack, settings, Daemon)
+        await stack.enter_async_context(serving(context, daemon))
+        # Before any step: a full collection of the start-up heap stops the loop 10-15 ms,
+        # the one cause of the fast path's overruns at a 20 ms step (daemon/heap.py).
+        freeze_startup_heap()
+        signals = SignalStop(server, daemon)
+        takeover = asyncio.create_task(signals.take_over(), name="signals")
+        supervisor = asyncio.create_task(
+            supervise(
+                server,
+                context,
+                notifier,
+                allowance_s,
+                lambda: signals.requested,
+                banner=lambda port: dashboard_banner(settings, port, generated_token),
+            ),
+            name="systemd",
+        )
+        stack.callback(signals.restore)  # after the daemon has closed
+        try:
+            await server.serve()
+        finally:
+            signals.install()  # uvicorn has put back what it found: ours until the end
+            server.should_exit = True  # lets the supervisor send STOPPING=1 if it has not yet
+            takeover.cancel()
+            await asyncio.gather(takeover, supervisor, return_exceptions=True)
+            guard.close()  # connections still without a request: not uvicorn's to close
+            await signals.finished()
+    logger.info("daemon closed: robot held, recording committed, devices released")
     return server.started
 
 
 def _stopped_by_signal(signum: int, frame: FrameType | None) -> None:
-    """Replaces the default SIGTERM action while serving: uvicorn re-raises the signal that
-    stopped it once it has shut down, which would kill the process AFTER the clean shutdown
-    and turn systemd's ordinary stop into a failure (status -15 instead of 0)."""
+    """Replaces the default SIGTERM action while serving: a signal that reaches uvicorn's
+    handler (during its start-up, before :class:`SignalStop` takes over) is re-raised by
+    uvicorn once it has shut down, which would kill the process AFTER the clean shutdown and
+    turn systemd's ordinary stop into a failure (status -15 instead of 0)."""
     logger.info("stopped by %s", signal.Signals(signum).name)
 
 
@@ -278,6 +371,9 @@ def run(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _stopped_by_signal)
     try:
         started = asyncio.run(serve(settings, notifier, generated_token))
+    except DaemonStartFailed:  # logged in one line by api/app.py
+        notifier.status("failed to start: a device")
+        return EXIT_DEVICE
     finally:
         signal.signal(signal.SIGTERM, previous)
     if not started:  # the daemon or the socket could not be opened (logged above)

@@ -271,7 +271,25 @@ class RobotSettings(Section):
         5.0, description="Timeout of one console command."
     )
     move_timeout_s: Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S)] = Field(
-        60.0, description="Timeout of a move and its finish."
+        60.0,
+        description="Longest timeout of a move and its finish (s): each move's own timeout "
+        "follows from its distance and speed (robot.move_margin_s, robot.min_speed_mm_s), "
+        "capped here; a move of unknown length waits this long.",
+    )
+    move_margin_s: Annotated[float, Field(gt=0, le=MAX_TIMEOUT_S)] = Field(
+        3.0,
+        description="A move's timeout beyond its motion (s): settling, the controller's own "
+        "overhead and the replies on the wire. A compensating step of micrometres gets this.",
+    )
+    min_speed_mm_s: Annotated[float, Field(gt=0, le=10_000)] = Field(
+        20.0,
+        description="Slowest tool speed of a move at 100 % speed (mm/s), scaled by the move's "
+        "speed percent (a move of unknown speed: 10 %): a move longer than its distance at "
+        "this speed plus robot.move_margin_s is a stall (issue 26).",
+    )
+    min_rotation_deg_s: Annotated[float, Field(gt=0, le=10_000)] = Field(
+        10.0,
+        description="Slowest tool rotation of a move at 100 % speed (deg/s), as min_speed_mm_s.",
     )
     online: bool = Field(True, description="Use straight-line moves (needs `online on`).")
     application: str = Field("ash", description="Name of the ash application (prompt).")

@@ -46,8 +46,10 @@ class ApiSettings(Section):
     )
     max_connections: Annotated[int, Field(ge=8, le=MAX_CONNECTIONS_LIMIT)] = Field(
         256,
-        description="Connections served at once (HTTP and WebSocket): requests beyond get 503, "
-        "connections beyond this plus a small margin are closed on accept.",
+        description="Connections served at once (HTTP and WebSocket): a new connection's "
+        "first request beyond gets 503, except a request that holds the robot with the control "
+        "token; connections that have sent no whole request are not counted (they are bounded "
+        "apart, the oldest closed first).",
     )
     request_timeout_s: Annotated[float, Field(gt=0, le=300)] = Field(
         5.0,

@@ -29,9 +29,7 @@ from types import TracebackType
 from typing import Any, TypeVar
 
 from config import Settings
-from daemon.run.arm.prepare import ArmServices
 from daemon.run.arm.setup import ArmMeterFactory, ArmSetup, default_arm_meter, default_arm_setup
-from daemon.run.arm.step import ArmRunWork
 from daemon.run.devices_check import DeviceCheck, Devices, check_devices
 from daemon.run.events import (
     ERROR_HISTORY,
@@ -41,19 +39,21 @@ from daemon.run.events import (
     EventBus,
     Subscription,
 )
-from daemon.run.readmodel import RunView
+from daemon.run.kinds import build_kind
+from daemon.run.readmodel import RunReadModel, RunView
 from daemon.run.scheduler import TimingStats
 from daemon.run.sensors import Sensors
+from daemon.run.services import SessionServices
 from daemon.run.session import ResumeRefusedError, RunSession
 from daemon.run.setup import RunParameterError
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters, RunState, RunStateError
-from daemon.run.two_link.step import RunWork
 from daemon.run.unrecorded_end import UnrecordedEnd
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue, ReportStatus
 from drivers.clock import Clock, make_clock
+from drivers.permit import MotionPermit, Ticket
 
 __all__ = [
     "Daemon",
@@ -70,6 +70,10 @@ _T = TypeVar("_T")
 #: written again, until it is (s; daemon/run/unrecorded_end.py).
 UNRECORDED_END_RETRY_S = 2.0
 SHUTDOWN_REASON = "daemon shut down"
+#: At a shutdown, how long the summary of the run that ends may take beyond the step's grace
+#: (s): the run's end is recorded before it, and systemd's TimeoutStopSec is 30 s
+#: (deploy/thermocomp.service), so a long run's summary is given up rather than the end lost.
+SHUTDOWN_SUMMARY_BUDGET_S = 15.0
 HOLD_REASON = "robot held by request"
 
 
@@ -108,12 +112,9 @@ class Daemon:
         self.error_log = ErrorLog(self.bus, ERROR_HISTORY)
         self.timing = TimingStats()
         self._session: RunSession | None = None
-        self._view: RunView | None = None  # the current or last run, as the API sees it
-        self.view_version = 0  # bumped at each new view: caches of the state key on it
+        #: the current or last run as the API sees it, and the control loop's liveness
+        self.read_model = RunReadModel()
         self._requests = asyncio.Lock()  # serialises start/pause/resume/stop
-        self._hold_generation = 0
-        #: monotonic time of the control loop's last sign of life (systemd watchdog, issue 10)
-        self.last_progress_monotonic = time.monotonic()
         self._unrecorded_end = UnrecordedEnd(self._storage, UNRECORDED_END_RETRY_S)
 
     # --- lifecycle ---------------------------------------------------------------------
@@ -162,17 +163,22 @@ class Daemon:
         than once (a second signal): each call holds again and waits for the same ending."""
         if self._devices is None:
             return
-        await self.hold_robot(reason, pause=False)
+        await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
         session = self._session
         if session is None or session.task is None:
             return
         if session.state.is_active:
             session.request_stop(reason)
-        await session.wait_ended(self.settings.scheduler.stop_grace_s)
+        await session.wait_ended(self.settings.scheduler.stop_grace_s, SHUTDOWN_SUMMARY_BUDGET_S)
 
     @property
     def recorder_path(self) -> Path:
         return self._recorder().path
+
+    @property
+    def permit(self) -> MotionPermit:
+        """The robot's permit (drivers/permit.py): the one owner of "may the robot move"."""
+        return self.devices.robot.permit
 
     @property
     def devices(self) -> Devices:
@@ -182,10 +188,17 @@ class Daemon:
 
     # --- commands ----------------------------------------------------------------------
 
-    async def start_run(self, parameters: RunParameters) -> dict[str, Any]:
+    async def start_run(
+        self, parameters: RunParameters, ticket: Ticket | None = None
+    ) -> dict[str, Any]:
         """Start a run; return its info. RunConflictError when one is active,
         RunParameterError when the parameters are not admissible, RecorderError when the
-        database cannot record it (e.g. the last run's end is still unrecorded)."""
+        database cannot record it (e.g. the last run's end is still unrecorded).
+
+        ``ticket``: the robot's permit when the request arrived (api/tickets.py), else now,
+        before anything is awaited: the run may release a hold from before it, never one that
+        comes while it is built (drivers/permit.py)."""
+        ticket = ticket if ticket is not None else self.permit.ticket()
         async with self._requests:
             session = self._session
             if session is not None and session.state.is_active:
@@ -193,38 +206,41 @@ class Daemon:
                     f"run {session.id} is {session.state.value}: one run at a time"
                 )
             await self._unrecorded_end.record(raise_on_failure=True)
-            builder = self._run_builder()
-            work: RunWork | ArmRunWork
-            arm: ArmServices | None = None
-            if parameters.duty_cycle is not None:
-                work, arm = await builder.arm_work(parameters)
-            else:
-                work = await builder.two_link_work(parameters)
+            kind = await build_kind(self._run_builder(), parameters)
             self.timing = TimingStats()
-            services = builder.session_services(
-                arm,
+            services = SessionServices(
+                settings=self.settings,
+                robot=self.devices.robot,
+                recorder=self._recorder(),
+                workers=self._workers_(),
                 bus=self.bus,
+                errors=self.error_log,
                 timing=self.timing,
                 reports=self.reports,
-                hold_generation=lambda: self._hold_generation,
-                on_view=self._set_view,
-                on_progress=self._progress,
-                on_unrecorded_end=self._unrecorded_end.remember,
+                read_model=self.read_model,
+                unrecorded_end=self._unrecorded_end,
             )
-            session = RunSession(work, services)
+            session = RunSession(kind, services, ticket)
             self._session = session
             session.start()
-            logger.info("run %d started: %s", work.run_id, parameters.model_dump())
+            logger.info("run %d (%s) started: %s", kind.run_id, kind.name, parameters.model_dump())
             return session.view().info(self.clock.now())
 
     async def pause(self, reason: str = "paused by request") -> None:
+        """Hold the robot first (before anything is awaited), then pause the run: paused
+        means held (docs/explanation/hold.md). A start still preparing is parked."""
+        self._active_session()  # RunStateError (nothing held) when no run is active
+        await self.hold_robot(reason, pause=False)
         async with self._requests:
             self._active_session().pause(reason)
 
-    async def resume(self) -> None:
-        """Resume a paused or faulted run (ResumeRefusedError when it cannot continue)."""
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        """Resume a paused or faulted run (ResumeRefusedError when it cannot continue).
+        ``ticket``: the permit when the request arrived (else now): a hold that came after it
+        wins."""
+        ticket = ticket if ticket is not None else self.permit.ticket()
         async with self._requests:
-            await self._active_session().resume()
+            await self._active_session().resume(ticket)
 
     async def stop(
         self, reason: str = "stopped by request", final: RunState = RunState.STOPPED
@@ -240,11 +256,14 @@ class Daemon:
         return session.view().info(self.clock.now())
 
     async def hold_robot(self, reason: str = HOLD_REASON, *, pause: bool = True) -> None:
-        """Hold the robot now, whatever the run state, behind nothing: the hold is counted and
-        the driver refuses motion before this awaits anything (drivers.base.Robot.stop); then
-        a running run pauses and a starting one is cancelled."""
-        self._hold_generation += 1
-        await self.devices.robot.stop()
+        """Hold the robot now, whatever the run state, behind nothing: the permit is held
+        (its generation bumped) before this awaits anything, so the driver refuses motion and
+        no request already in flight can release it (drivers/permit.py); then the driver's own
+        hold (the fast path's HOLD frame), then a running run pauses and a starting one is
+        cancelled."""
+        robot = self.devices.robot
+        robot.permit.hold(reason)
+        await robot.stop()
         session = self._session
         if pause and session is not None:
             session.robot_held(reason)
@@ -255,7 +274,9 @@ class Daemon:
         if session is None:
             raise RunStateError("no run")
         if session.task is not None:
-            await asyncio.shield(session.task)
+            # asyncio.wait, not the task itself: a run task ended by cancellation (a step
+            # abandoned to stop) must not raise CancelledError into a caller nobody cancelled
+            await asyncio.wait({session.task})
         return session.view().info(self.clock.now())
 
     async def wait_state(self, *states: RunState) -> RunState:
@@ -300,9 +321,18 @@ class Daemon:
     # --- observation -------------------------------------------------------------------
 
     @property
+    def view_version(self) -> int:
+        """Bumped at each new view: caches of the state key on it."""
+        return self.read_model.version
+
+    @property
+    def last_progress_monotonic(self) -> float:
+        return self.read_model.last_progress_monotonic
+
+    @property
     def run(self) -> RunView | None:
         """The current or last run, as a frozen view (never the live run)."""
-        return self._view
+        return self.read_model.view
 
     @property
     def errors(self) -> deque[ErrorEntry]:
@@ -320,10 +350,10 @@ class Daemon:
     def control_loop_alive(self, max_silence_s: float) -> bool:
         """For the systemd watchdog (issue 10): False when a running run has recorded no step
         for ``max_silence_s`` beyond its step period, i.e. the control loop hangs."""
-        view = self._view
+        view = self.read_model.view
         if view is None or view.state is not RunState.RUNNING:
             return True
-        silence_s = time.monotonic() - self.last_progress_monotonic
+        silence_s = time.monotonic() - self.read_model.last_progress_monotonic
         return silence_s <= max_silence_s + view.parameters.step_s
 
     def recent_errors(self, limit: int = ERROR_HISTORY) -> list[dict[str, Any]]:
@@ -332,7 +362,7 @@ class Daemon:
 
     def snapshot(self) -> dict[str, Any]:
         """Everything the daemon knows now: state, run, last step, devices, timing, errors."""
-        view = self._view
+        view = self.read_model.view
         robot_status = self.devices.robot.status() if self._devices is not None else None
         return {
             "state": RunState.IDLE.value
@@ -370,13 +400,6 @@ class Daemon:
             arm_setup=self._arm_setup,
             arm_meter=self._arm_meter,
         )
-
-    def _set_view(self, view: RunView) -> None:
-        self._view = view
-        self.view_version += 1
-
-    def _progress(self) -> None:
-        self.last_progress_monotonic = time.monotonic()
 
     def _storage(self) -> tuple[Workers, Recorder] | None:
         if self._workers is None or self.recorder is None:

@@ -10,13 +10,14 @@ import enum
 from collections.abc import Coroutine
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Protocol, Self
+from typing import TYPE_CHECKING, Any, Protocol, Self, runtime_checkable
 
 if TYPE_CHECKING:  # annotations only: `thermocomp <command> --help` loads no NumPy
     import numpy as np
     from numpy.typing import NDArray
 
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit, Ticket
 
 Vector3 = tuple[float, float, float]
 
@@ -168,6 +169,9 @@ class LinkState(enum.Enum):
     #: before the next command (Ctrl-E, then a probe line and its prompt)
     RESYNCHRONISING = "resynchronising"
     RECONNECTING = "reconnecting"
+    #: a move's reply did not come within its own timeout (drivers/move_timeout.py): the link is
+    #: reconnecting after a stall (reported by status() until it is connected again)
+    STALLED = "stalled"
     FAULT = "fault"
 
 
@@ -186,6 +190,14 @@ class RobotStatus:
 
 
 class Robot(AsyncDevice, Protocol):
+    """A robot link. Its ``permit`` (drivers/permit.py) is the one owner of "may the robot
+    move": every hold goes through it, every motion command checks it under the driver's lock
+    right before its bytes are written, and only a release with a ticket taken after the latest
+    hold undoes a hold. tests/contract/ checks every driver and fake against this."""
+
+    @property
+    def permit(self) -> MotionPermit: ...
+
     async def teach_goal(self) -> Pose:
         """Remember the current pose as the operational goal (`here opgoal`)."""
         ...
@@ -201,18 +213,19 @@ class Robot(AsyncDevice, Protocol):
     async def actual_pose(self) -> Pose: ...
 
     async def stop(self) -> None:
-        """Hold: from the moment this is called (before its first await) every motion command
-        is refused (MotionHeldError), checked under the driver's lock right before its bytes
-        are written; it returns once no motion command can be written any more. What it does to
-        a motion already under way depends on the link (see the driver). Only resume()
-        releases a hold."""
+        """Hold: from the moment this is called (before its first await) the permit is held
+        and every motion command is refused (MotionHeldError), checked under the driver's lock
+        right before its bytes are written; it returns once no motion command can be written
+        any more. What it does to a motion already under way depends on the link (see the
+        driver). Only resume() releases a hold."""
         ...
 
-    async def resume(self) -> None:
-        """Allow motion again after a hold or a fault (an explicit request, never automatic).
-        Raises GoalLostError when the controller no longer holds the taught goal: teach a new
-        goal (teach_goal(), which moves nothing and is allowed while held) before resuming a
-        new run."""
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        """Allow motion again after a hold or a fault (an explicit request, never automatic),
+        on behalf of the request that took ``ticket`` when it arrived (None: now). A hold that
+        came after the ticket wins: MotionHeldError, the hold stays. Raises GoalLostError when
+        the controller no longer holds the taught goal: teach a new goal (teach_goal(), which
+        moves nothing and is allowed while held) before resuming a new run."""
         ...
 
     def status(self) -> RobotStatus: ...
@@ -267,7 +280,8 @@ class SpeedGoalRobot(GoalRobot, Protocol):
         ...
 
 
-# --- a robot that plays its own program (issue 31) -------------------------------------
+# --- a robot that plays its own program (a UR over RTDE; run kind followed)
+# -------------------------------------
 
 
 @dataclass(frozen=True, slots=True)
@@ -297,14 +311,18 @@ class OffsetRobotState:
     applied_rotation_rad: Vector3
 
 
+@runtime_checkable
 class OffsetRobot(AsyncDevice, Protocol):
     """A robot that runs its own taught program while the daemon corrects it with a 6-DOF
-    offset (issue 31: a UR with controller/ur/thermocomp_offset.script). The hold contract is
-    Robot's: from the moment stop() is called (before its first await) no correction is
-    written and the robot-side program is told to freeze its offset; only an explicit resume()
-    releases it, and a resume racing a later hold never releases that hold; a non-finite or
-    over-limit correction is refused before any byte; after a link fault the correction stays
-    held until resume()."""
+    offset (a UR with controller/ur/thermocomp_offset.script; daemon/run/followed/). The hold
+    contract is Robot's: its ``permit`` (drivers/permit.py) is held by stop() before its first
+    await and the robot-side program is told to freeze its offset; every correction is refused
+    after a hold right before its bytes are written; only a resume() with a ticket newer than
+    the hold releases it; a non-finite or over-limit correction is refused before any byte;
+    after a link fault the correction stays held until resume()."""
+
+    @property
+    def permit(self) -> MotionPermit: ...
 
     async def set_correction(
         self, offset_mm: Vector3, rotation_rad: Vector3 = ZERO_ROTATION
@@ -322,6 +340,6 @@ class OffsetRobot(AsyncDevice, Protocol):
         hold's bytes."""
         ...
 
-    async def resume(self) -> None: ...
+    async def resume(self, ticket: Ticket | None = None) -> None: ...
 
     def status(self) -> RobotStatus: ...

@@ -49,6 +49,23 @@ def require_finite(values: Vector3, what: str, device: str) -> None:
         raise DeviceError(device, f"refused a non-finite {what} {values}")
 
 
+#: The farthest a move may go from its taught goal (mm), checked by every driver before any
+#: byte (issue 26): an A465 reaches 711 mm (thesis 3.2.1), so a target 1 m from a goal is always
+#: a wrong one. The daemon's limits (compensation.max_total_offset_mm, arm.max_translation_mm)
+#: are far tighter; this is the drivers' own last guard.
+MAX_MOVE_OFFSET_MM = 1000.0
+
+
+def require_target(
+    values: Vector3, what: str, device: str, limit_mm: float = MAX_MOVE_OFFSET_MM
+) -> None:
+    """A motion target's offset: finite and within ``limit_mm`` on every axis, else refused
+    (DeviceError) before anything is written."""
+    require_finite(values, what, device)
+    if max(abs(v) for v in values) > limit_mm:
+        raise DeviceError(device, f"refused a {what} {values} beyond {limit_mm:g} mm")
+
+
 def rotation_zyx_deg(rotation_rad: Vector3, device: str) -> Vector3:
     """A rotation vector (rad, base frame: daemon.arm.types.Pose6) as the controller's wshift
     angles z-rot, y-rot, x-rot in degrees (Pose6.zyx_deg, the contract of issue 20). ASSUMED

@@ -8,9 +8,11 @@ capped exponential back-off between attempts (first ``first_backoff_s()``, then 
 RECONNECT_BACKOFF_FACTOR up to ``max_backoff_s()``, the driver's
 ``reconnect_max_backoff_s`` setting). Each attempt runs under the driver's lock when one is
 given (the console: no command interleaves with a reconnection), and only a DeviceError is a
-failed attempt: anything else ends the task (a bug must not loop). What the link does around
-it (states, holding motion until an explicit resume) stays the driver's: ``on_failure`` is
-called after every failed attempt, ``on_success`` once connected.
+failed attempt: anything else ends the task (a bug must not loop), logged with its traceback
+and reported through ``on_fatal`` (the driver's link goes to ``fault``: never ``reconnecting``
+forever; issue 26). What the link does around it (states, holding motion until an explicit
+resume) stays the driver's: ``on_failure`` is called after every failed attempt,
+``on_success`` once connected.
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ class Reconnector:
         before: Callable[[], Awaitable[None]] | None = None,
         on_failure: Callable[[DeviceError], None] | None = None,
         on_success: Callable[[], None] | None = None,
+        on_fatal: Callable[[BaseException], None] | None = None,
         task_name: str = "reconnect",
         sleep: Sleep = asyncio.sleep,
     ) -> None:
@@ -72,6 +75,8 @@ class Reconnector:
         self._before = before
         self._on_failure = on_failure
         self._on_success = on_success
+        self._on_fatal = on_fatal
+        self.fatal: BaseException | None = None  # the unexpected error that ended it
         self._task_name = task_name
         self._sleep = sleep
         self.attempts = 0  # every attempt ever made (status pages show it)
@@ -111,7 +116,19 @@ class Reconnector:
             self.attempts += 1
             try:
                 await self._try()
-            except DeviceError as err:
+            except asyncio.CancelledError:
+                raise
+            except Exception as err:
+                if not isinstance(err, DeviceError):
+                    logger.exception(
+                        "%s: reconnection failed with an unexpected error; the link is failed "
+                        "until it is opened again",
+                        self.device,
+                    )
+                    self.fatal = err
+                    if self._on_fatal is not None:
+                        self._on_fatal(err)
+                    return
                 delay = next(delays)
                 logger.warning(
                     "%s: reconnection attempt %d failed (%s); next in %.2f s",

@@ -41,11 +41,18 @@ async def open_serial(
             rtscts=rtscts,
             xonxoff=False,
             timeout=0,
+            # one owner per port (issue 26): a second process opening it (a check while the
+            # daemon runs) gets one line instead of interleaving with the daemon's commands
+            exclusive=True,
         )
 
     try:
         instance = await asyncio.to_thread(open_blocking)
     except (serial.SerialException, OSError, ValueError) as err:
+        if "exclusively lock" in str(err):
+            raise NotConnectedError(
+                device, f"{port} is in use by another process (it is opened exclusively)"
+            ) from err
         raise NotConnectedError(device, f"cannot open {port}: {err}") from err
     loop = asyncio.get_running_loop()
     reader = asyncio.StreamReader()

@@ -12,7 +12,6 @@ device inside a call (``robot.pose_gate``, ``camera.gate``) to act during a step
 from __future__ import annotations
 
 import asyncio
-import math
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
@@ -20,11 +19,14 @@ from typing import Any, Self
 import numpy as np
 
 from config import Settings
+from daemon.arm.types import Pose6
 from daemon.model import ThermalModel, load_network
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.vision import render_spot
 from drivers.base import (
+    DEFAULT_GOAL,
+    ZERO_ROTATION,
     Frame,
     IrReading,
     LinkState,
@@ -35,7 +37,9 @@ from drivers.base import (
     Vector3,
 )
 from drivers.clock import Clock, make_clock
-from drivers.errors import DeviceError, DeviceTimeoutError, MotionHeldError
+from drivers.errors import DeviceError, DeviceTimeoutError, GoalLostError, NotConnectedError
+from drivers.goals import require_finite, require_target
+from drivers.permit import MotionPermit, Ticket
 
 
 class Gate:
@@ -79,23 +83,43 @@ class FakeBench:
 
 
 class FakeRobot:
-    def __init__(self, bench: FakeBench) -> None:
+    """The one hand-written robot of the daemon's tests: a GoalRobot (named goals, 6-DOF
+    absolute moves) that passes the Robot contract suite (tests/contract/), as the drivers do.
+
+    It locks like drivers/c500c/robot.py: one command at a time under one lock, the permit
+    (drivers/permit.py) checked under the lock right before a motion command is "written"
+    (``commands``), so a move queued behind another command is refused once a hold came. Its
+    test hooks: ``reply_gate`` (the next command waits there, holding the lock: a command in
+    flight), ``pose_gate``/``resume_gate`` (one call waits), ``fail_moves``/``slow_moves``/
+    ``hung_moves`` by move number (a hung move is a stall: DeviceTimeoutError after
+    ``move_timeout_s``, the link ``stalled``), ``drop_link()``, ``lose_goals()``."""
+
+    def __init__(self, bench: FakeBench | None = None, *, move_timeout_s: float = 2.0) -> None:
         self.bench = bench
+        self.permit = MotionPermit()
         self.commands: list[tuple[str, Vector3]] = []  # motion commands "written"
+        self.written: list[tuple[str, Pose6]] = []  # ... as (goal, correction)
+        self.taught: dict[str, Pose] = {}
+        self.goal: str | None = None  # the goal and correction of the last move
+        self.correction = Pose6.zero()
         self.fail_moves: set[int] = set()  # move numbers (0-based) that time out
         self.slow_moves: set[int] = set()  # move numbers that take SLOW_MOVE_S of real time
-        self.hung_moves: set[int] = set()  # move numbers that never finish
+        self.hung_moves: set[int] = set()  # move numbers whose reply never comes (a stall)
         self.hanging = asyncio.Event()
         self.position_errors_um: dict[int, float] = {}  # move number -> x error of that move
-        self.held = False
+        self.move_timeout_s = move_timeout_s
         self.resumes = 0
         self.pose_reads = 0
         self.moves = 0
         self.lock = asyncio.Lock()  # one command at a time, as the real driver
+        self.reply_gate: Gate | None = None  # set: the next command waits there, under the lock
         self.pose_gate: Gate | None = None  # set: actual_pose() waits there, holding the lock
         self.resume_gate: Gate | None = None  # set: resume() waits there before releasing
+        self.move_gate: Gate | None = None  # set: the next move waits there before the lock
         self.resume_error: DeviceError | None = None  # raised by resume()
         self.moves_waiting = 0  # motion calls waiting for the lock
+        self.link = LinkState.CONNECTED
+        self._goals_lost = False
 
     async def __aenter__(self) -> Self:
         return self
@@ -103,76 +127,153 @@ class FakeRobot:
     async def __aexit__(self, *exc: object) -> None:
         return None
 
-    async def teach_goal(self) -> Pose:
+    # --- test hooks ---
+
+    def drop_link(self) -> None:
+        """The link drops: motion held, every command fails until resume() (a reconnection)."""
+        self.link = LinkState.RECONNECTING
+        self.permit.hold("robot: link closed")
+
+    def lose_goals(self) -> None:
+        """The controller restarted: it forgot every taught goal."""
+        self._goals_lost = True
+
+    async def _reply(self) -> None:
+        gate, self.reply_gate = self.reply_gate, None
+        if gate is not None:
+            await gate.pass_through()
+        if self.link is not LinkState.CONNECTED:
+            raise NotConnectedError("robot", f"not connected ({self.link.value})")
+
+    # --- the Robot protocol ---
+
+    async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
         async with self.lock:
-            self.bench.robot_offset_mm = np.zeros(3)
-            return GOAL
+            await self._reply()
+            if self.bench is not None:
+                self.bench.robot_offset_mm = np.zeros(3)
+            self.taught[goal] = self._pose()
+            return self.taught[goal]
+
+    def taught_goals(self) -> dict[str, Pose]:
+        return dict(self.taught)
 
     def _check(self) -> None:
         """Right before a motion command is written, under the lock (drivers/c500c/robot.py)."""
         move = self.moves
         self.moves += 1
-        if self.held:
-            raise MotionHeldError("robot", "motion held")
+        self.permit.require()
         if move in self.fail_moves:
-            self.held = True
+            self.permit.hold(f"no answer to move {move}")
             raise DeviceTimeoutError("robot", f"no answer to move {move}")
 
-    def _result(self, requested: Vector3) -> MoveResult:
-        return MoveResult(requested, requested, self._pose())
+    def _result(self, requested: Vector3, goal: str = DEFAULT_GOAL) -> MoveResult:
+        return MoveResult(requested, requested, self._pose(), goal=goal)
 
     def _pose(self) -> Pose:
-        offset = self.bench.robot_offset_mm
+        offset = np.zeros(3) if self.bench is None else self.bench.robot_offset_mm
         return Pose(GOAL.x + offset[0], GOAL.y + offset[1], GOAL.z + offset[2])
 
-    async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
-        assert all(math.isfinite(v) for v in offset_mm)
+    async def move_absolute(
+        self,
+        offset_mm: Vector3,
+        rotation_rad: Vector3 = ZERO_ROTATION,
+        *,
+        goal: str = DEFAULT_GOAL,
+    ) -> MoveResult:
+        require_target(offset_mm, "motion target", "robot")
+        require_finite(rotation_rad, "rotation", "robot")
+        if goal not in self.taught:
+            raise DeviceError("robot", f"no goal {goal!r} taught: call teach_goal() first")
+        gate, self.move_gate = self.move_gate, None
+        if gate is not None:
+            await gate.pass_through()
         self.moves_waiting += 1
         try:
             await self.lock.acquire()
         finally:
             self.moves_waiting -= 1
         try:
+            try:
+                await self._reply()
+            except asyncio.CancelledError:  # cut on its way to the writer: held, as drivers
+                self.permit.hold("a move was cut before its reply")
+                raise
             if self.moves in self.slow_moves:
                 await asyncio.sleep(SLOW_MOVE_S)
-            if self.moves in self.hung_moves:
-                self.hanging.set()
-                await asyncio.Event().wait()  # a controller that never answers
+            hung = self.moves in self.hung_moves
             self._check()
             self.commands.append(("absolute", offset_mm))
-            error_mm = self.position_errors_um.get(self.moves - 1, 0.0) / 1000.0
-            self.bench.robot_offset_mm = np.asarray(offset_mm) + np.array([error_mm, 0.0, 0.0])
-            return self._result(offset_mm)
+            correction = Pose6(np.asarray(offset_mm, float), np.asarray(rotation_rad, float))
+            self.written.append((goal, correction))
+            if hung:
+                await self._stall()
+            self.goal, self.correction = goal, correction
+            self._moved(np.asarray(offset_mm, float), goal)
+            return self._result(offset_mm, goal)
         finally:
             self.lock.release()
 
+    async def _stall(self) -> None:
+        """The move's reply never comes: a timeout, motion held, the link stalled."""
+        self.hanging.set()
+        try:
+            async with asyncio.timeout(self.move_timeout_s):
+                await asyncio.Event().wait()  # a controller that never answers
+        except TimeoutError as err:
+            self.permit.hold("robot: no answer to the move")
+            self.link = LinkState.STALLED
+            raise DeviceTimeoutError("robot", "no answer to the move") from err
+
+    def _moved(self, offset_mm: np.ndarray, goal: str) -> None:
+        """Where the move took the tool (the two-link bench's truth follows it)."""
+        if self.bench is not None:
+            error_mm = self.position_errors_um.get(self.moves - 1, 0.0) / 1000.0
+            self.bench.robot_offset_mm = offset_mm + np.array([error_mm, 0.0, 0.0])
+
     async def move_incremental(self, delta_mm: Vector3) -> MoveResult:
+        require_target(delta_mm, "motion target", "robot")
         async with self.lock:
+            await self._reply()
             self._check()
             self.commands.append(("incremental", delta_mm))
-            self.bench.robot_offset_mm = self.bench.robot_offset_mm + np.asarray(delta_mm)
+            if self.bench is not None:
+                self.bench.robot_offset_mm = self.bench.robot_offset_mm + np.asarray(delta_mm)
             return self._result(delta_mm)
 
     async def actual_pose(self) -> Pose:
         async with self.lock:
+            await self._reply()
             self.pose_reads += 1
             if self.pose_gate is not None:
                 await self.pose_gate.pass_through()
             return self._pose()
 
-    async def stop(self) -> None:
-        self.held = True  # at once, before any await: no motion command can be written now
+    @property
+    def held(self) -> bool:
+        return self.permit.held
 
-    async def resume(self) -> None:
-        if self.resume_gate is not None:
-            await self.resume_gate.pass_through()
-        if self.resume_error is not None:
-            raise self.resume_error
-        self.resumes += 1
-        self.held = False
+    async def stop(self) -> None:
+        self.permit.hold("stopped by request")  # at once, before any await
+
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        ticket = ticket if ticket is not None else self.permit.ticket()
+        async with self.lock:
+            if self.link is LinkState.RECONNECTING:
+                self.link = LinkState.CONNECTED  # it reconnected meanwhile
+            await self._reply()
+            if self.resume_gate is not None:
+                await self.resume_gate.pass_through()
+            if self.resume_error is not None:
+                raise self.resume_error
+            if self._goals_lost and self.taught:
+                raise GoalLostError("robot", "controller restarted")
+            self.link = LinkState.CONNECTED
+            self.permit.release(ticket)
+            self.resumes += 1
 
     def status(self) -> RobotStatus:
-        return RobotStatus(LinkState.CONNECTED, motion_held=self.held)
+        return RobotStatus(self.link, motion_held=self.permit.held, hold_reason=self.permit.reason)
 
 
 class FakeCamera:

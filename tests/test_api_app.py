@@ -188,10 +188,10 @@ async def test_control_requests_beyond_the_limit_get_429() -> None:
     app = create_app(settings(control_rate_per_s=0.001, control_burst=3))
     transport = httpx.ASGITransport(app=app)
     async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
-        pause = "/api/v1/runs/1/pause"
-        statuses = [(await c.post(pause, headers=bearer(CONTROL))).status_code for _ in range(3)]
+        resume = "/api/v1/runs/1/resume"
+        statuses = [(await c.post(resume, headers=bearer(CONTROL))).status_code for _ in range(3)]
         assert statuses == [503] * 3  # past the limiter: no daemon in this app
-        response = await c.post(pause, headers=bearer(CONTROL))
+        response = await c.post(resume, headers=bearer(CONTROL))
         body = assert_error_shape(response, 429, "rate-limited")
         assert int(response.headers["Retry-After"]) >= 1
         assert body["details"]["retry_after_s"] > 0
@@ -201,6 +201,31 @@ async def test_control_requests_beyond_the_limit_get_429() -> None:
             assert hold.status_code == 503, hold.text  # reached the route: no daemon here
         # reads are not limited
         assert all([(await c.get("/api/v1/health")).status_code == 200 for _ in range(20)])
+
+
+async def test_stopping_and_pausing_are_never_rate_limited_for_the_control_token() -> None:
+    """Issue 26: 50 of 53 dashboard stops got 429 and held nothing. A run's stop and pause
+    hold the robot like /robot/stop: with the control token they always pass the limiter
+    and spend nothing of it; other control requests are still limited; without the control
+    scope they are refused as before."""
+    app = create_app(settings(control_rate_per_s=0.001, control_burst=3))
+    transport = httpx.ASGITransport(app=app)
+    async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
+        resume = "/api/v1/runs/1/resume"
+        spent = [(await c.post(resume, headers=bearer(CONTROL))).status_code for _ in range(4)]
+        assert spent == [503, 503, 503, 429]  # the bucket is empty
+        holding = ["/api/v1/runs/1/stop", "/api/v1/runs/1/pause", "/api/v1/robot/stop"]
+        statuses = [
+            (await c.post(path, headers=bearer(CONTROL))).status_code
+            for _ in range(53)
+            for path in holding
+        ]
+        assert statuses == [503] * len(statuses)  # past the limiter: no daemon in this app
+        assert (await c.post(resume, headers=bearer(CONTROL))).status_code == 429
+        for path in holding:
+            assert (await c.post(path, headers=bearer(READ))).status_code == 403
+            assert (await c.post(path)).status_code == 401
+            assert (await c.get(path, headers=bearer(CONTROL))).status_code == 405
 
 
 async def test_failed_authentications_never_spend_the_tokens_allowance() -> None:
@@ -215,8 +240,8 @@ async def test_failed_authentications_never_spend_the_tokens_allowance() -> None
         assert_error_shape(wrong, 401, "unauthorized")
         hold = await c.post("/api/v1/robot/stop", headers=bearer(CONTROL))
         assert hold.status_code == 503, hold.text  # authenticated, not limited
-        pause = await c.post("/api/v1/runs/1/pause", headers=bearer(CONTROL))
-        assert pause.status_code == 503, pause.text  # the token's own bucket is untouched
+        resume = await c.post("/api/v1/runs/1/resume", headers=bearer(CONTROL))
+        assert resume.status_code == 503, resume.text  # the token's own bucket is untouched
 
 
 @pytest.mark.parametrize("header", ["Basic dXNlcjpwYXNz", "Bearer", "Token abc", "bearer"])

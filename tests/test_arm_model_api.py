@@ -79,6 +79,7 @@ async def test_arm_model_by_name_over_the_api(tmp_path: Path) -> None:
         async with asyncio.timeout(90):
             while True:
                 run = (await client.get(f"/api/v1/runs/{run_id}", headers=HEADERS)).json()
+                # stopping: its end is recorded, its summary being read back
                 if run["state"] not in ("starting", "running", "stopping"):
                     break
                 await asyncio.sleep(0.05)

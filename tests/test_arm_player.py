@@ -21,8 +21,10 @@ from pydantic import ValidationError
 from config import Settings
 from daemon.arm.run import CyclePose, MeasuredPose
 from daemon.arm.types import Pose6
+from daemon.run.arm.kind import ArmKind
 from daemon.run.arm.player import ArmPlayer
 from daemon.run.arm.robot import GoalRobotArm
+from daemon.run.arm.step import ArmRunWork, ArmStepPipeline
 from daemon.run.setup import RunParameterError
 from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
@@ -31,6 +33,7 @@ from drivers.c500c import protocol as proto
 from drivers.clock import VirtualClock, make_clock
 from drivers.errors import DeviceError, MotionHeldError
 from drivers.factory import Devices
+from drivers.permit import MotionPermit, Ticket
 from drivers.sim.emulator import C500CEmulator
 
 WAIT_S = 120.0
@@ -95,8 +98,8 @@ def performed(
 
 def player_of(daemon: Daemon) -> ArmPlayer:
     session = daemon._session  # the run's own player, to see that it stopped
-    assert session is not None and session._services.arm is not None
-    player = session._services.arm.player
+    assert session is not None and isinstance(session.kind, ArmKind)
+    player = session.kind.arm.player
     assert player is not None
     return player
 
@@ -349,10 +352,10 @@ async def test_the_player_sends_each_poses_latest_correction_and_waits_for_the_m
 ):
     clock = VirtualClock()
     robot = FakeRobot(clock)
-    player = ArmPlayer(robot, fake_cycle(), clock, run_id=1)
+    player = ArmPlayer(robot, fake_cycle(), clock, 1, MotionPermit())
     shift = Pose6(np.array([0.01, 0.0, 0.0]), np.zeros(3))
     player.set_corrections({"c": shift})
-    player.start()
+    player.start(player_grant(player))
     arrival = await player.arrive("c")
     arrived_s = clock.now()
     # three 2-s moves and a's 1-s dwell
@@ -371,17 +374,18 @@ async def test_the_player_sends_each_poses_latest_correction_and_waits_for_the_m
 async def test_a_refused_move_ends_the_playing_and_reaches_the_next_arrival() -> None:
     clock = VirtualClock()
     robot = FakeRobot(clock, refuse_at=1)
-    player = ArmPlayer(robot, fake_cycle(), clock, run_id=1)
-    player.start()
+    player = ArmPlayer(robot, fake_cycle(), clock, 1, MotionPermit())
+    player.start(player_grant(player))
     with pytest.raises(MotionHeldError):
         await player.arrive("c")
     assert not player.playing and len(robot.moves) == 1
-    player.start()  # the loop's start: not while an error waits for a step to report it
+    # the loop's start: not while an error waits for a step to report it
+    player.start(player_grant(player))
     with pytest.raises(MotionHeldError):
         await player.arrive("c")
     robot.refuse_at = None
     await player.stop()  # the run faulted
-    player.start()  # a resume: from the pose after the last one reached (b_1)
+    player.start(player_grant(player))  # a resume: from the pose after the last one reached (b_1)
     await player.arrive("c")
     assert [g for g, _, _, _ in robot.moves] == ["a", "b_1", "c"]
     player.release()
@@ -409,8 +413,8 @@ class StuckRobot:
 
 async def test_stop_lets_a_move_end_but_cuts_it_after_the_grace() -> None:
     robot = StuckRobot()
-    player = ArmPlayer(robot, fake_cycle(), VirtualClock(), run_id=1)
-    player.start()
+    player = ArmPlayer(robot, fake_cycle(), VirtualClock(), 1, MotionPermit())
+    player.start(player_grant(player))
     await robot.started.wait()
     await player.stop(grace_s=0.05)
     assert robot.cut and not player.playing
@@ -436,3 +440,51 @@ async def test_a_played_run_with_a_scaled_clock_is_refused(tmp_path: Path) -> No
     async with Daemon(settings, clock=make_clock("virtual")) as daemon:
         with pytest.raises(RunParameterError, match="time_scale 1"):
             await daemon.start_run(RunParameters.from_settings(settings, time_scale=240.0))
+
+
+async def test_the_played_step_limit_is_against_the_correction_sent() -> None:
+    """Issue 26: with two steps between visits of a pose, each accepted change was within
+    the step limit of the last ACCEPTED correction, but the player sent both at once: the
+    robot jumped by their sum. The limit is against the correction the robot was sent."""
+    settings = Settings.model_validate({"arm": {"max_step_translation_mm": 0.2}})
+    clock = VirtualClock()
+    cycle = fake_cycle()
+    player = ArmPlayer(FakeRobot(clock), cycle, clock, 1, MotionPermit())
+    pipeline = ArmStepPipeline(
+        settings,
+        robot=cast(Any, None),
+        meter=cast(Any, None),
+        sensors=cast(Any, None),
+        recorder=cast(Any, None),
+        workers=cast(Any, None),
+        errors=cast(Any, None),
+        clock_now=clock.now,
+        player=player,
+    )
+    work = ArmRunWork(
+        1,
+        RunParameters.from_settings(settings),
+        cast(Any, None),
+        tuple(entry.pose for entry in cycle if entry.measured),
+        cycle=cycle,
+    )
+
+    def errors(x_mm: float) -> dict[str, Pose6]:
+        return {entry.name: Pose6(np.array([x_mm, 0.0, 0.0]), np.zeros(3)) for entry in cycle}
+
+    assert pipeline._hand_to_player(work, player, errors(0.15)) is None  # 0.15 from 0: sent
+    assert not player.sent_correction("c").translation_mm.any()  # ... once the robot goes
+    refused = pipeline._hand_to_player(work, player, errors(0.30))  # 0.15 from the last
+    assert refused is not None and "refused" in refused  # accepted, 0.30 from the last sent
+    assert float(player.correction("c").translation_mm[0]) == pytest.approx(-0.15)
+    player.start(player_grant(player))
+    arrival = await player.arrive("c")  # the robot goes there with -0.15: now it was sent
+    player.release()
+    await player.stop()
+    assert float(arrival.correction.translation_mm[0]) == pytest.approx(-0.15)
+    assert pipeline._hand_to_player(work, player, errors(0.30)) is None  # 0.15 from -0.15
+
+
+def player_grant(player: ArmPlayer) -> Ticket:
+    """A ticket of the player's permit taken now: the playing's request."""
+    return player._permit.ticket()

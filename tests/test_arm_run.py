@@ -31,10 +31,9 @@ from daemon.run.devices_check import Devices
 from daemon.run.states import RunParameters, RunState
 from daemon.run.workers import Workers
 from daemon.service import Daemon, RunParameterError
-from drivers.base import DEFAULT_GOAL, GoalRobot, LinkState, MoveResult, Pose, RobotStatus, Vector3
+from drivers.base import DEFAULT_GOAL, GoalRobot, MoveResult, Pose
 from drivers.clock import Clock, make_clock
-from drivers.errors import MotionHeldError
-from tests.fakes import FakeBench, FakeCamera, FakeIr, Gate, OpenedDevices
+from tests.fakes import FakeBench, FakeCamera, FakeIr, FakeRobot, Gate, OpenedDevices
 
 WAIT_S = 30.0
 STEP_S = 10.0
@@ -126,74 +125,30 @@ class ArmTruth:
         return error_law(name, self.clock.now() - self.start_s, TRUTH_FACTOR)
 
 
-class FakeArmRobot:
-    """A robot driver with named taught goals (drivers/base.py GoalRobot), locking like
-    drivers/c500c/robot.py: the hold is checked under the lock right before a motion command is
-    "written". The tool's position follows the moves; its error is the truth's (FakeMeter)."""
+class FakeArmRobot(FakeRobot):
+    """The suite's one fake robot (tests/fakes.py FakeRobot, which passes the Robot contract
+    suite) with the tool's position following the moves from each taught goal; the tool's
+    error is the truth's (FakeMeter)."""
 
     def __init__(self, truth: ArmTruth) -> None:
+        super().__init__()
         self.truth = truth
-        self.lock = asyncio.Lock()
-        self.held = False
-        self.written: list[tuple[str, Pose6]] = []  # motion commands that reached the writer
-        self.taught: dict[str, Pose] = {}
         self.position = np.array([400.0, 0.0, 300.0])  # where the tool stands at the start
-        self.goal: str | None = None
-        self.correction = Pose6.zero()
-        self.move_gate: Gate | None = None  # set: the next move waits there before the lock
-
-    async def __aenter__(self) -> Self:
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        return None
-
-    def _check(self) -> None:
-        if self.held:
-            raise MotionHeldError("robot", "motion held")
-
-    async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
-        """Moves nothing: the goal is where the robot stands."""
-        async with self.lock:
-            self.taught[goal] = self._pose()
-            self.goal, self.correction = goal, Pose6.zero()
-            return self.taught[goal]
-
-    def taught_goals(self) -> dict[str, Pose]:
-        return dict(self.taught)
 
     def _pose(self) -> Pose:
         return Pose(*self.position)
 
-    async def move_absolute(
-        self, offset_mm: Vector3, rotation_rad: Vector3 = (0.0, 0.0, 0.0), *, goal: str = "opgoal"
-    ) -> MoveResult:
-        gate, self.move_gate = self.move_gate, None
-        if gate is not None:
-            await gate.pass_through()
-        async with self.lock:
-            self._check()
-            correction = pose6(offset_mm, rotation_rad)
-            assert np.all(np.isfinite(correction.as_array()))
-            self.written.append((goal, correction))
-            self.goal, self.correction = goal, correction
-            self.position = np.add(self.taught[goal].position, offset_mm)
-            return MoveResult(offset_mm, offset_mm, self._pose(), goal=goal)
+    def _moved(self, offset_mm: np.ndarray, goal: str) -> None:
+        self.position = np.add(self.taught[goal].position, offset_mm)
+
+    async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
+        """Moves nothing: the goal is where the robot stands."""
+        pose = await super().teach_goal(goal)
+        self.goal, self.correction = goal, Pose6.zero()
+        return pose
 
     async def move_incremental(self, delta_mm: Any) -> MoveResult:
         raise AssertionError("an arm run moves to its named goals only")
-
-    async def actual_pose(self) -> Pose:
-        return Pose(0.0, 0.0, 0.0)
-
-    async def stop(self) -> None:
-        self.held = True  # at once, before any await
-
-    async def resume(self) -> None:
-        self.held = False
-
-    def status(self) -> RobotStatus:
-        return RobotStatus(LinkState.CONNECTED, motion_held=self.held)
 
 
 class FakeMeter:

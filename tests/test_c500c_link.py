@@ -436,7 +436,7 @@ async def test_a_hold_during_resume_is_not_released_by_it(emulator: C500CEmulato
         await emulator.answer_held.wait()  # resume() is checking the console
         await robot.stop()  # a new hold while it does
         emulator.release_answers()
-        with pytest.raises(MotionHeldError, match="while resuming"):
+        with pytest.raises(MotionHeldError, match="held after the request was made"):
             await resuming
         assert robot.status().motion_held
         with pytest.raises(MotionHeldError):

@@ -331,7 +331,9 @@ async def test_a_cancelled_request_never_desynchronises_the_link() -> None:
         await robot.actual_pose()  # after the move's reply has been sent
         assert robot.stray_replies == 1
         assert robot.status().link is LinkState.CONNECTED
-        assert not robot.status().motion_held
+        # a cut move holds until an explicit resume (the Robot contract, tests/contract/): the
+        # caller cannot know how far it got
+        assert robot.status().motion_held
         assert robot.link_history[-1] is LinkState.CONNECTED and len(poses) == 3
 
 
@@ -413,3 +415,21 @@ async def test_stop_with_the_link_down_still_holds_and_returns(
         assert robot.status().motion_held
         with pytest.raises(MotionHeldError):
             await robot.move_absolute((0.001, 0.0, 0.0))
+
+
+async def test_a_hold_during_resume_survives_it(emulator: C500CServerEmulator) -> None:
+    """Issue 26: the fast path's resume() cleared its hold unconditionally, so a hold that
+    came while the resume awaited the program's replies was released by it and the next
+    MOVE_GOAL went out."""
+    async with C500CServerRobot(FAST, port=emulator.device_path) as robot:
+        await robot.teach_goal()
+        await robot.stop()
+        resume = asyncio.create_task(robot.resume())
+        await asyncio.sleep(0)  # the resume runs until it awaits the program's first reply
+        await robot.stop()  # the operator's hold, answered while the resume is under way
+        with pytest.raises(MotionHeldError):
+            await resume
+        assert robot.status().motion_held
+        with pytest.raises(MotionHeldError):
+            await robot.move_absolute((0.001, 0.0, 0.0))
+    assert _motion_requests(emulator) == 0

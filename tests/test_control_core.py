@@ -26,10 +26,10 @@ import pytest
 from api.app import create_app
 from config import Settings
 from daemon import service as service_module
-from daemon.run import session as session_module
 from daemon.run.scheduler import FixedStepTimer
 from daemon.run.states import RunState
 from daemon.run.two_link import step as step_module
+from daemon.run.two_link.kind import TwoLinkKind
 from daemon.run.two_link.step import StepPipeline
 from daemon.service import Daemon, ResumeRefusedError
 from daemon.storage.recorder import Recorder, RecorderError, StepRecord
@@ -242,7 +242,7 @@ async def test_a_hold_while_starting_cancels_the_start(tmp_path: Path) -> None:
     settings = make_settings(tmp_path)
     harness = Harness(settings)
     async with harness.daemon as daemon:
-        harness.robot.held = True  # the previous run ended held: the start resumes it
+        harness.robot.permit.hold("the previous run ended")  # the start resumes it
         gate = Gate()
         harness.robot.resume_gate = gate
         await daemon.start_run(params(settings))
@@ -328,7 +328,7 @@ async def test_an_error_while_ending_still_ends_the_run(
             finish_run(*args)
 
         if part == "summary":
-            monkeypatch.setattr(session_module, "run_summary", _raise)
+            monkeypatch.setattr(TwoLinkKind, "summary", _raise)
         else:
             monkeypatch.setattr(recorder, "finish_run", failing_once)
         info = await daemon.start_run(params(settings, duration_s=5.0))
@@ -574,7 +574,8 @@ def test_a_signal_holds_and_ends_the_run_before_http_drains(
     ended = next(i for i, line in enumerate(lines) if "run 1 stopped (daemon shut down)" in line)
     draining = next(i for i, line in enumerate(lines) if "uvicorn.error: Shutting down" in line)
     assert ended < draining, output  # the run was over before the connections drained
-    assert "Application shutdown complete" in output  # devices and database closed, forced too
+    closed = next(i for i, line in enumerate(lines) if "api.serve: daemon closed" in line)
+    assert draining < closed, output  # devices and database closed after, forced exit too
     with Recorder(tmp_path) as recorder:
         row = recorder.run(1)
     assert row is not None and (row.state, row.reason) == ("stopped", "daemon shut down")
@@ -609,4 +610,4 @@ async def test_a_run_on_the_real_driver_ends_without_a_warning(
     assert final["state"] == "finished"
     assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []
     assert robot["motion_held"] and robot["last_error"] is None
-    assert robot["hold_reason"] == "stopped by request"
+    assert robot["hold_reason"] == "run 1 finished"  # the run's own hold says why (issue 26)

@@ -7,8 +7,12 @@ import itertools
 
 import pytest
 
-from drivers.errors import NotConnectedError
+from config.settings import RobotSettings
+from drivers.base import LinkState
+from drivers.c500c.robot import C500CRobot
+from drivers.errors import DeviceError, NotConnectedError
 from drivers.reconnect import RECONNECT_BACKOFF_FACTOR, Reconnector, backoffs
+from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 
 
 def test_backoff_doubles_from_the_first_wait_up_to_the_cap() -> None:
@@ -106,15 +110,53 @@ async def test_one_reconnection_at_a_time_and_cancel_stops_it() -> None:
     assert link.calls == calls  # nothing runs after the cancel
 
 
-async def test_an_error_that_is_no_device_error_ends_the_task() -> None:
+async def test_an_error_that_is_no_device_error_ends_the_task_and_is_reported(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Issue 26: a bug in an attempt ends the task (no loop), with its traceback in the log,
+    and is reported to the driver (its link goes to ``fault``), never silently."""
+
     async def broken() -> None:
         raise ValueError("a bug, not a link fault")
 
+    fatal: list[BaseException] = []
     reconnector = Reconnector(
-        "device", broken, first_backoff_s=lambda: 0.01, max_backoff_s=lambda: 0.01
+        "device",
+        broken,
+        first_backoff_s=lambda: 0.01,
+        max_backoff_s=lambda: 0.01,
+        on_fatal=fatal.append,
     )
     reconnector.start()
     assert reconnector.task is not None
-    with pytest.raises(ValueError, match="a bug"):
-        await asyncio.wait_for(reconnector.task, 5.0)
+    await asyncio.wait_for(reconnector.task, 5.0)  # ended, not raised into the close
     assert reconnector.attempts == 1
+    assert len(fatal) == 1 and isinstance(fatal[0], ValueError)
+    assert isinstance(reconnector.fatal, ValueError)
+    record = next(r for r in caplog.records if "unexpected error" in r.getMessage())
+    assert record.exc_info is not None  # with its traceback
+    await reconnector.cancel()
+
+
+async def test_a_console_link_whose_reconnection_breaks_says_fault_not_reconnecting() -> None:
+    emulator = C500CEmulator(EmulatorConfig(paced=False, move_ms=1.0))
+    async with (
+        emulator,
+        C500CRobot(
+            RobotSettings(command_timeout_s=1.0), port=emulator.device_path, first_backoff_s=0.01
+        ) as robot,
+    ):
+        await robot.teach_goal()
+
+        async def broken() -> None:
+            raise RuntimeError("a bug in the connect")
+
+        robot._reconnector._attempt = broken  # its reconnection attempts hit a bug
+        emulator.inject("close")
+        with pytest.raises(DeviceError):
+            await robot.actual_pose()
+        async with asyncio.timeout(10.0):
+            while robot.status().link is not LinkState.FAULT:  # noqa: ASYNC110 -- no event
+                await asyncio.sleep(0.01)
+        status = robot.status()
+        assert status.motion_held and "a bug in the connect" in (status.last_error or "")

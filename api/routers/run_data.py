@@ -329,17 +329,23 @@ REPORT_RETRY_AFTER_S = 2
 async def get_report(run_id: RunId, daemon: DaemonDep) -> Response:
     """The analysis report of an ended run (a self-contained HTML page). Only the daemon
     writes reports (storage.report_at_end, or ``thermocomp report RUN``): 202 while it is
-    being written, 404 when there is none; a request never renders one."""
+    being written; a request never renders one. An ended run without one (never written, or
+    its writer killed: a shutdown, a crash) gets it queued now: 202 (issue 26). 404 when
+    writing it failed in this daemon's lifetime."""
     row = await run_row(daemon, run_id)
     status = daemon.report_status(run_id)
+    ended = RunState(row.state).is_terminal
+    html = daemon.reports.html_path(run_id)
+    if ended and status is None and row.step_count > 0 and not html.is_file():
+        daemon.reports.submit(run_id)  # regenerated on demand, by the daemon's one writer
+        status = daemon.report_status(run_id)
     if status in (ReportStatus.QUEUED, ReportStatus.WRITING):
         message = f"the report of run {run_id} is being written; ask again shortly"
         body = {"status": 202, "kind": "pending", "message": message, "details": None}
         headers = {"Retry-After": str(REPORT_RETRY_AFTER_S)}
         return JSONResponse(body, status_code=202, headers=headers)
-    if not RunState(row.state).is_terminal:
+    if not ended:
         raise ApiError(409, "conflict", f"run {run_id} is {row.state}: no report before it ends")
-    html = daemon.reports.html_path(run_id)
     if not html.is_file():
         hint = f"`thermocomp report {run_id}` writes one"
         if status is ReportStatus.FAILED:

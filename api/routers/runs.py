@@ -7,7 +7,7 @@ import logging
 import time
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Body, Query
+from fastapi import APIRouter, Body, Query, Request
 from pydantic import (
     BaseModel,
     Field,
@@ -20,6 +20,7 @@ from api.broadcast import json_safe
 from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
 from api.routers import run_data
+from api.tickets import ticket_of
 from daemon.arm.arm_model import ArmModelNotFoundError, named_arm_model_path
 from daemon.arm.duty import available_duty_cycles
 from daemon.model import available_presets
@@ -203,6 +204,7 @@ def _validation_details(err: ValidationError) -> list[dict[str, str]]:
     },
 )
 async def start_run(
+    http_request: Request,
     daemon: DaemonDep,
     settings: SettingsDep,
     request: Annotated[RunRequest | None, Body()] = None,
@@ -233,7 +235,7 @@ async def start_run(
         summary = "; ".join(f"{d['field']}: {d['message']}" for d in details[:5])
         raise ApiError(422, "validation", f"invalid run parameters: {summary}", details) from err
     try:
-        info = await daemon.start_run(parameters)
+        info = await daemon.start_run(parameters, ticket_of(http_request))
     except RunConflictError as err:
         raise ApiError(409, "conflict", str(err)) from err
     except ValueError as err:  # RunParameterError, and model/network errors of the check
@@ -275,40 +277,55 @@ def _current(daemon: Daemon, run_id: int) -> None:
         raise ApiError(409, "conflict", f"run {run_id} is not the active run")
 
 
-@control_router.post("/runs/{run_id}/pause", responses={404: {"model": ErrorBody}})
-async def pause_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
-    """Pause the active run (the robot stays at its last compensated pose)."""
+async def _require_current(daemon: Daemon, run_id: int) -> None:
+    """409 unless ``run_id`` is the active run, from the daemon's own view: nothing is read
+    from the database before a pause or a stop holds the robot (issue 26); only a run that
+    is not the active one is looked up, for its 404."""
+    run = daemon.run
+    if run is not None and run.id == run_id and run.is_active:
+        return
     await run_data.run_row(daemon, run_id)
     _current(daemon, run_id)
+
+
+async def _answer(daemon: Daemon, run_id: int) -> RunInfo:
+    """The run after a control request, read once the robot is held and the request done."""
+    return run_info(await run_data.run_row(daemon, run_id), daemon)
+
+
+@control_router.post("/runs/{run_id}/pause", responses={404: {"model": ErrorBody}})
+async def pause_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
+    """Pause the active run: the robot is held where it is (its last compensated pose)."""
+    await _require_current(daemon, run_id)
     try:
         await daemon.pause()
     except RunStateError as err:
         raise ApiError(409, "conflict", str(err)) from err
-    return run_info(await run_data.run_row(daemon, run_id), daemon)
+    return await _answer(daemon, run_id)
 
 
 @control_router.post("/runs/{run_id}/resume", responses={404: {"model": ErrorBody}})
-async def resume_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
-    """Resume a paused or faulted run; the actual pose is read back first."""
-    await run_data.run_row(daemon, run_id)
-    _current(daemon, run_id)
+async def resume_run(run_id: RunId, daemon: DaemonDep, request: Request) -> RunInfo:
+    """Resume a paused or faulted run; the actual pose is read back first. A hold that came
+    after this request arrived wins (409)."""
+    ticket = ticket_of(request)  # taken on arrival, before anything is awaited
+    await _require_current(daemon, run_id)
     try:
-        await daemon.resume()
+        await daemon.resume(ticket)
     except RunStateError as err:
         raise ApiError(409, "conflict", str(err)) from err
     except DeviceError as err:
         raise ApiError(503, "device", f"resume failed: {err}") from err
-    return run_info(await run_data.run_row(daemon, run_id), daemon)
+    return await _answer(daemon, run_id)
 
 
 @control_router.post("/runs/{run_id}/stop", responses={404: {"model": ErrorBody}})
 async def stop_run(run_id: RunId, daemon: DaemonDep) -> RunInfo:
-    """Stop the active run: the robot holds where it is, the recording is committed; answers
-    once the run has ended."""
-    await run_data.run_row(daemon, run_id)
-    _current(daemon, run_id)
+    """Stop the active run: the robot holds where it is (first, before any database work),
+    the recording is committed; answers once the run has ended."""
+    await _require_current(daemon, run_id)
     try:
         await daemon.stop()
     except RunStateError as err:
         raise ApiError(409, "conflict", str(err)) from err
-    return run_info(await run_data.run_row(daemon, run_id), daemon)
+    return await _answer(daemon, run_id)

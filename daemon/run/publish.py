@@ -33,7 +33,7 @@ class RunPublisher:
         self._services.bus.publish(
             Event("state", {"run_id": view.id, "state": view.state.value, "reason": view.reason})
         )
-        self._services.on_view(view)
+        self._services.read_model.set_view(view)
 
     def persist_state(self, state: RunState, reason: str | None) -> None:
         """Write the state on the recorder's thread: the writes queue there in the order of the
@@ -81,7 +81,7 @@ class RunPublisher:
                     },
                 )
             )
-        services.on_view(view)
+        services.read_model.set_view(view)
 
     def _state_written(self, write: asyncio.Future[None]) -> None:
         if write.cancelled():

@@ -5,6 +5,7 @@ so a request can neither see a half-made change nor make one."""
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,3 +53,22 @@ class RunView:
             "remaining_s": remaining,
             "summary": self.summary,
         }
+
+
+class RunReadModel:
+    """The one owner of what the API reads of runs: the current or last run's frozen view (and
+    its version, which caches key on), and when the control loop last showed it is alive (the
+    systemd watchdog, issue 10). Sessions replace the view; the daemon and the API read it."""
+
+    def __init__(self) -> None:
+        self.view: RunView | None = None
+        self.version = 0
+        #: monotonic time of the control loop's last sign of life
+        self.last_progress_monotonic = time.monotonic()
+
+    def set_view(self, view: RunView) -> None:
+        self.view = view
+        self.version += 1
+
+    def progress(self) -> None:
+        self.last_progress_monotonic = time.monotonic()

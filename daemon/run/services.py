@@ -1,26 +1,26 @@
-"""What the daemon gives a run's session (daemon/run/session.py): its devices, workers, recorder
-and outlets, the simulated bench it starts, and an arm run's own services (issue 20).
+"""What the daemon gives every run's session (daemon/run/session.py), whatever its kind: the
+robot's hold (its permit), the workers, the recorder and the outlets -- the event bus, the read
+model the API reads, the end kept when it cannot be written. What a kind needs beyond this (its
+devices, step pipeline, bench) is the kind's own (daemon/run/kind.py, built by
+daemon/run/kinds.py). No callbacks into the daemon's façade (issue 27).
 
 Values only: the run's state changes in RunSession alone (issue 15)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 from config import Settings
-from daemon.run.arm.prepare import ArmServices
 from daemon.run.events import ErrorLog, EventBus
-from daemon.run.readmodel import RunView
+from daemon.run.readmodel import RunReadModel
 from daemon.run.scheduler import TimingStats
-from daemon.run.sensors import Sensors
-from daemon.run.two_link.step import StepPipeline
+from daemon.run.unrecorded_end import UnrecordedEnd
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue
-from drivers.base import Robot
-from drivers.clock import Clock
+from drivers.base import RobotStatus
+from drivers.permit import MotionPermit, Ticket
 
 
 class BenchControl(Protocol):
@@ -36,30 +36,30 @@ class BenchControl(Protocol):
     ) -> None: ...
 
 
+class HeldRobot(Protocol):
+    """What the session needs of any robot (drivers/base.py Robot and OffsetRobot): its hold."""
+
+    @property
+    def permit(self) -> MotionPermit: ...
+
+    async def stop(self) -> None: ...
+
+    async def resume(self, ticket: Ticket | None = None) -> None: ...
+
+    def status(self) -> RobotStatus: ...
+
+
 @dataclass(frozen=True, slots=True)
 class SessionServices:
-    """What a run uses of the daemon: its devices, workers, recorder and outlets."""
+    """What every run uses of the daemon."""
 
     settings: Settings
-    clock: Clock
-    robot: Robot
-    sensors: Sensors
-    bench: BenchControl | None
-    pipeline: StepPipeline
+    robot: HeldRobot
     recorder: Recorder
     workers: Workers
     bus: EventBus
     errors: ErrorLog
     timing: TimingStats
     reports: ReportQueue
-    hold_generation: Callable[[], int]  # bumped by every hold, before the robot is held
-    on_view: Callable[[RunView], None]  # the daemon's read model
-    on_progress: Callable[[], None]  # the control loop is alive (systemd watchdog)
-    on_unrecorded_end: Callable[[int, str, dict[str, Any] | None, str | None], None]
-    arm: ArmServices | None = None  # an arm run's robot, tool meter and step (issue 20)
-
-    def arm_services(self) -> ArmServices:
-        """An arm run's services; a RuntimeError for an arm run built without them (a bug)."""
-        if self.arm is None:
-            raise RuntimeError("an arm run without the arm's services")
-        return self.arm
+    read_model: RunReadModel  # the API's view of the run, and the control loop's liveness
+    unrecorded_end: UnrecordedEnd  # an end the disk could not take, written again later

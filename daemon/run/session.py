@@ -1,7 +1,10 @@
 """One run, from its start to its final state: the only code that changes a run's state.
 
-prepare (teach the goal, warm-up, reference frame) -> loop (one step per deadline:
-daemon/run/two_link/step.py) -> finish (hold, summary, final state committed). Operator requests
+prepare (teach, release the robot, warm-up, bench, references) -> loop (one step per
+deadline) -> finish (hold, final state committed, summary). The same for every kind of run: what
+a run does to its devices and data is its kind (daemon/run/kind.py, chosen only by
+daemon/run/kinds.py). The robot may move only while no hold came after the request that last
+allowed this run to (its grant: drivers/permit.py; docs/explanation/hold.md). Operator requests
 (pause, resume, stop, a robot hold) and the steps' verdicts meet here, in :meth:`RunSession._go`,
 against the state machine of daemon/run/states.py: a request is refused with RunStateError when the
 state does not allow it; a verdict that arrives after a request (a step that ends in its own
@@ -11,9 +14,8 @@ and error) and changes nothing, so it never turns a run into ``aborted`` (issue 
 Every state change happens synchronously (no await between check and change), is published at
 once, and is persisted in order on the recorder's one thread (daemon/run/publish.py); the
 run's frozen view (daemon/run/readmodel.py) is replaced at each change for the API to read. What
-the session does to the devices outside a step (teach, the bench's start, the reference frame,
-a played duty cycle) is daemon/run/session_devices.py; what the daemon gives it,
-daemon/run/services.py. Those compute and do I/O; the state changes only here.
+the daemon gives every run is daemon/run/services.py. The kind computes and does I/O; the state
+changes only here.
 """
 
 from __future__ import annotations
@@ -22,27 +24,21 @@ import asyncio
 import functools
 import logging
 import math
+import threading
+from collections.abc import Awaitable, Callable
 from typing import Any
 
-import numpy as np
-
-from daemon.run.arm.prepare import measure_references, reference_frames
-from daemon.run.arm.step import ArmRunWork
+from daemon.run.kind import RunKind
 from daemon.run.publish import RunPublisher
 from daemon.run.readmodel import RunView
 from daemon.run.scheduler import FixedStepTimer
 from daemon.run.services import BenchControl, SessionServices
-from daemon.run.session_devices import (
-    capture_reference,
-    play_duty_cycle,
-    start_bench,
-    teach_goals,
-)
 from daemon.run.states import RunState, RunStateError, StateMachine
-from daemon.run.summary import run_summary
-from daemon.run.two_link.step import RunWork, StepOutcome, Verdict
+from daemon.run.two_link.step import StepOutcome, Verdict
 from daemon.storage.recorder import RecorderError
-from drivers.errors import DeviceError, GoalLostError
+from daemon.storage.series import SummaryAbandonedError
+from drivers.errors import DeviceError, GoalLostError, MotionHeldError
+from drivers.permit import MotionPermit, Ticket
 
 __all__ = ["BenchControl", "ResumeRefusedError", "RunSession", "SessionServices"]
 
@@ -54,9 +50,12 @@ class ResumeRefusedError(RunStateError):
 
 
 class RunSession:
-    def __init__(self, work: RunWork | ArmRunWork, services: SessionServices) -> None:
-        self.work = work
-        self.id = work.run_id
+    """``ticket``: the robot's permit (drivers/permit.py) as it was when the start request
+    arrived: the start may release a hold that came before it, never one that came after."""
+
+    def __init__(self, kind: RunKind, services: SessionServices, ticket: Ticket) -> None:
+        self.kind = kind  # what this run does to its devices and data (daemon/run/kind.py)
+        self.id = kind.run_id
         self._services = services
         self.machine = StateMachine()
         self.timer: FixedStepTimer | None = None
@@ -67,15 +66,23 @@ class RunSession:
         self.stop_requested = False
         self._stop_reason: str | None = None
         self._final_on_stop = RunState.STOPPED
-        self.finishing = False  # holding the robot, writing the summary and the final state
+        self.finishing = False  # holding the robot, writing the final state and the summary
+        self._abandon_summary = threading.Event()  # a shutdown that cannot wait for it
         self._wake = asyncio.Event()
-        self._start_generation = services.hold_generation()
+        #: the ticket of the request that last allowed this run to move (its start, then each
+        #: resume): motion goes on only while no hold came after it
+        self._grant = ticket
+        self._prepared = False  # the start's teaching and references are done
         self._publisher = RunPublisher(self.id, services)
         self.task: asyncio.Task[None] | None = None
 
     @property
     def state(self) -> RunState:
         return self.machine.state
+
+    @property
+    def permit(self) -> MotionPermit:
+        return self._services.robot.permit
 
     def start(self) -> None:
         self._go(RunState.STARTING, None)
@@ -84,23 +91,27 @@ class RunSession:
     # --- operator requests (the daemon serialises them) -----------------------------------
 
     def pause(self, reason: str) -> None:
-        if self.state is not RunState.RUNNING:
+        """Pause (the daemon has held the robot first). A start still preparing is parked:
+        its teaching and references go on after the resume (docs/explanation/hold.md)."""
+        if self.state not in (RunState.RUNNING, RunState.STARTING):
             raise RunStateError(f"run {self.id} is {self.state.value}, not running")
         self._go(RunState.PAUSED, reason)
 
-    async def resume(self) -> None:
-        """Motion is allowed again only on this explicit request; the actual pose is read back
-        first. A hold or stop that arrives meanwhile wins; a controller that lost the taught
-        goal refuses the resume (issue 15, point 9) instead of answering running and then
-        faulting at the next step."""
+    async def resume(self, ticket: Ticket) -> None:
+        """Motion is allowed again only on this explicit request, made when ``ticket`` was
+        taken; the actual pose is read back first. A hold or stop that came after the request
+        wins; a controller that lost the taught goal refuses the resume (issue 15, point 9)
+        instead of answering running and then faulting at the next step."""
         if self.state not in (RunState.PAUSED, RunState.FAULT):
             raise RunStateError(f"run {self.id} is {self.state.value}: nothing to resume")
+        if not self.permit.is_current(ticket):
+            raise RunStateError(f"run {self.id}: the robot was held after the resume was asked")
         robot = self._services.robot
-        generation = self._services.hold_generation()
         try:
-            if self.state is RunState.FAULT or robot.status().motion_held:
-                await robot.resume()
-            pose = await robot.actual_pose()
+            await robot.resume(ticket)  # a pause held it: released only if no hold came since
+            await self.kind.resumed()
+        except MotionHeldError as err:
+            raise RunStateError(f"run {self.id}: a hold came during the resume") from err
         except GoalLostError as err:
             self._services.errors.note(err)
             await self._hold_quietly()
@@ -120,14 +131,12 @@ class RunSession:
         if (
             self.stop_requested
             or self.state not in (RunState.PAUSED, RunState.FAULT)
-            or self._services.hold_generation() != generation
+            or not self.permit.is_current(ticket)
         ):
             await self._hold_quietly()  # re-assert: the resume must not undo a later hold
             raise RunStateError(f"run {self.id}: a hold or stop came during the resume")
-        if isinstance(self.work, RunWork) and self.work.goal is not None:
-            # the incremental mode continues from where the robot really is
-            self.work.last_target_mm = np.subtract(pose.position, self.work.goal.position)
-        self._go(RunState.RUNNING, None)
+        self._grant = ticket
+        self._go(RunState.RUNNING if self._prepared else RunState.STARTING, None)
 
     def request_stop(self, reason: str, final: RunState = RunState.STOPPED) -> None:
         """End the run at the next opportunity (the step in progress may finish)."""
@@ -151,8 +160,10 @@ class RunSession:
         elif self.state is RunState.STARTING:
             self.request_stop(f"start cancelled: {reason}")
 
-    async def wait_ended(self, grace_s: float) -> None:
-        """Wait for the run task; a step stuck on a device is abandoned after ``grace_s``."""
+    async def wait_ended(self, grace_s: float, summary_budget_s: float | None = None) -> None:
+        """Wait for the run task; a step stuck on a device is abandoned after ``grace_s``.
+        ``summary_budget_s`` (a shutdown): the summary of a long run is given up after that
+        much more -- its end is recorded before the summary (see :meth:`_finish`)."""
         task = self.task
         if task is None:
             return
@@ -160,6 +171,11 @@ class RunSession:
         if pending and not self.finishing:
             logger.warning("run %d: abandoning the step in progress to stop", self.id)
             task.cancel()
+        if summary_budget_s is not None:
+            _, pending = await asyncio.wait({task}, timeout=summary_budget_s)
+            if pending:
+                logger.warning("run %d: the summary is given up to shut down in time", self.id)
+                self._abandon_summary.set()
         await asyncio.wait({task})
 
     # --- the run task ------------------------------------------------------------------------
@@ -191,105 +207,113 @@ class RunSession:
             await self._finish(final, reason)
 
     async def _prepare(self) -> bool:
-        """Teach the goal, wait for the camera, take the reference; False if stopped meanwhile."""
+        """Teach the goal, release the robot for this start, teach the poses, wait for the
+        camera, start the bench, take the references; False if stopped meanwhile.
+
+        A pause or a fault while preparing holds the robot and parks the start; the phase it
+        interrupted is done again after the resume, which comes back to ``starting``
+        (docs/explanation/hold.md). Every move of a phase is refused by the driver after a hold
+        (drivers/permit.py), so nothing of the start moves while it is parked."""
         services = self._services
-        robot, parameters = services.robot, self.work.parameters
-        try:
-            # 6.4.3: every offset is from the goal taught here. Taught first, while still held:
-            # a resume checks the goal the controller holds, and after a controller restart the
-            # previous run's goal is gone (docs/reference/c500c-console.md), which must not refuse a
-            # new run.
-            await teach_goals(self.work, services, moving=False)
-            if robot.status().motion_held:
-                # the previous run ended with the robot held; starting is an explicit request to
-                # move again -- unless a hold came after that request (it wins)
-                if self._hold_since_start():
-                    return False
-                await robot.resume()
-            if self._hold_since_start():
+        kind, parameters = self.kind, self.kind.parameters
+        # 6.4.3: every offset is from the goal taught here. Taught first, while still held: a
+        # resume checks the goal the controller holds, and after a controller restart the
+        # previous run's goal is gone (docs/reference/c500c-console.md), which must not refuse a
+        # new run.
+        phases: list[tuple[str, Callable[[], Awaitable[None]]]] = [
+            ("teach the operational goal", functools.partial(kind.teach, moving=False)),
+            ("release the robot", self._release),
+            ("teach the operational goal", functools.partial(kind.teach, moving=True)),
+        ]
+        for name, action in phases:
+            if not await self._phase(name, action):
                 return False
-            await teach_goals(self.work, services, moving=True)
-        except DeviceError as err:
-            services.errors.note(err)
-            await self._fault(f"cannot teach the operational goal: {err}")
-            if not await self._wait_while_held():
-                return False
-            await teach_goals(self.work, services, moving=False)
-            await teach_goals(self.work, services, moving=True)
         if parameters.warmup_wait_s > 0:
             logger.info("run %d: camera warm-up wait %.0f s", self.id, parameters.warmup_wait_s)
-            await self._sleep_until(services.clock.now() + parameters.warmup_wait_s)
-        if self.stop_requested:
+            deadline_s = kind.clock.now() + parameters.warmup_wait_s
+            while kind.clock.now() < deadline_s:
+                if not await self._wait_while_held():
+                    return False
+                await self._sleep_until(deadline_s)
+        if not await self._phase("start the bench", kind.start_bench):
             return False
-        await start_bench(self.work, services)
-        if isinstance(self.work, ArmRunWork):
-            if not await self._arm_references(self.work):
-                return False
-        else:
-            await capture_reference(self.work, services)
-        self.work.start_s = services.clock.now()
+        if not await self._phase("measure the references", kind.references):
+            return False
+        kind.start_s = kind.clock.now()
         self.timer = FixedStepTimer(
-            services.clock,
+            kind.clock,
             parameters.step_s,
-            self.work.start_s,
+            kind.start_s,
             precise_wake_s=services.settings.scheduler.precise_wake_ms / 1000.0,
         )
+        self._prepared = True
         if self.state is RunState.STARTING:
             self._go(RunState.RUNNING, None)
         return not self.stop_requested
 
-    async def _arm_references(self, work: ArmRunWork) -> bool:
-        """Each pose's zero, measured at its taught goal; a robot fault meanwhile parks the
-        run in fault (the poses' first steps are then their references). False if stopped."""
-        try:
-            await measure_references(
-                work,
-                self._services.arm_services(),
-                self._services.errors,
-                reference_frames(self._services.settings),
-            )
-        except DeviceError as err:
-            await self._fault(f"cannot measure the taught poses: {err}")
+    async def _phase(self, name: str, action: Callable[[], Awaitable[None]]) -> bool:
+        """One phase of the start, done again after a pause or a fault that interrupts it;
+        False when the run was stopped instead."""
+        while True:
             if not await self._wait_while_held():
                 return False
-        return not self.stop_requested
+            try:
+                await action()
+            except MotionHeldError as err:
+                if self.stop_requested:
+                    return False
+                if self.state not in (RunState.PAUSED, RunState.FAULT):
+                    await self._fault(f"cannot {name}: {err}")
+                continue  # done again after the resume
+            except DeviceError as err:
+                self._services.errors.note(err)
+                await self._fault(f"cannot {name}: {err}")
+                continue
+            return not self.stop_requested
 
-    def _hold_since_start(self) -> bool:
-        if self._services.hold_generation() == self._start_generation:
-            return False
-        self.request_stop("start cancelled: the robot was held after the start was requested")
-        return True
+    async def _release(self) -> None:
+        """Motion for this run: a hold from before its start request is released (starting is
+        an explicit request to move again); one that came after it never is -- the start is
+        cancelled (issue 15, point 2; issue 26)."""
+        permit = self.permit
+        if not permit.held and permit.is_current(self._grant):
+            return
+        try:
+            await self._services.robot.resume(self._grant)
+        except MotionHeldError:
+            if self.state is RunState.STARTING and not permit.is_current(self._grant):
+                self.request_stop(
+                    "start cancelled: the robot was held after the start was requested"
+                )
+            raise
 
     async def _loop(self) -> None:
         timer = self.timer
         assert timer is not None
-        end_s = self.work.start_s + self.work.parameters.duration_s
+        end_s = self.kind.start_s + self.kind.parameters.duration_s
         while True:
             if self.stop_requested or self.state is RunState.STOPPING:
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
-                await play_duty_cycle(self._services, False)
+                await self.kind.stop_playing(self._services.settings.scheduler.stop_grace_s)
                 if not await self._wait_while_held():
                     return
                 timer.resync()
                 continue
             if timer.next_deadline_s >= end_s - 1e-9:
                 return
-            await play_duty_cycle(self._services, True)
+            self.kind.play(self._grant)  # what moves between the steps, for this grant
             await self._sleep_until(timer.next_wake_s)
             if self.stop_requested or self.state is not RunState.RUNNING:
                 continue  # woken by a request: handled at the top
             # a request that lands during the last yield before the deadline finds this step
             # under way (it completes): skipping it would leave a gap in the step numbers
             tick = await timer.wait()
-            if isinstance(self.work, ArmRunWork):
-                outcome = await self._services.arm_services().pipeline.run(self.work, tick)
-            else:
-                outcome = await self._services.pipeline.run(self.work, tick)
+            outcome = await self.kind.step(tick)
             self._recorded(outcome)
             await self._judge(tick.step, outcome.verdict)
             timer.step_done()
-            self._services.on_progress()
+            self._services.read_model.progress()
 
     def _recorded(self, outcome: StepOutcome) -> None:
         """A committed step: the session's last step, then its publication."""
@@ -306,6 +330,7 @@ class RunSession:
             return
         logger.warning("run %d step %d: %s", self.id, step, verdict.reason)
         if self.state is RunState.RUNNING:
+            await self._hold_quietly(f"run {self.id} paused: {verdict.reason}")  # paused: held
             self._go(RunState.PAUSED, verdict.reason)
         else:
             logger.info(
@@ -319,7 +344,7 @@ class RunSession:
     async def _fault(self, reason: str) -> None:
         """A device fault: hold motion first, then park the run in ``fault`` until an explicit
         resume -- unless a request (pause, stop) came first: then the fault is on the step."""
-        await self._hold_quietly()
+        await self._hold_quietly(f"run {self.id} fault: {reason}")
         if self.state in (RunState.RUNNING, RunState.STARTING):
             self._go(RunState.FAULT, reason)
         else:
@@ -334,7 +359,7 @@ class RunSession:
 
     async def _sleep_until(self, deadline_s: float) -> None:
         """Sleep on the run clock, waking early for any request."""
-        clock = self._services.clock
+        clock = self.kind.clock
         if clock.now() >= deadline_s:
             return
         self._wake.clear()
@@ -351,45 +376,77 @@ class RunSession:
             sleeper.result()  # the clock's own error (a deadline it refuses) is the run's
 
     async def _finish(self, final: RunState, reason: str | None) -> None:
-        """Hold the robot, write the summary and the final state. Never raises: whatever fails
-        here, the run still ends in ``final`` with the daemon idle (issue 15, point 5)."""
+        """Hold the robot, record the final state, then the summary. Never raises: whatever
+        fails here, the run still ends in ``final`` with the daemon idle (issue 15, point 5).
+        The end is written before the summary: a day at a 20 ms step is 4.32 M steps to read
+        back, and a shutdown must end within systemd's TimeoutStopSec (issue 26)."""
         services = self._services
         try:
-            await self._hold_quietly()
-            await play_duty_cycle(self._services, False)
+            # the hold says why when nothing asked for it first (issue 26: not "stopped by
+            # request" after a recording failure aborted the run)
+            await self._hold_quietly(
+                f"run {self.id} {final.value}" + (f": {reason}" if reason else "")
+            )
+            await self.kind.stop_playing(services.settings.scheduler.stop_grace_s)
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
-            try:
-                summarize = functools.partial(
-                    run_summary,
-                    services.recorder,
-                    self.work,
-                    overruns=0 if self.timer is None else self.timer.overruns,
-                    skipped=0 if self.timer is None else self.timer.skipped,
-                    timing=services.timing.summary(fresh=True),
-                )
-                self.summary = await services.workers.db(summarize)
-            except Exception as err:
-                logger.exception("run %d: no summary", self.id)
-                services.errors.note(err, device="storage")
-            try:
-                await services.workers.db(
-                    services.recorder.finish_run, self.id, final.value, self.summary, reason
-                )
-            except Exception as err:
-                logger.error("run %d: cannot record its end yet: %s", self.id, err)
-                services.errors.note(err, device="storage")
-                services.on_unrecorded_end(self.id, final.value, self.summary, reason)
+            recorded = await self._record_end(final, reason)
+            self.summary = await self._summarize()
+            if self.summary is not None:
+                if recorded:
+                    try:
+                        await services.workers.db(
+                            services.recorder.set_summary, self.id, self.summary
+                        )
+                    except Exception as err:
+                        logger.error("run %d: cannot record its summary: %s", self.id, err)
+                        services.errors.note(err, device="storage")
+                else:
+                    services.unrecorded_end.remember(self.id, final.value, self.summary, reason)
         except Exception as err:  # a bug in the ending itself: still end (traceback logged)
             logger.exception("run %d: error while ending", self.id)
             services.errors.note(err, device="daemon")
         finally:
-            self.ended_s = services.clock.now()
+            self.ended_s = self.kind.clock.now()
             self.machine.state, self.machine.reason = final, reason
             self._publisher.state(self.view())
             if services.settings.storage.report_at_end and self.step >= 0:
                 services.reports.submit(self.id)
             logger.info("run %d %s%s", self.id, final.value, f" ({reason})" if reason else "")
+
+    async def _record_end(self, final: RunState, reason: str | None) -> bool:
+        """The final state, committed; False when it could not be (kept and written again by
+        daemon/run/unrecorded_end.py, with the summary once there is one)."""
+        services = self._services
+        try:
+            await services.workers.db(
+                services.recorder.finish_run, self.id, final.value, None, reason
+            )
+        except Exception as err:
+            logger.error("run %d: cannot record its end yet: %s", self.id, err)
+            services.errors.note(err, device="storage")
+            services.unrecorded_end.remember(self.id, final.value, None, reason)
+            return False
+        return True
+
+    async def _summarize(self) -> dict[str, Any] | None:
+        services = self._services
+        summarize = functools.partial(
+            self.kind.summary,
+            services.recorder,
+            overruns=0 if self.timer is None else self.timer.overruns,
+            skipped=0 if self.timer is None else self.timer.skipped,
+            timing=services.timing.summary(fresh=True),
+            abandon=self._abandon_summary,
+        )
+        try:
+            return await services.workers.db(summarize)
+        except SummaryAbandonedError as err:
+            logger.warning("run %d: no summary: %s", self.id, err)
+        except Exception as err:
+            logger.exception("run %d: no summary", self.id)
+            services.errors.note(err, device="storage")
+        return None
 
     # --- the one place a state changes ----------------------------------------------------
 
@@ -398,7 +455,7 @@ class RunSession:
         the new view, and persist it in order on the recorder's thread."""
         self.machine.go(state, reason)
         if state is RunState.RUNNING:
-            self._services.on_progress()  # a pause is not a hung loop
+            self._services.read_model.progress()  # a pause is not a hung loop
         self._wake.set()
         logger.info("run %d: %s%s", self.id, state.value, f" ({reason})" if reason else "")
         self._announce(state, reason)
@@ -417,8 +474,8 @@ class RunSession:
             state=self.state,
             reason=self.machine.reason,
             step=self.step,
-            parameters=self.work.parameters,
-            start_s=self.work.start_s,
+            parameters=self.kind.parameters,
+            start_s=self.kind.start_s,
             end_s=self.ended_s,
             summary=self.summary,
             overruns=0 if self.timer is None else self.timer.overruns,
@@ -426,7 +483,11 @@ class RunSession:
             last_record=self.last_record,
         )
 
-    async def _hold_quietly(self) -> None:
+    async def _hold_quietly(self, reason: str | None = None) -> None:
+        """Hold the robot; ``reason`` is what its status says when this hold is the first
+        since the last release (a request's own hold keeps its reason)."""
+        if reason is not None:
+            self.permit.hold(reason)
         try:
             await self._services.robot.stop()
         except DeviceError as err:

@@ -30,11 +30,8 @@ from daemon.run.arm.setup import (
 )
 from daemon.run.arm.step import ArmRunWork, ArmStepPipeline
 from daemon.run.devices_check import Devices
-from daemon.run.events import ErrorLog, EventBus
-from daemon.run.readmodel import RunView
-from daemon.run.scheduler import TimingStats
+from daemon.run.events import ErrorLog
 from daemon.run.sensors import Sensors
-from daemon.run.services import BenchControl, SessionServices
 from daemon.run.setup import (
     RunParameterError,
     build_model,
@@ -45,11 +42,10 @@ from daemon.run.setup import (
     unit_vector,
 )
 from daemon.run.states import RunParameters
-from daemon.run.two_link.step import RunWork, StepPipeline
+from daemon.run.two_link.step import RunWork
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
-from daemon.storage.report_queue import ReportQueue
-from drivers.clock import Clock, FollowingClock
+from drivers.clock import Clock
 
 logger = logging.getLogger(__name__)
 
@@ -69,6 +65,17 @@ class RunBuilder:
     arm_setup: ArmSetup  # an arm run's model and poses (issue 20)
     arm_meter: ArmMeterFactory  # ... and its tool measurement
 
+    async def create_run(self, parameters: RunParameters, snapshot: dict[str, Any] | None) -> int:
+        """The run's row in the run database, with its parameters, settings and ``snapshot``
+        (its network or arm model); returns its id."""
+        return await self.workers.db(
+            self.recorder.create_run,
+            parameters.model_dump(mode="json"),
+            self.settings.model_dump(mode="json"),
+            snapshot,
+            __version__,
+        )
+
     async def two_link_work(self, parameters: RunParameters) -> RunWork:
         """The two-link bench's run: its model, checked scale, reference run and observer."""
         workers, recorder = self.workers, self.recorder
@@ -82,13 +89,7 @@ class RunBuilder:
         if parameters.prediction == "model+ir":
             reader_regions = tuple(getattr(self.devices().ir, "regions", ()) or ())
             observer = build_observer(self.settings, model, reader_regions)
-        run_id = await workers.db(
-            recorder.create_run,
-            parameters.model_dump(mode="json"),
-            self.settings.model_dump(mode="json"),
-            network_snapshot(network, built.heat_source),
-            __version__,
-        )
+        run_id = await self.create_run(parameters, network_snapshot(network, built.heat_source))
         return RunWork(run_id, parameters, model, direction, observer)
 
     async def arm_work(self, parameters: RunParameters) -> tuple[ArmRunWork, ArmServices]:
@@ -117,16 +118,11 @@ class RunBuilder:
                 "to its measured poses only; run the cycle's motion on the controller"
             )
         await workers.db(check_reference_run, recorder, parameters)
-        run_id = await workers.db(
-            recorder.create_run,
-            parameters.model_dump(mode="json"),
-            self.settings.model_dump(mode="json"),
-            plan.snapshot,
-            __version__,
-        )
+        run_id = await self.create_run(parameters, plan.snapshot)
         sensors = self.sensors
         assert sensors is not None
-        player = ArmPlayer(robot, plan.cycle, self.clock, run_id) if played else None
+        permit = self.devices().robot.permit
+        player = ArmPlayer(robot, plan.cycle, self.clock, run_id, permit) if played else None
         pipeline = ArmStepPipeline(
             self.settings,
             robot=robot,
@@ -142,52 +138,3 @@ class RunBuilder:
             run_id, parameters, plan.predictor, plan.poses, cycle=plan.cycle if played else ()
         )
         return work, ArmServices(robot, meter, pipeline, player)
-
-    def session_services(
-        self,
-        arm: ArmServices | None,
-        *,
-        bus: EventBus,
-        timing: TimingStats,
-        reports: ReportQueue,
-        hold_generation: Callable[[], int],
-        on_view: Callable[[RunView], None],
-        on_progress: Callable[[], None],
-        on_unrecorded_end: Callable[[int, str, dict[str, Any] | None, str | None], None],
-    ) -> SessionServices:
-        """The run's devices, step pipeline and clock, with the daemon's outlets."""
-        devices, sensors = self.devices(), self.sensors
-        assert sensors is not None
-        workers, recorder = self.workers, self.recorder
-        pipeline = StepPipeline(
-            self.settings,
-            robot=devices.robot,
-            sensors=sensors,
-            recorder=recorder,
-            workers=workers,
-            errors=self.errors,
-            clock_now=self.clock.now,
-        )
-        bench: BenchControl | None = getattr(devices, "bench", None)
-        if arm is not None:  # an arm run starts the arm bench's truth, when there is one
-            bench = getattr(devices, "arm_bench", None) or bench
-        return SessionServices(
-            settings=self.settings,
-            # a played duty cycle paces a virtual clock: the run's steps follow it
-            clock=self.clock if arm is None or arm.player is None else FollowingClock(self.clock),
-            robot=devices.robot,
-            sensors=sensors,
-            bench=bench,
-            pipeline=pipeline,
-            recorder=recorder,
-            workers=workers,
-            bus=bus,
-            errors=self.errors,
-            timing=timing,
-            reports=reports,
-            hold_generation=hold_generation,
-            on_view=on_view,
-            on_progress=on_progress,
-            on_unrecorded_end=on_unrecorded_end,
-            arm=arm,
-        )

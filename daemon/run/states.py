@@ -5,6 +5,10 @@ State machine (issue 6, issue 15)::
     idle -> starting -> running <-> paused -> stopping -> finished | stopped | aborted
                            \\-> fault -> (explicit resume) -> running
 
+A start that is paused or faults while it prepares (teaching, references) goes back to
+``starting`` on its resume: the state says the truth while the start's motion is redone
+(issue 26: a pause while preparing holds the robot and parks the start; docs/explanation/hold.md).
+
 Final states say what happened: ``finished`` (ran to its end), ``stopped`` (by request: the
 reason says who asked and why), ``aborted`` (an error), ``fault`` (a device fault the run was
 parked in when it ended), ``interrupted`` (only ever written by the recorder at start-up, for
@@ -73,11 +77,13 @@ _TERMINAL = frozenset({RunState.FINISHED, RunState.STOPPED, RunState.ABORTED, Ru
 TRANSITIONS: dict[RunState, frozenset[RunState]] = {
     RunState.IDLE: frozenset({RunState.STARTING}),
     RunState.STARTING: frozenset(
-        {RunState.RUNNING, RunState.STOPPING, RunState.ABORTED, RunState.FAULT}
+        {RunState.RUNNING, RunState.PAUSED, RunState.STOPPING, RunState.ABORTED, RunState.FAULT}
     ),
     RunState.RUNNING: frozenset({RunState.PAUSED, RunState.STOPPING, RunState.FAULT}),
-    RunState.PAUSED: frozenset({RunState.RUNNING, RunState.STOPPING, RunState.FAULT}),
-    RunState.FAULT: frozenset({RunState.RUNNING, RunState.STOPPING}),
+    RunState.PAUSED: frozenset(
+        {RunState.RUNNING, RunState.STARTING, RunState.STOPPING, RunState.FAULT}
+    ),
+    RunState.FAULT: frozenset({RunState.RUNNING, RunState.STARTING, RunState.STOPPING}),
     RunState.STOPPING: frozenset(
         {RunState.FINISHED, RunState.STOPPED, RunState.ABORTED, RunState.FAULT}
     ),

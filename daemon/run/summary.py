@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
@@ -18,20 +19,19 @@ from daemon.storage.recorder import Recorder
 SUMMARY_COLUMNS = (*NUMERIC_COLUMNS, "run_id", "flags", "error")
 
 
-def run_summary(
+def two_link_summary(
     recorder: Recorder,
-    work: RunWork | ArmRunWork,
+    work: RunWork,
     *,
     overruns: int,
     skipped: int,
     timing: dict[str, Any],
+    abandon: threading.Event | None = None,
 ) -> dict[str, Any]:
-    """Table 6.1's figures and the run's timing. The steps are series streamed from the
-    database, never one record object per step: an hour at a 20 ms step is 180,000 steps
-    (benchmarks/bench_run_end.py)."""
-    if isinstance(work, ArmRunWork):
-        return arm_summary(recorder, work, overruns=overruns, skipped=skipped, timing=timing)
-    steps = recorder.run_steps(work.run_id, SUMMARY_COLUMNS)
+    """Table 6.1's figures and the run's timing. The steps are columns read chunk by chunk
+    (daemon/storage/series.py), never one record object per step: a day at a 20 ms step is
+    4.32 M steps (benchmarks/bench_stop.py). ``abandon`` gives the read up (shutdown)."""
+    steps = recorder.run_series(work.run_id, SUMMARY_COLUMNS, abandon)
     parameters = work.parameters
     reference = work.reference_um.get(0, (None, None))
     # the reduction against a measured uncompensated run, when the run names one (checked
@@ -86,11 +86,12 @@ def arm_summary(
     overruns: int,
     skipped: int,
     timing: dict[str, Any],
+    abandon: threading.Event | None = None,
 ) -> dict[str, Any]:
     """An arm run's summary (issue 20): the 3-D drift and the rotation error (largest, RMS),
     overall and per measured pose, the largest predicted tool error, and the reduction of the
     3-D drift against a named uncompensated run of the same duty cycle."""
-    steps = recorder.run_steps(work.run_id, SUMMARY_COLUMNS)
+    steps = recorder.run_series(work.run_id, SUMMARY_COLUMNS, abandon)
     parameters = work.parameters
     drift_run = parameters.reference_run
     summary: dict[str, Any] = dict(
@@ -132,7 +133,7 @@ def arm_summary(
 def _reference_steps(recorder: Recorder, drift_run: int | None) -> RunSteps | None:
     """The steps of the measured uncompensated run a run's reduction is against, if it names
     one (checked at its start: ended, compensation off, same scale)."""
-    return None if drift_run is None else recorder.run_steps(drift_run, SUMMARY_COLUMNS)
+    return None if drift_run is None else recorder.run_series(drift_run, SUMMARY_COLUMNS)
 
 
 def _timing(timing: dict[str, Any], steps: RunSteps) -> dict[str, Any]:

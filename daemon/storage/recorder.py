@@ -17,25 +17,25 @@ never share a lock).
 from __future__ import annotations
 
 import dataclasses
-import fcntl
 import json
 import logging
-import os
 import sqlite3
 import threading
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from config import redact_secrets
 from daemon.analysis import RunSteps, steps_from_rows
+from daemon.storage.series import read_series
 from daemon.storage.step_record import STEP_COLUMNS, STEPS_SCHEMA, StepRecord, column_type
 from daemon.storage.step_text import CSV_HEADER, step_text
+from daemon.storage.transaction import RecorderError, Transaction, claim
 
 # StepRecord and STEP_COLUMNS (daemon/storage/step_record.py) are what this module records: exported
 # with it
@@ -101,10 +101,6 @@ class RunRow:
         return dataclasses.asdict(self)
 
 
-class RecorderError(Exception):
-    """The recording could not be written or read (disk full, unwritable, corrupt)."""
-
-
 class Recorder:
     """The run database under ``data_dir``. Use as a context manager or call close()."""
 
@@ -116,9 +112,12 @@ class Recorder:
         self._reader_list: list[sqlite3.Connection] = []  # all of them, to close
         self._readers_lock = threading.Lock()  # guards _reader_list and closing
         self._closed = False
+        #: the latest write's failure (disk full, read-only...), None once a write succeeds:
+        #: /health reports it (issue 26)
+        self.write_error: str | None = None
         try:
             self.data_dir.mkdir(parents=True, exist_ok=True)
-            self._owner = _claim(self.data_dir / LOCK_NAME)
+            self._owner = claim(self.data_dir / LOCK_NAME)
         except OSError as err:
             raise RecorderError(f"cannot open the run database {self.path}: {err}") from err
         try:
@@ -295,6 +294,25 @@ class Recorder:
         with self._read() as db:
             return steps_from_rows(step_rows(db, run_id, columns))
 
+    def run_series(
+        self,
+        run_id: int,
+        columns: Sequence[str] = STEP_COLUMNS,
+        abandon: threading.Event | None = None,
+    ) -> RunSteps:
+        """The run's numeric steps, flags and errors as columns read chunk by chunk
+        (daemon/storage/series.py: the end of a 24-h run); ``abandon`` gives the read up."""
+        with self._read() as db:
+            return read_series(db, run_id, columns, abandon)
+
+    def set_summary(self, run_id: int, summary: Mapping[str, Any] | None) -> None:
+        """The summary of a run whose end is recorded already (it is written after it)."""
+        with self._write() as db:
+            db.execute(
+                "UPDATE runs SET summary_json = ? WHERE id = ?",
+                (None if summary is None else _dumps(summary), run_id),
+            )
+
     def arm_poses(self, run_id: int) -> list[str | None]:
         """The measured pose of each step of an arm run, in step order (None: a two-link
         run's step)."""
@@ -339,10 +357,13 @@ class Recorder:
 
     # --- internals -----------------------------------------------------------------------
 
-    def _write(self) -> _Transaction:
-        return _Transaction(self._db, self._lock, self.path)
+    def _write(self) -> Transaction:
+        return Transaction(self._db, self._lock, self.path, on_write=self._note_write)
 
-    def _read(self) -> _Transaction:
+    def _note_write(self, error: str | None) -> None:
+        self.write_error = error
+
+    def _read(self) -> Transaction:
         """A read snapshot on this thread's own query-only connection: in WAL mode a reader
         never blocks the writer nor another reader."""
         reader: tuple[sqlite3.Connection, threading.Lock] | None = getattr(
@@ -358,9 +379,9 @@ class Recorder:
                 except sqlite3.Error as err:
                     raise RecorderError(f"cannot read the run database {self.path}: {err}") from err
                 self._reader_list.append(db)
-            reader = (db, threading.Lock())  # the lock only pairs with _Transaction's API
+            reader = (db, threading.Lock())  # the lock only pairs with Transaction's API
             self._readers.connection = reader
-        return _Transaction(reader[0], reader[1], self.path, begin="BEGIN")
+        return Transaction(reader[0], reader[1], self.path, begin="BEGIN")
 
 
 def read_steps(
@@ -387,72 +408,6 @@ def step_rows(
     )
     for row in cursor:
         yield dict(zip(columns, row, strict=True))
-
-
-def _claim(lock_path: Path) -> IO[str]:
-    """Claim the data directory for this process: two recorders on one database would mark
-    each other's live runs interrupted. The OS drops the claim when the process dies, even by
-    SIGKILL, so a crash never leaves the directory locked."""
-    handle = open(lock_path, "a+", encoding="utf-8")  # noqa: SIM115 -- held until close()
-    try:
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        handle.seek(0)
-        owner = handle.read().strip() or "unknown"
-        handle.close()
-        raise RecorderError(
-            f"{lock_path.parent} is in use by another thermocomp process (pid {owner}): "
-            "while it runs, start and follow runs through its API (POST /api/v1/runs), or "
-            "use another folder (--data-dir, storage.data_dir)"
-        ) from None
-    handle.seek(0)
-    handle.truncate()
-    handle.write(str(os.getpid()))
-    handle.flush()
-    return handle
-
-
-class _Transaction:
-    """One serialised transaction: BEGIN IMMEDIATE (a write) or BEGIN (a read snapshot) ...
-    COMMIT, rolled back on error; SQLite and OS errors become RecorderError."""
-
-    def __init__(
-        self,
-        db: sqlite3.Connection,
-        lock: threading.Lock,
-        path: Path,
-        begin: str = "BEGIN IMMEDIATE",
-    ) -> None:
-        self._db, self._lock, self._path, self._begin = db, lock, path, begin
-
-    def __enter__(self) -> sqlite3.Connection:
-        self._lock.acquire()
-        try:
-            self._db.execute(self._begin)
-        except sqlite3.Error as err:
-            self._lock.release()
-            raise RecorderError(f"{self._path}: {err}") from err
-        return self._db
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, _: object
-    ) -> None:
-        try:
-            if exc_type is None:
-                self._db.execute("COMMIT")
-            else:
-                self._db.execute("ROLLBACK")
-        except sqlite3.Error as err:
-            if exc_type is None:
-                try:
-                    self._db.execute("ROLLBACK")
-                except sqlite3.Error:
-                    logger.debug("rollback after a failed commit failed too", exc_info=True)
-                raise RecorderError(f"{self._path}: cannot commit: {err}") from err
-        finally:
-            self._lock.release()
-        if isinstance(exc, sqlite3.Error):
-            raise RecorderError(f"{self._path}: {exc}") from exc
 
 
 _RUN_SELECT = (

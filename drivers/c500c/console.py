@@ -347,7 +347,11 @@ async def read_reply(
             maybe_question = proto.may_be_question(buffer)
             wait_s = min(remaining, QUESTION_SETTLE_S) if maybe_question else remaining
             try:
-                chunk = await asyncio.wait_for(connection.read_more(), wait_s)
+                # asyncio.timeout, not wait_for: on Python 3.11 wait_for swallows a
+                # cancellation that lands as the read completes (a chunk arriving just then),
+                # and a cancelled command then ran on to its timeout (tests/contract/)
+                async with asyncio.timeout(wait_s):
+                    chunk = await connection.read_more()
             except TimeoutError:
                 if maybe_question and bytes(connection.pending) == buffer:
                     raise QuestionAsked(proto.pending_line(buffer), None) from None

@@ -42,11 +42,11 @@ from drivers.errors import (
     DeviceReportedError,
     DeviceTimeoutError,
     GoalLostError,
-    MotionHeldError,
     NotConnectedError,
     PointOfControlError,
     ProtocolError,
 )
+from drivers.permit import MotionPermit
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.serial_port import open_serial
 
@@ -71,8 +71,11 @@ class ConsoleLink(LinkLifecycle):
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
         transcript: Transcript | None = None,
         prepare: bool = True,
+        permit: MotionPermit | None = None,
     ) -> None:
         self.settings = settings
+        #: the one owner of "may the robot move" (drivers/permit.py): every hold goes through it
+        self.permit = permit if permit is not None else MotionPermit(DEVICE)
         #: create the per-step target and go online at connect; without it (a check that must
         #: change nothing on the controller) motion is held from the start
         self.prepare = prepare
@@ -87,10 +90,8 @@ class ConsoleLink(LinkLifecycle):
         self._link = LinkState.DISCONNECTED
         self.link_history: list[LinkState] = [self._link]  # every state entered, in order
         self._link_changed = asyncio.Event()  # set (and replaced) at every transition
-        self._motion_held = False
-        self._hold_reason: str | None = None
-        self._holds = 0  # every hold ever requested: a resume releases none that came after it
         self._dirty: str | None = None  # why the link must be resynchronised, if it must
+        self._stall: str | None = None  # a move's reply that never came, until reconnected
         self._last_error: str | None = None
         self._arm_power: bool | None = None
         self._homed: bool | None = None
@@ -106,6 +107,7 @@ class ConsoleLink(LinkLifecycle):
             lock=self._lock,
             on_failure=lambda _: self._enter(LinkState.RECONNECTING),
             on_success=lambda: logger.info("reconnected; motion stays held until resume()"),
+            on_fatal=self._reconnection_failed,
             task_name="c500c-reconnect",
         )
         self._resync_task: asyncio.Task[None] | None = None
@@ -174,6 +176,7 @@ class ConsoleLink(LinkLifecycle):
         try:
             await self._handshake(connection)
             self._dirty = None
+            self._stall = None
             self._enter(LinkState.CONNECTED)
             self._connected_event.set()
             # docs/reference/c500c-console.md "Questions": a new name in `set` may ask "-- create
@@ -292,13 +295,11 @@ class ConsoleLink(LinkLifecycle):
 
     def _hold(self, reason: str, *, error: bool = True) -> None:
         """Refuse motion from now on until resume() (synchronous: no await in here)."""
-        if not self._motion_held:
+        if not self.permit.held:
             # a fault's hold is news; a requested one (every run's end) is routine
             log = logger.warning if error else logger.info
             log("robot motion held until resume(): %s", reason)
-            self._hold_reason = reason
-        self._motion_held = True
-        self._holds += 1
+        self.permit.hold(reason)
         if error:
             self._last_error = reason
 
@@ -355,6 +356,19 @@ class ConsoleLink(LinkLifecycle):
         self._enter(LinkState.RECONNECTING)
         self._reconnector.start()
 
+    def _reported_link(self) -> LinkState:
+        """The link state status() reports: ``stalled`` after a move's reply timed out, until
+        the link is connected again."""
+        if self._stall is not None and self._link is not LinkState.CONNECTED:
+            return LinkState.STALLED
+        return self._link
+
+    def _reconnection_failed(self, error: BaseException) -> None:
+        """The reconnection ended on an unexpected error (logged with its traceback): the
+        link is failed, motion held, until it is closed and opened again."""
+        self._hold(f"the reconnection failed: {error!r}")
+        self._enter(LinkState.FAULT)
+
     async def wait_link(self, state: LinkState, timeout_s: float) -> None:
         """Wait until the link is in ``state``; DeviceTimeoutError otherwise."""
         try:
@@ -387,8 +401,8 @@ class ConsoleLink(LinkLifecycle):
         if self._dirty is not None:
             await self._resync(connection)
         motion = any(proto.is_motion_command(command) for command in commands)
-        if motion and self._motion_held:
-            raise MotionHeldError(DEVICE, f"motion is held until resume(): {self._hold_reason}")
+        if motion:
+            self.permit.require()  # the hold contract: here, under the lock, before the write
         data = b"".join(proto.encode_command(command) for command in commands)
         replies: list[list[str]] = []
         current = commands[0]
@@ -410,6 +424,8 @@ class ConsoleLink(LinkLifecycle):
             self._mark_dirty(str(err))
             raise
         except (DeviceTimeoutError, NotConnectedError, ProtocolError) as err:
+            if isinstance(err, DeviceTimeoutError) and (motion or current == "finish"):
+                self._stall = str(err)  # the link reports "stalled" until it reconnects
             self._link_fault(err)
             raise
         for command, lines in zip(commands, replies, strict=True):

@@ -23,8 +23,9 @@ from drivers.c500c.texts import DEVICE  # the fast path's too (c500c_server_prot
 from drivers.errors import DeviceTimeoutError
 from drivers.reconnect import Reconnector
 
-#: The console link's state machine: every allowed transition (drivers.base.LinkState). FAULT is
-#: not used: a broken link is RECONNECTING, a device-reported fault holds motion instead.
+#: The console link's state machine: every allowed transition (drivers.base.LinkState). A broken
+#: link is RECONNECTING, a device-reported fault holds motion instead; FAULT is a reconnection
+#: that ended on an unexpected error (drivers/reconnect.py): failed until the link is reopened.
 TRANSITIONS: dict[LinkState, frozenset[LinkState]] = {
     LinkState.DISCONNECTED: frozenset({LinkState.CONNECTING}),
     LinkState.CONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
@@ -52,7 +53,10 @@ TRANSITIONS: dict[LinkState, frozenset[LinkState]] = {
             LinkState.DISCONNECTED,
         }
     ),
-    LinkState.RECONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
+    LinkState.RECONNECTING: frozenset(
+        {LinkState.CONNECTED, LinkState.DISCONNECTED, LinkState.FAULT}
+    ),
+    LinkState.FAULT: frozenset({LinkState.DISCONNECTED}),
 }
 #: States in which commands can be exchanged.
 LINK_UP = frozenset(
@@ -65,7 +69,10 @@ SERVER_TRANSITIONS: dict[LinkState, frozenset[LinkState]] = {
     LinkState.DISCONNECTED: frozenset({LinkState.CONNECTING}),
     LinkState.CONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
     LinkState.CONNECTED: frozenset({LinkState.RECONNECTING, LinkState.DISCONNECTED}),
-    LinkState.RECONNECTING: frozenset({LinkState.CONNECTED, LinkState.DISCONNECTED}),
+    LinkState.RECONNECTING: frozenset(
+        {LinkState.CONNECTED, LinkState.DISCONNECTED, LinkState.FAULT}
+    ),
+    LinkState.FAULT: frozenset({LinkState.DISCONNECTED}),
 }
 
 

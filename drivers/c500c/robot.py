@@ -25,6 +25,7 @@ explicitly resumes (a robot must never move on its own after something went wron
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections.abc import Coroutine
 from typing import Any
@@ -50,7 +51,9 @@ from drivers.errors import (
     NotConnectedError,
     ProtocolError,
 )
-from drivers.goals import goal_variable, require_finite, rotation_zyx_deg
+from drivers.goals import goal_variable, require_target, rotation_zyx_deg
+from drivers.move_timeout import move_timeout_s
+from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
@@ -78,6 +81,7 @@ class C500CRobot(ConsoleLink):
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
         transcript: Transcript | None = None,
         prepare: bool = True,
+        permit: MotionPermit | None = None,
     ) -> None:
         super().__init__(
             settings,
@@ -85,29 +89,34 @@ class C500CRobot(ConsoleLink):
             first_backoff_s=first_backoff_s,
             transcript=transcript,
             prepare=prepare,
+            permit=permit,
         )
         if not prepare:  # a check: nothing may move (silently: nothing went wrong)
-            self._motion_held, self._hold_reason = True, "connected to check only"
+            self.permit.hold("connected to check only")
         self._goals: dict[str, Pose] = {}  # taught goals by name (drivers/goals.py)
         self._moves = 0  # moves since the goal was taught (robot.readback_every counts them)
         #: the speed (%) last set with `speed N` on this connection; None: unknown (the
         #: controller's own: after a connect, a resume or a restart), so the next is sent
         self._speed_percent: int | None = None
+        #: where the tool was last read or sent (position mm, z-y-x angles deg): a move's
+        #: timeout follows from its distance from here (drivers/move_timeout.py)
+        self._at: tuple[Vector3, Vector3] | None = None
 
     async def _read_pose(self) -> Pose:
         lines = await self._command("w2", self.settings.command_timeout_s)
         try:
-            return proto.parse_world_pose(lines)
+            pose = proto.parse_world_pose(lines)
         except ProtocolError as err:
             self._link_fault(err)
             raise
+        self._at = (pose.position, (pose.z_rot, pose.y_rot, pose.x_rot))
+        return pose
 
     # --- the Robot protocol ---
 
     def _require_motion_allowed(self) -> None:
         """A quick refusal before waiting for the lock; the binding check is in _exchange."""
-        if self._motion_held:
-            raise MotionHeldError(DEVICE, f"motion is held until resume(): {self._hold_reason}")
+        self.permit.require()
         if self._link not in (LinkState.CONNECTED, LinkState.RESYNCHRONISING):
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
 
@@ -141,18 +150,24 @@ class C500CRobot(ConsoleLink):
         *,
         rotation_deg: Vector3 = (0.0, 0.0, 0.0),
         goal: str = DEFAULT_GOAL,
+        target: tuple[Vector3, Vector3] | None = None,
+        speed_percent: int | None = None,
     ) -> MoveResult:
         """The writes of one move (the last is the `w2` read-back when ``expected`` is given);
-        called with the lock held."""
+        called with the lock held. ``target``: where the move goes (position, angles), for its
+        timeout (drivers/move_timeout.py); None: unknown (robot.move_timeout_s)."""
+        finish_timeout_s = (
+            self.settings.move_timeout_s
+            if target is None
+            else move_timeout_s(self.settings, self._at, target, speed_percent)
+        )
         sent0, received0 = self.counters.sent, self.counters.received
         round_trips_s: list[float] = []
         actual: Pose | None = None
         try:
             for write in writes:
                 timeout_s = (
-                    self.settings.move_timeout_s
-                    if "finish" in write
-                    else self.settings.command_timeout_s
+                    finish_timeout_s if "finish" in write else self.settings.command_timeout_s
                 )
                 if write == ("w2",):
                     actual = await self._read_pose()
@@ -164,6 +179,13 @@ class C500CRobot(ConsoleLink):
         except DeviceError as err:
             self._hold(str(err))
             raise
+        except asyncio.CancelledError:
+            # a move cut anywhere in its exchange holds, as on the fast path: the caller
+            # cannot know how far it got (tests/contract/)
+            self._hold("a move was cut before its answer")
+            raise
+        if actual is None and target is not None:
+            self._at = target  # no read-back: where it was sent
         self._moves += 1
         self._arm_power, self._homed = True, True
         self._point_of_control = True
@@ -190,7 +212,7 @@ class C500CRobot(ConsoleLink):
     def _require_finite(values_mm: Vector3) -> None:
         """Last guard before the serial writer (issue 10): the daemon checks every target, but
         a NaN or an infinity would otherwise be printed into a console command as "nan"."""
-        require_finite(values_mm, "motion target", DEVICE)
+        require_target(values_mm, "motion target", DEVICE)
 
     async def move_absolute(
         self,
@@ -242,6 +264,11 @@ class C500CRobot(ConsoleLink):
             else:
                 speed = None
             expected = (taught.x + commanded[0], taught.y + commanded[1], taught.z + commanded[2])
+            turned = (
+                taught.z_rot + rotation_deg[0],
+                taught.y_rot + rotation_deg[1],
+                taught.x_rot + rotation_deg[2],
+            )
             if speed is not None:
                 # unknown until the write is answered: a failed write sends it again
                 self._speed_percent = None
@@ -256,6 +283,8 @@ class C500CRobot(ConsoleLink):
                     proto.round_deg(rotation_deg[2]),
                 ),
                 goal=goal,
+                target=(expected, turned),
+                speed_percent=speed_percent if speed_percent is not None else self._speed_percent,
             )
             if speed_percent is not None:
                 self._speed_percent = speed_percent
@@ -273,7 +302,18 @@ class C500CRobot(ConsoleLink):
             if readback:
                 start = await self._read_pose()
                 expected = (start.x + commanded[0], start.y + commanded[1], start.z + commanded[2])
-            return await self._run_motion(writes, delta_mm, commanded, expected)
+            target = None
+            if self._at is not None:
+                (x, y, z), angles = self._at
+                target = ((x + commanded[0], y + commanded[1], z + commanded[2]), angles)
+            return await self._run_motion(
+                writes,
+                delta_mm,
+                commanded,
+                expected,
+                target=target,
+                speed_percent=self._speed_percent,
+            )
 
     async def read_position_lines(self) -> list[str]:
         """The raw lines of one `w2` read-out (``thermocomp robot check`` prints them)."""
@@ -294,10 +334,10 @@ class C500CRobot(ConsoleLink):
         self._hold("stopped by request", error=False)
         return _done()
 
-    async def resume(self) -> None:
-        """Allow motion again. The link must be up; the console is checked first: every taught
-        goal must still exist on the controller (`set cur = <goal>` each), else GoalLostError
-        and the hold stays; then a `w2`.
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        """Allow motion again, for the request that took ``ticket`` (None: now). The link
+        must be up; the console is checked first: every taught goal must still exist on the
+        controller (`set cur = <goal>` each), else GoalLostError and the hold stays; then a `w2`.
 
         A lost goal is not re-created from the recorded pose: the console's read-out has only
         0.001 mm and no arm configuration (stance) for it, and after a restart the calibration
@@ -305,9 +345,12 @@ class C500CRobot(ConsoleLink):
         one without anything showing it (docs/reference/c500c-console.md); teaching it again is the
         operator's call.
 
-        A hold requested while this runs wins: the hold stays and MotionHeldError is raised."""
-        holds_before = self._holds
+        A hold that came after the ticket wins: the hold stays and MotionHeldError is raised
+        (drivers/permit.py)."""
+        ticket = ticket if ticket is not None else self.permit.ticket()
         async with self._lock:
+            if not self.permit.is_current(ticket):
+                self.permit.release(ticket)  # raises: a hold came after the request
             if self._link not in LINK_UP:
                 raise NotConnectedError(DEVICE, f"cannot resume while {self._link.value}")
             for goal in self._goals:
@@ -320,29 +363,24 @@ class C500CRobot(ConsoleLink):
                     self._last_error = str(err)
                     raise
             await self._read_pose()
-            if self._holds != holds_before:
-                raise MotionHeldError(
-                    DEVICE, f"held again while resuming, stays held: {self._hold_reason}"
-                )
+            self.permit.release(ticket)  # MotionHeldError if a hold came meanwhile
             if self._link is LinkState.AWAITING_POINT_OF_CONTROL:
                 self._enter(LinkState.CONNECTED)
             self._point_of_control = None  # unknown until the next motion command
-            self._motion_held = False
-            self._hold_reason = None
             self._moves = 0  # the first move after a resume reads the pose back
             self._speed_percent = None  # a restarted controller is back at its own speed
         logger.info("robot motion resumed")
 
     def status(self) -> RobotStatus:
         return RobotStatus(
-            link=self._link,
+            link=self._reported_link(),
             arm_power=self._arm_power,
             homed=self._homed,
             online=self._online,
             point_of_control=self._point_of_control,
-            motion_held=self._motion_held,
+            motion_held=self.permit.held,
             last_error=self._last_error,
-            hold_reason=self._hold_reason if self._motion_held else None,
+            hold_reason=self.permit.reason,
             extra={
                 "port": self.port,
                 "application": self.settings.application,

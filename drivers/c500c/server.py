@@ -37,11 +37,16 @@ from drivers.errors import (
     PointOfControlError,
     ProtocolError,
 )
-from drivers.goals import check_goal_name, require_finite, rotation_zyx_deg
+from drivers.goals import MAX_MOVE_OFFSET_MM, check_goal_name, require_target, rotation_zyx_deg
+from drivers.move_timeout import move_timeout_s
+from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S
 
 logger = logging.getLogger(__name__)
 
+#: The farthest offset a MOVE frame carries (mm): the drivers' bound, or the int32 of 0.1 um
+#: counts (controller/PROTOCOL.md), whichever is smaller.
+MAX_FRAME_OFFSET_MM = min(MAX_MOVE_OFFSET_MM, (2**31 - 1) / proto.COUNTS_PER_MM)
 #: Catalogue 044 (docs/reference/c500c-console.md); the console's table of texts may not carry it.
 HALT_TEXT = "Halt() command invoked"
 
@@ -67,16 +72,22 @@ class C500CServerRobot(ServerLink):
         *,
         port: str | None = None,
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
+        permit: MotionPermit | None = None,
     ) -> None:
-        super().__init__(settings, port=port, first_backoff_s=first_backoff_s)
+        super().__init__(settings, port=port, first_backoff_s=first_backoff_s, permit=permit)
         self._motion_lock = asyncio.Lock()  # one motion at a time (the program refuses two)
         # taught goals by name, each with its index in the program (the default goal is 0)
         self._goals: dict[str, tuple[int, Pose]] = {}
         self._arm_power: bool | None = None
         self._homed: bool | None = None
+        #: where the tool was last read (position mm, z-y-x angles deg): a move's timeout
+        #: follows from its distance from here (drivers/move_timeout.py)
+        self._at: tuple[Vector3, Vector3] | None = None
 
     def _check(self, reply: proto.Reply, *, motion: bool) -> proto.Reply:
         """Raise the controller's error, if any (catalogue numbers passed through)."""
+        pose = reply.pose
+        self._at = ((pose[0], pose[1], pose[2]), (pose[3], pose[4], pose[5]))
         if reply.ok:
             if motion:
                 self._arm_power, self._homed = True, True
@@ -140,10 +151,16 @@ class C500CServerRobot(ServerLink):
     ) -> MoveResult:
         """One motion frame and its reply; ``exchanges_before``: plain requests this step
         made first (counted in the step's bytes: other traffic such as heartbeats is not)."""
-        require_finite(offset, "motion target", DEVICE)
+        require_target(offset, "motion target", DEVICE, MAX_FRAME_OFFSET_MM)
         self._require_motion_allowed()
         offset6 = proto.quantise((*offset, *rotation_deg))
         commanded = (offset6[0], offset6[1], offset6[2])
+        base = expected_from
+        target = (
+            (base.x + offset6[0], base.y + offset6[1], base.z + offset6[2]),
+            (base.z_rot + offset6[3], base.y_rot + offset6[4], base.x_rot + offset6[5]),
+        )
+        timeout_s = move_timeout_s(self.settings, self._at, target)  # its frame has no speed
         async with self._motion_lock:
             started = time.perf_counter()
             try:
@@ -151,13 +168,18 @@ class C500CServerRobot(ServerLink):
                     await self._request(
                         request_type,
                         offset6,
-                        timeout_s=self.settings.move_timeout_s,
+                        timeout_s=timeout_s,
                         goal=goal_index,
                     ),
                     motion=True,
                 )
             except DeviceError as err:
                 self._hold(str(err))
+                raise
+            except asyncio.CancelledError:
+                # the frame may be on the wire: the program may move; hold until a resume
+                # (the console driver holds a cut move likewise; tests/contract/)
+                self._hold("a move was cut before its reply")
                 raise
             round_trip_s = time.perf_counter() - started
         actual = _pose(reply.pose)
@@ -193,7 +215,7 @@ class C500CServerRobot(ServerLink):
         values (x, y, z mm; z-rot, y-rot, x-rot degrees: ``rotation_rad``, a rotation vector in
         the base frame, as its z-y-x angles, drivers/goals.py), moves, waits for the end of the
         motion and answers the actual pose. The read-back is checked on the position."""
-        require_finite(offset_mm, "motion target", DEVICE)
+        require_target(offset_mm, "motion target", DEVICE, MAX_FRAME_OFFSET_MM)
         rotation_deg = rotation_zyx_deg(rotation_rad, DEVICE)
         check_goal_name(goal, DEVICE)
         taught = self._goals.get(goal)
@@ -237,9 +259,13 @@ class C500CServerRobot(ServerLink):
         except DeviceError as err:
             logger.warning("HOLD not acknowledged (%s); the program's silence timeout halts", err)
 
-    async def resume(self) -> None:
+    async def resume(self, ticket: Ticket | None = None) -> None:
         """Allow motion again: the link must be up and the program must still hold the goal
-        taught (it forgets it when restarted); then RELEASE."""
+        taught (it forgets it when restarted); then RELEASE. A hold that comes while this runs
+        wins: MotionHeldError, and the hold stays: RELEASE is not written for a ticket older
+        than the latest hold (checked under the write lock), and a HOLD that comes after it is
+        written after it (drivers/permit.py)."""
+        ticket = ticket if ticket is not None else self.permit.ticket()
         if self._link is not LinkState.CONNECTED:
             raise NotConnectedError(DEVICE, f"cannot resume while {self._link.value}")
         reply = self._check(
@@ -252,25 +278,26 @@ class C500CServerRobot(ServerLink):
             raise GoalLostError(DEVICE, "program restarted?")
         self._check(
             await self._request(
-                proto.RequestType.RELEASE, timeout_s=self.settings.command_timeout_s
+                proto.RequestType.RELEASE,
+                timeout_s=self.settings.command_timeout_s,
+                ticket=ticket,
             ),
             motion=False,
         )
-        self._motion_held = False
-        self._hold_reason = None
+        self.permit.release(ticket)  # MotionHeldError if a hold came meanwhile
         logger.info("robot motion resumed")
 
     def status(self) -> RobotStatus:
         flags = self._flags
         return RobotStatus(
-            link=self._link,
+            link=self._reported_link(),
             arm_power=self._arm_power,
             homed=self._homed,
             online=self.settings.online,
             point_of_control=None if flags is None else bool(flags & proto.Flag.POINT_OF_CONTROL),
-            motion_held=self._motion_held,
+            motion_held=self.permit.held,
             last_error=self._last_error,
-            hold_reason=self._hold_reason if self._motion_held else None,
+            hold_reason=self.permit.reason,
             extra={
                 "port": self.port,
                 "program": "thermocomp_server",

@@ -33,10 +33,10 @@ from drivers.c500c.link_states import LinkLifecycle
 from drivers.errors import (
     DeviceError,
     DeviceTimeoutError,
-    MotionHeldError,
     NotConnectedError,
     ProtocolError,
 )
+from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.serial_port import open_serial
 
@@ -78,8 +78,11 @@ class ServerLink(LinkLifecycle):
         *,
         port: str | None = None,
         first_backoff_s: float = RECONNECT_FIRST_BACKOFF_S,
+        permit: MotionPermit | None = None,
     ) -> None:
         self.settings = settings
+        #: the one owner of "may the robot move" (drivers/permit.py): every hold goes through it
+        self.permit = permit if permit is not None else MotionPermit(DEVICE)
         self.port = port if port is not None else settings.server_port
         self.first_backoff_s = first_backoff_s
         self._connection: _Connection | None = None
@@ -90,7 +93,6 @@ class ServerLink(LinkLifecycle):
         self._sequence = itertools.count()
         self._link = LinkState.DISCONNECTED
         self.link_history: list[LinkState] = [self._link]
-        self._motion_held = False
         self._last_error: str | None = None
         self._flags: proto.Flag | None = None  # of the latest reply
         self._reconnector = Reconnector(  # drivers/reconnect.py, as the console driver's
@@ -100,6 +102,7 @@ class ServerLink(LinkLifecycle):
             max_backoff_s=lambda: self.settings.reconnect_max_backoff_s,
             on_failure=lambda _: self._enter(LinkState.RECONNECTING),
             on_success=lambda: logger.info("reconnected; motion stays held until resume()"),
+            on_fatal=self._reconnection_failed,
             task_name="c500c-server-reconnect",
         )
         self._heartbeat_task: asyncio.Task[None] | None = None
@@ -107,10 +110,10 @@ class ServerLink(LinkLifecycle):
         self._last_write = 0.0  # loop time of the latest frame written
         self._bytes_sent = 0
         self._bytes_received = 0
-        self._hold_reason: str | None = None  # why motion is held (a request is no error)
         self.heartbeats = 0
         self.stray_replies = 0  # late replies of cancelled requests or an old link, dropped
         self._synchronised = False
+        self._stall: str | None = None  # a move's reply that never came, until reconnected
 
     # --- lifecycle ---
 
@@ -181,6 +184,7 @@ class ServerLink(LinkLifecycle):
             self._drop_connection(NotConnectedError(DEVICE, "handshake failed"))
             raise
         self._enter(LinkState.CONNECTED)
+        self._stall = None
         self._connected_event.set()
         logger.info(
             "connected to the C500C server program on %s (flags %s)", self.port, reply.flags
@@ -262,7 +266,7 @@ class ServerLink(LinkLifecycle):
 
     def _note_flags(self, flags: proto.Flag) -> None:
         self._flags = flags
-        if flags & proto.Flag.HELD and not self._motion_held:
+        if flags & proto.Flag.HELD and not self.permit.held:
             reason = "host silent" if flags & proto.Flag.SILENCE_HALTED else "hold"
             self._hold(f"the controller program is holding motion ({reason})")
 
@@ -271,11 +275,10 @@ class ServerLink(LinkLifecycle):
     def _hold(self, reason: str, *, error: bool = True) -> None:
         """Refuse motion from now on until resume() (synchronous). A requested hold (every
         run's end) is routine: logged at INFO, and not an error in ``last_error``."""
-        if not self._motion_held:
+        if not self.permit.held:
             log = logger.warning if error else logger.info
             log("robot motion held until resume(): %s", reason)
-            self._hold_reason = reason
-        self._motion_held = True
+        self.permit.hold(reason)
         if error:
             self._last_error = reason
 
@@ -305,6 +308,7 @@ class ServerLink(LinkLifecycle):
         timeout_s: float,
         handshake: bool = False,
         goal: int = 0,
+        ticket: Ticket | None = None,
     ) -> proto.Reply:
         """Write one request and await its reply (other requests may be outstanding). A timeout
         or a garbled link is a link fault (the handshake's failure is its caller's). A cancelled
@@ -324,6 +328,9 @@ class ServerLink(LinkLifecycle):
                 if request_type in _MOTION:
                     # The hold contract: checked under the lock, immediately before the write.
                     self._require_motion_allowed()
+                if ticket is not None and not self.permit.is_current(ticket):
+                    # a RELEASE for a request older than the latest hold is never written
+                    self.permit.release(ticket)  # raises MotionHeldError
                 if self._connection is not connection:
                     raise NotConnectedError(DEVICE, f"link lost on {self.port}")
                 self._pending[sequence] = (request_type, future)
@@ -339,6 +346,8 @@ class ServerLink(LinkLifecycle):
                     DEVICE, f"no reply {timeout_s:g} s after {request_type.name} #{sequence}"
                 )
                 if not handshake:
+                    if request_type in _MOTION:
+                        self._stall = str(error)  # reported "stalled" until reconnected
                     self._link_fault(error)
                 raise error from err
         except asyncio.CancelledError:
@@ -350,11 +359,20 @@ class ServerLink(LinkLifecycle):
         finally:
             self._pending.pop(sequence, None)
 
+    def _reconnection_failed(self, error: BaseException) -> None:
+        """The reconnection ended on an unexpected error (logged with its traceback): the
+        link is failed, motion held, until it is closed and opened again."""
+        self._hold(f"the reconnection failed: {error!r}")
+        self._enter(LinkState.FAULT)
+
+    def _reported_link(self) -> LinkState:
+        """``stalled`` after a move's reply timed out, until connected again."""
+        if self._stall is not None and self._link is not LinkState.CONNECTED:
+            return LinkState.STALLED
+        return self._link
+
     def _require_motion_allowed(self) -> None:
-        if self._motion_held:
-            raise MotionHeldError(
-                DEVICE, f"motion is held after a fault until resume(): {self._last_error}"
-            )
+        self.permit.require()
         if self._link is not LinkState.CONNECTED:
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
 

@@ -161,6 +161,7 @@ class GenICamTransport:
             wait_first=True,
             before=lambda: self._run(self._close_blocking),
             on_failure=self._note_failure,
+            on_fatal=self._reconnection_failed,
             task_name=f"genicam-{self.device}-reconnect",
         )
         self.description = ""  # model and serial of the opened camera
@@ -420,6 +421,12 @@ class GenICamTransport:
 
     def _note_failure(self, error: DeviceError) -> None:
         self.last_error = str(error)
+
+    def _reconnection_failed(self, error: BaseException) -> None:
+        """An unexpected error ended the reconnection (logged with its traceback): failed,
+        not reconnecting forever (issue 26)."""
+        self.last_error = f"the reconnection failed: {error!r}"
+        self.link = LinkState.FAULT
 
     async def _reopen(self) -> None:
         await self._run(self._open_blocking)

@@ -123,6 +123,10 @@ class C500CServerEmulator(C500CEmulator):
         self.server_faults_applied: list[tuple[int, ServerFaultKind]] = []
         self._server_faults = list(self.server_config.faults)
         self._server_pending: list[Fault[ServerFaultKind]] = []
+        # reply gate (tests): every reply waits while it is closed, as the console emulator's
+        self._replies_open = asyncio.Event()
+        self._replies_open.set()
+        self.reply_held = asyncio.Event()  # set once a reply waits at the gate
         self._counted_requests = 0
         self._move_task: asyncio.Task[None] | None = None
         self._halt = asyncio.Event()
@@ -139,6 +143,15 @@ class C500CServerEmulator(C500CEmulator):
     def inject_server_fault(self, kind: ServerFaultKind, seconds: float | None = None) -> None:
         """Apply ``kind`` to the reply of the next request (heartbeats included)."""
         self._server_pending.append(Fault(kind, seconds))
+
+    def hold_replies(self) -> None:
+        """Tests: every reply from now on waits until :meth:`release_replies` (the requests
+        are still read and served: a command in flight)."""
+        self._replies_open.clear()
+        self.reply_held.clear()
+
+    def release_replies(self) -> None:
+        self._replies_open.set()
 
     @property
     def moving(self) -> bool:
@@ -238,6 +251,9 @@ class C500CServerEmulator(C500CEmulator):
             the line is free, and not before ``not_before`` (a move's reply is framed when the
             motion ends, so its line time may already have passed: no second timer)."""
             nonlocal line_free_at
+            if not self._replies_open.is_set():
+                self.reply_held.set()
+                await self._replies_open.wait()
             async with write_lock:  # one frame at a time on the wire, never interleaved
                 start = max(line_free_at, loop.time() if not_before is None else not_before)
                 line_free_at = start + len(data) * byte_s

@@ -39,6 +39,7 @@ from daemon.arm.types import Pose6
 from drivers.base import MoveResult
 from drivers.clock import Clock
 from drivers.errors import DeviceError, MotionHeldError
+from drivers.permit import MotionPermit, Ticket
 
 logger = logging.getLogger(__name__)
 
@@ -80,15 +81,26 @@ class ArmPlayer:
     """Plays ``cycle`` on ``robot`` (module docstring)."""
 
     def __init__(
-        self, robot: PlayingRobot, cycle: tuple[CyclePose, ...], clock: Clock, run_id: int
+        self,
+        robot: PlayingRobot,
+        cycle: tuple[CyclePose, ...],
+        clock: Clock,
+        run_id: int,
+        permit: MotionPermit,
     ) -> None:
         if not cycle:
             raise ValueError("a duty cycle to play needs poses")
         self.cycle = cycle
         self._robot = robot
+        self._permit = permit  # the robot's (drivers/permit.py): read before each move
+        self._grant: Ticket | None = None  # the request this playing is for (start())
         self._clock = clock
         self._run_id = run_id
         self._corrections: dict[str, Pose6] = {}
+        #: the correction of the latest move into each cycle pose that the robot made: the
+        #: step limits apply against it (daemon/run/arm/step.py), not against the latest one
+        #: handed over, which the robot may not have been sent yet (issue 26)
+        self._sent: dict[str, Pose6] = {}
         self.next_index = 0  # the pose the next move goes to
         self.moves = 0
         self.error: DeviceError | None = None
@@ -116,14 +128,22 @@ class ArmPlayer:
     def correction(self, name: str) -> Pose6:
         return self._corrections.get(name, Pose6.zero())
 
+    def sent_correction(self, name: str) -> Pose6:
+        """The correction the robot last moved into the cycle pose ``name`` with (zero: only
+        taught so far)."""
+        return self._sent.get(name, Pose6.zero())
+
     # --- the session's side --------------------------------------------------------------
 
-    def start(self) -> None:
-        """Play from the pose after the last one reached (a resume), or the first. Not while
-        an error is pending: a step reports it first (the run faults), and :meth:`stop`
-        clears it; a restart here would let the robot go on as if nothing had happened."""
+    def start(self, grant: Ticket) -> None:
+        """Play from the pose after the last one reached (a resume), or the first, on behalf
+        of the request that took ``grant``: the playing ends at the first move after a hold
+        that came after it. Not while an error is pending: a step reports it first (the run
+        faults), and :meth:`stop` clears it; a restart here would let the robot go on as if
+        nothing had happened."""
         if self.playing or self.error is not None:
             return
+        self._grant = grant
         self._stopping = False
         self._task = asyncio.get_running_loop().create_task(
             self._play(), name=f"run-{self._run_id}-duty-cycle"
@@ -213,6 +233,9 @@ class ArmPlayer:
                     if request is not None and request.name == entry.name:
                         await request.ready.wait()  # the move carries the step's corrections
                     correction = self.correction(entry.name)
+                    # no move after a hold that came after this playing's request (the driver
+                    # refuses it too, under its lock: this ends the playing at once)
+                    self._permit.require(self._grant)
                     self._moving = True
                     try:
                         result = await self._robot.move_to_goal(
@@ -220,6 +243,7 @@ class ArmPlayer:
                         )
                     finally:
                         self._moving = False
+                    self._sent[entry.name] = correction
                     arrived_s = clock.now()
                     self.next_index = (self.next_index + 1) % count
                     self.moves += 1

@@ -32,6 +32,7 @@ from drivers.base import (
     Vector3,
 )
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit, Ticket
 
 logger = logging.getLogger(__name__)
 
@@ -108,11 +109,15 @@ class GoalRobotArm:
         robot = cast(SpeedGoalRobot, self.robot)
         return await robot.move_absolute(offset, rotation, goal=goal, speed_percent=speed_percent)
 
+    @property
+    def permit(self) -> MotionPermit:
+        return self.robot.permit
+
     async def stop(self) -> None:
         await self.robot.stop()
 
-    async def resume(self) -> None:
-        await self.robot.resume()
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        await self.robot.resume(ticket)
 
     async def actual_pose(self) -> Pose:
         return await self.robot.actual_pose()

@@ -70,6 +70,7 @@ from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, StepRecord
 from drivers.base import MoveResult, Pose, RobotStatus
 from drivers.errors import DeviceError
+from drivers.permit import MotionPermit, Ticket
 
 logger = logging.getLogger(__name__)
 
@@ -98,9 +99,12 @@ class ArmRobot(Protocol):
         ``speed_percent`` of the controller's speed (None: its current one)."""
         ...
 
+    @property
+    def permit(self) -> MotionPermit: ...
+
     async def stop(self) -> None: ...
 
-    async def resume(self) -> None: ...
+    async def resume(self, ticket: Ticket | None = None) -> None: ...
 
     async def actual_pose(self) -> Pose: ...
 
@@ -390,9 +394,10 @@ class ArmStepPipeline:
     def _hand_to_player(
         self, work: ArmRunWork, player: ArmPlayer, errors_by_pose: dict[str, Pose6]
     ) -> str | None:
-        """Each played pose's correction, checked against the limits and the pose's previous
-        one; the accepted ones go to the player (the next move into each pose uses it), a
-        refused one never does: the first refusal is returned for the step's verdict."""
+        """Each played pose's correction, checked against the limits and the correction the
+        robot was last sent into that pose (ArmPlayer.sent_correction); the accepted ones go
+        to the player (the next move into each pose uses it), a refused one never does: the
+        first refusal is returned for the step's verdict."""
         if work.parameters.compensation == "off":
             return None
         accepted: dict[str, Pose6] = {}
@@ -402,7 +407,9 @@ class ArmStepPipeline:
                 correction = correction_for(
                     errors_by_pose[entry.name], work.parameters.deformation_scale
                 )
-                previous = work.last_correction.get(entry.name, Pose6.zero())
+                # against what the robot was last SENT into this pose: two handovers between
+                # its visits must not add up to more than one step's change (issue 26)
+                previous = player.sent_correction(entry.name)
                 accepted[entry.name] = check_correction(correction, previous, self._limits)
             except UnsafeTargetError as err:
                 refused = refused or f"correction of pose {entry.name!r} refused: {err}"

@@ -1,0 +1,98 @@
+"""An arm run's kind (issue 20; daemon/run/kind.py): each measured pose taught by a move (after
+the start's release), the arm bench's truth started, each pose's reference measured at its
+goal, then one step per period at the duty cycle's next measured pose (daemon/run/arm/step.py),
+the robot moved by the step or, with a played duty cycle, by the player between the steps."""
+
+from __future__ import annotations
+
+import functools
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+from config import Settings
+from daemon.run.arm.prepare import ArmServices, measure_references, reference_frames, teach_poses
+from daemon.run.arm.step import ArmRunWork
+from daemon.run.events import ErrorLog
+from daemon.run.scheduler import Tick
+from daemon.run.states import RunParameters
+from daemon.run.summary import arm_summary
+from daemon.run.two_link.step import StepOutcome
+from daemon.run.workers import Workers
+from daemon.storage.recorder import Recorder
+from drivers.clock import Clock
+from drivers.permit import Ticket
+
+
+@dataclass(eq=False)
+class ArmKind:
+    work: ArmRunWork
+    arm: ArmServices
+    bench: object | None  # the arm bench's truth (drivers/sim/arm_devices.py), when simulated
+    workers: Workers
+    settings: Settings
+    errors: ErrorLog
+    clock: Clock
+    name: str = "arm"
+
+    @property
+    def run_id(self) -> int:
+        return self.work.run_id
+
+    @property
+    def parameters(self) -> RunParameters:
+        return self.work.parameters
+
+    @property
+    def start_s(self) -> float:
+        return self.work.start_s
+
+    @start_s.setter
+    def start_s(self, value: float) -> None:
+        self.work.start_s = value
+
+    async def teach(self, *, moving: bool) -> None:
+        """Each pose reached by a move and taught there: only once motion is allowed."""
+        if moving:
+            await teach_poses(self.work, self.arm.robot)
+
+    async def start_bench(self) -> None:
+        """The simulated arm (drivers/sim/arm_bench.py), built on a worker thread: a second."""
+        start = getattr(self.bench, "start_arm_run", None)
+        if start is not None:
+            duty_cycle = self.work.parameters.duty_cycle
+            await self.workers.step(
+                functools.partial(start, self.clock.now(), duty_cycle=duty_cycle)
+            )
+
+    async def references(self) -> None:
+        await measure_references(self.work, self.arm, self.errors, reference_frames(self.settings))
+
+    async def step(self, tick: Tick) -> StepOutcome:
+        return await self.arm.pipeline.run(self.work, tick)
+
+    async def resumed(self) -> None:
+        """Every step moves to its goal + correction: nothing carries over; the pose read
+        back says the link answers."""
+        await self.arm.robot.actual_pose()
+
+    def play(self, grant: Ticket) -> None:
+        if self.arm.player is not None:
+            self.arm.player.start(grant)
+
+    async def stop_playing(self, grace_s: float) -> None:
+        if self.arm.player is not None:
+            await self.arm.player.stop(grace_s)
+
+    def summary(
+        self,
+        recorder: Recorder,
+        *,
+        overruns: int,
+        skipped: int,
+        timing: dict[str, Any],
+        abandon: threading.Event | None,
+    ) -> dict[str, Any]:
+        return arm_summary(
+            recorder, self.work, overruns=overruns, skipped=skipped, timing=timing, abandon=abandon
+        )

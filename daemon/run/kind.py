@@ -1,0 +1,96 @@
+"""One shape for every run kind (issue 27): what a run does to its devices and its data beside
+the state machine of daemon/run/session.py.
+
+A kind is built by the one factory that chooses it (daemon/run/kinds.py) and is all the session
+knows of it: the session calls these at the points of its prepare -> loop -> finish and decides
+what their errors do; no code outside the factory and the kind's own package asks which kind a
+run is. Today's kinds: the two-link bench (daemon/run/two_link/), an arm run moved to its poses
+or playing its duty cycle (daemon/run/arm/), and a robot that plays its own program while the
+daemon follows and offsets it (daemon/run/followed/). Adding a kind touches the factory and the
+kind's own files only (docs/explanation/architecture.md "Run kinds").
+
+The hold rules are the session's and the driver's, not the kind's: every motion a kind makes
+goes through the robot's driver, which refuses it after a hold (drivers/permit.py); a kind that
+moves between steps (a played cycle) starts only with the grant the session gives it.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, Protocol
+
+from daemon.run.scheduler import Tick
+from daemon.run.states import RunParameters
+from daemon.run.two_link.step import StepOutcome
+from daemon.storage.recorder import Recorder
+from drivers.clock import Clock
+from drivers.permit import Ticket
+
+
+class RunKind(Protocol):
+    """A run's kind. ``run_id``, ``parameters`` and ``start_s`` (run clock at step 0, set by
+    the session when its steps begin) are the kind's work's."""
+
+    @property
+    def name(self) -> str:
+        """The kind's name, as the run's info and the dashboard show it."""
+        ...
+
+    @property
+    def run_id(self) -> int: ...
+
+    @property
+    def parameters(self) -> RunParameters: ...
+
+    @property
+    def clock(self) -> Clock:
+        """The run's clock (a played duty cycle paces a virtual clock its steps follow)."""
+        ...
+
+    start_s: float  # run clock at step 0, set by the session when its steps begin
+
+    async def teach(self, *, moving: bool) -> None:
+        """Teach the run's goals: what moves nothing (``moving=False``, before the start's
+        release), then what moves (after it). Raises DeviceError."""
+        ...
+
+    async def start_bench(self) -> None:
+        """The simulated bench, when there is one, starts cold with this run."""
+        ...
+
+    async def references(self) -> None:
+        """The zero of every drift, measured before the first correction. Raises DeviceError
+        when the robot cannot go on (the session faults, and does it again after a resume)."""
+        ...
+
+    async def step(self, tick: Tick) -> StepOutcome:
+        """One step: model -> check -> move -> measure -> record (committed) -> verdict."""
+        ...
+
+    async def resumed(self) -> None:
+        """The robot was released for this run again: read back what the kind carries over
+        (the two-link bench's incremental mode: where the robot really is). Raises
+        DeviceError (a GoalLostError: the run cannot continue)."""
+        ...
+
+    def play(self, grant: Ticket) -> None:
+        """Start what moves between the steps (a played duty cycle), on behalf of the request
+        that holds ``grant``; nothing for a kind whose steps make every move."""
+        ...
+
+    async def stop_playing(self, grace_s: float) -> None:
+        """Stop it: the run pauses, faults or ends."""
+        ...
+
+    def summary(
+        self,
+        recorder: Recorder,
+        *,
+        overruns: int,
+        skipped: int,
+        timing: dict[str, Any],
+        abandon: threading.Event | None,
+    ) -> dict[str, Any]:
+        """The run's summary (thesis Table 6.1 and its timing), read back from the database on
+        the recorder's thread; ``abandon`` gives the read up (daemon/storage/series.py)."""
+        ...
