@@ -215,6 +215,13 @@ def test_the_calibration_program_works_each_joint_in_turn_and_plays_as_a_duty_cy
     again = duty_cycle_from_mapping(tomllib.loads(text))
     assert len(again.poses) == len(program.poses)
     np.testing.assert_allclose(again.period_s, program.period_s, rtol=1e-9)
+    for read, written in zip(again.poses, program.poses, strict=True):
+        assert (read.name, read.speed, read.accel, read.dwell_s, read.measure) == (
+            written.name, written.speed, written.accel, written.dwell_s, written.measure,
+        )  # fmt: skip
+        np.testing.assert_allclose(read.q_rad, written.q_rad, atol=1e-7)
+    # one line per visit (the format has no repeat; a program visits thousands of poses)
+    assert len(text.splitlines()) <= len(program.poses) + 20
 
 
 @pytest.mark.slow
