@@ -259,8 +259,7 @@ def replay(plan: ArmPlan, run: SimulatedRun, *, room: bool) -> dict[str, Any]:
         controller.advance_to(float(t))
         pose = by_name[run.poses[int(run.pose_index[m])].name]
         predicted[m] = controller.tool_error(pose).translation_mm
-        if controller.observer is not None or getattr(controller, "_observer_noise_c", None):
-            controller.observe(run.regions_c[m])
+        controller.observe(run.regions_c[m])  # a no-op without model+ir, as in the step
         if controller.adapting:
             controller.adapt(pose, run.displacement_mm[m], run.regions_c[m])
             estimates.append(controller.adaptation_estimates())
