@@ -4,6 +4,7 @@ the daemon are imported when the command runs, from api/serve.py)."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from config.cli import add_config_argument, port_number
 
@@ -19,6 +20,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--host", help="address to bind (default: api.host of the config)")
     parser.add_argument(
         "--port", type=port_number, help="port to bind (default: api.port; 0 = any)"
+    )
+    parser.add_argument(
+        "--data-dir",
+        type=Path,
+        help="folder of the run database, reports and saved models (default: "
+        "storage.data_dir), as for `thermocomp run --data-dir`",
     )
     parser.set_defaults(handler=run)
 

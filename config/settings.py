@@ -23,6 +23,7 @@ from pydantic import BaseModel, ValidationError, model_validator
 from config.arm_settings import ArmSettings
 from config.bench_settings import BenchSettings, two_link_settings_given
 from config.device_settings import CameraSettings, IrRegion, IrSettings, RobotSettings
+from config.inputs import MAX_TOML_DEPTH, InputError, nesting_depth, read_regular_file
 from config.model_settings import (
     CompensationSettings,
     ModelSettings,
@@ -73,8 +74,9 @@ ENV_NESTING = "__"
 MAX_TOML_BYTES = 4 * 1024 * 1024
 
 
-class ConfigError(Exception):
-    """The configuration could not be loaded; ``str()`` is the message for the user."""
+class ConfigError(InputError):
+    """The configuration could not be loaded; ``str()`` is the message for the user (one line
+    per problem: ``<file>: <field.path>: <reason>``)."""
 
 
 class Settings(Section):
@@ -198,29 +200,26 @@ def _describe(error: ValidationError, source: str, env_used: dict[str, str]) -> 
 
 
 def read_toml(path: Path, error: type[Exception]) -> dict[str, Any]:
-    """A TOML file's tables; any failure is ``error("<path>: <why>")`` (missing, not TOML,
-    unreadable), so settings and network files report bad files the same way."""
-    try:
-        with open(path, "rb") as handle:
-            raw = handle.read(MAX_TOML_BYTES + 1)
-    except FileNotFoundError as err:
-        raise error(f"{path}: no such file") from err
-    except IsADirectoryError as err:
-        raise error(f"{path}: is a folder, not a TOML file") from err
-    except OSError as err:
-        raise error(f"{path}: cannot read: {err.strerror}") from err
-    if len(raw) > MAX_TOML_BYTES:
-        raise error(f"{path}: over {MAX_TOML_BYTES // 1024} KiB: not a settings or network file")
+    """A TOML file's tables; any failure is ``error("<path>: <why>")`` in one line (missing, a
+    folder, a FIFO or device, over 4 MiB, binary, not UTF-8, not TOML, nested deeper than
+    ``MAX_TOML_DEPTH``), so every file thermocomp reads reports bad files the same way."""
+    raw = read_regular_file(path, MAX_TOML_BYTES, "a TOML file", error)
     if b"\0" in raw:
         raise error(f"{path}: a binary file, not TOML text")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as err:
         raise error(f"{path}: not UTF-8 text (byte {err.start}): save it as UTF-8") from err
+    too_deep = f"{path}: arrays or tables nested over {MAX_TOML_DEPTH} deep: not a thermocomp file"
     try:
-        return tomllib.loads(text)
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise error(f"{path}: not valid TOML: {err}") from err
+    except RecursionError as err:  # the parser recurses once per level of nesting
+        raise error(too_deep) from err
+    if nesting_depth(data, MAX_TOML_DEPTH) > MAX_TOML_DEPTH:
+        raise error(too_deep)
+    return data
 
 
 def load_settings(path: Path | None = None, environ: Mapping[str, str] | None = None) -> Settings:

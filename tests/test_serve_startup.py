@@ -7,11 +7,14 @@ from __future__ import annotations
 import os
 import socket
 import tty
+from contextlib import AsyncExitStack
 from pathlib import Path
 
 import pytest
 
 from config.cli import EXIT_ADDRESS, EXIT_DEVICE, EXIT_STORAGE, EXIT_USAGE
+from daemon.arm.duty import DutyCycleError
+from drivers.errors import DeviceTimeoutError
 from tests.helpers import free_port, run_cli, running_server
 
 TOKEN = "control-token-0123456789"
@@ -182,3 +185,43 @@ def test_a_robot_that_does_not_answer_is_one_line_and_exit_3(tmp_path: Path) -> 
     assert len(errors) == 1, result.stderr  # the daemon is not uvicorn's: no "startup failed"
     assert "cannot start the daemon: robot: " in errors[0]
     assert "0.5 s" in errors[0]  # what it waited for
+
+
+class _FailingService:
+    """A daemon whose start raises ``error`` (what the daemon met opening its inputs)."""
+
+    def __init__(self, error: Exception) -> None:
+        self.error = error
+
+    def __call__(self, settings: object) -> _FailingService:
+        return self
+
+    async def __aenter__(self) -> None:
+        raise self.error
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+
+@pytest.mark.parametrize(
+    ("error", "status"),
+    [
+        (DutyCycleError("duty.toml: poses: at most 1000"), EXIT_USAGE),
+        (DeviceTimeoutError("robot", "no answer within 0.5 s"), EXIT_DEVICE),
+    ],
+    ids=["bad-file", "device"],
+)
+async def test_a_bad_file_met_by_the_daemons_start_asks_for_exit_2(
+    error: Exception, status: int
+) -> None:
+    """A file or name the start-up checks passed but the daemon's start cannot load (changed
+    in between): a configuration error, exit 2 -- not 3, which systemd retries forever; a
+    device that does not answer stays 3."""
+    from api.app import DaemonStartFailed, open_service
+    from config import Settings
+
+    with pytest.raises(DaemonStartFailed) as failed:
+        async with AsyncExitStack() as stack:
+            await open_service(stack, Settings(), _FailingService(error))  # type: ignore[arg-type]
+    assert failed.value.status == status
+    assert str(failed.value) == str(error)

@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from config.inputs import no_such_name
 from config.settings import read_toml
 from daemon.arm.description import (
+    MAX_ARM_JOINTS,
+    MIN_ARM_JOINTS,
     Arm,
     ArmError,
     FloatArray,
@@ -26,14 +29,27 @@ from daemon.arm.description import (
     xyz_rpy,
 )
 
+#: Bounds of an arm file's numbers (issue 26): far beyond any arm, low enough that no pose,
+#: volume or heat computed from them overflows. Lengths in mm (100 m), angles in degrees.
+MAX_LENGTH_MM = 100_000.0
+MAX_ANGLE_DEG = 360.0
+MAX_LIMIT_DEG = 3_600.0  # a multi-turn joint's limits
+MAX_LINKS = 64
+
+Length = Annotated[float, Field(ge=-MAX_LENGTH_MM, le=MAX_LENGTH_MM)]
+PositiveLength = Annotated[float, Field(gt=0, le=MAX_LENGTH_MM)]
+Angle = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
+Limit = Annotated[float, Field(ge=-MAX_LIMIT_DEG, le=MAX_LIMIT_DEG)]
+
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: TOML's nan and inf are refused naming the field, never computed with
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class _Placement(_Strict):
-    xyz_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    xyz_mm: tuple[Length, Length, Length] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[Angle, Angle, Angle] = (0.0, 0.0, 0.0)
 
 
 class _Motor(_Strict):
@@ -49,12 +65,12 @@ class _Motor(_Strict):
 class _Joint(_Strict):
     name: str
     link: str | None = None  # DH: the link this joint moves (default "<joint name>-link")
-    a_mm: float = 0.0
-    alpha_deg: float = 0.0
-    d_mm: float = 0.0
-    theta_offset_deg: float = 0.0
-    lower_deg: float | None = None
-    upper_deg: float | None = None
+    a_mm: Length = 0.0
+    alpha_deg: Angle = 0.0
+    d_mm: Length = 0.0
+    theta_offset_deg: Angle = 0.0
+    lower_deg: Limit | None = None
+    upper_deg: Limit | None = None
     grows_with: str | None = None  # "" : the base (does not grow)
     motor: _Motor | None = None
 
@@ -71,16 +87,16 @@ class _Material(_Strict):
 
 class _Section(_Strict):
     shape: Literal["round", "rect"]
-    outer_width_mm: float = Field(gt=0)
-    outer_height_mm: float | None = Field(default=None, gt=0)
-    wall_mm: float = Field(default=0.0, ge=0)
+    outer_width_mm: PositiveLength
+    outer_height_mm: PositiveLength | None = None
+    wall_mm: Annotated[float, Field(ge=0, le=MAX_LENGTH_MM)] = 0.0
 
 
 class _Link(_Strict):
     name: str
     mass_kg: float = Field(default=0.0, ge=0)
-    com_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    length_mm: float | None = Field(default=None, gt=0)
+    com_mm: tuple[Length, Length, Length] = (0.0, 0.0, 0.0)
+    length_mm: PositiveLength | None = None
     material: _Material | None = None
     section: _Section | None = None
 
@@ -94,8 +110,8 @@ class ArmFileSpec(_Strict):
     tip_link: str | None = None  # URDF: the chain's last link (default: the only leaf)
     base: _Placement = _Placement()
     tool: _Placement = _Placement()
-    joints: tuple[_Joint, ...] = ()
-    links: tuple[_Link, ...] = ()
+    joints: Annotated[tuple[_Joint, ...], Field(max_length=MAX_ARM_JOINTS)] = ()
+    links: Annotated[tuple[_Link, ...], Field(max_length=MAX_LINKS)] = ()
 
 
 def _describe(err: ValidationError, data: dict[str, Any]) -> str:
@@ -245,6 +261,11 @@ def arm_from_mapping(
     data: dict[str, Any], default_name: str = "arm", folder: Path | None = None
 ) -> Arm:
     """The arm a parsed TOML document describes (``folder``: where a named URDF is looked for)."""
+    rows = data.get("joints")
+    if isinstance(rows, list) and len(rows) > MAX_ARM_JOINTS:  # said before 3,000 are checked
+        raise ArmError(
+            f"joints: {len(rows)} joints: an arm has {MIN_ARM_JOINTS} to {MAX_ARM_JOINTS}"
+        )
     try:
         spec = ArmFileSpec.model_validate(data)
     except ValidationError as err:
@@ -294,9 +315,9 @@ def load_arm_file(name_or_path: str | Path) -> Arm:
     if not (text.endswith((".toml", ".urdf")) or path.is_file()):
         path = arms_dir() / f"{text}.toml"
         if not path.is_file():
-            raise ArmError(
-                f"no arm preset {text!r} (presets: {', '.join(available_arms())}) and no such file"
-            )
+            presets = available_arms()
+            listed = f"presets: {', '.join(presets)}; or a TOML or URDF file"
+            raise ArmError(no_such_name("arm", text, presets, listed))
     if path.suffix.lower() == ".urdf":
         from daemon.arm.urdf import arm_from_urdf
 

@@ -30,6 +30,8 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from config.inputs import InputError
+
 FloatArray = NDArray[np.float64]
 
 Convention = Literal["standard", "modified", "urdf"]
@@ -38,7 +40,13 @@ Convention = Literal["standard", "modified", "urdf"]
 MM_PER_M = 1000.0
 
 
-class ArmError(ValueError):
+#: Moving joints an arm may have (issue 26): a 6-DOF tool correction needs a few, and the
+#: arm's thermal network, kinematics and duty cycle grow with each (3,000 crashed).
+MIN_ARM_JOINTS = 1
+MAX_ARM_JOINTS = 32
+
+
+class ArmError(InputError):
     """A bad arm file, an unknown link or joint, an unreachable pose. The message is one line
     that names the file and the field (or the link/joint) at fault."""
 
@@ -220,6 +228,19 @@ class Joint:
             raise ArmError(f"joint {self.name!r}: axis must be a non-zero 3-vector")
         object.__setattr__(self, "axis", _frozen(axis / norm))
         object.__setattr__(self, "deflection", _frozen(self.deflection))
+        for label, value in (
+            ("a_mm", self.a_mm),
+            ("alpha", self.alpha_rad),
+            ("d_mm", self.d_mm),
+            ("theta_offset", self.theta_offset_rad),
+        ):
+            if not math.isfinite(value):  # NaN or inf would reach every pose (issue 26)
+                raise ArmError(f"joint {self.name!r}: {label} is {value}, not a finite number")
+        for label, matrix in (("origin", self.origin), ("axis", self.axis)):
+            if not np.all(np.isfinite(matrix)):
+                raise ArmError(f"joint {self.name!r}: {label} has a value that is not finite")
+        if math.isnan(self.lower_rad) or math.isnan(self.upper_rad):
+            raise ArmError(f"joint {self.name!r}: a joint limit is not a number")
         if not self.lower_rad <= self.upper_rad:
             raise ArmError(f"joint {self.name!r}: lower limit above upper limit")
 
@@ -242,6 +263,15 @@ class Arm:
     _post: tuple[FloatArray, ...] = field(init=False, repr=False, default=())
 
     def __post_init__(self) -> None:
+        if not MIN_ARM_JOINTS <= len(self.joints) <= MAX_ARM_JOINTS:
+            count = len(self.joints)
+            raise ArmError(
+                f"arm {self.name!r}: {count} joint{'s' if count != 1 else ''}: an arm has "
+                f"{MIN_ARM_JOINTS} to {MAX_ARM_JOINTS} moving joints"
+            )
+        for label, transform in (("base", self.base), ("tool", self.tool)):
+            if not np.all(np.isfinite(np.asarray(transform, dtype=np.float64))):
+                raise ArmError(f"arm {self.name!r}: {label} has a value that is not finite")
         object.__setattr__(self, "_pre", tuple(_frozen(_pre(self, i)) for i in range(self.dof)))
         object.__setattr__(self, "_post", tuple(_frozen(_post(self, i)) for i in range(self.dof)))
         object.__setattr__(self, "base", _frozen(self.base))

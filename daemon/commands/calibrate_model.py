@@ -292,10 +292,17 @@ def _print(outcome: dict[str, Any]) -> None:
     print(
         f"3. validation run {validation['id']} with {outcome['network']!r}: residual max "
         f"{_number(validation['residual_max_um'])} um, S_x {_number(validation['residual_std_um'])}"
-        f" um, mean {_number(validation['residual_mean_um'])} um; reduction "
-        f"{_number(validation['reduction_percent'])} % of the drift of run "
+        f" um, mean {_number(validation['residual_mean_um'])} um; "
+        f"{_reduction(validation['reduction_percent'])} of the drift of run "
         f"{validation['reference_run']} ({validation['reduction_basis']})"
     )
+
+
+def _reduction(value: object) -> str:
+    """A reduction, or the increase it is when below zero (never a negative reduction)."""
+    if isinstance(value, float) and value < 0:
+        return f"not reduced: {-value:.3f} % larger than"
+    return f"reduction {_number(value)} %"
 
 
 def _number(value: object) -> str:

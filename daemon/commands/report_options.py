@@ -144,6 +144,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="TOML settings file naming storage.data_dir (default: built-in defaults)",
     )
     parser.add_argument(
+        "--data-dir",
+        type=Path,
+        help="folder of the run database (default: storage.data_dir of --config), as for "
+        "`thermocomp run --data-dir`",
+    )
+    parser.add_argument(
         "--reference",
         metavar="RUN",
         help="an uncompensated run (run number, or an exported CSV for a CSV target) whose "

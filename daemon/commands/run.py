@@ -137,11 +137,14 @@ def run_command(args: argparse.Namespace) -> int:
             heat_w=_heat_map(args.heat) if args.heat else None,
         )
     except ValidationError as err:
-        print(f"thermocomp run: invalid run parameters:\n{_describe(err)}", file=sys.stderr)
+        print(f"thermocomp run: invalid run parameters: {_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
-
+    from daemon.run.inputs import check_inputs
     from daemon.storage.recorder import RecorderError  # NumPy: loaded to run, not for --help
 
+    # every file the run names loads before a device opens: a mistake is one line, exit 2
+    # (raised as an InputError; api/cli.py prints it)
+    check_inputs(settings, arm_model=args.arm_model)
     try:
         return asyncio.run(_run(settings, parameters, args))
     except RecorderError as err:  # e.g. the data directory is another process's: one line
@@ -270,7 +273,12 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
         ]
     )
     for label, value, unit in rows:
-        print(f"  {label:<28} {_format(value)} {unit}".rstrip())
+        text = f"{_format(value)} {unit}"
+        if unit == "%" and isinstance(value, float) and value < 0:
+            # a reduction below zero is an increase (a short run's residual above the
+            # prediction): said so, never printed as a negative reduction (issue 28)
+            text = f"not reduced: {-value:.3f} % larger"
+        print(f"  {label:<28} {text}".rstrip())
     lateness = (summary.get("timing") or {}).get("lateness_s") or {}
     if lateness:
         values = "/".join(_format(1e3 * v) for v in lateness.values() if isinstance(v, float))
@@ -347,7 +355,7 @@ def _finite(value: Any) -> Any:
 
 
 def _describe(error: ValidationError) -> str:
-    return "\n".join(
+    return "; ".join(
         f"{'.'.join(str(p) for p in item['loc']) or 'parameters'}: "
         + str(item["msg"]).removeprefix("Value error, ")
         for item in error.errors()

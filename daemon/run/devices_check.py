@@ -144,11 +144,17 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
     """Grab one frame (of every tool camera on an arm), read one IR image and the robot's
     pose; measure the spot."""
     check = DeviceCheck(regions=ir_regions(devices, settings))
-    if await _tool_frames(devices, settings, check):
-        await _ir_and_pose(devices, settings, check)
-        return check
+    if not await _tool_frames(devices, settings, check):
+        await probe_camera(devices.camera, settings, check)
+    await probe_ir(devices.ir, settings, check)
+    await probe_robot(devices.robot, check)
+    return check
+
+
+async def probe_camera(camera: Camera, settings: Settings, check: DeviceCheck) -> None:
+    """One frame of the spot camera and the spot measured in it, into ``check``."""
     try:
-        check.frame = await asyncio.wait_for(devices.camera.grab(), settings.camera.grab_timeout_s)
+        check.frame = await asyncio.wait_for(camera.grab(), settings.camera.grab_timeout_s)
     except (DeviceError, TimeoutError) as err:
         check.errors["camera"] = str(err) or "no frame within camera.grab_timeout_s"
     if check.frame is not None:
@@ -171,18 +177,21 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
             }
         except CentroidError as err:
             check.centroid_error = str(err)
-    await _ir_and_pose(devices, settings, check)
-    return check
 
 
-async def _ir_and_pose(devices: Devices, settings: Settings, check: DeviceCheck) -> None:
+async def probe_ir(ir: IrReader, settings: Settings, check: DeviceCheck) -> None:
+    """One IR image and its regions, into ``check``."""
     try:
-        check.reading = await asyncio.wait_for(devices.ir.read(), settings.ir.read_timeout_s)
+        check.reading = await asyncio.wait_for(ir.read(), settings.ir.read_timeout_s)
     except (DeviceError, TimeoutError) as err:
         check.errors["ir"] = str(err) or "no reading within ir.read_timeout_s"
+
+
+async def probe_robot(robot: Robot, check: DeviceCheck) -> None:
+    """The robot's pose and link state, into ``check``."""
     try:
-        check.pose = await asyncio.wait_for(devices.robot.actual_pose(), POSE_TIMEOUT_S)
-        check.robot_link = devices.robot.status().link.value
+        check.pose = await asyncio.wait_for(robot.actual_pose(), POSE_TIMEOUT_S)
+        check.robot_link = robot.status().link.value
     except (DeviceError, TimeoutError) as err:
         check.errors["robot"] = str(err) or "no pose"
 

@@ -247,7 +247,7 @@ def run_report(args: argparse.Namespace) -> int:
                     file=sys.stderr,
                 )
                 return EXIT_USAGE
-            data_dir = load_settings(args.config).storage.data_dir
+            data_dir = args.data_dir or load_settings(args.config).storage.data_dir
             files = write_run_report(
                 data_dir,
                 int(args.target),

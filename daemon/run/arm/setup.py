@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, cast
 
 from config import CONFIG_DIR, Settings
+from config.inputs import InputError
 from daemon.arm.run import ArmPredictor, CyclePose, MeasuredPose
 from daemon.run.arm.step import ArmRobot, ToolMeter
 from daemon.run.devices_check import Devices
@@ -22,7 +23,7 @@ from daemon.run.workers import Workers
 from drivers.base import GoalRobot, Robot
 
 
-class ArmSetupError(ValueError):
+class ArmSetupError(InputError):
     """The arm run cannot be built (no arm section, a file that does not load)."""
 
 
