@@ -269,7 +269,8 @@ class DutyCycle:
 
 #: Bounds of a duty cycle file (issue 26: ``dwell_s = 1e308`` crashed the planner): far beyond
 #: any program, low enough that no time, sample count or energy computed from them overflows.
-MAX_POSES = 1_000
+#: A calibration program lists every visit (the A465's: 3,493 poses per period), hence 10,000.
+MAX_POSES = 10_000
 MAX_DWELL_S = 86_400.0  # a day at one pose
 MAX_JOINT_DEG = 3_600.0  # a multi-turn joint
 MAX_SPEED_DEG_S = 10_000.0
@@ -378,7 +379,7 @@ def duty_cycle_from_mapping(
     (``kinematics.inverse`` of the arm), seeded with the previous pose's joints (the first
     with ``seed_rad``, default zeros)."""
     given = data.get("poses")
-    if isinstance(given, list) and len(given) > MAX_POSES:  # said before 10,000 are checked
+    if isinstance(given, list) and len(given) > MAX_POSES:  # said before each is checked
         raise DutyCycleError(f"poses: {len(given)} poses: at most {MAX_POSES}")
     try:
         spec = _DutyFile.model_validate(data)
