@@ -20,6 +20,7 @@ neither).
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -103,6 +104,11 @@ class URController:
         self.outputs: dict[str, Value] = {
             name: _zero(names.OUTPUTS[name]) for name in self.registers.outputs
         }
+        #: how many times each input register was written (what reached the controller)
+        self.writes: Counter[str] = Counter()
+        #: True: the program's thread does not run (fault injection: a program that stopped
+        #: accepting corrections while the taught program plays on)
+        self.program_frozen = False
         self.robot_mode = RobotMode.RUNNING
         self.safety_mode = SafetyMode.NORMAL
         self.time_s = 0.0
@@ -163,6 +169,7 @@ class URController:
     def write_input(self, name: str, value: Value) -> None:
         """An RTDE client's input (already checked against the recipe's type)."""
         self.inputs[name] = value
+        self.writes[name] += 1
 
     def cycle(self, t_s: float) -> None:
         """One controller cycle at ``t_s``: the program thread reads the registers, steps,
@@ -172,6 +179,7 @@ class URController:
         regs = self.registers
         if self.player.state is PlayerState.PLAYING:
             self.player.advance(t_s)
+        if self.player.state is PlayerState.PLAYING and not self.program_frozen:
             sequence = self.inputs[regs.sequence]
             hold = self.inputs[regs.hold]
             assert isinstance(sequence, int) and isinstance(hold, int)
