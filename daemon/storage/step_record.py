@@ -117,4 +117,7 @@ STEP_FLAGS: dict[str, str] = {
     "stale-ir": "the IR reading was older than ir.max_age_s: recorded, never fused",
     "room-error": "arm runs: the room thermometer gave no reading; the model kept the last room",
     "model-drifting": "the IR observer's innovations stay biased: consider identification",
+    "no-measurement": "followed runs: the tool was not measured this step (no camera)",
+    "bench-truth": "followed runs on the UR bench: measured_* is the bench truth's residual "
+    "tool error (no camera noise), not a camera measurement",
 }

@@ -194,7 +194,7 @@ class URController:
 
     # -- outputs -----------------------------------------------------------------------------
 
-    def _joint_state(self, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def joint_state(self, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Actual joints (nominal + the offset's), their speeds, and the nominal joints."""
         if self._state_t == t_s:
             return self._state
@@ -221,13 +221,13 @@ class URController:
 
     def tcp_pose(self, t_s: float) -> tuple[float, ...]:
         """actual_TCP_pose: x, y, z (m) and a rotation vector (rad), base frame."""
-        q, _, _ = self._joint_state(t_s)
+        q, _, _ = self.joint_state(t_s)
         pose = kinematics.forward(self.arm, q)
         rotvec = Rotation.from_matrix(pose[:3, :3]).as_rotvec()
         return (*(float(v) / 1000.0 for v in pose[:3, 3]), *(float(v) for v in rotvec))
 
     def tcp_speed(self, t_s: float) -> tuple[float, ...]:
-        q, qd, _ = self._joint_state(t_s)
+        q, qd, _ = self.joint_state(t_s)
         if not np.any(qd):
             return (0.0,) * 6
         twist = self._jacobian_at(q) @ qd
@@ -284,10 +284,10 @@ Getter = Callable[["URController", float], Value]
 
 _GETTERS: dict[str, Getter] = {
     "timestamp": lambda c, t: t,
-    "actual_q": lambda c, t: _vector(c._joint_state(t)[0]),
-    "target_q": lambda c, t: _vector(c._joint_state(t)[0]),
-    "actual_qd": lambda c, t: _vector(c._joint_state(t)[1]),
-    "target_qd": lambda c, t: _vector(c._joint_state(t)[1]),
+    "actual_q": lambda c, t: _vector(c.joint_state(t)[0]),
+    "target_q": lambda c, t: _vector(c.joint_state(t)[0]),
+    "actual_qd": lambda c, t: _vector(c.joint_state(t)[1]),
+    "target_qd": lambda c, t: _vector(c.joint_state(t)[1]),
     "actual_TCP_pose": lambda c, t: c.tcp_pose(t),
     "target_TCP_pose": lambda c, t: c.tcp_pose(t),
     "actual_TCP_speed": lambda c, t: c.tcp_speed(t),
