@@ -102,4 +102,11 @@ class JointTemperatureModel:
         )
 
     def temperatures_c(self) -> Mapping[str, float]:
-        return self.controller.temperatures_c()
+        """The joints' heat nodes (degC), what the readings are compared with (the whole
+        network is ArmController.temperatures_c)."""
+        thermal = self.controller.thermal
+        values = thermal.temperatures_c
+        return {
+            name: float(values[nodes[0]])
+            for name, nodes in zip(thermal.joint_node_names, self.regions.values(), strict=True)
+        }

@@ -230,8 +230,9 @@ class FollowedKind:
         rx, ry, rz = rotation_urad(error)
         record.predicted_rx_urad, record.predicted_ry_urad, record.predicted_rz_urad = rx, ry, rz
         temperatures = self.model.temperatures_c()
-        joints = {k: round(v, 4) for k, v in temperatures.items() if "joint" in k}
-        record.model_temperatures_json = json.dumps(joints or dict(temperatures))
+        record.model_temperatures_json = json.dumps(
+            {k: round(v, 4) for k, v in temperatures.items()}
+        )
 
     def _measure(self, record: StepRecord, flags: list[str]) -> None:
         """The bench truth's residual as the step's measurement, when on the UR bench."""
