@@ -116,6 +116,8 @@ STEP_FLAGS: dict[str, str] = {
     "ir-error": "no IR reading within ir.read_timeout_s, or the reading was refused",
     "stale-ir": "the IR reading was older than ir.max_age_s: recorded, never fused",
     "room-error": "arm runs: the room thermometer gave no reading; the model kept the last room",
+    "no-measurement": "followed runs: no camera measured the tool this step (the correction is the "
+    "model's alone)",
     "model-drifting": "the IR observer's innovations stay biased: consider identification",
     "no-measurement": "followed runs: the tool was not measured this step (no camera)",
     "bench-truth": "followed runs on the UR bench: measured_* is the bench truth's residual "
