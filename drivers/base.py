@@ -335,6 +335,11 @@ class OffsetRobot(AsyncDevice, Protocol):
         """The latest state package (NotConnectedError when there is none, or it is stale)."""
         ...
 
+    async def follow_program(self) -> OffsetRobotState:
+        """A run takes the program as it is now (moves nothing, allowed while held): a restart
+        of the program from here on holds and refuses a resume (GoalLostError)."""
+        ...
+
     def stop(self) -> Coroutine[Any, Any, None]:
         """Hold (see the class docstring): effective when called, awaiting it drains the
         hold's bytes."""

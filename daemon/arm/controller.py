@@ -125,15 +125,20 @@ class ArmController:
         self._ambient_start_c = options.ambient_c
 
     def attach_observer(
-        self, regions: Mapping[str, Sequence[int]], ir_noise_c: float
+        self,
+        regions: Mapping[str, Sequence[int]],
+        ir_noise_c: float,
+        offset_sigma_c: float = DEFAULT_OFFSET_SIGMA_C,
+        initial_sigma_c: float = 0.0,
     ) -> IrObserver:
         """A Kalman filter on the model's nodes fed by the IR regions (``regions``: each
         region's node indices, daemon/arm/ir_regions.py), from the identified offsets with
-        their 1-sigma as prior (the largest over the regions; DEFAULT_OFFSET_SIGMA_C when the
-        model gives none)."""
+        their 1-sigma as prior (the largest over the regions; ``offset_sigma_c`` when the
+        model gives none); ``initial_sigma_c``: the nodes' own prior (0: the model's start is
+        exact)."""
         names = self.thermal.node_names
         offsets: Mapping[str, float] = {}
-        sigma = DEFAULT_OFFSET_SIGMA_C
+        sigma = offset_sigma_c
         if self.identified is not None and self.identified.ir_offsets_c:
             offsets = self.identified.ir_offsets_c
             sigmas = [self.identified.ir_offset_sigma_c.get(r, np.inf) for r in regions]
@@ -146,6 +151,7 @@ class ArmController:
             ir_noise_c,
             offsets_c=offsets,
             offset_sigma_c=sigma,
+            initial_sigma_c=initial_sigma_c,
             adapt=adapted_parameters(model.network, *self._observer_adapted()),
         )
         return self.observer
@@ -319,6 +325,10 @@ class ArmController:
                 self.attach_observer(regions, self._observer_noise_c)
         if self.observer is not None:
             self.observer.update(reading_c)
+
+    def link_states(self) -> tuple[LinkThermalState, ...]:
+        """The links' thermal states the tool error is computed from (adapted or not)."""
+        return self._link_states()
 
     def _link_states(self) -> tuple[LinkThermalState, ...]:
         adaptation = self.adaptation

@@ -122,4 +122,6 @@ STEP_FLAGS: dict[str, str] = {
     "no-measurement": "followed runs: no camera measured the tool this step (the correction is the "
     "model's alone)",
     "model-drifting": "the IR observer's innovations stay biased: consider identification",
+    "bench-truth": "followed runs on the UR bench: measured_* is the bench truth's residual "
+    "tool error (no camera noise), not a camera measurement",
 }

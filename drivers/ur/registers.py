@@ -71,8 +71,14 @@ class RegisterMap:
 
     @property
     def inputs(self) -> tuple[str, ...]:
-        """The driver's input recipe, in order."""
+        """The driver's correction recipe, in order: a correction and the hold flag."""
         return (self.sequence, self.hold, *self.target)
+
+    @property
+    def hold_inputs(self) -> tuple[str, ...]:
+        """The driver's hold recipe: the heartbeat and the hold flag, never the correction
+        registers (a hold, a heartbeat or a resume writes nothing into them)."""
+        return (self.sequence, self.hold)
 
     @property
     def at_pose(self) -> str:
