@@ -309,6 +309,8 @@ class OffsetRobotState:
     program_status: int
     applied_offset_mm: Vector3
     applied_rotation_rad: Vector3
+    #: the program's instance (drivers/ur/registers.py): it changes when the program restarts
+    program_instance: int = 0
 
 
 @runtime_checkable

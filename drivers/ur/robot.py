@@ -117,6 +117,7 @@ class URRobot:
         self._following = False  # follow_program() was called: a program restart is a fault
         self._program_lost: str | None = None  # why the followed program's state is gone
         self._accepted_max = 0  # the highest sequence the followed program accepted
+        self._instance = 0  # the followed program's instance (drivers/ur/registers.py)
         self._seen_sequence = 0  # the sequence register as the controller reads it back
         self._arrived = asyncio.Event()  # set (and replaced) on every state package
         self._last_error: str | None = None
@@ -226,6 +227,10 @@ class URRobot:
         accepted = state.accepted_sequence
         if state.runtime_state == RuntimeState.STOPPED:
             lost = "the offset program was stopped"
+        elif state.program_instance != self._instance:
+            # a stop and a play between two state packages: nothing else need show it (a
+            # fresh program held from its start accepts nothing, like the old one)
+            lost = "the offset program restarted (a new program instance)"
         elif accepted < self._accepted_max and self._accepted_max - accepted < SEQUENCE_WRAP_GAP:
             lost = "the offset program restarted (its accepted sequence went back)"
         else:
@@ -396,6 +401,7 @@ class URRobot:
             self._following = True
             self._program_lost = None
             self._accepted_max = state.accepted_sequence
+            self._instance = state.program_instance
             return state
 
     def robot_state(self) -> OffsetRobotState:
@@ -505,4 +511,5 @@ class URRobot:
             program_status=integer(regs.status),
             applied_offset_mm=(applied[0] * MM_PER_M, applied[1] * MM_PER_M, applied[2] * MM_PER_M),
             applied_rotation_rad=(applied[3], applied[4], applied[5]),
+            program_instance=integer(regs.instance),
         )

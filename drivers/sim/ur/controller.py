@@ -189,6 +189,7 @@ class URController:
         self.outputs[regs.at_pose] = self.player.at_pose(t_s)
         self.outputs[regs.accepted_sequence] = program.accepted_sequence
         self.outputs[regs.status] = program.status
+        self.outputs[regs.instance] = program.instance
         for name, value in zip(regs.applied, program.applied, strict=True):
             self.outputs[name] = value
 
