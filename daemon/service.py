@@ -139,7 +139,7 @@ class Daemon:
             if control.threaded:
                 self.bus.route(control.post_home)
                 self._exit_stack.callback(self.bus.route, None)
-            self._workers = Workers()
+            self._workers = Workers(control.critical_thread_setup())
             self._exit_stack.callback(self._workers.shutdown)
             self.recorder = await self._workers.db(Recorder, self.settings.storage.data_dir)
             self._exit_stack.callback(self.recorder.close)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import functools
 import logging
 import os
 import sys
@@ -46,6 +47,8 @@ _T = TypeVar("_T")
 SWITCH_INTERVAL_S = 0.0005
 #: Niceness tried when real-time scheduling is not permitted (needs CAP_SYS_NICE too).
 FALLBACK_NICENESS = -10
+#: Niceness of the daemon's other threads when real-time scheduling is asked for.
+HOME_NICENESS = -5
 #: Largest number of posts waiting for the API's loop; the oldest is dropped past it (a loop
 #: stalled that long has lost its subscribers' events anyway: their queues are bounded too).
 OUTBOX_SIZE = 10_000
@@ -110,6 +113,21 @@ def realtime_scheduling(priority: int) -> str:
     return f"niceness {FALLBACK_NICENESS}: SCHED_FIFO not permitted ({reason})"
 
 
+def home_priority(priority: int) -> str:
+    """The daemon's other threads (this one and those it starts later inherit it) at niceness
+    :data:`HOME_NICENESS` when real-time scheduling is asked for: the control thread waits
+    for the GIL whenever another thread holds it, and a holder preempted by the lab PC's other
+    processes would make it wait for a whole time slice (a priority inversion that real-time
+    scheduling of the control thread alone cannot undo)."""
+    if priority <= 0:
+        return "normal scheduling"
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), HOME_NICENESS)
+    except (PermissionError, OSError, AttributeError) as err:
+        return f"normal scheduling (niceness {HOME_NICENESS} not permitted: {err})"
+    return f"niceness {HOME_NICENESS}"
+
+
 class ControlLoop:
     """The control loop's event loop: a thread of its own (``threaded``) or, for virtual
     clocks and tests, the caller's own loop (every call then simply awaits on it).
@@ -126,6 +144,9 @@ class ControlLoop:
         self._outbox: HomeOutbox | None = None
         self._switch_interval = sys.getswitchinterval()
         self.scheduling = "the API's event loop (no control thread)"
+        self.home_scheduling = "unchanged"
+        self._home_tid = 0
+        self._home_niceness = 0
 
     @property
     def loop(self) -> asyncio.AbstractEventLoop:
@@ -143,6 +164,9 @@ class ControlLoop:
             self._loop = self._home
             return self
         self._outbox = HomeOutbox(self._home)
+        self._home_tid = threading.get_native_id()
+        self._home_niceness = os.getpriority(os.PRIO_PROCESS, self._home_tid)
+        self.home_scheduling = home_priority(self._priority)
         ready: Future[asyncio.AbstractEventLoop] = Future()
         self._thread = threading.Thread(
             target=self._serve, args=(ready,), name="control-loop", daemon=True
@@ -150,7 +174,11 @@ class ControlLoop:
         self._thread.start()
         self._loop = await asyncio.wrap_future(ready)
         sys.setswitchinterval(min(self._switch_interval, SWITCH_INTERVAL_S))
-        logger.info("control loop on its own thread: %s", self.scheduling)
+        logger.info(
+            "control loop on its own thread: %s; the daemon's other threads: %s",
+            self.scheduling,
+            self.home_scheduling,
+        )
         return self
 
     def _serve(self, ready: Future[asyncio.AbstractEventLoop]) -> None:
@@ -172,6 +200,13 @@ class ControlLoop:
             finally:
                 loop.close()
 
+    def critical_thread_setup(self) -> Callable[[], object] | None:
+        """For the threads a step waits on (its CPU work, its recorder): the control thread's
+        real-time scheduling; None without a control thread or when none is asked for."""
+        if not self.threaded or self._priority <= 0:
+            return None
+        return functools.partial(realtime_scheduling, self._priority)
+
     async def __aexit__(
         self,
         exc_type: type[BaseException] | None,
@@ -185,6 +220,8 @@ class ControlLoop:
         if self._thread.is_alive():
             logger.error("the control loop's thread did not end in %.0f s", JOIN_TIMEOUT_S)
         sys.setswitchinterval(self._switch_interval)
+        with contextlib.suppress(OSError):  # back to what it was (a raise is always allowed)
+            os.setpriority(os.PRIO_PROCESS, self._home_tid, self._home_niceness)
         self._thread = None
 
     async def call(self, function: Callable[[], Awaitable[_T]]) -> _T:
