@@ -13,6 +13,10 @@ right before the bytes are written). This façade only routes requests and keeps
 (daemon/run/readmodel.py) that the API reads; a run is built from its parameters in
 daemon/run/start.py, and a run's end that could not be written is kept and written again by
 daemon/run/unrecorded_end.py.
+
+The devices and the run live on the control loop (daemon/run/control_loop.py: a thread with its
+own event loop when the clock is a wall clock); the methods here run on the API's loop and hand
+each request to it: a hold is taken on the permit here first, before anything is awaited.
 """
 
 from __future__ import annotations

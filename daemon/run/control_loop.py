@@ -45,9 +45,11 @@ _T = TypeVar("_T")
 #: The interpreter's GIL switch interval while a control thread runs (default 5 ms): a thread
 #: woken by its serial reply waits at most this long for a CPU-bound Python thread to let go.
 SWITCH_INTERVAL_S = 0.0005
-#: Niceness tried when real-time scheduling is not permitted (needs CAP_SYS_NICE too).
+#: Niceness change tried for the control thread when real-time scheduling is not permitted
+#: (relative to the process's; lowering it needs CAP_SYS_NICE or LimitNICE too).
 FALLBACK_NICENESS = -10
-#: Niceness of the daemon's other threads when real-time scheduling is asked for.
+#: Niceness change of the daemon's other threads when real-time scheduling is asked for
+#: (relative: from 0 under systemd, -5).
 HOME_NICENESS = -5
 #: Largest number of posts waiting for the API's loop; the oldest is dropped past it (a loop
 #: stalled that long has lost its subscribers' events anyway: their queues are bounded too).
@@ -103,29 +105,38 @@ def realtime_scheduling(priority: int) -> str:
     else:
         return f"SCHED_FIFO priority {priority}"
     try:
-        # Linux: PRIO_PROCESS with a thread id sets that thread's niceness alone
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), FALLBACK_NICENESS)
+        niceness = _lower_niceness(FALLBACK_NICENESS)
     except (PermissionError, OSError, AttributeError):
         return (
             f"normal scheduling: SCHED_FIFO not permitted ({reason}) nor niceness "
-            f"{FALLBACK_NICENESS}; grant CAP_SYS_NICE or LimitRTPRIO (deploy/thermocomp.service)"
+            f"{FALLBACK_NICENESS:+d}; grant CAP_SYS_NICE or LimitRTPRIO "
+            "(deploy/thermocomp.service)"
         )
-    return f"niceness {FALLBACK_NICENESS}: SCHED_FIFO not permitted ({reason})"
+    return f"niceness {niceness}: SCHED_FIFO not permitted ({reason})"
+
+
+def _lower_niceness(change: int) -> int:
+    """The calling thread's niceness changed by ``change`` (Linux: PRIO_PROCESS with a thread
+    id sets that thread's alone; threads it starts later inherit it); the new niceness."""
+    thread = threading.get_native_id()
+    niceness = max(os.getpriority(os.PRIO_PROCESS, thread) + change, -20)
+    os.setpriority(os.PRIO_PROCESS, thread, niceness)
+    return niceness
 
 
 def home_priority(priority: int) -> str:
-    """The daemon's other threads (this one and those it starts later inherit it) at niceness
-    :data:`HOME_NICENESS` when real-time scheduling is asked for: the control thread waits
+    """The daemon's other threads (this one and those it starts later inherit it) made
+    :data:`HOME_NICENESS` less nice when real-time scheduling is asked for: the control thread waits
     for the GIL whenever another thread holds it, and a holder preempted by the lab PC's other
     processes would make it wait for a whole time slice (a priority inversion that real-time
     scheduling of the control thread alone cannot undo)."""
     if priority <= 0:
         return "normal scheduling"
     try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), HOME_NICENESS)
+        niceness = _lower_niceness(HOME_NICENESS)
     except (PermissionError, OSError, AttributeError) as err:
-        return f"normal scheduling (niceness {HOME_NICENESS} not permitted: {err})"
-    return f"niceness {HOME_NICENESS}"
+        return f"normal scheduling (niceness {HOME_NICENESS:+d} not permitted: {err})"
+    return f"niceness {niceness}"
 
 
 class ControlLoop:
