@@ -23,6 +23,7 @@ from api.openapi import install_openapi
 from api.relay import Relay
 from api.routers import (
     arm_models,
+    budget,
     configuration,
     devices,
     health,
@@ -119,6 +120,7 @@ def create_app(settings: Settings, service_factory: ServiceFactory | None = None
         configuration.router,
         networks.router,
         arm_models.router,
+        budget.router,
         devices.router,
         ws.router,
     ):

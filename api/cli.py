@@ -64,6 +64,17 @@ COMMANDS: tuple[Command, ...] = (
         "calibrate with the robot: the camera, several cameras in 3-D, or the model",
     ),
     Command(
+        "budget",
+        "daemon.commands.budget",
+        "the measurement's error budget: each source's error against the deformation "
+        "(thesis ch. 4)",
+    ),
+    Command(
+        "cte",
+        "daemon.commands.cte",
+        "apparent expansion coefficients from runs and their predictions (thesis 2.2.4)",
+    ),
+    Command(
         "model", "daemon.commands.model_options", "simulate a thermal network or report its facts"
     ),
     Command(

@@ -123,6 +123,12 @@ class CompensationSettings(Section):
         200.0,
         description="Laser spot size on the chip (um), for the admissible-scale check (6.3).",
     )
+    target_um: Annotated[float, Field(gt=0, le=10000)] = Field(
+        5.0,
+        description="The error the compensation must stay within (um): what `thermocomp "
+        "budget` checks the measurement can resolve (thesis 4.11 trusted its improved "
+        "measurement to +-5 um).",
+    )
 
 
 class SchedulerSettings(Section):

@@ -23,6 +23,7 @@ from api.app import create_app
 from api.connections import ConnectionGuard
 from api.serve import connection_guard, server_config
 from config import Settings
+from drivers.permit import MotionPermit
 from tests.flood import FloodProcess, exchange, request, send_hold
 
 CONTROL = "control-token-0123456789"
@@ -36,6 +37,8 @@ class HoldCounter:
     def __init__(self) -> None:
         self.holds = 0
         self.sensor_states: dict[str, str] = {}
+        # the daemon's one permit: the outermost layer takes a ticket from it as requests arrive
+        self.permit = MotionPermit()
 
     async def hold_robot(self, *_: Any, **__: Any) -> None:
         self.holds += 1

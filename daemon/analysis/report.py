@@ -267,6 +267,7 @@ def write_report(
     compensation: str | None = None,
     reference: RunSteps | None = None,
     reference_run: int | str | None = None,
+    budget: Mapping[str, object] | None = None,
 ) -> ReportFiles:
     """Write the figures, ``summary.json`` and ``report.html`` of one run into ``out_dir``.
 
@@ -275,7 +276,8 @@ def write_report(
     lateness figure is replaced by a line saying why it would be empty. ``compensation`` (the
     run's mode, inferred from its offsets when None), ``reference`` and ``reference_run``
     (an uncompensated run's steps and name) decide what the reduction is measured against
-    (:func:`summarize_run`). Blocking.
+    (:func:`summarize_run`). ``budget``: the set-up's latest measurement error budget (a
+    saved budget's document), shown in its own section. Blocking.
     """
     steps = rows if isinstance(rows, RunSteps) else steps_from_rows(rows)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -326,6 +328,11 @@ def write_report(
             images[plot.name] = path.name
     figures = [(plot.name, plot.caption(given)) for plot in chosen]
     summary["plots"] = {name: path.name for name, path in plots.items()}
+    if budget is not None:
+        summary["budget"] = {
+            key: budget.get(key)
+            for key in ("made_at", "setup", "target_um", "resolution_um", "resolves", "verdict")
+        }
     summary["notes"] = notes
     summary_path = out_dir / SUMMARY_FILE
     summary_path.write_text(
@@ -337,6 +344,10 @@ def write_report(
         if arm
         else two_link_page(title, summary, stats=stats, figures=figures, images=images, notes=notes)
     )
+    if budget is not None:
+        from daemon.analysis.budget_report import budget_section, with_section
+
+        page = with_section(page, budget_section(budget))
     html_path.write_text(page, encoding="utf-8")
     logger.info("wrote the report of run %s to %s", steps.run_id, out_dir)
     return ReportFiles(directory=out_dir, html=html_path, summary=summary_path, plots=plots)

@@ -195,6 +195,7 @@ def write_run_report(
     if out_dir is None:
         out_dir, embed_images = report_dir(data_dir, run_id), True
     from daemon.analysis import write_report  # Matplotlib: loaded to write, not to import
+    from daemon.storage.budgets import read_saved_budget
 
     return write_report(
         steps,
@@ -202,6 +203,7 @@ def write_run_report(
         title=f"thermocomp run {run_id}",
         embed_images=embed_images,
         clock=run_clock(data_dir, run_id),
+        budget=read_saved_budget(data_dir),
         **summary_options,
     )
 

@@ -116,5 +116,7 @@ STEP_FLAGS: dict[str, str] = {
     "ir-error": "no IR reading within ir.read_timeout_s, or the reading was refused",
     "stale-ir": "the IR reading was older than ir.max_age_s: recorded, never fused",
     "room-error": "arm runs: the room thermometer gave no reading; the model kept the last room",
+    "no-measurement": "followed runs: no camera measured the tool this step (the correction is the "
+    "model's alone)",
     "model-drifting": "the IR observer's innovations stay biased: consider identification",
 }
