@@ -139,7 +139,7 @@ async def test_steps_go_on_while_the_api_loop_is_blocked(tmp_path: Path) -> None
     async with harness.daemon as daemon:
         await daemon.start_run(params(settings, step_s=0.02, duration_s=600.0))
         await daemon.wait_state(RunState.RUNNING)
-        while (view := daemon.run) is None or view.step < 2:
+        while (view := daemon.run) is None or view.step < 2:  # noqa: ASYNC110 -- no event here
             await asyncio.sleep(0.01)
         before = view.step
         time.sleep(1.0)  # noqa: ASYNC251 -- blocks the API's loop on purpose
