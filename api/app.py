@@ -37,6 +37,8 @@ from api.routers import (
 from api.security import Authenticator, HostAllowList, RateLimiter
 from api.tickets import TicketAtArrival
 from config import ConfigError, Settings
+from config.cli import EXIT_DEVICE, EXIT_USAGE
+from config.inputs import InputError, one_line
 from daemon import __version__
 from daemon.service import Daemon
 from daemon.storage.recorder import RecorderError
@@ -52,7 +54,12 @@ logger = logging.getLogger(__name__)
 
 class DaemonStartFailed(Exception):
     """The daemon could not open its devices or recording; already logged in one line (the
-    traceback uvicorn would log is dropped by api.startup's log filter)."""
+    traceback uvicorn would log is dropped by api.startup's log filter). ``status`` is the
+    exit status it asks of ``serve``: 3 for a device, 2 for a file or name of the settings."""
+
+    def __init__(self, message: str, status: int = EXIT_DEVICE) -> None:
+        super().__init__(message)
+        self.status = status
 
 
 #: Builds the daemon service from the settings; entered at startup, left at shutdown.
@@ -139,6 +146,12 @@ async def open_service(
     recording that fails is logged in one line and raised as :class:`DaemonStartFailed`."""
     try:
         return await stack.enter_async_context(service_factory(settings))
+    except InputError as err:
+        # a file or name of the settings (network, arm, duty cycle ...) that the start-up
+        # checks did not meet: a configuration error, exit 2 -- never 3, which systemd
+        # retries forever
+        logger.error("cannot start the daemon: %s", one_line(err))
+        raise DaemonStartFailed(one_line(err), EXIT_USAGE) from None
     except (DeviceError, RecorderError, ConfigError, OSError) as err:
         # a device that is there but does not answer (the start-up checks, api/startup.py,
         # found it present): one line, not a traceback; `serve` exits with 3, the status of

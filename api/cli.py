@@ -13,10 +13,20 @@ import argparse
 import importlib
 import logging
 import sys
-from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from argparse import SUPPRESS
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, NamedTuple
 
 from config.cli import EXIT_FAILURE, EXIT_USAGE
+from daemon import __version__
+
+#: ``-v``: INFO, ``-vv``: DEBUG (issue 28: quiet unless asked).
+VERBOSE_FLAGS = ("-v", "--verbose")
+VERBOSE_OPTIONS: dict[str, Any] = {
+    "action": "count",
+    "default": 0,
+    "help": "say more on stderr: -v progress (INFO), -vv debugging (DEBUG)",
+}
 
 Register = Callable[["argparse._SubParsersAction[argparse.ArgumentParser]"], None]
 
@@ -90,8 +100,6 @@ COMMANDS: tuple[Command, ...] = (
 
 
 def _version() -> str:
-    from daemon import __version__
-
     return __version__
 
 
@@ -112,10 +120,10 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"thermocomp {_version()}")
     parser.add_argument(
         "--log-level",
-        default="INFO",
         choices=["DEBUG", "INFO", "WARNING", "ERROR"],
-        help="logging threshold (default INFO)",
+        help="logging threshold (default: WARNING, INFO for serve; -v is INFO, -vv DEBUG)",
     )
+    parser.add_argument(*VERBOSE_FLAGS, **VERBOSE_OPTIONS)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     chosen = None if argv is None else _chosen(argv)
     modules = (
@@ -129,9 +137,42 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     for command in COMMANDS:
         if command.name not in subparsers.choices:
             subparsers.add_parser(command.name, help=command.help)
+    for subparser in _leaf_parsers(subparsers):  # -v after the command too: `run ... -v`
+        subparser.add_argument(*VERBOSE_FLAGS, **{**VERBOSE_OPTIONS, "default": SUPPRESS})
     order = [command.name for command in COMMANDS]
     subparsers._choices_actions.sort(key=lambda action: order.index(action.dest))
     return parser
+
+
+def _leaf_parsers(
+    subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
+) -> Iterator[argparse.ArgumentParser]:
+    """Every parser that runs a command (``devices check``, not ``devices``), once each."""
+    seen: set[int] = set()
+    for parser in subparsers.choices.values():
+        if id(parser) in seen:
+            continue
+        seen.add(id(parser))
+        nested = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if nested:
+            for inner in nested:
+                yield from _leaf_parsers(inner)
+        else:
+            yield parser
+
+
+def log_level(args: argparse.Namespace) -> str:
+    """The logging threshold: --log-level when given; else -v INFO, -vv DEBUG; else WARNING,
+    so that a command's summary on stdout is not interleaved with progress lines on stderr
+    (issue 28). ``serve`` is a service: its journal keeps INFO unless told otherwise."""
+    if args.log_level is not None:
+        return str(args.log_level)
+    verbose = int(getattr(args, "verbose", 0) or 0)
+    if verbose >= 2:
+        return "DEBUG"
+    if verbose == 1 or args.command == "serve":
+        return "INFO"
+    return "WARNING"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -139,16 +180,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser(words)
     args = parser.parse_args(words)
     logging.basicConfig(
-        level=args.log_level,
+        level=log_level(args),
         format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    # lazy: pydantic (the settings) loads for a command that runs, not for --help (issue 16)
     from config import ConfigError
+    from config.inputs import InputError, one_line
 
     try:
         status: int = args.handler(args)
-    except ConfigError as err:
-        print(f"thermocomp: invalid configuration:\n{err}", file=sys.stderr)
+    except ConfigError as err:  # the settings file or environment: one line, exit 2
+        print(f"thermocomp {args.command}: invalid configuration: {one_line(err)}", file=sys.stderr)
+        return EXIT_USAGE
+    except InputError as err:  # any file or name given (network, arm, duty cycle, ...)
+        print(f"thermocomp {args.command}: {one_line(err)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         return EXIT_FAILURE

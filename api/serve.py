@@ -45,7 +45,6 @@ from api.startup import (
     with_local_control_token,
 )
 from config import ConfigError, Settings, load_settings
-from config.cli import EXIT_DEVICE
 from daemon.heap import freeze_startup_heap
 from daemon.service import Daemon
 from daemon.systemd import SystemdNotifier
@@ -354,6 +353,9 @@ GIL_SWITCH_INTERVAL_S = 0.0005
 
 def run(args: argparse.Namespace) -> int:
     settings = with_address(load_settings(args.config), args.host, args.port)
+    if getattr(args, "data_dir", None) is not None:  # --data-dir (issue 28)
+        storage = settings.storage.model_copy(update={"data_dir": args.data_dir})
+        settings = settings.model_copy(update={"storage": storage})
     notifier = SystemdNotifier()
     try:
         preflight(settings)  # binding, descriptors, devices, port, database: one line each
@@ -371,9 +373,10 @@ def run(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _stopped_by_signal)
     try:
         started = asyncio.run(serve(settings, notifier, generated_token))
-    except DaemonStartFailed:  # logged in one line by api/app.py
-        notifier.status("failed to start: a device")
-        return EXIT_DEVICE
+    except DaemonStartFailed as err:  # logged in one line by api/app.py
+        # 3 for a device, 2 for a file or name of the settings (never retried by systemd)
+        notifier.status(f"failed to start: {err}")
+        return err.status
     finally:
         signal.signal(signal.SIGTERM, previous)
     if not started:  # the daemon or the socket could not be opened (logged above)

@@ -4,6 +4,7 @@ the daemon are imported when the command runs, from api/serve.py)."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from config.cli import add_config_argument, port_number
 
@@ -20,10 +21,17 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument(
         "--port", type=port_number, help="port to bind (default: api.port; 0 = any)"
     )
+    parser.add_argument(
+        "--data-dir",
+        type=Path,
+        help="folder of the run database, reports and saved models (default: "
+        "storage.data_dir), as for `thermocomp run --data-dir`",
+    )
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: FastAPI and uvicorn load when the server starts, not for `serve --help` (issue 16)
     from api import serve
 
     return serve.run(args)

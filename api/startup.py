@@ -34,6 +34,7 @@ from api.security import (
 )
 from config import Settings
 from config.cli import EXIT_ADDRESS, EXIT_DEVICE, EXIT_STORAGE, EXIT_USAGE
+from config.inputs import InputError, one_line
 from daemon.storage.recorder import Recorder, RecorderError
 
 logger = logging.getLogger(__name__)
@@ -253,9 +254,22 @@ def check_open_files(settings: Settings) -> None:
     resource.setrlimit(resource.RLIMIT_NOFILE, (needed, hard))
 
 
+def check_files(settings: Settings) -> None:
+    """Every file and name the settings give loads (network, arm, duty cycle, cameras): a
+    mistake there is a configuration error, exit 2 -- never 3, which systemd retries forever
+    (issues 26 and 28); the daemon's start would otherwise meet it deep inside."""
+    from daemon.run.inputs import check_inputs  # lazy: the model stack, only to check files
+
+    try:
+        check_inputs(settings)
+    except InputError as err:
+        raise StartupError(EXIT_USAGE, one_line(err)) from err
+
+
 def preflight(settings: Settings) -> None:
-    """Every check, cheapest first; raises :class:`StartupError`."""
+    """Every check, configuration first, then the cheapest; raises :class:`StartupError`."""
     check_binding(settings)
+    check_files(settings)
     check_open_files(settings)
     check_devices(settings)
     check_address(settings.api.host, settings.api.port)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Self
 
-from pydantic import Field, model_validator
+from pydantic import Field, StrictBool, model_validator
 
 from config.device_settings import CameraSettings
 from config.section import Section
@@ -23,7 +23,7 @@ class ArmSettings(Section):
     """The whole arm (issue 20): a run that names a duty cycle corrects the tool in 6-DOF at
     its measured poses. Disabled (the default), thermocomp is the two-link bench."""
 
-    enabled: bool = Field(
+    enabled: StrictBool = Field(
         False, description="Arm runs allowed and, on the bench, the arm bench's devices."
     )
     arm_file: str = Field(
@@ -98,19 +98,21 @@ class ArmSettings(Section):
     motion_dt_s: Annotated[float, Field(gt=0, le=10)] = Field(
         0.05, description="Time step of the duty cycle's motion samples for motor heat (s)."
     )
-    bending: bool = Field(False, description="Links bend from a temperature gradient across them.")
+    bending: StrictBool = Field(
+        False, description="Links bend from a temperature gradient across them."
+    )
     motor_side_share: Annotated[float, Field(ge=0, le=1)] = Field(
         0.5,
         description="With arm.bending: share of each joint's flange conductance on the link's "
         "motor-housing side (the arm's design; 0.5: symmetric, no gradient across a link).",
     )
-    adapt: bool = Field(
+    adapt: StrictBool = Field(
         False,
         description="Estimate each joint's heat, alpha, convection and (arm.bending) the bending "
         "share online from the measured tool and the IR regions, from the preset's or the arm "
         "model's values (daemon/arm/adaptation.py); the compensation uses the adapted links.",
     )
-    play_duty_cycle: bool | None = Field(
+    play_duty_cycle: StrictBool | None = Field(
         None,
         description="The robot plays the whole duty cycle (every pose at its speed, its dwell) "
         "for the whole arm run, the measured poses measured in passing; needs time_scale 1 and "

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, StrictBool, field_validator
 
 from config.arm_truth import ArmTruthError, load_arm_truth
 from config.faults import parse_sensor_faults
@@ -15,7 +15,7 @@ from config.section import MAX_DURATION_S, MAX_HEAT_W, NonNegativeFloat, Positiv
 class BenchSettings(Section):
     """The simulated bench and the clock every component shares."""
 
-    enabled: bool = Field(True, description="Use the simulated bench instead of hardware.")
+    enabled: StrictBool = Field(True, description="Use the simulated bench instead of hardware.")
     clock: Literal["real", "accelerated", "virtual"] = Field(
         "virtual",
         description="real: wall time; accelerated: wall time x time_factor; virtual: jump to "
@@ -143,7 +143,7 @@ class BenchSettings(Section):
     camera_gain_e_per_count: PositiveFloat = Field(
         1.0, description="Truth: electrons per count of the sim camera's sensor."
     )
-    camera_reports_gain: bool = Field(
+    camera_reports_gain: StrictBool = Field(
         True,
         description="The sim camera reports its gain with each frame (a camera that knows "
         "its sensor); false: it does not, as a GenICam camera, and the centroid measures it.",

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal, Self
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, StrictBool, field_validator, model_validator
 
 from config.section import (
     MAX_FRAME_PX,
@@ -71,7 +71,7 @@ class CameraSettings(Section):
         description="Replay time base: frame i belongs to i x period on the run clock and grab() "
         "returns the frame of now; none: each grab() returns the next frame.",
     )
-    replay_loop: bool = Field(False, description="Replay: start again after the last frame.")
+    replay_loop: StrictBool = Field(False, description="Replay: start again after the last frame.")
     width_px: Annotated[int, Field(gt=0, le=MAX_FRAME_PX)] = Field(
         752, description="Frame width requested (px)."
     )
@@ -117,7 +117,7 @@ class CameraSettings(Section):
     centroid_box: Annotated[int, Field(gt=0, le=MAX_FRAME_PX)] = Field(
         400, description="Thesis method: half-size (px) of the box around the brightest pixels."
     )
-    centroid_binary: bool = Field(
+    centroid_binary: StrictBool = Field(
         False, description="Thesis method: pixels at or above the low threshold count as white."
     )
     max_age_s: PositiveFloat = Field(
@@ -213,7 +213,7 @@ class IrSettings(Section):
         description="Replay time base: frame i belongs to i x period on the run clock; none: "
         "each read() returns the next frame.",
     )
-    replay_loop: bool = Field(False, description="Replay: start again after the last frame.")
+    replay_loop: StrictBool = Field(False, description="Replay: start again after the last frame.")
     counts_to_celsius: tuple[float, float] = Field(
         (0.01, -273.15),
         description="Linear calibration (scale, offset): T = scale * counts + offset; the "
@@ -291,7 +291,7 @@ class RobotSettings(Section):
         10.0,
         description="Slowest tool rotation of a move at 100 % speed (deg/s), as min_speed_mm_s.",
     )
-    online: bool = Field(True, description="Use straight-line moves (needs `online on`).")
+    online: StrictBool = Field(True, description="Use straight-line moves (needs `online on`).")
     application: str = Field("ash", description="Name of the ash application (prompt).")
     reconnect_max_backoff_s: PositiveFloat = Field(
         30.0, description="Longest wait between two reconnection attempts (s)."
@@ -308,7 +308,7 @@ class RobotSettings(Section):
         description="Read the actual pose back (`w2`, ~60 % of a console step's bytes) every N-th "
         "move; a move without read-back records no pose.",
     )
-    emulator_paced: bool = Field(
+    emulator_paced: StrictBool = Field(
         False, description="Sim: pace the emulator at the baud rate (real link timings)."
     )
     emulator_move_ms: NonNegativeFloat = Field(5.0, description="Sim: time one move takes (ms).")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field
+from pydantic import Field, StrictBool
 
 from config.section import (
     MAX_DURATION_S,
@@ -64,7 +64,7 @@ class ObserverSettings(Section):
     """The IR observer of prediction model+ir (daemon.model.observer) and its online
     adaptation (issue 19, daemon.model.adaptation)."""
 
-    adapt: bool = Field(
+    adapt: StrictBool = Field(
         False,
         description="model+ir: also estimate the adapt_parameters scale factors online with the "
         "temperatures (augmented-state EKF), so a wrong model converges without a calibration "

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import Field, model_validator
+from pydantic import Field, StrictBool, model_validator
 
 from config.section import MAX_CONNECTIONS_LIMIT, PositiveFloat, Section
 
@@ -17,7 +17,7 @@ class StorageSettings(Section):
     archive_every: Annotated[int, Field(ge=0, le=2**31)] = Field(
         0, description="Archive every N-th frame as a 16-bit PNG; 0 = none."
     )
-    report_at_end: bool = Field(
+    report_at_end: StrictBool = Field(
         True,
         description="Write the run's report (HTML + figures) under data_dir/reports at its end.",
     )
@@ -30,7 +30,7 @@ class ApiSettings(Section):
     port: Annotated[int, Field(ge=0, le=65535)] = Field(8000, description="TCP port; 0: any.")
     control_token: str | None = Field(None, description="Bearer token of the `control` scope.")
     read_token: str | None = Field(None, description="Bearer token of the `read` scope.")
-    anonymous_read: bool | None = Field(
+    anonymous_read: StrictBool | None = Field(
         None, description="Allow reads without a token; none: only when bound to loopback."
     )
     allowed_hosts: tuple[str, ...] = Field(

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from types import UnionType
@@ -23,6 +22,7 @@ from pydantic import BaseModel, ValidationError, model_validator
 from config.arm_settings import ArmSettings
 from config.bench_settings import BenchSettings, two_link_settings_given
 from config.device_settings import CameraSettings, IrRegion, IrSettings, RobotSettings
+from config.inputs import InputError
 from config.model_settings import (
     CompensationSettings,
     ModelSettings,
@@ -32,6 +32,7 @@ from config.model_settings import (
 from config.room_settings import RoomSettings
 from config.section import MAX_CONNECTIONS_LIMIT, SUPPORTED_BAUDRATES, Section
 from config.service_settings import ApiSettings, StorageSettings
+from config.toml_file import MAX_TOML_BYTES, read_toml
 
 # The settings tree's sections live in their own modules (one job each); they are part of this
 # module's interface, as the tree they make up.
@@ -68,13 +69,10 @@ __all__ = [
 ENV_PREFIX = "THERMOCOMP_"
 ENV_NESTING = "__"
 
-#: Largest settings or network file read (bytes): the biggest preset is a few KiB, so anything
-#: this large is the wrong file, refused before it is parsed.
-MAX_TOML_BYTES = 4 * 1024 * 1024
 
-
-class ConfigError(Exception):
-    """The configuration could not be loaded; ``str()`` is the message for the user."""
+class ConfigError(InputError):
+    """The configuration could not be loaded; ``str()`` is the message for the user (one line
+    per problem: ``<file>: <field.path>: <reason>``)."""
 
 
 class Settings(Section):
@@ -195,32 +193,6 @@ def _describe(error: ValidationError, source: str, env_used: dict[str, str]) -> 
         origin = f"{env_used[path]} (environment)" if path in env_used else source
         lines.append(f"{origin}: {path}: {reason}" if path else f"{origin}: {reason}")
     return "\n".join(lines)
-
-
-def read_toml(path: Path, error: type[Exception]) -> dict[str, Any]:
-    """A TOML file's tables; any failure is ``error("<path>: <why>")`` (missing, not TOML,
-    unreadable), so settings and network files report bad files the same way."""
-    try:
-        with open(path, "rb") as handle:
-            raw = handle.read(MAX_TOML_BYTES + 1)
-    except FileNotFoundError as err:
-        raise error(f"{path}: no such file") from err
-    except IsADirectoryError as err:
-        raise error(f"{path}: is a folder, not a TOML file") from err
-    except OSError as err:
-        raise error(f"{path}: cannot read: {err.strerror}") from err
-    if len(raw) > MAX_TOML_BYTES:
-        raise error(f"{path}: over {MAX_TOML_BYTES // 1024} KiB: not a settings or network file")
-    if b"\0" in raw:
-        raise error(f"{path}: a binary file, not TOML text")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise error(f"{path}: not UTF-8 text (byte {err.start}): save it as UTF-8") from err
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise error(f"{path}: not valid TOML: {err}") from err
 
 
 def load_settings(path: Path | None = None, environ: Mapping[str, str] | None = None) -> Settings:

@@ -59,6 +59,7 @@ from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue, ReportStatus
 from drivers.clock import Clock, ScaledClock, make_clock
+from drivers.factory import open_devices
 from drivers.permit import MotionPermit, Ticket
 
 __all__ = [
@@ -492,7 +493,5 @@ class Daemon:
 
 @contextlib.asynccontextmanager
 async def _default_opener(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
-    from drivers.factory import open_devices
-
     async with open_devices(settings, clock) as devices:
         yield devices

@@ -126,49 +126,10 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             )
         return
     async with contextlib.AsyncExitStack() as stack:
-        bench = Bench(settings, clock) if simulated or _emulated_server(settings) else None
-        emulator: C500CEmulator | None = None
-        robot: Robot
-        if _emulated_server(settings):
-            assert bench is not None
-            robot_settings = settings.robot
-            emulator = emulated_server(settings, seed=bench.robot_seed)
-            await stack.enter_async_context(emulator)
-            bench.attach_robot(emulator.actual_pose)
-            robot = C500CServerRobot(robot_settings, port=emulator.device_path)
-        elif settings.robot.driver == "c500c-server":
-            robot = C500CServerRobot(settings.robot)
-        elif settings.robot.driver == "sim":
-            assert bench is not None
-            robot_settings = settings.robot
-            emulator = C500CEmulator(
-                EmulatorConfig(
-                    application=robot_settings.application,
-                    seed=bench.robot_seed,
-                    noise_um=settings.bench.robot_noise_um,
-                    move_ms=robot_settings.emulator_move_ms,
-                    baudrate=robot_settings.baudrate,
-                    paced=robot_settings.emulator_paced,
-                )
-            )
-            await stack.enter_async_context(emulator)
-            bench.attach_robot(emulator.actual_pose)
-            robot = C500CRobot(robot_settings, port=emulator.device_path)
-        else:
-            robot = C500CRobot(settings.robot)
-
+        bench = bench_for(settings, clock)
+        robot, emulator = await robot_driver(settings, bench, stack)
         camera = camera_driver(settings.camera, clock, bench)
-
-        ir: IrReader
-        if settings.ir.driver == "sim":
-            assert bench is not None
-            ir = SimIrReader(settings, bench, clock)
-        elif settings.ir.driver == "opencv":
-            ir = OpenCvIrReader(settings.ir, clock)
-        elif settings.ir.driver == "genicam-radiometric":
-            ir = GenICamRadiometricIrReader(settings.ir, clock)
-        else:
-            ir = ReplayIrReader(settings.ir, clock)
+        ir = ir_driver(settings, clock, bench)
 
         await stack.enter_async_context(robot)
         await stack.enter_async_context(camera)
@@ -192,6 +153,57 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             camera_models=camera_models,
             room=room,
         )
+
+
+def bench_for(settings: Settings, clock: Clock) -> Bench | None:
+    """The simulated bench's truth when a device is simulated (or the fast path emulated)."""
+    return Bench(settings, clock) if _simulated(settings) or _emulated_server(settings) else None
+
+
+async def robot_driver(
+    settings: Settings, bench: Bench | None, stack: contextlib.AsyncExitStack
+) -> tuple[Robot, C500CEmulator | None]:
+    """The robot driver (not yet opened) and, on the bench, its emulated controller (started
+    in ``stack``, its pose attached to the bench); ``sim`` and the emulated fast path need the
+    bench. ``thermocomp devices check`` opens each device with these on its own."""
+    emulator: C500CEmulator | None = None
+    robot_settings = settings.robot
+    if _emulated_server(settings):
+        assert bench is not None
+        emulator = emulated_server(settings, seed=bench.robot_seed)
+        await stack.enter_async_context(emulator)
+        bench.attach_robot(emulator.actual_pose)
+        return C500CServerRobot(robot_settings, port=emulator.device_path), emulator
+    if robot_settings.driver == "c500c-server":
+        return C500CServerRobot(robot_settings), None
+    if robot_settings.driver == "sim":
+        assert bench is not None
+        emulator = C500CEmulator(
+            EmulatorConfig(
+                application=robot_settings.application,
+                seed=bench.robot_seed,
+                noise_um=settings.bench.robot_noise_um,
+                move_ms=robot_settings.emulator_move_ms,
+                baudrate=robot_settings.baudrate,
+                paced=robot_settings.emulator_paced,
+            )
+        )
+        await stack.enter_async_context(emulator)
+        bench.attach_robot(emulator.actual_pose)
+        return C500CRobot(robot_settings, port=emulator.device_path), emulator
+    return C500CRobot(robot_settings), None
+
+
+def ir_driver(settings: Settings, clock: Clock, bench: Bench | None) -> IrReader:
+    """The IR reader of the settings (not yet opened); ``sim`` needs the bench."""
+    if settings.ir.driver == "sim":
+        assert bench is not None
+        return SimIrReader(settings, bench, clock)
+    if settings.ir.driver == "opencv":
+        return OpenCvIrReader(settings.ir, clock)
+    if settings.ir.driver == "genicam-radiometric":
+        return GenICamRadiometricIrReader(settings.ir, clock)
+    return ReplayIrReader(settings.ir, clock)
 
 
 async def _open_room(

@@ -14,13 +14,13 @@ import pytest
 from daemon.arm.adaptation import ArmAdaptation
 from daemon.arm.arm_network import describe_arm
 from daemon.arm.calibration_program import calibration_program, duty_cycle_toml, hold_pose
-from daemon.arm.description import load_arm
 from daemon.arm.duty import duty_cycle_from_mapping, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.identify import _ArmProblem, identify_arm
 from daemon.arm.identify_final import identify_arm_final
 from daemon.arm.identify_parameters import outside_physical_range, parse_parameters
 from daemon.arm.identify_response import NetworkFactors, factored_description, output_responses
+from daemon.arm.loading import load_arm
 from daemon.arm.response import ArmModelSpec, ArmRunData
 from daemon.arm.thermal import ArmThermalModel
 from daemon.model.identify_uncertainty import central_jacobian

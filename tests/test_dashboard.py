@@ -124,6 +124,7 @@ def _lab(colour: str) -> tuple[float, float, float]:
     return 116 * f(y) - 16, 500 * (f(x) - f(y)), 200 * (f(y) - f(z))
 
 
+@pytest.mark.slow
 def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Path) -> None:
     page, page_errors = open_dashboard(browser, server)
     preset = page.locator("#network-select option[value='thesis-two-link']")
@@ -239,6 +240,7 @@ def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Pa
     assert page_errors == []
 
 
+@pytest.mark.slow
 def test_a_refused_token_shows_a_banner_and_the_plots_go_on(browser: Browser, server: str) -> None:
     page, page_errors = open_dashboard(browser, server)
     start_run(page)
@@ -289,6 +291,7 @@ def _run(run_id: int, state: str, reason: str | None) -> dict[str, Any]:
     }
 
 
+@pytest.mark.slow
 def test_run_states_and_robot_badges_in_the_apis_words(browser: Browser, server: str) -> None:
     """Every final state the API may give (the lead adds `stopped`), and the robot and device
     states: the page shows the API's answers as they are, so these are served to it."""
@@ -362,6 +365,7 @@ def test_run_states_and_robot_badges_in_the_apis_words(browser: Browser, server:
     }
 
 
+@pytest.mark.slow
 def test_the_dashboard_runs_under_its_own_csp(browser: Browser, server: str) -> None:
     """With the Content-Security-Policy enforced (no eval-based waits here: selectors only),
     the page loads its scripts and styles, opens the stream, shows the daemon's state and the
@@ -388,6 +392,7 @@ def test_the_dashboard_runs_under_its_own_csp(browser: Browser, server: str) -> 
     page.close()
 
 
+@pytest.mark.slow
 def test_the_api_description_runs_under_its_own_csp(browser: Browser, server: str) -> None:
     """/docs (the vendored Swagger UI, started by a script file: no inline script) renders the
     description with the CSP enforced and no violation."""

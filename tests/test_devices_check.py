@@ -37,6 +37,7 @@ def colour_mask(image: np.ndarray, colour: tuple[int, int, int]) -> np.ndarray:
     return mask
 
 
+@pytest.mark.slow
 def test_check_on_the_bench_prints_every_device_and_draws_the_preview(tmp_path: Path) -> None:
     config = write_config(
         tmp_path,
@@ -77,6 +78,7 @@ def test_check_on_the_bench_prints_every_device_and_draws_the_preview(tmp_path: 
     assert not box[60 * factor, 25 * factor]  # inside: the image, not the frame
 
 
+@pytest.mark.slow
 def test_json_output_and_a_failing_device_named_in_one_line(tmp_path: Path) -> None:
     # a region beyond the 160 x 120 thermal image: the IR read fails, the rest is described
     config = write_config(
@@ -92,6 +94,7 @@ def test_json_output_and_a_failing_device_named_in_one_line(tmp_path: Path) -> N
     assert len(failures) == 1
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,
     reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",
@@ -104,14 +107,36 @@ def test_a_missing_camera_is_one_line_and_exit_status_1(tmp_path: Path) -> None:
     config.write_text(text)
     result = run_cli(["devices", "check", "--config", str(config)], env={"PYLON_CAMEMU": "1"})
     assert result.returncode == 1
-    assert result.stdout == ""
+    # the other devices are still checked and described (issue 28)
+    assert "ir: 160x120 px" in result.stdout and "robot: connected" in result.stdout
     errors = [line for line in result.stderr.splitlines() if "devices check" in line]
     assert errors == [
-        "thermocomp devices check: cannot open the devices: camera: no GenICam camera with "
-        "serial '21999999' (found: Emulation 0815-0000)"
+        "thermocomp devices check: camera: no GenICam camera with serial '21999999' "
+        "(found: Emulation 0815-0000)"
     ]
 
 
+def test_a_robot_that_does_not_answer_leaves_the_cameras_checked(tmp_path: Path) -> None:
+    """Bring-up (issue 28): the robot's serial adapter is not plugged in yet; the camera and
+    the IR camera are still opened, grabbed from and described, the robot is one line, exit 1
+    (before: "cannot open the devices" and nothing checked)."""
+    config = write_config(tmp_path, "")
+    text = config.read_text().replace(
+        '[robot]\ndriver = "sim"', '[robot]\ndriver = "c500c"\nport = "/dev/ttyNOSUCH7"'
+    )
+    assert 'port = "/dev/ttyNOSUCH7"' in text
+    config.write_text(text)
+    result = run_cli(["devices", "check", "--config", str(config)])
+    assert result.returncode == 1, result.stderr
+    assert "camera: 752x582 px" in result.stdout and "camera: spot found at" in result.stdout
+    assert "ir: 160x120 px" in result.stdout
+    assert "robot: FAILED:" in result.stdout and "/dev/ttyNOSUCH7" in result.stdout
+    errors = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(errors) == 1 and errors[0].startswith("thermocomp devices check: robot: ")
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.slow
 async def test_preview_endpoint_while_idle_and_refused_during_a_run(tmp_path: Path) -> None:
     app = create_app(bench_settings(tmp_path / "data"), service_factory=Daemon)
     async with (
@@ -140,6 +165,7 @@ async def test_preview_endpoint_while_idle_and_refused_during_a_run(tmp_path: Pa
         assert stop.status_code in (200, 202), stop.text
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,
     reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",
@@ -164,8 +190,10 @@ def test_check_through_emulated_genicam_camera_and_ir(tmp_path: Path) -> None:
     # planck mode on the same emulated camera: it has no R, B, F, O
     config.write_text(config.read_text().replace('"linear"', '"planck"'))
     refused = run_cli(["devices", "check", "--config", str(config)], env={"PYLON_CAMEMU": "2"})
-    assert refused.returncode == 1 and refused.stdout == ""
+    assert refused.returncode == 1
+    # the camera and the robot are still checked and described (issue 28)
+    assert refused.stdout.startswith("camera: 752x582 px") and "robot: connected" in refused.stdout
     assert (
-        "thermocomp devices check: cannot open the devices: ir: Emulation 0815-0001 has no "
-        "Planck registers (R, B, F, O missing)"
+        "thermocomp devices check: ir: Emulation 0815-0001 has no Planck registers (R, B, F, O "
+        "missing)"
     ) in refused.stderr

@@ -11,6 +11,7 @@ import dataclasses
 import io
 import json
 import math
+import sqlite3
 from pathlib import Path
 
 from daemon.run.workers import Workers
@@ -21,6 +22,7 @@ from daemon.storage.recorder import (
     Recorder,
     StepRecord,
 )
+from daemon.storage.step_text import csv_lines, step_text
 
 STEPS = 25
 
@@ -141,3 +143,43 @@ async def test_exports_run_in_a_worker_process(tmp_path: Path) -> None:
     finally:
         await asyncio.to_thread(workers.shutdown)
     assert chunk.count == 5 and chunk.next_start == 5
+
+
+#: values whose CSV layout the msgspec path rewrites (exponents, a decimal point at -4)
+LAYOUTS: dict[int, dict[str, object]] = {
+    12: {"lateness_s": 5e-05, "actual_s": 12.00005, "pose_x_mm": -1.5e-05, "pose_y_mm": 1e-07},
+    13: {"pose_x_mm": 1e16, "pose_y_mm": 1e22, "pose_z_mm": 5e-324, "offset_x_mm": -0.0},
+    14: {"ir_json": '{"n": 1e-5, "m": null, "k": "0.00001"}', "error": "100% null, 50%"},
+}
+
+
+def test_the_csv_is_the_old_encoders_byte_for_byte(tmp_path: Path) -> None:
+    """csv_lines (msgspec prints the numbers) against step_text's CSV (repr prints them), on a
+    run with missing cells, NaN (stored as NULL), infinities, quotes, commas, line feeds, %
+    and numbers in every layout, chunk by chunk and whole."""
+    with Recorder(tmp_path) as recorder:
+        run_id = recorder.create_run({}, {}, None, "test")
+        for step in range(STEPS):
+            recorder.write_step(
+                dataclasses.replace(
+                    StepRecord(
+                        run_id=run_id,
+                        step=step,
+                        scheduled_s=float(step),
+                        actual_s=step + 1e-3,
+                        lateness_s=1e-3,
+                        residual_um=math.nan if step == 3 else 0.1 * step,
+                    ),
+                    **AWKWARD.get(step, {}),
+                    **LAYOUTS.get(step, {}),
+                )
+            )
+    db = sqlite3.connect(tmp_path / DATABASE_NAME)
+    try:
+        for start, count in ((0, None), (0, 7), (7, 7), (14, 20), (STEPS, 5)):
+            new, found, last = csv_lines(db, run_id, start, count)
+            old, old_found, old_last = step_text(db, run_id, start, count, json=False)
+            assert (new.decode(), found, last) == (old, old_found, old_last)
+        assert csv_lines(db, run_id, 12, 1)[0].count(b"e-05") == 2  # the layouts were there
+    finally:
+        db.close()

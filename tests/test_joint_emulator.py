@@ -202,7 +202,9 @@ async def test_console_moves_the_arm_in_joint_space(arm_emulator: C500CEmulator)
             round(d * ESTIMATED_A465_PULSES_PER_DEG) for d in np.degrees(q_now)
         )
         with pytest.raises(DeviceReportedError) as caught:
-            await robot.move_absolute((2000.0, 0.0, 0.0))  # far beyond the A465's reach
+            # beyond the A465's reach (~0.7 m from its shoulder) yet inside the driver's own
+            # 1 m bound on an offset, so the controller is the one that refuses it
+            await robot.move_absolute((950.0, 0.0, 0.0))
         assert caught.value.code == 3
 
 

@@ -3,6 +3,7 @@ frames: api/routers/run_data.py)."""
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
 from typing import Annotated, Any, Literal
@@ -21,10 +22,11 @@ from api.deps import ControlAccess, DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
 from api.routers import run_data
 from api.tickets import ticket_of
-from daemon.arm.arm_model import ArmModelNotFoundError, named_arm_model_path
+from config.inputs import one_line
 from daemon.arm.duty import available_duty_cycles
 from daemon.model import available_presets
-from daemon.model.presets import NETWORK_NAME, NetworkNotFoundError, named_network_path
+from daemon.model.presets import NETWORK_NAME
+from daemon.run.inputs import check_named_arm_model, check_named_network
 from daemon.run.states import RunParameters, RunStateError
 from daemon.service import Daemon, RunConflictError
 from daemon.storage.recorder import RecorderError, RunRow
@@ -212,22 +214,19 @@ async def start_run(
     """Start a run; 409 while another one is active; 422 with field-level messages when the
     parameters are invalid or not admissible (e.g. the scaled deformation leaves the chip)."""
     given = {} if request is None else request.model_dump(exclude_none=True)
-    if "network" in given:
+    for key, check in (("network", check_named_network), ("arm_model", check_named_arm_model)):
+        if key not in given:
+            continue
+        # the named file is loaded, not only found (issue 26: a bad saved network started a
+        # run that failed later); on a worker thread: a file and a network's checks
         try:
-            named_network_path(given["network"], settings.storage.data_dir)
-        except NetworkNotFoundError as err:
+            await asyncio.to_thread(check, settings, given[key])
+        except LookupError as err:  # NetworkNotFoundError, ArmModelNotFoundError
             raise ApiError(404, "not-found", str(err)) from err
-        except ValueError as err:
-            details = [{"field": "body.network", "message": str(err), "type": "value_error"}]
-            raise ApiError(422, "validation", str(err), details) from err
-    if "arm_model" in given:
-        try:
-            named_arm_model_path(given["arm_model"], settings.storage.data_dir)
-        except ArmModelNotFoundError as err:
-            raise ApiError(404, "not-found", str(err)) from err
-        except ValueError as err:
-            details = [{"field": "body.arm_model", "message": str(err), "type": "value_error"}]
-            raise ApiError(422, "validation", str(err), details) from err
+        except ValueError as err:  # InputError: a malformed name or a bad file
+            message = one_line(err)
+            details = [{"field": f"body.{key}", "message": message, "type": "value_error"}]
+            raise ApiError(422, "validation", message, details) from err
     try:
         parameters = RunParameters.from_settings(settings, **given)
     except ValidationError as err:

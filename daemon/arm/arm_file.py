@@ -1,20 +1,20 @@
 """Arm files: the TOML schema of ``config/arms/*.toml`` and the builders from it.
 
 docs/reference/files.md "Arm files" lists the fields; ``daemon.arm.description`` holds the values
-they build and ``load_arm``, the entry point. Every problem is an :class:`ArmError` with one line
+they build; ``daemon.arm.loading.load_arm`` is the entry point (a DH table here, a URDF through
+``daemon.arm.urdf``). Every problem is an :class:`ArmError` with one line
 naming the file and the field (or the joint/link) at fault.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from config.settings import read_toml
 from daemon.arm.description import (
+    MAX_ARM_JOINTS,
     Arm,
     ArmError,
     FloatArray,
@@ -26,14 +26,27 @@ from daemon.arm.description import (
     xyz_rpy,
 )
 
+#: Bounds of an arm file's numbers (issue 26): far beyond any arm, low enough that no pose,
+#: volume or heat computed from them overflows. Lengths in mm (100 m), angles in degrees.
+MAX_LENGTH_MM = 100_000.0
+MAX_ANGLE_DEG = 360.0
+MAX_LIMIT_DEG = 3_600.0  # a multi-turn joint's limits
+MAX_LINKS = 64
+
+Length = Annotated[float, Field(ge=-MAX_LENGTH_MM, le=MAX_LENGTH_MM)]
+PositiveLength = Annotated[float, Field(gt=0, le=MAX_LENGTH_MM)]
+Angle = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
+Limit = Annotated[float, Field(ge=-MAX_LIMIT_DEG, le=MAX_LIMIT_DEG)]
+
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: TOML's nan and inf are refused naming the field, never computed with
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class _Placement(_Strict):
-    xyz_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    xyz_mm: tuple[Length, Length, Length] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[Angle, Angle, Angle] = (0.0, 0.0, 0.0)
 
 
 class _Motor(_Strict):
@@ -49,12 +62,12 @@ class _Motor(_Strict):
 class _Joint(_Strict):
     name: str
     link: str | None = None  # DH: the link this joint moves (default "<joint name>-link")
-    a_mm: float = 0.0
-    alpha_deg: float = 0.0
-    d_mm: float = 0.0
-    theta_offset_deg: float = 0.0
-    lower_deg: float | None = None
-    upper_deg: float | None = None
+    a_mm: Length = 0.0
+    alpha_deg: Angle = 0.0
+    d_mm: Length = 0.0
+    theta_offset_deg: Angle = 0.0
+    lower_deg: Limit | None = None
+    upper_deg: Limit | None = None
     grows_with: str | None = None  # "" : the base (does not grow)
     motor: _Motor | None = None
 
@@ -71,16 +84,16 @@ class _Material(_Strict):
 
 class _Section(_Strict):
     shape: Literal["round", "rect"]
-    outer_width_mm: float = Field(gt=0)
-    outer_height_mm: float | None = Field(default=None, gt=0)
-    wall_mm: float = Field(default=0.0, ge=0)
+    outer_width_mm: PositiveLength
+    outer_height_mm: PositiveLength | None = None
+    wall_mm: Annotated[float, Field(ge=0, le=MAX_LENGTH_MM)] = 0.0
 
 
 class _Link(_Strict):
     name: str
     mass_kg: float = Field(default=0.0, ge=0)
-    com_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    length_mm: float | None = Field(default=None, gt=0)
+    com_mm: tuple[Length, Length, Length] = (0.0, 0.0, 0.0)
+    length_mm: PositiveLength | None = None
     material: _Material | None = None
     section: _Section | None = None
 
@@ -94,11 +107,11 @@ class ArmFileSpec(_Strict):
     tip_link: str | None = None  # URDF: the chain's last link (default: the only leaf)
     base: _Placement = _Placement()
     tool: _Placement = _Placement()
-    joints: tuple[_Joint, ...] = ()
-    links: tuple[_Link, ...] = ()
+    joints: Annotated[tuple[_Joint, ...], Field(max_length=MAX_ARM_JOINTS)] = ()
+    links: Annotated[tuple[_Link, ...], Field(max_length=MAX_LINKS)] = ()
 
 
-def _describe(err: ValidationError, data: dict[str, Any]) -> str:
+def describe_error(err: ValidationError, data: dict[str, Any]) -> str:
     problems = []
     for problem in err.errors():
         location = list(problem["loc"])
@@ -115,7 +128,7 @@ def _describe(err: ValidationError, data: dict[str, Any]) -> str:
     return "; ".join(problems)
 
 
-def _placement(spec: _Placement) -> FloatArray:
+def placement(spec: _Placement) -> FloatArray:
     roll, pitch, yaw = (math.radians(v) for v in spec.rpy_deg)
     return xyz_rpy(spec.xyz_mm, (roll, pitch, yaw))
 
@@ -208,7 +221,7 @@ def check_links_named(arm: Arm) -> None:
             )
 
 
-def _dh_arm(spec: ArmFileSpec, name: str) -> Arm:
+def dh_arm(spec: ArmFileSpec, name: str) -> Arm:
     if spec.convention is None:
         raise ArmError('convention: give "standard" or "modified" (or urdf = "<file>")')
     if not spec.joints:
@@ -233,79 +246,9 @@ def _dh_arm(spec: ArmFileSpec, name: str) -> Arm:
         convention=spec.convention,
         joints=joints,
         links=build_links(spec.links, link_names),
-        base=_placement(spec.base),
-        tool=_placement(spec.tool),
+        base=placement(spec.base),
+        tool=placement(spec.tool),
         description=spec.description,
     )
     check_links_named(arm)
     return arm
-
-
-def arm_from_mapping(
-    data: dict[str, Any], default_name: str = "arm", folder: Path | None = None
-) -> Arm:
-    """The arm a parsed TOML document describes (``folder``: where a named URDF is looked for)."""
-    try:
-        spec = ArmFileSpec.model_validate(data)
-    except ValidationError as err:
-        raise ArmError(_describe(err, data)) from err
-    name = spec.name or default_name
-    if spec.urdf is None:
-        return _dh_arm(spec, name)
-    if spec.convention is not None:
-        raise ArmError("convention: a URDF arm takes its kinematics from the URDF; drop it")
-    from daemon.arm.urdf import arm_from_urdf
-
-    urdf_path = Path(spec.urdf)
-    if not urdf_path.is_absolute() and folder is not None:
-        urdf_path = folder / urdf_path
-    for row in spec.joints:
-        if row.a_mm or row.alpha_deg or row.d_mm or row.theta_offset_deg:
-            raise ArmError(f"joint {row.name!r}: a URDF arm takes no DH values")
-    return arm_from_urdf(
-        urdf_path,
-        name=name,
-        description=spec.description,
-        base_link=spec.base_link,
-        tip_link=spec.tip_link,
-        base=_placement(spec.base),
-        tool=_placement(spec.tool),
-        companion=spec,
-    )
-
-
-def arms_dir() -> Path:
-    """Where the presets live (``config/arms``)."""
-    from importlib import resources
-
-    return Path(str(resources.files("config").joinpath("arms")))
-
-
-def available_arms() -> list[str]:
-    return sorted(path.stem for path in arms_dir().glob("*.toml"))
-
-
-def load_arm_file(name_or_path: str | Path) -> Arm:
-    """An arm by preset name (``"crs-a465"``) or file: a TOML arm file (DH table, or ``urdf =``
-    naming a URDF plus materials and motors) or a bare ``.urdf`` (kinematics only). Raises
-    :class:`ArmError` with a one-line message naming the file and the field."""
-    text = str(name_or_path)
-    path = Path(text)
-    if not (text.endswith((".toml", ".urdf")) or path.is_file()):
-        path = arms_dir() / f"{text}.toml"
-        if not path.is_file():
-            raise ArmError(
-                f"no arm preset {text!r} (presets: {', '.join(available_arms())}) and no such file"
-            )
-    if path.suffix.lower() == ".urdf":
-        from daemon.arm.urdf import arm_from_urdf
-
-        return arm_from_urdf(path, name=path.stem)
-    data = read_toml(path, ArmError)
-    try:
-        return arm_from_mapping(data, default_name=path.stem, folder=path.parent)
-    except ArmError as err:
-        message = str(err)
-        if message.startswith(str(path)):
-            raise
-        raise ArmError(f"{path}: {message}") from err

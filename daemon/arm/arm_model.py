@@ -20,13 +20,15 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from daemon.arm.description import available_arms
+from config.inputs import InputError, no_such_name
+from config.settings import read_toml
+from daemon.arm.description import MAX_ARM_JOINTS
+from daemon.arm.loading import available_arms
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.presets import check_network_name, new_saved_path
 
@@ -36,11 +38,11 @@ ARM_MODELS_FOLDER = "arm-models"
 FORMAT_VERSION = 1
 
 
-class ArmModelNotFoundError(LookupError):
+class ArmModelNotFoundError(InputError, LookupError):
     """No saved arm model of that name (404 over the API)."""
 
 
-class ArmModelError(ValueError):
+class ArmModelError(InputError):
     """An arm model file that does not load."""
 
 
@@ -106,6 +108,26 @@ class ArmModel:
         }
 
 
+def check_fits(model: ArmModel, arm_name: str, joints: int) -> None:
+    """An arm model applies to the arm it was identified on, one heat factor per joint;
+    ArmModelError in one line otherwise."""
+    if model.arm != arm_name:
+        raise ArmModelError(
+            f"arm model {model.name!r} was identified on arm {model.arm!r}, this run's arm is "
+            f"{arm_name!r}"
+        )
+    if len(model.heat_scales) != joints:
+        raise ArmModelError(
+            f"arm model {model.name!r} has {len(model.heat_scales)} heat_scales, arm "
+            f"{arm_name!r} {joints} joints"
+        )
+    if model.bending_shares and len(model.bending_shares) != joints:
+        raise ArmModelError(
+            f"arm model {model.name!r} has {len(model.bending_shares)} bending_shares, arm "
+            f"{arm_name!r} {joints} joints"
+        )
+
+
 def saved_arm_models_dir(data_dir: Path) -> Path:
     return Path(data_dir) / ARM_MODELS_FOLDER
 
@@ -115,7 +137,7 @@ def check_arm_model_name(name: str) -> str:
     try:
         return check_network_name(name)
     except ValueError as err:
-        raise ValueError(
+        raise InputError(
             f"arm model {name!r} is not a name (letters, digits, '.', '_', '-', at most 64, "
             "no path)"
         ) from err
@@ -131,11 +153,10 @@ def named_arm_model_path(name: str, data_dir: Path) -> Path:
     for an unknown one."""
     check_arm_model_name(name)
     path = saved_arm_models_dir(data_dir) / f"{name}.toml"
-    if not path.is_file():
-        names = ", ".join(available_saved_arm_models(data_dir)) or "none"
-        raise ArmModelNotFoundError(
-            f"no saved arm model {name!r} (in {saved_arm_models_dir(data_dir)}: {names})"
-        )
+    if not path.exists():  # anything else there (a folder, a pipe): its loader says what
+        names = available_saved_arm_models(data_dir)
+        listed = f"saved in {saved_arm_models_dir(data_dir)}: {', '.join(names) or 'none'}"
+        raise ArmModelNotFoundError(no_such_name("saved arm model", name, names, listed))
     return path
 
 
@@ -213,12 +234,27 @@ def arm_model_toml(model: ArmModel, header: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def _floats(values: object, what: str) -> tuple[float, ...]:
-    if not isinstance(values, list) or not all(isinstance(v, int | float) for v in values):
+#: A factor of an arm model (x the preset's heat, convection or alpha) is within these: an
+#: identification that needed more found a wrong model, not a factor (issue 26).
+MIN_SCALE = 1e-3
+MAX_SCALE = 1e3
+
+
+def _floats(
+    values: object, what: str, low: float = MIN_SCALE, high: float = MAX_SCALE
+) -> tuple[float, ...]:
+    """One number per joint, each finite within [low, high] (a factor by default)."""
+    if not isinstance(values, list) or not all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in values
+    ):
         raise ArmModelError(f"{what} must be a list of numbers")
+    if not 1 <= len(values) <= MAX_ARM_JOINTS:
+        raise ArmModelError(
+            f"{what}: {len(values)} values, one per joint (at most {MAX_ARM_JOINTS})"
+        )
     result = tuple(float(v) for v in values)
-    if not all(math.isfinite(v) and v > 0 for v in result):
-        raise ArmModelError(f"{what} must be positive")
+    if not all(math.isfinite(v) and low <= v <= high for v in result):
+        raise ArmModelError(f"{what} must be numbers from {low:g} to {high:g}")
     return result
 
 
@@ -226,9 +262,12 @@ def _mapping(values: object, what: str) -> dict[str, float]:
     if not isinstance(values, dict):
         raise ArmModelError(f"[{what}] must be a table of numbers")
     try:
-        return {str(k): float(v) for k, v in values.items()}
+        table = {str(k): float(v) for k, v in values.items()}
     except (TypeError, ValueError) as err:
         raise ArmModelError(f"[{what}] must be a table of numbers") from err
+    if not all(math.isfinite(v) for v in table.values()):
+        raise ArmModelError(f"[{what}] must be finite numbers")
+    return table
 
 
 def _optional(data: Mapping[str, Any], key: str) -> float | None:
@@ -243,10 +282,7 @@ def _optional(data: Mapping[str, Any], key: str) -> float | None:
 
 def load_arm_model(path: Path) -> ArmModel:
     """An arm model file (ArmModelError naming the file when it does not load)."""
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError) as err:
-        raise ArmModelError(f"{path}: {err}") from err
+    data = read_toml(Path(path), ArmModelError)  # bounded, regular files only, one line
     try:
         if data.get("format") != FORMAT_VERSION:
             raise ArmModelError(f"format {data.get('format')!r}, expected {FORMAT_VERSION}")
@@ -266,10 +302,13 @@ def load_arm_model(path: Path) -> ArmModel:
             float(data.get("alpha_scale", 1.0)),
             float(data.get("capacity_scale", 1.0)),
         )
-        if not all(math.isfinite(v) and v > 0 for v in scales):
-            raise ArmModelError("convection_scale, alpha_scale and capacity_scale must be > 0")
+        if not all(math.isfinite(v) and MIN_SCALE <= v <= MAX_SCALE for v in scales):
+            raise ArmModelError(
+                "convection_scale, alpha_scale and capacity_scale must be factors from "
+                f"{MIN_SCALE:g} to {MAX_SCALE:g}"
+            )
         shares = data.get("bending_shares", [])
-        bending = _floats(shares, "bending_shares") if shares else ()
+        bending = _floats(shares, "bending_shares", 0.0, 1.0) if shares else ()
         if not all(0.0 < v < 1.0 for v in bending):
             raise ArmModelError("bending_shares must lie between 0 and 1")
         return ArmModel(
@@ -310,6 +349,7 @@ __all__ = [
     "arm_model_toml",
     "available_saved_arm_models",
     "check_arm_model_name",
+    "check_fits",
     "load_arm_model",
     "named_arm_model_path",
     "new_arm_model_path",

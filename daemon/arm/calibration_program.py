@@ -37,8 +37,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from daemon.arm.description import Arm, load_arm
+from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle, TaughtPose, arm_inverse, load_duty_cycle
+from daemon.arm.loading import load_arm
 from daemon.arm.motors import joint_heat_batch_w
 from daemon.arm.types import FloatArray
 

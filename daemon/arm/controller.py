@@ -29,14 +29,15 @@ from pathlib import Path
 import numpy as np
 
 from daemon.arm.adaptation import PRIOR_LOG_SIGMA, ArmAdaptation, adapted_names
-from daemon.arm.arm_model import ArmModel
+from daemon.arm.arm_model import ArmModel, check_fits
 from daemon.arm.arm_network import describe_arm
-from daemon.arm.description import Arm, load_arm
-from daemon.arm.duty import DutyCycle, load_duty_cycle
+from daemon.arm.description import Arm
+from daemon.arm.duty import DutyCycle, check_taught_on, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.identify_response import factored_description
 from daemon.arm.ir_regions import region_nodes
 from daemon.arm.kinematics import forward, inverse, tool_error, tool_errors
+from daemon.arm.loading import load_arm
 from daemon.arm.response import ArmModelSpec, marker_sensitivity
 from daemon.arm.run import CyclePose, FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel
@@ -84,16 +85,7 @@ class ArmController:
         self.alpha_scale = 1.0
         convection = 1.0
         if identified is not None:
-            if len(identified.heat_scales) != joints:
-                raise ValueError(
-                    f"arm model {identified.name!r} has {len(identified.heat_scales)} joint "
-                    f"heat factors, arm {arm.name!r} {joints} joints"
-                )
-            if identified.bending_shares and len(identified.bending_shares) != joints:
-                raise ValueError(
-                    f"arm model {identified.name!r} has {len(identified.bending_shares)} "
-                    f"bending shares, arm {arm.name!r} {joints} joints"
-                )
+            check_fits(identified, identified.arm, joints)  # the arm's name: by the caller
             self.heat_scales = np.array(identified.heat_scales, dtype=np.float64)
             self.alpha_scale = identified.alpha_scale
             convection = identified.convection_scale
@@ -379,15 +371,24 @@ def load_controller(
     identified: ArmModel | None = None,
 ) -> ArmController:
     """The arm file and the duty cycle (tool poses in the file are solved on this arm)."""
+    arm, duty = load_arm_and_duty(arm_path, duty_cycle)
+    return ArmController(arm, duty, options, identified=identified)
+
+
+def load_arm_and_duty(arm_path: str | Path, duty_cycle: str | Path) -> tuple[Arm, DutyCycle]:
+    """The arm file and a duty cycle taught on it (tool poses in the file solved on this arm);
+    ArmError or DutyCycleError in one line (``check_taught_on``)."""
     arm = load_arm(arm_path)
+    return arm, load_duty_on(arm, arm_path, duty_cycle)
+
+
+def load_duty_on(arm: Arm, arm_path: str | Path, duty_cycle: str | Path) -> DutyCycle:
+    """A duty cycle taught on ``arm`` (loaded from ``arm_path``): its tool poses solved on
+    it; DutyCycleError in one line (``check_taught_on``)."""
 
     def solve(pose: FloatArray, seed: FloatArray) -> FloatArray:
         return inverse(arm, pose, seed)
 
     duty = load_duty_cycle(duty_cycle, solve)
-    if duty.joint_count != len(arm.joints):
-        raise ValueError(
-            f"duty cycle {duty.name!r} has {duty.joint_count} joints, arm {arm.name!r} "
-            f"{len(arm.joints)}"
-        )
-    return ArmController(arm, duty, options, identified=identified)
+    check_taught_on(duty, arm, arm_path)
+    return duty

@@ -24,11 +24,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
+
+from config.inputs import InputError
 
 FloatArray = NDArray[np.float64]
 
@@ -38,7 +39,13 @@ Convention = Literal["standard", "modified", "urdf"]
 MM_PER_M = 1000.0
 
 
-class ArmError(ValueError):
+#: Moving joints an arm may have (issue 26): a 6-DOF tool correction needs a few, and the
+#: arm's thermal network, kinematics and duty cycle grow with each (3,000 crashed).
+MIN_ARM_JOINTS = 1
+MAX_ARM_JOINTS = 32
+
+
+class ArmError(InputError):
     """A bad arm file, an unknown link or joint, an unreachable pose. The message is one line
     that names the file and the field (or the link/joint) at fault."""
 
@@ -220,6 +227,19 @@ class Joint:
             raise ArmError(f"joint {self.name!r}: axis must be a non-zero 3-vector")
         object.__setattr__(self, "axis", _frozen(axis / norm))
         object.__setattr__(self, "deflection", _frozen(self.deflection))
+        for label, value in (
+            ("a_mm", self.a_mm),
+            ("alpha", self.alpha_rad),
+            ("d_mm", self.d_mm),
+            ("theta_offset", self.theta_offset_rad),
+        ):
+            if not math.isfinite(value):  # NaN or inf would reach every pose (issue 26)
+                raise ArmError(f"joint {self.name!r}: {label} is {value}, not a finite number")
+        for label, matrix in (("origin", self.origin), ("axis", self.axis)):
+            if not np.all(np.isfinite(matrix)):
+                raise ArmError(f"joint {self.name!r}: {label} has a value that is not finite")
+        if math.isnan(self.lower_rad) or math.isnan(self.upper_rad):
+            raise ArmError(f"joint {self.name!r}: a joint limit is not a number")
         if not self.lower_rad <= self.upper_rad:
             raise ArmError(f"joint {self.name!r}: lower limit above upper limit")
 
@@ -242,6 +262,15 @@ class Arm:
     _post: tuple[FloatArray, ...] = field(init=False, repr=False, default=())
 
     def __post_init__(self) -> None:
+        if not MIN_ARM_JOINTS <= len(self.joints) <= MAX_ARM_JOINTS:
+            count = len(self.joints)
+            raise ArmError(
+                f"arm {self.name!r}: {count} joint{'s' if count != 1 else ''}: an arm has "
+                f"{MIN_ARM_JOINTS} to {MAX_ARM_JOINTS} moving joints"
+            )
+        for label, transform in (("base", self.base), ("tool", self.tool)):
+            if not np.all(np.isfinite(np.asarray(transform, dtype=np.float64))):
+                raise ArmError(f"arm {self.name!r}: {label} has a value that is not finite")
         object.__setattr__(self, "_pre", tuple(_frozen(_pre(self, i)) for i in range(self.dof)))
         object.__setattr__(self, "_post", tuple(_frozen(_post(self, i)) for i in range(self.dof)))
         object.__setattr__(self, "base", _frozen(self.base))
@@ -372,32 +401,3 @@ def _strip_deflection(arm: Arm, joint_index: int) -> FloatArray:
             @ rot_x(joint.alpha_rad)
         )
     return translation(0.0, 0.0, joint.d_mm)
-
-
-# ---------------------------------------------------------------------------------------------
-# Loading (the TOML schema and builders live in ``daemon.arm.arm_file``)
-
-
-def load_arm(name_or_path: str | Path) -> Arm:
-    """An arm by preset name (``"crs-a465"``) or file: a TOML arm file (DH table, or ``urdf =``
-    naming a URDF plus materials and motors) or a bare ``.urdf`` (kinematics only). Raises
-    :class:`ArmError` with a one-line message naming the file and the field."""
-    from daemon.arm.arm_file import load_arm_file
-
-    return load_arm_file(name_or_path)
-
-
-def arm_from_mapping(
-    data: dict[str, Any], default_name: str = "arm", folder: Path | None = None
-) -> Arm:
-    """The arm a parsed TOML document describes (``folder``: where a named URDF is looked for)."""
-    from daemon.arm import arm_file
-
-    return arm_file.arm_from_mapping(data, default_name=default_name, folder=folder)
-
-
-def available_arms() -> list[str]:
-    """The presets' names (``config/arms/*.toml``)."""
-    from daemon.arm.arm_file import available_arms as presets
-
-    return presets()

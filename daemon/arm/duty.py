@@ -35,14 +35,16 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 
+from config.inputs import InputError, no_such_name
 from config.settings import read_toml
-from daemon.arm.description import Arm
+from daemon.arm.description import MAX_ARM_JOINTS, Arm
+from daemon.arm.kinematics import inverse
 from daemon.arm.types import FloatArray, JointSample
 
 PRESET_PACKAGE = "config"
@@ -56,7 +58,7 @@ BATCH = 4096
 InverseKinematics = Callable[[FloatArray, FloatArray], FloatArray]
 
 
-class DutyCycleError(ValueError):
+class DutyCycleError(InputError):
     """An invalid duty cycle; the message names the file and the pose."""
 
 
@@ -264,29 +266,76 @@ class DutyCycle:
 # -- files ------------------------------------------------------------------------------------
 
 
+#: Bounds of a duty cycle file (issue 26: ``dwell_s = 1e308`` crashed the planner): far beyond
+#: any program, low enough that no time, sample count or energy computed from them overflows.
+MAX_POSES = 1_000
+MAX_DWELL_S = 86_400.0  # a day at one pose
+MAX_JOINT_DEG = 3_600.0  # a multi-turn joint
+MAX_SPEED_DEG_S = 10_000.0
+MAX_ACCEL_DEG_S2 = 1_000_000.0
+MAX_PAYLOAD_KG = 10_000.0
+MAX_TOOL_MM = 100_000.0
+
+JointAngle = Annotated[float, Field(ge=-MAX_JOINT_DEG, le=MAX_JOINT_DEG)]
+Speed = Annotated[float, Field(gt=0.0, le=MAX_SPEED_DEG_S)]
+Accel = Annotated[float, Field(gt=0.0, le=MAX_ACCEL_DEG_S2)]
+ToolLength = Annotated[float, Field(ge=-MAX_TOOL_MM, le=MAX_TOOL_MM)]
+ToolAngle = Annotated[float, Field(ge=-360.0, le=360.0)]
+
+
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: TOML's nan and inf are refused naming the field
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class _Pose(_Strict):
     name: str
-    joints_deg: tuple[float, ...] | None = None
-    tool_mm: tuple[float, float, float] | None = None
-    tool_zyx_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    joints_deg: Annotated[tuple[JointAngle, ...], Field(max_length=MAX_ARM_JOINTS)] | None = None
+    tool_mm: tuple[ToolLength, ToolLength, ToolLength] | None = None
+    tool_zyx_deg: tuple[ToolAngle, ToolAngle, ToolAngle] = (0.0, 0.0, 0.0)
     speed: float = Field(default=1.0, gt=0.0, le=1.0)
     accel: float = Field(default=1.0, gt=0.0, le=1.0)
-    dwell_s: float = Field(default=0.0, ge=0.0)
-    measure: bool = False
+    dwell_s: float = Field(default=0.0, ge=0.0, le=MAX_DWELL_S)
+    measure: StrictBool = False
 
 
 class _DutyFile(_Strict):
     name: str | None = None
     description: str = ""
     arm: str = ""
-    max_speed_deg_s: float | tuple[float, ...]
-    max_accel_deg_s2: float | tuple[float, ...]
-    payload_kg: float = Field(default=0.0, ge=0.0)
+    max_speed_deg_s: Speed | Annotated[tuple[Speed, ...], Field(max_length=MAX_ARM_JOINTS)]
+    max_accel_deg_s2: Accel | Annotated[tuple[Accel, ...], Field(max_length=MAX_ARM_JOINTS)]
+    payload_kg: float = Field(default=0.0, ge=0.0, le=MAX_PAYLOAD_KG)
     poses: tuple[_Pose, ...]
+
+
+def _arm_key(text: str) -> str:
+    return "".join(ch for ch in text.lower() if ch.isalnum())
+
+
+def check_taught_on(duty: DutyCycle, arm: Arm, arm_file: str | Path) -> None:
+    """A duty cycle's poses are joint angles of the arm it was taught on (``arm = "..."`` in
+    its file): on another arm they are other tool poses, and the run would correct the wrong
+    thing (issue 26: a UR5e cycle ran on the A465). It fits when it names the arm file's preset
+    (``crs-a465``, or a variant of it such as ``ur5e`` for ``ur5e-urdf``) or the arm's name
+    (``CRS A465``), case and punctuation aside; a cycle that names no arm fits any arm with its
+    number of joints."""
+    if duty.joint_count != len(arm.joints):
+        raise DutyCycleError(
+            f"duty cycle {duty.name!r} has {duty.joint_count} joints, arm {arm.name!r} has "
+            f"{len(arm.joints)}: give a duty cycle of this arm"
+        )
+    if not duty.arm:
+        return
+    taught = _arm_key(duty.arm)
+    preset = _arm_key(Path(str(arm_file)).stem)
+    if taught in (preset, _arm_key(arm.name)) or (taught and preset.startswith(taught)):
+        return
+    raise DutyCycleError(
+        f"duty cycle {duty.name!r} was taught on arm {duty.arm!r}, this arm is "
+        f"{Path(str(arm_file)).stem!r} ({arm.name}): give a duty cycle of this arm, or set "
+        "arm.arm_file to the arm it was taught on"
+    )
 
 
 def duty_dir() -> Path:
@@ -310,7 +359,6 @@ def tool_pose_matrix(tool_mm: Sequence[float], zyx_deg: Sequence[float]) -> Floa
 
 def arm_inverse(arm: Arm) -> InverseKinematics:
     """The arm's inverse kinematics (``kinematics.inverse``) for tool poses in a duty file."""
-    from daemon.arm.kinematics import inverse
 
     def solve(pose: FloatArray, seed: FloatArray) -> FloatArray:
         return inverse(arm, pose, seed)
@@ -327,6 +375,9 @@ def duty_cycle_from_mapping(
     """The duty cycle a parsed TOML document describes. Tool poses need ``inverse``
     (``kinematics.inverse`` of the arm), seeded with the previous pose's joints (the first
     with ``seed_rad``, default zeros)."""
+    given = data.get("poses")
+    if isinstance(given, list) and len(given) > MAX_POSES:  # said before 10,000 are checked
+        raise DutyCycleError(f"poses: {len(given)} poses: at most {MAX_POSES}")
     try:
         spec = _DutyFile.model_validate(data)
     except ValidationError as err:
@@ -395,9 +446,9 @@ def load_duty_cycle(
     if not (text.endswith(".toml") or path.is_file()):
         path = duty_dir() / f"{text}.toml"
         if not path.is_file():
-            raise DutyCycleError(
-                f"no duty cycle preset {text!r} (presets: {', '.join(available_duty_cycles())})"
-            )
+            presets = available_duty_cycles()
+            listed = f"presets: {', '.join(presets) or 'none'}; or a TOML file"
+            raise DutyCycleError(no_such_name("duty cycle", text, presets, listed))
     data = read_toml(path, DutyCycleError)
     try:
         return duty_cycle_from_mapping(data, path.stem, inverse, seed_rad)
@@ -411,6 +462,7 @@ __all__ = [
     "TaughtPose",
     "arm_inverse",
     "available_duty_cycles",
+    "check_taught_on",
     "duty_cycle_from_mapping",
     "load_duty_cycle",
     "tool_pose_matrix",

@@ -15,35 +15,66 @@ are the arm's joints; prismatic, planar and floating joints are refused.
 
 from __future__ import annotations
 
+import io
+import logging
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from daemon.arm.arm_file import build_links, build_motor, check_links_named, limit_rad
+from config.inputs import read_regular_file
+from daemon.arm.arm_file import (
+    ArmFileSpec,
+    build_links,
+    build_motor,
+    check_links_named,
+    limit_rad,
+)
 from daemon.arm.description import MM_PER_M, Arm, ArmError, FloatArray, Joint
-
-if TYPE_CHECKING:
-    from daemon.arm.arm_file import ArmFileSpec
 
 #: Joint types that move by rotation (URDF ``<joint type>``); "continuous" has no limits.
 _REVOLUTE = ("revolute", "continuous")
 _FIXED = "fixed"
 
 
+#: Largest URDF read (bytes): a robot's kinematic URDF is tens of KiB (ur5e.urdf: 5 KiB).
+MAX_URDF_BYTES = 4 * 1024 * 1024
+#: Most links (and joints) a URDF may have: a robot hand has ~50.
+MAX_URDF_LINKS = 1_000
+
+
 def _load_urdf(path: Path) -> Any:
     try:
         import yourdfpy
+        from lxml import etree
     except ImportError as err:
         raise ArmError(
             f"{path}: reading URDF needs yourdfpy (pip install 'thermocomp[urdf]')"
         ) from err
-    if not path.is_file():
-        raise ArmError(f"{path}: no such file")
+    data = read_regular_file(path, MAX_URDF_BYTES, "a URDF file", ArmError)
+    # Parsed once here with a parser that expands no entity and fetches nothing, so that a
+    # "billion laughs" DOCTYPE or a malformed file is one line (yourdfpy would log and retry
+    # in recover mode); yourdfpy then reads the same bytes.
+    parser = etree.XMLParser(resolve_entities=False, no_network=True, load_dtd=False)
+    try:
+        tree = etree.fromstring(data, parser=parser).getroottree()
+    except etree.XMLSyntaxError as err:
+        raise ArmError(f"{path}: not a readable URDF: {err}") from err
+    if tree.docinfo.internalDTD is not None:
+        raise ArmError(f"{path}: not a readable URDF: a DOCTYPE with entities is not read")
+    links = len(tree.getroot().findall("link"))
+    joints = len(tree.getroot().findall("joint"))
+    if max(links, joints) > MAX_URDF_LINKS:
+        raise ArmError(
+            f"{path}: {links} links and {joints} joints: a URDF has at most {MAX_URDF_LINKS}"
+        )
+    quiet = logging.getLogger("yourdfpy")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)  # its parse errors become our one line below
     try:
         return yourdfpy.URDF.load(
-            str(path),
+            io.BytesIO(data),
             build_scene_graph=False,
             build_collision_scene_graph=False,
             load_meshes=False,
@@ -51,6 +82,41 @@ def _load_urdf(path: Path) -> Any:
         )
     except Exception as err:  # yourdfpy raises lxml, Value and Attribute errors alike
         raise ArmError(f"{path}: not a readable URDF: {err}") from err
+    finally:
+        quiet.setLevel(level)
+
+
+def _tree(path: Path, robot: Any) -> tuple[dict[str, Any], dict[str, list[str]], list[str]]:
+    """The URDF's joints by child link, children by parent link, and link names, checked to be
+    a tree (issue 26: a cycle made the walk below loop forever): every joint joins two
+    declared links, no link is the child of two joints or of itself, and no joint leads back
+    to a link above it."""
+    link_names = [link.name for link in robot.links]
+    known = set(link_names)
+    joints_by_child: dict[str, Any] = {}
+    children: dict[str, list[str]] = {}
+    for joint in robot.joints:
+        for end in (joint.parent, joint.child):
+            if end not in known:
+                raise ArmError(f"{path}: joint {joint.name!r} names link {end!r}, which is no link")
+        if joint.parent == joint.child:
+            raise ArmError(f"{path}: joint {joint.name!r} joins link {joint.child!r} to itself")
+        if joint.child in joints_by_child:
+            raise ArmError(
+                f"{path}: link {joint.child!r} has more than one parent joint "
+                f"({joints_by_child[joint.child].name!r} and {joint.name!r}): a URDF is a tree"
+            )
+        joints_by_child[joint.child] = joint
+        children.setdefault(joint.parent, []).append(joint.child)
+    for start in link_names:  # walk up from each link: a cycle comes back to a link seen
+        seen = {start}
+        link = start
+        while link in joints_by_child:
+            link = joints_by_child[link].parent
+            if link in seen:
+                raise ArmError(f"{path}: the joints form a cycle through link {link!r}")
+            seen.add(link)
+    return joints_by_child, children, link_names
 
 
 def _origin_mm(origin: Any) -> FloatArray:
@@ -74,11 +140,7 @@ def arm_from_urdf(
     that named it (materials, motors, limits overrides by joint and link name)."""
     model = _load_urdf(path)
     robot = model.robot
-    joints_by_child = {joint.child: joint for joint in robot.joints}
-    children: dict[str, list[str]] = {}
-    for joint in robot.joints:
-        children.setdefault(joint.parent, []).append(joint.child)
-    link_names = [link.name for link in robot.links]
+    joints_by_child, children, link_names = _tree(path, robot)
     roots = [link for link in link_names if link not in joints_by_child]
     if len(roots) != 1:
         raise ArmError(f"{path}: a URDF needs one root link, found {roots}")

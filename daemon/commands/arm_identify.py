@@ -73,6 +73,7 @@ from daemon.calibration.identify_run import (
 )
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.identify import IdentificationError
+from daemon.run.arm.setup import arm_file
 from daemon.storage.recorder import DATABASE_NAME
 
 #: The heat record's step for identification (arm time, s): a measurement's time is rounded to
@@ -130,8 +131,6 @@ def _number(value: object) -> float:
 
 def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     """The recorded arm run as identification sees it (module docstring)."""
-    from daemon.run.arm.setup import arm_file
-
     parameters, config = recorded_run(data_dir, run_id)
     if not is_arm_run(parameters):
         raise ArmRunInputError(f"run {run_id} is not an arm run (no duty cycle)")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -17,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, add_config_argument
+from drivers.clock import make_clock
 from drivers.errors import DeviceError
 
 if TYPE_CHECKING:
@@ -26,6 +28,9 @@ if TYPE_CHECKING:
 # `thermocomp devices --help` must answer at once (issue 16)
 
 PROG = "thermocomp devices check"
+#: What opening a device raises when it is absent, busy or does not answer.
+OPEN_ERRORS: tuple[type[Exception], ...] = (DeviceError, OSError)
+GRAB_ERRORS: tuple[type[Exception], ...] = (DeviceError, OSError, TimeoutError)
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -49,13 +54,19 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="write a PNG of the frame with the spot marked beside the thermal image with "
         "every IR region drawn and labelled",
     )
+    check.add_argument(
+        "--data-dir",
+        type=Path,
+        help="folder of the saved networks the bench may name (default: storage.data_dir)",
+    )
     check.add_argument("--json", action="store_true", help="print the result as JSON")
     check.set_defaults(handler=run_devices_check)
 
 
 async def _check(settings: Settings) -> DeviceCheck:
+    # lazy: the devices (the simulated bench: SciPy, OpenCV) load when the check runs, not
+    # for --help (issue 16)
     from daemon.run.devices_check import check_devices
-    from drivers.clock import make_clock
     from drivers.factory import open_devices
 
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
@@ -63,15 +74,78 @@ async def _check(settings: Settings) -> DeviceCheck:
         return await check_devices(devices, settings)
 
 
+async def _check_each(settings: Settings, opening: Exception) -> DeviceCheck:
+    """Each device opened on its own, after opening them together failed with ``opening``
+    (issue 28: during bring-up the cameras are checked while the robot does not answer yet):
+    every device is described or named with its own error, one line each."""
+    from daemon.run.devices_check import (  # lazy: OpenCV and NumPy, not for --help
+        DeviceCheck,
+        probe_camera,
+        probe_ir,
+        probe_robot,
+    )
+    from drivers.factory import (  # lazy: the drivers and the bench, not for --help
+        bench_for,
+        camera_driver,
+        ir_driver,
+        robot_driver,
+    )
+
+    clock = make_clock(settings.bench.clock, settings.bench.time_factor)
+    check = DeviceCheck(regions=settings.ir.regions)
+    bench = bench_for(settings, clock)
+    # the robot, the spot camera and the IR reader, each in a stack of its own
+    try:
+        async with contextlib.AsyncExitStack() as stack:
+            robot, _ = await robot_driver(settings, bench, stack)
+            await stack.enter_async_context(robot)
+            await probe_robot(robot, check)
+    except OPEN_ERRORS as err:
+        check.errors["robot"] = _reason("robot", err)
+    try:
+        async with camera_driver(settings.camera, clock, bench) as camera:
+            await probe_camera(camera, settings, check)
+    except OPEN_ERRORS as err:
+        check.errors["camera"] = _reason("camera", err)
+    try:
+        async with ir_driver(settings, clock, bench) as ir:
+            regions = getattr(ir, "regions", None)
+            if isinstance(regions, tuple) and regions:
+                check.regions = regions
+            await probe_ir(ir, settings, check)
+    except OPEN_ERRORS as err:
+        check.errors["ir"] = _reason("ir", err)
+    for index, device in enumerate(settings.arm.camera_devices if settings.arm.enabled else ()):
+        name = f"tool camera {index}"
+        try:
+            async with camera_driver(device, clock, None) as camera:
+                frame = await asyncio.wait_for(camera.grab(), device.grab_timeout_s)
+                check.tool_frames.append((name, frame))
+        except GRAB_ERRORS as err:
+            check.errors[name] = _reason("camera", err) if str(err) else "no frame in time"
+    if not check.errors:  # each opened alone: say what failed when they were opened together
+        check.errors["devices"] = f"cannot open them together: {opening}"
+    return check
+
+
+def _reason(device: str, err: Exception) -> str:
+    """``err`` without the device's name it starts with (the line names the device)."""
+    text = str(err)
+    return text[len(device) + 2 :] if text.startswith(f"{device}: ") else text
+
+
 def run_devices_check(args: argparse.Namespace) -> int:
+    # lazy: OpenCV (the preview PNG) loads when the check runs, not for --help (issue 16)
     from daemon.run.devices_check import describe, preview_png
 
     settings = load_settings(args.config)
+    if args.data_dir is not None:
+        storage = settings.storage.model_copy(update={"data_dir": args.data_dir})
+        settings = settings.model_copy(update={"storage": storage})
     try:
         check = asyncio.run(_check(settings))
-    except DeviceError as err:
-        print(f"{PROG}: cannot open the devices: {err}", file=sys.stderr)
-        return EXIT_FAILURE
+    except OPEN_ERRORS as err:  # one device did not open: check every device on its own
+        check = asyncio.run(_check_each(settings, err))
     if args.json:
         print(json.dumps(check.as_dict(), indent=2))
     else:

@@ -16,19 +16,19 @@ FIT_KINDS = ("rising", "decaying")
 
 
 def _run_stats(args: argparse.Namespace) -> int:
-    from daemon.analysis.cli import run_stats
+    from daemon.analysis.cli import run_stats  # lazy: NumPy/SciPy load to run, not for --help
 
     return run_stats(args)
 
 
 def _run_fit(args: argparse.Namespace) -> int:
-    from daemon.analysis.cli import run_fit
+    from daemon.analysis.cli import run_fit  # lazy: NumPy/SciPy load to run, not for --help
 
     return run_fit(args)
 
 
 def _run_report(args: argparse.Namespace) -> int:
-    from daemon.storage.reports import run_report
+    from daemon.storage.reports import run_report  # lazy: matplotlib loads to run, not --help
 
     return run_report(args)
 
@@ -142,6 +142,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--config",
         type=Path,
         help="TOML settings file naming storage.data_dir (default: built-in defaults)",
+    )
+    parser.add_argument(
+        "--data-dir",
+        type=Path,
+        help="folder of the run database (default: storage.data_dir of --config), as for "
+        "`thermocomp run --data-dir`",
     )
     parser.add_argument(
         "--reference",

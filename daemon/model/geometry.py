@@ -17,7 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from daemon.model.materials import Material, material
-from daemon.model.network import FloatArray, NetworkError, Resistance, ThermalNetwork
+from daemon.model.network import (
+    MAX_NETWORK_NODES,
+    FloatArray,
+    NetworkError,
+    Resistance,
+    ThermalNetwork,
+)
 
 MM = 1e-3  # m per mm
 
@@ -167,6 +173,16 @@ def build_geometry_network(
             raise NetworkError(f"segment {index}: h must be >= 0, got {segment.h_w_per_m2k}")
     if not (math.isfinite(convection_scale) and convection_scale > 0.0):
         raise NetworkError(f"convection scale must be positive, got {convection_scale}")
+    planned = len(holes) + 1
+    for index, segment in enumerate(segments, start=1):
+        # counted before any node is made: a tiny spacing would allocate for minutes (issue 26)
+        planned += math.ceil(min(segment.length_mm / segment.node_spacing_mm, 1e18))
+        if planned > MAX_NETWORK_NODES:
+            raise NetworkError(
+                f"segment {index}: node_spacing_mm {segment.node_spacing_mm:g} over "
+                f"{segment.length_mm:g} mm makes over {MAX_NETWORK_NODES} nodes in the network: "
+                "use a coarser spacing"
+            )
 
     positions, labels = _node_positions(segments, holes)
     total = float(sum(s.length_mm for s in segments))

@@ -20,7 +20,9 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse.csgraph import connected_components
 
+from config.inputs import InputError
 from daemon.model.calibration import Calibration
+from daemon.model.spectrum import largest_eigenvalue, smallest_eigenvalue
 
 FloatArray = NDArray[np.float64]
 
@@ -28,12 +30,15 @@ UM_PER_MM = 1000.0
 
 #: Up to this many nodes the dense eigen-solver gives the network facts.
 DENSE_LIMIT = 2000
+#: Most nodes a network may have (issue 26): a run steps up to this many with the implicit
+#: stepper; beyond, one file (a 0.0001 mm node spacing) took minutes and gigabytes to build.
+MAX_NETWORK_NODES = 10_000
 #: An error naming a network's nodes lists at most this many of them (a 2 mm geometry network
 #: has ~300), then the count.
 LISTED_NODES = 24
 
 
-class NetworkError(ValueError):
+class NetworkError(InputError):
     """An invalid thermal network or an unknown node; the message names the node."""
 
 
@@ -91,6 +96,10 @@ class ThermalNetwork:
         count = len(self.node_names)
         if count == 0:
             raise NetworkError(f"network {self.name!r} has no nodes")
+        if count > MAX_NETWORK_NODES:
+            raise NetworkError(
+                f"network {self.name!r} has {count} nodes: at most {MAX_NETWORK_NODES}"
+            )
         set_ = object.__setattr__  # frozen: normalise the arrays once, here
         set_(self, "node_names", tuple(str(n) for n in self.node_names))
         if np.size(self.heat_w) == 0:
@@ -370,8 +379,6 @@ def decay_rates_per_s(
         eigenvalues = np.linalg.eigvalsh(symmetric.toarray())
         return float(eigenvalues[0]), float(eigenvalues[-1])
     # sparse: shift-invert for the slowest, inertia bisection for the fastest (spectrum.py)
-    from daemon.model.spectrum import largest_eigenvalue, smallest_eigenvalue
-
     return smallest_eigenvalue(symmetric), largest_eigenvalue(symmetric)
 
 

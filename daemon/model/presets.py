@@ -27,11 +27,12 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from config.inputs import InputError, no_such_name
 from config.settings import read_toml
 from daemon.model.calibration import CalibratedParameter, Calibration
 from daemon.model.geometry import Hole, Segment, build_geometry_network
 from daemon.model.materials import Material, material, rule_of_mixtures
-from daemon.model.network import NetworkError, Resistance, ThermalNetwork
+from daemon.model.network import MAX_NETWORK_NODES, NetworkError, Resistance, ThermalNetwork
 
 PRESET_PACKAGE = "config"
 PRESET_FOLDER = "networks"
@@ -41,7 +42,12 @@ SAVED_FOLDER = "networks"
 NETWORK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 
 
-class NetworkNotFoundError(LookupError):
+#: Most [[resistances]] a network file may list: a dense network of MAX_NETWORK_NODES nodes
+#: joins each node to a few neighbours.
+MAX_RESISTANCES = 8 * MAX_NETWORK_NODES
+
+
+class NetworkNotFoundError(InputError, LookupError):
     """A well-formed network name that names no preset and no saved network."""
 
 
@@ -153,7 +159,7 @@ def available_presets() -> list[str]:
 def check_network_name(name: str) -> str:
     """``name`` if it can name a preset or a saved network (never a path), else ValueError."""
     if not NETWORK_NAME.fullmatch(name) or name.endswith(".toml"):
-        raise ValueError(
+        raise InputError(
             f"network {name!r} is not a network name (letters, digits, '.', '_', '-', at most "
             "64, no path): give a preset or an identified network saved in the data directory"
         )
@@ -197,15 +203,16 @@ def named_network_path(name: str, data_dir: Path | None = None) -> Path:
         return preset
     if data_dir is not None:
         saved = saved_networks_dir(data_dir) / f"{name}.toml"
-        if saved.is_file():
+        if saved.exists():  # anything there (a folder, a pipe): the loader says what it is
             return saved
-    listed = f"presets: {', '.join(available_presets())}"
+    presets = available_presets()
+    listed = f"presets: {', '.join(presets)}"
     if data_dir is None:
-        raise NetworkNotFoundError(f"no network preset {name!r} ({listed})")
-    names = ", ".join(available_saved(data_dir)) or "none"
+        raise NetworkNotFoundError(no_such_name("network preset", name, presets, listed))
+    names = available_saved(data_dir)
+    listed += f"; saved in {saved_networks_dir(data_dir)}: {', '.join(names) or 'none'}"
     raise NetworkNotFoundError(
-        f"no network preset or saved network {name!r} ({listed}; saved in "
-        f"{saved_networks_dir(data_dir)}: {names})"
+        no_such_name("network preset or saved network", name, [*presets, *names], listed)
     )
 
 
@@ -217,7 +224,7 @@ def network_file(name_or_path: str | Path, data_dir: Path | None = None) -> Path
         try:
             path = named_network_path(text, data_dir)
         except (ValueError, NetworkNotFoundError) as err:
-            raise NetworkError(f"{err} and no such file") from err
+            raise NetworkError(str(err)) from err
     return path
 
 
@@ -255,6 +262,15 @@ def _material(spec: str | _Mixture) -> Material:
 
 def network_from_mapping(data: dict[str, Any], default_name: str = "network") -> ThermalNetwork:
     """The network a parsed TOML document describes."""
+    for key, most in (
+        ("nodes", MAX_NETWORK_NODES),
+        ("segments", MAX_NETWORK_NODES),
+        ("holes", MAX_NETWORK_NODES),
+        ("resistances", MAX_RESISTANCES),
+    ):
+        given = data.get(key)
+        if isinstance(given, list) and len(given) > most:  # refused before it is validated
+            raise NetworkError(f"{key}: {len(given)} {key}: at most {most}")
     try:
         spec = _NetworkFile.model_validate(data)
     except ValidationError as err:

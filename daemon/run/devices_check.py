@@ -27,6 +27,7 @@ from daemon.vision.preview import (
     side_by_side,
 )
 from drivers.base import Camera, Frame, IrReader, IrReading, Pose, Robot
+from drivers.deadline import bounded
 from drivers.errors import DeviceError
 
 #: The robot's pose is read within this time (s), like a console command.
@@ -127,7 +128,7 @@ async def _tool_frames(devices: Devices, settings: Settings, check: DeviceCheck)
     )
     timeout_s = settings.camera.grab_timeout_s
     grabbed = await asyncio.gather(
-        *(asyncio.wait_for(camera.grab(), timeout_s) for camera in cameras),
+        *(bounded(camera.grab(), "camera", "frame", timeout_s) for camera in cameras),
         return_exceptions=True,
     )
     for name, result in zip(names, grabbed, strict=True):
@@ -144,11 +145,19 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
     """Grab one frame (of every tool camera on an arm), read one IR image and the robot's
     pose; measure the spot."""
     check = DeviceCheck(regions=ir_regions(devices, settings))
-    if await _tool_frames(devices, settings, check):
-        await _ir_and_pose(devices, settings, check)
-        return check
+    if not await _tool_frames(devices, settings, check):
+        await probe_camera(devices.camera, settings, check)
+    await probe_ir(devices.ir, settings, check)
+    await probe_robot(devices.robot, check)
+    return check
+
+
+async def probe_camera(camera: Camera, settings: Settings, check: DeviceCheck) -> None:
+    """One frame of the spot camera and the spot measured in it, into ``check``."""
     try:
-        check.frame = await asyncio.wait_for(devices.camera.grab(), settings.camera.grab_timeout_s)
+        check.frame = await bounded(
+            camera.grab(), "camera", "frame", settings.camera.grab_timeout_s
+        )
     except (DeviceError, TimeoutError) as err:
         check.errors["camera"] = str(err) or "no frame within camera.grab_timeout_s"
     if check.frame is not None:
@@ -171,18 +180,21 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
             }
         except CentroidError as err:
             check.centroid_error = str(err)
-    await _ir_and_pose(devices, settings, check)
-    return check
 
 
-async def _ir_and_pose(devices: Devices, settings: Settings, check: DeviceCheck) -> None:
+async def probe_ir(ir: IrReader, settings: Settings, check: DeviceCheck) -> None:
+    """One IR image and its regions, into ``check``."""
     try:
-        check.reading = await asyncio.wait_for(devices.ir.read(), settings.ir.read_timeout_s)
+        check.reading = await bounded(ir.read(), "ir", "reading", settings.ir.read_timeout_s)
     except (DeviceError, TimeoutError) as err:
         check.errors["ir"] = str(err) or "no reading within ir.read_timeout_s"
+
+
+async def probe_robot(robot: Robot, check: DeviceCheck) -> None:
+    """The robot's pose and link state, into ``check``."""
     try:
-        check.pose = await asyncio.wait_for(devices.robot.actual_pose(), POSE_TIMEOUT_S)
-        check.robot_link = devices.robot.status().link.value
+        check.pose = await asyncio.wait_for(robot.actual_pose(), POSE_TIMEOUT_S)
+        check.robot_link = robot.status().link.value
     except (DeviceError, TimeoutError) as err:
         check.errors["robot"] = str(err) or "no pose"
 

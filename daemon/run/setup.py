@@ -7,6 +7,7 @@ import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -14,6 +15,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from config import Settings
+from config.inputs import InputError
 from config.settings import IrRegion
 from daemon.model import ThermalModel, ThermalNetwork, load_network
 from daemon.model.adaptation import adaptation_priors, adapted_parameters
@@ -41,7 +43,7 @@ SECONDS_PER_HOUR = 3600.0
 MAX_CHECKED_STEPS = 200_000
 
 
-class RunParameterError(ValueError):
+class RunParameterError(InputError):
     """The run's parameters are not admissible (e.g. scale pushes the spot off the chip)."""
 
 
@@ -302,6 +304,23 @@ def check_reference_run(recorder: Recorder, parameters: RunParameters) -> None:
             f"reference_run {reference_id} is {row.state}: a reference must have ended "
             f"({' or '.join(REFERENCE_STATES)})"
         )
+    reference_duty = row.parameters.get("duty_cycle")
+    if (reference_duty is None) != (parameters.duty_cycle is None):
+        # an arm run's summary compares tool drifts, a two-link run's the spot's: a reference
+        # of the other kind has none of the figures (issue 28: it gave a null reduction)
+        kind = "an arm run" if reference_duty is not None else "a two-link run"
+        this = "an arm run" if parameters.duty_cycle is not None else "a two-link run"
+        raise RunParameterError(
+            f"reference_run {reference_id} is {kind}, this run is {this}: a reference must be "
+            f"{this} too ({_reference_hint(parameters)})"
+        )
+    if reference_duty is not None and parameters.duty_cycle is not None:
+        theirs, ours = Path(str(reference_duty)).stem, Path(parameters.duty_cycle).stem
+        if theirs != ours:
+            raise RunParameterError(
+                f"reference_run {reference_id} followed duty cycle {theirs!r}, this run "
+                f"{ours!r}: their drifts are not comparable"
+            )
     compensation = row.parameters.get("compensation")
     if compensation != "off":
         raise RunParameterError(
@@ -314,6 +333,12 @@ def check_reference_run(recorder: Recorder, parameters: RunParameters) -> None:
             f"reference_run {reference_id} ran at deformation scale {scale}, this run at "
             f"{parameters.deformation_scale}: their drifts are not comparable"
         )
+
+
+def _reference_hint(parameters: RunParameters) -> str:
+    if parameters.duty_cycle is not None:
+        return f"an uncompensated run of duty cycle {Path(parameters.duty_cycle).stem!r}"
+    return "an uncompensated run of the two-link bench"
 
 
 def unit_vector(vector: tuple[float, float, float]) -> NDArray[np.float64]:

@@ -142,6 +142,11 @@ CompensationMode = Literal["off", "absolute", "incremental"]
 PredictionMode = Literal["model", "model+ir"]
 
 
+#: The largest run number: SQLite's INTEGER PRIMARY KEY is a signed 64-bit integer; a larger
+#: number given as a reference run overflowed in the database driver (a 500, issue 26).
+MAX_RUN_ID = 2**63 - 1
+
+
 class RunParameters(BaseModel):
     """What a run is started with (issue 6 "Runs and procedures"). Defaults come from the
     settings (:meth:`from_settings`); the API validates requests against this model."""
@@ -174,7 +179,7 @@ class RunParameters(BaseModel):
     heater_off_s: Annotated[float, Field(ge=0, le=MAX_DURATION_S, allow_inf_nan=False)] | None = (
         Field(None, description="Run time at which the heaters switch off; none: stay on.")
     )
-    reference_run: Annotated[int, Field(ge=1)] | None = Field(
+    reference_run: Annotated[int, Field(ge=1, le=MAX_RUN_ID)] | None = Field(
         None,
         description="An uncompensated (compensation off) run of the same bench and scale whose "
         "measured drift the summary's reduction is computed against; none: the reduction is "

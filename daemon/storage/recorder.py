@@ -34,7 +34,7 @@ from config import redact_secrets
 from daemon.analysis import RunSteps, steps_from_rows
 from daemon.storage.series import read_series
 from daemon.storage.step_record import STEP_COLUMNS, STEPS_SCHEMA, StepRecord, column_type
-from daemon.storage.step_text import CSV_HEADER, step_text
+from daemon.storage.step_text import CSV_HEADER, csv_lines
 from daemon.storage.transaction import RecorderError, Transaction, claim
 
 # StepRecord and STEP_COLUMNS (daemon/storage/step_record.py) are what this module records: exported
@@ -326,7 +326,7 @@ class Recorder:
         """The run's steps as CSV (header = STEP_COLUMNS, empty cell = missing); written to
         ``path`` when given. Returns the text."""
         with self._read() as db:
-            text = CSV_HEADER + "\n" + step_text(db, run_id, 0, None, json=False)[0]
+            text = CSV_HEADER + "\n" + csv_lines(db, run_id, 0, None)[0].decode()
         if path is not None:
             Path(path).write_text(text, encoding="utf-8")
         return text

@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from config.inputs import InputError
 from config.settings import read_toml
 
 FloatArray = NDArray[np.float64]
@@ -55,7 +56,7 @@ DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 _MIN_UP_ANGLE_RAD = 1e-3
 
 
-class CameraFileError(ValueError):
+class CameraFileError(InputError):
     """A camera file or camera definition is unusable; ``str()`` is the one line for the user
     (it names the file, the camera and the field)."""
 
@@ -204,14 +205,22 @@ def look_at(
     return np.asarray(rvec, dtype=np.float64).reshape(3), -rotation @ centre
 
 
+#: Largest image side of a camera file (px): a 16k sensor; a bigger one would allocate
+#: gigabytes per frame on the bench (issue 26).
+MAX_IMAGE_SIDE_PX = 16_384
+#: Most cameras in one camera file.
+MAX_CAMERAS = 64
+
+
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: TOML's nan and inf are refused naming the field
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class _CameraEntry(_Strict):
     name: str = Field(min_length=1)
-    width_px: int = Field(gt=0)
-    height_px: int = Field(gt=0)
+    width_px: int = Field(gt=0, le=MAX_IMAGE_SIDE_PX)
+    height_px: int = Field(gt=0, le=MAX_IMAGE_SIDE_PX)
     focal_px: tuple[float, float]
     principal_px: tuple[float, float]
     skew: float = 0.0
@@ -242,7 +251,7 @@ class _CameraEntry(_Strict):
 
 
 class _CameraFile(_Strict):
-    cameras: list[_CameraEntry] = Field(min_length=1)
+    cameras: list[_CameraEntry] = Field(min_length=1, max_length=MAX_CAMERAS)
 
 
 def _describe(err: ValidationError, data: dict[str, Any]) -> str:

@@ -40,6 +40,7 @@ from config.cli import (
     EXIT_OK,
     EXIT_USAGE,
 )
+from config.inputs import check_regular_file
 from daemon.vision.centroid import CentroidError, measure_centroid
 
 logger = logging.getLogger(__name__)
@@ -91,13 +92,17 @@ def collect_files(patterns: Iterable[str]) -> list[Path]:
     for pattern in patterns:
         path = Path(pattern)
         if path.is_dir():
-            matches = [p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+            matches = [
+                p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()
+            ]
             if not matches:
                 raise UsageError(f"{pattern}: no image files in this folder")
         elif path.exists():
+            # a pipe or device would block the reader forever (issue 26)
+            check_regular_file(path, "an image file", UsageError)
             matches = [path]
         elif glob.has_magic(pattern):
-            matches = [Path(p) for p in glob.glob(pattern) if not Path(p).is_dir()]
+            matches = [Path(p) for p in glob.glob(pattern) if Path(p).is_file()]
             if not matches:
                 raise UsageError(f"{pattern}: no file matches")
         else:

@@ -1,7 +1,7 @@
 """The robots under the Robot contract (tests/contract/test_robot_contract.py): every robot
-driver over its emulator and every fake of the suite, each behind a small adapter that opens it
-and gives the suite its test hooks. A new driver adds one adapter here and one entry in
-ADAPTERS (docs/how-to/add-a-robot-driver.md)."""
+driver over its emulator and every fake of the suite (tests/fakes.py FakeRobot and its
+subclasses), each behind a small adapter that opens it and gives the suite its test hooks. A new
+driver adds one adapter here and one entry in ADAPTERS (docs/how-to/add-a-robot-driver.md)."""
 
 from __future__ import annotations
 
@@ -16,9 +16,11 @@ from drivers.base import LinkState
 from drivers.c500c import server_protocol as server_proto
 from drivers.c500c.robot import C500CRobot
 from drivers.c500c.server import C500CServerRobot
+from drivers.clock import VirtualClock
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
 from tests.fakes import FakeRobot, Gate
+from tests.test_arm_run import ArmTruth, FakeArmRobot
 
 #: Timeouts short enough for a stall to show in a test, long enough for a loaded machine.
 SETTINGS = RobotSettings(
@@ -105,9 +107,20 @@ async def fast_path() -> AsyncIterator[Subject]:
         emulator.release_replies()
 
 
+def fake() -> AbstractAsyncContextManager[Subject]:
+    return _faked(FakeRobot(move_timeout_s=SETTINGS.move_margin_s), "fake")
+
+
+def arm_fake() -> AbstractAsyncContextManager[Subject]:
+    """The arm run's fake (tests/test_arm_run.py FakeArmRobot, the fake with the tool
+    following its goals): a subclass must keep the contract too."""
+    robot = FakeArmRobot(ArmTruth(VirtualClock()))
+    robot.move_timeout_s = SETTINGS.move_margin_s
+    return _faked(robot, "arm fake")
+
+
 @asynccontextmanager
-async def fake() -> AsyncIterator[Subject]:
-    robot = FakeRobot(move_timeout_s=SETTINGS.move_margin_s)
+async def _faked(robot: FakeRobot, name: str) -> AsyncIterator[Subject]:
     gates: list[Gate] = []
 
     def hold_replies() -> None:
@@ -126,7 +139,7 @@ async def fake() -> AsyncIterator[Subject]:
 
     async with robot:
         yield Subject(
-            name="fake",
+            name=name,
             robot=robot,
             written=lambda: len(robot.commands),
             hold_replies=hold_replies,
@@ -146,4 +159,5 @@ ADAPTERS: dict[str, Callable[[], AbstractAsyncContextManager[Subject]]] = {
     "console": console,
     "fast-path": fast_path,
     "fake": fake,
+    "arm-fake": arm_fake,
 }

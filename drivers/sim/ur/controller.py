@@ -27,8 +27,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from daemon.arm import kinematics
-from daemon.arm.description import load_arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
+from daemon.arm.loading import load_arm
 from daemon.arm.types import FloatArray
 from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
 from drivers.sim.joint_arm import JointArm, JointArmConfig
