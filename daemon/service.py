@@ -40,6 +40,7 @@ from daemon.run.events import (
     Subscription,
 )
 from daemon.run.kinds import build_kind
+from daemon.run.pending_summaries import PendingSummaries
 from daemon.run.readmodel import RunReadModel, RunView
 from daemon.run.scheduler import TimingStats
 from daemon.run.sensors import Sensors
@@ -116,6 +117,8 @@ class Daemon:
         self.read_model = RunReadModel()
         self._requests = asyncio.Lock()  # serialises start/pause/resume/stop
         self._unrecorded_end = UnrecordedEnd(self._storage, UNRECORDED_END_RETRY_S)
+        #: summaries the last shutdown deferred (daemon/run/pending_summaries.py)
+        self.pending_summaries: PendingSummaries | None = None
 
     # --- lifecycle ---------------------------------------------------------------------
 
@@ -138,6 +141,17 @@ class Daemon:
             )
             self.reports.start()
             self._exit_stack.push_async_callback(self.reports.close)
+            # summaries the last shutdown deferred: computed in the background, after
+            # everything above is open; they never delay readiness, a hold or a run's steps
+            self.pending_summaries = PendingSummaries(
+                self._workers,
+                self.recorder,
+                self.reports,
+                self.error_log,
+                report_at_end=self.settings.storage.report_at_end,
+            )
+            self.pending_summaries.start()
+            self._exit_stack.push_async_callback(self.pending_summaries.stop)
         except BaseException:
             await self._exit_stack.aclose()
             raise
@@ -164,6 +178,8 @@ class Daemon:
         if self._devices is None:
             return
         await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
+        if self.pending_summaries is not None:
+            self.pending_summaries.give_up()  # deferred again: the stop's budget is the run's
         session = self._session
         if session is None or session.task is None:
             return
