@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 CONFIG ?= config/sim.toml
 SOURCES := daemon drivers api config
 
-.PHONY: run test lint docs bench soak clean lock
+.PHONY: run test test-fast lint docs bench soak clean lock
 
 # The exact, hashed dependency set (pip-compile --generate-hashes): every install uses it,
 # so a fresh clone, the Docker image and CI test and run the same versions. `make lock`
@@ -51,6 +51,11 @@ test: lint docs
 	@command -v chromium >/dev/null || { echo "make test: the dashboard test drives Debian's" \
 		"chromium: sudo apt-get install chromium (.ci/run installs it)"; exit 1; }
 	$(BIN)/python -m pytest
+
+# The tests not marked slow (each under ~5 s on a loaded 2-core machine), no lint, no docs:
+# the loop while editing. `make test` runs everything, as CI does.
+test-fast: $(VENV)/.installed-dev
+	$(BIN)/python -m pytest -m "not slow"
 
 bench: $(VENV)/.installed-dev
 	@set -e; for script in benchmarks/bench_*.py; do \

@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any, NamedTuple
 
 from config.cli import EXIT_FAILURE, EXIT_USAGE
+from daemon import __version__
 
 #: ``-v``: INFO, ``-vv``: DEBUG (issue 28: quiet unless asked).
 VERBOSE_FLAGS = ("-v", "--verbose")
@@ -99,8 +100,6 @@ COMMANDS: tuple[Command, ...] = (
 
 
 def _version() -> str:
-    from daemon import __version__
-
     return __version__
 
 
@@ -185,6 +184,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    # lazy: pydantic (the settings) loads for a command that runs, not for --help (issue 16)
     from config import ConfigError
     from config.inputs import InputError, one_line
 

@@ -17,6 +17,8 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from api.methods import allowed_methods
+
 logger = logging.getLogger(__name__)
 
 #: ``kind`` of the errors Starlette raises itself (unknown route, wrong method ...).
@@ -95,8 +97,6 @@ async def _api_error(request: Request, exc: Exception) -> JSONResponse:
     kind = _KIND_BY_STATUS.get(exc.status_code, "error")
     headers = dict(exc.headers or {})
     if exc.status_code == 405:  # every method of the path, not the first route's only
-        from api.middleware import allowed_methods
-
         methods = allowed_methods(request.app.router.routes, request.url.path)
         if methods:
             headers["Allow"] = ", ".join(methods)

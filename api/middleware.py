@@ -12,10 +12,11 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from starlette.responses import Response
-from starlette.routing import BaseRoute, Match, Mount
+from starlette.routing import BaseRoute
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from api.errors import ApiError, error_response
+from api.methods import allowed_methods
 from api.security import HostAllowList
 
 #: The dashboard's policy: its own scripts, styles and connections only (no inline script or
@@ -43,29 +44,6 @@ _DOCS_HEADERS = [
 _NO_STORE = (b"cache-control", b"no-store")
 #: Methods that may carry a body (the only ones whose body is counted).
 _BODY_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
-#: The methods probed for ``Allow`` (the API uses no others).
-_METHODS = ("GET", "POST", "PUT", "PATCH", "DELETE")
-
-
-def allowed_methods(routes: Iterable[BaseRoute], path: str) -> list[str]:
-    """Every method some route serves at ``path`` (FastAPI answers a 405 or an OPTIONS with
-    the first matching route's methods only: /runs has a GET route and a POST route). Each
-    method is probed through the routes' own matching, included routers too."""
-    methods: set[str] = set()
-    for route in routes:
-        if isinstance(route, Mount):  # static files: they match any method, serve two
-            if path.startswith(route.path + "/"):
-                methods |= {"GET", "HEAD"}
-            continue
-        for method in _METHODS:
-            probe = {"type": "http", "path": path, "method": method, "root_path": ""}
-            if route.matches({**probe, "headers": [], "query_string": b""})[0] is Match.FULL:
-                methods.add(method)
-    if methods:
-        methods.add("OPTIONS")
-        if "GET" in methods:
-            methods.add("HEAD")
-    return sorted(methods)
 
 
 class Gate:

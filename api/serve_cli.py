@@ -31,6 +31,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: FastAPI and uvicorn load when the server starts, not for `serve --help` (issue 16)
     from api import serve
 
     return serve.run(args)

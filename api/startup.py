@@ -258,7 +258,7 @@ def check_files(settings: Settings) -> None:
     """Every file and name the settings give loads (network, arm, duty cycle, cameras): a
     mistake there is a configuration error, exit 2 -- never 3, which systemd retries forever
     (issues 26 and 28); the daemon's start would otherwise meet it deep inside."""
-    from daemon.run.inputs import check_inputs
+    from daemon.run.inputs import check_inputs  # lazy: the model stack, only to check files
 
     try:
         check_inputs(settings)

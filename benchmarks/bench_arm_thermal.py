@@ -21,10 +21,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import print_table, write_results
-from daemon.arm.description import load_arm
 from daemon.arm.duty import load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.kinematics import tool_error
+from daemon.arm.loading import load_arm
 from daemon.arm.thermal import ArmThermalModel
 
 TARGET_DRIFT_UM = 100.0

@@ -36,7 +36,8 @@ from benchmarks.common import print_table, write_results
 from config import Settings
 from daemon.calibration.identify_run import load_run
 from daemon.model import load_network
-from daemon.model.identify import calibration_of, identify, network_toml
+from daemon.model.identified_network import calibration_of, network_toml
+from daemon.model.identify import identify
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
 

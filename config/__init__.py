@@ -18,6 +18,7 @@ __all__ = ["CONFIG_DIR", "ConfigError", "Settings", "load_settings", "redact_sec
 
 def __getattr__(name: str) -> Any:
     if name in __all__:
+        # lazy: pydantic loads on first use of a setting (PEP 562), not for `thermocomp --help`
         from config import settings
 
         return getattr(settings, name)

@@ -19,6 +19,7 @@ from typing import Annotated, Any, Self
 from pydantic import Field, ValidationError, model_validator
 
 from config.section import Section
+from config.toml_file import read_toml
 
 #: Preset truths: ``bench.arm_truth = "hot-motors"`` is config/truths/hot-motors.toml.
 TRUTHS_DIR = Path(__file__).resolve().parent / "truths"
@@ -231,8 +232,6 @@ def parse_arm_truth(data: dict[str, Any], source: str) -> ArmTruth:
 def load_arm_truth(name: str | Path) -> ArmTruth:
     """The truth file ``name`` (a preset in config/truths or a path): ArmTruthError, one line,
     when it is missing, not TOML, or any key is unknown, out of range or not finite."""
-    from config.settings import read_toml  # config.settings imports this module
-
     path = truth_path(name)
     data = read_toml(path, ArmTruthError)
     return parse_arm_truth(data, str(path))

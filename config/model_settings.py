@@ -151,6 +151,17 @@ class SchedulerSettings(Section):
         description="Wall clocks: wake this long before a deadline and yield until it "
         "(asyncio sleeps end up to 1 ms late); 0 = plain sleep.",
     )
+    control_thread: Literal["auto", "on", "off"] = Field(
+        "auto",
+        description="Run the devices and the run's steps on a thread with its own event loop, "
+        "apart from the API (auto: with a wall clock, real or accelerated; a virtual clock's "
+        "sleepers share one loop).",
+    )
+    realtime_priority: Annotated[int, Field(ge=0, le=99)] = Field(
+        10,
+        description="SCHED_FIFO priority asked for the control thread (0 = do not ask); "
+        "not permitted: niceness -10 is tried, then normal scheduling, with one log line.",
+    )
     stop_grace_s: Annotated[float, Field(gt=0, le=60)] = Field(
         5.0,
         description="On stop, wait this long for the step in progress, then abandon it (s).",

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from types import UnionType
@@ -23,7 +22,7 @@ from pydantic import BaseModel, ValidationError, model_validator
 from config.arm_settings import ArmSettings
 from config.bench_settings import BenchSettings, two_link_settings_given
 from config.device_settings import CameraSettings, IrRegion, IrSettings, RobotSettings
-from config.inputs import MAX_TOML_DEPTH, InputError, nesting_depth, read_regular_file
+from config.inputs import InputError
 from config.model_settings import (
     CompensationSettings,
     ModelSettings,
@@ -33,6 +32,7 @@ from config.model_settings import (
 from config.room_settings import RoomSettings
 from config.section import MAX_CONNECTIONS_LIMIT, SUPPORTED_BAUDRATES, Section
 from config.service_settings import ApiSettings, StorageSettings
+from config.toml_file import MAX_TOML_BYTES, read_toml
 
 # The settings tree's sections live in their own modules (one job each); they are part of this
 # module's interface, as the tree they make up.
@@ -68,10 +68,6 @@ __all__ = [
 
 ENV_PREFIX = "THERMOCOMP_"
 ENV_NESTING = "__"
-
-#: Largest settings or network file read (bytes): the biggest preset is a few KiB, so anything
-#: this large is the wrong file, refused before it is parsed.
-MAX_TOML_BYTES = 4 * 1024 * 1024
 
 
 class ConfigError(InputError):
@@ -197,29 +193,6 @@ def _describe(error: ValidationError, source: str, env_used: dict[str, str]) -> 
         origin = f"{env_used[path]} (environment)" if path in env_used else source
         lines.append(f"{origin}: {path}: {reason}" if path else f"{origin}: {reason}")
     return "\n".join(lines)
-
-
-def read_toml(path: Path, error: type[Exception]) -> dict[str, Any]:
-    """A TOML file's tables; any failure is ``error("<path>: <why>")`` in one line (missing, a
-    folder, a FIFO or device, over 4 MiB, binary, not UTF-8, not TOML, nested deeper than
-    ``MAX_TOML_DEPTH``), so every file thermocomp reads reports bad files the same way."""
-    raw = read_regular_file(path, MAX_TOML_BYTES, "a TOML file", error)
-    if b"\0" in raw:
-        raise error(f"{path}: a binary file, not TOML text")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise error(f"{path}: not UTF-8 text (byte {err.start}): save it as UTF-8") from err
-    too_deep = f"{path}: arrays or tables nested over {MAX_TOML_DEPTH} deep: not a thermocomp file"
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise error(f"{path}: not valid TOML: {err}") from err
-    except RecursionError as err:  # the parser recurses once per level of nesting
-        raise error(too_deep) from err
-    if nesting_depth(data, MAX_TOML_DEPTH) > MAX_TOML_DEPTH:
-        raise error(too_deep)
-    return data
 
 
 def load_settings(path: Path | None = None, environ: Mapping[str, str] | None = None) -> Settings:

@@ -13,6 +13,10 @@ right before the bytes are written). This façade only routes requests and keeps
 (daemon/run/readmodel.py) that the API reads; a run is built from its parameters in
 daemon/run/start.py, and a run's end that could not be written is kept and written again by
 daemon/run/unrecorded_end.py.
+
+The devices and the run live on the control loop (daemon/run/control_loop.py: a thread with its
+own event loop when the clock is a wall clock); the methods here run on the API's loop and hand
+each request to it: a hold is taken on the permit here first, before anything is awaited.
 """
 
 from __future__ import annotations
@@ -20,9 +24,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import threading
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 from contextlib import AbstractAsyncContextManager
 from pathlib import Path
 from types import TracebackType
@@ -30,6 +35,7 @@ from typing import Any, TypeVar
 
 from config import Settings
 from daemon.run.arm.setup import ArmMeterFactory, ArmSetup, default_arm_meter, default_arm_setup
+from daemon.run.control_loop import ControlLoop
 from daemon.run.devices_check import DeviceCheck, Devices, check_devices
 from daemon.run.events import (
     ERROR_HISTORY,
@@ -53,7 +59,8 @@ from daemon.run.unrecorded_end import UnrecordedEnd
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue, ReportStatus
-from drivers.clock import Clock, make_clock
+from drivers.clock import Clock, ScaledClock, make_clock
+from drivers.factory import open_devices
 from drivers.permit import MotionPermit, Ticket
 
 __all__ = [
@@ -116,21 +123,40 @@ class Daemon:
         #: the current or last run as the API sees it, and the control loop's liveness
         self.read_model = RunReadModel()
         self._requests = asyncio.Lock()  # serialises start/pause/resume/stop
+        #: where the devices live and the run's steps run (daemon/run/control_loop.py): a
+        #: thread of its own with a wall clock (real or accelerated), else this loop
+        mode = settings.scheduler.control_thread
+        wall_clock = isinstance(self.clock, ScaledClock)  # a virtual clock's sleepers share a loop
+        self._control = ControlLoop(
+            threaded=mode == "on" or (mode == "auto" and wall_clock),
+            realtime_priority=settings.scheduler.realtime_priority,
+        )
         self._unrecorded_end = UnrecordedEnd(self._storage, UNRECORDED_END_RETRY_S)
         #: summaries the last shutdown deferred (daemon/run/pending_summaries.py)
         self.pending_summaries: PendingSummaries | None = None
+        #: holds asked here and not yet carried out on the control loop (see hold_pending)
+        self._holds_in_flight = 0
+        self._holds_lock = threading.Lock()
 
     # --- lifecycle ---------------------------------------------------------------------
 
     async def __aenter__(self) -> Daemon:
         try:
-            self._workers = Workers()
+            # first in, so last out: the devices are closed on it before it stops
+            control = await self._exit_stack.enter_async_context(self._control)
+            if control.threaded:
+                self.bus.route(control.post_home)
+                self._exit_stack.callback(self.bus.route, None)
+            self._workers = Workers(control.critical_thread_setup())
             self._exit_stack.callback(self._workers.shutdown)
             self.recorder = await self._workers.db(Recorder, self.settings.storage.data_dir)
             self._exit_stack.callback(self.recorder.close)
             opener = self._open_devices or _default_opener
-            self._devices = await self._exit_stack.enter_async_context(
-                opener(self.settings, self.clock)
+            # opened on the control loop: their ports, readers and tasks belong to it
+            device_stack = contextlib.AsyncExitStack()
+            self._exit_stack.push_async_callback(control.call, device_stack.aclose)
+            self._devices = await control.call(
+                lambda: device_stack.enter_async_context(opener(self.settings, self.clock))
             )
             self._sensors = Sensors(
                 self.settings,
@@ -177,15 +203,20 @@ class Daemon:
         than once (a second signal): each call holds again and waits for the same ending."""
         if self._devices is None:
             return
-        await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
-        if self.pending_summaries is not None:
-            self.pending_summaries.give_up()  # deferred again: the stop's budget is the run's
-        session = self._session
-        if session is None or session.task is None:
-            return
-        if session.state.is_active:
-            session.request_stop(reason)
-        await session.wait_ended(self.settings.scheduler.stop_grace_s, SHUTDOWN_SUMMARY_BUDGET_S)
+        with self._hold_request():
+            await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
+            if self.pending_summaries is not None:
+                self.pending_summaries.give_up()  # deferred again: the stop's budget is the run's
+            session = self._session
+            if session is None or session.task is None:
+                return
+            if session.state.is_active:
+                await self._control.run(lambda: session.request_stop(reason))
+        await self._control.call(
+            lambda: session.wait_ended(
+                self.settings.scheduler.stop_grace_s, SHUTDOWN_SUMMARY_BUDGET_S
+            )
+        )
 
     @property
     def recorder_path(self) -> Path:
@@ -222,8 +253,7 @@ class Daemon:
                     f"run {session.id} is {session.state.value}: one run at a time"
                 )
             await self._unrecorded_end.record(raise_on_failure=True)
-            kind = await build_kind(self._run_builder(), parameters)
-            self.timing = TimingStats()
+            timing = TimingStats()
             services = SessionServices(
                 settings=self.settings,
                 robot=self.devices.robot,
@@ -231,24 +261,38 @@ class Daemon:
                 workers=self._workers_(),
                 bus=self.bus,
                 errors=self.error_log,
-                timing=self.timing,
+                timing=timing,
                 reports=self.reports,
                 read_model=self.read_model,
                 unrecorded_end=self._unrecorded_end,
+                post_home=self._control.post_home,
+                hold_pending=self.hold_pending,
             )
-            session = RunSession(kind, services, ticket)
-            self._session = session
-            session.start()
-            logger.info("run %d (%s) started: %s", kind.run_id, kind.name, parameters.model_dump())
-            return session.view().info(self.clock.now())
+            # built and started on the control loop: the run's task, its devices' I/O and
+            # its state live there (RunSession stays their one owner)
+            return await self._control.call(
+                lambda: self._start_session(parameters, services, ticket)
+            )
+
+    async def _start_session(
+        self, parameters: RunParameters, services: SessionServices, ticket: Ticket
+    ) -> dict[str, Any]:
+        kind = await build_kind(self._run_builder(), parameters)
+        self.timing = services.timing
+        session = RunSession(kind, services, ticket)
+        self._session = session
+        session.start()
+        logger.info("run %d (%s) started: %s", kind.run_id, kind.name, parameters.model_dump())
+        return session.view().info(self.clock.now())
 
     async def pause(self, reason: str = "paused by request") -> None:
         """Hold the robot first (before anything is awaited), then pause the run: paused
         means held (docs/explanation/hold.md). A start still preparing is parked."""
         self._active_session()  # RunStateError (nothing held) when no run is active
-        await self.hold_robot(reason, pause=False)
-        async with self._requests:
-            self._active_session().pause(reason)
+        with self._hold_request():
+            await self.hold_robot(reason, pause=False)
+            async with self._requests:
+                await self._control.run(lambda: self._active_session().pause(reason))
 
     async def resume(self, ticket: Ticket | None = None) -> None:
         """Resume a paused or faulted run (ResumeRefusedError when it cannot continue).
@@ -256,7 +300,8 @@ class Daemon:
         wins."""
         ticket = ticket if ticket is not None else self.permit.ticket()
         async with self._requests:
-            await self._active_session().resume(ticket)
+            session = self._active_session()
+            await self._control.call(lambda: session.resume(ticket))
 
     async def stop(
         self, reason: str = "stopped by request", final: RunState = RunState.STOPPED
@@ -264,11 +309,12 @@ class Daemon:
         """Stop the current run: the robot holds where it is, the recording is committed.
         Waits for the run to end; returns its info. ``final``: ``stopped`` (a request), or
         ``aborted`` for a caller that stops a run because it cannot go on."""
-        await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
-        async with self._requests:
-            session = self._active_session()
-            session.request_stop(reason, final)
-        await session.wait_ended(self.settings.scheduler.stop_grace_s)
+        with self._hold_request():
+            await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
+            async with self._requests:
+                session = await self._control.run(self._active_session)
+                await self._control.run(lambda: session.request_stop(reason, final))
+        await self._control.call(lambda: session.wait_ended(self.settings.scheduler.stop_grace_s))
         return session.view().info(self.clock.now())
 
     async def hold_robot(self, reason: str = HOLD_REASON, *, pause: bool = True) -> None:
@@ -278,8 +324,29 @@ class Daemon:
         hold (the fast path's HOLD frame), then a running run pauses and a starting one is
         cancelled."""
         robot = self.devices.robot
-        robot.permit.hold(reason)
-        await robot.stop()
+        with self._hold_request():
+            robot.permit.hold(reason)  # here, on the caller's thread: motion refused from now
+            await self._control.call(lambda: self._hold_there(reason, pause))
+
+    @contextlib.contextmanager
+    def _hold_request(self) -> Iterator[None]:
+        """While a hold asked here is on its way to the control loop (with the pause or stop
+        that follows it): a step refused by that hold meanwhile is not a fault of the run."""
+        with self._holds_lock:
+            self._holds_in_flight += 1
+        try:
+            yield
+        finally:
+            with self._holds_lock:
+                self._holds_in_flight -= 1
+
+    def hold_pending(self) -> bool:
+        """A hold request has held the permit and has not yet reached the run (any thread)."""
+        return self._holds_in_flight > 0
+
+    async def _hold_there(self, reason: str, pause: bool) -> None:
+        """On the control loop, where the driver lives: its HOLD, then the run's pause."""
+        await self.devices.robot.stop()
         session = self._session
         if pause and session is not None:
             session.robot_held(reason)
@@ -289,10 +356,11 @@ class Daemon:
         session = self._session
         if session is None:
             raise RunStateError("no run")
-        if session.task is not None:
+        task = session.task
+        if task is not None:
             # asyncio.wait, not the task itself: a run task ended by cancellation (a step
             # abandoned to stop) must not raise CancelledError into a caller nobody cancelled
-            await asyncio.wait({session.task})
+            await self._control.call(lambda: asyncio.wait({task}))
         return session.view().info(self.clock.now())
 
     async def wait_state(self, *states: RunState) -> RunState:
@@ -319,7 +387,7 @@ class Daemon:
                 raise RunConflictError(
                     f"run {session.id} is {session.state.value}: the devices are the run's"
                 )
-            return await check_devices(self.devices, self.settings)
+            return await self._control.call(lambda: check_devices(self.devices, self.settings))
 
     async def read(self, function: Callable[..., _T], *args: Any) -> _T:
         """Run an API read (database, files) on the bounded read pool, never on the control
@@ -441,7 +509,5 @@ class Daemon:
 
 @contextlib.asynccontextmanager
 async def _default_opener(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
-    from drivers.factory import open_devices
-
     async with open_devices(settings, clock) as devices:
         yield devices

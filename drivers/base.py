@@ -309,6 +309,8 @@ class OffsetRobotState:
     program_status: int
     applied_offset_mm: Vector3
     applied_rotation_rad: Vector3
+    #: the program's instance (drivers/ur/registers.py): it changes when the program restarts
+    program_instance: int = 0
 
 
 @runtime_checkable
@@ -333,6 +335,11 @@ class OffsetRobot(AsyncDevice, Protocol):
 
     def robot_state(self) -> OffsetRobotState:
         """The latest state package (NotConnectedError when there is none, or it is stale)."""
+        ...
+
+    async def follow_program(self) -> OffsetRobotState:
+        """A run takes the program as it is now (moves nothing, allowed while held): a restart
+        of the program from here on holds and refuses a resume (GoalLostError)."""
         ...
 
     def stop(self) -> Coroutine[Any, Any, None]:

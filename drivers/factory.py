@@ -14,16 +14,19 @@ import contextlib
 import logging
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Self
 
 from config import ConfigError, Settings
 from config.settings import CameraSettings
 from daemon.vision.cameras import CameraFileError, load_cameras
 from daemon.vision.multiview import CameraModel
-from drivers.base import Camera, IrReader, Robot, RoomThermometer
+from drivers.base import Camera, Frame, IrReader, IrReading, Robot, RoomThermometer
 from drivers.c500c.robot import C500CRobot
 from drivers.c500c.server import C500CServerRobot
 from drivers.camera import OpenCvCamera, ReplayCamera
 from drivers.clock import Clock
+from drivers.errors import DeviceError
 from drivers.genicam.camera import GenICamCamera
 from drivers.genicam.radiometric import GenICamRadiometricIrReader
 from drivers.ir import OpenCvIrReader, ReplayIrReader
@@ -33,6 +36,10 @@ from drivers.sim.bench import Bench
 from drivers.sim.devices import SimCamera, SimIrReader
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
+from drivers.sim.ur.controller import URControllerConfig
+from drivers.sim.ur.emulator import UREmulator
+from drivers.sim.ur.truth import URBenchTruth
+from drivers.ur.robot import URRobot
 
 logger = logging.getLogger(__name__)
 
@@ -51,6 +58,65 @@ class Devices:
     arm_bench: ArmBenchControl | None = None
     #: the thermometer in the room's air (issue 29, room.driver); None: none
     room: RoomThermometer | None = None
+    #: the UR bench (issue 31): the emulated controller and its truth, for a followed run
+    ur_emulator: UREmulator | None = None
+    ur_truth: URBenchTruth | None = None
+
+
+class AbsentDevice:
+    """A camera or IR reader a robot that reports its own joint temperatures does without
+    (robot.driver ur-rtde: a followed run uses neither); every read is a DeviceError."""
+
+    def __init__(self, what: str) -> None:
+        self.what = what
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        return None
+
+    async def grab(self) -> Frame:
+        raise DeviceError(self.what, f"no {self.what}: robot.driver ur-rtde runs without one")
+
+    async def read(self) -> IrReading:
+        raise DeviceError(self.what, f"no {self.what}: robot.driver ur-rtde runs without one")
+
+
+@contextlib.asynccontextmanager
+async def _open_ur(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
+    """A UR (drivers/ur/robot.py) and, with bench.enabled, the UR emulator it talks to over
+    loopback TCP (drivers/sim/ur/: the arm plays arm.duty_cycle, its truth seeded by
+    bench.seed). No camera nor IR reader: the joint temperatures are the thermal input."""
+    robot_settings = settings.robot
+    async with contextlib.AsyncExitStack() as stack:
+        emulator: UREmulator | None = None
+        if settings.bench.enabled:
+            duty = settings.arm.duty_cycle or URControllerConfig.duty
+            emulator = UREmulator(
+                URControllerConfig(
+                    arm=Path(settings.arm.arm_file).stem,
+                    duty=duty,
+                    register_base=robot_settings.register_base,
+                    seed=settings.bench.seed,
+                ),
+                host=robot_settings.host,
+                rtde_port=robot_settings.rtde_port,
+                dashboard_port=robot_settings.dashboard_port,
+            )
+            await stack.enter_async_context(emulator)
+            robot_settings = robot_settings.model_copy(
+                update={"rtde_port": emulator.rtde_port, "dashboard_port": emulator.dashboard_port}
+            )
+        robot = await stack.enter_async_context(URRobot(robot_settings))
+        logger.info("devices open: UR %s%s", robot_settings.host, " (emulated)" if emulator else "")
+        yield Devices(
+            camera=AbsentDevice("camera"),
+            ir=AbsentDevice("ir"),
+            robot=robot,  # type: ignore[arg-type]  # an OffsetRobot: run kind followed
+            ur_emulator=emulator,
+            ur_truth=None if emulator is None else URBenchTruth(emulator.controller),
+        )
 
 
 def _arm_bench(settings: Settings) -> bool:
@@ -94,13 +160,9 @@ def emulated_server(settings: Settings, *, seed: int) -> C500CServerEmulator:
 async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
     """Open camera, IR reader and robot as the settings say; close them all on exit."""
     if settings.robot.driver == "ur-rtde":
-        # A UR plays its own program: it is driven by the run kind that follows the robot
-        # (issue 31), through drivers.ur.robot.URRobot (a drivers.base.OffsetRobot), not as a
-        # Robot the daemon moves step by step.
-        raise ConfigError(
-            "robot.driver 'ur-rtde' is an OffsetRobot (drivers/ur/robot.py): the runs that "
-            "move the robot step by step need sim, c500c or c500c-server"
-        )
+        async with _open_ur(settings, clock) as devices:
+            yield devices
+        return
     simulated = _simulated(settings)
     if simulated and not settings.bench.enabled:
         raise ConfigError(

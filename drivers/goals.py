@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 
 from drivers.base import DEFAULT_GOAL, Vector3
 from drivers.errors import DeviceError
@@ -22,6 +23,7 @@ from drivers.errors import DeviceError
 #: names up to 15).
 GOAL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,13}")
 GOAL_VARIABLE_PREFIX = "g_"
+_GIMBAL_LOCK_WARNING = "Gimbal lock detected"  # SciPy's, at y = +-90 deg
 #: How many goals the fast-path program holds (controller/thermocomp_server.r3 MAX_GOALS).
 MAX_SERVER_GOALS = 16
 
@@ -75,9 +77,15 @@ def rotation_zyx_deg(rotation_rad: Vector3, device: str) -> Vector3:
     require_finite(rotation_rad, "rotation", device)
     if not any(rotation_rad):
         return (0.0, 0.0, 0.0)
-    import numpy as np  # here: the console's checks and `--help` load without NumPy
+    # lazy: NumPy and SciPy load here, so the console's checks and `--help` load without them
+    import numpy as np
+    from scipy.spatial.transform import Rotation
 
-    from daemon.arm.types import Pose6
-
-    z, y, x = Pose6(np.zeros(3), np.array(rotation_rad, dtype=np.float64)).zyx_deg()
-    return (z, y, x)
+    # SciPy here, not Pose6.zyx_deg: a device driver imports no model code (the layers,
+    # tests/test_layering.py); tests/test_c500c_goals.py checks the two agree. At y = +-90 deg
+    # only z -+ x is determined and any split is the same rotation: that warning only is quiet.
+    rotation = Rotation.from_rotvec(np.array(rotation_rad, dtype=np.float64))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=_GIMBAL_LOCK_WARNING, category=UserWarning)
+        z, y, x = rotation.as_euler("ZYX", degrees=True)
+    return (float(z), float(y), float(x))

@@ -14,11 +14,20 @@ The drivers read the permit under their write lock, right before a motion comman
 written (:meth:`require`), and the run (daemon/run/session.py) and the duty cycle's player read
 it between their phases, so they stop early instead of trying moves the driver would refuse.
 There is one permit per robot driver (``robot.permit``); nothing else keeps a copy of "held".
+
+A hold may come from another thread than the driver's (the API's loop, while the driver lives
+on the control loop's thread: daemon/run/control_loop.py). The drivers therefore check and
+write inside :meth:`guard`, and :meth:`hold` takes the same lock: a hold either comes before the
+check (the motion is refused) or after the bytes were handed to the port (the driver's HOLD
+then follows them), never in between.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 from drivers.errors import MotionHeldError
@@ -41,6 +50,7 @@ class MotionPermit:
         self._generation = 0
         self._held = held
         self._reason = reason if held else None
+        self._lock = threading.RLock()  # hold() against a driver's check-then-write
 
     @property
     def generation(self) -> int:
@@ -58,10 +68,23 @@ class MotionPermit:
 
     def hold(self, reason: str) -> None:
         """Refuse motion from now on (synchronous: no await before or in here)."""
-        self._generation += 1
-        if not self._held:
-            self._reason = reason
-        self._held = True
+        with self._lock:
+            self._generation += 1
+            if not self._held:
+                self._reason = reason
+            self._held = True
+
+    @contextlib.contextmanager
+    def guard(self, motion: bool = True, ticket: Ticket | None = None) -> Iterator[None]:
+        """For a driver: ``require`` (when ``motion``; else only ``ticket`` is checked) and the
+        write inside, atomic against a :meth:`hold` from any thread. Only around synchronous
+        code (no await inside)."""
+        with self._lock:
+            if motion:
+                self.require(ticket)
+            elif ticket is not None and not self.is_current(ticket):
+                raise MotionHeldError(self.device, "a hold came after this request was made")
+            yield
 
     def ticket(self) -> Ticket:
         """Take when a request that may release a hold arrives, before anything is awaited."""
@@ -74,15 +97,16 @@ class MotionPermit:
     def release(self, ticket: Ticket) -> None:
         """Allow motion again on behalf of the request that took ``ticket``; MotionHeldError
         (the hold stays) when a hold came after that request arrived."""
-        if ticket.generation != self._generation:
-            raise MotionHeldError(
-                self.device,
-                f"held after the request was made, stays held: {self._reason or 'a hold'}",
-            )
-        if self._held:
-            logger.info("robot motion released")
-        self._held = False
-        self._reason = None
+        with self._lock:
+            if ticket.generation != self._generation:
+                raise MotionHeldError(
+                    self.device,
+                    f"held after the request was made, stays held: {self._reason or 'a hold'}",
+                )
+            if self._held:
+                logger.info("robot motion released")
+            self._held = False
+            self._reason = None
 
     def require(self, ticket: Ticket | None = None) -> None:
         """Raise MotionHeldError when motion is held, or when ``ticket`` (the motion's own

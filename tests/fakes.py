@@ -92,10 +92,26 @@ class FakeRobot:
     test hooks: ``reply_gate`` (the next command waits there, holding the lock: a command in
     flight), ``pose_gate``/``resume_gate`` (one call waits), ``fail_moves``/``slow_moves``/
     ``hung_moves`` by move number (a hung move is a stall: DeviceTimeoutError after
-    ``move_timeout_s``, the link ``stalled``), ``drop_link()``, ``lose_goals()``."""
+    ``move_timeout_s``, the link ``stalled``), ``held_moves`` (a hold comes right before that
+    move is written), ``drop_link()``, ``lose_goals()``. With ``clock`` and ``move_s`` a move
+    takes that long on the clock, holding the lock as a driver waits for its end;
+    ``sets_speed``: moves take a speed (drivers/base.py SpeedGoalRobot, as the console
+    driver), else none (as the fast path's)."""
 
-    def __init__(self, bench: FakeBench | None = None, *, move_timeout_s: float = 2.0) -> None:
+    def __init__(
+        self,
+        bench: FakeBench | None = None,
+        *,
+        move_timeout_s: float = 2.0,
+        clock: Clock | None = None,
+        move_s: float = 0.0,
+        sets_speed: bool = False,
+    ) -> None:
         self.bench = bench
+        self.clock = clock
+        self.move_s = move_s
+        self.SETS_SPEED = sets_speed  # daemon/run/arm/robot.py sets_speed reads it
+        self.speeds: list[int | None] = []  # each written move's speed (None: the default)
         self.permit = MotionPermit()
         self.commands: list[tuple[str, Vector3]] = []  # motion commands "written"
         self.written: list[tuple[str, Pose6]] = []  # ... as (goal, correction)
@@ -105,6 +121,7 @@ class FakeRobot:
         self.fail_moves: set[int] = set()  # move numbers (0-based) that time out
         self.slow_moves: set[int] = set()  # move numbers that take SLOW_MOVE_S of real time
         self.hung_moves: set[int] = set()  # move numbers whose reply never comes (a stall)
+        self.held_moves: set[int] = set()  # move numbers refused by a hold that comes first
         self.hanging = asyncio.Event()
         self.position_errors_um: dict[int, float] = {}  # move number -> x error of that move
         self.move_timeout_s = move_timeout_s
@@ -162,6 +179,8 @@ class FakeRobot:
         """Right before a motion command is written, under the lock (drivers/c500c/robot.py)."""
         move = self.moves
         self.moves += 1
+        if move in self.held_moves:
+            self.permit.hold(f"held before move {move}")
         self.permit.require()
         if move in self.fail_moves:
             self.permit.hold(f"no answer to move {move}")
@@ -180,7 +199,10 @@ class FakeRobot:
         rotation_rad: Vector3 = ZERO_ROTATION,
         *,
         goal: str = DEFAULT_GOAL,
+        speed_percent: int | None = None,
     ) -> MoveResult:
+        if speed_percent is not None and not self.SETS_SPEED:
+            raise TypeError("this robot's moves take no speed")  # as a driver without one
         require_target(offset_mm, "motion target", "robot")
         require_finite(rotation_rad, "rotation", "robot")
         if goal not in self.taught:
@@ -206,8 +228,11 @@ class FakeRobot:
             self.commands.append(("absolute", offset_mm))
             correction = Pose6(np.asarray(offset_mm, float), np.asarray(rotation_rad, float))
             self.written.append((goal, correction))
+            self.speeds.append(speed_percent)
             if hung:
                 await self._stall()
+            if self.clock is not None and self.move_s > 0.0:
+                await self.clock.sleep_until(self.clock.now() + self.move_s)
             self.goal, self.correction = goal, correction
             self._moved(np.asarray(offset_mm, float), goal)
             return self._result(offset_mm, goal)

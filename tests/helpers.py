@@ -7,6 +7,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -65,12 +66,22 @@ def run_in_process(
 def running_server(
     args: Sequence[str], env: dict[str, str] | None = None, timeout_s: float = 30.0
 ) -> Iterator[str]:
-    """Start ``thermocomp serve`` on a free loopback port; yield its base URL; stop it."""
+    """Start ``thermocomp serve`` on a free loopback port; yield its base URL; stop it. Its
+    data directory is a temporary one unless ``env`` names one (never the checkout's data/:
+    the user's run database, and a `make run` beside the suite holds it)."""
+    with tempfile.TemporaryDirectory(prefix="thermocomp-serve-") as data_dir:
+        environment = {**os.environ, "THERMOCOMP_STORAGE__DATA_DIR": data_dir, **(env or {})}
+        with _serving(args, environment, timeout_s) as base_url:
+            yield base_url
+
+
+@contextmanager
+def _serving(args: Sequence[str], env: dict[str, str], timeout_s: float) -> Iterator[str]:
     port = free_port()
     process = subprocess.Popen(
         cli_command("serve", "--host", "127.0.0.1", "--port", str(port), *args),
         cwd=REPO_ROOT,
-        env={**os.environ, **(env or {})},
+        env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

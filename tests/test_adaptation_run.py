@@ -48,6 +48,7 @@ async def run_steps(settings: Settings) -> list[dict[str, Any]]:
         return [step.as_dict() for step in daemon.recorder.steps(int(info["id"]))]
 
 
+@pytest.mark.slow
 async def test_an_adapting_run_records_factors_that_reach_the_truth(tmp_path: Path) -> None:
     adapted = await run_steps(bench_settings(tmp_path, adapt=True))
     assert len(adapted) == 180

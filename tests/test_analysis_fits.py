@@ -118,6 +118,7 @@ def test_a_slow_rise_cut_short_is_not_steady_though_its_last_fifth_is_banded() -
     assert document["steady"] is False and document["fit_settling_s"] > 600
 
 
+@pytest.mark.slow
 def test_the_report_says_not_steady_with_the_time_constant(tmp_path: Path) -> None:
     rng = np.random.default_rng(20)
     rows = [

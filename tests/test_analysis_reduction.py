@@ -109,6 +109,7 @@ def test_a_wrong_model_looks_good_against_its_prediction_but_not_against_the_dri
     assert summary["reduction_percent"] == pytest.approx(25.0)
 
 
+@pytest.mark.slow
 def test_the_report_states_what_its_figure_is_measured_against(tmp_path: Path) -> None:
     files = write_report(rows(COMPENSATED, predicted=60.0), tmp_path / "prediction")
     page = files.html.read_text(encoding="utf-8")
@@ -162,6 +163,7 @@ def _report_summary(out: Path) -> dict[str, Any]:
     return summary
 
 
+@pytest.mark.slow
 def test_report_command_measures_against_the_named_or_recorded_reference(
     database: tuple[Path, int, int], tmp_path: Path
 ) -> None:

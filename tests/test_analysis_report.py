@@ -151,6 +151,7 @@ def test_steps_project_on_the_link_axis_whatever_its_direction() -> None:
     assert summarize_run(steps)["n"] == 0
 
 
+@pytest.mark.slow
 def test_report_has_every_plot_and_the_html_shows_existing_files(tmp_path: Path) -> None:
     rows = synthetic_rows()
     files = write_report(rows, tmp_path / "report", title="synthetic run")
@@ -185,6 +186,7 @@ def test_report_has_every_plot_and_the_html_shows_existing_files(tmp_path: Path)
     assert f"{chi['chi_squared']:.3f}" in page
 
 
+@pytest.mark.slow
 def test_report_of_a_run_without_measurements_still_has_every_figure(tmp_path: Path) -> None:
     rows = [
         {
@@ -207,12 +209,14 @@ def test_report_of_a_run_without_measurements_still_has_every_figure(tmp_path: P
     assert summary["steps_with_error"] == 5
 
 
+@pytest.mark.slow
 def test_embedded_report_is_a_single_file(tmp_path: Path) -> None:
     files = write_report(synthetic_rows(), tmp_path, embed_images=True)
     page = files.html.read_text(encoding="utf-8")
     assert page.count('<img src="data:image/png;base64,') == len(files.plots)
 
 
+@pytest.mark.slow
 def test_report_command_on_a_run_id_agrees_with_the_daemon_summary(
     recorded_run: tuple[Path, int, list[dict[str, Any]]],
     monkeypatch: pytest.MonkeyPatch,
@@ -235,6 +239,7 @@ def test_report_command_on_a_run_id_agrees_with_the_daemon_summary(
     assert main(["report", "no-such-file.csv"]) == 2
 
 
+@pytest.mark.slow
 def test_commands_on_the_exported_csv(
     recorded_run: tuple[Path, int, list[dict[str, Any]]],
     tmp_path: Path,
@@ -278,6 +283,7 @@ def test_stats_of_a_plain_list(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "at least two" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_real_command_lists_the_analysis_commands() -> None:
     help_text = build_parser().format_help()
     for command in ("stats", "fit", "report"):
@@ -286,6 +292,7 @@ def test_the_real_command_lists_the_analysis_commands() -> None:
     assert bad.returncode == 2 and "cannot read" in bad.stderr and "Traceback" not in bad.stderr
 
 
+@pytest.mark.slow
 async def test_report_after_a_short_bench_run_agrees_with_the_daemon(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -13,8 +13,8 @@ import pytest
 from api.app import create_app
 from config import Settings
 from daemon.arm.arm_model import ArmModel, arm_model_toml, saved_arm_models_dir
-from daemon.arm.description import available_arms
 from daemon.arm.duty import available_duty_cycles
+from daemon.arm.loading import available_arms
 from daemon.model.calibration import CalibratedParameter
 from daemon.service import Daemon
 from tests.test_api_server import CONTROL, READ, serve
@@ -106,6 +106,7 @@ async def test_saved_arm_models_are_listed_with_their_identification(tmp_path: P
         assert broken.status_code == 422 and "does not load" in broken.json()["message"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("name", "status", "says"),
     [

@@ -72,6 +72,7 @@ def _read_until_closed(sock: socket.socket, limit_s: float) -> float:
 # --- the hold is never starved ------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_token_less_flood_never_throttles_the_operators_hold() -> None:
     """The drill: 5 token-less POST /robot/stop per second from one address made the
     operator's hold answer 429 six times out of ten. Now the token is checked before any
@@ -236,6 +237,7 @@ def test_openapi_security_matches_anonymous_reads() -> None:
     assert remote["read"] == [{"bearer": []}]
 
 
+@pytest.mark.slow
 def test_422_messages_a_curl_user_understands() -> None:
     env = {"THERMOCOMP_API__CONTROL_TOKEN": CONTROL}
     with (

@@ -67,6 +67,7 @@ async def bench(tmp_path: Path) -> AsyncIterator[tuple[httpx.AsyncClient, str]]:
         yield client, address
 
 
+@pytest.mark.slow
 async def test_full_run_cycle(
     bench: tuple[httpx.AsyncClient, str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -218,6 +219,7 @@ async def test_full_run_cycle(
     assert (await client.get("/api/v1/errors")).status_code == 200
 
 
+@pytest.mark.slow
 async def test_runs_are_listed_newest_first_in_pages(tmp_path: Path) -> None:
     app = create_app(bench_settings(tmp_path / "data", clock="virtual"), service_factory=Daemon)
     async with (
@@ -242,6 +244,7 @@ async def test_runs_are_listed_newest_first_in_pages(tmp_path: Path) -> None:
         assert (await client.get("/api/v1/runs/12345")).status_code == 404
 
 
+@pytest.mark.slow
 async def test_a_slow_websocket_client_does_not_hold_up_the_steps(tmp_path: Path) -> None:
     """A client that reads nothing while a whole run goes by: the run still records every
     step on the virtual clock (had a send waited for the client, it would stall), and every

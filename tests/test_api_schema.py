@@ -30,6 +30,7 @@ import schemathesis
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from schemathesis import Case, GenerationMode
+from schemathesis.core import storage as schemathesis_storage
 
 from api.app import create_app
 from api.routers import run_data as run_data_router
@@ -125,9 +126,17 @@ class Bench:
 
     base_url: str
     finished_run: int
+    finished_steps: int  # how many steps it recorded
     archived_step: int
     arm_model: str  # a saved arm model (GET /arm-models/{name})
     answers: dict[str, set[int]] = field(default_factory=dict)
+
+
+@pytest.fixture(autouse=True)
+def schemathesis_writes_in_tmp_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Schemathesis keeps its cache and crash reports under ./.schemathesis: the test's own
+    folder instead (tests/conftest.py refuses files in the repository)."""
+    monkeypatch.setattr(schemathesis_storage, "DEFAULT_ROOT", tmp_path / ".schemathesis")
 
 
 @pytest.fixture
@@ -149,10 +158,13 @@ async def bench(tmp_path: Path) -> AsyncIterator[Bench]:
         await wait_state(client, "idle")
         steps = (await client.get(f"/api/v1/runs/{run_id}/steps")).json()["steps"]
         archived = [s["step"] for s in steps if s["frame_path"]]
-        assert len(steps) == 6 and archived
+        # 6 deadlines of 100 ms wall time: a loaded machine overruns some, which are skipped
+        # (daemon/run/scheduler.py), so 1 to 6 steps, numbered 0, 1, 2 ... all the same
+        assert 1 <= len(steps) <= 6 and archived
+        assert [s["step"] for s in steps] == list(range(len(steps)))
         # its report, as `thermocomp report RUN` writes it (the API only serves reports)
         await asyncio.to_thread(write_run_report, tmp_path / "data", run_id)
-        yield Bench(f"http://{address}", run_id, archived[0], arm_model.name)
+        yield Bench(f"http://{address}", run_id, len(steps), archived[0], arm_model.name)
 
 
 # --- the fuzzing, in a worker thread: schemathesis' requests block, the server runs in this
@@ -293,6 +305,7 @@ def described_operations(description: dict[str, Any]) -> dict[str, bool]:
     }
 
 
+@pytest.mark.slow
 async def test_every_operation_holds_to_its_description(bench: Bench) -> None:
     async with httpx.AsyncClient(base_url=bench.base_url, headers=READ_AUTH, timeout=30) as client:
         described = described_operations((await client.get("/openapi.json")).json())
@@ -319,7 +332,8 @@ async def test_every_operation_holds_to_its_description(bench: Bench) -> None:
         assert started.status_code == 201, started.text
         await wait_state(client, "idle")
         run = (await client.get(f"/api/v1/runs/{started.json()['id']}")).json()
-        assert (run["state"], run["steps_recorded"]) == ("finished", 4)
+        # 4 deadlines of 100 ms wall time: some may be skipped on a loaded machine
+        assert run["state"] == "finished" and 1 <= run["steps_recorded"] <= 4, run
         health = (await client.get("/api/v1/health")).json()
         assert health["devices"] == {"robot": "connected", "camera": "ok", "ir": "ok"}
 
@@ -347,6 +361,7 @@ def test_parquet_is_described_only_when_pyarrow_is_installed(
     assert "501" not in description["paths"]["/api/v1/runs/{run_id}/steps"]["get"]["responses"]
 
 
+@pytest.mark.slow
 async def test_parquet_export_without_and_with_pyarrow(
     bench: Bench, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -383,7 +398,7 @@ async def test_parquet_export_without_and_with_pyarrow(
             import pyarrow.parquet as pq  # type: ignore[import-not-found, unused-ignore]
 
             steps = pq.read_table(io.BytesIO(exported.content)).column("step").to_pylist()
-        assert steps == list(range(6))
+        assert steps == list(range(bench.finished_steps))
 
 
 def test_run_networks_are_described_as_names() -> None:

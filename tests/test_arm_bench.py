@@ -254,6 +254,7 @@ def observe(bench: ArmBench, t_s: float) -> list[str]:
     return seen
 
 
+@pytest.mark.slow
 def test_same_seed_same_run_other_seed_other_run() -> None:
     first = [observe(ArmBench(bench_config(), DutyCycleMotion(SWING)), t) for t in (0.0, 600.0)]
     again = [observe(ArmBench(bench_config(), DutyCycleMotion(SWING)), t) for t in (0.0, 600.0)]
@@ -329,7 +330,7 @@ def test_markers_rendered_and_triangulated_recover_the_true_tool_within_the_nois
 def test_identifications_forward_model_is_the_arm_model() -> None:
     """responses() (all inputs at once through the modes) against ArmThermalModel stepped
     the ordinary way, across the links too: the same temperatures, link rises and gradients."""
-    from daemon.arm.description import load_arm
+    from daemon.arm.loading import load_arm
     from daemon.arm.thermal import describe_arm
 
     description = describe_arm(load_arm("crs-a465"), plus_share=0.75)

@@ -67,6 +67,7 @@ async def one_run(tmp_path: Path, **overrides: Any) -> RunResult:
     return final, steps, commands
 
 
+@pytest.mark.slow
 async def test_compensated_arm_run_beats_the_uncompensated_drift(tmp_path: Path) -> None:
     off, off_steps, _ = await one_run(tmp_path / "off", compensation="off")
     on, on_steps, commands = await one_run(tmp_path / "on", compensation="absolute")

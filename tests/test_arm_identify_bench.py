@@ -54,6 +54,7 @@ def bench_settings(data_dir: Path) -> Settings:
     )
 
 
+@pytest.mark.slow
 async def test_identify_a_calibration_run_of_the_arm_bench(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

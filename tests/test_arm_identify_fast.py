@@ -13,14 +13,22 @@ import pytest
 
 from daemon.arm.adaptation import ArmAdaptation
 from daemon.arm.arm_network import describe_arm
-from daemon.arm.calibration_program import calibration_program, duty_cycle_toml, hold_pose
-from daemon.arm.description import load_arm
+from daemon.arm.calibration_program import (
+    BLOCK_S,
+    HOLD_MIN_SHARE,
+    calibration_program,
+    duty_cycle_toml,
+    hold_pose,
+    hold_poses,
+)
 from daemon.arm.duty import duty_cycle_from_mapping, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.identify import _ArmProblem, identify_arm
 from daemon.arm.identify_final import identify_arm_final
 from daemon.arm.identify_parameters import outside_physical_range, parse_parameters
 from daemon.arm.identify_response import NetworkFactors, factored_description, output_responses
+from daemon.arm.loading import load_arm
+from daemon.arm.motors import joint_heat_batch_w
 from daemon.arm.response import ArmModelSpec, ArmRunData
 from daemon.arm.thermal import ArmThermalModel
 from daemon.model.identify_uncertainty import central_jacobian
@@ -191,12 +199,29 @@ def test_the_calibration_program_works_each_joint_in_turn_and_plays_as_a_duty_cy
         power = JointHeatProfile.from_duty(arm, cycle, resolution_s=0.01).cycle_energy_j
         assert int(np.argmax(power)) == j or j == 1, (joint.name, power)  # shoulder: gravity
     assert hold_pose(arm, 1.0)[1] != 0.0  # the shoulder holds the arm out
+    # a hold of its own for each joint that can hold the weight alone: shoulder and elbow,
+    # each releasing most of the holding heat in its pose, for a block of minutes
+    holds = hold_poses(arm, 1.0)
+    assert [j for j, _ in holds][:2] == [1, 2]
+    for j, q in holds:
+        still = np.zeros((1, arm.dof))
+        heat = np.asarray(joint_heat_batch_w(arm, q[None, :], still, still, payload_kg=1.0))[0]
+        assert heat[j] > HOLD_MIN_SHARE * heat.sum(), (j, heat)
+        block = [p for p in program.poses if p.name == f"{arm.joints[j].name}-hold"]
+        assert sum(p.dwell_s for p in block) >= 0.8 * BLOCK_S
     text = duty_cycle_toml(program, "crs-a465")
     import tomllib
 
     again = duty_cycle_from_mapping(tomllib.loads(text))
     assert len(again.poses) == len(program.poses)
     np.testing.assert_allclose(again.period_s, program.period_s, rtol=1e-9)
+    for read, written in zip(again.poses, program.poses, strict=True):
+        assert (read.name, read.speed, read.accel, read.dwell_s, read.measure) == (
+            written.name, written.speed, written.accel, written.dwell_s, written.measure,
+        )  # fmt: skip
+        np.testing.assert_allclose(read.q_rad, written.q_rad, atol=1e-7)
+    # one line per visit (the format has no repeat; a program visits thousands of poses)
+    assert len(text.splitlines()) <= len(program.poses) + 20
 
 
 @pytest.mark.slow
@@ -275,3 +300,52 @@ def test_a_controller_with_adaptation_approaches_an_arm_it_was_not_told() -> Non
     assert adapted_rms < 0.2 * preset_rms, (adapted_rms, preset_rms)
     estimates = adapted.adaptation_estimates()
     assert abs(estimates["heat:2"][0] - 0.7) < 0.1 and abs(estimates["alpha"][0] - 0.94) < 0.03
+
+
+@pytest.mark.slow
+def test_adaptation_follows_the_room_the_controller_follows() -> None:
+    """A room warming 0.5 degC an hour: the truth (the controller given other factors) and the
+    adapted controller follow the same thermometer. The adaptation's record of the air is the
+    room's, so the room is not soaked into the factors: alpha and convection come back, and the
+    adapted prediction over the last third is far closer to the truth's than the preset's."""
+    from daemon.arm.arm_model import ArmModel
+    from daemon.arm.controller import ArmModelOptions, load_controller
+    from daemon.arm.ir_regions import region_nodes
+
+    options = ArmModelOptions(bending=True, motor_side_share=0.75, model_dt_s=60.0)
+    truth_model = ArmModel(
+        "truth", "CRS A465", (1.6, 0.7, 1.5, 1.0, 1.0, 1.0), convection_scale=1.3,
+        alpha_scale=0.94, bending_shares=(0.6,) * 6,
+    )  # fmt: skip
+    arm, task = "config/arms/crs-a465.toml", "a465-pick-and-place"
+    truth = load_controller(arm, task, options, truth_model)
+    preset = load_controller(arm, task, options)
+    adapted = load_controller(arm, task, options)
+    poses = adapted.measured_poses()
+    adapted.enable_adaptation(poses, 0.002, 0.05)
+    regions = region_nodes(truth.thermal, ["upper-arm-mid", "forearm-mid", "turret-mid"])
+    errors: dict[str, list[float]] = {"preset": [], "adapted": []}
+    hours = 6
+    for k in range(0, hours * 6 + 1):
+        t = k * 600.0
+        room = 21.0 + 0.5 * t / 3600.0
+        for controller in (truth, preset, adapted):
+            controller.follow_room(room)
+            controller.advance_to(t)
+        if k == 0:
+            continue
+        pose = poses[k % len(poses)]
+        true_error = truth.tool_error(pose).translation_mm
+        temperatures = truth.thermal.temperatures_c
+        reading = {name: float(temperatures[list(n)].mean()) for name, n in regions.items()}
+        if k > hours * 4:
+            for name, controller in (("preset", preset), ("adapted", adapted)):
+                miss = controller.tool_error(pose).translation_mm - true_error
+                errors[name].append(float(np.linalg.norm(miss)))
+        adapted.adapt(pose, true_error, reading)
+    preset_rms = float(np.sqrt(np.mean(np.square(errors["preset"]))))
+    adapted_rms = float(np.sqrt(np.mean(np.square(errors["adapted"]))))
+    assert adapted_rms < 0.1 * preset_rms, (adapted_rms, preset_rms)
+    estimates = adapted.adaptation_estimates()
+    assert abs(estimates["alpha"][0] - 0.94) < 0.02, estimates
+    assert abs(estimates["convection"][0] - 1.3) < 0.15, estimates

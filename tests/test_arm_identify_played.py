@@ -13,6 +13,7 @@ from contextlib import closing
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from daemon.commands.arm_identify import IDENTIFY_STEP_S, load_arm_run
 from daemon.run.states import RunParameters
@@ -24,6 +25,7 @@ from tests.test_arm_player import WAIT_S, settings_for
 DURATION_S = 80.0  # four steps of 20 s: the two measured poses twice
 
 
+@pytest.mark.slow
 async def test_a_played_compensated_run_is_read_at_its_own_time_minus_its_arrived_correction(
     tmp_path: Path,
 ) -> None:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from daemon.arm.description import ArmError, arm_from_mapping, available_arms, load_arm
+from daemon.arm.description import ArmError
 from daemon.arm.kinematics import (
     bending_deflection,
     forward,
@@ -24,6 +24,7 @@ from daemon.arm.kinematics import (
     tool_errors,
     warm_arm,
 )
+from daemon.arm.loading import arm_from_mapping, available_arms, load_arm
 from daemon.arm.types import LinkThermalState, pose_difference
 from tests.helpers import REPO_ROOT
 

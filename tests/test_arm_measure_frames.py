@@ -12,8 +12,10 @@ import pytest
 
 from config import Settings
 from daemon.run.arm.measure import MarkerView, MultiCameraMeter, mean_views
+from daemon.run.arm.robot import GoalRobotArm
 from daemon.run.workers import Workers
 from daemon.vision.multiview import pose_difference
+from tests.fakes import FakeRobot
 
 #: The image-plane jitter of the test's frames (px): the arm bench's order (0.03 px)
 JITTER_PX = 0.05
@@ -64,6 +66,7 @@ class _JitteryMarkerCamera:
         return Frame(image, self.renderer.rig.bit_depth, 0.0, 0, "camera")  # type: ignore[arg-type]
 
 
+@pytest.mark.slow
 async def test_averaged_frames_divide_the_pose_noise_by_sqrt_frames() -> None:
     from drivers.sim.arm_markers import CameraRig
 
@@ -149,21 +152,22 @@ async def test_a_measurement_may_ask_for_more_frames_than_a_step() -> None:
         workers.shutdown()
 
 
+async def taught_robot(poses: Any) -> FakeRobot:
+    """The suite's fake robot (it passes the Robot contract) with each pose taught as a goal."""
+    robot = FakeRobot()
+    for pose in poses:
+        await robot.teach_goal(pose.name)
+    return robot
+
+
 async def test_the_references_are_measured_with_arm_reference_frames() -> None:
-    from daemon.arm.types import Pose6
     from daemon.run.arm.prepare import ArmServices, measure_references
     from daemon.run.events import ErrorLog, EventBus
     from tests.test_arm_run import POSES
 
     asked: list[tuple[str, int | None]] = []
 
-    class Robot:
-        goal = ""
-
-        async def move_to_goal(self, goal: str, correction: Pose6) -> None:
-            self.goal = goal
-
-    robot = Robot()
+    robot = await taught_robot(POSES)
 
     class Meter:
         async def measure(self, expected_pose: Any, frames: int | None = None) -> Any:
@@ -172,9 +176,59 @@ async def test_the_references_are_measured_with_arm_reference_frames() -> None:
             asked.append((robot.goal, frames))
             return ToolMeasurement(np.asarray(expected_pose), 0.001, True, {})
 
-    work: Any = type("Work", (), {"poses": POSES, "reference": {}, "run_id": 1})()
-    services = ArmServices(robot, Meter(), pipeline=None)  # type: ignore[arg-type]
+    work: Any = type(
+        "Work", (), {"poses": POSES, "reference": {}, "missing_references": {}, "run_id": 1}
+    )()
+    services = ArmServices(GoalRobotArm(robot), Meter(), pipeline=None)  # type: ignore[arg-type]
     await measure_references(work, services, ErrorLog(EventBus()), 32)
     assert asked == [(pose.name, 32) for pose in POSES]
     assert set(work.reference) == {pose.name for pose in POSES}
     assert work.reference_source == "each taught goal before the first correction"
+
+
+async def test_a_missing_reference_is_said_never_a_silent_zero(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A pose whose reference cannot be measured (its markers, or a camera timing out on a
+    busy machine) takes its first step's measurement as its zero: the pose and why are kept,
+    that step is flagged, and the run's summary prints a line for it."""
+    from daemon.arm.run import MeasurementError, ToolMeasurement
+    from daemon.commands.run import _print_result
+    from daemon.run.arm.prepare import ArmServices, measure_references
+    from daemon.run.arm.step import REFERENCE_MISSING, record_measurement
+    from daemon.run.events import ErrorLog, EventBus
+    from daemon.storage.recorder import StepRecord
+    from daemon.storage.step_record import STEP_FLAGS
+    from tests.test_arm_run import POSES
+
+    robot = await taught_robot(POSES)
+
+    class Meter:
+        async def measure(self, expected_pose: Any, frames: int | None = None) -> Any:
+            if robot.goal == POSES[1].name:
+                raise MeasurementError("2 markers seen, 3 needed")
+            return ToolMeasurement(np.asarray(expected_pose), 0.001, True, {})
+
+    work: Any = type(
+        "Work", (), {"poses": POSES, "reference": {}, "missing_references": {}, "run_id": 1}
+    )()
+    services = ArmServices(GoalRobotArm(robot), Meter(), pipeline=None)  # type: ignore[arg-type]
+    await measure_references(work, services, ErrorLog(EventBus()))
+    assert set(work.reference) == {POSES[0].name}
+    assert work.missing_references == {POSES[1].name: "markers: 2 markers seen, 3 needed"}
+    assert work.reference_source == "taught goals before the first correction, else first steps"
+
+    measured = ToolMeasurement(np.asarray(POSES[1].tool_pose), 0.001, True, {})
+    record = StepRecord(run_id=1, step=0, scheduled_s=0.0, actual_s=0.0, lateness_s=0.0)
+    assert record_measurement(work, POSES[1], measured, record)  # the zero: flagged
+    assert not record_measurement(work, POSES[1], measured, record)  # a drift from it
+    assert not record_measurement(work, POSES[0], measured, record)  # had its reference
+    assert REFERENCE_MISSING in STEP_FLAGS
+
+    summary = {"drift_3d_max_um": 1.0, "reference": {"missing": work.missing_references}}
+    _print_result({"id": 3, "state": "finished", "reason": None, "summary": summary}, False)
+    lines = [line for line in capsys.readouterr().out.splitlines() if "NO REFERENCE" in line]
+    assert lines == [
+        f"  NO REFERENCE at {POSES[1].name:<12} its first step is its zero "
+        "(markers: 2 markers seen, 3 needed)"
+    ]

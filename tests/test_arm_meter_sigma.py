@@ -54,6 +54,7 @@ async def _single_frame_sigmas(jitter_px: float) -> tuple[float, float]:
     return float(np.mean(sigmas)), float(np.sqrt(np.mean(np.square(errors))))
 
 
+@pytest.mark.slow
 async def test_the_reported_sigma_follows_the_cameras_real_scatter() -> None:
     quiet_sigma, quiet_error = await _single_frame_sigmas(0.02)
     noisy_sigma, noisy_error = await _single_frame_sigmas(0.08)

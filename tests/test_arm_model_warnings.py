@@ -74,3 +74,19 @@ def test_a_value_outside_its_physical_range_refuses_the_save_unless_forced() -> 
     assert not forced.calibrated
     # a parameter the final fit did not identify keeps its prior: not checked
     assert checked_for_save(model(), force=False).implausible == ()
+
+
+def test_a_parameter_never_fitted_is_saved_without_a_value(tmp_path: Path) -> None:
+    """A joint the calibration cycle never heats has no fitted value (NaN): the model is still
+    saved (the cycle that leaves the wrist's roll still, a465-machine-tending), the parameter
+    without a value and with its reason, and loads back not identified."""
+    silent = CalibratedParameter(
+        "heat:6", float("nan"), None, None, False, "this cycle releases no heat in joint 6"
+    )
+    path = tmp_path / "m.toml"
+    path.write_text(arm_model_toml(model(parameters=(silent,), not_identified=("heat:6",))))
+    loaded = load_arm_model(path)
+    (parameter,) = loaded.parameters
+    assert parameter.name == "heat:6" and parameter.value != parameter.value
+    assert not parameter.identifiable and "no heat in joint 6" in parameter.reason
+    assert not loaded.calibrated and _info(loaded, "m").parameters == []

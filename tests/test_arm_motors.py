@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from daemon.arm.description import ArmError, load_arm
+from daemon.arm.description import ArmError
 from daemon.arm.duty import (
     DutyCycle,
     DutyCycleError,
@@ -22,6 +22,7 @@ from daemon.arm.duty import (
 )
 from daemon.arm.heat import HeatMeter, JointHeatProfile
 from daemon.arm.kinematics import forward, link_frames
+from daemon.arm.loading import load_arm
 from daemon.arm.motors import (
     GRAVITY_M_S2,
     MotorParameters,

@@ -78,6 +78,7 @@ def along_and_across(steps: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarra
     return along, across
 
 
+@pytest.mark.slow
 async def test_an_arm_run_with_one_camera_measures_and_compensates(tmp_path: Path) -> None:
     off, off_steps = await one_run(tmp_path / "off", compensation="off")
     on, on_steps = await one_run(tmp_path / "on", compensation="absolute")
@@ -104,6 +105,7 @@ async def test_an_arm_run_with_one_camera_measures_and_compensates(tmp_path: Pat
     assert np.sqrt(np.mean(along**2)) < 2.0 * sigma.mean()
 
 
+@pytest.mark.slow
 @needs_pylon
 async def test_on_hardware_one_camera_and_a_one_camera_file_make_the_meter(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path

@@ -28,13 +28,14 @@ from daemon.run.arm.step import ArmRunWork, ArmStepPipeline
 from daemon.run.setup import RunParameterError
 from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
-from drivers.base import GoalRobot, LinkState, MoveResult, Pose
+from drivers.base import LinkState
 from drivers.c500c import protocol as proto
 from drivers.clock import VirtualClock, make_clock
 from drivers.errors import DeviceError, MotionHeldError
 from drivers.factory import Devices
-from drivers.permit import MotionPermit, Ticket
+from drivers.permit import Ticket
 from drivers.sim.emulator import C500CEmulator
+from tests.fakes import FakeRobot, Gate
 
 WAIT_S = 120.0
 #: config/duty/a465-pick-and-place.toml: goal (the pose's name made a goal name), the move's
@@ -110,6 +111,7 @@ async def until(condition: Callable[[], bool]) -> None:
             await asyncio.sleep(0.01)
 
 
+@pytest.mark.slow
 async def test_the_robot_plays_every_pose_in_order_at_its_speed_and_dwell(tmp_path: Path) -> None:
     settings = settings_for(tmp_path, duration_s=100.0)
     async with Daemon(settings, clock=make_clock("virtual")) as daemon:
@@ -157,6 +159,7 @@ async def test_the_robot_plays_every_pose_in_order_at_its_speed_and_dwell(tmp_pa
         assert any(np.allclose(shift, correction, atol=6e-4) for shift in shifts), correction
 
 
+@pytest.mark.slow
 async def test_a_played_run_is_reproducible(tmp_path: Path) -> None:
     """Which arrival each step measures does not hang on its worker threads' timing (the step
     names its pose before its model runs, the move into it waits for the corrections)."""
@@ -174,6 +177,7 @@ async def test_a_played_run_is_reproducible(tmp_path: Path) -> None:
     assert first == second and len(first) == 3
 
 
+@pytest.mark.slow
 async def test_pause_resume_restarts_the_player_and_a_hold_stops_every_move(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -225,6 +229,7 @@ async def test_pause_resume_restarts_the_player_and_a_hold_stops_every_move(
     assert not [c for c in written[held_at:] if proto.is_motion_command(c)], written[held_at:]
 
 
+@pytest.mark.slow
 async def test_a_link_fault_during_the_cycle_faults_the_run_and_a_resume_plays_on(
     tmp_path: Path,
 ) -> None:
@@ -258,6 +263,7 @@ async def test_a_link_fault_during_the_cycle_faults_the_run_and_a_resume_plays_o
     assert not player.playing
 
 
+@pytest.mark.slow
 async def test_a_refused_correction_is_never_sent_and_pauses_the_run(tmp_path: Path) -> None:
     # the model's error x 300: within a minute a pose's correction changes by more than
     # arm.max_step_translation_mm (0.5 mm) and is refused
@@ -293,47 +299,30 @@ async def test_a_refused_correction_is_never_sent_and_pauses_the_run(tmp_path: P
     assert max(np.linalg.norm(v) for v in sent["place"]) > 0.3  # corrections were sent
 
 
-class SpeedlessRobot:
-    """A GoalRobot whose moves take no speed (as the fast path's driver)."""
-
-    def __init__(self) -> None:
-        self.moves = 0
-
-    def taught_goals(self) -> dict[str, Pose]:
-        return {"a": Pose(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)}
-
-    async def move_absolute(self, *args: object, **kwargs: object) -> MoveResult:
-        self.moves += 1
-        raise AssertionError("nothing may be sent")
-
-
 async def test_a_driver_without_a_speed_refuses_a_played_move() -> None:
-    robot = SpeedlessRobot()
-    arm = GoalRobotArm(cast(GoalRobot, robot))
+    robot = FakeRobot()  # its moves take no speed, as the fast path's driver
+    await robot.teach_goal("a")
+    arm = GoalRobotArm(robot)
     with pytest.raises(DeviceError, match="cannot set a move's speed"):
         await arm.move_to_goal("a", Pose6.zero(), speed_percent=50)
-    assert robot.moves == 0
+    assert robot.commands == []  # nothing written
 
 
-# --- the player against a fake robot ---------------------------------------------------------
+# --- the player against the suite's fake robot -------------------------------------------------
 
 
-class FakeRobot:
-    """Moves take 2 s of the clock; the n-th move (if set) is refused as after a hold."""
+async def played_robot(clock: VirtualClock) -> FakeRobot:
+    """The suite's fake robot (it passes the Robot contract) with the cycle's goals taught,
+    its moves taking 2 s of the clock and a speed each (as the console driver)."""
+    robot = FakeRobot(clock=clock, move_s=2.0, sets_speed=True)
+    for entry in fake_cycle():
+        await robot.teach_goal(entry.pose.name)
+    return robot
 
-    def __init__(self, clock: VirtualClock, refuse_at: int | None = None) -> None:
-        self.clock = clock
-        self.refuse_at = refuse_at
-        self.moves: list[tuple[str, Pose6, int | None, float]] = []
 
-    async def move_to_goal(
-        self, goal: str, correction: Pose6, *, speed_percent: int | None = None
-    ) -> MoveResult:
-        if self.refuse_at is not None and len(self.moves) == self.refuse_at:
-            raise MotionHeldError("robot", "motion is held until resume(): test")
-        await self.clock.sleep_until(self.clock.now() + 2.0)
-        self.moves.append((goal, correction, speed_percent, self.clock.now()))
-        return MoveResult((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), None, 0, 0, ())
+def played(robot: FakeRobot) -> list[tuple[str, int | None]]:
+    """The goals and speeds of the moves that reached the robot's writer."""
+    return [(goal, speed) for (goal, _), speed in zip(robot.written, robot.speeds, strict=True)]
 
 
 def fake_cycle() -> tuple[CyclePose, ...]:
@@ -351,8 +340,8 @@ async def test_the_player_sends_each_poses_latest_correction_and_waits_for_the_m
     None
 ):
     clock = VirtualClock()
-    robot = FakeRobot(clock)
-    player = ArmPlayer(robot, fake_cycle(), clock, 1, MotionPermit())
+    robot = await played_robot(clock)
+    player = ArmPlayer(GoalRobotArm(robot), fake_cycle(), clock, 1, robot.permit)
     shift = Pose6(np.array([0.01, 0.0, 0.0]), np.zeros(3))
     player.set_corrections({"c": shift})
     player.start(player_grant(player))
@@ -360,9 +349,10 @@ async def test_the_player_sends_each_poses_latest_correction_and_waits_for_the_m
     arrived_s = clock.now()
     # three 2-s moves and a's 1-s dwell
     assert arrival.correction is shift and arrival.arrived_s == arrived_s == 7.0
-    assert [(g, s) for g, _, s, _ in robot.moves] == [("a", 50), ("b_1", 100), ("c", 20)]
+    assert played(robot) == [("a", 50), ("b_1", 100), ("c", 20)]
+    np.testing.assert_array_equal(robot.written[-1][1].translation_mm, shift.translation_mm)
     await asyncio.sleep(0)
-    assert len(robot.moves) == 3 and clock.now() == arrived_s  # held there until released
+    assert len(robot.written) == 3 and clock.now() == arrived_s  # held there until released
     player.release()
     await player.arrive("a")  # c's dwell (3 s) then the 2-s move: at 11 s
     assert clock.now() == pytest.approx(arrived_s + 3.0 + 2.0)
@@ -373,51 +363,37 @@ async def test_the_player_sends_each_poses_latest_correction_and_waits_for_the_m
 
 async def test_a_refused_move_ends_the_playing_and_reaches_the_next_arrival() -> None:
     clock = VirtualClock()
-    robot = FakeRobot(clock, refuse_at=1)
-    player = ArmPlayer(robot, fake_cycle(), clock, 1, MotionPermit())
+    robot = await played_robot(clock)
+    robot.held_moves.add(1)  # a hold comes right before the second move is written
+    player = ArmPlayer(GoalRobotArm(robot), fake_cycle(), clock, 1, robot.permit)
     player.start(player_grant(player))
     with pytest.raises(MotionHeldError):
         await player.arrive("c")
-    assert not player.playing and len(robot.moves) == 1
+    assert not player.playing and len(robot.written) == 1
     # the loop's start: not while an error waits for a step to report it
     player.start(player_grant(player))
     with pytest.raises(MotionHeldError):
         await player.arrive("c")
-    robot.refuse_at = None
     await player.stop()  # the run faulted
-    player.start(player_grant(player))  # a resume: from the pose after the last one reached (b_1)
+    await robot.resume()  # the operator's resume
+    player.start(player_grant(player))  # from the pose after the last one reached (b_1)
     await player.arrive("c")
-    assert [g for g, _, _, _ in robot.moves] == ["a", "b_1", "c"]
+    assert [goal for goal, _ in robot.written] == ["a", "b_1", "c"]
     player.release()
     await player.stop()
 
 
-class StuckRobot:
-    """A move that does not end (one waiting for the operator's PAUSE/CONTINUE)."""
-
-    def __init__(self) -> None:
-        self.started = asyncio.Event()
-        self.cut = False
-
-    async def move_to_goal(
-        self, goal: str, correction: Pose6, *, speed_percent: int | None = None
-    ) -> MoveResult:
-        self.started.set()
-        try:
-            await asyncio.Event().wait()
-        except asyncio.CancelledError:
-            self.cut = True
-            raise
-        raise AssertionError("unreachable")
-
-
 async def test_stop_lets_a_move_end_but_cuts_it_after_the_grace() -> None:
-    robot = StuckRobot()
-    player = ArmPlayer(robot, fake_cycle(), VirtualClock(), 1, MotionPermit())
+    clock = VirtualClock()
+    robot = await played_robot(clock)
+    # a move that does not end (one waiting for the operator's PAUSE/CONTINUE)
+    robot.reply_gate = stuck = Gate()
+    player = ArmPlayer(GoalRobotArm(robot), fake_cycle(), clock, 1, robot.permit)
     player.start(player_grant(player))
-    await robot.started.wait()
+    await stuck.reached.wait()
     await player.stop(grace_s=0.05)
-    assert robot.cut and not player.playing
+    assert not player.playing
+    assert robot.permit.held and robot.written == []  # the cut move holds, nothing written
 
 
 # --- settings ----------------------------------------------------------------------------------
@@ -449,7 +425,8 @@ async def test_the_played_step_limit_is_against_the_correction_sent() -> None:
     settings = Settings.model_validate({"arm": {"max_step_translation_mm": 0.2}})
     clock = VirtualClock()
     cycle = fake_cycle()
-    player = ArmPlayer(FakeRobot(clock), cycle, clock, 1, MotionPermit())
+    robot = await played_robot(clock)
+    player = ArmPlayer(GoalRobotArm(robot), cycle, clock, 1, robot.permit)
     pipeline = ArmStepPipeline(
         settings,
         robot=cast(Any, None),

@@ -40,8 +40,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from daemon.arm.description import Arm, arm_from_mapping
+from daemon.arm.description import Arm
 from daemon.arm.kinematics import forward, jacobian
+from daemon.arm.loading import arm_from_mapping
 
 M_TO_MM = 1000.0
 

@@ -9,8 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from daemon.arm.description import ArmError, load_arm
+from daemon.arm.description import ArmError
 from daemon.arm.kinematics import forward, inverse
+from daemon.arm.loading import load_arm
 from drivers.sim.arm_reach import branch_seeds, nearest_solution
 from drivers.sim.joint_arm import JointArm, JointArmConfig, UnreachableError, location_of
 

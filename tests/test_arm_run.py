@@ -495,6 +495,7 @@ def test_controller_heats_from_the_duty_cycle_and_predicts_at_each_pose() -> Non
 # --- what the API, the exports and the report show of an arm run ------------------------------
 
 
+@pytest.mark.slow
 async def test_arm_run_through_the_api_exports_and_report(tmp_path: Path) -> None:
     import csv
     import io

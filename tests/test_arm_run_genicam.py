@@ -26,7 +26,7 @@ import pytest
 os.environ.setdefault("PYLON_CAMEMU", "2")
 
 from config import Settings
-from daemon.arm.description import load_arm
+from daemon.arm.loading import load_arm
 from daemon.run.arm.prepare import reference_frames
 from daemon.run.arm.setup import default_arm_setup
 from daemon.run.states import RunParameters
@@ -122,6 +122,7 @@ def joint_space_emulator(seed: int) -> C500CEmulator:
     )
 
 
+@pytest.mark.slow
 @needs_pylon
 async def test_an_arm_run_on_the_console_measures_the_known_drift_on_genicam_frames(
     tmp_path: Path,

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.arm.description import load_arm
 from daemon.arm.duty import load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.kinematics import link_frames, tool_error
+from daemon.arm.loading import load_arm
 from daemon.arm.thermal import (
     ArmThermalDescription,
     ArmThermalModel,

@@ -122,6 +122,7 @@ def test_an_arm_config_takes_a_truth_preset_or_file_and_refuses_a_bad_one(
     assert "thermal.expansion_scale" in message
 
 
+@pytest.mark.slow
 def test_the_bench_follows_the_truth_file() -> None:
     truth = load_arm_truth("corner-high")
     bench = ArmBench(config_from_truth(truth, 1))

@@ -51,6 +51,7 @@ async def record_run(config: Settings) -> list[str]:
     return observed
 
 
+@pytest.mark.slow
 async def test_same_seed_same_run_other_seed_other_run() -> None:
     first = await record_run(settings(bench={"seed": 11}))
     assert first == await record_run(settings(bench={"seed": 11}))
@@ -113,6 +114,7 @@ async def test_spot_goes_where_physics_puts_it() -> None:
     assert measured.y_px == pytest.approx(centre[1], abs=0.05)
 
 
+@pytest.mark.slow
 def test_truth_is_linear_in_heat_and_follows_the_heater_schedule() -> None:
     clock = VirtualClock()
     base = Bench(settings(), clock)

@@ -26,6 +26,7 @@ def settings(**sections: dict[str, Any]) -> Settings:
     return Settings.model_validate(data)
 
 
+@pytest.mark.slow
 def test_the_stand_drift_is_drawn_from_the_seed_within_its_spread() -> None:
     """Same seed, same drift; other seeds, other drifts, all within +-spread of the nominal
     (thesis 4.8: ~2 um, settled within ~30 min); spread 0 is the nominal exactly. The draw

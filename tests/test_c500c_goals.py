@@ -7,10 +7,12 @@ from __future__ import annotations
 import math
 from collections.abc import AsyncIterator
 
+import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from config.settings import RobotSettings
+from daemon.arm.types import Pose6
 from drivers.base import DEFAULT_GOAL, GoalRobot, Pose
 from drivers.c500c import server_protocol as proto
 from drivers.c500c.robot import C500CRobot
@@ -56,6 +58,17 @@ def test_rotation_vector_to_wshift_angles(
     rotation_rad: tuple[float, float, float], expected_deg: tuple[float, float, float]
 ) -> None:
     assert rotation_zyx_deg(rotation_rad, "robot") == pytest.approx(expected_deg, abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_driver_and_the_arm_model_agree_on_the_angles(seed: int) -> None:
+    """drivers/goals.py converts with SciPy itself (a driver imports no model code); it must
+    give Pose6.zyx_deg's angles, the gimbal lock (y = 90 deg) included."""
+    rng = np.random.default_rng(seed)
+    rotations = [tuple(rng.normal(0.0, 0.5, 3)), (0.0, math.pi / 2, 0.0)]
+    for rotation in rotations:
+        pose = Pose6(np.zeros(3), np.array(rotation, dtype=np.float64))
+        assert rotation_zyx_deg(rotation, "robot") == pytest.approx(pose.zyx_deg(), abs=1e-9)
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])

@@ -24,6 +24,7 @@ SIM = "config/sim.toml"
 FAST_PATH = {"THERMOCOMP_ROBOT__DRIVER": "c500c-server"}
 
 
+@pytest.mark.slow
 async def test_the_factory_opens_the_server_driver_on_the_emulated_program(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -55,6 +56,7 @@ async def test_without_the_bench_the_fast_path_is_a_real_driver(
     assert "robot" not in str(caught.value)
 
 
+@pytest.mark.slow
 def test_a_bench_run_through_the_fast_path(tmp_path: Path) -> None:
     options = ["--data-dir", str(tmp_path), "--duration", "20", "--json"]
     result = run_cli(["run", "--config", SIM, *options], env=FAST_PATH)

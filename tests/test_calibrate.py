@@ -140,6 +140,7 @@ def bench_settings(tmp_path: Path, **camera: Any) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_the_bench_calibration_recovers_pitch_and_rotation(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -238,6 +239,7 @@ async def test_a_spot_leaving_the_chip_stops_and_returns_to_the_goal() -> None:
     assert pose is not None
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,
     reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",

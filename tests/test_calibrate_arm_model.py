@@ -63,6 +63,7 @@ def test_an_arm_without_a_duty_cycle_is_refused(
     assert not (tmp_path / "d").exists()
 
 
+@pytest.mark.slow
 def test_calibration_identification_and_validation_on_the_arm_bench(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -107,6 +108,7 @@ def test_calibration_identification_and_validation_on_the_arm_bench(
     assert prediction["identified"]["marker_rms_mm"] < prediction["preset"]["marker_rms_mm"]
 
 
+@pytest.mark.slow
 def test_no_validate_prints_the_identification_table(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

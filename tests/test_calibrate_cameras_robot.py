@@ -23,8 +23,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from config import Settings, load_settings
-from daemon.arm.description import load_arm
 from daemon.arm.duty import load_duty_cycle
+from daemon.arm.loading import load_arm
 from daemon.arm.run import MeasuredPose
 from daemon.calibration import cameras_robot as calibrate_cameras_robot
 from daemon.calibration.camera_pattern import Shift, check_pattern, robot_pattern, split_shift
@@ -142,6 +142,7 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
     return Calibrated(status, data, err, guess, written, observations, lab, truth)
 
 
+@pytest.mark.slow
 def test_the_robot_recovers_the_station_cameras_from_a_perturbed_file(
     calibrated: Calibrated,
 ) -> None:
@@ -175,6 +176,7 @@ def test_the_robot_recovers_the_station_cameras_from_a_perturbed_file(
             assert np.allclose(camera.centre_mm, guesses[camera.name].centre_mm, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_the_saved_observations_give_the_same_fit(
     calibrated: Calibrated, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -200,6 +202,7 @@ def test_the_saved_observations_give_the_same_fit(
         assert np.allclose(again[camera["camera"]], camera["centre_mm"], atol=1e-4)
 
 
+@pytest.mark.slow
 async def test_the_written_file_measures_the_tool_where_the_controller_puts_it(
     calibrated: Calibrated,
 ) -> None:
@@ -226,6 +229,7 @@ async def test_the_written_file_measures_the_tool_where_the_controller_puts_it(
     assert errors["guess"] > 0.5, errors
 
 
+@pytest.mark.slow
 def test_a_station_at_the_wrist_singularity_is_refused_and_nothing_written(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -260,6 +264,7 @@ def test_a_station_at_the_wrist_singularity_is_refused_and_nothing_written(
         assert f"{name} its fit leaves" in line
 
 
+@pytest.mark.slow
 def test_the_camera_stations_cameras_from_a_goal_off_the_wrist_singularity(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -21,7 +21,7 @@ from config import Settings
 from config.settings import IrRegion
 from daemon.commands import identify as identify_cli
 from daemon.model import load_network, network_facts
-from daemon.model.identify import network_toml
+from daemon.model.identified_network import network_toml
 from daemon.model.observer import OFFSET_SIGMA_C
 from daemon.model.presets import saved_networks_dir
 from daemon.run.setup import (
@@ -191,6 +191,7 @@ def test_the_observer_starts_from_the_identified_offsets(data_dir: Path) -> None
     )
 
 
+@pytest.mark.slow
 def test_from_a_recorded_run_to_a_run_with_its_network(tmp_path: Path) -> None:
     """The CLI path end to end on the bench: an uncompensated run, `identify RUN --save`,
     then `run --network NAME` uses the identified heat (recorded with where it came from) and
@@ -232,6 +233,7 @@ def test_from_a_recorded_run_to_a_run_with_its_network(tmp_path: Path) -> None:
     assert network["identification"]["source_runs"] == ["run 1"]
 
 
+@pytest.mark.slow
 async def test_saved_networks_are_listed_and_started_by_name_over_the_api(
     data_dir: Path,
 ) -> None:
@@ -321,6 +323,7 @@ def test_the_saved_file_is_plain_toml_with_its_identification_table(data_dir: Pa
     assert set(heated) == {"2", "9"}
 
 
+@pytest.mark.slow
 def test_calibrate_model_chains_the_three_steps(tmp_path: Path) -> None:
     """`thermocomp calibrate model`: uncompensated run -> identify --save -> validation run
     with the saved network, its reduction measured against the calibration run's drift."""

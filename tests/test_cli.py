@@ -34,6 +34,7 @@ def test_unknown_command_is_a_usage_error() -> None:
     assert "invalid choice" in result.stderr
 
 
+@pytest.mark.slow
 def test_real_server_answers_health() -> None:
     with running_server(["--config", "config/sim.toml"]) as base_url:
         response = httpx.get(f"{base_url}/api/v1/health", timeout=5.0)

@@ -69,6 +69,7 @@ def test_unknown_key_is_an_error(tmp_path: Path) -> None:
         load_settings(path, environ={})
 
 
+@pytest.mark.slow
 def test_cli_exits_2_on_broken_toml(tmp_path: Path) -> None:
     path = tmp_path / "broken.toml"
     path.write_text("[robot\nbaudrate = 57600\n")
@@ -79,6 +80,7 @@ def test_cli_exits_2_on_broken_toml(tmp_path: Path) -> None:
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_cli_exits_2_on_out_of_range_field(tmp_path: Path) -> None:
     path = tmp_path / "lab.toml"
     path.write_text("[robot]\nbaudrate = 12345\n[api]\nport = 70000\n")
@@ -91,6 +93,7 @@ def test_cli_exits_2_on_out_of_range_field(tmp_path: Path) -> None:
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_cli_exits_2_on_missing_file(tmp_path: Path) -> None:
     result = run_cli(["serve", "--config", str(tmp_path / "nope.toml")])
     assert result.returncode == 2

@@ -530,6 +530,7 @@ async def test_final_states_say_what_happened(
 # --- 3. shutdown order of a machine that moves (the real server, a real process) --------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signals", [(signal.SIGTERM,), (signal.SIGINT, signal.SIGINT)])
 def test_a_signal_holds_and_ends_the_run_before_http_drains(
     tmp_path: Path, signals: tuple[signal.Signals, ...]
@@ -593,6 +594,7 @@ async def test_an_ended_run_stops_making_progress(tmp_path: Path) -> None:
     assert later["progress_percent"] == stopped["progress_percent"] < 100.0
 
 
+@pytest.mark.slow
 async def test_a_run_on_the_real_driver_ends_without_a_warning(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

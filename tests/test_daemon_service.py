@@ -389,6 +389,7 @@ async def test_the_drift_reference_is_taken_before_the_first_move(tmp_path: Path
     assert all(abs(r or 0.0) < 0.3 for r in residual[1:])
 
 
+@pytest.mark.slow
 async def test_the_report_is_written_at_the_end_of_a_run(tmp_path: Path) -> None:
     settings = make_settings(tmp_path, storage={"report_at_end": True})
     harness = Harness(settings)

@@ -61,6 +61,7 @@ def make_run(data_dir: Path, log: Path, *extra: str) -> Iterator[tuple[str, str]
             process.wait(timeout=30)
 
 
+@pytest.mark.slow
 def test_a_fresh_make_run_can_start_and_hold(browser: Browser, tmp_path: Path) -> None:  # noqa: F811
     data = tmp_path / "data"
     with make_run(data, tmp_path / "serve.log") as (address, server):

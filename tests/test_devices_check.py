@@ -37,6 +37,7 @@ def colour_mask(image: np.ndarray, colour: tuple[int, int, int]) -> np.ndarray:
     return mask
 
 
+@pytest.mark.slow
 def test_check_on_the_bench_prints_every_device_and_draws_the_preview(tmp_path: Path) -> None:
     config = write_config(
         tmp_path,
@@ -77,6 +78,7 @@ def test_check_on_the_bench_prints_every_device_and_draws_the_preview(tmp_path: 
     assert not box[60 * factor, 25 * factor]  # inside: the image, not the frame
 
 
+@pytest.mark.slow
 def test_json_output_and_a_failing_device_named_in_one_line(tmp_path: Path) -> None:
     # a region beyond the 160 x 120 thermal image: the IR read fails, the rest is described
     config = write_config(
@@ -92,6 +94,7 @@ def test_json_output_and_a_failing_device_named_in_one_line(tmp_path: Path) -> N
     assert len(failures) == 1
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,
     reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",
@@ -133,6 +136,7 @@ def test_a_robot_that_does_not_answer_leaves_the_cameras_checked(tmp_path: Path)
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 async def test_preview_endpoint_while_idle_and_refused_during_a_run(tmp_path: Path) -> None:
     app = create_app(bench_settings(tmp_path / "data"), service_factory=Daemon)
     async with (
@@ -161,6 +165,7 @@ async def test_preview_endpoint_while_idle_and_refused_during_a_run(tmp_path: Pa
         assert stop.status_code in (200, 202), stop.text
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     importlib.util.find_spec("pypylon") is None,
     reason="pypylon (the genicam extra) is not installed: pip install 'thermocomp[genicam]'",

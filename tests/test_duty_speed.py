@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from config.settings import RobotSettings
-from daemon.arm.description import load_arm
 from daemon.arm.duty import trapezoid_timing
 from daemon.arm.kinematics import forward
+from daemon.arm.loading import load_arm
 from drivers.c500c.robot import C500CRobot
 from drivers.clock import FollowingClock, VirtualClock
 from drivers.errors import DeviceError, MotionHeldError

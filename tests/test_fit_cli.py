@@ -50,6 +50,7 @@ def test_fit_of_an_ir_regions_mean_and_max(
     assert json.loads(capsys.readouterr().out)["n"] == 143
 
 
+@pytest.mark.slow
 def test_an_unknown_region_names_the_ones_there_are(exported: Path) -> None:
     result = run_cli(["fit", str(exported), "--column", "ir:elbow"])
     assert result.returncode == 2

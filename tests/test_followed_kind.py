@@ -36,6 +36,7 @@ class FakeOffsetRobot:
         self.written: list[tuple[Vector3, Vector3]] = []
         self.lock = asyncio.Lock()
         self.at_pose = 1
+        self.followed = 0
 
     async def __aenter__(self) -> Self:
         return self
@@ -54,7 +55,17 @@ class FakeOffsetRobot:
             return len(self.written)
 
     def robot_state(self) -> SimpleNamespace:
-        return SimpleNamespace(at_pose=self.at_pose)
+        # a UR5e at a pose of its program, its joints warmer than the 22 degC room
+        return SimpleNamespace(
+            at_pose=self.at_pose,
+            joints_rad=(0.0, -1.745, 1.745, -1.571, -1.571, 0.0),
+            joint_temperatures_c=(30.0, 34.0, 31.0, 28.0, 27.0, 26.0),
+            tcp_pose=(400.0, 100.0, 300.0, 0.0, 3.14, 0.0),
+        )
+
+    async def follow_program(self) -> SimpleNamespace:
+        self.followed += 1
+        return self.robot_state()
 
     async def stop(self) -> None:
         self.permit.hold("stopped by request")
@@ -104,7 +115,12 @@ async def test_the_fake_offset_robot_keeps_the_hold_rules() -> None:
 
 
 async def test_a_followed_run_writes_corrections_and_none_after_a_hold(tmp_path: Path) -> None:
-    settings = make_settings(tmp_path, scheduler={"step_s": 0.2, "duration_s": 600.0})
+    settings = make_settings(
+        tmp_path,
+        scheduler={"step_s": 0.2, "duration_s": 600.0},
+        model={"prediction": "model+ir"},
+        arm={"enabled": True, "arm_file": "ur5e", "duty_cycle": "ur5e-pick-and-place"},
+    )
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     devices = FollowedDevices(clock)
     robot = devices.robot
@@ -113,6 +129,7 @@ async def test_a_followed_run_writes_corrections_and_none_after_a_hold(tmp_path:
         session = daemon._session
         assert session is not None and session.kind.name == "followed"
         await daemon.wait_state(RunState.RUNNING)
+        assert robot.followed == 1  # the run took the program as it is
         async with asyncio.timeout(WAIT_S):
             while len(robot.written) < 3:  # noqa: ASYNC110 -- the fake has no event
                 await asyncio.sleep(0.01)

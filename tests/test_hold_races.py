@@ -93,6 +93,7 @@ async def bench(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> AsyncIterato
             yield Bench(app.state.context, client, spy)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("delay_s", [0.0, 0.03, 0.1])
 async def test_a_hold_during_a_starts_build_is_never_undone_by_it(
     bench: Bench, delay_s: float
@@ -113,6 +114,7 @@ async def test_a_hold_during_a_starts_build_is_never_undone_by_it(
     assert bench.spy.motions_after(answered) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("delay_s", [0.0, 0.005, 0.02])
 async def test_a_hold_during_a_resume_is_never_undone_by_it(bench: Bench, delay_s: float) -> None:
     client, daemon = bench.client, bench.daemon

@@ -36,6 +36,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, Path
         # the cases come faster than a person clicks: the control rate limit is not tested here
         "THERMOCOMP_API__CONTROL_RATE_PER_S": "1000",
         "THERMOCOMP_API__CONTROL_BURST": "1000",
+        # the data directory holding the hostile files (the server's own temporary one else)
+        "THERMOCOMP_STORAGE__DATA_DIR": str(folder / "data"),
     }
     with running_server(["--config", str(config)], env=env, timeout_s=90) as base_url:
         yield base_url, folder

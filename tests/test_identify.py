@@ -10,6 +10,7 @@ import pytest
 
 from daemon.analysis.steps import steps_from_rows
 from daemon.model import ThermalModel, ThermalNetwork, load_network
+from daemon.model.identified_network import network_toml
 from daemon.model.identify import (
     IdentificationError,
     RunData,
@@ -17,7 +18,6 @@ from daemon.model.identify import (
     heat_schedule,
     identify,
     measured_deformation_um,
-    network_toml,
     parse_parameters,
     simulate_temperatures,
     validate,
@@ -130,6 +130,7 @@ def test_recovers_known_parameters_within_their_uncertainty(preset: ThermalNetwo
     assert np.all(np.abs(result.correlation) <= 1.0 + 1e-9)
 
 
+@pytest.mark.slow
 def test_the_standard_errors_are_honest_over_repeated_runs(preset: ThermalNetwork) -> None:
     """Over independent noise draws the fitted alpha scatters as its reported SE says."""
     truth = truth_network(preset)

@@ -133,6 +133,7 @@ def test_the_entry_point_lists_identify() -> None:
     assert "--validate" in result.stdout
 
 
+@pytest.mark.slow
 def test_a_recorded_run_from_the_database(tmp_path: Path) -> None:
     """End to end on the simulated bench: a real `thermocomp run` (compensation off) on a
     truth with heat x1.3 and convection x0.7, then `thermocomp identify RUN_ID` reading the

@@ -15,8 +15,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from config.settings import RobotSettings
-from daemon.arm.description import load_arm
 from daemon.arm.kinematics import forward
+from daemon.arm.loading import load_arm
 from drivers.c500c import protocol as console_proto
 from drivers.c500c import server_protocol as proto
 from drivers.c500c.robot import C500CRobot

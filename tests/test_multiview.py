@@ -142,6 +142,7 @@ def test_exact_pixels_triangulate_to_the_point(count: int) -> None:
     assert np.all(np.linalg.eigvalsh(covariance) > 0)
 
 
+@pytest.mark.slow
 def test_triangulation_covariance_matches_monte_carlo() -> None:
     """Fixed seed, 1200 noisy triangulations from three cameras: the empirical covariance
     agrees with the reported one (each variance within 12 %: its sampling error is
@@ -280,6 +281,7 @@ def test_three_or_more_markers_recover_a_known_rotation() -> None:
     assert three == pytest.approx(pose, abs=1e-10)
 
 
+@pytest.mark.slow
 def test_pose_covariance_matches_monte_carlo() -> None:
     """Anisotropic marker noise (the covariances triangulation gives), 1500 draws, fixed seed:
     the reported 6x6 covariance's diagonal agrees with the spread of the fitted poses."""

@@ -46,6 +46,7 @@ def rms(values: list[float]) -> float:
     return math.sqrt(sum(v * v for v in values) / len(values))
 
 
+@pytest.mark.slow
 async def test_model_plus_ir_follows_the_real_link(tmp_path: Path) -> None:
     open_loop = await run_steps(bench_settings(tmp_path, "model"))
     observed = await run_steps(bench_settings(tmp_path, "model+ir"))

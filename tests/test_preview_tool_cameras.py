@@ -19,8 +19,9 @@ from daemon.run.devices_check import (
     preview_png,
     tool_caption,
 )
-from drivers.base import Frame, IrReading, Pose
+from drivers.base import Frame, IrReading
 from drivers.errors import DeviceError
+from tests.fakes import FakeRobot, Gate
 
 WIDTH, HEIGHT = 2448, 2048
 MARKER_AT = (1201, 777)  # (x, y): a 3 x 3 marker
@@ -79,9 +80,12 @@ class _Ir:
         raise DeviceError("ir", "no reading")
 
 
-class _Robot:
-    async def actual_pose(self) -> Pose:
-        raise DeviceError("robot", "no pose")
+def _poseless_robot() -> FakeRobot:
+    """The suite's fake robot (it passes the Robot contract) whose pose read fails."""
+    robot = FakeRobot()
+    robot.pose_gate = gate = Gate()
+    gate.open(DeviceError("robot", "no pose"))
+    return robot
 
 
 @dataclass
@@ -98,7 +102,7 @@ def test_every_tool_camera_is_checked_and_a_failing_one_is_named() -> None:
         cameras=(_Camera(True), _Camera(False), _Camera(True)),
         camera_models=(_Model("a"), _Model("b"), _Model("c")),
         ir=_Ir(),
-        robot=_Robot(),
+        robot=_poseless_robot(),
     )
     check = asyncio.run(check_devices(devices, Settings()))  # type: ignore[arg-type]
     assert [name for name, _ in check.tool_frames] == ["a", "c"]

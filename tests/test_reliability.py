@@ -60,6 +60,7 @@ async def wait_for_step(daemon: Daemon, step: int, timeout_s: float = 20.0) -> N
                 await subscription.get()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", FAULT_KINDS)
 async def test_a_serial_fault_mid_run_parks_it_until_resumed_with_absolute_targets(
     tmp_path: Path, kind: FaultKind
@@ -159,6 +160,7 @@ def wshift_offsets(commands: list[str]) -> list[tuple[float, float, float]]:
     return offsets
 
 
+@pytest.mark.slow
 @settings(
     max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )

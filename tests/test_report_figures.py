@@ -101,6 +101,7 @@ def _noisy_rows() -> list[dict[str, Any]]:
     return rows
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rows", [synthetic_rows(), _noisy_rows()], ids=["thesis", "noisy"])
 def test_no_legend_hides_a_line_text_or_bar(rows: list[dict[str, Any]]) -> None:
     figures = _figures(rows)
@@ -116,6 +117,7 @@ def test_no_legend_hides_a_line_text_or_bar(rows: list[dict[str, Any]]) -> None:
     assert legends >= 5  # two compensation panels, figure 6.9, histogram, temperatures
 
 
+@pytest.mark.slow
 def test_a_legend_with_no_free_corner_goes_outside_the_axes() -> None:
     figure = _figures(_noisy_rows())["compensation"]
     figure.draw_without_rendering()
@@ -150,6 +152,7 @@ def _region_rows(n: int = 40) -> list[dict[str, Any]]:
     return rows
 
 
+@pytest.mark.slow
 def test_ir_regions_and_nodes_come_in_natural_order(tmp_path: Path) -> None:
     steps = steps_from_rows(_region_rows())
     natural = ["base", "node-2", "node-10", "node-16"]
@@ -166,6 +169,7 @@ def test_ir_regions_and_nodes_come_in_natural_order(tmp_path: Path) -> None:
     assert fitted == [f"ir_{r}_mean_c" for r in natural]
 
 
+@pytest.mark.slow
 def test_a_zero_lateness_run_gets_a_line_not_an_empty_figure(tmp_path: Path) -> None:
     files = write_report(_region_rows(), tmp_path)
     assert "lateness" not in files.plots and not (tmp_path / "lateness.png").exists()
@@ -179,6 +183,7 @@ def test_a_zero_lateness_run_gets_a_line_not_an_empty_figure(tmp_path: Path) -> 
     assert 'bench.clock = "virtual"' in html.unescape(virtual.html.read_text(encoding="utf-8"))
 
 
+@pytest.mark.slow
 def test_the_report_command_reads_the_runs_clock_from_its_settings(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -204,6 +209,7 @@ def test_the_report_command_reads_the_runs_clock_from_its_settings(
     assert "virtual" not in pages[1] and pages[1].count("<img ") == 5
 
 
+@pytest.mark.slow
 def test_the_page_cites_only_what_a_reader_has(tmp_path: Path) -> None:
     page = write_report(synthetic_rows(), tmp_path).html.read_text(encoding="utf-8")
     assert "DESIGN.md" not in page

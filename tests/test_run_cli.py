@@ -12,6 +12,8 @@ import subprocess
 import time
 from pathlib import Path
 
+import pytest
+
 from daemon.analysis import SUMMARY_KEYS
 from daemon.storage.recorder import DATABASE_NAME, Recorder
 from tests.helpers import REPO_ROOT, cli_command, run_cli
@@ -27,6 +29,7 @@ def test_run_help_lists_the_run_options() -> None:
         assert option in result.stdout
 
 
+@pytest.mark.slow
 def test_bad_run_parameters_are_usage_errors(tmp_path: Path) -> None:
     result = run_cli(["run", "--config", SIM, "--data-dir", str(tmp_path), "--step", "0.001"])
     assert result.returncode == 2
@@ -36,6 +39,7 @@ def test_bad_run_parameters_are_usage_errors(tmp_path: Path) -> None:
     assert "largest admissible scale" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_a_heat_input_naming_no_node_is_refused_before_the_run(tmp_path: Path) -> None:
     """Issue 19: model.heat_w keys are checked against the run's network at its start (exit
     2), not at the first step after the goal was taught (a traceback)."""
@@ -48,6 +52,7 @@ def test_a_heat_input_naming_no_node_is_refused_before_the_run(tmp_path: Path) -
     assert "heat from setting model.heat_w" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_heat_inputs_on_the_command_line_replace_the_settings(tmp_path: Path) -> None:
     """`--heat 2=0.7 9=0.3` replaces model.heat_w (issue 19: run had no --heat); a node the
     network lacks or a malformed value is a usage error."""
@@ -64,6 +69,7 @@ def test_heat_inputs_on_the_command_line_replace_the_settings(tmp_path: Path) ->
         assert "Traceback" not in refused.stderr
 
 
+@pytest.mark.slow
 def test_incremental_moves_below_the_console_resolution_are_refused(tmp_path: Path) -> None:
     """Issue 19 / thesis 6.3: at a 1 s step every incremental move of the unscaled bench is
     under the console's 0.001 mm, so the run is refused before it starts, naming a scale that
@@ -83,6 +89,7 @@ def test_incremental_moves_below_the_console_resolution_are_refused(tmp_path: Pa
     assert len(poses) > 10  # the robot followed the deformation, 0.001 mm at a time
 
 
+@pytest.mark.slow
 def test_a_short_compensated_bench_run_prints_its_summary(tmp_path: Path) -> None:
     csv_path = tmp_path / "steps.csv"
     options = ["--data-dir", str(tmp_path), "--duration", "20", "--json", "--csv", str(csv_path)]
@@ -100,6 +107,7 @@ def test_a_short_compensated_bench_run_prints_its_summary(tmp_path: Path) -> Non
     assert all(s.pose_x_mm is not None and s.centroid_x_px is not None for s in steps)
 
 
+@pytest.mark.slow
 def test_reduction_is_measured_against_a_named_uncompensated_run(tmp_path: Path) -> None:
     """Issue 19: an off run states its drift; a compensated run naming it as its reference
     gets a measured reduction over the time both cover; a compensated run is no reference."""
@@ -192,6 +200,7 @@ def _wait_for_steps(
         time.sleep(poll_s)
 
 
+@pytest.mark.slow
 def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
     tmp_path: Path,
 ) -> None:
@@ -220,6 +229,7 @@ def test_sigkill_mid_run_leaves_every_committed_step_and_an_interrupted_run(
     check.close()
 
 
+@pytest.mark.slow
 def test_sigterm_stops_the_run_cleanly(tmp_path: Path) -> None:
     database = tmp_path / DATABASE_NAME
     process = _start_long_run(tmp_path, json_summary=True)
@@ -240,6 +250,7 @@ def test_sigterm_stops_the_run_cleanly(tmp_path: Path) -> None:
         assert run.state == "stopped" and run.step_count == final["step"] + 1
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_points_of_successive_runs_loses_no_committed_step(
     tmp_path: Path,
 ) -> None:

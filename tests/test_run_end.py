@@ -91,6 +91,7 @@ async def test_a_runs_end_is_committed_before_its_summary(
         assert row is not None and row.summary is not None and "steps" in row.summary
 
 
+@pytest.mark.slow
 async def test_a_shutdown_gives_up_a_summary_it_cannot_wait_for(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

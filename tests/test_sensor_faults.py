@@ -116,6 +116,7 @@ def check_faulted_run(
     assert text in errors[0]["message"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", SENSOR_FAULT_KINDS)
 @pytest.mark.parametrize("device", ["camera", "ir"])
 async def test_a_sensor_fault_is_flagged_on_its_step_and_the_run_goes_on(
@@ -144,6 +145,7 @@ async def test_a_sensor_fault_is_flagged_on_its_step_and_the_run_goes_on(
     assert moved == len(steps)  # one compensating move per step, the faulted one included
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", SENSOR_FAULT_KINDS)
 @pytest.mark.parametrize("device", ["camera", "ir"])
 async def test_with_the_pause_policy_a_sensor_fault_pauses_the_run_until_resumed(
@@ -203,6 +205,7 @@ def test_a_bad_fault_spec_is_a_configuration_error_naming_the_field(tmp_path: Pa
     assert load_settings(None, environ={}).bench.camera_faults == ""
 
 
+@pytest.mark.slow
 async def test_probabilistic_faults_are_seeded_and_leave_the_noise_alone() -> None:
     """``%P`` draws from its own seeded stream: the same seed strikes the same reads, and the
     frames of the reads it spares are those of a bench without faults."""

@@ -29,6 +29,7 @@ def serve_fails(env: dict[str, str], *args: str) -> tuple[int, str]:
     return result.returncode, lines[0]
 
 
+@pytest.mark.slow
 def test_lab_config_without_a_control_token_refuses_to_bind_beyond_loopback() -> None:
     status, line = serve_fails({}, "--config", "config/lab.toml", "--port", str(free_port()))
     assert status == EXIT_USAGE == 2
@@ -36,6 +37,7 @@ def test_lab_config_without_a_control_token_refuses_to_bind_beyond_loopback() ->
     assert "THERMOCOMP_API__CONTROL_TOKEN" in line and "api.anonymous_read = true" in line
 
 
+@pytest.mark.slow
 def test_lab_config_without_the_hardware_names_the_device(tmp_path: Path) -> None:
     env = {
         "THERMOCOMP_API__CONTROL_TOKEN": TOKEN,
@@ -48,6 +50,7 @@ def test_lab_config_without_the_hardware_names_the_device(tmp_path: Path) -> Non
     assert "set robot.port" in line
 
 
+@pytest.mark.slow
 def test_an_unwritable_data_directory_is_named(tmp_path: Path) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("not a folder")
@@ -57,6 +60,7 @@ def test_an_unwritable_data_directory_is_named(tmp_path: Path) -> None:
     assert str(blocker / "data") in line and "choose another folder" in line
 
 
+@pytest.mark.slow
 def test_an_unusable_database_is_named(tmp_path: Path) -> None:
     (tmp_path / "thermocomp.sqlite3").mkdir()  # a database that cannot be opened
     env = {"THERMOCOMP_STORAGE__DATA_DIR": str(tmp_path)}
@@ -65,6 +69,7 @@ def test_an_unusable_database_is_named(tmp_path: Path) -> None:
     assert "thermocomp.sqlite3" in line and "writable" in line
 
 
+@pytest.mark.slow
 def test_a_port_in_use_is_named(tmp_path: Path) -> None:
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
@@ -77,6 +82,7 @@ def test_a_port_in_use_is_named(tmp_path: Path) -> None:
     assert "--port" in line
 
 
+@pytest.mark.slow
 def test_a_data_directory_another_process_serves_names_its_pid(tmp_path: Path) -> None:
     env = {"THERMOCOMP_STORAGE__DATA_DIR": str(tmp_path)}
     with running_server(["--config", "config/sim.toml"], env=env):
@@ -111,6 +117,7 @@ def test_non_finite_or_out_of_range_arguments_exit_2_naming_them(
     assert expected in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("toml", "field"),
     [
@@ -128,6 +135,7 @@ def test_non_finite_settings_exit_2_naming_the_field(tmp_path: Path, toml: str, 
     assert f"{config}: {field}" in result.stderr and "Traceback" not in result.stderr
 
 
+@pytest.mark.slow
 def test_environment_infinity_is_refused_naming_the_variable() -> None:
     result = run_cli(
         ["serve", "--config", "config/sim.toml"],
@@ -138,6 +146,7 @@ def test_environment_infinity_is_refused_naming_the_variable() -> None:
     assert "THERMOCOMP_SCHEDULER__DURATION_S (environment): scheduler.duration_s" in (result.stderr)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("content", "reason"),
     [
@@ -159,6 +168,7 @@ def test_binary_or_non_utf8_files_are_refused_in_one_line(
     assert len(network.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_a_robot_that_does_not_answer_is_one_line_and_exit_3(tmp_path: Path) -> None:
     """The port is there (the checks pass) but nothing answers on it: the daemon's start
     fails before the server listens, logged in one line, no traceback."""

@@ -68,6 +68,7 @@ def wait_for(
     raise AssertionError(f"no {key} within {timeout_s} s; got {before}")
 
 
+@pytest.mark.slow
 def test_serve_notifies_systemd_and_stops_safely_on_sigterm(
     tmp_path: Path, notify_socket: tuple[socket.socket, str]
 ) -> None:

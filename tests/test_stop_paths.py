@@ -72,6 +72,7 @@ async def test_health_reports_a_failing_database(
     await client.post(f"/api/v1/runs/{started.json()['id']}/stop", headers=CONTROL_HEADERS)
 
 
+@pytest.mark.slow
 async def test_an_ended_run_without_a_report_gets_one_on_demand(
     api: tuple[Harness, httpx.AsyncClient],
 ) -> None:

@@ -23,6 +23,7 @@ from drivers.ur.modes import RobotMode, RuntimeState
 from drivers.ur.robot import URRobot
 
 WAIT_S = 10.0
+HOLD_PACKAGE_BYTES = 12
 
 
 def settings(host: str, **changes: object) -> RobotSettings:
@@ -136,18 +137,23 @@ async def test_hold_is_effective_before_its_first_await_and_freezes_the_program(
     async with bench("127.0.32.3") as (ur, robot):
         await robot.set_correction((0.2, 0.0, 0.0))
         sent = bytes_sent(robot)
+        await until(lambda: ur.controller.writes[robot.registers.target[0]] == 1)
+        target_writes = 1  # the correction above reached the controller
         pending = robot.stop()  # not awaited yet
-        assert bytes_sent(robot) == sent + 60  # the hold flag's package, written at once
-        assert robot.status().motion_held
+        # the hold recipe's package (sequence, hold flag: 3 + 1 + 4 + 4 bytes), at once
+        assert bytes_sent(robot) == sent + HOLD_PACKAGE_BYTES
+        assert robot.status().motion_held and robot.permit.held
         with pytest.raises(MotionHeldError):
             await robot.set_correction((0.0, 0.0, 0.0))
-        assert bytes_sent(robot) == sent + 60  # nothing of the refused correction
+        assert bytes_sent(robot) == sent + HOLD_PACKAGE_BYTES  # nothing of the refused one
         await pending
         await until(lambda: robot.robot_state().program_status & registers.STATUS_HELD != 0)
         frozen = robot.robot_state().applied_offset_mm
         await asyncio.sleep(0.2)
         assert robot.robot_state().applied_offset_mm == frozen  # frozen, not back to zero
         assert ur.controller.inputs[robot.registers.hold] == 1
+        # heartbeats went on, never into the correction registers
+        assert ur.controller.writes[robot.registers.target[0]] == target_writes
         await robot.resume()
         assert not robot.status().motion_held
         await robot.set_correction((0.2, 0.0, 0.0))
@@ -161,7 +167,7 @@ async def test_a_resume_racing_a_hold_never_releases_it() -> None:
             resume = asyncio.create_task(robot.resume())
             await asyncio.sleep(0.01)
             await robot.stop()  # a later hold, while the resume waits
-        with pytest.raises(MotionHeldError, match="held again"):
+        with pytest.raises(MotionHeldError, match="stays held"):
             await resume
         assert robot.status().motion_held
         with pytest.raises(MotionHeldError):

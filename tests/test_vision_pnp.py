@@ -64,6 +64,7 @@ def test_noise_free_pixels_give_the_exact_pose() -> None:
             assert fit.dof == 2 and fit.chi2 < 1e-12 and fit.markers == (0, 1, 2, 3)
 
 
+@pytest.mark.slow
 def test_covariance_matches_monte_carlo_with_known_pixel_noise() -> None:
     """Gaussian noise of known sigma on exact pixels: the RMS error of each component matches the
     predicted covariance's and the mean Mahalanobis distance² is 6 (six parameters)."""
@@ -89,6 +90,7 @@ def test_covariance_matches_monte_carlo_with_known_pixel_noise() -> None:
     np.testing.assert_allclose(ratio, 1.0, atol=0.15)
 
 
+@pytest.mark.slow
 def test_depth_along_the_line_of_sight_is_much_poorer_than_across_it() -> None:
     rng = np.random.default_rng(3)
     true = tool_pose((0.05, 0.1, -0.1), (0.0, 0.0, 0.0))

@@ -28,8 +28,8 @@ from daemon.arm.arm_model import (
     load_arm_model,
     saved_arm_models_dir,
 )
-from daemon.arm.description import available_arms
 from daemon.arm.duty import available_duty_cycles
+from daemon.arm.loading import available_arms
 from daemon.model.presets import NETWORK_NAME
 
 router = APIRouter(tags=["arm models"], dependencies=[ReadAccess])

@@ -18,6 +18,8 @@ from pydantic import BaseModel, Field
 from api.deps import DaemonDep, ReadAccess, SettingsDep
 from api.errors import ApiError, ErrorBody
 from config import Settings
+from daemon.commands.budget_run import BudgetError, live_budget
+from daemon.storage.budgets import read_saved_budget
 
 router = APIRouter(tags=["budget"], dependencies=[ReadAccess])
 
@@ -69,7 +71,6 @@ class BudgetAnswer(BaseModel):
 
 
 def _live(settings: Settings, target_um: float | None) -> dict[str, Any]:
-    from daemon.commands.budget_run import live_budget
 
     return live_budget(settings, target_um).to_dict()
 
@@ -89,8 +90,6 @@ async def get_budget(
 ) -> BudgetAnswer:
     """The set-up's error budget: each source's error against the expected deformation,
     ranked, with what would reduce it, and whether the set-up resolves its target."""
-    from daemon.commands.budget_run import BudgetError
-    from daemon.storage.budgets import read_saved_budget
 
     if target_um is None and not fresh:
         saved = await daemon.read(read_saved_budget, settings.storage.data_dir)

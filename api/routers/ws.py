@@ -30,7 +30,7 @@ from starlette.websockets import WebSocketState
 
 from api.broadcast import TOPICS, ClientQueue, Topic, encode
 from api.deps import ApiContext, context_of
-from api.errors import ErrorBody
+from api.errors import ErrorBody, error_response
 from api.security import AuthError, parse_authorization
 
 logger = logging.getLogger(__name__)
@@ -80,8 +80,6 @@ async def _refuse(websocket: WebSocket, status: int, kind: str, message: str) ->
     context = context_of(websocket)
     context.metrics.websocket_refused.labels(reason=kind).inc()
     if "websocket.http.response" in websocket.scope.get("extensions", {}):
-        from api.errors import error_response
-
         await websocket.send_denial_response(error_response(status, kind, message))
     else:
         await websocket.close(code=CLOSE_POLICY_VIOLATION, reason=message[:120])

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from daemon.analysis.fits import FitError, fit_exponential
+
 #: Standard gravity (m/s²): the weight of 4.3's link and diode.
 G_M_PER_S2 = 9.80665
 
@@ -190,7 +192,6 @@ def camera_drift(t_s: ArrayLike, x_um: ArrayLike) -> Drift:
     """:class:`Drift` of a recording of a fixed target: a first-order exponential when it fits
     (thesis 4.8: the stand warms as the camera does, within ~30 min), else the change between
     the means of the first and last tenths."""
-    from daemon.analysis.fits import FitError, fit_exponential
 
     t, x = np.asarray(t_s, dtype=np.float64), np.asarray(x_um, dtype=np.float64)
     good = np.isfinite(t) & np.isfinite(x)

@@ -172,7 +172,7 @@ def format_statistics(stats: ErrorStatistics, label: str) -> str:
 
 
 def run_stats(args: argparse.Namespace) -> int:
-    from daemon.analysis.statistics import error_statistics
+    from daemon.analysis.statistics import error_statistics  # lazy: SciPy, not for --help
 
     try:
         rows = read_table(args.file)
@@ -204,6 +204,7 @@ def _times(rows: list[dict[str, str]], args: argparse.Namespace) -> NDArray[np.f
 
 
 def run_fit(args: argparse.Namespace) -> int:
+    # lazy: SciPy, loaded when the fit runs, not for `fit --help` (issue 16)
     from daemon.analysis.fits import FitError, direction_of, fit_exponential
 
     try:

@@ -20,6 +20,7 @@ from matplotlib.figure import Figure
 
 from daemon.analysis.arm import is_arm_run, summarize_arm_run
 from daemon.analysis.arm_plots import draw_arm_error, draw_arm_temperatures
+from daemon.analysis.budget_report import budget_section, with_section
 from daemon.analysis.fits import FitError, direction_of, fit_exponential
 from daemon.analysis.plots import (
     plot_compensated_vs_uncompensated,
@@ -345,8 +346,6 @@ def write_report(
         else two_link_page(title, summary, stats=stats, figures=figures, images=images, notes=notes)
     )
     if budget is not None:
-        from daemon.analysis.budget_report import budget_section, with_section
-
         page = with_section(page, budget_section(budget))
     html_path.write_text(page, encoding="utf-8")
     logger.info("wrote the report of run %s to %s", steps.run_id, out_dir)

@@ -127,6 +127,9 @@ class ArmAdaptation:
         self._updated_s = -math.inf
         self.updates = 0
         self._heat: list[FloatArray] = []
+        #: the air over each heat step (a room thermometer's, else ``ambient_c`` throughout):
+        #: a model holding a constant room soaks a warming or cooling room into the factors
+        self._ambient: list[float] = []
         self._times: list[float] = []
         self._poses: list[int] = []
         self._markers: list[FloatArray] = []
@@ -139,12 +142,20 @@ class ArmAdaptation:
         """The end of the heat record (s from the cold start)."""
         return len(self._heat) * self.heat_step_s
 
-    def add_heat(self, joint_heat_w: Sequence[float] | FloatArray) -> None:
-        """The motor model's mean heat per joint (W) over the next heat step."""
+    def add_heat(
+        self, joint_heat_w: Sequence[float] | FloatArray, ambient_c: float | None = None
+    ) -> None:
+        """The motor model's mean heat per joint (W) over the next heat step, and the air's
+        mean temperature over it (None: the constructor's ``ambient_c``; the first step's is
+        the cold arm's temperature)."""
         heat = np.asarray(joint_heat_w, dtype=np.float64).reshape(-1)
         if heat.size != len(self.spec.description.joints) or not np.all(np.isfinite(heat)):
             raise ValueError(f"expected {len(self.spec.description.joints)} finite joint heats")
+        air = self.ambient_c if ambient_c is None else float(ambient_c)
+        if not math.isfinite(air):
+            raise ValueError(f"the ambient must be finite, got {ambient_c}")
         self._heat.append(heat)
+        self._ambient.append(air)
 
     def observe(
         self,
@@ -175,7 +186,7 @@ class ArmAdaptation:
         return ArmRunData(
             heat_step_s=self.heat_step_s,
             joint_heat_w=heat,
-            ambient_c=np.full(heat.shape[0], self.ambient_c),
+            ambient_c=np.array(self._ambient),
             time_s=np.asarray(times, dtype=np.float64),
             pose_index=np.array(poses, dtype=np.intp),
             marker_displacement_mm=markers.reshape(len(times), -1, 3),

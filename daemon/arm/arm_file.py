@@ -1,23 +1,20 @@
 """Arm files: the TOML schema of ``config/arms/*.toml`` and the builders from it.
 
 docs/reference/files.md "Arm files" lists the fields; ``daemon.arm.description`` holds the values
-they build and ``load_arm``, the entry point. Every problem is an :class:`ArmError` with one line
+they build; ``daemon.arm.loading.load_arm`` is the entry point (a DH table here, a URDF through
+``daemon.arm.urdf``). Every problem is an :class:`ArmError` with one line
 naming the file and the field (or the joint/link) at fault.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from config.inputs import no_such_name
-from config.settings import read_toml
 from daemon.arm.description import (
     MAX_ARM_JOINTS,
-    MIN_ARM_JOINTS,
     Arm,
     ArmError,
     FloatArray,
@@ -114,7 +111,7 @@ class ArmFileSpec(_Strict):
     links: Annotated[tuple[_Link, ...], Field(max_length=MAX_LINKS)] = ()
 
 
-def _describe(err: ValidationError, data: dict[str, Any]) -> str:
+def describe_error(err: ValidationError, data: dict[str, Any]) -> str:
     problems = []
     for problem in err.errors():
         location = list(problem["loc"])
@@ -131,7 +128,7 @@ def _describe(err: ValidationError, data: dict[str, Any]) -> str:
     return "; ".join(problems)
 
 
-def _placement(spec: _Placement) -> FloatArray:
+def placement(spec: _Placement) -> FloatArray:
     roll, pitch, yaw = (math.radians(v) for v in spec.rpy_deg)
     return xyz_rpy(spec.xyz_mm, (roll, pitch, yaw))
 
@@ -224,7 +221,7 @@ def check_links_named(arm: Arm) -> None:
             )
 
 
-def _dh_arm(spec: ArmFileSpec, name: str) -> Arm:
+def dh_arm(spec: ArmFileSpec, name: str) -> Arm:
     if spec.convention is None:
         raise ArmError('convention: give "standard" or "modified" (or urdf = "<file>")')
     if not spec.joints:
@@ -249,84 +246,9 @@ def _dh_arm(spec: ArmFileSpec, name: str) -> Arm:
         convention=spec.convention,
         joints=joints,
         links=build_links(spec.links, link_names),
-        base=_placement(spec.base),
-        tool=_placement(spec.tool),
+        base=placement(spec.base),
+        tool=placement(spec.tool),
         description=spec.description,
     )
     check_links_named(arm)
     return arm
-
-
-def arm_from_mapping(
-    data: dict[str, Any], default_name: str = "arm", folder: Path | None = None
-) -> Arm:
-    """The arm a parsed TOML document describes (``folder``: where a named URDF is looked for)."""
-    rows = data.get("joints")
-    if isinstance(rows, list) and len(rows) > MAX_ARM_JOINTS:  # said before 3,000 are checked
-        raise ArmError(
-            f"joints: {len(rows)} joints: an arm has {MIN_ARM_JOINTS} to {MAX_ARM_JOINTS}"
-        )
-    try:
-        spec = ArmFileSpec.model_validate(data)
-    except ValidationError as err:
-        raise ArmError(_describe(err, data)) from err
-    name = spec.name or default_name
-    if spec.urdf is None:
-        return _dh_arm(spec, name)
-    if spec.convention is not None:
-        raise ArmError("convention: a URDF arm takes its kinematics from the URDF; drop it")
-    from daemon.arm.urdf import arm_from_urdf
-
-    urdf_path = Path(spec.urdf)
-    if not urdf_path.is_absolute() and folder is not None:
-        urdf_path = folder / urdf_path
-    for row in spec.joints:
-        if row.a_mm or row.alpha_deg or row.d_mm or row.theta_offset_deg:
-            raise ArmError(f"joint {row.name!r}: a URDF arm takes no DH values")
-    return arm_from_urdf(
-        urdf_path,
-        name=name,
-        description=spec.description,
-        base_link=spec.base_link,
-        tip_link=spec.tip_link,
-        base=_placement(spec.base),
-        tool=_placement(spec.tool),
-        companion=spec,
-    )
-
-
-def arms_dir() -> Path:
-    """Where the presets live (``config/arms``)."""
-    from importlib import resources
-
-    return Path(str(resources.files("config").joinpath("arms")))
-
-
-def available_arms() -> list[str]:
-    return sorted(path.stem for path in arms_dir().glob("*.toml"))
-
-
-def load_arm_file(name_or_path: str | Path) -> Arm:
-    """An arm by preset name (``"crs-a465"``) or file: a TOML arm file (DH table, or ``urdf =``
-    naming a URDF plus materials and motors) or a bare ``.urdf`` (kinematics only). Raises
-    :class:`ArmError` with a one-line message naming the file and the field."""
-    text = str(name_or_path)
-    path = Path(text)
-    if not (text.endswith((".toml", ".urdf")) or path.is_file()):
-        path = arms_dir() / f"{text}.toml"
-        if not path.is_file():
-            presets = available_arms()
-            listed = f"presets: {', '.join(presets)}; or a TOML or URDF file"
-            raise ArmError(no_such_name("arm", text, presets, listed))
-    if path.suffix.lower() == ".urdf":
-        from daemon.arm.urdf import arm_from_urdf
-
-        return arm_from_urdf(path, name=path.stem)
-    data = read_toml(path, ArmError)
-    try:
-        return arm_from_mapping(data, default_name=path.stem, folder=path.parent)
-    except ArmError as err:
-        message = str(err)
-        if message.startswith(str(path)):
-            raise
-        raise ArmError(f"{path}: {message}") from err

@@ -27,7 +27,8 @@ from typing import Any
 
 from config.inputs import InputError, no_such_name
 from config.settings import read_toml
-from daemon.arm.description import MAX_ARM_JOINTS, available_arms
+from daemon.arm.description import MAX_ARM_JOINTS
+from daemon.arm.loading import available_arms
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.presets import check_network_name, new_saved_path
 
@@ -222,8 +223,11 @@ def arm_model_toml(model: ArmModel, header: str = "") -> str:
         lines += ["", f"[{table}]"]
         lines += [f"{json.dumps(k)} = {_value(float(v))}" for k, v in values.items()]
     for p in model.parameters:
-        lines += ["", "[[parameters]]", f"name = {_value(p.name)}", f"value = {_value(p.value)}"]
+        lines += ["", "[[parameters]]", f"name = {_value(p.name)}"]
+        # a parameter never fitted (a joint the calibration cycle never heats) has no value:
+        # the file leaves it out, the reason says why
         for key, item in (
+            ("value", p.value),
             ("standard_error", p.standard_error),
             ("relative_error", p.relative_error),
         ):
@@ -269,6 +273,11 @@ def _mapping(values: object, what: str) -> dict[str, float]:
     return table
 
 
+def _number_or_nan(value: float | None) -> float:
+    """A parameter's value; NaN when the file has none (never fitted)."""
+    return math.nan if value is None else value
+
+
 def _optional(data: Mapping[str, Any], key: str) -> float | None:
     """An optional number of the file (absent: None)."""
     value = data.get(key)
@@ -288,7 +297,7 @@ def load_arm_model(path: Path) -> ArmModel:
         parameters = tuple(
             CalibratedParameter(
                 name=str(p["name"]),
-                value=float(p["value"]),
+                value=_number_or_nan(_optional(p, "value")),
                 standard_error=_optional(p, "standard_error"),
                 relative_error=_optional(p, "relative_error"),
                 identifiable=bool(p.get("identifiable", True)),

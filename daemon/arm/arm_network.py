@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from daemon.arm.description import Arm
+from daemon.arm.description import Arm, ArmError
+from daemon.arm.kinematics import link_frames
 from daemon.arm.types import FloatArray
 from daemon.model.network import Resistance, ThermalNetwork
 
@@ -344,9 +345,6 @@ def describe_arm(
     are estimates (module constants) that a finer truth model may change; ``plus_share``
     (every joint's) and the links' section height (``thickness_mm``; the rows split across the
     bending frame's y or z, see below) serve a model built with ``across_link``."""
-    from daemon.arm.description import ArmError
-    from daemon.arm.kinematics import link_frames
-
     frames = link_frames(arm, np.zeros(arm.dof))
     origins = [frame[:3, 3] for frame in frames]
     links = []

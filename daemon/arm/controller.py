@@ -31,21 +31,26 @@ import numpy as np
 from daemon.arm.adaptation import PRIOR_LOG_SIGMA, ArmAdaptation, adapted_names
 from daemon.arm.arm_model import ArmModel, check_fits
 from daemon.arm.arm_network import describe_arm
-from daemon.arm.description import Arm, load_arm
+from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle, check_taught_on, load_duty_cycle
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.identify_response import factored_description
 from daemon.arm.ir_regions import region_nodes
 from daemon.arm.kinematics import forward, inverse, tool_error, tool_errors
+from daemon.arm.loading import load_arm
 from daemon.arm.response import ArmModelSpec, marker_sensitivity
 from daemon.arm.run import CyclePose, FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel
 from daemon.arm.types import LinkThermalState, Pose6
+from daemon.model.adaptation import adapted_parameters
 from daemon.model.observer import IrObserver
 
 #: The observer's prior on an IR offset the model file gives no uncertainty for (degC): the
 #: FLIR's +-2 degC accuracy, as the two-link observer (daemon/model/observer.py).
 DEFAULT_OFFSET_SIGMA_C = 2.0
+#: The least prior 1-sigma of a log factor the IR observer adapts (an identified factor's
+#: relative standard error can be tiny; the observer must still be able to move it).
+OBSERVER_MIN_LOG_SIGMA = 0.05
 #: The adaptation's heat record step (s of arm time; identification's IDENTIFY_STEP_S).
 ADAPTATION_STEP_S = 20.0
 
@@ -114,30 +119,66 @@ class ArmController:
         #: is their mean (follow_room); None: no thermometer, options.ambient_c throughout
         self._room_last: float | None = None
         self._room_next: float | None = None
+        #: the ambient the model held over each advance: (start s, end s, degC), for the
+        #: adaptation's record of the air (it follows the room as the model does)
+        self._ambient_held: list[tuple[float, float, float]] = []
+        self._ambient_start_c = options.ambient_c
 
     def attach_observer(
-        self, regions: Mapping[str, Sequence[int]], ir_noise_c: float
+        self,
+        regions: Mapping[str, Sequence[int]],
+        ir_noise_c: float,
+        offset_sigma_c: float = DEFAULT_OFFSET_SIGMA_C,
+        initial_sigma_c: float = 0.0,
     ) -> IrObserver:
         """A Kalman filter on the model's nodes fed by the IR regions (``regions``: each
         region's node indices, daemon/arm/ir_regions.py), from the identified offsets with
-        their 1-sigma as prior (the largest over the regions; DEFAULT_OFFSET_SIGMA_C when the
-        model gives none)."""
+        their 1-sigma as prior (the largest over the regions; ``offset_sigma_c`` when the
+        model gives none); ``initial_sigma_c``: the nodes' own prior (0: the model's start is
+        exact)."""
         names = self.thermal.node_names
         offsets: Mapping[str, float] = {}
-        sigma = DEFAULT_OFFSET_SIGMA_C
+        sigma = offset_sigma_c
         if self.identified is not None and self.identified.ir_offsets_c:
             offsets = self.identified.ir_offsets_c
             sigmas = [self.identified.ir_offset_sigma_c.get(r, np.inf) for r in regions]
             largest = max(sigmas, default=np.inf)
             sigma = float(largest) if np.isfinite(largest) else DEFAULT_OFFSET_SIGMA_C
+        model = self.thermal.thermal_model
         self.observer = IrObserver(
-            self.thermal.thermal_model,
+            model,
             {region: tuple(names[i] for i in group) for region, group in regions.items()},
             ir_noise_c,
             offsets_c=offsets,
             offset_sigma_c=sigma,
+            initial_sigma_c=initial_sigma_c,
+            adapt=adapted_parameters(model.network, *self._observer_adapted()),
         )
         return self.observer
+
+    def _observer_adapted(self) -> tuple[list[str], dict[str, tuple[float, float]]]:
+        """What the IR observer estimates with the temperatures (issue 29): each joint's heat
+        (at its node) and the convection, as factors of this model's (prior 1), each with
+        the 1-sigma its identification left (PRIOR_LOG_SIGMA where not identified). Without
+        them a wrong heat or convection comes back between two IR readings: the filter
+        corrected the temperatures, never what drives them (corner-low truth, preset with the
+        IR: 43 % of the drift removed with the temperatures alone)."""
+        fitted = {} if self.identified is None else {p.name: p for p in self.identified.parameters}
+
+        def sigma(name: str) -> float:
+            p = fitted.get(name)
+            if p is not None and p.identifiable and p.relative_error is not None:
+                return max(float(p.relative_error), OBSERVER_MIN_LOG_SIGMA)
+            return PRIOR_LOG_SIGMA
+
+        names: list[str] = []
+        priors: dict[str, tuple[float, float]] = {}
+        for j, node in enumerate(self.thermal.joint_node_names):
+            names.append(f"heat:{node}")
+            priors[f"heat:{node}"] = (1.0, sigma(f"heat:{j + 1}"))
+        names.append("convection")
+        priors["convection"] = (1.0, sigma("convection"))
+        return names, priors
 
     @property
     def time_s(self) -> float:
@@ -197,7 +238,7 @@ class ArmController:
             self.adaptation = ArmAdaptation(
                 spec,
                 ADAPTATION_STEP_S,
-                self.options.ambient_c,
+                self._ambient_start_c,
                 adapted_names(len(self.arm.joints), self.options.bending),
                 self._priors(),
                 marker_sigma_mm=self._adapt_noise[0],
@@ -213,7 +254,17 @@ class ArmController:
             return
         while adaptation.time_s + ADAPTATION_STEP_S <= t_s + 1e-9:
             start = adaptation.time_s
-            adaptation.add_heat(self.mean_heat_w(start, start + ADAPTATION_STEP_S))
+            adaptation.add_heat(
+                self.mean_heat_w(start, start + ADAPTATION_STEP_S),
+                self._ambient_at(start + ADAPTATION_STEP_S / 2.0),
+            )
+
+    def _ambient_at(self, t_s: float) -> float:
+        """The ambient the model held at ``t_s`` (its start's before the first advance)."""
+        for start, end, ambient in reversed(self._ambient_held):
+            if start <= t_s <= end:
+                return ambient
+        return self._ambient_start_c
 
     def adaptation_estimates(self) -> dict[str, list[float]]:
         """The adapted factors now: name -> [value, 1-sigma] (empty before the first)."""
@@ -236,6 +287,7 @@ class ArmController:
         if self._room_last is None and self.time_s == 0.0:
             self.thermal.start_at(room_c)
             self._room_last = room_c
+            self._ambient_start_c = room_c
         self._room_next = room_c
 
     @property
@@ -247,10 +299,13 @@ class ArmController:
         start = self.time_s
         if t_s <= start:
             return
+        ambient = self._ambient_held[-1][2] if self._ambient_held else self._ambient_start_c
         if self._room_next is not None:
             last = self._room_next if self._room_last is None else self._room_last
-            self.thermal.set_ambient(0.5 * (last + self._room_next))
+            ambient = 0.5 * (last + self._room_next)
+            self.thermal.set_ambient(ambient)
             self._room_last = self._room_next
+        self._ambient_held.append((start, t_s, ambient))
         self.last_heat_w = self.mean_heat_w(start, t_s) * self.heat_scales
         self.thermal.advance_to(t_s, self.last_heat_w)
         self._feed_adaptation(t_s)
@@ -270,6 +325,10 @@ class ArmController:
                 self.attach_observer(regions, self._observer_noise_c)
         if self.observer is not None:
             self.observer.update(reading_c)
+
+    def link_states(self) -> tuple[LinkThermalState, ...]:
+        """The links' thermal states the tool error is computed from (adapted or not)."""
+        return self._link_states()
 
     def _link_states(self) -> tuple[LinkThermalState, ...]:
         adaptation = self.adaptation

@@ -24,8 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -402,32 +401,3 @@ def _strip_deflection(arm: Arm, joint_index: int) -> FloatArray:
             @ rot_x(joint.alpha_rad)
         )
     return translation(0.0, 0.0, joint.d_mm)
-
-
-# ---------------------------------------------------------------------------------------------
-# Loading (the TOML schema and builders live in ``daemon.arm.arm_file``)
-
-
-def load_arm(name_or_path: str | Path) -> Arm:
-    """An arm by preset name (``"crs-a465"``) or file: a TOML arm file (DH table, or ``urdf =``
-    naming a URDF plus materials and motors) or a bare ``.urdf`` (kinematics only). Raises
-    :class:`ArmError` with a one-line message naming the file and the field."""
-    from daemon.arm.arm_file import load_arm_file
-
-    return load_arm_file(name_or_path)
-
-
-def arm_from_mapping(
-    data: dict[str, Any], default_name: str = "arm", folder: Path | None = None
-) -> Arm:
-    """The arm a parsed TOML document describes (``folder``: where a named URDF is looked for)."""
-    from daemon.arm import arm_file
-
-    return arm_file.arm_from_mapping(data, default_name=default_name, folder=folder)
-
-
-def available_arms() -> list[str]:
-    """The presets' names (``config/arms/*.toml``)."""
-    from daemon.arm.arm_file import available_arms as presets
-
-    return presets()

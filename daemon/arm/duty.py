@@ -44,6 +44,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError
 from config.inputs import InputError, no_such_name
 from config.settings import read_toml
 from daemon.arm.description import MAX_ARM_JOINTS, Arm
+from daemon.arm.kinematics import inverse
 from daemon.arm.types import FloatArray, JointSample
 
 PRESET_PACKAGE = "config"
@@ -100,10 +101,11 @@ def trapezoid_timing(distance: float, speed: float, accel: float) -> tuple[float
 
 
 def _profile(
-    t: FloatArray, duration: float, blend: float, peak: float
+    t: FloatArray, duration: FloatArray, blend: FloatArray, peak: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Normalised position, speed and acceleration of a trapezoid at local times ``t``."""
-    accel = peak / blend if blend > 0.0 else 0.0
+    """Normalised position, speed and acceleration of trapezoids at local times ``t``, each
+    time its own trapezoid (elementwise; a move that does not move has duration 0)."""
+    accel = np.divide(peak, blend, out=np.zeros_like(peak), where=blend > 0.0)
     t = np.clip(t, 0.0, duration)
     rising, falling = t < blend, t > duration - blend
     late = duration - t
@@ -114,11 +116,8 @@ def _profile(
     )
     sd = np.where(rising, accel * t, np.where(falling, accel * late, peak))
     sdd = np.where(rising, accel, np.where(falling, -accel, 0.0))
-    if duration > 0.0:  # exactly at rest at both ends
-        ends = (t <= 0.0) | (t >= duration)
-        sd = np.where(ends, 0.0, sd)
-        sdd = np.where(ends, 0.0, sdd)
-    return s, sd, sdd
+    ends = (duration > 0.0) & ((t <= 0.0) | (t >= duration))  # exactly at rest at both ends
+    return s, np.where(ends, 0.0, sd), np.where(ends, 0.0, sdd)
 
 
 @dataclass(frozen=True, eq=False)
@@ -217,21 +216,25 @@ class DutyCycle:
         times (the cycle repeats)."""
         times = np.atleast_1d(np.asarray(times_s, dtype=np.float64))
         local = np.mod(times, self.period_s)
-        joints = self.joint_count
-        q = np.empty((len(times), joints))
-        qd = np.zeros((len(times), joints))
-        qdd = np.zeros((len(times), joints))
-        starts = np.array([move.t0 for move in self.moves])
+        moves = self.moves
+        starts = np.array([move.t0 for move in moves])
         # The move whose dwell-then-motion window holds each time (dwell i precedes move i).
-        index = np.clip(np.searchsorted(starts, local, side="right") - 1, 0, len(self.moves) - 1)
+        index = np.clip(np.searchsorted(starts, local, side="right") - 1, 0, len(moves) - 1)
         before_first = local < starts[0]
-        for m in np.unique(index).tolist():  # only the moves these times fall in: a long
-            move = self.moves[m]  # program (calibration_program.py) has hundreds
-            mask = index == m
-            s, sd, sdd = _profile(local[mask] - move.t0, move.duration, move.blend, move.peak)
-            q[mask] = move.start + np.outer(s, move.delta)
-            qd[mask] = np.outer(sd, move.delta)
-            qdd[mask] = np.outer(sdd, move.delta)
+        # Every time's trapezoid at once, its move's parameters gathered by index: a
+        # calibration program (calibration_program.py) has thousands of moves and a period of
+        # a million motion samples; a loop over the moves with a mask over every time each was
+        # O(moves x samples), minutes per cycle.
+        s, sd, sdd = _profile(
+            local - starts[index],
+            np.array([move.duration for move in moves])[index],
+            np.array([move.blend for move in moves])[index],
+            np.array([move.peak for move in moves])[index],
+        )
+        delta = np.array([move.delta for move in moves])[index]
+        q = np.array([move.start for move in moves])[index] + s[:, None] * delta
+        qd = sd[:, None] * delta
+        qdd = sdd[:, None] * delta
         q[before_first] = np.array(self.poses[0].q_rad)  # dwell at the first pose
         qd[before_first] = 0.0
         qdd[before_first] = 0.0
@@ -267,7 +270,8 @@ class DutyCycle:
 
 #: Bounds of a duty cycle file (issue 26: ``dwell_s = 1e308`` crashed the planner): far beyond
 #: any program, low enough that no time, sample count or energy computed from them overflows.
-MAX_POSES = 1_000
+#: A calibration program lists every visit (the A465's: 3,493 poses per period), hence 10,000.
+MAX_POSES = 10_000
 MAX_DWELL_S = 86_400.0  # a day at one pose
 MAX_JOINT_DEG = 3_600.0  # a multi-turn joint
 MAX_SPEED_DEG_S = 10_000.0
@@ -358,7 +362,6 @@ def tool_pose_matrix(tool_mm: Sequence[float], zyx_deg: Sequence[float]) -> Floa
 
 def arm_inverse(arm: Arm) -> InverseKinematics:
     """The arm's inverse kinematics (``kinematics.inverse``) for tool poses in a duty file."""
-    from daemon.arm.kinematics import inverse
 
     def solve(pose: FloatArray, seed: FloatArray) -> FloatArray:
         return inverse(arm, pose, seed)
@@ -376,7 +379,7 @@ def duty_cycle_from_mapping(
     (``kinematics.inverse`` of the arm), seeded with the previous pose's joints (the first
     with ``seed_rad``, default zeros)."""
     given = data.get("poses")
-    if isinstance(given, list) and len(given) > MAX_POSES:  # said before 10,000 are checked
+    if isinstance(given, list) and len(given) > MAX_POSES:  # said before each is checked
         raise DutyCycleError(f"poses: {len(given)} poses: at most {MAX_POSES}")
     try:
         spec = _DutyFile.model_validate(data)

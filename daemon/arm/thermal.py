@@ -27,8 +27,10 @@ from daemon.arm.arm_network import (
     tube_section,
 )
 from daemon.arm.description import Arm
+from daemon.arm.kinematics import link_frames
 from daemon.arm.types import FloatArray, LinkThermalState
 from daemon.model.model import ModelError, Stepper, ThermalModel
+from daemon.model.network import steady_state_c
 
 AmbientInput = float | Callable[[float], float]
 
@@ -187,7 +189,6 @@ class ArmThermalModel:
         the model to be built from an Arm."""
         if self.arm is None:
             raise ModelError("node positions at a configuration need the model built from an Arm")
-        from daemon.arm.kinematics import link_frames
 
         if self._local is None:
             self._local = self._local_positions(self.arm)
@@ -199,8 +200,6 @@ class ArmThermalModel:
 
     def _local_positions(self, arm: Arm) -> tuple[IntArray, FloatArray]:
         """Each node's frame index and its position in that frame (homogeneous)."""
-        from daemon.arm.kinematics import link_frames
-
         frames = link_frames(arm, np.zeros(arm.dof))
         index = {name: k + 1 for k, name in enumerate(arm.link_names)}
         frame_of = np.array([index.get(link, 0) for link in self.node_links], dtype=np.intp)
@@ -254,8 +253,6 @@ def steady_link_rise_c(
     ambient_c: float = 22.0,
 ) -> Mapping[str, float]:
     """Each link's steady mean temperature rise for constant joint heats (a direct solve)."""
-    from daemon.model.network import steady_state_c
-
     network, layout = build_arm_network(description, node_spacing_mm, ambient_c=ambient_c)
     heat = np.zeros(network.node_count)
     heat[layout.joint_nodes] = np.asarray(joint_heat_w, dtype=np.float64)

@@ -19,17 +19,19 @@ import io
 import logging
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from config.inputs import read_regular_file
-from daemon.arm.arm_file import build_links, build_motor, check_links_named, limit_rad
+from daemon.arm.arm_file import (
+    ArmFileSpec,
+    build_links,
+    build_motor,
+    check_links_named,
+    limit_rad,
+)
 from daemon.arm.description import MM_PER_M, Arm, ArmError, FloatArray, Joint
-
-if TYPE_CHECKING:
-    from config.inputs import read_regular_file
-from daemon.arm.arm_file import ArmFileSpec
 
 #: Joint types that move by rotation (URDF ``<joint type>``); "continuous" has no limits.
 _REVOLUTE = ("revolute", "continuous")

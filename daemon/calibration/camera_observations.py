@@ -10,6 +10,8 @@ import csv
 from dataclasses import dataclass
 from pathlib import Path
 
+#: The command these observations are of: its name starts every message of its work.
+PROG = "thermocomp calibrate cameras"
 CSV_COLUMNS = ("camera", "x_mm", "y_mm", "z_mm", "x_px", "y_px")
 SIGMA_COLUMNS = ("sigma_x_px", "sigma_y_px")
 ROTATION_COLUMNS = ("rx_rad", "ry_rad", "rz_rad")

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from config import Settings
 from daemon.vision.camera_pose import grid_positions
+from daemon.vision.multiview import MultiviewError
 from drivers.base import Vector3
 
 
@@ -59,8 +60,6 @@ def robot_pattern(size_mm: float, per_axis: int, turn_rad: float, seed: int) -> 
     """The cube of ``per_axis``³ translations ±``size_mm`` about the goal (a serpentine:
     camera_pose.grid_positions), each turned at random by up to ``turn_rad`` about every axis
     (seeded): the turns make the markers' common offset observable (``--fit-marker``)."""
-    from daemon.vision.multiview import MultiviewError
-
     try:
         positions = grid_positions((0.0, 0.0, 0.0), size_mm, per_axis)
     except MultiviewError as err:

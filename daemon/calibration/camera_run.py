@@ -37,16 +37,24 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from config import Settings
+from daemon.arm.duty import load_duty_cycle
+from daemon.arm.kinematics import forward
+from daemon.arm.loading import load_arm
+from daemon.arm.run import MeasuredPose
 from daemon.arm.types import FloatArray
 from daemon.calibration.camera_observations import Observation
 from daemon.calibration.camera_pattern import ZERO_SHIFT, PatternError, Shift, split_shift
 from daemon.run.arm.measure import WINDOW_HALF_PX, SensorNoise, device_sensors
-from daemon.run.arm.robot import pose_matrix
+from daemon.run.arm.robot import GoalRobotArm, pose_matrix
 from daemon.vision import CentroidError
 from daemon.vision.centroid import measure_centroid
+from daemon.vision.markers import marker_pixels
 from daemon.vision.multiview import CameraModel, project
 from drivers.base import Camera, Frame, GoalRobot
-from drivers.errors import DeviceError, DeviceTimeoutError
+from drivers.clock import make_clock
+from drivers.deadline import bounded
+from drivers.errors import DeviceError
+from drivers.factory import open_devices
 
 logger = logging.getLogger(__name__)
 
@@ -168,14 +176,9 @@ class Recording:
 
 
 async def grab(camera: Camera, timeout_s: float) -> Frame:
-    """One frame within ``timeout_s`` (a DeviceTimeoutError beyond, as arm_measure's)."""
-    try:
-        async with asyncio.timeout(timeout_s) as scope:
-            return await camera.grab()
-    except TimeoutError as err:
-        if not scope.expired():
-            raise
-        raise DeviceTimeoutError("camera", f"no frame within {timeout_s:g} s") from err
+    """One frame within ``timeout_s`` (a DeviceTimeoutError beyond, as arm_measure's; the
+    bench's render does not count: drivers/deadline.py)."""
+    return await bounded(camera.grab(), "camera", "frame", timeout_s)
 
 
 async def record_pattern(
@@ -265,8 +268,6 @@ def _add_rows(
 
 def _visible(model: CameraModel, world: FloatArray) -> int:
     """How many markers the camera's model puts on its chip, in front of it."""
-    from daemon.vision.markers import marker_pixels
-
     _, visible = marker_pixels(model, world)
     return int(np.count_nonzero(visible))
 
@@ -284,10 +285,6 @@ class RobotRun:
 def station_pose(settings: Settings, name: str) -> tuple[str, FloatArray, FloatArray]:
     """A pose of arm.duty_cycle by name: (name, joints rad, the controller's tool pose 4x4);
     PatternError when there is no duty cycle or no such pose."""
-    from daemon.arm.description import load_arm
-    from daemon.arm.duty import load_duty_cycle
-    from daemon.arm.kinematics import forward
-
     if settings.arm.duty_cycle is None:
         raise PatternError("--station needs arm.duty_cycle (its poses are the stations)")
     duty = load_duty_cycle(settings.arm.duty_cycle)
@@ -331,9 +328,6 @@ def joints_pose(
 ) -> tuple[str, FloatArray, FloatArray]:
     """A goal given by the arm's joint angles (deg): (JOINTS_GOAL, joints rad, the controller's
     tool pose 4x4); PatternError when the count or a joint's limits do not fit the arm."""
-    from daemon.arm.description import load_arm
-    from daemon.arm.kinematics import forward
-
     arm = load_arm(settings.arm.arm_file)
     q = np.radians(np.asarray(joints_deg, dtype=np.float64))
     if q.size != arm.dof:
@@ -362,11 +356,6 @@ async def calibrate_with_robot(
     duty cycle's pose ``station`` or the joint angles ``joints_deg``, reached by one absolute
     move as an arm run teaches its poses (daemon/run/arm/robot.py) — record the pattern around it
     and close the devices."""
-    from daemon.arm.run import MeasuredPose
-    from daemon.run.arm.robot import GoalRobotArm
-    from drivers.clock import make_clock
-    from drivers.factory import open_devices
-
     target = station_pose(settings, station) if station is not None else None
     if joints_deg is not None:
         target = joints_pose(settings, joints_deg)
@@ -409,8 +398,6 @@ async def calibrate_with_robot(
         reference = kinematic = None
         bench = devices.arm_bench
         if bench is not None and record.returned:
-            from daemon.arm.kinematics import forward
-
             truth = bench.truth
             q = bench.joints()  # at the goal again
             reference, kinematic = controller_frame_truth(

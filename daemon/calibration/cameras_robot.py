@@ -25,7 +25,14 @@ import numpy as np
 
 from config import load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
-from daemon.calibration.camera_observations import Observation, write_observations
+from daemon.calibration.camera_fit import (
+    Calibrated,
+    fit_as_dict,
+    fit_known_marker,
+    fit_summary,
+    fit_with_marker,
+)
+from daemon.calibration.camera_observations import PROG, Observation, write_observations
 from daemon.calibration.camera_pattern import (
     PatternError,
     check_pattern,
@@ -40,16 +47,14 @@ from daemon.calibration.camera_run import (
     joints_pose,
     station_pose,
 )
-from daemon.commands.calibrate_cameras import (
-    PROG,
-    Calibrated,
-    fit_as_dict,
-    fit_known_marker,
-    fit_summary,
-    fit_with_marker,
-)
 from daemon.vision.camera_pose import MIN_POSE_POINTS
-from daemon.vision.cameras import CameraFileError, CameraModel, load_cameras, write_cameras
+from daemon.vision.cameras import (
+    CameraFileError,
+    CameraModel,
+    cameras_toml,
+    load_cameras,
+    write_cameras,
+)
 from daemon.vision.multiview import MultiviewError
 from drivers.errors import DeviceError
 
@@ -278,8 +283,6 @@ def _report(
                 f"{run.kinematic_error[1]:.3f} mrad)"
             )
         if args.write is None:
-            from daemon.vision.cameras import cameras_toml
-
             print(cameras_toml(cameras), end="")
     if args.write is not None:
         write_cameras(args.write, cameras)

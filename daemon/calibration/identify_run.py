@@ -28,14 +28,13 @@ from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from daemon.analysis import cli as analysis_cli
 from daemon.analysis.steps import RunSteps, steps_from_rows
 from daemon.model import NetworkError, ThermalNetwork, available_presets, load_network
+from daemon.model.identified_network import calibration_of, network_toml
 from daemon.model.identify import (
     IdentificationError,
     IdentificationResult,
     RunData,
-    calibration_of,
     heat_schedule,
     identify,
-    network_toml,
     run_data_from_steps,
     validate,
 )
@@ -208,22 +207,28 @@ def _number(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.4g}"
 
 
-def run_identify(args: argparse.Namespace) -> int:
+def identify_settings(args: argparse.Namespace) -> Settings:
+    """``--config``'s settings with ``--data-dir`` applied."""
     settings = load_settings(args.config)
     if args.data_dir is not None:
         settings = settings.model_copy(
             update={"storage": settings.storage.model_copy(update={"data_dir": args.data_dir})}
         )
-    if args.target.isdigit() and not Path(args.target).is_file():
-        from daemon.commands.arm_identify import is_arm_run, run_arm_identify
+    return settings
 
-        try:
-            parameters, _ = recorded_parameters(settings.storage.data_dir, int(args.target))
-        except RunInputError as err:
-            print(f"thermocomp identify: {err}", file=sys.stderr)
-            return EXIT_FAILURE
-        if is_arm_run(parameters):  # issue 20: an arm model (daemon/commands/arm_identify.py)
-            return run_arm_identify(args, settings)
+
+def recorded_target(args: argparse.Namespace, settings: Settings) -> dict[str, Any] | None:
+    """The recorded parameters of the run ``args.target`` names by number (None: a CSV file);
+    RunInputError when there is no such run. daemon/commands/identify.py picks the two-link or
+    the arm identification (daemon/commands/arm_identify.py) with it."""
+    if not (args.target.isdigit() and not Path(args.target).is_file()):
+        return None
+    parameters, _ = recorded_parameters(settings.storage.data_dir, int(args.target))
+    return parameters
+
+
+def run_network_identify(args: argparse.Namespace, settings: Settings) -> int:
+    """A two-link run's identification (an arm run's: daemon/commands/arm_identify.py)."""
     saved = None
     try:
         if args.save is not None:

@@ -73,6 +73,7 @@ from daemon.calibration.identify_run import (
 )
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.identify import IdentificationError
+from daemon.run.arm.setup import arm_file
 from daemon.storage.recorder import DATABASE_NAME
 
 #: The heat record's step for identification (arm time, s): a measurement's time is rounded to
@@ -130,8 +131,6 @@ def _number(value: object) -> float:
 
 def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     """The recorded arm run as identification sees it (module docstring)."""
-    from daemon.run.arm.setup import arm_file
-
     parameters, config = recorded_run(data_dir, run_id)
     if not is_arm_run(parameters):
         raise ArmRunInputError(f"run {run_id} is not an arm run (no duty cycle)")
@@ -259,9 +258,17 @@ def implausible_values(model: ArmModel) -> list[str]:
 
 
 def arm_model_of(name: str, run: ArmRun, calibration: ArmCalibration) -> ArmModel:
+    """The arm model file's content of a recorded run's calibration (:func:`arm_model_from`)."""
+    return arm_model_from(name, run.controller.arm.name, run.duty_cycle, run.name, calibration)
+
+
+def arm_model_from(
+    name: str, arm: str, duty_cycle: str, source: str, calibration: ArmCalibration
+) -> ArmModel:
     """The arm model file's content: the final fit's factors (the preset's where not
     identified), every parameter's report from the final fit (or why it was dropped), the
-    offsets' 1-sigma, the warning when not all are identified."""
+    offsets' 1-sigma, the warning when not all are identified; ``arm`` the arm's name,
+    ``source`` the calibration run's."""
     final = calibration.final
     assert final is not None  # identify_arm_run refuses a calibration that identifies nothing
     refitted = {p.name: p for p in final.parameters}
@@ -285,15 +292,15 @@ def arm_model_of(name: str, run: ArmRun, calibration: ArmCalibration) -> ArmMode
     )
     return ArmModel(
         name=name,
-        arm=run.controller.arm.name,
+        arm=arm,
         heat_scales=tuple(float(v) for v in final.scales.heat),
         convection_scale=float(final.scales.convection),
         alpha_scale=float(final.scales.alpha),
         ir_offsets_c=offsets,
         ir_offset_sigma_c=sigmas,
         parameters=parameters,
-        duty_cycle=run.duty_cycle,
-        source_runs=(run.name,),
+        duty_cycle=duty_cycle,
+        source_runs=(source,),
         identified_at=datetime.now(UTC).isoformat(timespec="seconds"),
         marker_rms_um=None if final.fit.marker_rms_mm is None else 1000 * final.fit.marker_rms_mm,
         temperature_rms_c=final.fit.temperature_rms_c,

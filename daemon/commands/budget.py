@@ -101,6 +101,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def run_budget(args: argparse.Namespace) -> int:
+    # lazy: NumPy/SciPy and the analysis load when the command runs, not for --help
     from daemon.commands.budget_run import run_budget as run
 
     return run(args)

@@ -23,6 +23,11 @@ import numpy as np
 
 from config import Settings
 from daemon.analysis.budget_sources import Drift, Scatter, camera_drift, stationary_scatter
+from daemon.arm.run import MeasurementError
+from daemon.run.arm.measure import device_sensors, marker_views, tool_pose
+from daemon.run.arm.robot import pose_matrix
+from daemon.vision import CentroidError
+from daemon.vision.centroid import measure_with_camera_settings
 from daemon.vision.multiview import CameraModel
 from drivers.clock import Clock, make_clock
 from drivers.errors import DeviceError
@@ -72,7 +77,6 @@ def recording_settings(settings: Settings) -> Settings:
 async def _spot(
     devices: Devices, settings: Settings
 ) -> tuple[tuple[float, float, float], tuple[float, float]]:
-    from daemon.vision.centroid import measure_with_camera_settings
 
     frame = await asyncio.wait_for(devices.camera.grab(), settings.camera.grab_timeout_s)
     # the camera's own gain where it reports one, as the run's step does (the centroid's
@@ -88,8 +92,6 @@ async def _spot(
 async def _tool(
     devices: Devices, settings: Settings
 ) -> tuple[tuple[float, float, float], tuple[float, float]]:
-    from daemon.run.arm.measure import device_sensors, marker_views, tool_pose
-    from daemon.run.arm.robot import pose_matrix
 
     models = devices.camera_models
     expected = pose_matrix(await devices.robot.actual_pose())
@@ -118,7 +120,6 @@ PRIME_TIMEOUTS = 10.0
 async def _prime(devices: Devices, settings: Settings) -> None:
     """One frame from every camera, not recorded, before the recordings start (what a run's
     reference measurement does): a camera's first frame may be slow."""
-    from daemon.run.arm.measure import device_sensors
 
     cameras = devices.cameras or (devices.camera,)
     _, timeouts = device_sensors(settings, len(cameras))
@@ -141,8 +142,6 @@ async def _record(
     duration_s: float,
     count: int,
 ) -> Samples:
-    from daemon.arm.run import MeasurementError
-    from daemon.vision import CentroidError
 
     samples = Samples()
     measure = _tool if devices.camera_models else _spot

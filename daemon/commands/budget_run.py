@@ -27,6 +27,12 @@ import numpy as np
 from config import CONFIG_DIR, ConfigError, Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from daemon.analysis.budget import COVERAGE, Budget, PoseBudget, Source
+from daemon.analysis.budget_arm import (
+    drift_sigma_um,
+    model_uncertainty,
+    predicted_measurement,
+    tool_drifts_um,
+)
 from daemon.analysis.budget_bench import (
     SpotSetup,
     bending_source,
@@ -37,8 +43,22 @@ from daemon.analysis.budget_bench import (
     misalignment_sources,
     recording_sources,
 )
-from daemon.commands.budget_record import Recordings
+from daemon.arm.arm_model import (
+    ArmModelError,
+    ArmModelNotFoundError,
+    load_arm_model,
+    named_arm_model_path,
+)
+from daemon.arm.controller import ArmModelOptions, load_controller
+from daemon.commands.budget_record import Recordings, record
+from daemon.model import NetworkError, load_network, steady_state_c
+from daemon.run.arm.setup import arm_file
+from daemon.run.setup import resolve_heat
 from daemon.storage.budgets import save_budget
+from daemon.vision.cameras import load_cameras
+from drivers.errors import DeviceError
+from drivers.sim.arm_markers import CameraRig
+from drivers.sim.devices import DEFAULT_REGION_WIDTH_PX, LINK_ROWS
 
 if TYPE_CHECKING:
     from daemon.arm.run import MeasuredPose
@@ -86,7 +106,6 @@ def _ir_pixels(settings: Settings) -> int:
     regions = settings.ir.regions
     if regions:
         return min(region.width * region.height for region in regions)
-    from drivers.sim.devices import DEFAULT_REGION_WIDTH_PX, LINK_ROWS
 
     return DEFAULT_REGION_WIDTH_PX * (LINK_ROWS[1] - LINK_ROWS[0])
 
@@ -98,8 +117,6 @@ def bench_budget(
     recordings: Recordings | None,
     why_not: str,
 ) -> Budget:
-    from daemon.model import load_network, steady_state_c
-    from daemon.run.setup import resolve_heat
 
     network = load_network(settings.model.network, settings.storage.data_dir)
     heat, heat_source = resolve_heat(settings, None, network)
@@ -157,12 +174,9 @@ def configured_cameras(settings: Settings, poses: Sequence[MeasuredPose]) -> tup
     bench its rig at each measured pose as drivers/sim/arm_devices.py sets it up (aimed at the
     controller's tool pose there, which is the truth's to a fraction of a millimetre)."""
     if settings.arm.cameras_file is not None:
-        from daemon.vision.cameras import load_cameras
-
         return tuple(load_cameras(settings.arm.cameras_file))
     if not settings.bench.enabled:
         return ()
-    from drivers.sim.arm_markers import CameraRig
 
     rig = CameraRig(count=settings.arm.cameras)
     return tuple(camera for pose in poses for camera in rig.cameras(pose.tool_pose[:3, 3]))
@@ -181,15 +195,6 @@ def arm_budget(
     recordings: Recordings | None,
     why_not: str,
 ) -> Budget:
-    from daemon.analysis.budget_arm import (
-        drift_sigma_um,
-        model_uncertainty,
-        predicted_measurement,
-        tool_drifts_um,
-    )
-    from daemon.arm.arm_model import load_arm_model, named_arm_model_path
-    from daemon.arm.controller import ArmModelOptions, load_controller
-    from daemon.run.arm.setup import arm_file
 
     if settings.arm.duty_cycle is None:
         raise BudgetError("an arm's budget needs its duty cycle: set arm.duty_cycle")
@@ -360,7 +365,6 @@ def live_budget(settings: Settings, target_um: float | None) -> Budget:
 
 
 def make_budget(settings: Settings, args: argparse.Namespace) -> Budget:
-    from daemon.commands.budget_record import record
 
     target = args.target or settings.compensation.target_um
     arm = settings.arm.enabled
@@ -391,9 +395,6 @@ def make_budget(settings: Settings, args: argparse.Namespace) -> Budget:
 
 
 def run_budget(args: argparse.Namespace) -> int:
-    from daemon.arm.arm_model import ArmModelError, ArmModelNotFoundError
-    from daemon.model import NetworkError
-    from drivers.errors import DeviceError
 
     settings = load_settings(args.config)
     try:

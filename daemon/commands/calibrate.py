@@ -27,8 +27,10 @@ from typing import TYPE_CHECKING
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument, positive_float
-from daemon.commands import calibrate_cameras as calibrate_cameras_cli
+from daemon.commands import calibrate_cameras, calibrate_model  # light: heavy where they run
 from drivers.base import Vector3
+from drivers.clock import make_clock
+from drivers.deadline import bounded
 from drivers.errors import DeviceError
 
 if TYPE_CHECKING:
@@ -95,12 +97,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     camera.add_argument("--json", action="store_true", help="print the result as JSON")
     camera.set_defaults(handler=run_calibrate_camera)
-    calibrate_cameras_cli.register(kinds)  # `calibrate cameras`: 3-D camera poses (issue 20)
-    from daemon.commands import (
-        calibrate_model as calibrate_model_cli,  # light: its heavy imports are where it runs
-    )
-
-    calibrate_model_cli.add_parser(kinds)
+    calibrate_cameras.register(kinds)  # `calibrate cameras`: 3-D camera poses (issue 20)
+    calibrate_model.add_parser(kinds)
 
 
 def split_move(start: Vector3, end: Vector3, max_step_mm: float) -> list[Vector3]:
@@ -130,6 +128,7 @@ def checked_pattern(
     settings: Settings, size_mm: float, step_mm: float
 ) -> list[tuple[float, float]]:
     """The pattern's offsets (um), or PatternError if it breaks the compensation limits."""
+    # lazy: OpenCV loads when the command runs, not for --help (issue 16)
     from daemon.vision.calibration import CalibrationError, pattern_offsets_um
 
     try:
@@ -150,6 +149,7 @@ async def measure_pattern(
     devices: Devices, settings: Settings, offsets_um: list[tuple[float, float]]
 ) -> list[tuple[float, float]]:
     """Teach the goal, visit every offset and measure the spot; back to the goal at the end."""
+    # lazy: OpenCV and SciPy load when the command runs, not for --help (issue 16)
     from daemon.vision import CentroidError, measure_with_camera_settings
 
     robot, camera = devices.robot, devices.camera
@@ -163,7 +163,7 @@ async def measure_pattern(
             for point in split_move(where, target, max_step_mm):
                 await robot.move_absolute(point)
                 where = point
-            frame = await asyncio.wait_for(camera.grab(), settings.camera.grab_timeout_s)
+            frame = await bounded(camera.grab(), "camera", "frame", settings.camera.grab_timeout_s)
             try:
                 result = measure_with_camera_settings(
                     frame.image, settings.camera, camera_gain_e_per_count=frame.gain_e_per_count
@@ -195,8 +195,8 @@ def bench_truth(settings: Settings) -> tuple[tuple[float, float], float]:
 
 
 async def calibrate(settings: Settings, offsets_um: list[tuple[float, float]]) -> CameraCalibration:
+    # lazy: OpenCV and the devices (the simulated bench: SciPy) load when it runs, not for --help
     from daemon.vision.calibration import fit_calibration
-    from drivers.clock import make_clock
     from drivers.factory import open_devices
 
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
@@ -228,6 +228,7 @@ def write_camera_keys(path: Path, values: dict[str, str]) -> None:
 
 
 def run_calibrate_camera(args: argparse.Namespace) -> int:
+    # lazy: OpenCV loads when the command runs, not for --help (issue 16)
     from daemon.vision.calibration import CalibrationError
 
     settings = load_settings(args.config)

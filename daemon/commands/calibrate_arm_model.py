@@ -34,7 +34,8 @@ from typing import TYPE_CHECKING, Any
 
 from config import Settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
-from daemon.commands.calibrate_model import PROG, StepFailedError, run_alone
+from daemon.commands.calibrate_chain import PROG, StepFailedError, run_alone
+from daemon.commands.run import _finite
 
 #: Where ``calibrate model`` writes the calibration programs it generates (data directory).
 CALIBRATION_PROGRAMS_FOLDER = "calibration-programs"
@@ -46,6 +47,7 @@ if TYPE_CHECKING:
 
 def run_calibrate_arm_model(args: argparse.Namespace, settings: Settings) -> int:
     """The arm chain (module docstring); the exit statuses of the two-link one."""
+    # lazy: NumPy and SciPy load when the command runs, not for --help (issue 16)
     from daemon.arm.arm_model import new_arm_model_path
 
     for given, option in ((args.network, "--network"), (args.scale, "--scale")):
@@ -74,8 +76,6 @@ def run_calibrate_arm_model(args: argparse.Namespace, settings: Settings) -> int
         print(f"{PROG}: {err}", file=sys.stderr)
         return err.status
     if args.json:
-        from daemon.commands.run import _finite
-
         print(json.dumps(_finite(outcome), indent=2, default=str, allow_nan=False))
     else:
         _print(outcome, table)
@@ -94,6 +94,7 @@ def _identify_and_save(
 ) -> tuple[str, ArmRun, ArmIdentification]:
     """Step 2, blocking (SciPy, SQLite read-only, one file): the identification table, the
     run as identification read it, and the refit the saved model holds."""
+    # lazy: SciPy and the run database load when the command runs, not for --help (issue 16)
     from daemon.arm.arm_model import arm_model_toml
     from daemon.calibration.identify_run import write_outputs
     from daemon.commands.arm_identify import (
@@ -145,9 +146,10 @@ def calibration_cycle(settings: Settings, chosen: str | None) -> str:
     directory (StepFailedError when the arm or the task cannot be read)."""
     if chosen:
         return chosen
+    # lazy: the arm's kinematics and run set-up (NumPy, SciPy) load to calibrate, not for --help
     from daemon.arm.calibration_program import duty_cycle_toml, program_for_task
-    from daemon.arm.description import load_arm
     from daemon.arm.duty import arm_inverse, load_duty_cycle
+    from daemon.arm.loading import load_arm
     from daemon.run.arm.setup import arm_file
 
     assert settings.arm.duty_cycle is not None
@@ -171,6 +173,7 @@ def _prediction_check(
 ) -> dict[str, Any]:
     """Step 3's offline part: the validation run predicted by the identified model and by the
     preset, nothing refitted (blocking)."""
+    # lazy: SciPy and the run database load when the command runs, not for --help (issue 16)
     from daemon.commands.arm_identify import ArmRunInputError, load_arm_run, validate_arm_run
     from daemon.model.identify import IdentificationError
 

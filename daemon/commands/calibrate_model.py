@@ -29,7 +29,7 @@ import json
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from config import Settings, load_settings
 from config.cli import (
@@ -40,22 +40,13 @@ from config.cli import (
     non_negative_float,
     positive_float,
 )
+from daemon.commands.calibrate_arm_model import run_calibrate_arm_model
+from daemon.commands.calibrate_chain import PROG, StepFailedError, run_alone
+from daemon.commands.run import _finite
 
-if TYPE_CHECKING:
-    from daemon.service import Daemon
-
-PROG = "thermocomp calibrate model"
 #: Thesis 6.3: a scaled calibration run puts more of the deformation on the chip than the
 #: robot's noise (bench_identify_runs uses 20).
 DEFAULT_SCALE = 20.0
-
-
-class StepFailedError(Exception):
-    """A step of the chain failed: the message says which; ``status`` is the exit status."""
-
-    def __init__(self, message: str, status: int) -> None:
-        super().__init__(message)
-        self.status = status
 
 
 def add_parser(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -139,12 +130,11 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 
 def run_calibrate_model(args: argparse.Namespace) -> int:
+    # lazy: SciPy and the network load when the command runs, not for --help (issue 16)
     from daemon.calibration.identify_run import saved_network_path
 
     settings = _settings(args)
     if settings.arm.enabled:  # issue 20: the arm's chain
-        from daemon.commands.calibrate_arm_model import run_calibrate_arm_model
-
         return run_calibrate_arm_model(args, settings)
     if args.scale is None:
         args.scale = DEFAULT_SCALE
@@ -159,44 +149,10 @@ def run_calibrate_model(args: argparse.Namespace) -> int:
         print(f"{PROG}: {err}", file=sys.stderr)
         return err.status
     if args.json:
-        from daemon.commands.run import _finite
-
         print(json.dumps(_finite(outcome), indent=2, default=str, allow_nan=False))
     else:
         _print(outcome)
     return EXIT_OK
-
-
-async def _one_run(daemon: Daemon, settings: Settings, what: str, **values: Any) -> dict[str, Any]:
-    from daemon.commands.run import _supervise
-    from daemon.run.setup import RunParameterError
-    from daemon.run.states import RunParameters, RunState
-
-    try:
-        parameters = RunParameters.from_settings(settings, **values)
-        await daemon.start_run(parameters)
-    except (RunParameterError, ValueError) as err:
-        raise StepFailedError(f"{what}: {err}", EXIT_USAGE) from err
-    final = await _supervise(daemon, asyncio.Event())
-    if final["state"] != RunState.FINISHED.value:
-        raise StepFailedError(
-            f"{what} (run {final['id']}) {final['state']}: {final.get('reason')}", EXIT_FAILURE
-        )
-    return final
-
-
-async def run_alone(settings: Settings, what: str, **values: Any) -> dict[str, Any]:
-    """One run in its own daemon (opened and closed around it: identification runs between
-    the runs with no device open, so a virtual clock never jumps while it computes)."""
-    from daemon.service import Daemon
-    from daemon.storage.recorder import RecorderError
-    from drivers.errors import DeviceError
-
-    try:
-        async with Daemon(settings) as daemon:
-            return await _one_run(daemon, settings, what, **values)
-    except (DeviceError, RecorderError, OSError) as err:
-        raise StepFailedError(f"{what}: {err}", EXIT_FAILURE) from err
 
 
 def _identify_and_save(
@@ -206,9 +162,11 @@ def _identify_and_save(
     outcome: dict[str, Any],
     params: list[str] | None = None,
 ) -> None:
+    # lazy: SciPy and the run database load when the command runs, not for --help (issue 16)
     from daemon.calibration.identify_run import RunInputError, load_run
     from daemon.model import NetworkError, load_network
-    from daemon.model.identify import IdentificationError, calibration_of, identify, network_toml
+    from daemon.model.identified_network import calibration_of, network_toml
+    from daemon.model.identify import IdentificationError, identify
 
     try:
         run = load_run(str(run_id), settings, None)

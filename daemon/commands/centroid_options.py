@@ -13,7 +13,7 @@ METHOD_CHOICES = ("robust", "thesis")
 
 
 def _run(args: argparse.Namespace) -> int:
-    from daemon.vision.cli import run
+    from daemon.vision.cli import run  # lazy: the vision (OpenCV) loads to run, not for --help
 
     return run(args)
 

@@ -104,6 +104,7 @@ def _number(item: Mapping[str, Any], key: str, where: str, default: float | None
 
 
 def load_geometry(path: Path) -> Geometry:
+    # lazy: NumPy/SciPy and the analysis load when the command runs, not for --help
     from daemon.analysis.cte import Camera, Links
 
     try:
@@ -150,6 +151,7 @@ def load_geometry(path: Path) -> Geometry:
 
 def read_run_table(path: Path, geometry: Geometry) -> list[RunChange]:
     """Table 2.4's rows: ``#`` lines are comments; an empty cell of offset: means none."""
+    # lazy: NumPy/SciPy and the analysis load when the command runs, not for --help
     from daemon.analysis.cte import RunChange
 
     try:
@@ -211,6 +213,7 @@ def recorded_runs(
 
     import numpy as np
 
+    # lazy: NumPy/SciPy and the analysis load when the command runs, not for --help
     from daemon.analysis import steps_from_rows
     from daemon.analysis.cli import InputError, read_table
     from daemon.analysis.cte import cte_from_run, run_change
@@ -312,6 +315,7 @@ def to_text(
 
 
 def run_cte(args: argparse.Namespace) -> int:
+    # lazy: NumPy/SciPy and the analysis load when the command runs, not for --help
     from config import load_settings
     from daemon.analysis.cte import cte_table
 

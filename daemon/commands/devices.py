@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, add_config_argument
+from drivers.clock import make_clock
 from drivers.errors import DeviceError
 
 if TYPE_CHECKING:
@@ -63,8 +64,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 async def _check(settings: Settings) -> DeviceCheck:
+    # lazy: the devices (the simulated bench: SciPy, OpenCV) load when the check runs, not
+    # for --help (issue 16)
     from daemon.run.devices_check import check_devices
-    from drivers.clock import make_clock
     from drivers.factory import open_devices
 
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
@@ -76,9 +78,18 @@ async def _check_each(settings: Settings, opening: Exception) -> DeviceCheck:
     """Each device opened on its own, after opening them together failed with ``opening``
     (issue 28: during bring-up the cameras are checked while the robot does not answer yet):
     every device is described or named with its own error, one line each."""
-    from daemon.run.devices_check import DeviceCheck, probe_camera, probe_ir, probe_robot
-    from drivers.clock import make_clock
-    from drivers.factory import bench_for, camera_driver, ir_driver, robot_driver
+    from daemon.run.devices_check import (  # lazy: OpenCV and NumPy, not for --help
+        DeviceCheck,
+        probe_camera,
+        probe_ir,
+        probe_robot,
+    )
+    from drivers.factory import (  # lazy: the drivers and the bench, not for --help
+        bench_for,
+        camera_driver,
+        ir_driver,
+        robot_driver,
+    )
 
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     check = DeviceCheck(regions=settings.ir.regions)
@@ -124,6 +135,7 @@ def _reason(device: str, err: Exception) -> str:
 
 
 def run_devices_check(args: argparse.Namespace) -> int:
+    # lazy: OpenCV (the preview PNG) loads when the check runs, not for --help (issue 16)
     from daemon.run.devices_check import describe, preview_png
 
     settings = load_settings(args.config)

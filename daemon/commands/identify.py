@@ -5,9 +5,10 @@ runs."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from config.cli import add_config_argument, non_negative_float
+from config.cli import EXIT_FAILURE, add_config_argument, non_negative_float
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -76,6 +77,23 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def run_identify(args: argparse.Namespace) -> int:
-    from daemon.calibration.identify_run import run_identify as run
+    """A two-link run's network, or an arm run's arm model (issue 20), identified."""
+    # lazy: SciPy, the network and the run database load when the command runs, not for
+    # --help (issue 16)
+    from daemon.calibration.identify_run import (
+        RunInputError,
+        identify_settings,
+        recorded_target,
+        run_network_identify,
+    )
+    from daemon.commands.arm_identify import is_arm_run, run_arm_identify
 
-    return run(args)
+    settings = identify_settings(args)
+    try:
+        parameters = recorded_target(args, settings)
+    except RunInputError as err:
+        print(f"thermocomp identify: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    if parameters is not None and is_arm_run(parameters):
+        return run_arm_identify(args, settings)
+    return run_network_identify(args, settings)

@@ -23,12 +23,13 @@ def _presets() -> list[str]:
 
 
 def _run_simulate(args: argparse.Namespace) -> int:
-    from daemon.model.cli import run_simulate
+    from daemon.model.cli import run_simulate  # lazy: the model (SciPy) loads to run, not --help
 
     return run_simulate(args)
 
 
 def _run_info(args: argparse.Namespace) -> int:
+    # lazy: the model (SciPy) loads to run, not for --help
     from daemon.model.cli import run_info
     from daemon.storage.network_cache import (
         cached_network_facts,  # the cache: outside the pure core

@@ -16,19 +16,19 @@ FIT_KINDS = ("rising", "decaying")
 
 
 def _run_stats(args: argparse.Namespace) -> int:
-    from daemon.analysis.cli import run_stats
+    from daemon.analysis.cli import run_stats  # lazy: NumPy/SciPy load to run, not for --help
 
     return run_stats(args)
 
 
 def _run_fit(args: argparse.Namespace) -> int:
-    from daemon.analysis.cli import run_fit
+    from daemon.analysis.cli import run_fit  # lazy: NumPy/SciPy load to run, not for --help
 
     return run_fit(args)
 
 
 def _run_report(args: argparse.Namespace) -> int:
-    from daemon.storage.reports import run_report
+    from daemon.storage.reports import run_report  # lazy: matplotlib loads to run, not --help
 
     return run_report(args)
 

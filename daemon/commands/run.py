@@ -27,6 +27,7 @@ from config.cli import (
     add_config_argument,
     positive_float,
 )
+from daemon.heap import freeze_startup_heap
 from daemon.run.states import RunParameters, RunState, RunStateError
 
 if TYPE_CHECKING:  # the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not
@@ -139,8 +140,8 @@ def run_command(args: argparse.Namespace) -> int:
     except ValidationError as err:
         print(f"thermocomp run: invalid run parameters: {_describe(err)}", file=sys.stderr)
         return EXIT_USAGE
-    from daemon.run.inputs import check_inputs
-    from daemon.storage.recorder import RecorderError  # NumPy: loaded to run, not for --help
+    from daemon.run.inputs import check_inputs  # lazy: the model stack, loaded to run
+    from daemon.storage.recorder import RecorderError  # lazy: NumPy, loaded to run, not for --help
 
     # every file the run names loads before a device opens: a mistake is one line, exit 2
     # (raised as an InputError; api/cli.py prints it)
@@ -185,7 +186,7 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 
 async def _run(settings: Settings, parameters: RunParameters, args: argparse.Namespace) -> int:
-    from daemon.heap import freeze_startup_heap
+    # lazy: the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not for --help
     from daemon.service import Daemon, RunParameterError
 
     loop = asyncio.get_running_loop()
@@ -237,7 +238,7 @@ async def _supervise(daemon: Daemon, stop_requested: asyncio.Event) -> dict[str,
     final = await daemon.wait_run()
     if daemon.settings.storage.report_at_end:  # a run that ran to its end: with its report
         written = await daemon.reports.wait(final["id"])
-        from daemon.storage.report_queue import ReportStatus
+        from daemon.storage.report_queue import ReportStatus  # lazy: as RecorderError above
 
         if written is ReportStatus.WRITTEN:
             final["report"] = str(daemon.reports.html_path(final["id"]))
@@ -276,9 +277,12 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
         text = f"{_format(value)} {unit}"
         if unit == "%" and isinstance(value, float) and value < 0:
             # a reduction below zero is an increase (a short run's residual above the
-            # prediction): said so, never printed as a negative reduction (issue 28)
+            # prediction): said so, never printed as a negative reduction
             text = f"not reduced: {-value:.3f} % larger"
         print(f"  {label:<28} {text}".rstrip())
+    missing = (summary.get("reference") or {}).get("missing") or {}
+    for pose, why in missing.items():  # an arm run: a pose's zero is its first step
+        print(f"  {'NO REFERENCE at ' + pose:<28} its first step is its zero ({why})")
     lateness = (summary.get("timing") or {}).get("lateness_s") or {}
     if lateness:
         values = "/".join(_format(1e3 * v) for v in lateness.values() if isinstance(v, float))

@@ -35,7 +35,6 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from daemon.analysis.steps import RunSteps
-from daemon.model.identified_network import calibration_of, network_toml
 from daemon.model.identify_parameters import (
     OFFSET_BOUND_C,
     PARAMETER_KINDS,
@@ -90,7 +89,6 @@ __all__ = [
     "ParameterKind",
     "RunData",
     "apply_parameters",
-    "calibration_of",
     "central_jacobian",
     "conditioning",
     "default_parameters",
@@ -100,7 +98,6 @@ __all__ = [
     "heat_vector",
     "identify",
     "measured_deformation_um",
-    "network_toml",
     "observation_matrix",
     "parameters_report",
     "parse_parameters",

@@ -22,6 +22,7 @@ from scipy.sparse.csgraph import connected_components
 
 from config.inputs import InputError
 from daemon.model.calibration import Calibration
+from daemon.model.spectrum import largest_eigenvalue, smallest_eigenvalue
 
 FloatArray = NDArray[np.float64]
 
@@ -378,8 +379,6 @@ def decay_rates_per_s(
         eigenvalues = np.linalg.eigvalsh(symmetric.toarray())
         return float(eigenvalues[0]), float(eigenvalues[-1])
     # sparse: shift-invert for the slowest, inertia bisection for the fastest (spectrum.py)
-    from daemon.model.spectrum import largest_eigenvalue, smallest_eigenvalue
-
     return smallest_eigenvalue(symmetric), largest_eigenvalue(symmetric)
 
 

@@ -27,6 +27,7 @@ from daemon.vision.preview import (
     side_by_side,
 )
 from drivers.base import Camera, Frame, IrReader, IrReading, Pose, Robot
+from drivers.deadline import bounded
 from drivers.errors import DeviceError
 
 #: The robot's pose is read within this time (s), like a console command.
@@ -127,7 +128,7 @@ async def _tool_frames(devices: Devices, settings: Settings, check: DeviceCheck)
     )
     timeout_s = settings.camera.grab_timeout_s
     grabbed = await asyncio.gather(
-        *(asyncio.wait_for(camera.grab(), timeout_s) for camera in cameras),
+        *(bounded(camera.grab(), "camera", "frame", timeout_s) for camera in cameras),
         return_exceptions=True,
     )
     for name, result in zip(names, grabbed, strict=True):
@@ -154,7 +155,9 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
 async def probe_camera(camera: Camera, settings: Settings, check: DeviceCheck) -> None:
     """One frame of the spot camera and the spot measured in it, into ``check``."""
     try:
-        check.frame = await asyncio.wait_for(camera.grab(), settings.camera.grab_timeout_s)
+        check.frame = await bounded(
+            camera.grab(), "camera", "frame", settings.camera.grab_timeout_s
+        )
     except (DeviceError, TimeoutError) as err:
         check.errors["camera"] = str(err) or "no frame within camera.grab_timeout_s"
     if check.frame is not None:
@@ -182,7 +185,7 @@ async def probe_camera(camera: Camera, settings: Settings, check: DeviceCheck) -
 async def probe_ir(ir: IrReader, settings: Settings, check: DeviceCheck) -> None:
     """One IR image and its regions, into ``check``."""
     try:
-        check.reading = await asyncio.wait_for(ir.read(), settings.ir.read_timeout_s)
+        check.reading = await bounded(ir.read(), "ir", "reading", settings.ir.read_timeout_s)
     except (DeviceError, TimeoutError) as err:
         check.errors["ir"] = str(err) or "no reading within ir.read_timeout_s"
 

@@ -2,14 +2,18 @@
 
 Publishing never blocks and never fails the control loop: each subscriber has a bounded queue
 that drops its oldest event when full and counts the drop (issue 7: a slow reader never slows
-a step).
+a step). Published from the control loop's own thread (daemon/run/control_loop.py), an event
+crosses to the API's loop through that loop's bounded outbox (:meth:`EventBus.route`): the
+subscribers' queues belong to the API's loop.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -68,6 +72,12 @@ class EventBus:
     def __init__(self, queue_size: int = EVENT_QUEUE_DEFAULT) -> None:
         self._queue_size = queue_size
         self._subscriptions: set[Subscription] = set()
+        self._post: Callable[[Callable[[], None]], None] | None = None
+
+    def route(self, post: Callable[[Callable[[], None]], None] | None) -> None:
+        """Deliver through ``post`` (ControlLoop.post_home: runs a call on the subscribers'
+        loop, directly when already there); None: deliver directly."""
+        self._post = post
 
     def subscribe(
         self, maxsize: int | None = None, kinds: frozenset[str] | None = None
@@ -80,6 +90,12 @@ class EventBus:
         self._subscriptions.discard(subscription)
 
     def publish(self, event: Event) -> None:
+        if self._post is not None:
+            self._post(functools.partial(self._deliver, event))
+        else:
+            self._deliver(event)
+
+    def _deliver(self, event: Event) -> None:
         for subscription in list(self._subscriptions):
             subscription.put(event)
 

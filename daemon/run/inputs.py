@@ -17,7 +17,7 @@ from config import Settings
 from config.inputs import InputError
 from daemon.arm.arm_model import check_fits, load_arm_model, named_arm_model_path
 from daemon.arm.controller import load_duty_on
-from daemon.arm.description import load_arm
+from daemon.arm.loading import load_arm
 from daemon.model import load_network
 from daemon.model.presets import named_network_path
 from daemon.run.arm.setup import arm_file

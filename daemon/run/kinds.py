@@ -1,8 +1,9 @@
 """The one factory of run kinds (issue 27): the only code that chooses what kind a run is.
 
+- a robot that plays its own program (drivers/base.py OffsetRobot, ``robot.driver =
+  "ur-rtde"``): a followed run (daemon/run/followed/kind.py), whose duty cycle is the
+  program's;
 - a duty cycle in the parameters: an arm run (daemon/run/arm/kind.py);
-- a robot that plays its own program (drivers/base.py OffsetRobot): a followed run
-  (daemon/run/followed/kind.py);
 - otherwise the two-link bench's run (daemon/run/two_link/kind.py).
 
 Adding a kind: its package under daemon/run/, and one branch here (docs/explanation/
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 from daemon.run.arm.kind import ArmKind
 from daemon.run.followed.kind import FollowedKind
+from daemon.run.followed.setup import followed_model
 from daemon.run.kind import RunKind
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
@@ -27,18 +29,28 @@ async def build_kind(builder: RunBuilder, parameters: RunParameters) -> RunKind:
     run is not admissible."""
     devices = builder.devices()
     workers, settings, errors = builder.workers, builder.settings, builder.errors
+    robot = devices.robot
+    if isinstance(robot, OffsetRobot):  # plays its own program: even with a duty cycle
+        model = await workers.step(followed_model, settings, parameters)
+        run_id = await builder.create_run(parameters, {"kind": "followed"})
+        return FollowedKind(
+            run_id,
+            parameters,
+            robot,
+            builder.recorder,
+            workers,
+            settings,
+            errors,
+            builder.clock,
+            model,
+            getattr(devices, "ur_truth", None),
+        )
     if parameters.duty_cycle is not None:
         arm_work, arm = await builder.arm_work(parameters)
         # a played duty cycle paces a virtual clock: the run's steps follow it
         clock = builder.clock if arm.player is None else FollowingClock(builder.clock)
         bench = getattr(devices, "arm_bench", None) or getattr(devices, "bench", None)
         return ArmKind(arm_work, arm, bench, workers, settings, errors, clock)
-    robot = devices.robot
-    if isinstance(robot, OffsetRobot):
-        run_id = await builder.create_run(parameters, {"kind": "followed"})
-        return FollowedKind(
-            run_id, parameters, robot, builder.recorder, workers, settings, errors, builder.clock
-        )
     work = await builder.two_link_work(parameters)
     sensors = builder.sensors
     assert sensors is not None

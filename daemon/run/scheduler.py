@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import threading
 import time
 from collections import deque
 from collections.abc import Iterable
@@ -112,7 +113,8 @@ class TimingStats:
     """Lateness and per-stage durations of the recent ``window`` steps (bounded memory).
 
     :meth:`summary` is asked for by every API state request: it is recomputed at most every
-    ``refresh_s`` seconds of wall time, so polling never costs the loop more than that."""
+    ``refresh_s`` seconds of wall time, so polling never costs the loop more than that.
+    Added to on the control loop's thread, summarised on the API's: a lock guards the copy."""
 
     def __init__(self, window: int = 10_000, refresh_s: float = 0.5) -> None:
         self.lateness_s: deque[float] = deque(maxlen=window)
@@ -121,13 +123,15 @@ class TimingStats:
         self.steps = 0
         self._refresh_s = refresh_s
         self._cached: tuple[float, int, dict[str, object]] | None = None
+        self._lock = threading.Lock()
 
     def add(self, lateness_s: float, stages: dict[str, float]) -> None:
-        self.steps += 1
-        self.lateness_s.append(lateness_s)
-        self.max_lateness_s = max(self.max_lateness_s, lateness_s)
-        for name, seconds in stages.items():
-            self.stage_s[name].append(seconds)
+        with self._lock:
+            self.steps += 1
+            self.lateness_s.append(lateness_s)
+            self.max_lateness_s = max(self.max_lateness_s, lateness_s)
+            for name, seconds in stages.items():
+                self.stage_s[name].append(seconds)
 
     def summary(self, fresh: bool = False) -> dict[str, object]:
         """p50/p99/max lateness (s) and p50/p99/max of each stage (s); max over all steps."""
@@ -136,12 +140,15 @@ class TimingStats:
             computed_at, steps, cached = self._cached
             if steps == self.steps or now - computed_at < self._refresh_s:
                 return cached
+        with self._lock:  # a copy, then the percentiles outside the lock
+            steps, lateness, top = self.steps, list(self.lateness_s), self.max_lateness_s
+            stages = {name: list(v) for name, v in self.stage_s.items() if v}
         summary: dict[str, object] = {
-            "steps": self.steps,
-            "lateness_s": percentiles(self.lateness_s, self.max_lateness_s),
-            "stages_s": {name: percentiles(v) for name, v in self.stage_s.items() if v},
+            "steps": steps,
+            "lateness_s": percentiles(lateness, top),
+            "stages_s": {name: percentiles(v) for name, v in stages.items()},
         }
-        self._cached = (now, self.steps, summary)
+        self._cached = (now, steps, summary)
         return summary
 
 

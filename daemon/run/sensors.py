@@ -3,14 +3,14 @@ how each last went."""
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Awaitable
 from typing import TypeVar
 
 from config import Settings
 from daemon.run.events import ErrorLog
 from drivers.base import Camera, Frame, IrReader, IrReading, RoomReading, RoomThermometer
-from drivers.errors import DeviceError, DeviceTimeoutError
+from drivers.deadline import bounded
+from drivers.errors import DeviceError
 
 _T = TypeVar("_T")
 
@@ -62,15 +62,10 @@ class Sensors:
     ) -> _T:
         """Await a grab/read for at most ``timeout_s`` of wall time, else DeviceTimeoutError.
         Wall time, as the robot's command timeout: a hung device or thread does not run on the
-        bench's clock, and a virtual clock would jump a run-clock timeout forward at once."""
+        bench's clock, and a virtual clock would jump a run-clock timeout forward at once; the
+        simulated bench's own computing (a render) does not count (drivers/deadline.py)."""
         try:
-            try:
-                async with asyncio.timeout(timeout_s) as scope:
-                    result = await operation
-            except TimeoutError as err:
-                if not scope.expired():
-                    raise  # the device's own timeout (a DeviceTimeoutError): as it is
-                raise DeviceTimeoutError(device, f"no {what} within {timeout_s:g} s") from err
+            result = await bounded(operation, device, what, timeout_s)
         except DeviceError as err:
             self.states[device] = f"{err.kind} error"
             raise

@@ -8,7 +8,8 @@ Values only: the run's state changes in RunSession alone (issue 15)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Protocol
 
 from config import Settings
@@ -63,3 +64,9 @@ class SessionServices:
     reports: ReportQueue
     read_model: RunReadModel  # the API's view of the run, and the control loop's liveness
     unrecorded_end: UnrecordedEnd  # an end the disk could not take, written again later
+    #: runs a call on the API's loop, which owns the report queue and the unrecorded end
+    #: (ControlLoop.post_home: the session runs on the control loop's thread)
+    post_home: Callable[[Callable[[], None]], None] = field(default=lambda call: call())
+    #: a hold request has held the permit and its pause or stop has not yet reached the run
+    #: (it comes from the API's thread: a step refused meanwhile is not the run's fault)
+    hold_pending: Callable[[], bool] = field(default=lambda: False)

@@ -328,6 +328,16 @@ class RunSession:
         """A step's verdict meets the operator's requests here."""
         if verdict.kind == "ok":
             return
+        if self._services.hold_pending():
+            # a hold request from the API's thread held the permit and its pause or stop is
+            # on its way here: that request came first; the verdict stays on the step's record
+            logger.info(
+                "run %d step %d: %s is on its record; a hold request came first",
+                self.id,
+                step,
+                verdict.reason,
+            )
+            return
         if verdict.kind == "fault":
             await self._fault(verdict.reason or "device fault")
             return
@@ -415,7 +425,12 @@ class RunSession:
                         logger.error("run %d: cannot record its summary: %s", self.id, err)
                         services.errors.note(err, device="storage")
                 else:
-                    services.unrecorded_end.remember(self.id, final.value, self.summary, reason)
+                    summary = self.summary
+                    services.post_home(
+                        lambda: services.unrecorded_end.remember(
+                            self.id, final.value, summary, reason
+                        )
+                    )
         except Exception as err:  # a bug in the ending itself: still end (traceback logged)
             logger.exception("run %d: error while ending", self.id)
             services.errors.note(err, device="daemon")
@@ -426,7 +441,8 @@ class RunSession:
             # a deferred summary's report comes with it, at the next start
             report = services.settings.storage.report_at_end and not self.summary_deferred
             if report and self.step >= 0:
-                services.reports.submit(self.id)
+                run_id = self.id
+                services.post_home(lambda: services.reports.submit(run_id))
             logger.info("run %d %s%s", self.id, final.value, f" ({reason})" if reason else "")
 
     async def _record_end(self, final: RunState, reason: str | None) -> bool:
@@ -440,7 +456,10 @@ class RunSession:
         except Exception as err:
             logger.error("run %d: cannot record its end yet: %s", self.id, err)
             services.errors.note(err, device="storage")
-            services.unrecorded_end.remember(self.id, final.value, None, reason)
+            run_id = self.id
+            services.post_home(
+                lambda: services.unrecorded_end.remember(run_id, final.value, None, reason)
+            )
             return False
         return True
 

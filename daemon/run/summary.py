@@ -136,7 +136,12 @@ def arm_basis(
             "step_s": parameters.step_s,
             "overruns": overruns,
             "skipped_deadlines": skipped,
-            "reference": {"source": work.reference_source},
+            # a pose with no reference measured: its zero is its first step (flagged
+            # first-step-reference), its drift before that step unseen; said, never silent
+            "reference": {
+                "source": work.reference_source,
+                "missing": dict(work.missing_references),
+            },
         },
         "inputs": {
             "compensation": parameters.compensation,

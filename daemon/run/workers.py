@@ -38,9 +38,15 @@ EXPORT_NICENESS = 10
 
 
 class Workers:
-    def __init__(self) -> None:
-        self._step = ThreadPoolExecutor(STEP_THREADS, thread_name_prefix="step")
-        self._db = ThreadPoolExecutor(1, thread_name_prefix="recorder")
+    """``critical``: run first in each ``step`` and ``db`` thread (the control loop's
+    scheduling, daemon/run/control_loop.py): a step waits for both -- its CPU work, and its
+    record committed before the next step begins -- so they share the loop's priority."""
+
+    def __init__(self, critical: Callable[[], object] | None = None) -> None:
+        self._step = ThreadPoolExecutor(
+            STEP_THREADS, thread_name_prefix="step", initializer=critical
+        )
+        self._db = ThreadPoolExecutor(1, thread_name_prefix="recorder", initializer=critical)
         self._reads = ThreadPoolExecutor(READ_THREADS, thread_name_prefix="api-read")
         self._exports: ProcessPoolExecutor | None = None
 

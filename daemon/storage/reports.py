@@ -108,6 +108,8 @@ def drift_removed_of(
     steps recorded until now and its named reference run's, read from ``database``
     read-only. Picklable arguments: the API runs it in an export process, so reading a long
     run never holds the daemon's GIL (issue 15, point 6)."""
+    # lazy: SciPy (the fits) loads in the export process that computes it, not for `report
+    # --help`, `stats` or `fit` (issue 16)
     from daemon.analysis.removed import REMOVED_COLUMNS, drift_removed
 
     uri = f"{Path(database).resolve().as_uri()}?mode=ro"
@@ -194,7 +196,8 @@ def write_run_report(
             )
     if out_dir is None:
         out_dir, embed_images = report_dir(data_dir, run_id), True
-    from daemon.analysis import write_report  # Matplotlib: loaded to write, not to import
+    # lazy: Matplotlib (and the budget's analysis), loaded to write, not to import
+    from daemon.analysis import write_report
     from daemon.storage.budgets import read_saved_budget
 
     return write_report(
@@ -209,7 +212,7 @@ def write_run_report(
 
 
 def run_report(args: argparse.Namespace) -> int:
-    from daemon.analysis import write_report
+    from daemon.analysis import write_report  # lazy: Matplotlib, not for `report --help`
 
     target = Path(args.target)
     reference_arg: str | None = args.reference

@@ -113,10 +113,15 @@ STEP_FLAGS: dict[str, str] = {
     "(the backend gave no better stamp)",
     "centroid-error": "no spot could be measured in the frame",
     "marker-error": "arm runs: the tool's markers could not be measured into a pose",
+    "first-step-reference": "arm runs: no reference was measured at this pose before the "
+    "first correction; this step's measurement is its zero (drift 0 by construction), and the "
+    "run's summary lists the pose under reference.missing",
     "ir-error": "no IR reading within ir.read_timeout_s, or the reading was refused",
     "stale-ir": "the IR reading was older than ir.max_age_s: recorded, never fused",
     "room-error": "arm runs: the room thermometer gave no reading; the model kept the last room",
     "no-measurement": "followed runs: no camera measured the tool this step (the correction is the "
     "model's alone)",
     "model-drifting": "the IR observer's innovations stay biased: consider identification",
+    "bench-truth": "followed runs on the UR bench: measured_* is the bench truth's residual "
+    "tool error (no camera noise), not a camera measurement",
 }

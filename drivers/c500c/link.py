@@ -408,7 +408,9 @@ class ConsoleLink(LinkLifecycle):
         current = commands[0]
         try:
             written_at = time.perf_counter()
-            connection.write(data)
+            # checked again with the write, atomic against a hold from another thread
+            with self.permit.guard(motion):
+                connection.write(data)
             for current in commands:
                 raw = await self._read_reply(connection, current, timeout_s)
                 self._ended_at_shell(raw, current)

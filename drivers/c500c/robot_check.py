@@ -117,7 +117,7 @@ async def run_check(
     robot_settings = settings.robot
     async with AsyncExitStack() as stack:
         if port is None and robot_settings.driver == "sim":
-            # here: the emulator (NumPy) loads only when it is checked, not for --help
+            # lazy: the emulator (NumPy) loads only when it is checked, not for --help
             from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 
             emulator = C500CEmulator(
@@ -181,8 +181,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_server(settings: Settings, args: argparse.Namespace) -> int:
     """The fast path: the program on the controller (drivers/c500c/server_check.py)."""
-    from drivers.c500c.server_check import run_server_check
-
     if args.transcript is not None:
         print(
             "thermocomp robot check: --transcript records the console's text; the fast path "
@@ -190,6 +188,10 @@ def _run_server(settings: Settings, args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
+    # lazy: the fast path's check opens devices (drivers.factory: NumPy, OpenCV) when it runs,
+    # not for --help
+    from drivers.c500c.server_check import run_server_check
+
     try:
         report = asyncio.run(run_server_check(settings, port=args.port))
     except DeviceError as err:

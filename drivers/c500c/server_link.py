@@ -333,8 +333,10 @@ class ServerLink(LinkLifecycle):
                     self.permit.release(ticket)  # raises MotionHeldError
                 if self._connection is not connection:
                     raise NotConnectedError(DEVICE, f"link lost on {self.port}")
-                self._pending[sequence] = (request_type, future)
-                connection.writer.write(data)
+                # checked again with the write, atomic against a hold from another thread
+                with self.permit.guard(request_type in _MOTION, ticket):
+                    self._pending[sequence] = (request_type, future)
+                    connection.writer.write(data)
                 written = True
                 self._last_write = asyncio.get_running_loop().time()
                 self._bytes_sent += len(data)

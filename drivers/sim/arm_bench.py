@@ -54,7 +54,8 @@ import numpy as np
 
 from config.arm_truth import ArmTruth
 from daemon.arm import kinematics
-from daemon.arm.description import Arm, load_arm
+from daemon.arm.description import Arm
+from daemon.arm.loading import load_arm
 from daemon.arm.motors import arm_motors, joint_heat_batch_w, joint_heat_w
 from daemon.arm.thermal import ArmThermalDescription, ArmThermalModel, describe_arm
 from daemon.arm.types import FloatArray, JointSample, LinkThermalState

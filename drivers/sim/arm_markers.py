@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from daemon.arm.types import FloatArray
+from daemon.vision.centroid import CentroidError, measure_centroid
 from daemon.vision.multiview import CameraModel, intrinsic_matrix, look_at, project
 from daemon.vision.synthetic import render_spot
 from daemon.vision.tool_pose import ToolMeasurement, measure_tool_pose
@@ -182,8 +183,6 @@ def marker_pixels(
     usable spot of it) and its 1-sigma (the robust method of daemon.vision.centroid, its own
     sigma widened by the image-plane jitter): what
     :func:`daemon.vision.tool_pose.measure_tool_pose` takes."""
-    from daemon.vision.centroid import CentroidError, measure_centroid
-
     pixels = np.full((len(windows), markers, 2), np.nan)
     sigmas = np.ones((len(windows), markers, 2))
     for index, camera_windows in enumerate(windows):

@@ -61,7 +61,7 @@ class Console:
         self.joint_arm: JointArm | None = None
         start = as_location(config.start_pose)
         if config.joint_arm is not None:
-            # imported here: the kinematics (SciPy) load only for an emulator with an arm
+            # lazy: the kinematics (SciPy) load only for an emulator with an arm
             from drivers.sim.joint_arm import JointArm
 
             self.joint_arm = JointArm(config.joint_arm)
@@ -171,6 +171,7 @@ class Console:
         rotation in the world frame about the location's position (drivers/sim/joint_arm.py);
         without, every value added (the emulator's simplification)."""
         if self.joint_arm is not None:
+            # lazy: the kinematics (SciPy) load only for an emulator with an arm
             from drivers.sim.joint_arm import shift_location
 
             return as_location(shift_location(base, offset))
@@ -284,6 +285,7 @@ class Console:
         now_s = max(self.now(), self.motion_not_before)
         self.motion_not_before = 0.0
         if self.joint_arm is not None:
+            # lazy: the kinematics (SciPy) load only for an emulator with an arm
             from drivers.sim.joint_arm import UnreachableError
 
             try:

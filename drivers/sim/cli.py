@@ -28,7 +28,7 @@ if TYPE_CHECKING:  # the emulators (NumPy) load when one is served, not for --he
 
 
 def _faults(text: str) -> tuple[Fault[FaultKind], ...]:
-    from drivers.sim.emulator import parse_faults
+    from drivers.sim.emulator import parse_faults  # lazy: NumPy loads to serve, not for --help
 
     try:
         return parse_faults(text)
@@ -139,14 +139,15 @@ def _joint_arm(args: argparse.Namespace) -> JointArmConfig | None:
     """The --arm option's arm; ArmError (a bad name or file) is the caller's."""
     if args.arm is None:
         return None
-    # imported here: the kinematics (SciPy) load only for an emulator with an arm
-    from daemon.arm.description import load_arm
+    # lazy: the kinematics (SciPy) load only for an emulator with an arm
+    from daemon.arm.loading import load_arm
     from drivers.sim.joint_arm import JointArmConfig
 
     return JointArmConfig(load_arm(args.arm))
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: the arm's description (NumPy) loads when an emulator runs, not for --help
     from daemon.arm.description import ArmError
 
     if args.device == "ur":
@@ -159,6 +160,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.server:
         return _run_server(args, joint_arm)
+    # lazy: the emulators (NumPy) load when one is served, not for --help
     from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 
     config = EmulatorConfig(
@@ -197,6 +199,7 @@ def _run_server(args: argparse.Namespace, joint_arm: JointArmConfig | None) -> i
     if args.faults or args.shell:
         print("thermocomp emulate: --faults and --shell are the console's", file=sys.stderr)
         return 2
+    # lazy: the emulators (NumPy) load when one is served, not for --help
     from drivers.sim.server_emulator import (
         SERVER_BAUDRATE,
         C500CServerEmulator,

@@ -17,6 +17,9 @@ robot -> PC (output registers, written by the program every controller cycle):
                                   program dwells at, a measured one), 0 elsewhere
     output_int_register_{B+1}     the sequence of the last target the program accepted
     output_int_register_{B+2}     status bits (STATUS_*)
+    output_int_register_{B+3}     the program's instance: a random number drawn once when the
+                                  program starts, so a restart shows even when it happens
+                                  between two state packages (its other outputs may repeat)
     output_double_register_{B..B+5}  the offset applied now (m, rad)
 
 B is 24..41 (registers 0-23 collide with the fieldbus adapters: the upper range; B+5 <= 46
@@ -71,8 +74,14 @@ class RegisterMap:
 
     @property
     def inputs(self) -> tuple[str, ...]:
-        """The driver's input recipe, in order."""
+        """The driver's correction recipe, in order: a correction and the hold flag."""
         return (self.sequence, self.hold, *self.target)
+
+    @property
+    def hold_inputs(self) -> tuple[str, ...]:
+        """The driver's hold recipe: the heartbeat and the hold flag, never the correction
+        registers (a hold, a heartbeat or a resume writes nothing into them)."""
+        return (self.sequence, self.hold)
 
     @property
     def at_pose(self) -> str:
@@ -87,9 +96,13 @@ class RegisterMap:
         return int_output(self.base + 2)
 
     @property
+    def instance(self) -> str:
+        return int_output(self.base + 3)
+
+    @property
     def applied(self) -> tuple[str, ...]:
         return tuple(double_output(self.base + i) for i in range(len(AXES)))
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return (self.at_pose, self.accepted_sequence, self.status, *self.applied)
+        return (self.at_pose, self.accepted_sequence, self.status, self.instance, *self.applied)

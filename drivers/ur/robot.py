@@ -8,16 +8,29 @@ it accepted, its status, the offset it applies) at robot.rtde_frequency_hz, and 
 correction, a sequence number and a hold flag into the input registers
 (drivers/ur/registers.py) on every correction and at least every robot.ur_heartbeat_s.
 
-**The hold** (drivers.base.Robot's contract). :meth:`URRobot.stop` holds from the moment it
-is called: the hold flag is set and written to the controller in the same synchronous step
-(one whole RTDE package into the socket, no await in between), and every later
-:meth:`set_correction` is refused with MotionHeldError; the check and the write of a
-correction have no await between them either, so no correction can slip past a hold. Only
-:meth:`resume` releases a hold, and a hold that comes while a resume waits wins (holds are
-counted, as drivers/c500c/robot.py counts them). What a hold means on a robot that plays its own
-program: the program's offset freezes where it is (the program keeps playing; pausing it is
-the Dashboard's ``pause``, ``URRobot.dashboard``); the robot-side program freezes it by
-itself too when the PC goes silent for its watchdog's 0.5 s.
+**The hold** (drivers.base.Robot's contract, drivers/permit.py). :meth:`URRobot.stop` holds
+from the moment it is called: the permit is held and the hold flag written to the controller
+in the same synchronous step (one whole RTDE package into the socket, no await in between),
+before anything else. Two input recipes keep the correction registers out of every package
+but a correction's: the *hold recipe* (sequence, hold flag) carries the heartbeat, the hold
+and the resume; the *correction recipe* (sequence, hold flag, the six target registers) only
+:meth:`set_correction` and :meth:`apply_correction`, which read the permit right before the
+write with no await between the check and the bytes: after a hold nothing is written into the
+correction registers. Corrections are written one at a time (a lock), so a correction queued
+behind one in flight meets the hold. Only :meth:`resume` with a ticket newer than the hold
+releases it (the permit's generation: a hold that comes while a resume waits wins). The
+controller echoes the sequence register in its output recipe: :meth:`resume` and
+:meth:`follow_program` wait for that echo (the controller read the package), and
+:meth:`apply_correction` for the program's acceptance (output register B+1): a program that
+does not accept a correction within robot.command_timeout_s has stalled (held, link reported
+``stalled`` until a resume). After :meth:`follow_program` (a run's start), a restart of the
+offset program (it was seen stopped, or its accepted sequence went back) holds and refuses a
+resume with GoalLostError: the program's offset state is gone.
+
+What a hold means on a robot that plays its own program: the program's offset freezes where
+it is (the program keeps playing; pausing it is the Dashboard's ``pause``,
+``URRobot.dashboard``); the robot-side program freezes it by itself too when the PC goes
+silent for its watchdog's 0.5 s.
 
 A lost link (no state package for robot.ur_timeout_s, a closed or garbled connection) is a
 fault: the correction is held, the link reconnects in the background (drivers/reconnect.py)
@@ -32,17 +45,25 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import Coroutine
+from collections.abc import Callable, Coroutine
 from types import TracebackType
 from typing import Any, Self
 
 from config.settings import RobotSettings
 from drivers.base import ZERO_ROTATION, LinkState, OffsetRobotState, RobotStatus, Vector3
-from drivers.errors import DeviceError, MotionHeldError, NotConnectedError
+from drivers.errors import (
+    DeviceError,
+    DeviceTimeoutError,
+    GoalLostError,
+    MotionHeldError,
+    NotConnectedError,
+)
 from drivers.goals import require_finite
+from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.ur import rtde_protocol as rtde
 from drivers.ur.dashboard_client import DashboardClient
+from drivers.ur.modes import RuntimeState
 from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_client import RtdeClient
 from drivers.ur.rtde_protocol import Recipe, Value
@@ -54,6 +75,8 @@ MM_PER_M = 1000.0
 #: The sequence register is an INT32: it runs 1 .. 2^31 - 1 and wraps to 1 (0 is "no target
 #: yet" for the program).
 SEQUENCE_MAX = (1 << 31) - 1
+#: A sequence further behind the last one than this has wrapped (2^30: two years at 500 Hz).
+SEQUENCE_WRAP_GAP = 1 << 30
 STATE_OUTPUTS = (
     "timestamp",
     "actual_q",
@@ -86,9 +109,17 @@ class URRobot:
         self._outputs: Recipe | None = None
         self._inputs: Recipe | None = None
         self._link = LinkState.DISCONNECTED
-        self._motion_held = False
-        self._hold_reason: str | None = None
-        self._holds = 0  # every hold ever: a resume that saw another one come stays held
+        #: the one owner of "may the correction change" (drivers/permit.py)
+        self.permit = MotionPermit(DEVICE)
+        self._hold_inputs: Recipe | None = None
+        self._corrections = asyncio.Lock()  # one correction at a time (module docstring)
+        self._stalled = False  # the program stopped accepting corrections: until a resume
+        self._following = False  # follow_program() was called: a program restart is a fault
+        self._program_lost: str | None = None  # why the followed program's state is gone
+        self._accepted_max = 0  # the highest sequence the followed program accepted
+        self._instance = 0  # the followed program's instance (drivers/ur/registers.py)
+        self._seen_sequence = 0  # the sequence register as the controller reads it back
+        self._arrived = asyncio.Event()  # set (and replaced) on every state package
         self._last_error: str | None = None
         self._sequence = 0  # the last one written
         self._target: tuple[float, ...] = (0.0,) * 6  # the correction on the wire (m, rad)
@@ -146,14 +177,17 @@ class URRobot:
         try:
             await client.connect()
             outputs = await client.setup_outputs(
-                (*STATE_OUTPUTS, *self.registers.outputs), settings.rtde_frequency_hz
+                (*STATE_OUTPUTS, *self.registers.outputs, self.registers.sequence),
+                settings.rtde_frequency_hz,
             )
             inputs = await client.setup_inputs(self.registers.inputs)
+            hold_inputs = await client.setup_inputs(self.registers.hold_inputs)
             await client.start()
         except BaseException:
             client.close()
             raise
         self._client, self._outputs, self._inputs = client, outputs, inputs
+        self._hold_inputs = hold_inputs
         self._link = LinkState.CONNECTED
         self._write()
         self._reader = asyncio.get_running_loop().create_task(
@@ -171,10 +205,40 @@ class URRobot:
             while True:
                 async with asyncio.timeout(self.settings.ur_timeout_s):
                     values = await client.read_data(recipe)
-                self._state = self._state_of(recipe, values)
+                self._state = state = self._state_of(recipe, values)
+                self._seen_sequence = int(values[-1])  # type: ignore[arg-type]
+                self._check_program(state)
+                self._wake()
         except (DeviceError, TimeoutError) as err:
             message = str(err) or f"no RTDE package for {self.settings.ur_timeout_s} s"
             self._link_fault(client, message)
+            self._wake()
+
+    def _wake(self) -> None:
+        """Wake whatever waits for a state package (or for the link's end)."""
+        arrived, self._arrived = self._arrived, asyncio.Event()
+        arrived.set()
+
+    def _check_program(self, state: OffsetRobotState) -> None:
+        """After follow_program(): the offset program restarted (seen stopped, or its accepted
+        sequence went back) -- its offset state is gone: hold (module docstring)."""
+        if not self._following or self._program_lost is not None:
+            return
+        accepted = state.accepted_sequence
+        if state.runtime_state == RuntimeState.STOPPED:
+            lost = "the offset program was stopped"
+        elif state.program_instance != self._instance:
+            # a stop and a play between two state packages: nothing else need show it (a
+            # fresh program held from its start accepts nothing, like the old one)
+            lost = "the offset program restarted (a new program instance)"
+        elif accepted < self._accepted_max and self._accepted_max - accepted < SEQUENCE_WRAP_GAP:
+            lost = "the offset program restarted (its accepted sequence went back)"
+        else:
+            self._accepted_max = accepted
+            return
+        self._program_lost = lost
+        logger.warning("UR %s: correction held", lost)
+        self._hold(lost)
 
     def _link_fault(self, client: RtdeClient, message: str) -> None:
         if client is not self._client:
@@ -195,17 +259,57 @@ class URRobot:
 
     # -- the registers -----------------------------------------------------------------------
 
-    def _write(self) -> int:
-        """One input package now: the next sequence, the hold flag, the target (synchronous:
-        no await, so nothing can come between a caller's check and these bytes)."""
-        client, inputs = self._client, self._inputs
+    def _write(self, target: tuple[float, ...] | None = None) -> int:
+        """One input package now: the next sequence and the hold flag, and with ``target``
+        the correction registers (the correction recipe; else the hold recipe). Synchronous:
+        no await, so nothing can come between a caller's check and these bytes."""
+        client = self._client
+        inputs = self._hold_inputs if target is None else self._inputs
         if client is None or inputs is None or not client.connected:
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
         sequence = self._sequence % SEQUENCE_MAX + 1
-        values: list[Value] = [sequence, 1 if self._motion_held else 0, *self._target]
+        values: list[Value] = [sequence, 1 if self.permit.held else 0]
+        if target is not None:
+            values.extend(target)
         client.send(rtde.data_package(inputs, values))
         self._sequence = sequence
         return sequence
+
+    async def _until(self, reached: Callable[[], bool], what: str) -> None:
+        """Wait for a state package after which ``reached()``; DeviceTimeoutError after
+        robot.command_timeout_s, NotConnectedError when the link goes."""
+        try:
+            async with asyncio.timeout(self.settings.command_timeout_s):
+                while not reached():
+                    if self._link is not LinkState.CONNECTED:
+                        raise NotConnectedError(DEVICE, f"link {self._link.value}: {what}")
+                    await self._arrived.wait()
+        except TimeoutError as err:
+            raise DeviceTimeoutError(
+                DEVICE, f"{what}: nothing within {self.settings.command_timeout_s} s"
+            ) from err
+
+    def _seen(self, sequence: int) -> Callable[[], bool]:
+        def seen() -> bool:
+            gap = sequence - self._seen_sequence
+            return gap <= 0 or gap > SEQUENCE_WRAP_GAP  # at or past it (or wrapped past)
+
+        return seen
+
+    def _accepted(self, sequence: int) -> Callable[[], bool]:
+        def accepted() -> bool:
+            state = self._state
+            if state is None:
+                return False
+            gap = sequence - state.accepted_sequence
+            return gap <= 0 or gap > SEQUENCE_WRAP_GAP
+
+        return accepted
+
+    async def _exchange(self, what: str) -> None:
+        """A heartbeat, and the controller's read-back of it (the hold recipe)."""
+        self._require_link()
+        await self._until(self._seen(self._write()), f"the controller did not read back {what}")
 
     def _checked(self, offset_mm: Vector3, rotation_rad: Vector3) -> tuple[float, ...]:
         require_finite(offset_mm, "correction", DEVICE)
@@ -228,11 +332,17 @@ class URRobot:
 
     # -- the OffsetRobot protocol ------------------------------------------------------------
 
-    def _require_allowed(self) -> None:
-        if self._motion_held:
-            raise MotionHeldError(DEVICE, f"correction held until resume(): {self._hold_reason}")
+    def _require_link(self) -> None:
         if self._link is not LinkState.CONNECTED:
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
+
+    def _write_correction(self, target: tuple[float, ...]) -> int:
+        """The permit read right before the correction's bytes (no await in between)."""
+        self.permit.require()
+        self._require_link()
+        sequence = self._write(target)
+        self._target = target
+        return sequence
 
     async def set_correction(
         self, offset_mm: Vector3, rotation_rad: Vector3 = ZERO_ROTATION
@@ -241,16 +351,58 @@ class URRobot:
         any byte when not finite or over robot.correction_limit_*, when held or not connected.
         Returns the sequence it was written with (the program echoes it once accepted)."""
         target = self._checked(offset_mm, rotation_rad)
-        self._require_allowed()  # no await from here to the write: a hold cannot slip in
-        previous, self._target = self._target, target
-        try:
-            sequence = self._write()
-        except DeviceError:
-            self._target = previous
-            raise
-        assert self._client is not None
-        await self._client.drain()
-        return sequence
+        async with self._corrections:
+            sequence = self._write_correction(target)
+            assert self._client is not None
+            await self._client.drain()
+            return sequence
+
+    async def apply_correction(
+        self, offset_mm: Vector3, rotation_rad: Vector3 = ZERO_ROTATION
+    ) -> int:
+        """:meth:`set_correction`, then wait for the program to accept it (robot.
+        command_timeout_s: else a stall, held). Cancelled while waiting: held, since the
+        correction may be applied (as a cut move on the other drivers)."""
+        target = self._checked(offset_mm, rotation_rad)
+        async with self._corrections:
+            sequence = self._write_correction(target)
+            accepted = self._accepted(sequence)
+            try:
+                await self._until(
+                    lambda: accepted() or self.permit.held,
+                    f"the program did not accept correction {sequence}",
+                )
+            except DeviceTimeoutError as err:
+                self._stalled = True
+                self._hold(f"stalled: {err}")
+                raise
+            except asyncio.CancelledError:
+                self._hold("a correction was cut before the program accepted it", error=False)
+                raise
+            if not accepted():  # a hold came first: the program froze its offset
+                raise MotionHeldError(
+                    DEVICE, f"held before the program accepted correction {sequence}"
+                )
+            return sequence
+
+    async def read_state(self) -> OffsetRobotState:
+        """The robot's state now: a heartbeat, and the first state package after the
+        controller read it back (robot_state() is the last package received)."""
+        await self._exchange("the heartbeat")
+        return self.robot_state()
+
+    async def follow_program(self) -> OffsetRobotState:
+        """A run starts following the program as it is now (moves nothing; allowed while held):
+        its restart from here on is a fault (module docstring). The controller reads back a
+        heartbeat first."""
+        async with self._lock:
+            await self._exchange("the heartbeat")
+            state = self.robot_state()
+            self._following = True
+            self._program_lost = None
+            self._accepted_max = state.accepted_sequence
+            self._instance = state.program_instance
+            return state
 
     def robot_state(self) -> OffsetRobotState:
         state = self._state
@@ -262,13 +414,11 @@ class URRobot:
         return state
 
     def _hold(self, reason: str, *, error: bool = True) -> None:
-        self._holds += 1
-        self._motion_held = True
-        self._hold_reason = reason
+        self.permit.hold(reason)  # first: from here no correction's bytes are written
         if error:
             self._last_error = reason
         with contextlib.suppress(DeviceError, OSError):
-            self._write()  # tell the program now (a lost link: its watchdog freezes it)
+            self._write()  # the hold flag, now (a lost link: the program's watchdog freezes)
 
     def stop(self) -> Coroutine[Any, Any, None]:
         """Hold, from the moment this is called (module docstring). Awaiting it drains the
@@ -277,19 +427,26 @@ class URRobot:
         client = self._client
         return client.drain() if client is not None else _done()
 
-    async def resume(self) -> None:
-        """Release a hold: the link must be up with a fresh state; a hold that comes while
-        this waits wins (MotionHeldError, the hold stays)."""
-        holds_before = self._holds
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        """Release a hold for the request that took ``ticket`` (None: now): the link must be
+        up with a fresh state, the followed program must not have restarted (GoalLostError),
+        and the controller reads back a heartbeat; a hold that came after the ticket wins
+        (MotionHeldError, the hold stays). Then the hold flag is cleared."""
+        ticket = ticket if ticket is not None else self.permit.ticket()
         async with self._lock:
+            if not self.permit.is_current(ticket):
+                self.permit.release(ticket)  # raises: a hold came after the request
             self.robot_state()  # NotConnectedError when the link is not up and fresh
-            if self._holds != holds_before:
-                raise MotionHeldError(
-                    DEVICE, f"held again while resuming, stays held: {self._hold_reason}"
+            await self._exchange("the resume's heartbeat")  # a state from after this call
+            if self._program_lost is not None:
+                raise GoalLostError(
+                    DEVICE,
+                    f"the controller lost the taught goal: {self._program_lost}; start a new "
+                    "run (it follows the program as it is)",
                 )
-            self._motion_held = False
-            self._hold_reason = None
-            self._write()
+            self.permit.release(ticket)  # MotionHeldError if a hold came meanwhile
+            self._stalled = False
+            self._write()  # the hold flag cleared
         logger.info("UR correction resumed")
 
     def status(self) -> RobotStatus:
@@ -310,11 +467,14 @@ class URRobot:
             extra["safety_mode"] = str(state.safety_mode)
             extra["runtime_state"] = str(state.runtime_state)
             extra["program_status"] = str(state.program_status)
+        link = self._link
+        if self._stalled and link is LinkState.CONNECTED:
+            link = LinkState.STALLED
         return RobotStatus(
-            link=self._link,
-            motion_held=self._motion_held,
+            link=link,
+            motion_held=self.permit.held,
             last_error=self._last_error,
-            hold_reason=self._hold_reason if self._motion_held else None,
+            hold_reason=self.permit.reason,
             extra=extra,
         )
 
@@ -351,4 +511,5 @@ class URRobot:
             program_status=integer(regs.status),
             applied_offset_mm=(applied[0] * MM_PER_M, applied[1] * MM_PER_M, applied[2] * MM_PER_M),
             applied_rotation_rad=(applied[3], applied[4], applied[5]),
+            program_instance=integer(regs.instance),
         )

@@ -1,7 +1,7 @@
 """The robots under the Robot contract (tests/contract/test_robot_contract.py): every robot
-driver over its emulator and every fake of the suite, each behind a small adapter that opens it
-and gives the suite its test hooks. A new driver adds one adapter here and one entry in
-ADAPTERS (docs/how-to/add-a-robot-driver.md)."""
+driver over its emulator and every fake of the suite (tests/fakes.py FakeRobot and its
+subclasses), each behind a small adapter that opens it and gives the suite its test hooks. A new
+driver adds one adapter here and one entry in ADAPTERS (docs/how-to/add-a-robot-driver.md)."""
 
 from __future__ import annotations
 
@@ -12,13 +12,19 @@ from dataclasses import dataclass
 from typing import Any
 
 from config.settings import RobotSettings
-from drivers.base import LinkState
+from drivers.base import DEFAULT_GOAL, ZERO_ROTATION, LinkState, Pose, Vector3
 from drivers.c500c import server_protocol as server_proto
 from drivers.c500c.robot import C500CRobot
 from drivers.c500c.server import C500CServerRobot
+from drivers.clock import VirtualClock
+from drivers.errors import DeviceError
+from drivers.permit import Ticket
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
+from drivers.sim.ur.emulator import UREmulator
+from drivers.ur.robot import URRobot
 from tests.fakes import FakeRobot, Gate
+from tests.test_arm_run import ArmTruth, FakeArmRobot
 
 #: Timeouts short enough for a stall to show in a test, long enough for a loaded machine.
 SETTINGS = RobotSettings(
@@ -105,9 +111,20 @@ async def fast_path() -> AsyncIterator[Subject]:
         emulator.release_replies()
 
 
+def fake() -> AbstractAsyncContextManager[Subject]:
+    return _faked(FakeRobot(move_timeout_s=SETTINGS.move_margin_s), "fake")
+
+
+def arm_fake() -> AbstractAsyncContextManager[Subject]:
+    """The arm run's fake (tests/test_arm_run.py FakeArmRobot, the fake with the tool
+    following its goals): a subclass must keep the contract too."""
+    robot = FakeArmRobot(ArmTruth(VirtualClock()))
+    robot.move_timeout_s = SETTINGS.move_margin_s
+    return _faked(robot, "arm fake")
+
+
 @asynccontextmanager
-async def fake() -> AsyncIterator[Subject]:
-    robot = FakeRobot(move_timeout_s=SETTINGS.move_margin_s)
+async def _faked(robot: FakeRobot, name: str) -> AsyncIterator[Subject]:
     gates: list[Gate] = []
 
     def hold_replies() -> None:
@@ -126,7 +143,7 @@ async def fake() -> AsyncIterator[Subject]:
 
     async with robot:
         yield Subject(
-            name="fake",
+            name=name,
             robot=robot,
             written=lambda: len(robot.commands),
             hold_replies=hold_replies,
@@ -141,9 +158,104 @@ async def fake() -> AsyncIterator[Subject]:
         release_replies()
 
 
+class OffsetUnderContract:
+    """A UR (drivers/ur/robot.py, an OffsetRobot) under the Robot contract's calls: its one
+    "goal" is the path of its own program, a "move" is a correction the program accepted
+    (URRobot.apply_correction), teaching is URRobot.follow_program (moves nothing) and the
+    pose is read after a heartbeat the controller read back. The hold, the permit, the
+    refusals and the link are the driver's own, untouched."""
+
+    def __init__(self, robot: URRobot) -> None:
+        self.robot = robot
+        self.permit = robot.permit
+
+    async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
+        self._goal(goal)
+        state = await self.robot.follow_program()
+        return Pose(*state.tcp_pose[:3])
+
+    async def move_absolute(
+        self, offset_mm: Vector3, rotation_rad: Vector3 = ZERO_ROTATION, *, goal: str = DEFAULT_GOAL
+    ) -> int:
+        self._goal(goal)
+        return await self.robot.apply_correction(offset_mm, rotation_rad)
+
+    async def actual_pose(self) -> Pose:
+        state = await self.robot.read_state()
+        return Pose(*state.tcp_pose[:3])
+
+    async def stop(self) -> None:
+        await self.robot.stop()
+
+    async def resume(self, ticket: Ticket | None = None) -> None:
+        await self.robot.resume(ticket)
+
+    def status(self) -> Any:
+        return self.robot.status()
+
+    @staticmethod
+    def _goal(goal: str) -> None:
+        if goal != DEFAULT_GOAL:
+            raise DeviceError("robot", f"no goal {goal!r}: a UR follows its own program's path")
+
+
+#: The UR's timeouts: a reply withheld by a test is released well before the link times out.
+UR_SETTINGS = RobotSettings(
+    driver="ur-rtde",
+    host="127.0.0.1",
+    command_timeout_s=SETTINGS.command_timeout_s,
+    reconnect_max_backoff_s=0.2,
+    rtde_frequency_hz=125.0,
+    ur_timeout_s=10.0,
+)
+
+
+@asynccontextmanager
+async def universal_robots() -> AsyncIterator[Subject]:
+    async with UREmulator(host="127.0.0.1", rtde_port=0, dashboard_port=0) as ur:
+        settings = UR_SETTINGS.model_copy(
+            update={"rtde_port": ur.rtde_port, "dashboard_port": ur.dashboard_port}
+        )
+        async with URRobot(settings, first_backoff_s=0.05) as robot:
+            controller = ur.controller
+            target = controller.registers.target[0]
+
+            def hold_replies() -> None:
+                ur.rtde.input_withheld.clear()
+                ur.rtde.withhold = True
+
+            def release_replies() -> None:
+                ur.rtde.withhold = False
+                controller.program_frozen = False
+
+            def lose_goals() -> None:  # the operator stops the program and plays it again
+                controller.stop(ur.now())
+                controller.play(ur.now())
+
+            def stall_next_move() -> None:
+                controller.program_frozen = True
+
+            yield Subject(
+                name="universal-robots",
+                robot=OffsetUnderContract(robot),
+                written=lambda: controller.writes[target],
+                hold_replies=hold_replies,
+                reply_held=ur.rtde.input_withheld.wait,
+                release_replies=release_replies,
+                stall_next_move=stall_next_move,
+                drop_link=ur.drop_connections,
+                lose_goals=lose_goals,
+                reconnected=lambda: connected(robot),
+                stall_budget_s=UR_SETTINGS.command_timeout_s,
+            )
+            release_replies()
+
+
 #: Every robot the contract runs over: each driver over its emulator, and the suite's fake.
 ADAPTERS: dict[str, Callable[[], AbstractAsyncContextManager[Subject]]] = {
     "console": console,
     "fast-path": fast_path,
     "fake": fake,
+    "arm-fake": arm_fake,
+    "universal-robots": universal_robots,
 }

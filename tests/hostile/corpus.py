@@ -394,7 +394,7 @@ DUTY_CASES = [
     duty("speed-two", a465_duty("speed = 0.8", "speed = 2.0"), r"speed"),
     duty("one-pose", poses(1), r"two poses"),
     duty("no-poses", DUTY[: DUTY.index("[[poses]]")] + "poses = []\n", r"two poses"),
-    duty("10000-poses", poses(10_000), r"10000 poses"),
+    duty("10001-poses", poses(10_001), r"10001 poses"),
     duty("joint-nan", a465_duty("[0.0, 35.0, 55.0", "[nan, 35.0, 55.0"), r"joints_deg"),
     duty("joint-1e308", a465_duty("[0.0, 35.0, 55.0", "[1e308, 35.0, 55.0"), r"joints_deg|limit"),
     duty(

@@ -3,6 +3,7 @@
 import {
   api, auth, fail, hideBanner, say, setToken, takeTokenFromAddress, whenReadRefused,
 } from "./api.js";
+import { clearAdaptation, showAdaptation } from "./adaptation.js";
 import { clearCameras, preview, showFrame } from "./camera.js";
 import { explainState, historyRow, runKind, showRunState } from "./history.js";
 import { headline, showDoing } from "./headline.js";
@@ -45,6 +46,7 @@ async function showRun(run, { backfill = true } = {}) {
   plots.reset(runKind(run) === "arm" || state.kind === "arm" ? "arm" : "two-link",
     run.parameters || {});
   clearCameras();
+  clearAdaptation();
   $("no-run").hidden = true;
   $("plots").classList.remove("empty");
   $("shown-run").textContent = `plots: run ${run.id} (${run.state})`;
@@ -91,6 +93,7 @@ function addStep(step) {
   if (step.run_id !== state.runId || state.seen.has(step.step)) return; // once per step
   state.seen.add(step.step);
   plots.addStep(step);
+  if (runKind(state.shownRun || {}) === "arm" || state.kind === "arm") showAdaptation(step);
   state.lastStep = Math.max(state.lastStep, step.step);
   state.steps += 1;
   $("run-step").textContent = String(state.lastStep);

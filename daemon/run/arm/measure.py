@@ -37,7 +37,7 @@ from daemon.vision.multiview import (
 )
 from daemon.vision.pnp import pose_from_views
 from drivers.base import Camera, Frame
-from drivers.errors import DeviceTimeoutError
+from drivers.deadline import bounded
 
 #: Half-width of the window a marker's centroid is measured in (px): 8 spot sigmas of the
 #: bench's 3 px spots (daemon/vision/markers.py WINDOW_SIGMAS), room for the drift.
@@ -379,10 +379,5 @@ class MultiCameraMeter:
         return tool_pose(self._models, views, self._markers, expected)
 
     async def _grab(self, camera: Camera, timeout_s: float) -> Frame:
-        try:
-            async with asyncio.timeout(timeout_s) as scope:
-                return await camera.grab()
-        except TimeoutError as err:
-            if not scope.expired():
-                raise  # the camera's own timeout (a DeviceTimeoutError): as it is
-            raise DeviceTimeoutError("camera", f"no frame within {timeout_s:g} s") from err
+        # the bench's render does not count against the timeout (drivers/deadline.py)
+        return await bounded(camera.grab(), "camera", "frame", timeout_s)

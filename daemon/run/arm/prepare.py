@@ -70,24 +70,36 @@ async def measure_references(
     """The tool at each taught goal, uncorrected, before the first step, with ``frames`` per
     camera (arm.reference_frames: the reference's error is in every later drift of its pose,
     so it may be worth more frames than a step's). A pose whose markers cannot be measured now
-    takes its first step's measurement as its zero instead."""
+    takes its first step's measurement as its zero instead: never silently (the pose and why
+    go to ``work.missing_references``, which the summary reports; that step is flagged
+    first-step-reference)."""
     measured = 0
     for pose in work.poses:
         try:
             await services.robot.move_to_goal(pose.name, Pose6.zero())
             measurement = await services.meter.measure(pose.tool_pose, frames)
         except MeasurementError as err:
-            logger.warning("run %d: no reference at %r (%s)", work.run_id, pose.name, err)
+            _missing(work, pose.name, f"markers: {err}")
             continue
         except DeviceError as err:
             errors.note(err)
-            logger.warning("run %d: no reference at %r (%s)", work.run_id, pose.name, err)
+            _missing(work, pose.name, str(err))
             if err.device == "robot":  # the robot cannot go on: the session faults
                 raise
             continue
         work.reference[pose.name] = measurement.pose
+        work.missing_references.pop(pose.name, None)  # measured after all (a resume)
         measured += 1
     if measured == len(work.poses):
         work.reference_source = "each taught goal before the first correction"
     elif measured:
         work.reference_source = "taught goals before the first correction, else first steps"
+    else:
+        work.reference_source = "each pose's first step (no reference measured)"
+
+
+def _missing(work: ArmRunWork, pose: str, why: str) -> None:
+    logger.warning(
+        "run %d: no reference at %r (%s): its first step is its zero", work.run_id, pose, why
+    )
+    work.missing_references[pose] = why

@@ -15,11 +15,16 @@ from typing import Any, cast
 
 from config import CONFIG_DIR, Settings
 from config.inputs import InputError
+from daemon.arm.arm_model import load_arm_model, named_arm_model_path
+from daemon.arm.controller import ArmModelOptions, load_controller
 from daemon.arm.run import ArmPredictor, CyclePose, MeasuredPose
+from daemon.run.arm.measure import MultiCameraMeter
+from daemon.run.arm.robot import GoalRobotArm
 from daemon.run.arm.step import ArmRobot, ToolMeter
 from daemon.run.devices_check import Devices
 from daemon.run.states import RunParameters
 from daemon.run.workers import Workers
+from daemon.vision.multiview import load_cameras
 from drivers.base import GoalRobot, Robot
 
 
@@ -87,8 +92,6 @@ ADAPT_MARKER_SIGMA_MM = 0.003
 def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
     """The controller's model of the arm from the arm file and the run's duty cycle
     (daemon/arm/controller.py), stepped at the run's step in model time."""
-    from daemon.arm.controller import ArmModelOptions, load_controller
-
     arm_settings = settings.arm
     assert parameters.duty_cycle is not None
     options = ArmModelOptions(
@@ -100,8 +103,6 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
     )
     identified = None
     if parameters.arm_model is not None:
-        from daemon.arm.arm_model import load_arm_model, named_arm_model_path
-
         path = named_arm_model_path(parameters.arm_model, settings.storage.data_dir)
         identified = load_arm_model(path)
     controller = load_controller(arm_file(settings), parameters.duty_cycle, options, identified)
@@ -148,9 +149,6 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
 def default_arm_meter(settings: Settings, devices: Devices, workers: Workers) -> ToolMeter:
     """The tool's measurement from the devices' cameras and their calibrated models (the
     arm's camera file, else the bench's own models)."""
-    from daemon.run.arm.measure import MultiCameraMeter
-    from daemon.vision.multiview import load_cameras
-
     cameras = tuple(getattr(devices, "cameras", ()) or ())
     if not cameras:
         raise ArmSetupError(
@@ -172,8 +170,6 @@ def default_arm_meter(settings: Settings, devices: Devices, workers: Workers) ->
 def arm_robot(robot: Robot) -> ArmRobot:
     """The robot's arm face (daemon/run/arm/robot.py) over a driver with named taught goals and
     rotated absolute moves; ArmSetupError when the driver has none."""
-    from daemon.run.arm.robot import GoalRobotArm
-
     if not callable(getattr(robot, "taught_goals", None)):
         raise ArmSetupError(
             f"the robot driver {type(robot).__name__} cannot run an arm duty cycle "

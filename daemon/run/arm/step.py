@@ -77,6 +77,9 @@ logger = logging.getLogger(__name__)
 #: The flag of a step whose markers could not give a tool pose (a sensor error, like a
 #: centroid error of the two-link bench).
 MARKER_ERROR = "marker-error"
+#: The step whose measurement became its pose's zero: no reference was measured there before
+#: the first correction (daemon/run/arm/prepare.py), so its drift is zero by construction.
+REFERENCE_MISSING = "first-step-reference"
 #: The flag of a step whose room thermometer failed (the model keeps the last room).
 ROOM_ERROR = "room-error"
 ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR, ROOM_ERROR}
@@ -156,6 +159,10 @@ class ArmRunWork:
     #: the tool pose measured at each taught goal before the first move: the drift's zero
     reference: dict[str, FloatArray] = field(default_factory=dict)
     reference_source: str = "each pose's first step"
+    #: the poses whose reference could not be measured before the first correction, with why:
+    #: their zero is their first step's measurement (flagged REFERENCE_MISSING), and the run's
+    #: summary says so (daemon/run/summary.py), never a silent zero
+    missing_references: dict[str, str] = field(default_factory=dict)
     #: a played duty cycle (daemon/run/arm/player.py): every pose in order, each taught; empty:
     #: the robot moves to the measured poses only, one per step
     cycle: tuple[CyclePose, ...] = ()
@@ -454,8 +461,8 @@ class ArmStepPipeline:
             flags.append(MARKER_ERROR)
             errors.append(f"markers: {err}")
         stages["frame"] = time.perf_counter() - started
-        if measurement is not None:
-            record_measurement(work, pose, measurement, record)
+        if measurement is not None and record_measurement(work, pose, measurement, record):
+            flags.append(REFERENCE_MISSING)
         started = time.perf_counter()
         means = await self._infrared(work, record, flags, errors)
         stages["ir"] = time.perf_counter() - started
@@ -509,10 +516,12 @@ class ArmStepPipeline:
 
 def record_measurement(
     work: ArmRunWork, pose: MeasuredPose, measurement: ToolMeasurement, record: StepRecord
-) -> None:
+) -> bool:
     """The measured drift of the tool at ``pose``: its measured pose relative to the one
     measured at the same taught goal before the first move (the first measurement when there
-    was none), in µm and µrad; orientation only from >= 3 markers."""
+    was none), in µm and µrad; orientation only from >= 3 markers. True when this measurement
+    became the pose's zero (no reference was measured: its drift is zero by construction)."""
+    taken_as_zero = pose.name not in work.reference
     reference = work.reference.setdefault(pose.name, measurement.pose)
     drift = pose_difference(reference, measurement.pose)
     record.measured_tx_um, record.measured_ty_um, record.measured_tz_um = translation_um(drift)
@@ -525,3 +534,4 @@ def record_measurement(
         record.rotation_error_urad = angle_urad(drift)
         if math.isfinite(measurement.rotation_sigma_rad):
             record.measured_rotation_sigma_urad = measurement.rotation_sigma_rad * 1e6
+    return taken_as_zero

@@ -1,27 +1,37 @@
-"""Run kind "followed" (issue 27, skeleton): a robot that plays its own taught program (a UR
-with its offset program; drivers/base.py OffsetRobot) while the daemon follows it and writes a
-correction each step. Nothing is taught and nothing moves at the start: the program owns the
-motion; each step predicts the tool error, checks the correction against the arm's limits
-(daemon/arm/correction.py) before anything is written, writes it (refused by the driver after a
-hold: drivers/permit.py) and records it with where the program was.
+"""Run kind "followed" (issue 31): a robot that plays its own taught program (a UR with its
+offset program, controller/ur/; drivers/base.py OffsetRobot) while the daemon follows it and
+writes a 6-DOF correction every step.
 
-A skeleton: the prediction is a callable of the run time (zero error by default) and nothing is
-measured; the UR driver's work wires the arm model of the program and the tool measurement in
-here, touching this package and the factory only (daemon/run/kinds.py).
+Nothing is taught and nothing moves at the start: the program owns the motion; the run takes
+the program as it is (``follow_program``: a later restart of the program is a fault). Each
+step reads the robot's latest state (joints, joint temperatures, the "at measured pose"
+register), advances the arm's model to the step's time (the program's duty cycle gives the
+motor heat), fuses the joint temperatures as the model's thermal input (daemon/arm/
+joint_temperatures.py: no IR camera), predicts the tool error at the robot's *current*
+joints, checks the correction against the arm's limits (daemon/arm/correction.py) before
+anything is written, writes it (refused by the driver after a hold: drivers/permit.py) and
+records it with the joint temperatures and where the program was. On the UR bench the bench
+truth's residual tool error is recorded as the step's measurement (flag ``bench-truth``);
+with no bench nothing is measured (flag ``no-measurement``): the tool cameras of a followed
+run are not wired in yet.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
+
+import numpy as np
 
 from config import Settings
 from daemon.arm.correction import check_correction, correction_for
-from daemon.arm.run import rotation_urad
-from daemon.arm.types import Pose6
+from daemon.arm.run import UM_PER_MM, rotation_urad, translation_um
+from daemon.arm.types import FloatArray, Pose6
 from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
@@ -37,17 +47,74 @@ from daemon.run.two_link.step import (
 )
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
-from drivers.base import OffsetRobot
+from daemon.storage.step_record import StepRecord
+from drivers.base import OffsetRobot, OffsetRobotState
 from drivers.clock import Clock
 from drivers.errors import DeviceError
 from drivers.permit import Ticket
 
-#: The tool error a followed run predicts at a run time (s): mm and rad, base frame.
-Predictor = Callable[[float], Pose6]
+
+class FollowedModel(Protocol):
+    """The arm's model as a followed run uses it (daemon/arm/joint_temperatures.py)."""
+
+    def advance_to(self, t_s: float) -> None: ...
+
+    def observe(self, temperatures_c: Sequence[float]) -> None: ...
+
+    def tool_error(self, q_rad: Sequence[float] | FloatArray) -> Pose6: ...
+
+    def temperatures_c(self) -> Mapping[str, float]: ...
 
 
-def no_error(_run_time_s: float) -> Pose6:
-    return Pose6.zero()
+class TruthErrors(Protocol):
+    @property
+    def residual(self) -> Pose6: ...
+
+    @property
+    def uncompensated(self) -> Pose6: ...
+
+
+class BenchTruth(Protocol):
+    """The simulated bench's truth (drivers/sim/ur/truth.py), when there is one."""
+
+    def errors(self) -> TruthErrors: ...
+
+
+@dataclass
+class TruthTally:
+    """Sums of squares of the bench truth's 3-D tool error, with and without the correction
+    (um^2), for the run's removal: 1 - rms(residual) / rms(uncompensated)."""
+
+    steps: int = 0
+    residual_um2: float = 0.0
+    uncompensated_um2: float = 0.0
+    worst_residual_um: float = 0.0
+    worst_uncompensated_um: float = 0.0
+
+    def add(self, errors: TruthErrors) -> float:
+        residual = errors.residual.translation_norm_mm * UM_PER_MM
+        uncompensated = errors.uncompensated.translation_norm_mm * UM_PER_MM
+        self.steps += 1
+        self.residual_um2 += residual**2
+        self.uncompensated_um2 += uncompensated**2
+        self.worst_residual_um = max(self.worst_residual_um, residual)
+        self.worst_uncompensated_um = max(self.worst_uncompensated_um, uncompensated)
+        return residual
+
+    def summary(self) -> dict[str, Any]:
+        if self.steps == 0:
+            return {"steps": 0}
+        rms_residual = math.sqrt(self.residual_um2 / self.steps)
+        rms_uncompensated = math.sqrt(self.uncompensated_um2 / self.steps)
+        removed = 1.0 - rms_residual / rms_uncompensated if rms_uncompensated > 0 else None
+        return {
+            "steps": self.steps,
+            "rms_residual_um": rms_residual,
+            "rms_uncompensated_um": rms_uncompensated,
+            "worst_residual_um": self.worst_residual_um,
+            "worst_uncompensated_um": self.worst_uncompensated_um,
+            "removed_fraction": removed,
+        }
 
 
 @dataclass(eq=False)
@@ -60,20 +127,32 @@ class FollowedKind:
     settings: Settings
     errors: ErrorLog
     clock: Clock
-    predict: Predictor = no_error
+    model: FollowedModel
+    truth: BenchTruth | None = None
     start_s: float = float("nan")
     name: str = "followed"
     last_correction: Pose6 = field(default_factory=Pose6.zero)
     corrections_written: int = 0
+    tally: TruthTally = field(default_factory=TruthTally)
 
     async def teach(self, *, moving: bool) -> None:
-        """The program's poses are taught on the robot: nothing to teach here."""
+        """The program's poses are taught on the robot: the run takes the program as it is
+        (moves nothing; its restart from now on is a fault)."""
+        if not moving:
+            await self.robot.follow_program()
 
     async def start_bench(self) -> None:
-        """No simulated bench follows a robot's own program (yet)."""
+        """The UR bench plays from the daemon's start: nothing to start."""
 
     async def references(self) -> None:
-        """Each measured pose's first step is its reference."""
+        """The model's cold state at the run's start is the reference."""
+
+    def _predict(self, model_time_s: float, state: OffsetRobotState) -> Pose6:
+        """On a worker: the model to ``model_time_s``, the joint temperatures fused, the tool
+        error at the robot's current joints."""
+        self.model.advance_to(model_time_s)
+        self.model.observe(state.joint_temperatures_c)
+        return self.model.tool_error(np.asarray(state.joints_rad, np.float64))
 
     async def step(self, tick: Tick) -> StepOutcome:
         record, flags = begin_record(self.run_id, self.parameters, self.start_s, tick)
@@ -82,8 +161,23 @@ class FollowedKind:
         started = time.perf_counter()
         run_time_s = tick.scheduled_s - self.start_s
         latency_s = self.settings.compensation.latency_s
-        error = self.predict((run_time_s + latency_s) * self.parameters.time_scale)
+        model_time_s = (run_time_s + latency_s) * self.parameters.time_scale
         verdict: Verdict = OK
+        try:
+            state = self.robot.robot_state()
+        except DeviceError as err:
+            self.errors.note(err)
+            flags.append("robot-error")
+            errors.append(str(err))
+            finish_record(record, flags, errors, stages)
+            await self.workers.db(self.recorder.write_step, record)
+            return StepOutcome(record, None, Verdict("fault", str(err)), (), stages)
+        self._state_into(record, state)
+        error = await self.workers.step(self._predict, model_time_s, state)
+        record.model_time_s = model_time_s
+        self._prediction_into(record, error)
+        stages["model"] = time.perf_counter() - started
+        started = time.perf_counter()
         try:
             correction = check_correction(
                 correction_for(error, self.parameters.deformation_scale),
@@ -102,21 +196,58 @@ class FollowedKind:
                 )
                 self.last_correction = correction
                 self.corrections_written += 1
-                record.offset_x_mm, record.offset_y_mm, record.offset_z_mm = map(float, t)
+                record.correction_tx_mm, record.correction_ty_mm, record.correction_tz_mm = map(
+                    float, t
+                )
                 rotation = rotation_urad(correction)
                 record.correction_rx_urad, record.correction_ry_urad = rotation[0], rotation[1]
                 record.correction_rz_urad = rotation[2]
-                record.arm_pose = str(self.robot.robot_state().at_pose or "")
+                record.offset_x_mm, record.offset_y_mm, record.offset_z_mm = map(float, t)
             except DeviceError as err:
                 self.errors.note(err)
                 flags.append("robot-error")
                 errors.append(str(err))
                 verdict = Verdict("fault", str(err))
         stages["move"] = time.perf_counter() - started
-        flags.append("no-measurement")  # the skeleton measures nothing yet
+        self._measure(record, flags)
         finish_record(record, flags, errors, stages)
         await self.workers.db(self.recorder.write_step, record)
         return StepOutcome(record, None, verdict, (), stages)
+
+    @staticmethod
+    def _state_into(record: StepRecord, state: OffsetRobotState) -> None:
+        record.arm_pose = str(state.at_pose) if state.at_pose else ""
+        record.pose_x_mm, record.pose_y_mm, record.pose_z_mm = state.tcp_pose[:3]
+        record.ir_json = json.dumps(
+            {
+                f"joint{k + 1}": {"mean_c": value, "max_c": value}
+                for k, value in enumerate(state.joint_temperatures_c)
+            }
+        )
+
+    def _prediction_into(self, record: StepRecord, error: Pose6) -> None:
+        tx, ty, tz = translation_um(error)
+        record.predicted_tx_um, record.predicted_ty_um, record.predicted_tz_um = tx, ty, tz
+        rx, ry, rz = rotation_urad(error)
+        record.predicted_rx_urad, record.predicted_ry_urad, record.predicted_rz_urad = rx, ry, rz
+        temperatures = self.model.temperatures_c()
+        record.model_temperatures_json = json.dumps(
+            {k: round(v, 4) for k, v in temperatures.items()}
+        )
+
+    def _measure(self, record: StepRecord, flags: list[str]) -> None:
+        """The bench truth's residual as the step's measurement, when on the UR bench."""
+        if self.truth is None:
+            flags.append("no-measurement")
+            return
+        errors = self.truth.errors()
+        residual = self.tally.add(errors)
+        tx, ty, tz = translation_um(errors.residual)
+        record.measured_tx_um, record.measured_ty_um, record.measured_tz_um = tx, ty, tz
+        rx, ry, rz = rotation_urad(errors.residual)
+        record.measured_rx_urad, record.measured_ry_urad, record.measured_rz_urad = rx, ry, rz
+        record.drift_3d_um = residual
+        flags.append("bench-truth")
 
     async def resumed(self) -> None:
         """The program goes on where it is; the next correction is checked against the last."""
@@ -130,6 +261,9 @@ class FollowedKind:
 
     def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:
         """Every figure of this kind's summary is in memory: the basis is all of it."""
+        after: dict[str, Any] = {}
+        if self.truth is not None:
+            after["bench_truth"] = self.tally.summary()
         return {
             "kind": self.name,
             "run_id": self.run_id,
@@ -141,7 +275,7 @@ class FollowedKind:
                 "timing": timing,
             },
             "inputs": {},
-            "after": {},
+            "after": after,
         }
 
     def summary(

@@ -73,6 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 async def _serve(emulator: object) -> None:
+    # lazy: the emulator (SciPy) loads when it serves, not for `emulate --help` (issue 16)
     from drivers.sim.ur.emulator import UREmulator
 
     assert isinstance(emulator, UREmulator)
@@ -100,6 +101,7 @@ async def _serve(emulator: object) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # lazy: the arm's kinematics (SciPy) load when the emulator starts, not for `emulate --help`
     from daemon.arm.description import ArmError
     from daemon.arm.duty import DutyCycleError
     from drivers.sim.ur.controller import URControllerConfig

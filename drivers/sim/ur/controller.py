@@ -20,6 +20,7 @@ neither).
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -27,8 +28,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from daemon.arm import kinematics
-from daemon.arm.description import load_arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
+from daemon.arm.loading import load_arm
 from daemon.arm.types import FloatArray
 from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
 from drivers.sim.joint_arm import JointArm, JointArmConfig
@@ -103,6 +104,11 @@ class URController:
         self.outputs: dict[str, Value] = {
             name: _zero(names.OUTPUTS[name]) for name in self.registers.outputs
         }
+        #: how many times each input register was written (what reached the controller)
+        self.writes: Counter[str] = Counter()
+        #: True: the program's thread does not run (fault injection: a program that stopped
+        #: accepting corrections while the taught program plays on)
+        self.program_frozen = False
         self.robot_mode = RobotMode.RUNNING
         self.safety_mode = SafetyMode.NORMAL
         self.time_s = 0.0
@@ -163,6 +169,7 @@ class URController:
     def write_input(self, name: str, value: Value) -> None:
         """An RTDE client's input (already checked against the recipe's type)."""
         self.inputs[name] = value
+        self.writes[name] += 1
 
     def cycle(self, t_s: float) -> None:
         """One controller cycle at ``t_s``: the program thread reads the registers, steps,
@@ -172,6 +179,7 @@ class URController:
         regs = self.registers
         if self.player.state is PlayerState.PLAYING:
             self.player.advance(t_s)
+        if self.player.state is PlayerState.PLAYING and not self.program_frozen:
             sequence = self.inputs[regs.sequence]
             hold = self.inputs[regs.hold]
             assert isinstance(sequence, int) and isinstance(hold, int)
@@ -181,12 +189,13 @@ class URController:
         self.outputs[regs.at_pose] = self.player.at_pose(t_s)
         self.outputs[regs.accepted_sequence] = program.accepted_sequence
         self.outputs[regs.status] = program.status
+        self.outputs[regs.instance] = program.instance
         for name, value in zip(regs.applied, program.applied, strict=True):
             self.outputs[name] = value
 
     # -- outputs -----------------------------------------------------------------------------
 
-    def _joint_state(self, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def joint_state(self, t_s: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Actual joints (nominal + the offset's), their speeds, and the nominal joints."""
         if self._state_t == t_s:
             return self._state
@@ -213,13 +222,13 @@ class URController:
 
     def tcp_pose(self, t_s: float) -> tuple[float, ...]:
         """actual_TCP_pose: x, y, z (m) and a rotation vector (rad), base frame."""
-        q, _, _ = self._joint_state(t_s)
+        q, _, _ = self.joint_state(t_s)
         pose = kinematics.forward(self.arm, q)
         rotvec = Rotation.from_matrix(pose[:3, :3]).as_rotvec()
         return (*(float(v) / 1000.0 for v in pose[:3, 3]), *(float(v) for v in rotvec))
 
     def tcp_speed(self, t_s: float) -> tuple[float, ...]:
-        q, qd, _ = self._joint_state(t_s)
+        q, qd, _ = self.joint_state(t_s)
         if not np.any(qd):
             return (0.0,) * 6
         twist = self._jacobian_at(q) @ qd
@@ -276,10 +285,10 @@ Getter = Callable[["URController", float], Value]
 
 _GETTERS: dict[str, Getter] = {
     "timestamp": lambda c, t: t,
-    "actual_q": lambda c, t: _vector(c._joint_state(t)[0]),
-    "target_q": lambda c, t: _vector(c._joint_state(t)[0]),
-    "actual_qd": lambda c, t: _vector(c._joint_state(t)[1]),
-    "target_qd": lambda c, t: _vector(c._joint_state(t)[1]),
+    "actual_q": lambda c, t: _vector(c.joint_state(t)[0]),
+    "target_q": lambda c, t: _vector(c.joint_state(t)[0]),
+    "actual_qd": lambda c, t: _vector(c.joint_state(t)[1]),
+    "target_qd": lambda c, t: _vector(c.joint_state(t)[1]),
     "actual_TCP_pose": lambda c, t: c.tcp_pose(t),
     "target_TCP_pose": lambda c, t: c.tcp_pose(t),
     "actual_TCP_speed": lambda c, t: c.tcp_speed(t),

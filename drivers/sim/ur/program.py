@@ -29,6 +29,7 @@ target yet" (the driver's first write is 1).
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -83,6 +84,10 @@ class ProgramInputs:
     target: Sequence[float] = ZERO_OFFSET
 
 
+#: The largest program instance (the script: floor(random() * INSTANCE_MAX) + 1).
+INSTANCE_MAX = 1_000_000_000
+
+
 @dataclass(slots=True)
 class OffsetProgram:
     """The program's state and its step (module docstring)."""
@@ -94,6 +99,8 @@ class OffsetProgram:
     _last_sequence: int = 0
     _silent_cycles: int = 0
     cycles: int = 0
+    #: drawn once when the program starts, as the script's random() (registers.py)
+    instance: int = field(default_factory=lambda: random.randint(1, INSTANCE_MAX))
 
     def step(self, inputs: ProgramInputs) -> Offset:
         """One controller cycle: the offset to apply (``applied`` afterwards)."""

@@ -84,6 +84,11 @@ class RtdeServer:
         self._tasks: set[asyncio.Task[None]] = set()
         #: True: the network is silent (fault injection): nothing sent, inputs dropped
         self.silent = False
+        #: True: the controller's data packages are withheld (a reply held back in flight:
+        #: the Robot contract's tests) while its inputs are still read; ``input_withheld`` is
+        #: set when an input package arrives meanwhile
+        self.withhold = False
+        self.input_withheld = asyncio.Event()
         self.inputs_received = 0
         #: data packages sent, and skipped because a client's socket buffer was full
         self.sent_total = 0
@@ -230,6 +235,8 @@ class RtdeServer:
         if self.silent:
             return
         self.inputs_received += 1
+        if self.withhold:
+            self.input_withheld.set()
         for name, value in zip(recipe.names, values, strict=True):
             if name in self.controller.inputs:
                 self.controller.write_input(name, value)
@@ -237,7 +244,7 @@ class RtdeServer:
     def tick(self, cycle: int, t_s: float) -> None:
         """Controller cycle ``cycle`` at ``t_s``: a data package to every started session
         whose output frequency is due."""
-        if self.silent:
+        if self.silent or self.withhold:
             return
         for session in self.sessions:
             if not session.started or session.output is None or not session.due(cycle):
