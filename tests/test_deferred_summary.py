@@ -61,7 +61,7 @@ async def _end_by_shutdown_without_summary(
 
     monkeypatch.setattr(TwoLinkKind, "summary", summary_that_outlasts_the_budget)
     monkeypatch.setattr(service_module, "SHUTDOWN_SUMMARY_BUDGET_S", 0.2)
-    settings = make_settings(tmp_path)
+    settings = make_settings(tmp_path, scheduler={"stop_grace_s": 0.5})
     harness = Harness(settings)
     async with harness.daemon as daemon:
         info = await daemon.start_run(params(settings))
@@ -91,7 +91,7 @@ async def test_a_summary_given_up_at_shutdown_is_computed_at_the_next_start(
     assert row is not None and row.state == "stopped" and row.summary is None
     assert row.summary_pending and [run_id] == [pending_id for pending_id, _ in pending]
 
-    settings = make_settings(tmp_path)
+    settings = make_settings(tmp_path, scheduler={"stop_grace_s": 0.5})
     harness = Harness(settings)
     async with harness.daemon as daemon:
         assert daemon.pending_summaries is not None and daemon.recorder is not None
@@ -118,7 +118,7 @@ async def test_a_pending_summary_survives_a_second_shutdown(
         return real(recorder, basis, abandon)  # gives up at its first chunk
 
     monkeypatch.setattr(pending_module, "summary_from_basis", slow)
-    settings = make_settings(tmp_path)
+    settings = make_settings(tmp_path, scheduler={"stop_grace_s": 0.5})
     harness = Harness(settings)
     async with harness.daemon as daemon:
         assert daemon.recorder is not None
