@@ -392,7 +392,8 @@ class RunSession:
         """Hold the robot, record the final state, then the summary. Never raises: whatever
         fails here, the run still ends in ``final`` with the daemon idle (issue 15, point 5).
         The end is written before the summary: a day at a 20 ms step is 4.32 M steps to read
-        back, and a shutdown must end within systemd's TimeoutStopSec (issue 26)."""
+        back, and a shutdown must end within systemd's TimeoutStopSec (issue 26): a summary the
+        shutdown gives up is deferred to the next start (daemon/run/pending_summaries.py)."""
         services = self._services
         try:
             # the hold says why when nothing asked for it first (issue 26: not "stopped by
@@ -413,7 +414,7 @@ class RunSession:
                 )
             )
             self.summary = await self._summarize(basis)
-            if self.summary is None and self._abandon_summary.is_set() and recorded:
+            if self.summary is None and self._abandon_summary.is_set():  # a shutdown gave it up
                 self.summary_deferred = await self._defer_summary(basis)
             elif self.summary is not None:
                 if recorded:
