@@ -11,9 +11,11 @@ same run (a ratio):
 4. 500 random control requests (start, pause, resume, stop, hold) from 5 clients: holds answered
    ``held`` that were followed by motion not preceded by a later start or resume (must be 0);
 5. the stop of a 24-h run at 20 ms (4.32 M steps written into its database while it is paused):
-   SIGTERM -> exit, against systemd's TimeoutStopSec = 30 s, and what the database then says.
+   SIGTERM -> exit, against systemd's TimeoutStopSec = 30 s, and what the database then says
+   (the summary deferred); then the next start: ready when, holds while it computes the
+   deferred summary (against holds once it is recorded, same server), recorded when.
 
-Usage: ``.venv/bin/python benchmarks/bench_stop.py [--quick] [--day-steps N]``.
+Usage: ``.venv/bin/python benchmarks/bench_stop.py [--quick] [--day-steps N] [--day-only]``.
 """
 
 from __future__ import annotations
@@ -287,6 +289,9 @@ def day_run_stop(folder: Path, steps: int) -> dict[str, Any]:
         state, reason, summary = db.execute(
             "SELECT state, reason, summary_json FROM runs WHERE id = ?", (run_id,)
         ).fetchone()
+        pending = db.execute(
+            "SELECT COUNT(*) FROM pending_summaries WHERE run_id = ?", (run_id,)
+        ).fetchone()[0]
     return {
         "steps": steps,
         "build_s": built_s,
@@ -296,6 +301,35 @@ def day_run_stop(folder: Path, steps: int) -> dict[str, Any]:
         "state": state,
         "reason": reason,
         "summary_recorded": summary is not None,
+        "summary_deferred": bool(pending),
+        "next_start": deferred_summary_at_start(folder, run_id),
+    }
+
+
+def deferred_summary_at_start(folder: Path, run_id: int) -> dict[str, Any]:
+    """The next start: how soon the daemon is ready, holds while the deferred summary is
+    computed (the reference: holds once it is recorded, same server), and when it is."""
+    began = time.monotonic()
+    with server(folder) as (client, _log, _process):
+        ready_s = time.monotonic() - began
+        info = client.get(f"/runs/{run_id}").raise_for_status().json()
+        pending_at_ready = info["summary_pending"]
+        during: list[float] = []
+        while info["summary"] is None and time.monotonic() - began < 600:
+            sent, answered = _hold(client)
+            during.append(answered - sent)
+            time.sleep(0.2)
+            info = client.get(f"/runs/{run_id}").raise_for_status().json()
+        recorded_s = time.monotonic() - began
+        after = [answered - sent for sent, answered in (_hold(client) for _ in range(20))]
+    return {
+        "ready_s": ready_s,
+        "summary_pending_at_ready": pending_at_ready,
+        "summary_recorded_s": recorded_s,
+        "summary_recorded": info["summary"] is not None,
+        "summary_steps": (info["summary"] or {}).get("steps"),
+        "holds_during": _ms(during) if during else None,
+        "holds_after": _ms(after),
     }
 
 
@@ -304,7 +338,11 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="fewer trials")
     parser.add_argument("--day-steps", type=int, default=DAY_STEPS)
     parser.add_argument("--requests", type=int, default=500)
+    parser.add_argument("--day-only", action="store_true", help="scenario 5 only")
     args = parser.parse_args()
+    if args.day_only:
+        day_only(args.day_steps)
+        return
     trials = 8 if args.quick else 25
     random.seed(26)
     results: dict[str, Any] = {"load_before": os.getloadavg()}
@@ -347,13 +385,42 @@ def main() -> None:
         f"{random_result['holds']} holds, {random_result['holds_followed_by_motion']} followed "
         "by motion"
     )
-    day_result = results["day"]
+    _print_day(results["day"])
+    write_results("bench_stop", results)
+
+
+def _print_day(day_result: dict[str, Any]) -> None:
     print(
         f"\n24-h run ({day_result['steps']} steps): SIGTERM -> exit "
         f"{day_result['sigterm_to_exit_s']:.1f} s (TimeoutStopSec {SYSTEMD_STOP_S:.0f} s), "
-        f"state {day_result['state']!r}, summary recorded: {day_result['summary_recorded']}"
+        f"state {day_result['state']!r}, summary recorded: {day_result['summary_recorded']}, "
+        f"deferred: {day_result['summary_deferred']}"
     )
-    write_results("bench_stop", results)
+    start = day_result["next_start"]
+    during, after = start["holds_during"], start["holds_after"]
+    print(
+        f"next start: ready {start['ready_s']:.1f} s (pending then: "
+        f"{start['summary_pending_at_ready']}), summary recorded {start['summary_recorded_s']:.1f}"
+        f" s after the start ({start['summary_steps']} steps)"
+    )
+    if during is not None:
+        print(
+            f"holds while computing it: p50 {during['p50_ms']:.1f} ms, max {during['max_ms']:.1f}"
+            f" ms (n {during['n']}); after: p50 {after['p50_ms']:.1f} ms, max "
+            f"{after['max_ms']:.1f} ms; p50 ratio {during['p50_ms'] / after['p50_ms']:.2f}"
+        )
+
+
+def day_only(steps: int) -> None:
+    results: dict[str, Any] = {"load_before": os.getloadavg()}
+    with tempfile.TemporaryDirectory() as root:
+        day = Path(root) / "day"
+        day.mkdir()
+        results["day"] = day_run_stop(day, steps)
+    results["load_after"] = os.getloadavg()
+    print(f"load {results['load_before']} -> {results['load_after']}")
+    _print_day(results["day"])
+    write_results("bench_stop_day", results)
 
 
 if __name__ == "__main__":

@@ -46,6 +46,7 @@ from daemon.run.events import (
     Subscription,
 )
 from daemon.run.kinds import build_kind
+from daemon.run.pending_summaries import PendingSummaries
 from daemon.run.readmodel import RunReadModel, RunView
 from daemon.run.scheduler import TimingStats
 from daemon.run.sensors import Sensors
@@ -131,6 +132,8 @@ class Daemon:
             realtime_priority=settings.scheduler.realtime_priority,
         )
         self._unrecorded_end = UnrecordedEnd(self._storage, UNRECORDED_END_RETRY_S)
+        #: summaries the last shutdown deferred (daemon/run/pending_summaries.py)
+        self.pending_summaries: PendingSummaries | None = None
         #: holds asked here and not yet carried out on the control loop (see hold_pending)
         self._holds_in_flight = 0
         self._holds_lock = threading.Lock()
@@ -164,6 +167,17 @@ class Daemon:
             )
             self.reports.start()
             self._exit_stack.push_async_callback(self.reports.close)
+            # summaries the last shutdown deferred: computed in the background, after
+            # everything above is open; they never delay readiness, a hold or a run's steps
+            self.pending_summaries = PendingSummaries(
+                self._workers,
+                self.recorder,
+                self.reports,
+                self.error_log,
+                report_at_end=self.settings.storage.report_at_end,
+            )
+            self.pending_summaries.start()
+            self._exit_stack.push_async_callback(self.pending_summaries.stop)
         except BaseException:
             await self._exit_stack.aclose()
             raise
@@ -191,6 +205,8 @@ class Daemon:
             return
         with self._hold_request():
             await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
+            if self.pending_summaries is not None:
+                self.pending_summaries.give_up()  # deferred again: the stop's budget is the run's
             session = self._session
             if session is None or session.task is None:
                 return

@@ -120,6 +120,11 @@ class RunInfo(BaseModel):
         description="Estimated wall-clock seconds left, from the progress so far."
     )
     summary: dict[str, Any] | None = Field(description="Thesis Table 6.1 figures, at the end.")
+    summary_pending: bool = Field(
+        description="The summary was deferred by a shutdown (its budget within the stop's "
+        "timeout ran out) and is computed when the daemon starts next; ``summary`` is null "
+        "until then."
+    )
     links: dict[str, str]
 
 
@@ -181,6 +186,7 @@ def run_info(row: RunRow, daemon: Daemon) -> RunInfo:
         remaining_s=remaining,
         eta_s=eta,
         summary=json_safe(summary),
+        summary_pending=summary is None and row.summary_pending,
         links=_links(row.id),
     )
 

@@ -17,7 +17,7 @@ moves between steps (a played cycle) starts only with the grant the session give
 from __future__ import annotations
 
 import threading
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
@@ -25,6 +25,9 @@ from daemon.run.two_link.step import StepOutcome
 from daemon.storage.recorder import Recorder
 from drivers.clock import Clock
 from drivers.permit import Ticket
+
+if TYPE_CHECKING:  # daemon/run/summary.py imports the kinds' work types
+    from daemon.run.summary import SummaryBasis
 
 
 class RunKind(Protocol):
@@ -82,15 +85,17 @@ class RunKind(Protocol):
         """Stop it: the run pauses, faults or ends."""
         ...
 
+    def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:
+        """What the run's summary needs beyond its steps (daemon/run/summary.py SummaryBasis):
+        what only this daemon's memory holds, JSON-able, cheap (called on the event loop). A
+        shutdown that gives the summary up keeps it in the database, and the next start
+        computes the summary from it (docs/reference/run-states.md)."""
+        ...
+
     def summary(
-        self,
-        recorder: Recorder,
-        *,
-        overruns: int,
-        skipped: int,
-        timing: dict[str, Any],
-        abandon: threading.Event | None,
+        self, recorder: Recorder, basis: SummaryBasis, *, abandon: threading.Event | None
     ) -> dict[str, Any]:
-        """The run's summary (thesis Table 6.1 and its timing), read back from the database on
-        the recorder's thread; ``abandon`` gives the read up (daemon/storage/series.py)."""
+        """The run's summary (thesis Table 6.1 and its timing) from ``basis`` and the steps
+        read back from the database on a worker thread; ``abandon`` gives the read up
+        (daemon/storage/series.py). The same as daemon/run/summary.py summary_from_basis."""
         ...

@@ -34,6 +34,7 @@ from daemon.run.readmodel import RunView
 from daemon.run.scheduler import FixedStepTimer
 from daemon.run.services import BenchControl, SessionServices
 from daemon.run.states import RunState, RunStateError, StateMachine
+from daemon.run.summary import SummaryBasis, stored_basis
 from daemon.run.two_link.step import StepOutcome, Verdict
 from daemon.storage.recorder import RecorderError
 from daemon.storage.series import SummaryAbandonedError
@@ -62,6 +63,8 @@ class RunSession:
         self.step = -1
         self.last_record: dict[str, Any] | None = None
         self.summary: dict[str, Any] | None = None
+        #: a shutdown gave the summary up and it is kept for the next start to compute
+        self.summary_deferred = False
         self.ended_s = math.nan  # run clock at the end
         self.stop_requested = False
         self._stop_reason: str | None = None
@@ -163,7 +166,8 @@ class RunSession:
     async def wait_ended(self, grace_s: float, summary_budget_s: float | None = None) -> None:
         """Wait for the run task; a step stuck on a device is abandoned after ``grace_s``.
         ``summary_budget_s`` (a shutdown): the summary of a long run is given up after that
-        much more -- its end is recorded before the summary (see :meth:`_finish`)."""
+        much more -- its end is recorded before the summary (see :meth:`_finish`) -- and
+        deferred to the next start (daemon/run/pending_summaries.py)."""
         task = self.task
         if task is None:
             return
@@ -173,8 +177,7 @@ class RunSession:
             task.cancel()
         if summary_budget_s is not None:
             _, pending = await asyncio.wait({task}, timeout=summary_budget_s)
-            if pending:
-                logger.warning("run %d: the summary is given up to shut down in time", self.id)
+            if pending:  # given up to shut down in time: deferred (logged by _defer_summary)
                 self._abandon_summary.set()
         await asyncio.wait({task})
 
@@ -389,7 +392,8 @@ class RunSession:
         """Hold the robot, record the final state, then the summary. Never raises: whatever
         fails here, the run still ends in ``final`` with the daemon idle (issue 15, point 5).
         The end is written before the summary: a day at a 20 ms step is 4.32 M steps to read
-        back, and a shutdown must end within systemd's TimeoutStopSec (issue 26)."""
+        back, and a shutdown must end within systemd's TimeoutStopSec (issue 26): a summary the
+        shutdown gives up is deferred to the next start (daemon/run/pending_summaries.py)."""
         services = self._services
         try:
             # the hold says why when nothing asked for it first (issue 26: not "stopped by
@@ -401,8 +405,18 @@ class RunSession:
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
             recorded = await self._record_end(final, reason)
-            self.summary = await self._summarize()
-            if self.summary is not None:
+            # as the database keeps it: the summary now and a deferred one are the same
+            basis = stored_basis(
+                self.kind.summary_basis(
+                    overruns=0 if self.timer is None else self.timer.overruns,
+                    skipped=0 if self.timer is None else self.timer.skipped,
+                    timing=services.timing.summary(fresh=True),
+                )
+            )
+            self.summary = await self._summarize(basis)
+            if self.summary is None and self._abandon_summary.is_set():  # a shutdown gave it up
+                self.summary_deferred = await self._defer_summary(basis)
+            elif self.summary is not None:
                 if recorded:
                     try:
                         await services.workers.db(
@@ -425,7 +439,9 @@ class RunSession:
             self.ended_s = self.kind.clock.now()
             self.machine.state, self.machine.reason = final, reason
             self._publisher.state(self.view())
-            if services.settings.storage.report_at_end and self.step >= 0:
+            # a deferred summary's report comes with it, at the next start
+            report = services.settings.storage.report_at_end and not self.summary_deferred
+            if report and self.step >= 0:
                 run_id = self.id
                 services.post_home(lambda: services.reports.submit(run_id))
             logger.info("run %d %s%s", self.id, final.value, f" ({reason})" if reason else "")
@@ -448,24 +464,35 @@ class RunSession:
             return False
         return True
 
-    async def _summarize(self) -> dict[str, Any] | None:
+    async def _summarize(self, basis: SummaryBasis) -> dict[str, Any] | None:
         services = self._services
         summarize = functools.partial(
-            self.kind.summary,
-            services.recorder,
-            overruns=0 if self.timer is None else self.timer.overruns,
-            skipped=0 if self.timer is None else self.timer.skipped,
-            timing=services.timing.summary(fresh=True),
-            abandon=self._abandon_summary,
+            self.kind.summary, services.recorder, basis, abandon=self._abandon_summary
         )
         try:
             return await services.workers.db(summarize)
         except SummaryAbandonedError as err:
-            logger.warning("run %d: no summary: %s", self.id, err)
+            if not self._abandon_summary.is_set():  # not a shutdown's: nothing to defer to
+                logger.warning("run %d: no summary: %s", self.id, err)
         except Exception as err:
             logger.exception("run %d: no summary", self.id)
             services.errors.note(err, device="storage")
         return None
+
+    async def _defer_summary(self, basis: SummaryBasis) -> bool:
+        """A shutdown gave the summary up: keep what only memory holds with the run, for the
+        next start to compute it (daemon/run/pending_summaries.py). One row, milliseconds."""
+        services = self._services
+        try:
+            await services.workers.db(services.recorder.defer_summary, self.id, basis)
+        except Exception as err:
+            logger.error("run %d: no summary: cannot defer it: %s", self.id, err)
+            services.errors.note(err, device="storage")
+            return False
+        logger.warning(
+            "run %d: summary deferred to the next start (the stop's budget ran out)", self.id
+        )
+        return True
 
     # --- the one place a state changes ----------------------------------------------------
 

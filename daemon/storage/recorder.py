@@ -82,6 +82,19 @@ CREATE TABLE IF NOT EXISTS runs (
 )
 """
 
+#: A run whose summary a shutdown gave up (its budget within TimeoutStopSec ran out): what the
+#: summary needs that only the ending daemon's memory held (overruns, skipped deadlines, the
+#: timing, the kind's own figures: daemon/run/summary.py), computed at the next start. The row
+#: goes in the same transaction as the summary is written, so a second shutdown that gives the
+#: summary up again keeps it. ``IF NOT EXISTS``: an older database gains the table at open.
+_PENDING_SUMMARIES_SCHEMA = """
+CREATE TABLE IF NOT EXISTS pending_summaries (
+    run_id INTEGER PRIMARY KEY REFERENCES runs(id),
+    basis_json TEXT NOT NULL,          -- daemon/run/summary.py SummaryBasis
+    deferred_at REAL NOT NULL          -- Unix time (s)
+)
+"""
+
 
 @dataclass(frozen=True, slots=True)
 class RunRow:
@@ -96,6 +109,8 @@ class RunRow:
     summary: dict[str, Any] | None
     reason: str | None
     step_count: int
+    #: its summary was deferred by a shutdown and is computed at the next start
+    summary_pending: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -131,6 +146,7 @@ class Recorder:
             self._db.execute("PRAGMA foreign_keys=ON")
             self._db.execute(_RUNS_SCHEMA)
             self._db.execute(STEPS_SCHEMA)
+            self._db.execute(_PENDING_SUMMARIES_SCHEMA)
             self._add_missing_step_columns()
             self._redact_stored_configs()
         except (sqlite3.Error, OSError) as err:
@@ -306,12 +322,32 @@ class Recorder:
             return read_series(db, run_id, columns, abandon)
 
     def set_summary(self, run_id: int, summary: Mapping[str, Any] | None) -> None:
-        """The summary of a run whose end is recorded already (it is written after it)."""
+        """The summary of a run whose end is recorded already (it is written after it); a
+        deferred one is no longer pending (same transaction)."""
         with self._write() as db:
             db.execute(
                 "UPDATE runs SET summary_json = ? WHERE id = ?",
                 (None if summary is None else _dumps(summary), run_id),
             )
+            db.execute("DELETE FROM pending_summaries WHERE run_id = ?", (run_id,))
+
+    def defer_summary(self, run_id: int, basis: Mapping[str, Any]) -> None:
+        """Keep what a run's summary needs beyond its steps, to compute it at the next start
+        (a shutdown gave it up). A second deferral of the same run replaces the first."""
+        with self._write() as db:
+            db.execute(
+                "INSERT OR REPLACE INTO pending_summaries (run_id, basis_json, deferred_at) "
+                "VALUES (?, ?, ?)",
+                (run_id, _dumps(basis), time.time()),
+            )
+
+    def pending_summaries(self) -> list[tuple[int, dict[str, Any]]]:
+        """The deferred summaries' run ids and bases, oldest run first."""
+        with self._read() as db:
+            rows = db.execute(
+                "SELECT run_id, basis_json FROM pending_summaries ORDER BY run_id"
+            ).fetchall()
+        return [(int(run_id), json.loads(text)) for run_id, text in rows]
 
     def arm_poses(self, run_id: int) -> list[str | None]:
         """The measured pose of each step of an arm run, in step order (None: a two-link
@@ -413,7 +449,8 @@ def step_rows(
 _RUN_SELECT = (
     "SELECT r.id, r.state, r.started_at, r.ended_at, r.parameters_json, r.config_json, "
     "r.network_json, r.software_version, r.summary_json, r.reason, "
-    "(SELECT COUNT(*) FROM steps s WHERE s.run_id = r.id) FROM runs r"
+    "(SELECT COUNT(*) FROM steps s WHERE s.run_id = r.id), "
+    "EXISTS (SELECT 1 FROM pending_summaries p WHERE p.run_id = r.id) FROM runs r"
 )
 
 
@@ -430,6 +467,7 @@ def _run_row(row: Sequence[Any]) -> RunRow:
         summary=None if row[8] is None else json.loads(row[8]),
         reason=row[9],
         step_count=row[10],
+        summary_pending=bool(row[11]),
     )
 
 

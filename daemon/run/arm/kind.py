@@ -16,7 +16,7 @@ from daemon.run.arm.step import ArmRunWork
 from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
-from daemon.run.summary import arm_summary
+from daemon.run.summary import SummaryBasis, arm_basis, arm_summary
 from daemon.run.two_link.step import StepOutcome
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
@@ -84,15 +84,12 @@ class ArmKind:
         if self.arm.player is not None:
             await self.arm.player.stop(grace_s)
 
-    def summary(
-        self,
-        recorder: Recorder,
-        *,
-        overruns: int,
-        skipped: int,
-        timing: dict[str, Any],
-        abandon: threading.Event | None,
-    ) -> dict[str, Any]:
-        return arm_summary(
-            recorder, self.work, overruns=overruns, skipped=skipped, timing=timing, abandon=abandon
+    def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:
+        return arm_basis(
+            self.work, kind=self.name, overruns=overruns, skipped=skipped, timing=timing
         )
+
+    def summary(
+        self, recorder: Recorder, basis: SummaryBasis, *, abandon: threading.Event | None
+    ) -> dict[str, Any]:
+        return arm_summary(recorder, basis, abandon)

@@ -37,6 +37,7 @@ from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
+from daemon.run.summary import SummaryBasis, fixed_summary
 from daemon.run.two_link.step import (
     OK,
     StepOutcome,
@@ -258,22 +259,26 @@ class FollowedKind:
     async def stop_playing(self, grace_s: float) -> None:
         """The hold (the session's) freezes the program's offset: nothing more to stop."""
 
-    def summary(
-        self,
-        recorder: Recorder,
-        *,
-        overruns: int,
-        skipped: int,
-        timing: dict[str, Any],
-        abandon: threading.Event | None,
-    ) -> dict[str, Any]:
-        summary: dict[str, Any] = {
-            "kind": self.name,
-            "corrections_written": self.corrections_written,
-            "overruns": overruns,
-            "skipped_deadlines": skipped,
-            "timing": timing,
-        }
+    def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:
+        """Every figure of this kind's summary is in memory: the basis is all of it."""
+        after: dict[str, Any] = {}
         if self.truth is not None:
-            summary["bench_truth"] = self.tally.summary()
-        return summary
+            after["bench_truth"] = self.tally.summary()
+        return {
+            "kind": self.name,
+            "run_id": self.run_id,
+            "fixed": {
+                "kind": self.name,
+                "corrections_written": self.corrections_written,
+                "overruns": overruns,
+                "skipped_deadlines": skipped,
+                "timing": timing,
+            },
+            "inputs": {},
+            "after": after,
+        }
+
+    def summary(
+        self, recorder: Recorder, basis: SummaryBasis, *, abandon: threading.Event | None
+    ) -> dict[str, Any]:
+        return fixed_summary(recorder, basis, abandon)

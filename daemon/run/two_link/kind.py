@@ -19,7 +19,7 @@ from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.services import BenchControl
 from daemon.run.states import RunParameters
-from daemon.run.summary import two_link_summary
+from daemon.run.summary import SummaryBasis, two_link_basis, two_link_summary
 from daemon.run.two_link.step import RunWork, StepOutcome, StepPipeline
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
@@ -130,15 +130,12 @@ class TwoLinkKind:
     async def stop_playing(self, grace_s: float) -> None:
         """Nothing moves between the steps."""
 
-    def summary(
-        self,
-        recorder: Recorder,
-        *,
-        overruns: int,
-        skipped: int,
-        timing: dict[str, Any],
-        abandon: threading.Event | None,
-    ) -> dict[str, Any]:
-        return two_link_summary(
-            recorder, self.work, overruns=overruns, skipped=skipped, timing=timing, abandon=abandon
+    def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:
+        return two_link_basis(
+            self.work, kind=self.name, overruns=overruns, skipped=skipped, timing=timing
         )
+
+    def summary(
+        self, recorder: Recorder, basis: SummaryBasis, *, abandon: threading.Event | None
+    ) -> dict[str, Any]:
+        return two_link_summary(recorder, basis, abandon)
