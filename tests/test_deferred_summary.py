@@ -23,8 +23,8 @@ from api.app import create_app
 from api.routers.runs import run_info
 from daemon import service as service_module
 from daemon.run import pending_summaries as pending_module
+from daemon.run.kinds import summary_from_basis
 from daemon.run.states import RunState
-from daemon.run.summary import summary_from_basis
 from daemon.run.two_link.kind import TwoLinkKind
 from daemon.run.workers import READ_THREADS
 from daemon.storage.recorder import DATABASE_NAME, Recorder

@@ -23,7 +23,7 @@ import logging
 import threading
 
 from daemon.run.events import ErrorLog
-from daemon.run.summary import summary_from_basis
+from daemon.run.kinds import summary_from_basis
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue
