@@ -1,12 +1,11 @@
 """Issue 27: a third run kind touches the factory and its own files only. The skeleton of
 "followed" (daemon/run/followed/: the robot plays its own program, the daemon follows it and
 writes corrections) runs through the daemon against the suite's fake offset robot
-(tests/fakes.py FakeOffsetRobot, under the Robot contract: tests/contract/); and nothing
-outside the factory chooses on a run's kind."""
+(tests/fakes.py FakeOffsetRobot, under the Robot contract: tests/contract/). That nothing
+outside the factory and the kinds' packages names a kind: tests/test_kind_isolation.py."""
 
 from __future__ import annotations
 
-import ast
 import asyncio
 from pathlib import Path
 from typing import Self
@@ -25,7 +24,6 @@ from tests.fakes import (
     params,
 )
 
-REPO = Path(__file__).resolve().parent.parent
 WAIT_S = 60.0
 
 
@@ -75,18 +73,3 @@ async def test_a_followed_run_writes_corrections_and_none_after_a_hold(tmp_path:
     assert final["state"] == "stopped" and final["id"] == info["id"]
     assert final["summary"]["kind"] == "followed"
     assert final["summary"]["corrections_written"] == len(robot.written)
-
-
-def test_nothing_outside_the_factory_chooses_on_a_runs_kind() -> None:
-    """No isinstance on a run's work or kind in the daemon, but in daemon/run/kinds.py."""
-    kinds = {"RunWork", "ArmRunWork", "TwoLinkKind", "ArmKind", "FollowedKind", "OffsetRobot"}
-    found: list[str] = []
-    for path in sorted((REPO / "daemon").rglob("*.py")):
-        if path == REPO / "daemon" / "run" / "kinds.py":
-            continue
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "isinstance":
-                names = {n.id for n in ast.walk(node.args[1]) if isinstance(n, ast.Name)}
-                if names & kinds:
-                    found.append(f"{path.relative_to(REPO)}:{node.lineno}")
-    assert found == []
