@@ -3,7 +3,8 @@ driver over its emulator and every fake of the suite (tests/fakes.py FakeRobot a
 subclasses: CONTRACT_FAKES), each behind a small adapter that opens it and gives the suite its
 test hooks. A new driver adds one adapter here and one entry in ADAPTERS (docs/how-to/
 add-a-robot-driver.md); a new fake subclasses FakeRobot, gets an adapter and an entry in
-CONTRACT_FAKES (tests/test_layering.py refuses a robot-like class anywhere else in tests/)."""
+CONTRACT_FAKES (tests/contract/test_no_other_fakes.py refuses a robot-like class anywhere
+else in tests/)."""
 
 from __future__ import annotations
 
@@ -303,5 +304,5 @@ ADAPTERS: dict[str, Callable[[], AbstractAsyncContextManager[Subject]]] = {
 }
 
 #: The suite's robot fakes, each under the contract above: the only robot-like classes the
-#: tests may define (tests/test_layering.py).
+#: tests may define (tests/contract/test_no_other_fakes.py).
 CONTRACT_FAKES: tuple[type, ...] = (FakeRobot, FakeArmRobot, FakeOffsetRobot)
