@@ -92,10 +92,16 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     `make run` and `make docs` write there). Every xdist worker watches it for its own tests;
     the controller (or the only process) checks it again at the end."""
     skip = unwatched_runtime_dirs(REPO_ROOT)
-    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+    if not _is_xdist_worker(session.config):
         session.config.stash[_SESSION_WATCH] = TreeWatch(REPO_ROOT, skip)
     if not _is_xdist_controller(session.config):
         session.config.stash[_TEST_WATCH] = TreeWatch(REPO_ROOT, skip)
+
+
+def _is_xdist_worker(config: pytest.Config) -> bool:
+    """A process xdist started to run tests (not its environment: a test's own pytest
+    subprocess inherits PYTEST_XDIST_WORKER)."""
+    return hasattr(config, "workerinput")
 
 
 def _is_xdist_controller(config: pytest.Config) -> bool:
@@ -136,7 +142,7 @@ def stays_in_its_temporary_directory(request: pytest.FixtureRequest) -> Iterator
         beside = (
             " (or a test running at the same time on another xdist worker: the one that wrote"
             " them fails too)"
-            if os.environ.get("PYTEST_XDIST_WORKER")
+            if _is_xdist_worker(request.config)
             else ""
         )
         pytest.fail(

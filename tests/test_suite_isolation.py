@@ -117,7 +117,10 @@ WRITER_AND_BYSTANDER = """
 """
 
 
-@pytest.mark.parametrize("workers", [[], ["-n", "2"]], ids=["one process", "xdist -n 2"])
+XDIST = pytest.param(["-n", "2"], id="xdist -n 2", marks=pytest.mark.slow)  # 3 processes
+
+
+@pytest.mark.parametrize("workers", [pytest.param([], id="one process"), XDIST])
 def test_a_test_writing_into_the_checkout_fails(tmp_path: Path, workers: list[str]) -> None:
     result = _inner_session(tmp_path, WRITER_AND_BYSTANDER, *workers)
     output = result.stdout + result.stderr
@@ -152,7 +155,35 @@ def test_a_write_no_test_is_blamed_for_still_fails_the_run(tmp_path: Path) -> No
     assert "the session created 1 path(s) in the repository tree: left.db" in output, output
 
 
+@pytest.mark.slow  # three processes
 def test_a_clean_session_passes(tmp_path: Path) -> None:
     """The inner session itself (its conftest, the interpreter's caches) is not a write."""
     result = _inner_session(tmp_path, "def test_nothing():\n    pass\n", "-n", "2")
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+@pytest.mark.slow  # three processes
+def test_the_timeouts_hold_under_xdist(tmp_path: Path) -> None:
+    """pytest-timeout in a worker: a test over the default timeout is stopped and fails; a
+    slow-marked one gets SLOW_TIMEOUT_S instead (tests/conftest.py), so it passes."""
+    result = _inner_session(
+        tmp_path,
+        """
+        import time
+
+        import pytest
+
+        def test_hangs():
+            time.sleep(30)
+
+        @pytest.mark.slow
+        def test_slow_but_within_its_own_timeout():
+            time.sleep(2)
+        """,
+        *("-p", "pytest_timeout", "-o", "timeout=1", "-o", "markers=slow: over ~5 s"),
+        *("-n", "2"),
+    )
+    output = result.stdout + result.stderr
+    assert result.returncode == 1, output
+    assert "1 failed, 1 passed" in output, output
+    assert "FAILED test_inner.py::test_hangs - Failed: Timeout" in output, output
