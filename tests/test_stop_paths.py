@@ -21,11 +21,16 @@ from tests.test_api_server import serve
 from tests.test_control_core import CONTROL_HEADERS, api_settings
 
 WAIT_S = 60.0
+DAY_S = 86_400.0
 
 
 @pytest.fixture
 async def api(tmp_path: Path) -> AsyncIterator[tuple[Harness, httpx.AsyncClient]]:
-    settings = api_settings(make_settings(tmp_path, scheduler={"step_s": 0.2}))
+    # a day's run: none ends by itself during a test. With a 60-s run the virtual clock ran it
+    # to its end while a stop waited for the stuck database below, and its end held the robot:
+    # the stop test passed on the code that read the database before holding (3b82f76)
+    day = {"step_s": 0.2, "duration_s": DAY_S}
+    settings = api_settings(make_settings(tmp_path, scheduler=day))
     harness = Harness(settings)
     app = create_app(settings, service_factory=lambda _settings: harness.daemon)
     async with (
@@ -139,4 +144,6 @@ async def test_a_stop_holds_before_the_database_answers(
             await asyncio.sleep(0.005)
     assert not stop.done()  # held while the database still has not answered
     stuck.set()
-    assert (await stop).status_code == 200
+    stopped = await stop
+    assert stopped.status_code == 200
+    assert stopped.json()["state"] == "stopped"  # ended by the stop, not by reaching its end
