@@ -26,6 +26,7 @@ from daemon.service import Daemon
 from drivers.clock import make_clock
 from drivers.errors import DeviceTimeoutError
 from drivers.factory import Devices
+from drivers.sim.bench import Bench as SimBench
 from tests.fakes import Gate
 from tests.serial_spy import SerialSpy, spy_serial
 from tests.test_api_runs import CONTROL_HEADERS, bench_settings
@@ -214,3 +215,34 @@ async def test_a_hold_during_a_played_arm_starts_build_is_never_undone_by_it(
         assert view is not None and view.state in (RunState.STOPPED, RunState.PAUSED)
         if view.is_active:
             await daemon.stop()
+
+
+def _loop_running() -> bool:
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        return False
+    return True
+
+
+async def test_the_benchs_cold_start_never_runs_on_an_event_loop(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 26: the simulated bench's start (0.25-0.55 s of truth model under load) ran on the
+    event loop, and every hold waited behind it. Its truth model is built on a worker thread:
+    no event loop runs in the thread that builds it."""
+    on_loop: list[bool] = []
+    build = SimBench._build_truth
+
+    def recorded(self: SimBench, *args: Any, **kwargs: Any) -> None:
+        on_loop.append(_loop_running())
+        build(self, *args, **kwargs)
+
+    monkeypatch.setattr(SimBench, "_build_truth", recorded)
+    settings = bench_settings(tmp_path / "data")
+    async with Daemon(settings) as daemon:
+        on_loop.clear()  # the bench's first build, when the devices open, is not a run's start
+        await daemon.start_run(RunParameters.from_settings(settings))
+        assert await daemon.wait_state(RunState.RUNNING) is RunState.RUNNING
+        await daemon.stop()
+    assert on_loop == [False]
