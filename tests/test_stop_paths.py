@@ -118,10 +118,12 @@ async def test_a_storage_abort_says_so_in_the_robots_hold(
     assert "aborted" in robot["hold_reason"] and "recording failed" in robot["hold_reason"]
 
 
+@pytest.mark.parametrize(("action", "final"), [("stop", "stopped"), ("pause", "paused")])
 async def test_a_stop_holds_before_the_database_answers(
-    api: tuple[Harness, httpx.AsyncClient],
+    api: tuple[Harness, httpx.AsyncClient], action: str, final: str
 ) -> None:
-    """The database is stuck (a 4.32 M-step COUNT, a slow disk): the stop holds first."""
+    """The database is stuck (a 4.32 M-step COUNT, a slow disk): the stop (or pause) holds
+    first."""
     harness, client = api
     run = (await client.post("/api/v1/runs", json={}, headers=CONTROL_HEADERS)).json()
     daemon = harness.daemon
@@ -137,7 +139,7 @@ async def test_a_stop_holds_before_the_database_answers(
 
     daemon.read = stuck_read  # type: ignore[method-assign]
     stop = asyncio.create_task(
-        client.post(f"/api/v1/runs/{run['id']}/stop", headers=CONTROL_HEADERS)
+        client.post(f"/api/v1/runs/{run['id']}/{action}", headers=CONTROL_HEADERS)
     )
     async with asyncio.timeout(WAIT_S):
         while not harness.robot.held:  # noqa: ASYNC110 -- the permit has no event
@@ -146,4 +148,6 @@ async def test_a_stop_holds_before_the_database_answers(
     stuck.set()
     stopped = await stop
     assert stopped.status_code == 200
-    assert stopped.json()["state"] == "stopped"  # ended by the stop, not by reaching its end
+    assert stopped.json()["state"] == final  # by the request, not by reaching the run's end
+    if action == "pause":
+        await client.post(f"/api/v1/runs/{run['id']}/stop", headers=CONTROL_HEADERS)
