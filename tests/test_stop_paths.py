@@ -77,6 +77,36 @@ async def test_health_reports_a_failing_database(
     await client.post(f"/api/v1/runs/{started.json()['id']}/stop", headers=CONTROL_HEADERS)
 
 
+async def test_health_says_stalled_when_a_moves_reply_never_comes(
+    api: tuple[Harness, httpx.AsyncClient],
+) -> None:
+    """A stall is a fault within seconds and ``/health`` says so: the robot's link is
+    ``stalled`` (not ``connected``) and the run faulted with the robot held. The fake stalls as
+    every driver does (tests/contract/: the same stall case over the console, the fast path,
+    the UR and this fake)."""
+    harness, client = api
+    run = (await client.post("/api/v1/runs", json={}, headers=CONTROL_HEADERS)).json()
+    daemon = harness.daemon
+    async with asyncio.timeout(WAIT_S):
+        while daemon.run is None or daemon.run.step < 1:  # noqa: ASYNC110
+            await asyncio.sleep(0.01)
+    before = (await client.get("/api/v1/health")).json()
+    assert before["devices"]["robot"] == "connected"
+    robot = harness.robot
+    robot.hung_moves.add(robot.moves)  # the next move's reply never comes
+    async with asyncio.timeout(WAIT_S):
+        while (await client.get("/api/v1/health")).json()["devices"]["robot"] != "stalled":  # noqa: ASYNC110
+            await asyncio.sleep(0.05)
+    async with asyncio.timeout(WAIT_S):
+        info = (await client.get(f"/api/v1/runs/{run['id']}")).json()
+        while info["state"] != "fault":
+            await asyncio.sleep(0.05)
+            info = (await client.get(f"/api/v1/runs/{run['id']}")).json()
+    assert info["reason"] == "robot: no answer to the move"
+    assert robot.permit.held
+    await client.post(f"/api/v1/runs/{run['id']}/stop", headers=CONTROL_HEADERS)
+
+
 @pytest.mark.slow
 async def test_an_ended_run_without_a_report_gets_one_on_demand(
     api: tuple[Harness, httpx.AsyncClient],
