@@ -350,3 +350,18 @@ class OffsetRobot(AsyncDevice, Protocol):
     async def resume(self, ticket: Ticket | None = None) -> None: ...
 
     def status(self) -> RobotStatus: ...
+
+
+@runtime_checkable
+class ProgramControl(Protocol):
+    """A robot whose own program the PC can pause and play again (a UR's Dashboard Server:
+    drivers/ur/dashboard_client.py). Each call raises DeviceError when the robot refuses or
+    does not answer."""
+
+    async def program_state(self) -> str:
+        """``PLAYING``, ``PAUSED`` or ``STOPPED``."""
+        ...
+
+    async def pause_program(self) -> None: ...
+
+    async def play_program(self) -> None: ...

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 from daemon.run.arm.kind import ArmKind
 from daemon.run.followed.kind import FollowedKind
+from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.followed.setup import followed_model
 from daemon.run.kind import RunKind
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
 from daemon.run.two_link.kind import TwoLinkKind
 from daemon.run.two_link.step import StepPipeline
-from drivers.base import OffsetRobot
+from drivers.base import OffsetRobot, ProgramControl
 from drivers.clock import FollowingClock
 
 
@@ -44,6 +45,11 @@ async def build_kind(builder: RunBuilder, parameters: RunParameters) -> RunKind:
             builder.clock,
             model,
             getattr(devices, "ur_truth", None),
+            ProgramPause(
+                robot if isinstance(robot, ProgramControl) else None,
+                enabled=settings.robot.pause_program_on_hold,
+                errors=errors,
+            ),
         )
     if parameters.duty_cycle is not None:
         arm_work, arm = await builder.arm_work(parameters)

@@ -298,7 +298,9 @@ class RunSession:
             if self.stop_requested or self.state is RunState.STOPPING:
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
-                await self.kind.stop_playing(self._services.settings.scheduler.stop_grace_s)
+                await self.kind.stop_playing(
+                    self._services.settings.scheduler.stop_grace_s, held=True
+                )
                 if not await self._wait_while_held():
                     return
                 timer.resync()
@@ -401,7 +403,11 @@ class RunSession:
             await self._hold_quietly(
                 f"run {self.id} {final.value}" + (f": {reason}" if reason else "")
             )
-            await self.kind.stop_playing(services.settings.scheduler.stop_grace_s)
+            # after the hold: a robot that plays its own program is paused then, unless the
+            # run simply reached its end (daemon/run/followed/program_pause.py)
+            await self.kind.stop_playing(
+                services.settings.scheduler.stop_grace_s, held=final is not RunState.FINISHED
+            )
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
             recorded = await self._record_end(final, reason)

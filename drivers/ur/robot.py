@@ -28,8 +28,10 @@ offset program (it was seen stopped, or its accepted sequence went back) holds a
 resume with GoalLostError: the program's offset state is gone.
 
 What a hold means on a robot that plays its own program: the program's offset freezes where
-it is (the program keeps playing; pausing it is the Dashboard's ``pause``,
-``URRobot.dashboard``); the robot-side program freezes it by itself too when the PC goes
+it is; the program keeps playing. Pausing it is the Dashboard's ``pause``
+(:meth:`URRobot.pause_program`), which a followed run sends *after* the hold, never before it
+(daemon/run/followed/program_pause.py, robot.pause_program_on_hold): nothing here waits for
+the Dashboard. The robot-side program freezes the offset by itself too when the PC goes
 silent for its watchdog's 0.5 s.
 
 A lost link (no state package for robot.ur_timeout_s, a closed or garbled connection) is a
@@ -477,6 +479,17 @@ class URRobot:
             hold_reason=self.permit.reason,
             extra=extra,
         )
+
+    # -- the program (drivers.base.ProgramControl, through the Dashboard Server) -------------
+
+    async def program_state(self) -> str:
+        return await self.dashboard.program_state()
+
+    async def pause_program(self) -> None:
+        await self.dashboard.pause()
+
+    async def play_program(self) -> None:
+        await self.dashboard.play()
 
     # -- state packages ----------------------------------------------------------------------
 
