@@ -365,3 +365,20 @@ class ProgramControl(Protocol):
     async def pause_program(self) -> None: ...
 
     async def play_program(self) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class RobotDescription:
+    """What a robot reports about itself for a bring-up check (``thermocomp devices check``):
+    named facts in the order a person reads them, and each thing that would stop a run as
+    (topic, one line)."""
+
+    facts: tuple[tuple[str, str], ...]
+    problems: tuple[tuple[str, str], ...] = ()
+
+
+@runtime_checkable
+class DescribedRobot(Protocol):
+    """A robot that describes itself beyond its pose (a UR: drivers/ur/describe.py)."""
+
+    async def describe(self) -> RobotDescription: ...

@@ -52,7 +52,14 @@ from types import TracebackType
 from typing import Any, Self
 
 from config.settings import RobotSettings
-from drivers.base import ZERO_ROTATION, LinkState, OffsetRobotState, RobotStatus, Vector3
+from drivers.base import (
+    ZERO_ROTATION,
+    LinkState,
+    OffsetRobotState,
+    RobotDescription,
+    RobotStatus,
+    Vector3,
+)
 from drivers.errors import (
     DeviceError,
     DeviceTimeoutError,
@@ -65,6 +72,7 @@ from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.ur import rtde_protocol as rtde
 from drivers.ur.dashboard_client import DashboardClient
+from drivers.ur.describe import describe_ur
 from drivers.ur.modes import RuntimeState
 from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_client import RtdeClient
@@ -479,6 +487,16 @@ class URRobot:
             hold_reason=self.permit.reason,
             extra=extra,
         )
+
+    @property
+    def controller_version(self) -> tuple[int, int, int, int] | None:
+        """The controller's version (RTDE get_urcontrol_version), once connected."""
+        client = self._client
+        return None if client is None else client.controller_version
+
+    async def describe(self) -> RobotDescription:
+        """For ``thermocomp devices check`` (drivers/ur/describe.py)."""
+        return await describe_ur(self)
 
     # -- the program (drivers.base.ProgramControl, through the Dashboard Server) -------------
 
