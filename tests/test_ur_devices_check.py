@@ -183,3 +183,30 @@ def test_a_bench_whose_ports_are_taken_is_one_line(host: str) -> None:
     assert list(data["errors"]) == ["robot"]
     assert data["errors"]["robot"].startswith("the UR emulator: ")
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("args", "what"),
+    [
+        (["calibrate", "cameras", "--robot"], "--robot moves the robot through a pattern"),
+        (["calibrate", "camera"], "calibrate camera moves the robot through a pattern"),
+        (["calibrate", "model", "--save", "ur"], "has no model calibration"),
+    ],
+)
+def test_the_calibrations_a_ur_cannot_make_are_refused_in_one_line(
+    args: list[str], what: str, tmp_path: Path
+) -> None:
+    """Before anything opens: the emulator's ports are taken and no data directory is made."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.34.12", 30004))
+        taken.listen()
+        result = run_cli(
+            [*args, "--config", UR5E],
+            env=on_host("127.0.34.12", THERMOCOMP_STORAGE__DATA_DIR=str(tmp_path / "data")),
+        )
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and what in lines[0], lines
+    assert 'docs/how-to/universal-robots.md, "Calibration on a UR"' in lines[0]
+    assert not (tmp_path / "data").exists()
+    assert result.stdout == ""

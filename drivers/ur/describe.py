@@ -15,16 +15,33 @@ Control; UR's Dashboard Server manual, e-Series).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from drivers.base import RobotDescription
+from config.settings import RobotSettings
+from drivers.base import OffsetRobotState, RobotDescription
 from drivers.errors import DeviceError
 from drivers.ur import registers as regs
+from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.modes import RobotMode, RuntimeState, SafetyMode
 from drivers.ur.rtde_protocol import PROTOCOL_VERSION
 
-if TYPE_CHECKING:  # the driver imports this module
-    from drivers.ur.robot import URRobot
+
+class URRobot(Protocol):
+    """What the description reads of drivers/ur/robot.py URRobot (which imports this module)."""
+
+    @property
+    def settings(self) -> RobotSettings: ...
+
+    @property
+    def registers(self) -> regs.RegisterMap: ...
+
+    @property
+    def dashboard(self) -> DashboardClient: ...
+
+    @property
+    def controller_version(self) -> tuple[int, int, int, int] | None: ...
+
+    async def read_state(self) -> OffsetRobotState: ...
 
 #: Safety modes a followed run can go on in.
 SAFE_MODES = (SafetyMode.NORMAL, SafetyMode.REDUCED)
