@@ -55,6 +55,7 @@ def failures(out: str) -> list[str]:
     return [line for line in out.splitlines() if ": FAILED: " in line]
 
 
+@pytest.mark.slow
 def test_the_ur_bench_is_described_and_passes() -> None:
     result = run_cli(["devices", "check", "--config", UR5E], env=on_host("127.0.34.6"))
     assert result.returncode == 0, result.stdout + result.stderr

@@ -43,6 +43,7 @@ class URRobot(Protocol):
 
     async def read_state(self) -> OffsetRobotState: ...
 
+
 #: Safety modes a followed run can go on in.
 SAFE_MODES = (SafetyMode.NORMAL, SafetyMode.REDUCED)
 STATUS_WORDS = (
