@@ -4,7 +4,8 @@ robot, safety and program state, joint temperatures, the registers it set up, th
 program) and says what it did not check (no camera); against an emulated "real" UR (bench
 disabled, the emulator run by the test) each thing that would stop a run is its own failure
 line, and an unreachable robot, input registers another client holds and a missing tool
-camera are one line each.
+camera are one line each; the calibrations a UR cannot make are refused in one line; and
+`thermocomp run` prints a followed run's own figures.
 """
 
 from __future__ import annotations
@@ -211,3 +212,30 @@ def test_the_calibrations_a_ur_cannot_make_are_refused_in_one_line(
     assert 'docs/how-to/universal-robots.md, "Calibration on a UR"' in lines[0]
     assert not (tmp_path / "data").exists()
     assert result.stdout == ""
+
+
+def test_a_followed_run_prints_its_own_figures(capsys: pytest.CaptureFixture[str]) -> None:
+    """`thermocomp run` on a UR: the corrections and the bench truth's removal, not the
+    two-link bench's residual rows (all empty for a followed run)."""
+    from daemon.commands.run import _print_result
+
+    summary = {
+        "kind": "followed",
+        "corrections_written": 262,
+        "overruns": 3,
+        "bench_truth": {
+            "steps": 262,
+            "rms_residual_um": 1.25,
+            "rms_uncompensated_um": 10.0,
+            "worst_residual_um": 2.5,
+            "worst_uncompensated_um": 12.0,
+            "removed_fraction": 0.875,
+        },
+    }
+    _print_result({"id": 4, "state": "finished", "reason": None, "summary": summary}, False)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "run 4 finished"
+    assert "  corrections written          262" in lines
+    assert "  removed (RMS)                87.500 %" in lines
+    assert "  3-D error RMS, uncorrected   10.000 um" in lines
+    assert not any("residual" in line for line in lines)
