@@ -173,6 +173,7 @@ async def test_unreachable_robot_taken_registers_and_a_missing_camera(tmp_path: 
     assert "cameras: none checked" not in out  # the configured camera was checked
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("host", ["127.0.34.6"])
 def test_a_bench_whose_ports_are_taken_is_one_line(host: str) -> None:
     """The UR bench's emulator cannot open (its ports are taken by another bench): one line."""

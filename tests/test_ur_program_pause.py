@@ -25,7 +25,7 @@ from config import CONFIG_DIR, Settings
 from config.settings import load_settings
 from daemon.run.events import ErrorLog, EventBus
 from daemon.run.followed.program_pause import ProgramPause
-from daemon.run.states import RunState
+from daemon.run.states import RunState, RunStateError
 from daemon.service import Daemon
 from drivers.errors import DeviceReportedError
 from drivers.sim.ur.controller import URController
@@ -325,3 +325,32 @@ async def test_a_refusal_and_a_silent_dashboard_are_noted_within_the_grace(
     finally:
         server.close()
         await server.wait_closed()
+
+
+async def test_a_hold_during_the_resume_pauses_the_program_it_played_again(
+    tmp_path: Path,
+) -> None:
+    """A hold that lands while the resume plays the program again (here: as the Dashboard's
+    ``play`` arrives) wins: the resume is refused and the program is paused again."""
+    settings = ur_settings(tmp_path, "127.0.34.10")
+    async with Daemon(settings) as daemon:
+        emulator, log = await follow(daemon, settings)
+        await daemon.hold_robot()
+        await until(lambda: runtime(emulator) is RuntimeState.PAUSED, "program paused")
+        permit = daemon.devices.robot.permit
+        answer = emulator.dashboard.answer
+
+        def hold_on_play(command: str) -> str:
+            if command == "play":
+                permit.hold("held during the resume")  # as the API's thread holds it
+            return answer(command)
+
+        emulator.dashboard.answer = hold_on_play  # type: ignore[method-assign]
+        with pytest.raises(RunStateError, match="during the resume"):
+            await daemon.resume()
+        assert "play" in [c for c, *_ in log.seen]
+        await until(lambda: runtime(emulator) is RuntimeState.PAUSED, "paused again")
+        assert daemon.run is not None and daemon.run.state is RunState.PAUSED
+        assert len(log.commands("pause")) == 2
+        await daemon.stop()
+        assert runtime(emulator) is RuntimeState.PAUSED

@@ -32,7 +32,6 @@ from drivers.base import (
     Frame,
     IrReader,
     IrReading,
-    OffsetRobot,
     Pose,
     Robot,
 )
@@ -168,7 +167,9 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
     """Grab one frame (of every tool camera on an arm), read one IR image and the robot's
     pose; measure the spot."""
     check = DeviceCheck(regions=ir_regions(devices, settings))
-    if isinstance(devices.robot, OffsetRobot):  # plays its own program: a followed run's
+    # a robot that describes itself (a UR, the only one today) plays its own program: a
+    # followed run's devices, no spot camera or IR camera to probe
+    if isinstance(devices.robot, DescribedRobot):
         await probe_described(devices.robot, check)
         if not await _tool_frames(devices, settings, check):
             check.notes.append(FOLLOWED_CAMERAS_NOTE)

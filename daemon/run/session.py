@@ -137,6 +137,9 @@ class RunSession:
             or not self.permit.is_current(ticket)
         ):
             await self._hold_quietly()  # re-assert: the resume must not undo a later hold
+            # and stop again what the resume started (a program the kind played again):
+            # the loop stopped it for this pause already and will not again
+            await self.kind.stop_playing(self._services.settings.scheduler.stop_grace_s, held=True)
             raise RunStateError(f"run {self.id}: a hold or stop came during the resume")
         self._grant = ticket
         self._go(RunState.RUNNING if self._prepared else RunState.STARTING, None)
