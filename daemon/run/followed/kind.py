@@ -29,7 +29,7 @@ import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -41,16 +41,17 @@ from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
 from daemon.run.followed.program_pause import ProgramPause
+from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
-from daemon.run.summary import SummaryBasis, fixed_summary
-from daemon.run.two_link.step import (
+from daemon.run.step import (
     OK,
     StepOutcome,
     Verdict,
     begin_record,
     finish_record,
 )
+from daemon.run.summary import SummaryBasis, fixed_summary
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.step_record import StepRecord
@@ -123,10 +124,20 @@ class TruthTally:
         }
 
 
-@dataclass(eq=False)
-class FollowedKind:
+@dataclass
+class FollowedWork:
+    """What a followed run's steps carry besides the kind's services: its identity and start
+    (the last correction written and the bench truth's tally are the kind's)."""
+
     run_id: int
     parameters: RunParameters
+    start_s: float = float("nan")  # run clock at step 0
+
+
+@dataclass(eq=False)
+class FollowedKind(KindBase):
+    name: ClassVar[str] = "followed"
+    work: FollowedWork
     robot: OffsetRobot
     recorder: Recorder
     workers: Workers
@@ -138,8 +149,6 @@ class FollowedKind:
     #: pauses the robot's program after a hold, plays it again on the resume
     #: (robot.pause_program_on_hold; daemon/run/followed/program_pause.py)
     program: ProgramPause | None = None
-    start_s: float = float("nan")
-    name: str = "followed"
     last_correction: Pose6 = field(default_factory=Pose6.zero)
     corrections_written: int = 0
     tally: TruthTally = field(default_factory=TruthTally)
@@ -294,7 +303,8 @@ class FollowedKind:
             "after": after,
         }
 
-    def summary(
-        self, recorder: Recorder, basis: SummaryBasis, *, abandon: threading.Event | None
+    @staticmethod
+    def summary_from_basis(
+        recorder: Recorder, basis: SummaryBasis, abandon: threading.Event | None = None
     ) -> dict[str, Any]:
         return fixed_summary(recorder, basis, abandon)
