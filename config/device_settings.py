@@ -342,6 +342,14 @@ class RobotSettings(Section):
     dashboard_port: Annotated[int, Field(ge=1, le=65535)] = Field(
         29999, description="ur-rtde: Dashboard Server port (UR's fixed 29999)."
     )
+    pause_program_on_hold: bool = Field(
+        True,
+        description="ur-rtde: a hold of a followed run (pause, stop, fault, shutdown) also "
+        "pauses the robot's program through the Dashboard Server, after the correction froze; "
+        "the run's resume plays again a program this pause paused (a Dashboard failure is "
+        "logged and listed in the errors, the hold stands). false: a hold freezes the "
+        "correction only and the program keeps playing.",
+    )
     rtde_frequency_hz: Annotated[float, Field(gt=0, le=500)] = Field(
         125.0,
         description="ur-rtde: rate of the robot's state packages (Hz; at most the e-Series' "

@@ -350,3 +350,35 @@ class OffsetRobot(AsyncDevice, Protocol):
     async def resume(self, ticket: Ticket | None = None) -> None: ...
 
     def status(self) -> RobotStatus: ...
+
+
+@runtime_checkable
+class ProgramControl(Protocol):
+    """A robot whose own program the PC can pause and play again (a UR's Dashboard Server:
+    drivers/ur/dashboard_client.py). Each call raises DeviceError when the robot refuses or
+    does not answer."""
+
+    async def program_state(self) -> str:
+        """``PLAYING``, ``PAUSED`` or ``STOPPED``."""
+        ...
+
+    async def pause_program(self) -> None: ...
+
+    async def play_program(self) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class RobotDescription:
+    """What a robot reports about itself for a bring-up check (``thermocomp devices check``):
+    named facts in the order a person reads them, and each thing that would stop a run as
+    (topic, one line)."""
+
+    facts: tuple[tuple[str, str], ...]
+    problems: tuple[tuple[str, str], ...] = ()
+
+
+@runtime_checkable
+class DescribedRobot(Protocol):
+    """A robot that describes itself beyond its pose (a UR: drivers/ur/describe.py)."""
+
+    async def describe(self) -> RobotDescription: ...

@@ -10,16 +10,21 @@ import json
 import math
 import sys
 from collections.abc import AsyncIterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 
+from daemon.run.states import RunState
+from daemon.service import Daemon
 from drivers.errors import ProtocolError
 from drivers.sim.ur.controller import URControllerConfig
 from drivers.sim.ur.emulator import UREmulator
 from drivers.ur.modes import RobotMode, RuntimeState, SafetyMode
 from drivers.ur.rtde_client import RtdeClient
+from tests.fakes import params
 from tests.helpers import REPO_ROOT
+from tests.test_ur_program_pause import ur_settings
 
 ANSWER_TIMEOUT_S = 30.0
 
@@ -151,3 +156,28 @@ async def test_dashboard_client_plays_pauses_and_reads_the_program_state(ur_rtde
         await ur_rtde.ask("dash stop")
         assert (await ur_rtde.ask("dash programState"))["answer"] == "STOPPED thermocomp.urp"
         assert ur.dashboard.commands[:2] == ["programState", "pause"]
+
+
+@pytest.mark.parametrize("ur_rtde", ["127.0.31.4"], indirect=True)
+async def test_dashboard_client_reads_the_program_paused_by_a_daemon_hold(
+    ur_rtde: UrRtde, tmp_path: Path
+) -> None:
+    """A followed run's hold (robot.pause_program_on_hold, on by default) pauses the robot's
+    program through the Dashboard Server: ur-rtde's DashboardClient reads it PAUSED, and
+    PLAYING again after the run's resume."""
+    settings = ur_settings(tmp_path, "127.0.31.4")
+    async with Daemon(settings) as daemon:
+        await daemon.start_run(params(settings))
+        await daemon.wait_state(RunState.RUNNING)
+        assert (await ur_rtde.ask("dash programState"))["answer"] == "PLAYING thermocomp.urp"
+        await daemon.hold_robot()
+        async with asyncio.timeout(ANSWER_TIMEOUT_S):
+            while (answer := await ur_rtde.ask("dash programState"))["answer"] != (
+                "PAUSED thermocomp.urp"
+            ):
+                assert answer["answer"] == "PLAYING thermocomp.urp"
+                await asyncio.sleep(0.05)
+        await daemon.resume()
+        assert (await ur_rtde.ask("dash programState"))["answer"] == "PLAYING thermocomp.urp"
+        await daemon.stop()
+        assert (await ur_rtde.ask("dash programState"))["answer"] == "PAUSED thermocomp.urp"

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, add_config_argument, positive_float
 from daemon.commands import calibrate_cameras, calibrate_model  # light: heavy where they run
+from daemon.commands.followed_refusals import cameras_refusal
 from drivers.base import Vector3
 from drivers.clock import make_clock
 from drivers.deadline import bounded
@@ -232,6 +233,10 @@ def run_calibrate_camera(args: argparse.Namespace) -> int:
     from daemon.vision.calibration import CalibrationError
 
     settings = load_settings(args.config)
+    refusal = cameras_refusal(settings, "calibrate camera")
+    if refusal is not None:  # a UR: one line, before anything opens
+        print(f"{PROG}: {refusal}", file=sys.stderr)
+        return EXIT_USAGE
     size_mm = args.size or settings.camera.calibration_size_mm
     step_mm = args.step or settings.camera.calibration_step_mm
     try:

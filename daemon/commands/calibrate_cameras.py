@@ -23,7 +23,8 @@ are either
   ``--turn`` rad (the whole pattern within arm.calibration_max_* or the arm's correction
   limits, else nothing moves), grabs a frame from every camera at each and finds every marker
   near where the initial guess puts it (daemon/calibration/camera_run.py); cameras that saw
-  too few markers keep their pose.
+  too few markers keep their pose. On a UR (``robot.driver = "ur-rtde"``) ``--robot`` is
+  refused in one line: the PC does not move a UR (daemon/commands/followed_refusals.py).
 
 The marker sits at ``--marker`` (mm, tool frame; default 0,0,0: the tool point, so that x, y,
 z are the marker's own positions), i.e. at ``R marker + p`` in the world. With
@@ -45,6 +46,7 @@ import math
 import sys
 from pathlib import Path
 
+from config import load_settings
 from config.cli import (
     EXIT_FAILURE,
     EXIT_OK,
@@ -58,6 +60,7 @@ from daemon.calibration.camera_observations import (
     read_observations,
     write_observations,
 )
+from daemon.commands.followed_refusals import cameras_refusal
 
 
 # numpy, OpenCV and SciPy are imported where they are used: `--help` answers at once (issue 16);
@@ -213,6 +216,10 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
         print(f"{PROG}: --turn must be between 0 and pi rad", file=sys.stderr)
         return EXIT_USAGE
     if args.robot:
+        refusal = cameras_refusal(load_settings(args.config), "--robot")
+        if refusal is not None:  # a UR: one line, before anything opens
+            print(f"{PROG}: {refusal}", file=sys.stderr)
+            return EXIT_USAGE
         return run_with_robot(args)
     robot_only = [
         option

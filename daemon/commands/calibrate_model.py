@@ -18,6 +18,9 @@ On an arm (``[arm] enabled``, or ``--duty-cycle``) the same chain runs the arm's
 arm's model identified from it and saved as arm model NAME, a validation run with
 ``--arm-model NAME`` whose 3-D residual is measured against the calibration run's drift and
 the measurement's noise; ``--network`` and ``--scale`` do not apply there.
+
+On a UR (``robot.driver = "ur-rtde"``) it is refused in one line, exit status 2: a followed
+run measures no tool error to identify a model from (daemon/commands/followed_refusals.py).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from config.cli import (
 )
 from daemon.commands.calibrate_arm_model import run_calibrate_arm_model
 from daemon.commands.calibrate_chain import PROG, StepFailedError, run_alone
+from daemon.commands.followed_refusals import model_refusal
 from daemon.commands.run import _finite
 
 #: Thesis 6.3: a scaled calibration run puts more of the deformation on the chip than the
@@ -134,6 +138,10 @@ def run_calibrate_model(args: argparse.Namespace) -> int:
     from daemon.calibration.identify_run import saved_network_path
 
     settings = _settings(args)
+    refusal = model_refusal(settings)
+    if refusal is not None:  # a UR: one line, before anything opens
+        print(f"{PROG}: {refusal}", file=sys.stderr)
+        return EXIT_USAGE
     if settings.arm.enabled:  # issue 20: the arm's chain
         return run_calibrate_arm_model(args, settings)
     if args.scale is None:

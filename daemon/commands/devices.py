@@ -71,7 +71,53 @@ async def _check(settings: Settings) -> DeviceCheck:
 
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     async with open_devices(settings, clock) as devices:
-        return await check_devices(devices, settings)
+        check = await check_devices(devices, settings)
+    if settings.robot.driver == "ur-rtde":
+        await _tool_cameras(settings, check)
+    return check
+
+
+async def _tool_cameras(settings: Settings, check: DeviceCheck) -> None:
+    """One frame of each real tool camera (arm.camera_devices), each opened on its own; a UR's
+    devices open none (a followed run measures with no camera): they are checked here."""
+    from daemon.run.devices_check import FOLLOWED_CAMERAS_NOTE  # lazy: OpenCV, not for --help
+    from drivers.factory import camera_driver  # lazy: the drivers, not for --help
+
+    devices = settings.arm.camera_devices if settings.arm.enabled else ()
+    if devices and FOLLOWED_CAMERAS_NOTE in check.notes:
+        check.notes.remove(FOLLOWED_CAMERAS_NOTE)  # they are checked after all
+    clock = make_clock(settings.bench.clock, settings.bench.time_factor)
+    for index, device in enumerate(devices):
+        name = f"tool camera {index}"
+        try:
+            async with camera_driver(device, clock, None) as camera:
+                frame = await asyncio.wait_for(camera.grab(), device.grab_timeout_s)
+                check.tool_frames.append((name, frame))
+        except GRAB_ERRORS as err:
+            check.errors[name] = _reason("camera", err) if str(err) else "no frame in time"
+
+
+async def _check_each_ur(settings: Settings, opening: Exception) -> DeviceCheck:
+    """A UR's check after its devices did not open: the robot alone (or, on the bench, the
+    emulator's error), then the tool cameras, each failure its own line."""
+    from daemon.run.devices_check import (  # lazy: OpenCV and NumPy, not for --help
+        FOLLOWED_CAMERAS_NOTE,
+        DeviceCheck,
+        probe_described,
+    )
+    from drivers.ur.robot import URRobot  # lazy: the drivers, not for --help
+
+    check = DeviceCheck(notes=[FOLLOWED_CAMERAS_NOTE])
+    if settings.bench.enabled:  # the UR emulator itself did not open (its ports taken?)
+        check.errors["robot"] = f"the UR emulator: {_reason('robot', opening)}"
+    else:
+        try:
+            async with URRobot(settings.robot) as robot:
+                await probe_described(robot, check)
+        except OPEN_ERRORS as err:
+            check.errors["robot"] = _reason("robot", err)
+    await _tool_cameras(settings, check)
+    return check
 
 
 async def _check_each(settings: Settings, opening: Exception) -> DeviceCheck:
@@ -91,6 +137,8 @@ async def _check_each(settings: Settings, opening: Exception) -> DeviceCheck:
         robot_driver,
     )
 
+    if settings.robot.driver == "ur-rtde":
+        return await _check_each_ur(settings, opening)
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     check = DeviceCheck(regions=settings.ir.regions)
     bench = bench_for(settings, clock)

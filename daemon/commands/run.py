@@ -261,7 +261,9 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
         f"run {final['id']} {final['state']}" + (f": {final['reason']}" if final["reason"] else "")
     )
     rows = (
-        _arm_rows(summary)
+        _followed_rows(summary)
+        if summary.get("kind") == "followed"
+        else _arm_rows(summary)
         if "drift_3d_max_um" in summary
         else [
             ("steps with a residual (N)", summary.get("n"), ""),
@@ -289,6 +291,27 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
         print(f"  {'lateness p50/p99/max':<28} {values} ms")
     if final.get("report"):
         print(f"  {'report':<28} {final['report']}")
+
+
+def _followed_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:
+    """A followed run's figures (a UR playing its own program): the corrections written and,
+    on the UR bench, the bench truth's 3-D tool error with and without them (the truth, not a
+    measurement: a followed run measures with no camera)."""
+    rows: list[tuple[str, object, str]] = [
+        ("corrections written", summary.get("corrections_written"), ""),
+    ]
+    truth = summary.get("bench_truth") or {}
+    if truth.get("steps"):
+        removed = truth.get("removed_fraction")
+        rows += [
+            ("bench truth: steps (N)", truth.get("steps"), ""),
+            ("3-D error RMS, corrected", truth.get("rms_residual_um"), "um"),
+            ("3-D error RMS, uncorrected", truth.get("rms_uncompensated_um"), "um"),
+            ("3-D error max, corrected", truth.get("worst_residual_um"), "um"),
+            ("3-D error max, uncorrected", truth.get("worst_uncompensated_um"), "um"),
+            ("removed (RMS)", None if removed is None else 100.0 * removed, "%"),
+        ]
+    return [*rows, ("overruns", summary.get("overruns"), "")]
 
 
 def _arm_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:

@@ -26,7 +26,15 @@ from daemon.vision.preview import (
     ir_panel,
     side_by_side,
 )
-from drivers.base import Camera, Frame, IrReader, IrReading, Pose, Robot
+from drivers.base import (
+    Camera,
+    DescribedRobot,
+    Frame,
+    IrReader,
+    IrReading,
+    Pose,
+    Robot,
+)
 from drivers.deadline import bounded
 from drivers.errors import DeviceError
 
@@ -61,6 +69,10 @@ class DeviceCheck:
     errors: dict[str, str] = field(default_factory=dict)
     #: the arm bench's tool cameras (issue 28): one frame each, by camera name
     tool_frames: list[tuple[str, Frame]] = field(default_factory=list)
+    #: what a robot that describes itself reported (a UR: drivers/ur/describe.py)
+    robot_facts: tuple[tuple[str, str], ...] = ()
+    #: what was not checked and why (one line each; not a failure)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -94,11 +106,21 @@ class DeviceCheck:
                     for name, r in reading.regions.items()
                 },
             },
-            "robot": None
-            if self.pose is None
-            else {"link": self.robot_link, "pose": list(_pose_values(self.pose))},
+            "robot": self._robot_dict(),
+            "notes": list(self.notes),
             "errors": dict(self.errors),
         }
+
+    def _robot_dict(self) -> dict[str, Any] | None:
+        if self.pose is None and not self.robot_facts:
+            return None
+        robot: dict[str, Any] = {
+            "link": self.robot_link,
+            "pose": None if self.pose is None else list(_pose_values(self.pose)),
+        }
+        if self.robot_facts:
+            robot["facts"] = dict(self.robot_facts)
+        return robot
 
 
 def _pose_values(pose: Pose) -> tuple[float, ...]:
@@ -145,6 +167,13 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
     """Grab one frame (of every tool camera on an arm), read one IR image and the robot's
     pose; measure the spot."""
     check = DeviceCheck(regions=ir_regions(devices, settings))
+    # a robot that describes itself (a UR, the only one today) plays its own program: a
+    # followed run's devices, no spot camera or IR camera to probe
+    if isinstance(devices.robot, DescribedRobot):
+        await probe_described(devices.robot, check)
+        if not await _tool_frames(devices, settings, check):
+            check.notes.append(FOLLOWED_CAMERAS_NOTE)
+        return check
     if not await _tool_frames(devices, settings, check):
         await probe_camera(devices.camera, settings, check)
     await probe_ir(devices.ir, settings, check)
@@ -199,6 +228,31 @@ async def probe_robot(robot: Robot, check: DeviceCheck) -> None:
         check.errors["robot"] = str(err) or "no pose"
 
 
+#: What a followed run's check says of its cameras (a UR: drivers.factory opens none).
+FOLLOWED_CAMERAS_NOTE = (
+    "cameras: none checked: a followed run (robot.driver ur-rtde) measures with no camera, "
+    "its thermal input is the joint temperatures (docs/how-to/universal-robots.md)"
+)
+
+
+async def probe_described(robot: object, check: DeviceCheck) -> None:
+    """A robot that describes itself (a UR): its facts, and each problem that would stop a run
+    as its own failure (``robot <topic>``); its link failing is the one ``robot`` failure."""
+    if not isinstance(robot, DescribedRobot):
+        check.errors["robot"] = "this robot cannot describe itself"
+        return
+    try:
+        description = await asyncio.wait_for(robot.describe(), POSE_TIMEOUT_S)
+    except (DeviceError, TimeoutError) as err:
+        check.errors["robot"] = str(err) or "no description"
+        return
+    status = getattr(robot, "status", None)
+    check.robot_link = status().link.value if callable(status) else None
+    check.robot_facts = description.facts
+    for topic, problem in description.problems:
+        check.errors[f"robot {topic}"] = problem
+
+
 def describe(check: DeviceCheck) -> list[str]:
     """The check as lines for people."""
     data = check.as_dict()
@@ -239,12 +293,16 @@ def describe(check: DeviceCheck) -> list[str]:
         if not ir["regions"]:
             lines.append("ir: no regions configured ([[ir.regions]]): place them on the preview")
     robot = data["robot"]
-    if robot is not None:
+    if robot is not None and robot["pose"] is not None:
         x, y, z, z_rot, y_rot, x_rot = robot["pose"]
         lines.append(
             f"robot: {robot['link']}, pose x {x:.3f} y {y:.3f} z {z:.3f} mm, "
             f"rotations {z_rot:.3f} {y_rot:.3f} {x_rot:.3f} deg"
         )
+    if robot is not None and "facts" in robot:
+        lines.append(f"robot: {robot['link']}")
+        lines.extend(f"robot: {name}: {fact}" for name, fact in robot["facts"].items())
+    lines.extend(data["notes"])
     lines.extend(f"{device}: FAILED: {error}" for device, error in data["errors"].items())
     return lines
 

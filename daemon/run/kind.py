@@ -80,8 +80,11 @@ class RunKind(Protocol):
         that holds ``grant``; nothing for a kind whose steps make every move."""
         ...
 
-    async def stop_playing(self, grace_s: float) -> None:
-        """Stop it: the run pauses, faults or ends."""
+    async def stop_playing(self, grace_s: float, *, held: bool) -> None:
+        """Stop it: the run pauses, faults or ends, within ``grace_s``. Called after the
+        session's hold. ``held``: the run was held (a pause, a fault, a stop, an abort, a
+        shutdown), not ended at its duration: a robot that plays its own program is paused
+        then (daemon/run/followed/program_pause.py)."""
         ...
 
     def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:

@@ -137,6 +137,9 @@ class RunSession:
             or not self.permit.is_current(ticket)
         ):
             await self._hold_quietly()  # re-assert: the resume must not undo a later hold
+            # and stop again what the resume started (a program the kind played again):
+            # the loop stopped it for this pause already and will not again
+            await self.kind.stop_playing(self._services.settings.scheduler.stop_grace_s, held=True)
             raise RunStateError(f"run {self.id}: a hold or stop came during the resume")
         self._grant = ticket
         self._go(RunState.RUNNING if self._prepared else RunState.STARTING, None)
@@ -298,7 +301,9 @@ class RunSession:
             if self.stop_requested or self.state is RunState.STOPPING:
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
-                await self.kind.stop_playing(self._services.settings.scheduler.stop_grace_s)
+                await self.kind.stop_playing(
+                    self._services.settings.scheduler.stop_grace_s, held=True
+                )
                 if not await self._wait_while_held():
                     return
                 timer.resync()
@@ -401,7 +406,11 @@ class RunSession:
             await self._hold_quietly(
                 f"run {self.id} {final.value}" + (f": {reason}" if reason else "")
             )
-            await self.kind.stop_playing(services.settings.scheduler.stop_grace_s)
+            # after the hold: a robot that plays its own program is paused then, unless the
+            # run simply reached its end (daemon/run/followed/program_pause.py)
+            await self.kind.stop_playing(
+                services.settings.scheduler.stop_grace_s, held=final is not RunState.FINISHED
+            )
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
             recorded = await self._record_end(final, reason)

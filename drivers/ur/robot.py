@@ -28,8 +28,10 @@ offset program (it was seen stopped, or its accepted sequence went back) holds a
 resume with GoalLostError: the program's offset state is gone.
 
 What a hold means on a robot that plays its own program: the program's offset freezes where
-it is (the program keeps playing; pausing it is the Dashboard's ``pause``,
-``URRobot.dashboard``); the robot-side program freezes it by itself too when the PC goes
+it is; the program keeps playing. Pausing it is the Dashboard's ``pause``
+(:meth:`URRobot.pause_program`), which a followed run sends *after* the hold, never before it
+(daemon/run/followed/program_pause.py, robot.pause_program_on_hold): nothing here waits for
+the Dashboard. The robot-side program freezes the offset by itself too when the PC goes
 silent for its watchdog's 0.5 s.
 
 A lost link (no state package for robot.ur_timeout_s, a closed or garbled connection) is a
@@ -50,7 +52,14 @@ from types import TracebackType
 from typing import Any, Self
 
 from config.settings import RobotSettings
-from drivers.base import ZERO_ROTATION, LinkState, OffsetRobotState, RobotStatus, Vector3
+from drivers.base import (
+    ZERO_ROTATION,
+    LinkState,
+    OffsetRobotState,
+    RobotDescription,
+    RobotStatus,
+    Vector3,
+)
 from drivers.errors import (
     DeviceError,
     DeviceTimeoutError,
@@ -63,6 +72,7 @@ from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.ur import rtde_protocol as rtde
 from drivers.ur.dashboard_client import DashboardClient
+from drivers.ur.describe import describe_ur
 from drivers.ur.modes import RuntimeState
 from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_client import RtdeClient
@@ -477,6 +487,27 @@ class URRobot:
             hold_reason=self.permit.reason,
             extra=extra,
         )
+
+    @property
+    def controller_version(self) -> tuple[int, int, int, int] | None:
+        """The controller's version (RTDE get_urcontrol_version), once connected."""
+        client = self._client
+        return None if client is None else client.controller_version
+
+    async def describe(self) -> RobotDescription:
+        """For ``thermocomp devices check`` (drivers/ur/describe.py)."""
+        return await describe_ur(self)
+
+    # -- the program (drivers.base.ProgramControl, through the Dashboard Server) -------------
+
+    async def program_state(self) -> str:
+        return await self.dashboard.program_state()
+
+    async def pause_program(self) -> None:
+        await self.dashboard.pause()
+
+    async def play_program(self) -> None:
+        await self.dashboard.play()
 
     # -- state packages ----------------------------------------------------------------------
 

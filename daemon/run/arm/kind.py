@@ -65,7 +65,7 @@ class ArmKind(KindBase):
         if self.arm.player is not None:
             self.arm.player.start(grant)
 
-    async def stop_playing(self, grace_s: float) -> None:
+    async def stop_playing(self, grace_s: float, *, held: bool) -> None:
         if self.arm.player is not None:
             await self.arm.player.stop(grace_s)
 

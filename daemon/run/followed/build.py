@@ -1,14 +1,17 @@
 """A followed run built (daemon/run/kinds.py chose it: the robot plays its own program): the
 arm's model of that program (daemon/run/followed/setup.py), the run's row in the run database,
-the bench truth when the UR bench is simulated. RunParameterError when it cannot be built."""
+the bench truth when the UR bench is simulated, and the pause of the robot's program on a
+hold (robot.pause_program_on_hold: daemon/run/followed/program_pause.py). RunParameterError
+when it cannot be built."""
 
 from __future__ import annotations
 
 from daemon.run.followed.kind import FollowedKind, FollowedWork
+from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.followed.setup import followed_model
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
-from drivers.base import OffsetRobot
+from drivers.base import OffsetRobot, ProgramControl
 
 
 async def build_followed(
@@ -26,4 +29,9 @@ async def build_followed(
         builder.clock,
         model,
         getattr(builder.devices(), "ur_truth", None),
+        ProgramPause(
+            robot if isinstance(robot, ProgramControl) else None,
+            enabled=builder.settings.robot.pause_program_on_hold,
+            errors=builder.errors,
+        ),
     )

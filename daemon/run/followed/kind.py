@@ -14,6 +14,11 @@ records it with the joint temperatures and where the program was. On the UR benc
 truth's residual tool error is recorded as the step's measurement (flag ``bench-truth``);
 with no bench nothing is measured (flag ``no-measurement``): the tool cameras of a followed
 run are not wired in yet.
+
+A hold (pause, stop, fault, shutdown) freezes the correction first (the session's hold, the
+driver's hold flag); then :meth:`FollowedKind.stop_playing` pauses the robot's program through
+its Dashboard (program_pause.py, robot.pause_program_on_hold), and :meth:`resumed` plays again
+a program that pause paused.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from daemon.arm.types import FloatArray, Pose6
 from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
+from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
@@ -140,6 +146,9 @@ class FollowedKind(KindBase):
     clock: Clock
     model: FollowedModel
     truth: BenchTruth | None = None
+    #: pauses the robot's program after a hold, plays it again on the resume
+    #: (robot.pause_program_on_hold; daemon/run/followed/program_pause.py)
+    program: ProgramPause | None = None
     last_correction: Pose6 = field(default_factory=Pose6.zero)
     corrections_written: int = 0
     tally: TruthTally = field(default_factory=TruthTally)
@@ -259,14 +268,21 @@ class FollowedKind(KindBase):
         flags.append("bench-truth")
 
     async def resumed(self) -> None:
-        """The program goes on where it is; the next correction is checked against the last."""
+        """The program goes on where it is; the next correction is checked against the last.
+        A program the hold paused is played again (after the driver's resume: the correction
+        is live before the robot moves; a Dashboard failure is noted, not raised)."""
         self.robot.robot_state()  # the link answers (NotConnectedError otherwise)
+        if self.program is not None:
+            await self.program.play_again(self.settings.scheduler.stop_grace_s)
 
     def play(self, grant: Ticket) -> None:
         """The robot plays its own program: nothing to start here."""
 
-    async def stop_playing(self, grace_s: float) -> None:
-        """The hold (the session's) freezes the program's offset: nothing more to stop."""
+    async def stop_playing(self, grace_s: float, *, held: bool) -> None:
+        """The session's hold has frozen the program's offset already; after a hold (not at
+        the run's end) the program itself is paused, within ``grace_s`` (program_pause.py)."""
+        if held and self.program is not None:
+            await self.program.pause(grace_s)
 
     def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:
         """Every figure of this kind's summary is in memory: the basis is all of it."""

@@ -113,7 +113,7 @@ class TwoLinkKind(KindBase):
     def play(self, grant: Ticket) -> None:
         """Nothing moves between the steps."""
 
-    async def stop_playing(self, grace_s: float) -> None:
+    async def stop_playing(self, grace_s: float, *, held: bool) -> None:
         """Nothing moves between the steps."""
 
     def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:

@@ -1,0 +1,242 @@
+"""`thermocomp devices check --config config/ur5e-sim.toml` through the real CLI: on the UR bench
+it describes the UR over RTDE and the Dashboard Server (protocol and controller version,
+robot, safety and program state, joint temperatures, the registers it set up, the offset
+program) and says what it did not check (no camera); against an emulated "real" UR (bench
+disabled, the emulator run by the test) each thing that would stop a run is its own failure
+line, and an unreachable robot, input registers another client holds and a missing tool
+camera are one line each; the calibrations a UR cannot make are refused in one line; and
+`thermocomp run` prints a followed run's own figures.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import socket
+from pathlib import Path
+
+import pytest
+
+from drivers.sim.ur.controller import URControllerConfig
+from drivers.sim.ur.emulator import UREmulator
+from drivers.ur.registers import RegisterMap
+from drivers.ur.rtde_client import RtdeClient
+from tests.helpers import REPO_ROOT, cli_command, run_cli
+
+UR5E = str(REPO_ROOT / "config" / "ur5e-sim.toml")
+CLI_TIMEOUT_S = 120.0
+
+
+def on_host(host: str, **extra: str) -> dict[str, str]:
+    return {"THERMOCOMP_ROBOT__HOST": host, **extra}
+
+
+def as_robot(host: str, **extra: str) -> dict[str, str]:
+    """The settings of a real UR at ``host``: no bench (the test runs the emulator)."""
+    return on_host(host, THERMOCOMP_BENCH__ENABLED="false", **extra)
+
+
+async def check(env: dict[str, str], *args: str) -> tuple[int, str, str]:
+    """The CLI in a subprocess while this loop serves the emulator."""
+    process = await asyncio.create_subprocess_exec(
+        *cli_command("devices", "check", "--config", UR5E, *args),
+        cwd=REPO_ROOT,
+        env={**os.environ, **env},
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    async with asyncio.timeout(CLI_TIMEOUT_S):
+        out, err = await process.communicate()
+    assert process.returncode is not None
+    return process.returncode, out.decode(), err.decode()
+
+
+def failures(out: str) -> list[str]:
+    return [line for line in out.splitlines() if ": FAILED: " in line]
+
+
+@pytest.mark.slow
+def test_the_ur_bench_is_described_and_passes() -> None:
+    result = run_cli(["devices", "check", "--config", UR5E], env=on_host("127.0.34.6"))
+    assert result.returncode == 0, result.stdout + result.stderr
+    out = result.stdout
+    for line in (
+        "robot: connected",
+        "robot: RTDE: 127.0.34.6:30004, protocol version 2 accepted, state at 125 Hz",
+        "robot: controller: 5.15.0.0",
+        "robot: robot mode: RUNNING",
+        "robot: safety: NORMAL",
+        "robot: program (RTDE): PLAYING",
+        "robot: program (Dashboard): PLAYING thermocomp.urp",
+        "robot: remote control: true",
+        "robot: registers: input int 24-25 and double 24-29 set up by this PC (free: no other "
+        "RTDE client holds them); output int 24-27, double 24-29",
+    ):
+        assert line in out.splitlines(), out
+    temperatures = next(x for x in out.splitlines() if x.startswith("robot: joint temperatures"))
+    values = [float(v) for v in temperatures.split(": ")[2].removesuffix(" degC").split()]
+    assert len(values) == 6 and all(15.0 < v < 60.0 for v in values)
+    assert "robot: offset program: running (instance " in out
+    assert "cameras: none checked: a followed run" in out
+    assert not failures(out) and not result.stderr.strip()
+
+    as_json = run_cli(["devices", "check", "--config", UR5E, "--json"], env=on_host("127.0.34.6"))
+    data = json.loads(as_json.stdout)
+    facts = data["robot"]["facts"]
+    assert facts["safety"] == "NORMAL" and facts["controller"] == "5.15.0.0"
+    assert data["robot"]["link"] == "connected" and data["errors"] == {}
+
+
+@pytest.mark.slow
+async def test_what_would_stop_a_run_is_one_line_each() -> None:
+    # the program's REG_BASE is 30, the PC's 24: the offset program is silent where the PC
+    # reads; a protective stop halts the arm
+    config = URControllerConfig(register_base=30)
+    async with UREmulator(config, host="127.0.34.7") as ur:
+        ur.protective_stop()
+        status, out, err = await check(as_robot("127.0.34.7"))
+        assert status == 1
+        assert failures(out) == [
+            "robot safety: FAILED: PROTECTIVE_STOP: clear it on the pendant",
+            "robot offset program: FAILED: silent in output_int_register_27: put "
+            "thermocomp_offset.script in the program's Before Start with REG_BASE = 24 "
+            "(controller/ur/README.md)",
+        ], out
+        assert len(err.strip().splitlines()) == 2  # one stderr line per failure
+        assert "robot: program (RTDE): PAUSED" in out
+
+        # the operator stopped the program; the Dashboard Server is not where the PC looks
+        ur.operator_stop()
+        with socket.socket() as probe:  # a port nothing listens on
+            probe.bind(("127.0.34.7", 0))
+            closed = probe.getsockname()[1]
+        status, out, _ = await check(
+            as_robot("127.0.34.7", THERMOCOMP_ROBOT__DASHBOARD_PORT=str(closed))
+        )
+        assert status == 1
+        lines = failures(out)
+        assert "robot program: FAILED: STOPPED: load the production program with " in lines[1]
+        assert lines[-1].startswith("robot Dashboard: FAILED: Dashboard Server 127.0.34.7:")
+        assert lines[-1].endswith(
+            "a hold cannot pause the program (robot.pause_program_on_hold; port "
+            "robot.dashboard_port)"
+        )
+        # without the pause on a hold the Dashboard is described, not a failure
+        status, out, _ = await check(
+            as_robot(
+                "127.0.34.7",
+                THERMOCOMP_ROBOT__DASHBOARD_PORT=str(closed),
+                THERMOCOMP_ROBOT__PAUSE_PROGRAM_ON_HOLD="false",
+            )
+        )
+        assert not any(line.startswith("robot Dashboard") for line in failures(out))
+        assert "robot: Dashboard: no answer: " in out
+
+
+@pytest.mark.slow
+async def test_unreachable_robot_taken_registers_and_a_missing_camera(tmp_path: Path) -> None:
+    status, out, err = await check(as_robot("127.0.34.9"))
+    assert status == 1
+    assert failures(out) == [
+        "robot: FAILED: RTDE 127.0.34.9:30004: [Errno 111] Connect call failed "
+        "('127.0.34.9', 30004)"
+    ]
+    assert err.strip().splitlines() == [
+        "thermocomp devices check: robot: RTDE 127.0.34.9:30004: [Errno 111] Connect call "
+        "failed ('127.0.34.9', 30004)"
+    ]
+
+    async with UREmulator(host="127.0.34.8") as ur:
+        other = RtdeClient(ur.host, ur.rtde_port, 5.0)  # another PC holds our registers
+        await other.connect()
+        try:
+            await other.setup_inputs([RegisterMap(24).sequence])
+            cameras = tmp_path / "cameras.toml"
+            cameras.write_text("")
+            status, out, _ = await check(
+                as_robot(
+                    "127.0.34.8",
+                    THERMOCOMP_ARM__CAMERAS_FILE=str(cameras),
+                    THERMOCOMP_ARM__CAMERA_DEVICES=json.dumps(
+                        [{"driver": "replay", "replay_dir": str(tmp_path / "no-frames")}]
+                    ),
+                )
+            )
+        finally:
+            await other.aclose()
+    assert status == 1
+    lines = failures(out)
+    assert len(lines) == 2, out
+    assert lines[0].startswith("robot: FAILED: ") and "IN_USE" in lines[0]
+    assert lines[1].startswith("tool camera 0: FAILED: ")
+    assert "cameras: none checked" not in out  # the configured camera was checked
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("host", ["127.0.34.6"])
+def test_a_bench_whose_ports_are_taken_is_one_line(host: str) -> None:
+    """The UR bench's emulator cannot open (its ports are taken by another bench): one line."""
+    with socket.socket() as taken:
+        taken.bind((host, 30004))
+        taken.listen()
+        result = run_cli(["devices", "check", "--config", UR5E, "--json"], env=on_host(host))
+    assert result.returncode == 1
+    data = json.loads(result.stdout)
+    assert list(data["errors"]) == ["robot"]
+    assert data["errors"]["robot"].startswith("the UR emulator: ")
+    assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("args", "what"),
+    [
+        (["calibrate", "cameras", "--robot"], "--robot moves the robot through a pattern"),
+        (["calibrate", "camera"], "calibrate camera moves the robot through a pattern"),
+        (["calibrate", "model", "--save", "ur"], "has no model calibration"),
+    ],
+)
+def test_the_calibrations_a_ur_cannot_make_are_refused_in_one_line(
+    args: list[str], what: str, tmp_path: Path
+) -> None:
+    """Before anything opens: the emulator's ports are taken and no data directory is made."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.34.12", 30004))
+        taken.listen()
+        result = run_cli(
+            [*args, "--config", UR5E],
+            env=on_host("127.0.34.12", THERMOCOMP_STORAGE__DATA_DIR=str(tmp_path / "data")),
+        )
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and what in lines[0], lines
+    assert 'docs/how-to/universal-robots.md, "Calibration on a UR"' in lines[0]
+    assert not (tmp_path / "data").exists()
+    assert result.stdout == ""
+
+
+def test_a_followed_run_prints_its_own_figures(capsys: pytest.CaptureFixture[str]) -> None:
+    """`thermocomp run` on a UR: the corrections and the bench truth's removal, not the
+    two-link bench's residual rows (all empty for a followed run)."""
+    from daemon.commands.run import _print_result
+
+    summary = {
+        "kind": "followed",
+        "corrections_written": 262,
+        "overruns": 3,
+        "bench_truth": {
+            "steps": 262,
+            "rms_residual_um": 1.25,
+            "rms_uncompensated_um": 10.0,
+            "worst_residual_um": 2.5,
+            "worst_uncompensated_um": 12.0,
+            "removed_fraction": 0.875,
+        },
+    }
+    _print_result({"id": 4, "state": "finished", "reason": None, "summary": summary}, False)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "run 4 finished"
+    assert "  corrections written          262" in lines
+    assert "  removed (RMS)                87.500 %" in lines
+    assert "  3-D error RMS, uncorrected   10.000 um" in lines
+    assert not any("residual" in line for line in lines)
