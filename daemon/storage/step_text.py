@@ -120,40 +120,89 @@ def _csv_numbers(column: Sequence[object]) -> list[bytes]:
     return text.split(b",")
 
 
+def _json_column(column: str, sql_type: str) -> str:
+    """One column of :func:`json_objects`' query: text escaped by SQLite as in ``step_text``;
+    a REAL stays a number (printed by daemon/storage/float_text.py, which writes null for a
+    missing or infinite one as ``step_text`` does); integers as text, null when missing."""
+    if sql_type == "TEXT":
+        return _json_value(column, sql_type)
+    if sql_type == "REAL":
+        return column
+    return f"COALESCE(CAST({column} AS TEXT), 'null')"
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class _Plan:
+    """A chunk's query, one row's format (bytes, ``%s`` per cell) and its REAL columns."""
+
+    sql: str
+    row: bytes
+    reals: frozenset[int]
+
+
 @cache
-def _csv_plan() -> tuple[str, bytes, frozenset[int]]:
-    """The query of :func:`csv_lines`, its row format and which columns are REAL."""
+def _plan(json: bool) -> _Plan:
+    """The plan of :func:`csv_lines` (``json`` False) or :func:`json_objects`."""
     columns = _columns()
+    cell = _json_column if json else _csv_column
     sql = (
-        f"SELECT {', '.join(_csv_column(name, kind) for name, kind in columns)} FROM steps "
+        f"SELECT {', '.join(cell(name, kind) for name, kind in columns)} FROM steps "
         "WHERE run_id = ? AND step >= ? ORDER BY step LIMIT ?"
     )
-    row = (",".join("%s" for _ in columns) + "\n").encode()
-    return sql, row, frozenset(i for i, (_, kind) in enumerate(columns) if kind == "REAL")
+    if json:
+        row = "{" + ",".join(f'"{name}":%s' for name, _ in columns) + "},"
+    else:
+        row = ",".join("%s" for _ in columns) + "\n"
+    reals = frozenset(i for i, (_, kind) in enumerate(columns) if kind == "REAL")
+    return _Plan(sql, row.encode(), reals)
+
+
+def _encoded(
+    db: sqlite3.Connection, run_id: int, start: int, count: int | None, *, json: bool
+) -> tuple[bytes, int, int | None]:
+    """The chunk's rows in ``_plan(json)``'s row format, one after the other; how many; the
+    last step's number. The cells stay bytes (no decoding), the chunk is handled column by
+    column in C calls (transposed by ``zip``, each REAL column printed by one msgspec call,
+    put back in row order by slice assignment) and formatted by one ``%`` for the chunk."""
+    plan = _plan(json)
+    text_factory = db.text_factory
+    db.text_factory = bytes
+    try:
+        rows = db.execute(plan.sql, (run_id, start, -1 if count is None else count)).fetchall()
+    finally:
+        db.text_factory = text_factory
+    if not rows:
+        return b"", 0, None
+    width = len(rows[0])
+    numbers = _json_numbers if json else _csv_numbers
+    cells: list[bytes] = [b""] * (len(rows) * width)
+    for index, column in enumerate(zip(*rows, strict=True)):
+        cells[index::width] = numbers(column) if index in plan.reals else column
+    # the step is the second column, as text (CAST in the query)
+    return plan.row * len(rows) % tuple(cells), len(rows), int(rows[-1][1])
+
+
+def _json_numbers(column: Sequence[object]) -> list[bytes]:
+    """A REAL column's JSON values: ``repr`` of each number, ``null`` when missing or
+    non-finite (SQLite stores NaN as NULL; infinities are read back as floats)."""
+    return float_text(column).split(b",")
 
 
 def csv_lines(
     db: sqlite3.Connection, run_id: int, start: int, count: int | None
 ) -> tuple[bytes, int, int | None]:
     """``step_text(..., json=False)``'s CSV lines, byte for byte, as UTF-8 bytes, with a
-    fraction of its CPU (issue 30; benchmarks/bench_exports.py): the cells stay bytes
-    (no decoding), the chunk is handled column by column in C calls (transposed by ``zip``,
-    each REAL column printed by one msgspec call, put back in row order by slice
-    assignment) and formatted by one ``%`` for the whole chunk. ``db`` is only read."""
-    sql, row_format, reals = _csv_plan()
-    text_factory = db.text_factory
-    db.text_factory = bytes
-    try:
-        rows = db.execute(sql, (run_id, start, -1 if count is None else count)).fetchall()
-    finally:
-        db.text_factory = text_factory
-    if not rows:
-        return b"", 0, None
-    width = len(row_format) // 3  # "%s," per column, the last with "\n"
-    cells: list[bytes] = [b""] * (len(rows) * width)
-    for index, column in enumerate(zip(*rows, strict=True)):
-        if index in reals:
-            cells[index::width] = _csv_numbers(column)
-        else:
-            cells[index::width] = column
-    return row_format * len(rows) % tuple(cells), len(rows), int(rows[-1][1])
+    fraction of its CPU (issue 30; benchmarks/bench_exports.py; see :func:`_encoded`).
+    ``db`` is only read."""
+    return _encoded(db, run_id, start, count, json=False)
+
+
+def json_objects(
+    db: sqlite3.Connection, run_id: int, start: int, count: int | None
+) -> tuple[bytes, int, int | None]:
+    """``step_text(..., json=True)``'s JSON objects joined by commas, byte for byte, as UTF-8
+    bytes, by the CSV's column-at-a-time path (issue 30: a JSON page cost 2x a CSV's rows
+    when each row was formatted, and each float printed by ``repr``, on its own).
+    ``db`` is only read."""
+    text, found, last = _encoded(db, run_id, start, count, json=True)
+    return text[:-1], found, last  # without the last object's comma
