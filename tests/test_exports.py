@@ -24,7 +24,7 @@ from daemon.storage.recorder import (
     Recorder,
     StepRecord,
 )
-from daemon.storage.step_text import csv_lines, json_objects, step_text
+from daemon.storage.step_text import _json_strings, csv_lines, json_objects, step_text
 
 STEPS = 25
 
@@ -195,7 +195,10 @@ HOSTILE: dict[int, dict[str, object]] = {
     16: {"predicted_x_um": 2**53 + 1, "predicted_y_um": -(2**62), "predicted_z_um": 10**18},
     17: {"ir_json": '{"big": 123456789012345678901234567890, "tiny": 1e-400}', "flags": ""},
     18: {"error": "note: \u00e9\u0301 \u05e9\u05dc\u05d5\u05dd \U0001f321\ufe0f \u2028 \x01\x1f"},
-    19: {"error": 'a "quoted" \\ back\\slash, a tab\t and a NUL \x00 inside', "arm_pose": "p\u00b2"},
+    19: {
+        "error": 'a "quoted" \\ back\\slash, a tab\t and a NUL \x00 inside',
+        "arm_pose": "p\u00b2",
+    },
     20: {"observer_json": '{"heat": [1.0, 0.05]}', "frame_path": "frames/\u6e29\u5ea6.png"},
 }
 
@@ -238,8 +241,24 @@ def test_the_json_is_the_old_encoders_byte_for_byte(tmp_path: Path) -> None:
         db.close()
     with Recorder(tmp_path) as recorder:
         records = recorder.steps(run_id)
-    steps = json.loads("[" + whole + "]", parse_constant=lambda name: pytest.fail(name))
+    steps = json.loads("[" + whole + "]", parse_constant=pytest.fail)
     assert steps == [_python_json(r) for r in records]
     assert [s["step"] for s in steps[-2:]] == [2**62, 2**63 - 1]
     assert steps[16]["predicted_x_um"] == float(2**53 + 1) and "\u2028" in steps[18]["error"]
     assert steps[15]["pose_x_mm"] is None and steps[15]["pose_y_mm"] is None
+
+
+def test_text_is_escaped_as_sqlites_json_quote_escapes_it() -> None:
+    """The JSON's text cells (msgspec) against SQLite's json_quote, which the row-at-a-time
+    encoder used: every code point, alone and between others."""
+    db = sqlite3.connect(":memory:")
+    try:
+        points = [*range(0xD800), *range(0xE000, 0x110000, 17), 0x10FFFF]
+        texts = ["a" + chr(p) + "\\" + chr(p) for p in points] + ["", '"', "\x00\x7f"]
+        quoted = [db.execute("SELECT json_quote(?)", (t,)).fetchone()[0] for t in texts]
+    finally:
+        db.close()
+    escaped = _json_strings(texts)
+    wrong = [(t, q, e) for t, q, e in zip(texts, quoted, escaped, strict=True) if q.encode() != e]
+    assert not wrong, wrong[:5]
+    assert _json_strings([None]) == [b"null"]

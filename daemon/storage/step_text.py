@@ -21,8 +21,11 @@ from __future__ import annotations
 
 import dataclasses
 import sqlite3
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import cache
+from typing import Any
+
+import msgspec
 
 from daemon.storage.float_text import float_text
 from daemon.storage.step_record import STEP_COLUMNS, StepRecord, column_type
@@ -120,53 +123,75 @@ def _csv_numbers(column: Sequence[object]) -> list[bytes]:
     return text.split(b",")
 
 
-def _json_column(column: str, sql_type: str) -> str:
-    """One column of :func:`json_objects`' query: text escaped by SQLite as in ``step_text``;
-    a REAL stays a number (printed by daemon/storage/float_text.py, which writes null for a
-    missing or infinite one as ``step_text`` does); integers as text, null when missing."""
-    if sql_type == "TEXT":
-        return _json_value(column, sql_type)
-    if sql_type == "REAL":
-        return column
-    return f"COALESCE(CAST({column} AS TEXT), 'null')"
+#: a column's cells -> their text in the export (bytes, in order)
+ColumnText = Callable[[Sequence[Any]], Sequence[bytes]]
+
+_JSON_ENCODER = msgspec.json.Encoder()
+
+
+def _as_is(column: Sequence[Any]) -> Sequence[bytes]:
+    """Cells SQLite already made text (bytes) in the query."""
+    return column
+
+
+def _json_numbers(column: Sequence[Any]) -> list[bytes]:
+    """A number column's JSON values: ``repr`` of each float (``str`` of each integer),
+    ``null`` when missing or non-finite (SQLite stores NaN as NULL; infinities are read back
+    as floats), printed by one msgspec call for the column (daemon/storage/float_text.py)."""
+    return float_text(column).split(b",")
+
+
+def _json_strings(column: Sequence[Any]) -> list[bytes]:
+    """A text column's JSON strings, ``null`` when missing: msgspec's escapes (quote,
+    backslash, controls as ``\\n`` or ``\\u00XX``, everything else as UTF-8) are SQLite's
+    ``json_quote``'s, code point for code point (tests/test_exports.py), at a fifth of its
+    cost."""
+    encode = _JSON_ENCODER.encode
+    return [encode(cell) for cell in column]
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
 class _Plan:
-    """A chunk's query, one row's format (bytes, ``%s`` per cell) and its REAL columns."""
+    """A chunk's query, one row's format (bytes, ``%s`` per cell), how each column's cells
+    become text, and whether SQLite hands text cells over as bytes (else as str)."""
 
     sql: str
     row: bytes
-    reals: frozenset[int]
+    texts: tuple[ColumnText, ...]
+    text_as_bytes: bool
 
 
 @cache
 def _plan(json: bool) -> _Plan:
-    """The plan of :func:`csv_lines` (``json`` False) or :func:`json_objects`."""
+    """The plan of :func:`csv_lines` (``json`` False) or :func:`json_objects`. CSV: SQLite
+    quotes the text and casts the integers, Python prints the REALs. JSON: SQLite only reads
+    (its ``json_quote`` was two fifths of a chunk's time); text cells are escaped by msgspec
+    and every number is printed by float_text (integers come out as ``str`` prints them)."""
     columns = _columns()
-    cell = _json_column if json else _csv_column
-    sql = (
-        f"SELECT {', '.join(cell(name, kind) for name, kind in columns)} FROM steps "
-        "WHERE run_id = ? AND step >= ? ORDER BY step LIMIT ?"
-    )
     if json:
+        cells = [name for name, _ in columns]
         row = "{" + ",".join(f'"{name}":%s' for name, _ in columns) + "},"
+        texts = tuple(_json_strings if kind == "TEXT" else _json_numbers for _, kind in columns)
     else:
+        cells = [_csv_column(name, kind) for name, kind in columns]
         row = ",".join("%s" for _ in columns) + "\n"
-    reals = frozenset(i for i, (_, kind) in enumerate(columns) if kind == "REAL")
-    return _Plan(sql, row.encode(), reals)
+        texts = tuple(_csv_numbers if kind == "REAL" else _as_is for _, kind in columns)
+    sql = (
+        f"SELECT {', '.join(cells)} FROM steps WHERE run_id = ? AND step >= ? ORDER BY step LIMIT ?"
+    )
+    return _Plan(sql, row.encode(), texts, text_as_bytes=not json)
 
 
 def _encoded(
     db: sqlite3.Connection, run_id: int, start: int, count: int | None, *, json: bool
 ) -> tuple[bytes, int, int | None]:
     """The chunk's rows in ``_plan(json)``'s row format, one after the other; how many; the
-    last step's number. The cells stay bytes (no decoding), the chunk is handled column by
-    column in C calls (transposed by ``zip``, each REAL column printed by one msgspec call,
-    put back in row order by slice assignment) and formatted by one ``%`` for the chunk."""
+    last step's number. The chunk is handled column by column in C calls (transposed by
+    ``zip``, each number column printed by one msgspec call, put back in row order by slice
+    assignment) and formatted by one ``%`` for the chunk."""
     plan = _plan(json)
     text_factory = db.text_factory
-    db.text_factory = bytes
+    db.text_factory = bytes if plan.text_as_bytes else str
     try:
         rows = db.execute(plan.sql, (run_id, start, -1 if count is None else count)).fetchall()
     finally:
@@ -174,18 +199,11 @@ def _encoded(
     if not rows:
         return b"", 0, None
     width = len(rows[0])
-    numbers = _json_numbers if json else _csv_numbers
     cells: list[bytes] = [b""] * (len(rows) * width)
     for index, column in enumerate(zip(*rows, strict=True)):
-        cells[index::width] = numbers(column) if index in plan.reals else column
-    # the step is the second column, as text (CAST in the query)
+        cells[index::width] = plan.texts[index](column)
+    # the step is the second column (CSV: as text, cast in the query)
     return plan.row * len(rows) % tuple(cells), len(rows), int(rows[-1][1])
-
-
-def _json_numbers(column: Sequence[object]) -> list[bytes]:
-    """A REAL column's JSON values: ``repr`` of each number, ``null`` when missing or
-    non-finite (SQLite stores NaN as NULL; infinities are read back as floats)."""
-    return float_text(column).split(b",")
 
 
 def csv_lines(
