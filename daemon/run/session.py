@@ -322,7 +322,12 @@ class RunSession:
         """A committed step: the session's last step, then its publication."""
         self.step = outcome.record.step
         self.last_record = outcome.record.as_dict()
-        self._publisher.step(outcome, self.last_record, self.view())
+        # the budget in wall seconds, as the stages are timed: an accelerated bench clock runs
+        # ``factor`` run seconds a wall second (a virtual clock's time is taken as it is)
+        factor = getattr(self.timer.clock, "factor", 1.0) if self.timer is not None else 1.0
+        self._publisher.step(
+            outcome, self.last_record, self.view(), self.kind.parameters.step_s, float(factor)
+        )
 
     async def _judge(self, step: int, verdict: Verdict) -> None:
         """A step's verdict meets the operator's requests here."""

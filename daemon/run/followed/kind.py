@@ -36,6 +36,7 @@ from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
+from daemon.run.stage_times import StageTimes
 from daemon.run.states import RunParameters
 from daemon.run.summary import SummaryBasis, fixed_summary
 from daemon.run.two_link.step import (
@@ -157,7 +158,7 @@ class FollowedKind:
     async def step(self, tick: Tick) -> StepOutcome:
         record, flags = begin_record(self.run_id, self.parameters, self.start_s, tick)
         errors: list[str] = []
-        stages: dict[str, float] = {}
+        stages = StageTimes()
         started = time.perf_counter()
         run_time_s = tick.scheduled_s - self.start_s
         latency_s = self.settings.compensation.latency_s
@@ -171,12 +172,12 @@ class FollowedKind:
             errors.append(str(err))
             finish_record(record, flags, errors, stages)
             await self.workers.db(self.recorder.write_step, record)
-            return StepOutcome(record, None, Verdict("fault", str(err)), (), stages)
+            return StepOutcome(record, None, Verdict("fault", str(err)), (), stages, stages.ends_s)
         self._state_into(record, state)
         error = await self.workers.step(self._predict, model_time_s, state)
         record.model_time_s = model_time_s
         self._prediction_into(record, error)
-        stages["model"] = time.perf_counter() - started
+        stages.end("model", started)
         started = time.perf_counter()
         try:
             correction = check_correction(
@@ -188,7 +189,10 @@ class FollowedKind:
             flags.append("unsafe-target")
             errors.append(f"correction refused: {err}")
             verdict = Verdict("pause", f"correction refused: {err}")
+            stages.end("check", started)
         else:
+            stages.end("check", started)
+            started = time.perf_counter()
             try:
                 t, r = correction.translation_mm, correction.rotation_rad
                 await self.robot.set_correction(
@@ -208,11 +212,13 @@ class FollowedKind:
                 flags.append("robot-error")
                 errors.append(str(err))
                 verdict = Verdict("fault", str(err))
-        stages["move"] = time.perf_counter() - started
+            stages.end("move", started)
         self._measure(record, flags)
         finish_record(record, flags, errors, stages)
+        started = time.perf_counter()
         await self.workers.db(self.recorder.write_step, record)
-        return StepOutcome(record, None, verdict, (), stages)
+        stages.end("record", started)
+        return StepOutcome(record, None, verdict, (), stages, stages.ends_s)
 
     @staticmethod
     def _state_into(record: StepRecord, state: OffsetRobotState) -> None:

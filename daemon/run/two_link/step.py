@@ -32,6 +32,7 @@ from daemon.model.observer import IrObserver
 from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
+from daemon.run.stage_times import StageTimes
 from daemon.run.states import ProcedurePoint, RunParameters, heat_at, procedure_point
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, StepRecord
@@ -73,6 +74,8 @@ class StepOutcome:
     verdict: Verdict
     round_trips_s: tuple[float, ...] = ()  # each console command of the move (s)
     stages_s: dict[str, float] = field(default_factory=dict)  # scheduler.STAGES timings
+    # when each stage ended, from the step's start (s; daemon/run/stage_times.py)
+    stage_ends_s: dict[str, float] = field(default_factory=dict)
     # an arm step: each tool camera's frame and the markers it measured, for live views
     views: tuple[CameraView, ...] = ()
 
@@ -133,21 +136,23 @@ class StepPipeline:
         run_time_s = tick.scheduled_s - work.start_s
         record, flags = begin_record(work.run_id, parameters, work.start_s, tick)
         errors: list[str] = []
-        stages: dict[str, float] = {}
+        stages = StageTimes()
         point = procedure_point(parameters, tick.step, run_time_s)
 
         # 1. the model, to the time the move is expected to execute (latency-compensated)
         started = time.perf_counter()
         predicted_um = await self._advance_model(work, run_time_s)
         self._record_model(work, record, predicted_um)
-        stages["model"] = time.perf_counter() - started
+        stages.end("model", started)
 
         # 2. the compensation target, checked before anything reaches the robot
         started = time.perf_counter()
         offset, target, unsafe = self._target(work, point, predicted_um)
         record.offset_x_mm, record.offset_y_mm, record.offset_z_mm = map(float, offset)
+        stages.end("check", started)
 
         # 3. the move (absolute from the goal, incremental, or none), then the actual pose
+        started = time.perf_counter()
         device_fault: str | None = None
         round_trips_s: tuple[float, ...] = ()
         if unsafe is not None:
@@ -167,7 +172,7 @@ class StepPipeline:
                 flags.append("robot-error")
                 errors.append(str(err))
                 device_fault = str(err)
-        stages["move"] = time.perf_counter() - started
+        stages.end("move", started)
 
         # 4. measure: frame -> centroid, and the IR regions
         frame: Frame | None = None
@@ -185,7 +190,7 @@ class StepPipeline:
                 self._recorder.archive_frame, work.run_id, tick.step, frame.image
             )
         await self._workers.db(self._recorder.write_step, record)
-        stages["record"] = time.perf_counter() - started
+        stages.end("record", started)
         verdict = step_verdict(
             self._settings,
             unsafe=unsafe,
@@ -194,7 +199,7 @@ class StepPipeline:
             record=record,
             sensor_error_flags=SENSOR_ERROR_FLAGS,
         )
-        return StepOutcome(record, frame, verdict, round_trips_s, stages)
+        return StepOutcome(record, frame, verdict, round_trips_s, stages, stages.ends_s)
 
     # --- 1. the model ------------------------------------------------------------------
 
@@ -305,7 +310,7 @@ class StepPipeline:
         record: StepRecord,
         flags: list[str],
         errors: list[str],
-        stages: dict[str, float],
+        stages: StageTimes,
     ) -> Frame | None:
         started = time.perf_counter()
         frame: Frame | None = None
@@ -315,16 +320,16 @@ class StepPipeline:
             self._errors.note(err)
             flags.append("camera-error")
             errors.append(str(err))
-        stages["frame"] = time.perf_counter() - started
+        stages.end("frame", started)
         started = time.perf_counter()
         if frame is not None:
             await self._centroid(
                 work, point=point, frame=frame, record=record, flags=flags, errors=errors
             )
-        stages["centroid"] = time.perf_counter() - started
+        stages.end("centroid", started)
         started = time.perf_counter()
         await self._infrared(work, record, flags, errors)
-        stages["ir"] = time.perf_counter() - started
+        stages.end("ir", started)
         return frame
 
     async def _centroid(
