@@ -10,7 +10,12 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.registry import Collector
+
+from daemon.run.gc_policy import GcPolicy
 
 #: Step lateness buckets (s): from the 20 ms step's sub-millisecond goal to 10 s.
 LATENESS_BUCKETS = (
@@ -138,6 +143,10 @@ class ApiMetrics:
             registry=registry,
         )
 
+        #: the daemon's collector policy while it is served (api/app.py serving)
+        self.gc_policy: GcPolicy | None = None
+        registry.register(_GcCollector(self))
+
     def observe_step(self, record: Mapping[str, Any], new_overruns: int = 0) -> None:
         """Feed one step event (the "Step record" columns, and daemon/run/publish.py's
         ``stage_s``, ``stage_lateness_s``, ``step_period_s`` and ``serial_round_trips_s``; a
@@ -189,3 +198,63 @@ def _finite_seconds(raw: object) -> dict[str, float]:
         for stage, value in raw.items()
         if isinstance(value, int | float) and math.isfinite(value) and value >= 0
     }
+
+
+#: The quantiles of the recent garbage collection pauses exposed (1 = the largest).
+GC_PAUSE_QUANTILES = (0.5, 0.99, 1.0)
+
+
+class _GcCollector(Collector):
+    """The process's garbage collections (daemon/run/gc_policy.py's watch), read when scraped."""
+
+    def __init__(self, metrics: ApiMetrics) -> None:
+        self._metrics = metrics
+
+    def describe(self) -> list[Metric]:
+        return []  # nothing to check against at registration: families come at collect
+
+    def collect(self) -> list[Metric]:
+        policy = self._metrics.gc_policy
+        if policy is None:
+            return []
+        watch = policy.watch
+        collections = CounterMetricFamily(
+            "thermocomp_gc_collections",
+            "Garbage collections of the daemon's process, by generation (2 = full).",
+            labels=["generation"],
+        )
+        in_step = CounterMetricFamily(
+            "thermocomp_gc_collections_in_step",
+            "Of them, those that ran while a step was under way.",
+            labels=["generation"],
+        )
+        pauses = GaugeMetricFamily(
+            "thermocomp_gc_pause_seconds",
+            "How long the recent collections stopped the process (the last 10,000 of each "
+            "generation), by quantile (1 = the longest).",
+            labels=["generation", "quantile"],
+        )
+        for generation in range(3):
+            label = str(generation)
+            collections.add_metric([label], watch.collections[generation])
+            in_step.add_metric([label], watch.in_step[generation])
+            recent = np.fromiter(tuple(watch.pauses_s[generation]), dtype=np.float64)
+            if recent.size:
+                for quantile, value in zip(
+                    GC_PAUSE_QUANTILES,
+                    np.quantile(recent, GC_PAUSE_QUANTILES),
+                    strict=True,
+                ):
+                    pauses.add_metric([label, f"{quantile:g}"], float(value))
+        between = CounterMetricFamily(
+            "thermocomp_gc_full_between_steps",
+            "Full collections the step loop did between steps, with the slack for them.",
+            value=policy.between_steps,
+        )
+        forced = CounterMetricFamily(
+            "thermocomp_gc_full_forced",
+            "Full collections the step loop did without the slack for them: deferred too long "
+            "(the bound on memory).",
+            value=policy.forced,
+        )
+        return [collections, in_step, pauses, between, forced]

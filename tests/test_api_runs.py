@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import csv
+import gc
 import io
 import json
 import socket
@@ -296,6 +297,7 @@ async def test_metrics_give_each_stages_share_of_the_step_budget(tmp_path: Path)
     least the stages' durations until then (the budget is spent in order, gaps included),
     and the period they share."""
     steps = 5
+    thresholds = gc.get_threshold()
     app = create_app(bench_settings(tmp_path / "data", clock="virtual"), service_factory=Daemon)
     async with (
         serve(app) as address,
@@ -307,6 +309,8 @@ async def test_metrics_give_each_stages_share_of_the_step_budget(tmp_path: Path)
         assert started.status_code == 201
         await wait_state(client, "idle")
         text = (await client.get("/metrics")).text
+        # full collections were deferred while it stepped (daemon/run/gc_policy.py): not now
+        assert gc.get_threshold() == thresholds
     families = {family.name: family for family in text_string_to_metric_families(text)}
     assert families["thermocomp_stage_lateness_seconds"].type == "histogram"
     samples = {
@@ -326,3 +330,11 @@ async def test_metrics_give_each_stages_share_of_the_step_budget(tmp_path: Path)
     for stage, end in zip(STAGE_ORDER, ends, strict=True):
         spent += samples[(f"{took}_sum", stage)]
         assert end >= spent * (1 - 1e-9), (stage, end, spent)
+    # every collection of the process is counted, by generation
+    assert families["thermocomp_gc_collections"].type == "counter"
+    collected = {
+        sample.labels["generation"]: sample.value
+        for sample in families["thermocomp_gc_collections"].samples
+        if sample.name == "thermocomp_gc_collections_total"
+    }
+    assert set(collected) == {"0", "1", "2"} and collected["0"] > 0  # a served run allocates

@@ -1,0 +1,89 @@
+"""daemon/run/gc_policy.py: full collections deferred while a run steps and done between
+steps when there is slack for them, or past the bound whatever the slack; every collection
+watched, with whether a step was under way; CPython's thresholds back afterwards."""
+
+from __future__ import annotations
+
+import gc
+from collections.abc import Iterator
+
+import pytest
+
+from daemon.run.gc_policy import DEFERRED_THRESHOLD2, MAX_DEFERRED, GcPolicy
+
+
+@pytest.fixture
+def policy() -> Iterator[GcPolicy]:
+    thresholds = gc.get_threshold()
+    policy = GcPolicy(enabled=True)
+    policy.install()
+    try:
+        yield policy
+    finally:
+        policy.remove()
+        gc.set_threshold(*thresholds)
+    assert gc.get_threshold() == thresholds
+
+
+def _young_collections(count: int) -> None:
+    """``count`` generation-1 collections: each adds one to the full collection's count."""
+    for _ in range(count):
+        gc.collect(1)
+
+
+def test_full_collections_are_deferred_while_stepping_and_restored_after(
+    policy: GcPolicy,
+) -> None:
+    before = gc.get_threshold()
+    policy.defer_full()
+    policy.defer_full()  # twice: still the thresholds of before to go back to
+    assert gc.get_threshold() == (before[0], before[1], DEFERRED_THRESHOLD2)
+    policy.resume_automatic()
+    assert gc.get_threshold() == before
+
+
+def test_a_due_full_collection_waits_for_the_slack_for_it(policy: GcPolicy) -> None:
+    every = gc.get_threshold()[2]  # generation-1 collections per full one (CPython's: 10)
+    policy.defer_full()
+    gc.collect()  # from a known count
+    fulls = policy.watch.collections[2]
+    assert policy.after_step(slack_s=1.0) is None  # not due yet
+    _young_collections(every)
+    assert policy.after_step(slack_s=0.0) is None  # due, but no room before the deadline
+    assert policy.watch.collections[2] == fulls
+    assert policy.after_step(slack_s=1.0) == "between steps"
+    assert policy.watch.collections[2] == fulls + 1 and policy.between_steps == 1
+    assert gc.get_count()[2] == 0
+    assert policy.watch.longest_full_s > 0
+
+
+def test_past_the_bound_it_is_done_whatever_the_slack(policy: GcPolicy) -> None:
+    policy.defer_full()
+    gc.collect()
+    _young_collections(MAX_DEFERRED - 1)
+    assert policy.after_step(slack_s=0.0) is None
+    _young_collections(1)
+    assert policy.after_step(slack_s=0.0) == "forced" and policy.forced == 1
+    assert gc.get_count()[2] == 0
+
+
+def test_nothing_is_done_outside_the_step_loop_or_when_off() -> None:
+    thresholds = gc.get_threshold()
+    off = GcPolicy(enabled=False)
+    off.defer_full()
+    assert gc.get_threshold() == thresholds
+    _young_collections(MAX_DEFERRED)
+    assert off.after_step(slack_s=1.0) is None  # CPython's own thresholds decide
+    on = GcPolicy(enabled=True)
+    assert on.after_step(slack_s=1.0) is None  # not stepping: nothing deferred
+
+
+def test_the_watch_counts_collections_during_a_step(policy: GcPolicy) -> None:
+    watch = policy.watch
+    young, in_step = watch.collections[0], watch.in_step[0]
+    policy.step(running=True)
+    gc.collect(0)
+    policy.step(running=False)
+    gc.collect(0)
+    assert watch.collections[0] == young + 2 and watch.in_step[0] == in_step + 1
+    assert len(watch.pauses_s[0]) >= 2 and all(p >= 0 for p in watch.pauses_s[0])
