@@ -312,6 +312,7 @@ async def serve(
         # Before any step: a full collection of the start-up heap stops the loop 10-15 ms,
         # the one cause of the fast path's overruns at a 20 ms step (daemon/heap.py).
         freeze_startup_heap()
+        daemon.gc_policy.watch.reset()  # the collections from here on: the daemon's own
         if settings.scheduler.lock_memory:  # no step waits for a page from swap
             log_memory_lock(lock_memory())
         signals = SignalStop(server, daemon)

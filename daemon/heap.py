@@ -47,20 +47,25 @@ def freeze_startup_heap() -> float:
 
 
 #: mlockall(2) flags (Linux, every architecture thermocomp runs on: x86-64, AArch64; the
-#: values differ only on Alpha, PowerPC and SPARC): the pages mapped now, and those mapped later.
+#: values differ only on Alpha, PowerPC and SPARC): the pages mapped now, those mapped later,
+#: and each only once first touched (Linux 4.4). Without MCL_ONFAULT every mapping is filled
+#: in when made: each thread's whole 8 MiB stack, every malloc arena (measured: a served
+#: daemon's resident memory 821 MiB instead of ~200).
 MCL_CURRENT = 1
 MCL_FUTURE = 2
+MCL_ONFAULT = 4
 #: CAP_IPC_LOCK's bit in /proc/self/status CapEff (linux/capability.h): locking ignores the limit
 CAP_IPC_LOCK = 14
 
 
 def lock_memory() -> str:
     """Lock every page of the process in RAM, now and later (``mlockall(MCL_CURRENT |
-    MCL_FUTURE)`` through ctypes: the standard library has no binding), so that a step never
-    waits for a page to come back from swap or a file; return the one line that says what
-    was done. Only when nothing it will map later can exceed the locking limit (the limit is
-    unlimited, or the process holds CAP_IPC_LOCK): with a finite limit, MCL_FUTURE makes any
-    allocation past it fail, a crash waiting to happen; then nothing is locked and the line
+    MCL_FUTURE | MCL_ONFAULT)`` through ctypes: the standard library has no binding), so that
+    a step never waits for a page to come back from swap or a file; return the one line that
+    says what was done. Only when nothing it will map later can exceed the locking limit
+    (the limit is unlimited, or the process holds CAP_IPC_LOCK): with a finite limit,
+    MCL_FUTURE makes any allocation past it fail, a crash waiting to happen; then nothing is
+    locked and the line
     says what to grant (deploy/thermocomp.service sets LimitMEMLOCK=infinity)."""
     if not sys.platform.startswith("linux"):
         return f"memory not locked: mlockall is Linux's ({sys.platform})"
@@ -71,10 +76,10 @@ def lock_memory() -> str:
             "lacks CAP_IPC_LOCK (grant LimitMEMLOCK=infinity: deploy/thermocomp.service)"
         )
     libc = ctypes.CDLL(None, use_errno=True)
-    if libc.mlockall(MCL_CURRENT | MCL_FUTURE) != 0:
+    if libc.mlockall(MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT) != 0:
         error = ctypes.get_errno()
         return f"memory not locked: mlockall failed ({os.strerror(error)})"
-    return "memory locked in RAM (mlockall: current and future pages)"
+    return "memory locked in RAM (mlockall: current and future pages, as they are touched)"
 
 
 def log_memory_lock(outcome: str) -> None:

@@ -83,7 +83,7 @@ def test_a_finite_locking_limit_locks_nothing_and_says_what_to_grant(
 def test_a_refused_mlockall_is_one_line_with_its_reason(monkeypatch: pytest.MonkeyPatch) -> None:
     class Libc:
         def mlockall(self, flags: int) -> int:
-            assert flags == heap.MCL_CURRENT | heap.MCL_FUTURE
+            assert flags == heap.MCL_CURRENT | heap.MCL_FUTURE | heap.MCL_ONFAULT
             ctypes.set_errno(errno.EPERM)
             return -1
 

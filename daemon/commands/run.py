@@ -196,6 +196,7 @@ async def _run(settings: Settings, parameters: RunParameters, args: argparse.Nam
     try:
         async with Daemon(settings) as daemon:
             freeze_startup_heap()  # as `thermocomp serve`: no full collection in a step
+            daemon.gc_policy.watch.reset()
             if settings.scheduler.lock_memory:
                 log_memory_lock(lock_memory())
             try:

@@ -59,6 +59,14 @@ class GcWatch:
         self.step_running = False
         self._started = 0.0
 
+    def reset(self) -> None:
+        """Count from now (after the start-up heap's one collection, daemon/heap.py)."""
+        for pauses in self.pauses_s:
+            pauses.clear()
+        self.collections = [0, 0, 0]
+        self.in_step = [0, 0, 0]
+        self.longest_full_s = 0.0
+
     def install(self) -> None:
         if self._callback not in gc.callbacks:
             gc.callbacks.append(self._callback)
