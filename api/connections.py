@@ -56,6 +56,8 @@ import httptools
 from uvicorn.config import HTTP_PROTOCOLS
 from uvicorn.importer import import_from_string
 
+from api.http_wire import HEAD_TOO_LARGE, MAX_HEAD_BYTES, Handover, busy_answer, head_facts
+
 logger = logging.getLogger(__name__)
 
 #: Connections whose first request head has not arrived yet, kept at most: beyond it the
@@ -74,8 +76,6 @@ CONTROL_RESERVE = 16
 #: descriptor check and deploy/thermocomp.service's LimitNOFILE count them): the pending
 #: bound, two accept bursts on their way to it (accepted, not yet judged), the reserve.
 ACCEPT_MARGIN = PENDING_MAX + 2 * LISTEN_BACKLOG + CONTROL_RESERVE
-#: Largest first request head read before handing over (bytes): browsers send a few KiB.
-MAX_HEAD_BYTES = 64 * 1024
 #: asyncio may run a timer this early (its clock resolution, rounded up) (s).
 CLOCK_SLACK_S = 0.001
 #: At most one warning about closed connections per this many seconds (no journal floods).
@@ -84,40 +84,6 @@ WARN_INTERVAL_S = 10.0
 #: Decides whether a request may use the reserve beyond the cap: (method, path without the
 #: query, Authorization header or None) -> True for an authenticated hold.
 HoldCheck = Callable[[str, str, "str | None"], bool]
-
-_SERVICE_UNAVAILABLE = (
-    b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\n"
-    b"retry-after: 1\r\ncache-control: no-store\r\nx-content-type-options: nosniff\r\n"
-    b"connection: close\r\ncontent-length: %d\r\n\r\n%s"
-)
-
-
-def _error(status: int, reason: str, kind: str, message: str) -> bytes:
-    """A whole HTTP/1.1 answer in the API's error shape (api/errors.py), closing."""
-    body = b'{"status":%d,"kind":"%s","message":"%s","details":null}' % (
-        status,
-        kind.encode(),
-        message.encode(),
-    )
-    return (
-        b"HTTP/1.1 %d %s\r\ncontent-type: application/json\r\ncache-control: no-store\r\n"
-        b"x-content-type-options: nosniff\r\nconnection: close\r\n"
-        b"content-length: %d\r\n\r\n%s" % (status, reason.encode(), len(body), body)
-    )
-
-
-def _busy(max_connections: int) -> bytes:
-    body = (
-        b'{"status":503,"kind":"too-many-connections","message":"the server is serving its '
-        b'maximum of %d connections (api.max_connections); retry later","details":null}'
-        % max_connections
-    )
-    return _SERVICE_UNAVAILABLE % (len(body), body)
-
-
-_HEAD_TOO_LARGE = _error(
-    431, "Request Header Fields Too Large", "too-large", f"request head over {MAX_HEAD_BYTES} bytes"
-)
 
 
 class ConnectionGuard:
@@ -327,43 +293,6 @@ class ConnectionGuard:
             self._last_warning = now
 
 
-#: What uvicorn's protocols and websockets call on a transport, passed straight through.
-_PASSED_THROUGH = (
-    "write",
-    "writelines",
-    "write_eof",
-    "can_write_eof",
-    "abort",
-    "close",
-    "is_closing",
-    "get_extra_info",
-    "pause_reading",
-    "resume_reading",
-    "is_reading",
-    "get_write_buffer_size",
-    "get_write_buffer_limits",
-    "set_write_buffer_limits",
-)
-
-
-class _Handover(asyncio.Transport):
-    """The transport uvicorn's protocol gets: the real one, except that a protocol switch
-    (the WebSocket upgrade) changes where the guarded connection forwards to instead of
-    replacing the guarded connection, so the guard still sees the connection end."""
-
-    def __init__(self, transport: asyncio.Transport, owner: GuardedConnection) -> None:
-        super().__init__()
-        self._owner = owner
-        for name in _PASSED_THROUGH:  # bound once: a call costs what it costs unguarded
-            setattr(self, name, getattr(transport, name))
-
-    def set_protocol(self, protocol: asyncio.BaseProtocol) -> None:
-        self._owner.forward_to(protocol)
-
-    def get_protocol(self) -> asyncio.BaseProtocol:
-        return self._owner.inner or self._owner
-
-
 class GuardedConnection(asyncio.Protocol):
     """One connection: pending until its first request head is read, then forwarding to
     uvicorn's protocol; every request on it under the request deadline."""
@@ -427,7 +356,7 @@ class GuardedConnection(asyncio.Protocol):
         if self._head_complete:
             self._decide()
         elif len(self._head) > MAX_HEAD_BYTES:
-            self._answer_and_close(_HEAD_TOO_LARGE)
+            self._answer_and_close(HEAD_TOO_LARGE)
 
     def eof_received(self) -> bool | None:
         inner = self.inner
@@ -496,10 +425,10 @@ class GuardedConnection(asyncio.Protocol):
     def _decide(self) -> None:
         self.pending = False
         self.guard.left_pending(self)
-        method, path, authorization = _head_facts(self._head)
+        method, path, authorization = head_facts(self._head)
         admitted = self.guard.admit(method, path, authorization)
         if admitted is None:
-            self._answer_and_close(_busy(self.guard.max_connections))
+            self._answer_and_close(busy_answer(self.guard.max_connections))
             return
         self._served = True
         self._in_reserve = not admitted
@@ -507,7 +436,7 @@ class GuardedConnection(asyncio.Protocol):
         assert self._transport is not None
         inner = self.guard.inner_protocol(**self._arguments)
         self.inner = inner
-        inner.connection_made(_Handover(self._transport, self))
+        inner.connection_made(Handover(self._transport, self))
         if not self._transport.is_closing():
             inner.data_received(head)
 
@@ -538,6 +467,10 @@ class GuardedConnection(asyncio.Protocol):
         self._deadline = None
         self.timed_out()
 
+    def current_protocol(self) -> asyncio.BaseProtocol:
+        """The protocol the connection's bytes go to now (the Handover's get_protocol)."""
+        return self.inner or self
+
     def timed_out(self) -> None:
         """The request deadline has passed: close the connection."""
         transport = self._transport
@@ -547,22 +480,3 @@ class GuardedConnection(asyncio.Protocol):
                 f"no complete request within {self.guard.request_timeout_s:g} s"
             )
             transport.close()
-
-
-def _head_facts(head: bytes | bytearray) -> tuple[str, str, str | None]:
-    """The method, the path (without the query) and the Authorization header of the first
-    request in ``head``, which the parser has found whole (its head, that is; body bytes may
-    follow)."""
-    lines = bytes(head).split(b"\n")
-    method, _, rest = lines[0].rstrip(b"\r").partition(b" ")
-    target = rest.partition(b" ")[0]
-    authorization = None
-    for raw in lines[1:]:
-        line = raw.rstrip(b"\r")
-        if not line:
-            break
-        name, _, value = line.partition(b":")
-        if name.strip().lower() == b"authorization":
-            authorization = value.strip().decode("latin-1")
-    path = target.partition(b"?")[0].decode("latin-1")
-    return method.decode("latin-1"), path, authorization
