@@ -5,18 +5,20 @@ run, idle and on a busy machine.
 Each measurement is a real ``thermocomp serve`` (``python -m api serve --config
 config/sim.toml``, real clock, ``robot.driver = "c500c-server"``: the paced emulator of the
 fast path's program on a pty) running one run at a 20 ms step while a dashboard-like client
-reads it (a WebSocket on the steps, ``GET /state`` every 0.5 s, ``GET /metrics`` every 2 s):
-the API's thread allocates as a served daemon's does. The two settings alternate (A B A B),
-``scheduler.gc_between_steps`` false (CPython's thresholds: the reference) then true. At the
-run's end ``/metrics`` gives every collection the process made (``gc.callbacks``): how many of
-each generation, how many while a step was under way, their pause quantiles; the run's summary
-gives the overruns and the lateness p99; /proc gives the server's resident and locked memory
-(the deferral's cost in memory: it must stay bounded).
+reads it (a WebSocket on the steps, ``GET /state`` every 0.5 s, ``GET /metrics`` every 2 s).
+A second scenario, written to make full collections happen, adds ``--churn`` requests a
+second that the API's thread answers with garbage of its own (a 404, the state, the metrics).
+The two settings alternate (A B A B): ``scheduler.gc_between_steps`` false (CPython's
+thresholds: the reference), then true. At the run's end ``/metrics`` gives every collection
+the process made (``gc.callbacks``): how many of each generation, how many while a step was
+under way, their pause quantiles; the run's summary gives the overruns and the lateness p99;
+/proc gives the server's resident and locked memory (the deferral's cost in memory).
 
 The load is ``--busy`` busy loops (``python -c 'while 1: pass'`` at normal priority) started
 before and stopped after each measurement; the 1-minute load average is printed beside each.
 
-Run: .venv/bin/python benchmarks/bench_gc_pauses.py [--seconds 60] [--busy 0 2] [--repeats 2]
+Run: .venv/bin/python benchmarks/bench_gc_pauses.py [--seconds 60] [--busy 0 2]
+     [--repeats 2] [--churn 0 200]
 """
 
 from __future__ import annotations
@@ -75,7 +77,21 @@ def _gc_figures(text: str) -> dict[str, Any]:
     return figures
 
 
-async def measured_run(seconds: float, env_extra: dict[str, str]) -> dict[str, Any]:
+async def _churn(client: httpx.AsyncClient, per_s: float, counts: list[int]) -> None:
+    """Requests the API's thread answers with garbage of its own: a refused run (404: an
+    exception and its traceback, reference cycles the collector must find), the state and
+    the metrics, ``per_s`` a second."""
+    paths = ("/api/v1/runs/999999", "/api/v1/state", "/api/v1/runs/999999/steps", "/metrics")
+    while True:
+        for path in paths:
+            await client.get(path)
+            counts[0] += 1
+            await asyncio.sleep(1.0 / per_s)
+
+
+async def measured_run(
+    seconds: float, env_extra: dict[str, str], churn_per_s: float
+) -> dict[str, Any]:
     port = free_port()
     with tempfile.TemporaryDirectory() as folder:
         server = start_server(ROOT, Path(folder) / "data", port, env_extra)
@@ -91,6 +107,10 @@ async def measured_run(seconds: float, env_extra: dict[str, str]) -> dict[str, A
                 )
                 response.raise_for_status()
                 run_id = response.json()["id"]
+                churned = [0]
+                churn = (
+                    asyncio.create_task(_churn(c, churn_per_s, churned)) if churn_per_s else None
+                )
                 polls = 0
                 while True:
                     await c.get("/api/v1/state")
@@ -101,6 +121,9 @@ async def measured_run(seconds: float, env_extra: dict[str, str]) -> dict[str, A
                     if run["state"] in ENDED:
                         break
                     await asyncio.sleep(POLL_S)
+                if churn is not None:
+                    churn.cancel()
+                    await asyncio.gather(churn, return_exceptions=True)
                 metrics = _gc_figures((await c.get("/metrics")).text)
                 rss = proc_status_mib("VmRSS", server.pid)
                 locked = proc_status_mib("VmLck", server.pid)
@@ -119,6 +142,7 @@ async def measured_run(seconds: float, env_extra: dict[str, str]) -> dict[str, A
         "lateness_p99_ms": 1e3 * lateness["p99"] if "p99" in lateness else None,
         "rss_mib": rss,
         "locked_mib": locked,
+        "churn_requests": churned[0],
         **metrics,
     }
 
@@ -128,23 +152,37 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--busy", type=int, nargs="+", default=[0, 2])
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument(
+        "--churn",
+        type=float,
+        nargs="+",
+        default=[0.0, 200.0],
+        help="scenarios: extra API requests a second (404s, state, metrics) during the run",
+    )
     args = parser.parse_args()
     rows: list[dict[str, Any]] = []
     for busy in args.busy:
-        for _ in range(args.repeats):
-            for name, env_extra in VARIANTS:
-                with busy_processes(busy):
-                    load_before = os.getloadavg()[0]
-                    result = asyncio.run(measured_run(args.seconds, env_extra))
-                    load_after = os.getloadavg()[0]
-                row = {"variant": name, "busy": busy, "load": [load_before, load_after], **result}
-                rows.append(row)
-                print(
-                    f"  {name:32s} busy {busy} load {load_before:5.2f}->{load_after:5.2f} "
-                    f"full {row['collections'].get('2')} (in a step "
-                    f"{row['in_step'].get('2')}), pauses ms {row['pause_ms']}",
-                    flush=True,
-                )
+        for churn in args.churn:
+            for _ in range(args.repeats):
+                for name, env_extra in VARIANTS:
+                    with busy_processes(busy):
+                        load_before = os.getloadavg()[0]
+                        result = asyncio.run(measured_run(args.seconds, env_extra, churn))
+                        load_after = os.getloadavg()[0]
+                    row = {
+                        "variant": name,
+                        "busy": busy,
+                        "churn": churn,
+                        "load": [load_before, load_after],
+                        **result,
+                    }
+                    rows.append(row)
+                    print(
+                        f"  {name:32s} busy {busy} churn {churn:g}/s load {load_before:5.2f}->"
+                        f"{load_after:5.2f} full {row['collections'].get('2')} (in a step "
+                        f"{row['in_step'].get('2')})",
+                        flush=True,
+                    )
 
     def pause(row: dict[str, Any], generation: str, quantile: str) -> str:
         value = row["pause_ms"].get(f"{generation}@{quantile}")
@@ -160,6 +198,7 @@ def main() -> int:
         [
             "variant",
             "busy",
+            "churn/s",
             "load",
             "steps",
             "overruns",
@@ -178,6 +217,7 @@ def main() -> int:
             [
                 r["variant"],
                 r["busy"],
+                r["churn"],
                 f"{r['load'][0]:.1f}-{r['load'][1]:.1f}",
                 r["steps"],
                 r["overruns"],
