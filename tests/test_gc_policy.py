@@ -42,29 +42,60 @@ def test_full_collections_are_deferred_while_stepping_and_restored_after(
     assert gc.get_threshold() == before
 
 
+def _grow_oldest_generation() -> list[list[int]]:
+    """Objects enough to grow the oldest generation by more than a quarter, moved into it
+    (a generation-1 collection promotes what survives it); keep the result alive."""
+    keep = [[] for _ in range(len(gc.get_objects(2)) // 3 + 1_000)]
+    gc.collect(1)
+    return keep
+
+
 def test_a_due_full_collection_waits_for_the_slack_for_it(policy: GcPolicy) -> None:
+    """Due is CPython's rule: enough generation-1 collections and the oldest generation grown
+    by a quarter since the last full one; then it waits for a step with room for it."""
     every = gc.get_threshold()[2]  # generation-1 collections per full one (CPython's: 10)
     policy.defer_full()
-    gc.collect()  # from a known count
+    gc.collect()  # from a known state
     fulls = policy.watch.collections[2]
-    assert policy.after_step(slack_s=1.0) is None  # not due yet
-    _young_collections(every)
+    assert policy.after_step(slack_s=1.0) is None  # sized from here
+    _young_collections(every + 1)
+    assert policy.after_step(slack_s=1.0) is None  # enough of them, but nothing grew
+    keep = _grow_oldest_generation()
+    _young_collections(every)  # the size is looked at once per `every` of them
     assert policy.after_step(slack_s=0.0) is None  # due, but no room before the deadline
     assert policy.watch.collections[2] == fulls
-    assert policy.after_step(slack_s=1.0) == "between steps"
+    assert policy.after_step(slack_s=1.0) == "between steps"  # the next step has room
     assert policy.watch.collections[2] == fulls + 1 and policy.between_steps == 1
-    assert gc.get_count()[2] == 0
-    assert policy.watch.longest_full_s > 0
+    assert gc.get_count()[2] == 0 and policy.watch.longest_full_s > 0
+    del keep
 
 
 def test_past_the_bound_it_is_done_whatever_the_slack(policy: GcPolicy) -> None:
+    every = gc.get_threshold()[2]
     policy.defer_full()
     gc.collect()
+    policy.after_step(slack_s=0.0)  # sized
+    keep = _grow_oldest_generation()
+    _young_collections(every)
+    assert policy.after_step(slack_s=0.0) is None  # due from here, no room
     _young_collections(MAX_DEFERRED - 1)
     assert policy.after_step(slack_s=0.0) is None
     _young_collections(1)
     assert policy.after_step(slack_s=0.0) == "forced" and policy.forced == 1
     assert gc.get_count()[2] == 0
+    del keep
+
+
+def test_a_large_heap_that_does_not_grow_is_not_walked_again(policy: GcPolicy) -> None:
+    """CPython skips a full collection while the oldest generation has grown by less than a
+    quarter: so does the deferral (else, ten times as many walks of a large heap)."""
+    policy.defer_full()
+    gc.collect()
+    policy.after_step(slack_s=1.0)
+    for _ in range(5):
+        _young_collections(MAX_DEFERRED)
+        assert policy.after_step(slack_s=1.0) is None
+    assert policy.between_steps == policy.forced == 0
 
 
 def test_nothing_is_done_outside_the_step_loop_or_when_off() -> None:
