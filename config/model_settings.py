@@ -165,8 +165,9 @@ class SchedulerSettings(Section):
     gc_between_steps: bool = Field(
         True,
         description="While a run steps, defer the garbage collector's full collections and do "
-        "them between steps when the time to the next deadline allows (at the latest after "
-        "ten times CPython's usual interval); false = CPython's own thresholds throughout.",
+        "them between steps when one is due and the time to the next deadline allows (a due "
+        "one waits at most ten times CPython's usual interval); false = CPython's own "
+        "thresholds throughout.",
     )
     lock_memory: bool = Field(
         True,

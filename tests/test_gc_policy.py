@@ -14,7 +14,11 @@ from daemon.run.gc_policy import DEFERRED_THRESHOLD2, MAX_DEFERRED, GcPolicy
 
 @pytest.fixture
 def policy() -> Iterator[GcPolicy]:
-    thresholds = gc.get_threshold()
+    """A policy, with the collector's automatic runs off meanwhile: the only collections are
+    the test's own (in the whole suite's process, other tests' leftovers allocate too and
+    would start full collections of their own between the test's steps)."""
+    thresholds, enabled = gc.get_threshold(), gc.isenabled()
+    gc.disable()
     policy = GcPolicy(enabled=True)
     policy.install()
     try:
@@ -22,6 +26,8 @@ def policy() -> Iterator[GcPolicy]:
     finally:
         policy.remove()
         gc.set_threshold(*thresholds)
+        if enabled:
+            gc.enable()
     assert gc.get_threshold() == thresholds
 
 
