@@ -58,7 +58,7 @@ from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.stage_times import StageTimes
 from daemon.run.states import RunParameters
-from daemon.run.two_link.step import (
+from daemon.run.step import (
     SENSOR_ERROR_FLAGS,
     CameraView,
     StepOutcome,
