@@ -168,11 +168,13 @@ async def serving(context: ApiContext, daemon: Daemon) -> AsyncIterator[None]:
     settings = context.settings
     logger.info("serving on http://%s:%d", settings.api.host, settings.api.port)
     context.service = daemon
+    context.metrics.gc_policy = daemon.gc_policy
     relay = asyncio.create_task(Relay(daemon, context).run(), name="api-relay")
     try:
         yield
     finally:
         context.service = None
+        context.metrics.gc_policy = None
         relay.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await relay

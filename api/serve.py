@@ -45,7 +45,7 @@ from api.startup import (
     with_local_control_token,
 )
 from config import ConfigError, Settings, load_settings
-from daemon.heap import freeze_startup_heap
+from daemon.heap import freeze_startup_heap, lock_memory, log_memory_lock
 from daemon.service import Daemon
 from daemon.systemd import SystemdNotifier
 from drivers.errors import DeviceError
@@ -312,6 +312,9 @@ async def serve(
         # Before any step: a full collection of the start-up heap stops the loop 10-15 ms,
         # the one cause of the fast path's overruns at a 20 ms step (daemon/heap.py).
         freeze_startup_heap()
+        daemon.gc_policy.watch.reset()  # the collections from here on: the daemon's own
+        if settings.scheduler.lock_memory:  # no step waits for a page from swap
+            log_memory_lock(lock_memory())
         signals = SignalStop(server, daemon)
         takeover = asyncio.create_task(signals.take_over(), name="signals")
         supervisor = asyncio.create_task(

@@ -162,6 +162,19 @@ class SchedulerSettings(Section):
         description="SCHED_FIFO priority asked for the control thread (0 = do not ask); "
         "not permitted: niceness -10 is tried, then normal scheduling, with one log line.",
     )
+    gc_between_steps: bool = Field(
+        True,
+        description="While a run steps, defer the garbage collector's full collections and do "
+        "them between steps when one is due and the time to the next deadline allows (a due "
+        "one waits at most ten times CPython's usual interval); false = CPython's own "
+        "thresholds throughout.",
+    )
+    lock_memory: bool = Field(
+        True,
+        description="Lock the daemon's memory in RAM (mlockall, current and future pages) so "
+        "a step never waits for a page to come back from swap; not permitted (no "
+        "CAP_IPC_LOCK nor LimitMEMLOCK=infinity): one log line, the daemon runs unlocked.",
+    )
     stop_grace_s: Annotated[float, Field(gt=0, le=60)] = Field(
         5.0,
         description="On stop, wait this long for the step in progress, then abandon it (s).",

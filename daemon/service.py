@@ -45,6 +45,7 @@ from daemon.run.events import (
     EventBus,
     Subscription,
 )
+from daemon.run.gc_policy import GcPolicy
 from daemon.run.kinds import build_kind
 from daemon.run.pending_summaries import PendingSummaries
 from daemon.run.readmodel import RunReadModel, RunView
@@ -131,6 +132,8 @@ class Daemon:
             threaded=mode == "on" or (mode == "auto" and wall_clock),
             realtime_priority=settings.scheduler.realtime_priority,
         )
+        #: full garbage collections kept between the steps (daemon/run/gc_policy.py)
+        self.gc_policy = GcPolicy(enabled=settings.scheduler.gc_between_steps)
         self._unrecorded_end = UnrecordedEnd(self._storage, UNRECORDED_END_RETRY_S)
         #: summaries the last shutdown deferred (daemon/run/pending_summaries.py)
         self.pending_summaries: PendingSummaries | None = None
@@ -144,6 +147,8 @@ class Daemon:
         try:
             # first in, so last out: the devices are closed on it before it stops
             control = await self._exit_stack.enter_async_context(self._control)
+            self.gc_policy.install()
+            self._exit_stack.callback(self.gc_policy.remove)
             if control.threaded:
                 self.bus.route(control.post_home)
                 self._exit_stack.callback(self.bus.route, None)
@@ -267,6 +272,7 @@ class Daemon:
                 unrecorded_end=self._unrecorded_end,
                 post_home=self._control.post_home,
                 hold_pending=self.hold_pending,
+                gc_policy=self.gc_policy,
             )
             # built and started on the control loop: the run's task, its devices' I/O and
             # its state live there (RunSession stays their one owner)

@@ -346,6 +346,42 @@ async def test_metrics_use_a_registry_per_app() -> None:
     assert fresh["thermocomp_steps_total{}"] == 0
 
 
+def test_every_metric_is_in_the_metrics_reference() -> None:
+    """docs/reference/metrics.md names every metric family /metrics exposes, with its type."""
+    page = (CONFIG_DIR.parent / "docs" / "reference" / "metrics.md").read_text()
+    metrics = create_app(settings()).state.context.metrics
+    for family in metrics.registry.collect():
+        name = family.name + ("_total" if family.type == "counter" else "")
+        assert f"| `{name}` | {family.type} |" in page, name
+
+
+async def test_the_stage_budget_comes_from_the_step_event() -> None:
+    """A step event's stage times (the record stage's too) and stage ends; a record alone
+    keeps its stage_ms_json; nonsense in either is no sample."""
+    context = create_app(settings()).state.context
+    context.metrics.observe_step(
+        {
+            "lateness_s": 0.001,
+            "stage_ms_json": json.dumps({"move": 12.0}),
+            "stage_s": {"model": 0.002, "move": 0.010, "record": 0.003, "ir": math.nan},
+            "stage_lateness_s": {"model": 0.003, "move": 0.013, "record": 0.016, "ir": "x"},
+            "step_period_s": 0.02,
+        }
+    )
+    samples = {
+        (s.name, s.labels.get("stage")): s.value
+        for family in context.metrics.registry.collect()
+        for s in family.samples
+        if "le" not in s.labels
+    }
+    assert samples[("thermocomp_stage_duration_seconds_sum", "move")] == pytest.approx(0.010)
+    assert samples[("thermocomp_stage_duration_seconds_sum", "record")] == pytest.approx(0.003)
+    assert samples[("thermocomp_stage_lateness_seconds_sum", "record")] == pytest.approx(0.016)
+    assert ("thermocomp_stage_lateness_seconds_count", "ir") not in samples
+    assert ("thermocomp_stage_duration_seconds_count", "ir") not in samples
+    assert samples[("thermocomp_step_period_seconds", None)] == 0.02
+
+
 # --- WebSocket fan-out ------------------------------------------------------------------
 
 

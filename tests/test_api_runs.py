@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import csv
+import gc
 import io
 import json
 import socket
@@ -284,3 +285,56 @@ async def test_a_slow_websocket_client_does_not_hold_up_the_steps(tmp_path: Path
                         assert message["type"] == "step"
                         delivered += 1
             assert lost > 0 and delivered + lost == steps
+
+
+STAGE_ORDER = ("model", "check", "move", "frame", "centroid", "ir", "record")
+
+
+@pytest.mark.slow
+async def test_metrics_give_each_stages_share_of_the_step_budget(tmp_path: Path) -> None:
+    """/metrics of a real server after a run: per stage, how long it took and how late past
+    the step's deadline it ended, for every step; the ends follow the stages' order, each at
+    least the stages' durations until then (the budget is spent in order, gaps included),
+    and the period they share."""
+    steps = 5
+    thresholds = gc.get_threshold()
+    app = create_app(bench_settings(tmp_path / "data", clock="virtual"), service_factory=Daemon)
+    async with (
+        serve(app) as address,
+        httpx.AsyncClient(base_url=f"http://{address}", timeout=30) as client,
+    ):
+        started = await client.post(
+            "/api/v1/runs", json={"duration_s": steps, "step_s": 1}, headers=CONTROL_HEADERS
+        )
+        assert started.status_code == 201
+        await wait_state(client, "idle")
+        text = (await client.get("/metrics")).text
+        # full collections were deferred while it stepped (daemon/run/gc_policy.py): not now
+        assert gc.get_threshold() == thresholds
+    families = {family.name: family for family in text_string_to_metric_families(text)}
+    assert families["thermocomp_stage_lateness_seconds"].type == "histogram"
+    samples = {
+        (sample.name, sample.labels.get("stage")): sample.value
+        for family in families.values()
+        for sample in family.samples
+    }
+    assert samples[("thermocomp_step_period_seconds", None)] == 1.0
+    late = "thermocomp_stage_lateness_seconds"
+    took = "thermocomp_stage_duration_seconds"
+    for stage in STAGE_ORDER:
+        assert samples[(f"{late}_count", stage)] == steps, stage
+        assert samples[(f"{took}_count", stage)] == steps, stage
+    ends = [samples[(f"{late}_sum", stage)] for stage in STAGE_ORDER]
+    assert ends == sorted(ends) and ends[0] > 0
+    spent = 0.0
+    for stage, end in zip(STAGE_ORDER, ends, strict=True):
+        spent += samples[(f"{took}_sum", stage)]
+        assert end >= spent * (1 - 1e-9), (stage, end, spent)
+    # every collection of the process is counted, by generation
+    assert families["thermocomp_gc_collections"].type == "counter"
+    collected = {
+        sample.labels["generation"]: sample.value
+        for sample in families["thermocomp_gc_collections"].samples
+        if sample.name == "thermocomp_gc_collections_total"
+    }
+    assert set(collected) == {"0", "1", "2"} and collected["0"] > 0  # a served run allocates

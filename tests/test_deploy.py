@@ -60,6 +60,11 @@ def test_unit_restarts_on_what_a_restart_can_fix_only() -> None:
     assert service["TimeoutStopSec"] == ["30s"]
 
 
+def test_unit_permits_locking_the_daemons_memory() -> None:
+    """scheduler.lock_memory locks current and future pages: only safe without a limit."""
+    assert unit_directives()["LimitMEMLOCK"] == ["infinity"]
+
+
 def test_unit_documentation_link_exists_after_pip_install() -> None:
     """Issue 21: the link pointed at a README pip does not install; the daemon's /docs is
     always there while the service runs."""

@@ -14,6 +14,8 @@ import math
 import sqlite3
 from pathlib import Path
 
+import pytest
+
 from daemon.run.workers import Workers
 from daemon.storage.exports import csv_chunk, json_chunk
 from daemon.storage.recorder import (
@@ -22,7 +24,7 @@ from daemon.storage.recorder import (
     Recorder,
     StepRecord,
 )
-from daemon.storage.step_text import csv_lines, step_text
+from daemon.storage.step_text import _json_strings, csv_lines, json_objects, step_text
 
 STEPS = 25
 
@@ -183,3 +185,80 @@ def test_the_csv_is_the_old_encoders_byte_for_byte(tmp_path: Path) -> None:
         assert csv_lines(db, run_id, 12, 1)[0].count(b"e-05") == 2  # the layouts were there
     finally:
         db.close()
+
+
+#: values to break a JSON encoder: every kind of missing or non-finite number, integers at the
+#: 64-bit edge (the step numbers) and beyond a double's 53 bits (in REAL columns and in text),
+#: text SQLite must escape (controls, quotes, backslashes, U+2028, astral characters, NUL)
+HOSTILE: dict[int, dict[str, object]] = {
+    15: {"pose_x_mm": math.nan, "pose_y_mm": math.inf, "pose_z_mm": -math.inf, "room_c": None},
+    16: {"predicted_x_um": 2**53 + 1, "predicted_y_um": -(2**62), "predicted_z_um": 10**18},
+    17: {"ir_json": '{"big": 123456789012345678901234567890, "tiny": 1e-400}', "flags": ""},
+    18: {"error": "note: \u00e9\u0301 \u05e9\u05dc\u05d5\u05dd \U0001f321\ufe0f \u2028 \x01\x1f"},
+    19: {
+        "error": 'a "quoted" \\ back\\slash, a tab\t and a NUL \x00 inside',
+        "arm_pose": "p\u00b2",
+    },
+    20: {"observer_json": '{"heat": [1.0, 0.05]}', "frame_path": "frames/\u6e29\u5ea6.png"},
+}
+
+
+def _hostile_run(data_dir: Path) -> int:
+    with Recorder(data_dir) as recorder:
+        run_id = recorder.create_run({}, {}, None, "test")
+        for step in [*range(STEPS), 2**62, 2**63 - 1]:
+            recorder.write_step(
+                dataclasses.replace(
+                    StepRecord(
+                        run_id=run_id,
+                        step=step,
+                        scheduled_s=float(step),
+                        actual_s=step + 1e-3,
+                        lateness_s=1e-3,
+                        residual_um=math.nan if step == 3 else 0.1 * step,
+                    ),
+                    **AWKWARD.get(step, {}),
+                    **LAYOUTS.get(step, {}),
+                    **HOSTILE.get(step, {}),
+                )
+            )
+    return run_id
+
+
+def test_the_json_is_the_old_encoders_byte_for_byte(tmp_path: Path) -> None:
+    """json_objects (the CSV's column-at-a-time path, msgspec prints the numbers) against
+    step_text's JSON (a % per row, repr prints them) on hostile values, chunk by chunk and
+    whole; the text is strict JSON that reads back as the recorder's own records."""
+    run_id = _hostile_run(tmp_path)
+    db = sqlite3.connect(tmp_path / DATABASE_NAME)
+    try:
+        for start, count in ((0, None), (0, 7), (7, 7), (14, 20), (STEPS, 5), (2**62, 1)):
+            new, found, last = json_objects(db, run_id, start, count)
+            old, old_found, old_last = step_text(db, run_id, start, count, json=True)
+            assert (new.decode(), found, last) == (old, old_found, old_last)
+        whole = json_objects(db, run_id, 0, None)[0].decode()
+    finally:
+        db.close()
+    with Recorder(tmp_path) as recorder:
+        records = recorder.steps(run_id)
+    steps = json.loads("[" + whole + "]", parse_constant=pytest.fail)
+    assert steps == [_python_json(r) for r in records]
+    assert [s["step"] for s in steps[-2:]] == [2**62, 2**63 - 1]
+    assert steps[16]["predicted_x_um"] == float(2**53 + 1) and "\u2028" in steps[18]["error"]
+    assert steps[15]["pose_x_mm"] is None and steps[15]["pose_y_mm"] is None
+
+
+def test_text_is_escaped_as_sqlites_json_quote_escapes_it() -> None:
+    """The JSON's text cells (msgspec) against SQLite's json_quote, which the row-at-a-time
+    encoder used: every code point, alone and between others."""
+    db = sqlite3.connect(":memory:")
+    try:
+        points = [*range(0xD800), *range(0xE000, 0x110000, 17), 0x10FFFF]
+        texts = ["a" + chr(p) + "\\" + chr(p) for p in points] + ["", '"', "\x00\x7f"]
+        quoted = [db.execute("SELECT json_quote(?)", (t,)).fetchone()[0] for t in texts]
+    finally:
+        db.close()
+    escaped = _json_strings(texts)
+    wrong = [(t, q, e) for t, q, e in zip(texts, quoted, escaped, strict=True) if q.encode() != e]
+    assert not wrong, wrong[:5]
+    assert _json_strings([None]) == [b"null"]

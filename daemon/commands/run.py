@@ -27,7 +27,7 @@ from config.cli import (
     add_config_argument,
     positive_float,
 )
-from daemon.heap import freeze_startup_heap
+from daemon.heap import freeze_startup_heap, lock_memory, log_memory_lock
 from daemon.run.states import RunParameters, RunState, RunStateError
 
 if TYPE_CHECKING:  # the daemon (SciPy, Matplotlib, OpenCV) loads when a run starts, not
@@ -196,6 +196,9 @@ async def _run(settings: Settings, parameters: RunParameters, args: argparse.Nam
     try:
         async with Daemon(settings) as daemon:
             freeze_startup_heap()  # as `thermocomp serve`: no full collection in a step
+            daemon.gc_policy.watch.reset()
+            if settings.scheduler.lock_memory:
+                log_memory_lock(lock_memory())
             try:
                 info = await daemon.start_run(parameters)
             except RunParameterError as err:

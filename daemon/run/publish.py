@@ -44,12 +44,37 @@ class RunPublisher:
         )
         write.add_done_callback(self._state_written)
 
-    def step(self, outcome: StepOutcome, record: dict[str, Any], view: RunView) -> None:
-        """A committed step: its timing, the event, the frame for live views, the new view."""
+    def step(
+        self,
+        outcome: StepOutcome,
+        record: dict[str, Any],
+        view: RunView,
+        period_s: float,
+        clock_factor: float = 1.0,
+    ) -> None:
+        """A committed step: its timing, the event, the frame for live views, the new view.
+        The event carries, beside the record, the move's console round trips and the step's
+        lateness budget (``/metrics``) in wall seconds: the period, each stage's time (the
+        record's stage_ms_json and the record stage's own) and how late past the deadline it
+        ended (the step's lateness at its start plus its stages until
+        then); ``clock_factor`` is the run clock's seconds per wall second."""
         services = self._services
         services.timing.add(outcome.record.lateness_s, outcome.stages_s)
+        lateness_s = outcome.record.lateness_s / clock_factor
+        stage_lateness_s = {
+            stage: lateness_s + end_s for stage, end_s in outcome.stage_ends_s.items()
+        }
         services.bus.publish(
-            Event("step", {**record, "serial_round_trips_s": outcome.round_trips_s})
+            Event(
+                "step",
+                {
+                    **record,
+                    "serial_round_trips_s": outcome.round_trips_s,
+                    "step_period_s": period_s / clock_factor,
+                    "stage_s": dict(outcome.stages_s),  # with the record's own stage
+                    "stage_lateness_s": stage_lateness_s,
+                },
+            )
         )
         if outcome.frame is not None:  # for live views; a reference, no copy
             frame = outcome.frame

@@ -22,7 +22,7 @@ import numpy as np
 from drivers.clock import Clock
 
 #: The stages of one step, in the order they run (issue 6 "One step").
-STAGES = ("model", "move", "frame", "centroid", "ir", "record")
+STAGES = ("model", "check", "move", "frame", "centroid", "ir", "record")
 
 MIN_PERIOD_S = 0.01
 MAX_PERIOD_S = 600.0

@@ -14,6 +14,7 @@ from typing import Protocol
 
 from config import Settings
 from daemon.run.events import ErrorLog, EventBus
+from daemon.run.gc_policy import GcPolicy
 from daemon.run.readmodel import RunReadModel
 from daemon.run.scheduler import TimingStats
 from daemon.run.unrecorded_end import UnrecordedEnd
@@ -70,3 +71,5 @@ class SessionServices:
     #: a hold request has held the permit and its pause or stop has not yet reached the run
     #: (it comes from the API's thread: a step refused meanwhile is not the run's fault)
     hold_pending: Callable[[], bool] = field(default=lambda: False)
+    #: full garbage collections between the steps (the daemon's one, for the whole process)
+    gc_policy: GcPolicy = field(default_factory=lambda: GcPolicy(enabled=False))

@@ -28,6 +28,7 @@ import threading
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from daemon.run.gc_policy import GcPolicy
 from daemon.run.kind import RunKind
 from daemon.run.publish import RunPublisher
 from daemon.run.readmodel import RunView
@@ -294,19 +295,34 @@ class RunSession:
             raise
 
     async def _loop(self) -> None:
+        """The steps, with full garbage collections between them (daemon/run/gc_policy.py)
+        while it steps; CPython's own thresholds while it is held and after it."""
+        collector = self._services.gc_policy
+        try:
+            await self._steps(collector)
+        finally:
+            collector.step(running=False)
+            collector.resume_automatic()
+
+    async def _steps(self, collector: GcPolicy) -> None:
         timer = self.timer
         assert timer is not None
         end_s = self.kind.start_s + self.kind.parameters.duration_s
+        # run seconds per wall second (an accelerated bench clock); a virtual clock's as is
+        factor = float(getattr(timer.clock, "factor", 1.0))
+        collector.defer_full()
         while True:
             if self.stop_requested or self.state is RunState.STOPPING:
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
+                collector.resume_automatic()
                 await self.kind.stop_playing(
                     self._services.settings.scheduler.stop_grace_s, held=True
                 )
                 if not await self._wait_while_held():
                     return
                 timer.resync()
+                collector.defer_full()
                 continue
             if timer.next_deadline_s >= end_s - 1e-9:
                 return
@@ -317,17 +333,27 @@ class RunSession:
             # a request that lands during the last yield before the deadline finds this step
             # under way (it completes): skipping it would leave a gap in the step numbers
             tick = await timer.wait()
-            outcome = await self.kind.step(tick)
+            collector.step(running=True)
+            try:
+                outcome = await self.kind.step(tick)
+            finally:
+                collector.step(running=False)
             self._recorded(outcome)
             await self._judge(tick.step, outcome.verdict)
             timer.step_done()
             self._services.read_model.progress()
+            collector.after_step((timer.next_wake_s - timer.clock.now()) / factor)
 
     def _recorded(self, outcome: StepOutcome) -> None:
         """A committed step: the session's last step, then its publication."""
         self.step = outcome.record.step
         self.last_record = outcome.record.as_dict()
-        self._publisher.step(outcome, self.last_record, self.view())
+        # the budget in wall seconds, as the stages are timed: an accelerated bench clock runs
+        # ``factor`` run seconds a wall second (a virtual clock's time is taken as it is)
+        factor = getattr(self.timer.clock, "factor", 1.0) if self.timer is not None else 1.0
+        self._publisher.step(
+            outcome, self.last_record, self.view(), self.kind.parameters.step_s, float(factor)
+        )
 
     async def _judge(self, step: int, verdict: Verdict) -> None:
         """A step's verdict meets the operator's requests here."""

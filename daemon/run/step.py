@@ -50,6 +50,8 @@ class StepOutcome:
     verdict: Verdict
     round_trips_s: tuple[float, ...] = ()  # each console command of the move (s)
     stages_s: dict[str, float] = field(default_factory=dict)  # scheduler.STAGES timings
+    # when each stage ended, from the step's start (s; daemon/run/stage_times.py)
+    stage_ends_s: dict[str, float] = field(default_factory=dict)
     # an arm step: each tool camera's frame and the markers it measured, for live views
     views: tuple[CameraView, ...] = ()
 

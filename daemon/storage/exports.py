@@ -7,7 +7,7 @@ clients, benchmarks/bench_control_core.py). So each chunk of an export is read a
 here, in a child process with its own read-only connection, and comes back as bytes of
 bounded size (``CHUNK_STEPS`` steps) that the API streams out while the next chunk is
 encoded. The encoding itself is daemon/storage/step_text.py's (SQLite quotes; numbers printed
-by msgspec's C encoder for CSV, Python's repr for JSON; issue 30: at the storage's speed).
+by msgspec's C encoder in repr's layout, a column at a time; issue 30: at the storage's speed).
 
 Everything here is a plain function of picklable arguments: ``daemon.run.workers.Workers.export``
 runs it in its process pool.
@@ -20,7 +20,7 @@ import sqlite3
 from contextlib import closing
 from pathlib import Path
 
-from daemon.storage.step_text import CSV_HEADER, csv_lines, step_text
+from daemon.storage.step_text import CSV_HEADER, csv_lines, json_objects
 
 #: Steps per chunk: ~1.2 kB of CSV and ~2.2 kB of JSON a step on a bench run, so 2-5 MB a
 #: chunk (a short copy for the daemon to receive; at most two in the daemon at once, one
@@ -54,11 +54,8 @@ def _chunk(
     uri = f"{Path(database).resolve().as_uri()}?mode=ro"
     with closing(sqlite3.connect(uri, uri=True)) as db:
         db.execute("BEGIN")  # one snapshot for the chunk
-        if json:
-            text, found, last = step_text(db, run_id, start, count, json=True)
-            data = text.encode()
-        else:
-            data, found, last = csv_lines(db, run_id, start, count)
+        encode = json_objects if json else csv_lines
+        data, found, last = encode(db, run_id, start, count)
     if header:
         data = f"{CSV_HEADER}\n".encode() + data
     following = None if found < count or last is None else last + 1

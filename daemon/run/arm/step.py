@@ -56,6 +56,7 @@ from daemon.run.arm.player import ArmPlayer
 from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
+from daemon.run.stage_times import StageTimes
 from daemon.run.states import RunParameters
 from daemon.run.step import (
     SENSOR_ERROR_FLAGS,
@@ -233,7 +234,7 @@ class ArmStepPipeline:
         parameters = work.parameters
         run_time_s = tick.scheduled_s - work.start_s
         errors: list[str] = []
-        stages: dict[str, float] = {}
+        stages = StageTimes()
 
         # 1. the room now (the model's ambient, issue 29), the model to the time the move is
         # expected to execute, then the tool error there
@@ -248,7 +249,7 @@ class ArmStepPipeline:
             errors_by_pose = await self._workers.step(self._predict_cycle, work, model_s, room_c)
             error = errors_by_pose[pose.name]
         self._record_model(work, record, error)
-        stages["model"] = time.perf_counter() - started
+        stages.end("model", started)
 
         # 2. the corrections, checked before anything reaches the robot
         started = time.perf_counter()
@@ -258,8 +259,10 @@ class ArmStepPipeline:
         if player is not None:
             (player.release if unsafe is not None else player.ready)()
         self._record_correction(record, correction)
+        stages.end("check", started)
 
         # 3. the move to the pose's taught goal + the correction (played: the cycle's arrival)
+        started = time.perf_counter()
         device_fault: str | None = None
         round_trips_s: tuple[float, ...] = ()
         if unsafe is not None:
@@ -284,7 +287,7 @@ class ArmStepPipeline:
                 flags.append("robot-error")
                 errors.append(str(err))
                 device_fault = str(err)
-        stages["move"] = time.perf_counter() - started
+        stages.end("move", started)
 
         # 4. measure the tool in every camera, and the IR regions
         # (played: the robot stays at the pose until the step is recorded, run() releases it:
@@ -299,7 +302,7 @@ class ArmStepPipeline:
         finish_record(record, flags, errors, stages)
         started = time.perf_counter()
         await self._workers.db(self._recorder.write_step, record)
-        stages["record"] = time.perf_counter() - started
+        stages.end("record", started)
         verdict = step_verdict(
             self._settings,
             unsafe=unsafe,
@@ -309,7 +312,13 @@ class ArmStepPipeline:
             sensor_error_flags=ARM_SENSOR_ERROR_FLAGS,
         )
         return StepOutcome(
-            record, None, verdict, round_trips_s, stages, views=camera_views(measurement)
+            record,
+            None,
+            verdict,
+            round_trips_s,
+            stages,
+            stages.ends_s,
+            views=camera_views(measurement),
         )
 
     # --- 1. the model ------------------------------------------------------------------
@@ -447,7 +456,7 @@ class ArmStepPipeline:
         record: StepRecord,
         flags: list[str],
         errors: list[str],
-        stages: dict[str, float],
+        stages: StageTimes,
     ) -> ToolMeasurement | None:
         started = time.perf_counter()
         measurement: ToolMeasurement | None = None
@@ -460,12 +469,12 @@ class ArmStepPipeline:
         except MeasurementError as err:
             flags.append(MARKER_ERROR)
             errors.append(f"markers: {err}")
-        stages["frame"] = time.perf_counter() - started
+        stages.end("frame", started)
         if measurement is not None and record_measurement(work, pose, measurement, record):
             flags.append(REFERENCE_MISSING)
         started = time.perf_counter()
         means = await self._infrared(work, record, flags, errors)
-        stages["ir"] = time.perf_counter() - started
+        stages.end("ir", started)
         adapt = getattr(work.predictor, "adapt", None)
         if (
             measurement is not None

@@ -43,6 +43,7 @@ from daemon.run.events import ErrorLog
 from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
+from daemon.run.stage_times import StageTimes
 from daemon.run.states import RunParameters
 from daemon.run.step import (
     OK,
@@ -175,7 +176,7 @@ class FollowedKind(KindBase):
     async def step(self, tick: Tick) -> StepOutcome:
         record, flags = begin_record(self.run_id, self.parameters, self.start_s, tick)
         errors: list[str] = []
-        stages: dict[str, float] = {}
+        stages = StageTimes()
         started = time.perf_counter()
         run_time_s = tick.scheduled_s - self.start_s
         latency_s = self.settings.compensation.latency_s
@@ -189,12 +190,12 @@ class FollowedKind(KindBase):
             errors.append(str(err))
             finish_record(record, flags, errors, stages)
             await self.workers.db(self.recorder.write_step, record)
-            return StepOutcome(record, None, Verdict("fault", str(err)), (), stages)
+            return StepOutcome(record, None, Verdict("fault", str(err)), (), stages, stages.ends_s)
         self._state_into(record, state)
         error = await self.workers.step(self._predict, model_time_s, state)
         record.model_time_s = model_time_s
         self._prediction_into(record, error)
-        stages["model"] = time.perf_counter() - started
+        stages.end("model", started)
         started = time.perf_counter()
         try:
             correction = check_correction(
@@ -206,7 +207,10 @@ class FollowedKind(KindBase):
             flags.append("unsafe-target")
             errors.append(f"correction refused: {err}")
             verdict = Verdict("pause", f"correction refused: {err}")
+            stages.end("check", started)
         else:
+            stages.end("check", started)
+            started = time.perf_counter()
             try:
                 t, r = correction.translation_mm, correction.rotation_rad
                 await self.robot.set_correction(
@@ -226,11 +230,13 @@ class FollowedKind(KindBase):
                 flags.append("robot-error")
                 errors.append(str(err))
                 verdict = Verdict("fault", str(err))
-        stages["move"] = time.perf_counter() - started
+            stages.end("move", started)
         self._measure(record, flags)
         finish_record(record, flags, errors, stages)
+        started = time.perf_counter()
         await self.workers.db(self.recorder.write_step, record)
-        return StepOutcome(record, None, verdict, (), stages)
+        stages.end("record", started)
+        return StepOutcome(record, None, verdict, (), stages, stages.ends_s)
 
     @staticmethod
     def _state_into(record: StepRecord, state: OffsetRobotState) -> None:

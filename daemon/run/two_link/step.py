@@ -31,6 +31,7 @@ from daemon.model.observer import IrObserver
 from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
+from daemon.run.stage_times import StageTimes
 from daemon.run.states import ProcedurePoint, RunParameters, heat_at, procedure_point
 from daemon.run.step import (
     SENSOR_ERROR_FLAGS,
@@ -100,21 +101,23 @@ class StepPipeline:
         run_time_s = tick.scheduled_s - work.start_s
         record, flags = begin_record(work.run_id, parameters, work.start_s, tick)
         errors: list[str] = []
-        stages: dict[str, float] = {}
+        stages = StageTimes()
         point = procedure_point(parameters, tick.step, run_time_s)
 
         # 1. the model, to the time the move is expected to execute (latency-compensated)
         started = time.perf_counter()
         predicted_um = await self._advance_model(work, run_time_s)
         self._record_model(work, record, predicted_um)
-        stages["model"] = time.perf_counter() - started
+        stages.end("model", started)
 
         # 2. the compensation target, checked before anything reaches the robot
         started = time.perf_counter()
         offset, target, unsafe = self._target(work, point, predicted_um)
         record.offset_x_mm, record.offset_y_mm, record.offset_z_mm = map(float, offset)
+        stages.end("check", started)
 
         # 3. the move (absolute from the goal, incremental, or none), then the actual pose
+        started = time.perf_counter()
         device_fault: str | None = None
         round_trips_s: tuple[float, ...] = ()
         if unsafe is not None:
@@ -134,7 +137,7 @@ class StepPipeline:
                 flags.append("robot-error")
                 errors.append(str(err))
                 device_fault = str(err)
-        stages["move"] = time.perf_counter() - started
+        stages.end("move", started)
 
         # 4. measure: frame -> centroid, and the IR regions
         frame: Frame | None = None
@@ -152,7 +155,7 @@ class StepPipeline:
                 self._recorder.archive_frame, work.run_id, tick.step, frame.image
             )
         await self._workers.db(self._recorder.write_step, record)
-        stages["record"] = time.perf_counter() - started
+        stages.end("record", started)
         verdict = step_verdict(
             self._settings,
             unsafe=unsafe,
@@ -161,7 +164,7 @@ class StepPipeline:
             record=record,
             sensor_error_flags=SENSOR_ERROR_FLAGS,
         )
-        return StepOutcome(record, frame, verdict, round_trips_s, stages)
+        return StepOutcome(record, frame, verdict, round_trips_s, stages, stages.ends_s)
 
     # --- 1. the model ------------------------------------------------------------------
 
@@ -272,7 +275,7 @@ class StepPipeline:
         record: StepRecord,
         flags: list[str],
         errors: list[str],
-        stages: dict[str, float],
+        stages: StageTimes,
     ) -> Frame | None:
         started = time.perf_counter()
         frame: Frame | None = None
@@ -282,16 +285,16 @@ class StepPipeline:
             self._errors.note(err)
             flags.append("camera-error")
             errors.append(str(err))
-        stages["frame"] = time.perf_counter() - started
+        stages.end("frame", started)
         started = time.perf_counter()
         if frame is not None:
             await self._centroid(
                 work, point=point, frame=frame, record=record, flags=flags, errors=errors
             )
-        stages["centroid"] = time.perf_counter() - started
+        stages.end("centroid", started)
         started = time.perf_counter()
         await self._infrared(work, record, flags, errors)
-        stages["ir"] = time.perf_counter() - started
+        stages.end("ir", started)
         return frame
 
     async def _centroid(
