@@ -1,5 +1,5 @@
 """``thermocomp calibrate model``: the whole path from a wrong model to a validated one, in one
-command (issue 19), each step of which stays a command of its own:
+command, each step of which stays a command of its own:
 
 1. an uncompensated calibration run at ``--scale`` (``thermocomp run --compensation off``);
 2. identification of the run's network from it, saved in the data directory as NAME
