@@ -368,6 +368,49 @@ def test_run_states_and_robot_badges_in_the_apis_words(browser: Browser, server:
 
 
 @pytest.mark.slow
+def test_a_move_refused_by_a_hold_is_not_counted_as_an_error(browser: Browser, server: str) -> None:
+    """After Stop or Hold, a step in flight has its move refused by the held permit
+    (kind "motion-held"): the hold doing its job. The errors panel lists it greyed with why, and
+    counts it apart, so that "Errors (none)" still means nothing went wrong."""
+    page = new_page(browser)
+    held = {
+        "time": 1.0e9,
+        "device": "robot",
+        "kind": "motion-held",
+        "message": "robot: motion is held until resume(): stopped by request",
+    }
+    stale = {
+        "time": 1.0e9 + 1,
+        "device": "camera",
+        "kind": "device",
+        "message": "camera: stale frame: 2.2 s old",
+    }
+
+    def state(errors: list[dict[str, Any]]) -> Any:
+        def answer(route: Route) -> None:
+            real = httpx.get(f"{server}/api/v1/state", timeout=10).json()
+            real["errors"] = errors
+            route.fulfill(status=200, content_type="application/json", body=json.dumps(real))
+
+        return answer
+
+    page.route(re.compile(r".*/api/v1/state$"), state([held]))
+    page.goto(server + "/")
+    page.wait_for_selector("#error-list li.expected")
+    assert page.text_content("#error-count") == "(none) · 1 move refused by a hold"
+    assert "expected: the robot was held" in (page.text_content("#error-list li") or "")
+    page.unroute(re.compile(r".*/api/v1/state$"))
+    page.route(re.compile(r".*/api/v1/state$"), state([held, stale]))
+    page.reload()
+    page.wait_for_selector("#error-list li:not(.expected)")
+    assert page.text_content("#error-count") == "(1) · 1 move refused by a hold"
+    assert page.text_content("#error-list li:first-child") == (
+        f"{page.evaluate('new Date(1e12 + 1000).toLocaleTimeString()')} camera device: "
+        "camera: stale frame: 2.2 s old"
+    )
+
+
+@pytest.mark.slow
 def test_the_dashboard_runs_under_its_own_csp(browser: Browser, server: str) -> None:
     """With the Content-Security-Policy enforced (no eval-based waits here: selectors only),
     the page loads its scripts and styles, opens the stream, shows the daemon's state and the

@@ -5,6 +5,7 @@ import {
 } from "./api.js";
 import { clearAdaptation, showAdaptation } from "./adaptation.js";
 import { clearCameras, preview, showFrame } from "./camera.js";
+import { addError, showErrors } from "./errors.js";
 import { explainState, historyRow, runKind, showRunState } from "./history.js";
 import { headline, showDoing } from "./headline.js";
 import { adaptForm, loadChoices, offerReferences, startBody } from "./form.js";
@@ -188,23 +189,6 @@ async function refreshHealth() {
 function showProgress(percent) {
   $("run-progress").value = percent;
   $("run-progress-text").textContent = `${percent.toFixed(1)} %`;
-}
-
-function showErrors(errors) {
-  const list = $("error-list");
-  list.replaceChildren();
-  for (const entry of errors.slice(-50).reverse()) addError(entry, list, false);
-  $("error-count").textContent = errors.length ? `(${errors.length})` : "(none)";
-}
-
-function addError(entry, list = $("error-list"), atTop = true) {
-  const item = element("li");
-  const meta = element("span", "meta");
-  const when = entry.time ? new Date(entry.time * 1000).toLocaleTimeString() : "";
-  meta.textContent = `${when} ${entry.device || ""} ${entry.kind || ""}: `;
-  item.append(meta, document.createTextNode(entry.message || ""));
-  if (atTop) list.prepend(item); else list.append(item);
-  while (list.children.length > 50) list.lastChild.remove();
 }
 
 function markShown() {
