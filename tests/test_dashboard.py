@@ -370,8 +370,9 @@ def test_run_states_and_robot_badges_in_the_apis_words(browser: Browser, server:
 @pytest.mark.slow
 def test_a_move_refused_by_a_hold_is_not_counted_as_an_error(browser: Browser, server: str) -> None:
     """After Stop or Hold, a step in flight has its move refused by the held permit
-    (kind "motion-held"): the hold doing its job. The errors panel lists it greyed with why, and
-    counts it apart, so that "Errors (none)" still means nothing went wrong."""
+    (kind "motion-held", the request's reason): the hold doing its job. The errors panel lists
+    it greyed with why, and counts it apart, so that "Errors (none)" still means nothing went
+    wrong; a hold for any other reason (a lost link) stays an error."""
     page = new_page(browser)
     held = {
         "time": 1.0e9,
@@ -400,14 +401,19 @@ def test_a_move_refused_by_a_hold_is_not_counted_as_an_error(browser: Browser, s
     assert page.text_content("#error-count") == "(none) · 1 move refused by a hold"
     assert "expected: the robot was held" in (page.text_content("#error-list li") or "")
     page.unroute(re.compile(r".*/api/v1/state$"))
-    page.route(re.compile(r".*/api/v1/state$"), state([held, stale]))
+    # a hold nobody asked for (the UR's link lost) is an error, whatever its kind
+    lost = {**held, "time": 1.0e9 + 2}
+    lost["message"] = "robot: motion is held until resume(): link lost: no RTDE package for 1.0 s"
+    page.route(re.compile(r".*/api/v1/state$"), state([held, lost, stale]))
     page.reload()
     page.wait_for_selector("#error-list li:not(.expected)")
-    assert page.text_content("#error-count") == "(1) · 1 move refused by a hold"
+    assert page.text_content("#error-count") == "(2) · 1 move refused by a hold"
+    assert page.locator("#error-list li:not(.expected)").count() == 2
     assert page.text_content("#error-list li:first-child") == (
         f"{page.evaluate('new Date(1e12 + 1000).toLocaleTimeString()')} camera device: "
         "camera: stale frame: 2.2 s old"
     )
+    assert "link lost" in (page.text_content("#error-list li:nth-child(2)") or "")
 
 
 @pytest.mark.slow
