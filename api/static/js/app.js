@@ -171,6 +171,7 @@ function showRobot(robot) {
 }
 
 function deviceKind(text) {
+  if (text === "none") return "absent"; // a sensor the robot does without: grey, not green
   if (/error|fault|disconnected/.test(text)) return "bad";
   if (/stale|reconnecting|connecting|awaiting/.test(text)) return "warn";
   return "good";
@@ -183,6 +184,11 @@ async function refreshHealth() {
     const devices = Object.entries(health.devices || {}).sort(([a], [b]) => a.localeCompare(b));
     $("device-badges").replaceChildren(...devices.map(([name, text]) =>
       badge(`${name}: ${text}`, `device ${deviceKind(String(text))}`)));
+    if (health.devices && health.devices.camera === "none") {
+      // a robot followed by its own joint temperatures (a UR): no camera to show
+      $("frame-caption").textContent = "no camera: this robot's tool is not watched; its "
+        + "joint temperatures are the thermal input";
+    }
   } catch { /* health is a convenience; the state and errors say the rest */ }
 }
 
