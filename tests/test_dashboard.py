@@ -573,3 +573,46 @@ def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
         # the history row of the ended run states its 3-D drift and rotation error
         page.locator("#run-history tr td", has_text="3-D").first.wait_for(timeout=60_000)
         assert not page_errors
+
+
+@pytest.mark.slow
+def test_a_followed_ur_says_it_has_no_camera_and_no_rotation(browser: Browser) -> None:
+    """A UR followed by its joint temperatures (config/ur5e-sim.toml, the UR emulator on a
+    loopback address of this test's own): the device badges say the camera and the IR reader
+    are none (grey, not green), the camera panel says the tool is not watched, and the rotation
+    plot's title says the run measures no rotation instead of showing an empty plot."""
+    env = {
+        "THERMOCOMP_API__CONTROL_TOKEN": CONTROL,
+        "THERMOCOMP_ROBOT__HOST": "127.0.36.7",  # UR's fixed ports, on an address of its own
+    }
+    with running_server(["--config", "config/ur5e-sim.toml"], env=env) as base:
+        started = httpx.post(
+            f"{base}/api/v1/runs",
+            json={"duration_s": 600},
+            headers={"Authorization": f"Bearer {CONTROL}"},
+            timeout=30,
+        )
+        assert started.status_code == 201, started.text
+        page = new_page(browser)
+        page.goto(base + "/")
+        page.wait_for_selector("#device-badges .badge")
+        page.wait_for_function(
+            "document.querySelector('#title-rotation').textContent.endsWith("
+            "'not measured in this run')",
+            timeout=60_000,
+        )
+        badges = {
+            page.text_content(f"#device-badges .badge:nth-child({i})") or "" for i in (1, 2, 3)
+        }
+        assert {"camera: none", "ir: none"} <= badges, badges
+        assert (
+            page.locator("#device-badges .badge.device.good:text-is('camera: none')").count() == 0
+        )
+        assert "no camera" in (page.text_content("#frame-caption") or "")
+        # the 3-D drift (the bench's truth) is plotted all the same
+        assert page.evaluate("window.thermocomp.plots.drift3d.data[0].length") > 0
+        httpx.post(
+            f"{base}/api/v1/runs/{started.json()['id']}/stop",
+            headers={"Authorization": f"Bearer {CONTROL}"},
+            timeout=30,
+        )
