@@ -572,6 +572,8 @@ def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
             assert float(sigma[2:]) == pytest.approx(one_sigma, abs=rounding)
         # the history row of the ended run states its 3-D drift and rotation error
         page.locator("#run-history tr td", has_text="3-D").first.wait_for(timeout=60_000)
+        # the start's message does not outlive the run: it ended by itself, and says so
+        page.wait_for_selector(f"#message:text-is('run 1 finished after {steps} steps')")
         assert not page_errors
 
 

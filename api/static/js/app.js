@@ -117,6 +117,21 @@ window.addEventListener("resize", () => {
 
 // --- state, errors, history ------------------------------------------------------------
 
+// The start's message ("run 2 starting: ...") stays under the buttons until something else is
+// said: when that run ends by itself (finished, aborted, fault), the message says so.
+function endOfStart(run) {
+  const message = $("message");
+  const started = message.textContent.startsWith(`run ${run.id} start`);
+  if (started && !ACTIVE_STATES.includes(run.state)) {
+    // the state's run gives its last step's index (GET /runs/{id} gives steps_recorded)
+    const given = (value) => value !== null && value !== undefined && Number.isFinite(+value);
+    const recorded = given(run.steps_recorded) ? Number(run.steps_recorded)
+      : given(run.step) ? Number(run.step) + 1 : 0;
+    say(`run ${run.id} ${run.state} after ${recorded} steps${
+      run.reason ? ` (${run.reason})` : ""}`, run.state !== "finished");
+  }
+}
+
 function showState(snapshot) {
   if (!snapshot) return;
   state.snapshot = snapshot;
@@ -134,6 +149,7 @@ function showState(snapshot) {
     }
     state.durationS = run.parameters ? Number(run.parameters.duration_s) : null;
     showProgress(Number(run.progress_percent || 0));
+    endOfStart(run);
   }
   const lateness = snapshot.timing && snapshot.timing.lateness_s;
   if (lateness && lateness.p99 !== null && lateness.p99 !== undefined) {
