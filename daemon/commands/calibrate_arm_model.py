@@ -102,11 +102,10 @@ def _identify_and_save(
         ImplausibleModelError,
         arm_model_of,
         checked_for_save,
-        format_arm_result,
         identify_arm_run,
         load_arm_run,
-        progress_to_stderr,
     )
+    from daemon.commands.arm_identify_cli import format_arm_result, progress_to_stderr
     from daemon.model.identify import IdentificationError
 
     try:

@@ -86,7 +86,8 @@ def run_identify(args: argparse.Namespace) -> int:
         recorded_target,
         run_network_identify,
     )
-    from daemon.commands.arm_identify import is_arm_run, run_arm_identify
+    from daemon.commands.arm_identify import is_arm_run
+    from daemon.commands.arm_identify_cli import run_arm_identify
 
     settings = identify_settings(args)
     try:
