@@ -47,15 +47,22 @@ lint: $(VENV)/.installed-dev
 docs: $(VENV)/.installed-dev
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
+# The suite on every core (pytest-xdist): one worker a core (TEST_WORKERS=0: one process);
+# a module with an expensive module fixture or process-wide cache carries an xdist_group
+# and runs whole on one worker (--dist loadgroup). Each worker has its own tmp_path tree,
+# free ports and fixtures; tests/conftest.py's tree guard and timeouts work per worker.
+TEST_WORKERS ?= auto
+PYTEST_XDIST := -n $(TEST_WORKERS) --dist loadgroup
+
 test: lint docs
 	@command -v chromium >/dev/null || { echo "make test: the dashboard test drives Debian's" \
 		"chromium: sudo apt-get install chromium (.ci/run installs it)"; exit 1; }
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest $(PYTEST_XDIST)
 
 # The tests not marked slow (each under ~5 s on a loaded 2-core machine), no lint, no docs:
 # the loop while editing. `make test` runs everything, as CI does.
 test-fast: $(VENV)/.installed-dev
-	$(BIN)/python -m pytest -m "not slow"
+	$(BIN)/python -m pytest $(PYTEST_XDIST) -m "not slow"
 
 bench: $(VENV)/.installed-dev
 	@set -e; for script in benchmarks/bench_*.py; do \

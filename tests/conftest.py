@@ -12,18 +12,9 @@ from pathlib import Path
 
 import pytest
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
+from tests.tree_guard import TreeWatch, describe, unwatched_runtime_dirs
 
-#: Never looked in: version control, the environment and the tools' caches.
-UNWATCHED_DIRS = frozenset(
-    {".git", ".venv", "__pycache__", ".mypy_cache", ".ruff_cache", ".pytest_cache"}
-)
-#: Editors' working files: a developer editing during a run is not a test writing.
-EDITOR_SUFFIXES = (".swp", ".swx", "~")
-#: The runtime folders a developer's own daemon may be writing to while the suite runs
-#: (config/*.toml's storage.data_dir, the docs build): watched only when the session started
-#: without them, so that a test creating one fails, but `make run` beside the suite does not.
-RUNTIME_DIRS = ("data", "build")
+REPO_ROOT = Path(__file__).resolve().parent.parent
 
 #: A test slower than this (s, setup and teardown included) belongs under @pytest.mark.slow:
 #: `make test-fast` leaves those out and must stay within a few minutes on 2 cores.
@@ -32,29 +23,13 @@ SLOW_S = 5.0
 #: of work on an idle machine takes several on a loaded one.
 SLOW_TIMEOUT_S = 600.0
 
-_watch: dict[str, frozenset[str]] = {}
 _HYPOTHESIS_HOME = pytest.StashKey[str]()
-
-
-def unwatched_runtime_dirs(root: Path = REPO_ROOT) -> tuple[str, ...]:
-    return tuple(
-        entry.name
-        for entry in os.scandir(root)
-        if entry.is_dir() and entry.name.startswith(RUNTIME_DIRS)
-    )
-
-
-def repository_paths(skip_top: tuple[str, ...] = (), root: Path = REPO_ROOT) -> frozenset[str]:
-    """Every file and folder in the repository tree (relative), but the unwatched ones."""
-    paths: set[str] = set()
-    for folder, dirs, files in os.walk(root):
-        relative = os.path.relpath(folder, root)
-        at_top = relative == "."
-        dirs[:] = [d for d in dirs if d not in UNWATCHED_DIRS and not (at_top and d in skip_top)]
-        prefix = "" if at_top else relative + os.sep
-        paths.update(prefix + name for name in dirs)
-        paths.update(prefix + name for name in files if not name.endswith(EDITOR_SUFFIXES))
-    return frozenset(paths)
+#: Each process's watch of the tree: a test's (each xdist worker's), and the session's (the
+#: controller's, or the only process), which a write no test was blamed for still fails.
+_TEST_WATCH = pytest.StashKey[TreeWatch]()
+_SESSION_WATCH = pytest.StashKey[TreeWatch]()
+#: The user property a test that wrote in the tree carries: its paths, to the controller.
+TREE_CREATED = "tree_created"
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -85,12 +60,16 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 _seconds: dict[str, float] = {}  # each test's setup + call + teardown this session
 _marked_slow: set[str] = set()
+_blamed: set[str] = set()  # the paths a test was failed for creating in the tree
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     _seconds[report.nodeid] = _seconds.get(report.nodeid, 0.0) + report.duration
     if "slow" in report.keywords:
         _marked_slow.add(report.nodeid)
+    for name, value in report.user_properties:  # an xdist worker's, on the controller too
+        if name == TREE_CREATED:
+            _blamed.update(value)
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
@@ -108,26 +87,67 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
             terminalreporter.write_line(f"{seconds:7.1f} s  {nodeid}")
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """The tree as the session found it (a data/ or build/ already there is not watched:
+    `make run` and `make docs` write there). Every xdist worker watches it for its own tests;
+    the controller (or the only process) checks it again at the end."""
+    skip = unwatched_runtime_dirs(REPO_ROOT)
+    if not _is_xdist_worker(session.config):
+        session.config.stash[_SESSION_WATCH] = TreeWatch(REPO_ROOT, skip)
+    if not _is_xdist_controller(session.config):
+        session.config.stash[_TEST_WATCH] = TreeWatch(REPO_ROOT, skip)
+
+
+def _is_xdist_worker(config: pytest.Config) -> bool:
+    """A process xdist started to run tests (not its environment: a test's own pytest
+    subprocess inherits PYTEST_XDIST_WORKER)."""
+    return hasattr(config, "workerinput")
+
+
+def _is_xdist_controller(config: pytest.Config) -> bool:
+    """The process that hands tests to xdist workers and runs none itself."""
+    return config.pluginmanager.has_plugin("dsession")
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """Whatever appeared in the tree and no test was failed for (a module fixture's teardown
+    after the last test, a write another worker's test was not blamed for) fails the run."""
+    watch = session.config.stash.get(_SESSION_WATCH, None)
+    if watch is None:
+        return
+    created = [path for path in watch.created() if not _was_blamed(path)]
+    if created:
+        reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+        line = f"the session created {describe(created)} (no test was failed for them)"
+        if reporter is not None:
+            reporter.write_line(f"ERROR {line}", red=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def _was_blamed(path: str) -> bool:
+    return any(path == b or path.startswith(b + os.sep) for b in _blamed)
+
+
 @pytest.fixture(autouse=True)
-def stays_in_its_temporary_directory() -> Iterator[None]:
+def stays_in_its_temporary_directory(request: pytest.FixtureRequest) -> Iterator[None]:
     """Fail a test that creates a file or folder in the repository tree: a test's files go to
     its tmp_path (a server on the checkout's data/ writes into the user's run database and
     fails while `make run` is up). The paths after one test are the next one's before."""
-    if "skip" not in _watch:
-        _watch["skip"] = frozenset(unwatched_runtime_dirs())
-    skip = tuple(_watch["skip"])
-    before = _watch.get("paths") or repository_paths(skip)
+    watch = request.config.stash[_TEST_WATCH]
+    watch.created()  # whatever a module fixture made before this test is not this test's
     yield
-    after = repository_paths(skip)
-    _watch["paths"] = after
-    created = sorted(after - before)
+    created = watch.created()
     if created:
-        shown = ", ".join(created[:8]) + (
-            f" and {len(created) - 8} more" if len(created) > 8 else ""
+        request.node.user_properties.append((TREE_CREATED, created))
+        beside = (
+            " (or a test running at the same time on another xdist worker: the one that wrote"
+            " them fails too)"
+            if _is_xdist_worker(request.config)
+            else ""
         )
         pytest.fail(
-            f"the test created {len(created)} path(s) in the repository tree: {shown} "
-            "(write to tmp_path; a server or CLI gets THERMOCOMP_STORAGE__DATA_DIR or --data-dir)",
+            f"the test created {describe(created)}{beside}: write to tmp_path (a server or CLI"
+            " gets THERMOCOMP_STORAGE__DATA_DIR or --data-dir)",
             pytrace=False,
         )
 

@@ -31,6 +31,7 @@ from drivers.base import (
     IrReading,
     LinkState,
     MoveResult,
+    OffsetRobotState,
     Pose,
     RegionTemperature,
     RobotStatus,
@@ -40,6 +41,7 @@ from drivers.clock import Clock, make_clock
 from drivers.errors import DeviceError, DeviceTimeoutError, GoalLostError, NotConnectedError
 from drivers.goals import require_finite, require_target
 from drivers.permit import MotionPermit, Ticket
+from drivers.ur.modes import RobotMode, RuntimeState, SafetyMode
 
 
 class Gate:
@@ -299,6 +301,73 @@ class FakeRobot:
 
     def status(self) -> RobotStatus:
         return RobotStatus(self.link, motion_held=self.permit.held, hold_reason=self.permit.reason)
+
+
+class FakeOffsetRobot(FakeRobot):
+    """A robot that plays its own program (drivers/base.py OffsetRobot, the followed run's
+    robot) built on the suite's FakeRobot, so it keeps the same Robot contract
+    (tests/contract/, adapter ``offset-fake``): a correction is a move to the program's one
+    goal (the lock, the permit checked right before it is "written", the refusals, the stall,
+    the cut), taking the program is teaching that goal (moves nothing, allowed while held), a
+    restarted program is a lost goal (a resume refused), and the state package is the fake's
+    pose. The program is playing from the start: its goal is there before any call."""
+
+    #: a UR5e at a pose of its program, its joints warmer than the 22 degC room
+    JOINTS_RAD = (0.0, -1.745, 1.745, -1.571, -1.571, 0.0)
+    JOINT_TEMPERATURES_C = (30.0, 34.0, 31.0, 28.0, 27.0, 26.0)
+
+    def __init__(self, *, move_timeout_s: float = 2.0) -> None:
+        super().__init__(move_timeout_s=move_timeout_s)
+        self.taught[DEFAULT_GOAL] = self._pose()  # the program plays: its path is its goal
+        self.at_pose = 1
+        self.followed = 0  # follow_program() calls
+
+    async def set_correction(
+        self, offset_mm: Vector3, rotation_rad: Vector3 = ZERO_ROTATION
+    ) -> int:
+        await self.move_absolute(offset_mm, rotation_rad)
+        return len(self.commands)  # the sequence it was written with
+
+    async def apply_correction(
+        self, offset_mm: Vector3, rotation_rad: Vector3 = ZERO_ROTATION
+    ) -> int:
+        """As drivers/ur/robot.py: written and accepted (the fake's program accepts at once)."""
+        return await self.set_correction(offset_mm, rotation_rad)
+
+    def robot_state(self) -> OffsetRobotState:
+        if self.link is not LinkState.CONNECTED:
+            raise NotConnectedError("robot", f"no robot state ({self.link.value})")
+        pose, t, r = self._pose(), self.correction.translation_mm, self.correction.rotation_rad
+        offset = (float(t[0]), float(t[1]), float(t[2]))
+        return OffsetRobotState(
+            timestamp_s=0.0,
+            received_s=0.0,
+            joints_rad=self.JOINTS_RAD,
+            joint_speeds_rad_s=(0.0,) * 6,
+            tcp_pose=(pose.x + offset[0], pose.y + offset[1], pose.z + offset[2], 0.0, 3.14, 0.0),
+            tcp_speed=(0.0,) * 6,
+            joint_temperatures_c=self.JOINT_TEMPERATURES_C,
+            robot_mode=RobotMode.RUNNING,
+            safety_mode=SafetyMode.NORMAL,
+            runtime_state=RuntimeState.PLAYING,
+            at_pose=self.at_pose,
+            accepted_sequence=len(self.commands),
+            program_status=0,
+            applied_offset_mm=offset,
+            applied_rotation_rad=(float(r[0]), float(r[1]), float(r[2])),
+        )
+
+    async def read_state(self) -> OffsetRobotState:
+        """As drivers/ur/robot.py: an exchange with the controller, then its state."""
+        await self.actual_pose()
+        return self.robot_state()
+
+    async def follow_program(self) -> OffsetRobotState:
+        """The run takes the program as it is: its goal taught where it stands (moves
+        nothing); a restart from here on refuses the resume (FakeRobot.lose_goals)."""
+        await self.teach_goal()
+        self.followed += 1
+        return self.robot_state()
 
 
 class FakeCamera:

@@ -57,8 +57,10 @@ NO_TOKEN_EXAMPLES = 3
 HARNESS_RUN = {"duration_s": 3600, "step_s": 1}
 #: Operations that do their work only while idle (409 during a run): fuzzed with no run active.
 IDLE_OPERATIONS = frozenset({"POST /api/v1/runs", "GET /api/v1/devices/preview"})
-#: The control rate limit the fuzzing runs under (api.control_rate_per_s, control_burst).
-RATE_PER_S = 20.0
+#: The control rate limit the fuzzing runs under (api.control_rate_per_s, control_burst). The
+#: fuzzer must outpace it for the test to meet it: at 20/s it did not beside another xdist
+#: worker at load 10 (2 of 2 runs without a 429); 5/s leaves a margin of four.
+RATE_PER_S = 5.0
 BURST = 20
 
 

@@ -3,7 +3,6 @@ camera` on the bench with a rotated, rescaled sim camera, its safety limits and 
 
 from __future__ import annotations
 
-import dataclasses
 import importlib.util
 import itertools
 import json
@@ -200,41 +199,35 @@ def test_a_pattern_beyond_the_limits_moves_nothing(
     assert "beyond compensation.max_total_offset_mm = 5 mm" in err
 
 
-class SpyRobot:
-    """The real robot driver, with every commanded offset remembered."""
-
-    def __init__(self, robot: Any) -> None:
-        self.robot = robot
-        self.offsets: list[Vector3] = []
-
-    async def teach_goal(self) -> Any:
-        return await self.robot.teach_goal()
-
-    async def move_absolute(self, offset_mm: Vector3) -> MoveResult:
-        self.offsets.append(offset_mm)
-        result: MoveResult = await self.robot.move_absolute(offset_mm)
-        return result
-
-
-async def test_a_spot_leaving_the_chip_stops_and_returns_to_the_goal() -> None:
+async def test_a_spot_leaving_the_chip_stops_and_returns_to_the_goal(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     # a 752 x 582 px chip of 8.6 x 8.3 um: +-3.2 x 2.4 mm; a 3 mm pattern leaves it
     settings = Settings.model_validate(
         {"camera": {"driver": "sim"}, "compensation": {"max_total_offset_mm": 10.0}}
     )
     offsets = checked_pattern(settings, 3.0, 1.5)
+    sent: list[Vector3] = []  # every offset commanded to the real driver (a spy, no fake)
     async with open_devices(settings, VirtualClock()) as devices:
-        spy = SpyRobot(devices.robot)
+        move = devices.robot.move_absolute
+
+        async def recorded(offset_mm: Vector3, *args: Any, **kwargs: Any) -> MoveResult:
+            sent.append(offset_mm)
+            result: MoveResult = await move(offset_mm, *args, **kwargs)
+            return result
+
+        monkeypatch.setattr(devices.robot, "move_absolute", recorded)
         with pytest.raises(SpotLostError, match=r"offset \(-3000\.0, -3000\.0\) um") as caught:
-            await measure_pattern(dataclasses.replace(devices, robot=spy), settings, offsets)
+            await measure_pattern(devices, settings, offsets)
         pose = await devices.robot.actual_pose()
-        goal = spy.offsets[-1]
+        goal = sent[-1]
     assert "\n" not in str(caught.value)
     assert goal == (0.0, 0.0, 0.0)  # back at the goal
     limit = 3.0 + 1e-9
-    assert all(abs(x) <= limit and y == 0 and abs(z) <= limit for x, y, z in spy.offsets)
+    assert all(abs(x) <= limit and y == 0 and abs(z) <= limit for x, y, z in sent)
     assert all(
         max(abs(b[i] - a[i]) for i in range(3)) <= settings.compensation.max_step_change_mm + 1e-9
-        for a, b in zip([(0.0, 0.0, 0.0), *spy.offsets], spy.offsets, strict=False)
+        for a, b in zip([(0.0, 0.0, 0.0), *sent], sent, strict=False)
     )
     assert pose is not None
 

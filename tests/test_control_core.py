@@ -42,7 +42,8 @@ from tests.test_api_server import CONTROL, serve
 SIM = str(REPO_ROOT / "config" / "sim.toml")
 
 CONTROL_HEADERS = {"Authorization": f"Bearer {CONTROL}"}
-WAIT_S = 30.0  # bound of every wait below: a hang fails, never blocks the suite
+WAIT_S = 60.0  # bound of every wait below: a hang fails, never blocks the suite (30 s: a
+# server start and a run's first step took longer at load 19 with the suite on both cores)
 
 
 async def until(condition: Callable[[], bool], timeout_s: float = WAIT_S) -> None:

@@ -16,18 +16,24 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 
+from api.app import create_app
 from api.routers.runs import run_info
 from daemon import service as service_module
 from daemon.run import pending_summaries as pending_module
+from daemon.run.kinds import summary_from_basis
 from daemon.run.states import RunState
-from daemon.run.summary import summary_from_basis
 from daemon.run.two_link.kind import TwoLinkKind
+from daemon.run.workers import READ_THREADS
 from daemon.storage.recorder import DATABASE_NAME, Recorder
 from tests.fakes import Harness, make_settings, params
+from tests.test_api_server import CONTROL, READ, serve
 
 WAIT_S = 60.0
+#: how long the API read threads may take to be all running at once (a loaded machine)
+READ_BARRIER_S = 10.0
 
 
 async def _until(condition: Callable[[], bool]) -> None:
@@ -160,3 +166,57 @@ def test_an_older_database_gains_the_pending_table(tmp_path: Path) -> None:
         assert recorder.pending_summaries() == []
         row = recorder.run(run_id)
         assert row is not None and row.summary == {"a": 1} and not row.summary_pending
+
+
+async def test_api_reads_are_served_while_a_deferred_summary_computes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The deferred summary has its own thread (daemon/run/workers.py ``summary``): while one
+    computes (here: blocked until the test lets it go), every API read thread is free --
+    ``READ_THREADS`` reads that each need all of them at once complete -- and GET /runs
+    answers through a real server. On the read pool (before) one of the two threads was the
+    summary's: the barrier of two reads never filled."""
+    with Recorder(tmp_path) as recorder:  # a run whose summary the last shutdown deferred
+        run_id = recorder.create_run({"step_s": 1.0}, {}, None, "test")
+        recorder.finish_run(run_id, "stopped", None, "shut down")
+        recorder.defer_summary(
+            run_id, {"kind": "followed", "run_id": run_id, "fixed": {"a": 1}, "after": {}}
+        )
+    real = summary_from_basis
+    began, release = threading.Event(), threading.Event()
+    threads: list[str] = []
+
+    def blocking(recorder: Recorder, basis: dict[str, Any], abandon: threading.Event) -> Any:
+        threads.append(threading.current_thread().name)
+        began.set()
+        release.wait(WAIT_S)
+        return real(recorder, basis, abandon)
+
+    monkeypatch.setattr(pending_module, "summary_from_basis", blocking)
+    settings = make_settings(tmp_path, api={"control_token": CONTROL, "read_token": READ})
+    harness = Harness(settings)
+    app = create_app(settings, service_factory=lambda _settings: harness.daemon)
+    async with (
+        serve(app) as address,
+        httpx.AsyncClient(base_url=f"http://{address}", timeout=WAIT_S) as client,
+    ):
+        daemon = harness.daemon
+        try:
+            await asyncio.wait_for(asyncio.to_thread(began.wait, WAIT_S), WAIT_S)
+            assert began.is_set()
+            everyone = threading.Barrier(READ_THREADS, timeout=READ_BARRIER_S)
+            await asyncio.wait_for(
+                asyncio.gather(*(daemon.read(everyone.wait) for _ in range(READ_THREADS))),
+                2 * READ_BARRIER_S,
+            )
+            listed = await client.get("/api/v1/runs", headers={"Authorization": f"Bearer {READ}"})
+            assert listed.status_code == 200, listed.text
+            (row,) = [r for r in listed.json()["runs"] if r["id"] == run_id]
+            assert row["summary_pending"] is True and not release.is_set()
+        finally:
+            release.set()  # the summary goes on, whatever failed: the shutdown waits for it
+        assert daemon.pending_summaries is not None and daemon.recorder is not None
+        await asyncio.wait_for(daemon.pending_summaries.wait(), WAIT_S)
+        stored = await daemon.read(daemon.recorder.run, run_id)
+    assert stored is not None and stored.summary == {"a": 1} and not stored.summary_pending
+    assert [name.split("_")[0] for name in threads] == ["deferred-summary"]

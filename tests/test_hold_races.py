@@ -5,7 +5,8 @@ command is written after a hold's answer, whatever request was already in flight
 
 - a start, then ``POST /robot/stop`` while the run is being built;
 - a resume, then a hold while the resume is under way;
-- a pause while a start prepares again after a fault and a resume (the arm's teaching moves).
+- a pause while a start prepares again after a fault and a resume (the arm's teaching moves);
+- a hold while a played arm run's start is being built (its teaching moves come first).
 """
 
 from __future__ import annotations
@@ -22,11 +23,15 @@ import pytest
 from api.app import create_app
 from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
+from drivers.clock import make_clock
 from drivers.errors import DeviceTimeoutError
+from drivers.factory import Devices
+from drivers.sim.bench import Bench as SimBench
 from tests.fakes import Gate
 from tests.serial_spy import SerialSpy, spy_serial
 from tests.test_api_runs import CONTROL_HEADERS, bench_settings
 from tests.test_api_server import serve
+from tests.test_arm_player import settings_for
 from tests.test_arm_run import ArmHarness, FakePredictor, arm_settings
 
 WAIT_S = 60.0
@@ -181,3 +186,63 @@ async def test_a_pause_while_a_start_prepares_after_a_fault_holds_it(tmp_path: P
         assert await daemon.wait_state(RunState.RUNNING) is RunState.RUNNING
         assert len(robot.written) > written
         await daemon.stop()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("delay_s", [0.0, 0.05])
+async def test_a_hold_during_a_played_arm_starts_build_is_never_undone_by_it(
+    tmp_path: Path, delay_s: float
+) -> None:
+    """Issue 26 measured 78 and 47 moves after a hold answered 30-110 ms after a played arm
+    run's start (its build takes over a second, then the teaching moves). The sim bench's own
+    C500C emulator counts every motion it started."""
+    settings = settings_for(tmp_path, duration_s=3600.0)
+    async with Daemon(settings, clock=make_clock("virtual")) as daemon:
+        devices = daemon.devices
+        assert isinstance(devices, Devices) and devices.emulator is not None
+        state = devices.emulator.state
+        start = asyncio.ensure_future(daemon.start_run(RunParameters.from_settings(settings)))
+        await asyncio.sleep(delay_s)  # the start's build is under way (the arm's model)
+        await daemon.hold_robot("the operator's hold")
+        moved = state.motion_count  # every motion started up to the hold's answer
+        await start
+        await until(
+            lambda: (view := daemon.run) is not None and view.state is not RunState.STARTING
+        )
+        await asyncio.sleep(SETTLE_S)
+        assert state.motion_count == moved
+        view = daemon.run
+        assert view is not None and view.state in (RunState.STOPPED, RunState.PAUSED)
+        if view.is_active:
+            await daemon.stop()
+
+
+def _loop_running() -> bool:
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        return False
+    return True
+
+
+async def test_the_benchs_cold_start_never_runs_on_an_event_loop(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 26: the simulated bench's start (0.25-0.55 s of truth model under load) ran on the
+    event loop, and every hold waited behind it. Its truth model is built on a worker thread:
+    no event loop runs in the thread that builds it."""
+    on_loop: list[bool] = []
+    build = SimBench._build_truth
+
+    def recorded(self: SimBench, *args: Any, **kwargs: Any) -> None:
+        on_loop.append(_loop_running())
+        build(self, *args, **kwargs)
+
+    monkeypatch.setattr(SimBench, "_build_truth", recorded)
+    settings = bench_settings(tmp_path / "data")
+    async with Daemon(settings) as daemon:
+        on_loop.clear()  # the bench's first build, when the devices open, is not a run's start
+        await daemon.start_run(RunParameters.from_settings(settings))
+        assert await daemon.wait_state(RunState.RUNNING) is RunState.RUNNING
+        await daemon.stop()
+    assert on_loop == [False]

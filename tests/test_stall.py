@@ -84,3 +84,24 @@ async def test_a_second_opener_of_the_port_gets_one_line() -> None:
         assert "in use by another process" in message and "\n" not in message
         await asyncio.sleep(0)
         await robot.actual_pose()  # the first owner's link is untouched
+
+
+async def test_a_fast_path_move_whose_reply_never_comes_is_a_stall_in_seconds() -> None:
+    """The program answers its heartbeats but the move's own reply does not come (a move
+    that never ends): the link is alive, so only the move's timeout can see the stall. Before
+    issue 26 this waited robot.move_timeout_s (60 s); the silent program above was caught by
+    the heartbeats in about a second even then."""
+    never_s = 4 * SETTINGS.move_timeout_s  # the emulated move ends long after the cap
+    config = server_emulator_config(paced=False, move_ms=1000.0 * never_s)
+    async with (
+        C500CServerEmulator(config) as emulator,
+        C500CServerRobot(SETTINGS, port=emulator.device_path, first_backoff_s=30.0) as robot,
+    ):
+        await robot.teach_goal()
+        began = time.monotonic()
+        with pytest.raises(DeviceTimeoutError):
+            await robot.move_absolute((0.001, 0.0, 0.0))
+        took_s = time.monotonic() - began
+        assert took_s < SETTINGS.move_margin_s + 5.0 < SETTINGS.move_timeout_s / 4
+        status = robot.status()
+        assert status.link is LinkState.STALLED and status.motion_held

@@ -21,11 +21,16 @@ from tests.test_api_server import serve
 from tests.test_control_core import CONTROL_HEADERS, api_settings
 
 WAIT_S = 60.0
+DAY_S = 86_400.0
 
 
 @pytest.fixture
 async def api(tmp_path: Path) -> AsyncIterator[tuple[Harness, httpx.AsyncClient]]:
-    settings = api_settings(make_settings(tmp_path, scheduler={"step_s": 0.2}))
+    # a day's run: none ends by itself during a test. With a 60-s run the virtual clock ran it
+    # to its end while a stop waited for the stuck database below, and its end held the robot:
+    # the stop test passed on the code that read the database before holding (3b82f76)
+    day = {"step_s": 0.2, "duration_s": DAY_S}
+    settings = api_settings(make_settings(tmp_path, scheduler=day))
     harness = Harness(settings)
     app = create_app(settings, service_factory=lambda _settings: harness.daemon)
     async with (
@@ -113,10 +118,12 @@ async def test_a_storage_abort_says_so_in_the_robots_hold(
     assert "aborted" in robot["hold_reason"] and "recording failed" in robot["hold_reason"]
 
 
+@pytest.mark.parametrize(("action", "final"), [("stop", "stopped"), ("pause", "paused")])
 async def test_a_stop_holds_before_the_database_answers(
-    api: tuple[Harness, httpx.AsyncClient],
+    api: tuple[Harness, httpx.AsyncClient], action: str, final: str
 ) -> None:
-    """The database is stuck (a 4.32 M-step COUNT, a slow disk): the stop holds first."""
+    """The database is stuck (a 4.32 M-step COUNT, a slow disk): the stop (or pause) holds
+    first."""
     harness, client = api
     run = (await client.post("/api/v1/runs", json={}, headers=CONTROL_HEADERS)).json()
     daemon = harness.daemon
@@ -132,11 +139,15 @@ async def test_a_stop_holds_before_the_database_answers(
 
     daemon.read = stuck_read  # type: ignore[method-assign]
     stop = asyncio.create_task(
-        client.post(f"/api/v1/runs/{run['id']}/stop", headers=CONTROL_HEADERS)
+        client.post(f"/api/v1/runs/{run['id']}/{action}", headers=CONTROL_HEADERS)
     )
     async with asyncio.timeout(WAIT_S):
         while not harness.robot.held:  # noqa: ASYNC110 -- the permit has no event
             await asyncio.sleep(0.005)
     assert not stop.done()  # held while the database still has not answered
     stuck.set()
-    assert (await stop).status_code == 200
+    stopped = await stop
+    assert stopped.status_code == 200
+    assert stopped.json()["state"] == final  # by the request, not by reaching the run's end
+    if action == "pause":
+        await client.post(f"/api/v1/runs/{run['id']}/stop", headers=CONTROL_HEADERS)

@@ -16,18 +16,17 @@ moves between steps (a played cycle) starts only with the grant the session give
 
 from __future__ import annotations
 
+import abc
 import threading
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
-from daemon.run.two_link.step import StepOutcome
+from daemon.run.step import StepOutcome
+from daemon.run.summary import SummaryBasis
 from daemon.storage.recorder import Recorder
 from drivers.clock import Clock
 from drivers.permit import Ticket
-
-if TYPE_CHECKING:  # daemon/run/summary.py imports the kinds' work types
-    from daemon.run.summary import SummaryBasis
 
 
 class RunKind(Protocol):
@@ -97,5 +96,58 @@ class RunKind(Protocol):
     ) -> dict[str, Any]:
         """The run's summary (thesis Table 6.1 and its timing) from ``basis`` and the steps
         read back from the database on a worker thread; ``abandon`` gives the read up
-        (daemon/storage/series.py). The same as daemon/run/summary.py summary_from_basis."""
+        (daemon/storage/series.py). The same as the kind's ``summary_from_basis`` (KindBase),
+        which computes a deferred one at the next start (daemon/run/kinds.py)."""
         ...
+
+
+class KindWork(Protocol):
+    """What every kind's work carries from one step to the next, whatever else it holds."""
+
+    @property
+    def run_id(self) -> int: ...
+
+    @property
+    def parameters(self) -> RunParameters: ...
+
+    start_s: float
+
+
+class KindBase(abc.ABC):
+    """What every run kind shares: ``run_id``, ``parameters`` and ``start_s`` are its work's,
+    and its summary is its class's: ``summary_from_basis`` computes it from a basis alone (the
+    run's end, and a summary a shutdown deferred, found by the basis's ``kind``: the class's
+    ``name``, in daemon/run/kinds.py). A subclass is a dataclass with a ``work`` field."""
+
+    #: the kind's name: the run's info and the dashboard show it, a summary's basis carries it
+    name: ClassVar[str]
+    work: KindWork
+
+    @staticmethod
+    @abc.abstractmethod
+    def summary_from_basis(
+        recorder: Recorder, basis: SummaryBasis, abandon: threading.Event | None = None
+    ) -> dict[str, Any]:
+        """The kind's summary from ``basis`` (KindBase.summary_basis) and the recorded steps:
+        blocking (a worker thread); ``abandon`` gives the read up at its next chunk."""
+
+    @property
+    def run_id(self) -> int:
+        return self.work.run_id
+
+    @property
+    def parameters(self) -> RunParameters:
+        return self.work.parameters
+
+    @property
+    def start_s(self) -> float:
+        return self.work.start_s
+
+    @start_s.setter
+    def start_s(self, value: float) -> None:
+        self.work.start_s = value
+
+    def summary(
+        self, recorder: Recorder, basis: SummaryBasis, *, abandon: threading.Event | None
+    ) -> dict[str, Any]:
+        return type(self).summary_from_basis(recorder, basis, abandon)

@@ -1,69 +1,59 @@
-"""The one factory of run kinds (issue 27): the only code that chooses what kind a run is.
+"""The one factory of run kinds (issue 27): the only code that chooses what kind a run is, and
+the only one that knows every kind (KINDS).
 
 - a robot that plays its own program (drivers/base.py OffsetRobot, ``robot.driver =
-  "ur-rtde"``): a followed run (daemon/run/followed/kind.py), whose duty cycle is the
-  program's;
-- a duty cycle in the parameters: an arm run (daemon/run/arm/kind.py);
-- otherwise the two-link bench's run (daemon/run/two_link/kind.py).
+  "ur-rtde"``): a followed run (daemon/run/followed/), whose duty cycle is the program's;
+- a duty cycle in the parameters: an arm run (daemon/run/arm/);
+- otherwise the two-link bench's run (daemon/run/two_link/).
 
-Adding a kind: its package under daemon/run/, and one branch here (docs/explanation/
-architecture.md "Run kinds"). Nothing here changes a run's state or starts it.
+Each kind builds itself (its package's ``build.py``) and carries its summary (daemon/run/
+kind.py KindBase ``summary_from_basis``): a summary a shutdown deferred is found here by the
+basis's kind name. Adding a kind: its package under daemon/run/, its class in KINDS and one
+branch in :func:`build_kind` (docs/explanation/architecture.md "Run kinds"). Nothing here
+changes a run's state or starts it.
 """
 
 from __future__ import annotations
 
+import threading
+from typing import Any
+
+from daemon.run.arm.build import build_arm
 from daemon.run.arm.kind import ArmKind
+from daemon.run.followed.build import build_followed
 from daemon.run.followed.kind import FollowedKind
-from daemon.run.followed.setup import followed_model
-from daemon.run.kind import RunKind
+from daemon.run.kind import KindBase, RunKind
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
+from daemon.run.summary import SummaryBasis, fixed_summary
+from daemon.run.two_link.build import build_two_link
 from daemon.run.two_link.kind import TwoLinkKind
-from daemon.run.two_link.step import StepPipeline
+from daemon.storage.recorder import Recorder
 from drivers.base import OffsetRobot
-from drivers.clock import FollowingClock
+
+#: Every run kind, by the name its runs' summary bases carry.
+KINDS: tuple[type[KindBase], ...] = (TwoLinkKind, ArmKind, FollowedKind)
+_BY_NAME: dict[str, type[KindBase]] = {kind.name: kind for kind in KINDS}
 
 
 async def build_kind(builder: RunBuilder, parameters: RunParameters) -> RunKind:
     """The run's kind, built (its row created in the run database); RunParameterError when the
     run is not admissible."""
-    devices = builder.devices()
-    workers, settings, errors = builder.workers, builder.settings, builder.errors
-    robot = devices.robot
+    robot = builder.devices().robot
     if isinstance(robot, OffsetRobot):  # plays its own program: even with a duty cycle
-        model = await workers.step(followed_model, settings, parameters)
-        run_id = await builder.create_run(parameters, {"kind": "followed"})
-        return FollowedKind(
-            run_id,
-            parameters,
-            robot,
-            builder.recorder,
-            workers,
-            settings,
-            errors,
-            builder.clock,
-            model,
-            getattr(devices, "ur_truth", None),
-        )
+        return await build_followed(builder, parameters, robot)
     if parameters.duty_cycle is not None:
-        arm_work, arm = await builder.arm_work(parameters)
-        # a played duty cycle paces a virtual clock: the run's steps follow it
-        clock = builder.clock if arm.player is None else FollowingClock(builder.clock)
-        bench = getattr(devices, "arm_bench", None) or getattr(devices, "bench", None)
-        return ArmKind(arm_work, arm, bench, workers, settings, errors, clock)
-    work = await builder.two_link_work(parameters)
-    sensors = builder.sensors
-    assert sensors is not None
-    pipeline = StepPipeline(
-        settings,
-        robot=robot,
-        sensors=sensors,
-        recorder=builder.recorder,
-        workers=workers,
-        errors=errors,
-        clock_now=builder.clock.now,
-    )
-    bench = getattr(devices, "bench", None)
-    return TwoLinkKind(
-        work, pipeline, robot, sensors, bench, workers, settings, errors, builder.clock
-    )
+        return await build_arm(builder, parameters)
+    return await build_two_link(builder, parameters)
+
+
+def summary_from_basis(
+    recorder: Recorder, basis: SummaryBasis, abandon: threading.Event | None = None
+) -> dict[str, Any]:
+    """A run's summary from its basis and the database, computed by the kind the basis names
+    (at the next start for a summary a shutdown deferred: the same values, so the summary the
+    end would have written). A basis of a kind this daemon does not know (a later version's)
+    gives what it holds: its figures known without the steps."""
+    kind = _BY_NAME.get(str(basis.get("kind", "")))
+    compute = fixed_summary if kind is None else kind.summary_from_basis
+    return compute(recorder, basis, abandon)

@@ -8,10 +8,12 @@ deadlines, the timing, the kind's own figures: daemon/run/summary.py SummaryBasi
 (daemon/storage/recorder.py ``pending_summaries``), and the next start computes it here, from
 the same values, so it is the summary the end would have written.
 
-Off the event loop and after the daemon is ready: the steps are read on the read pool (never
-the recorder's one writing thread, which a new run's steps need), the summary is written on the
-recorder's thread (one writer), and a shutdown gives it up again at once -- the pending row is
-removed only in the transaction that writes the summary, so it survives any number of those.
+Off the event loop and after the daemon is ready: the steps are read on a thread of their own
+(daemon/run/workers.py ``summary``: never the recorder's one writing thread, which a new run's
+steps need, nor an API read's, whose pool a day's summary held ~87 s), the summary is written
+on the recorder's thread (one writer), and a shutdown gives it up again at once -- the pending
+row is removed only in the transaction that writes the summary, so it survives any number of
+those.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import logging
 import threading
 
 from daemon.run.events import ErrorLog
-from daemon.run.summary import summary_from_basis
+from daemon.run.kinds import summary_from_basis
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.report_queue import ReportQueue
@@ -74,7 +76,7 @@ class PendingSummaries:
 
     async def _compute_all(self) -> None:
         try:
-            pending = await self._workers.read(self._recorder.pending_summaries)
+            pending = await self._workers.summary(self._recorder.pending_summaries)
         except Exception as err:  # the database: the rows stay for the next start
             logger.error("deferred summaries: cannot read them: %s", err)
             self._errors.note(err, device="storage")
@@ -86,7 +88,7 @@ class PendingSummaries:
     async def _compute(self, run_id: int, basis: dict[str, object]) -> bool:
         """False: given up (a shutdown); the pending row stays."""
         try:
-            summary = await self._workers.read(
+            summary = await self._workers.summary(
                 summary_from_basis, self._recorder, basis, self._abandon
             )
             await self._workers.db(self._recorder.set_summary, run_id, summary)

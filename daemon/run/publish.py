@@ -16,7 +16,7 @@ from daemon.run.events import Event
 from daemon.run.readmodel import RunView
 from daemon.run.services import SessionServices
 from daemon.run.states import RunState
-from daemon.run.two_link.step import StepOutcome
+from daemon.run.step import StepOutcome
 
 logger = logging.getLogger(__name__)
 

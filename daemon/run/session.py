@@ -34,8 +34,8 @@ from daemon.run.readmodel import RunView
 from daemon.run.scheduler import FixedStepTimer
 from daemon.run.services import BenchControl, SessionServices
 from daemon.run.states import RunState, RunStateError, StateMachine
+from daemon.run.step import StepOutcome, Verdict
 from daemon.run.summary import SummaryBasis, stored_basis
-from daemon.run.two_link.step import StepOutcome, Verdict
 from daemon.storage.recorder import RecorderError
 from daemon.storage.series import SummaryAbandonedError
 from drivers.errors import DeviceError, GoalLostError, MotionHeldError

@@ -1,7 +1,10 @@
 """The robots under the Robot contract (tests/contract/test_robot_contract.py): every robot
 driver over its emulator and every fake of the suite (tests/fakes.py FakeRobot and its
-subclasses), each behind a small adapter that opens it and gives the suite its test hooks. A new
-driver adds one adapter here and one entry in ADAPTERS (docs/how-to/add-a-robot-driver.md)."""
+subclasses: CONTRACT_FAKES), each behind a small adapter that opens it and gives the suite its
+test hooks. A new driver adds one adapter here and one entry in ADAPTERS (docs/how-to/
+add-a-robot-driver.md); a new fake subclasses FakeRobot, gets an adapter and an entry in
+CONTRACT_FAKES (tests/contract/test_no_other_fakes.py refuses a robot-like class anywhere
+else in tests/)."""
 
 from __future__ import annotations
 
@@ -9,21 +12,29 @@ import asyncio
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import AbstractAsyncContextManager, asynccontextmanager
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from config.settings import RobotSettings
-from drivers.base import DEFAULT_GOAL, ZERO_ROTATION, LinkState, Pose, Vector3
+from drivers.base import (
+    DEFAULT_GOAL,
+    ZERO_ROTATION,
+    LinkState,
+    OffsetRobotState,
+    Pose,
+    RobotStatus,
+    Vector3,
+)
 from drivers.c500c import server_protocol as server_proto
 from drivers.c500c.robot import C500CRobot
 from drivers.c500c.server import C500CServerRobot
 from drivers.clock import VirtualClock
 from drivers.errors import DeviceError
-from drivers.permit import Ticket
+from drivers.permit import MotionPermit, Ticket
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
 from drivers.sim.ur.emulator import UREmulator
 from drivers.ur.robot import URRobot
-from tests.fakes import FakeRobot, Gate
+from tests.fakes import FakeOffsetRobot, FakeRobot, Gate
 from tests.test_arm_run import ArmTruth, FakeArmRobot
 
 #: Timeouts short enough for a stall to show in a test, long enough for a loaded machine.
@@ -123,8 +134,16 @@ def arm_fake() -> AbstractAsyncContextManager[Subject]:
     return _faked(robot, "arm fake")
 
 
+def offset_fake() -> AbstractAsyncContextManager[Subject]:
+    """The followed run's fake (tests/fakes.py FakeOffsetRobot), through the same calls as the
+    UR's (OffsetUnderContract)."""
+    robot = FakeOffsetRobot(move_timeout_s=SETTINGS.move_margin_s)
+    return _faked(robot, "offset fake", OffsetUnderContract(robot))
+
+
 @asynccontextmanager
-async def _faked(robot: FakeRobot, name: str) -> AsyncIterator[Subject]:
+async def _faked(robot: FakeRobot, name: str, facade: Any = None) -> AsyncIterator[Subject]:
+    """``robot`` under the contract, called directly or through ``facade``."""
     gates: list[Gate] = []
 
     def hold_replies() -> None:
@@ -144,7 +163,7 @@ async def _faked(robot: FakeRobot, name: str) -> AsyncIterator[Subject]:
     async with robot:
         yield Subject(
             name=name,
-            robot=robot,
+            robot=robot if facade is None else facade,
             written=lambda: len(robot.commands),
             hold_replies=hold_replies,
             reply_held=reply_held,
@@ -158,14 +177,37 @@ async def _faked(robot: FakeRobot, name: str) -> AsyncIterator[Subject]:
         release_replies()
 
 
-class OffsetUnderContract:
-    """A UR (drivers/ur/robot.py, an OffsetRobot) under the Robot contract's calls: its one
-    "goal" is the path of its own program, a "move" is a correction the program accepted
-    (URRobot.apply_correction), teaching is URRobot.follow_program (moves nothing) and the
-    pose is read after a heartbeat the controller read back. The hold, the permit, the
-    refusals and the link are the driver's own, untouched."""
+class CheckedOffsetRobot(Protocol):
+    """An OffsetRobot (drivers/base.py) with the two calls that wait for the controller, as
+    URRobot has them: a correction the program accepted, the state after an exchange."""
 
-    def __init__(self, robot: URRobot) -> None:
+    @property
+    def permit(self) -> MotionPermit: ...
+
+    async def follow_program(self) -> OffsetRobotState: ...
+
+    async def apply_correction(
+        self, offset_mm: Vector3, rotation_rad: Vector3 = ZERO_ROTATION
+    ) -> int: ...
+
+    async def read_state(self) -> OffsetRobotState: ...
+
+    async def stop(self) -> None: ...
+
+    async def resume(self, ticket: Ticket | None = None) -> None: ...
+
+    def status(self) -> RobotStatus: ...
+
+
+class OffsetUnderContract:
+    """A robot that plays its own program (an OffsetRobot: the UR of drivers/ur/robot.py, the
+    fake of tests/fakes.py) under the Robot contract's calls: its one "goal" is the path of
+    its own program, a "move" is a correction the program accepted (apply_correction),
+    teaching is follow_program (moves nothing) and the pose is read after an exchange with
+    the controller. The hold, the permit, the refusals and the link are the robot's own,
+    untouched."""
+
+    def __init__(self, robot: CheckedOffsetRobot) -> None:
         self.robot = robot
         self.permit = robot.permit
 
@@ -257,5 +299,10 @@ ADAPTERS: dict[str, Callable[[], AbstractAsyncContextManager[Subject]]] = {
     "fast-path": fast_path,
     "fake": fake,
     "arm-fake": arm_fake,
+    "offset-fake": offset_fake,
     "universal-robots": universal_robots,
 }
+
+#: The suite's robot fakes, each under the contract above: the only robot-like classes the
+#: tests may define (tests/contract/test_no_other_fakes.py).
+CONTRACT_FAKES: tuple[type, ...] = (FakeRobot, FakeArmRobot, FakeOffsetRobot)

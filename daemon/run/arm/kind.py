@@ -8,16 +8,17 @@ from __future__ import annotations
 import functools
 import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from config import Settings
 from daemon.run.arm.prepare import ArmServices, measure_references, reference_frames, teach_poses
 from daemon.run.arm.step import ArmRunWork
+from daemon.run.arm.summary import arm_basis, arm_summary
 from daemon.run.events import ErrorLog
+from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
-from daemon.run.states import RunParameters
-from daemon.run.summary import SummaryBasis, arm_basis, arm_summary
-from daemon.run.two_link.step import StepOutcome
+from daemon.run.step import StepOutcome
+from daemon.run.summary import SummaryBasis
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from drivers.clock import Clock
@@ -25,7 +26,8 @@ from drivers.permit import Ticket
 
 
 @dataclass(eq=False)
-class ArmKind:
+class ArmKind(KindBase):
+    name: ClassVar[str] = "arm"
     work: ArmRunWork
     arm: ArmServices
     bench: object | None  # the arm bench's truth (drivers/sim/arm_devices.py), when simulated
@@ -33,23 +35,6 @@ class ArmKind:
     settings: Settings
     errors: ErrorLog
     clock: Clock
-    name: str = "arm"
-
-    @property
-    def run_id(self) -> int:
-        return self.work.run_id
-
-    @property
-    def parameters(self) -> RunParameters:
-        return self.work.parameters
-
-    @property
-    def start_s(self) -> float:
-        return self.work.start_s
-
-    @start_s.setter
-    def start_s(self, value: float) -> None:
-        self.work.start_s = value
 
     async def teach(self, *, moving: bool) -> None:
         """Each pose reached by a move and taught there: only once motion is allowed."""
@@ -89,7 +74,8 @@ class ArmKind:
             self.work, kind=self.name, overruns=overruns, skipped=skipped, timing=timing
         )
 
-    def summary(
-        self, recorder: Recorder, basis: SummaryBasis, *, abandon: threading.Event | None
+    @staticmethod
+    def summary_from_basis(
+        recorder: Recorder, basis: SummaryBasis, abandon: threading.Event | None = None
     ) -> dict[str, Any]:
         return arm_summary(recorder, basis, abandon)

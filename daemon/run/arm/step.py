@@ -57,7 +57,7 @@ from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.states import RunParameters
-from daemon.run.two_link.step import (
+from daemon.run.step import (
     SENSOR_ERROR_FLAGS,
     CameraView,
     StepOutcome,

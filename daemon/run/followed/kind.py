@@ -24,7 +24,7 @@ import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -35,16 +35,17 @@ from daemon.arm.types import FloatArray, Pose6
 from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
+from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
-from daemon.run.summary import SummaryBasis, fixed_summary
-from daemon.run.two_link.step import (
+from daemon.run.step import (
     OK,
     StepOutcome,
     Verdict,
     begin_record,
     finish_record,
 )
+from daemon.run.summary import SummaryBasis, fixed_summary
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.step_record import StepRecord
@@ -117,10 +118,20 @@ class TruthTally:
         }
 
 
-@dataclass(eq=False)
-class FollowedKind:
+@dataclass
+class FollowedWork:
+    """What a followed run's steps carry besides the kind's services: its identity and start
+    (the last correction written and the bench truth's tally are the kind's)."""
+
     run_id: int
     parameters: RunParameters
+    start_s: float = float("nan")  # run clock at step 0
+
+
+@dataclass(eq=False)
+class FollowedKind(KindBase):
+    name: ClassVar[str] = "followed"
+    work: FollowedWork
     robot: OffsetRobot
     recorder: Recorder
     workers: Workers
@@ -129,8 +140,6 @@ class FollowedKind:
     clock: Clock
     model: FollowedModel
     truth: BenchTruth | None = None
-    start_s: float = float("nan")
-    name: str = "followed"
     last_correction: Pose6 = field(default_factory=Pose6.zero)
     corrections_written: int = 0
     tally: TruthTally = field(default_factory=TruthTally)
@@ -278,7 +287,8 @@ class FollowedKind:
             "after": after,
         }
 
-    def summary(
-        self, recorder: Recorder, basis: SummaryBasis, *, abandon: threading.Event | None
+    @staticmethod
+    def summary_from_basis(
+        recorder: Recorder, basis: SummaryBasis, abandon: threading.Event | None = None
     ) -> dict[str, Any]:
         return fixed_summary(recorder, basis, abandon)

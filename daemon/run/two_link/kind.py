@@ -9,18 +9,20 @@ import functools
 import logging
 import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from config import Settings
 from daemon.run.events import ErrorLog
+from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.services import BenchControl
-from daemon.run.states import RunParameters
-from daemon.run.summary import SummaryBasis, two_link_basis, two_link_summary
-from daemon.run.two_link.step import RunWork, StepOutcome, StepPipeline
+from daemon.run.step import StepOutcome
+from daemon.run.summary import SummaryBasis
+from daemon.run.two_link.step import RunWork, StepPipeline
+from daemon.run.two_link.summary import two_link_basis, two_link_summary
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.vision import CentroidError, measure_with_camera_settings
@@ -33,7 +35,8 @@ logger = logging.getLogger(__name__)
 
 
 @dataclass(eq=False)
-class TwoLinkKind:
+class TwoLinkKind(KindBase):
+    name: ClassVar[str] = "two-link"
     work: RunWork
     pipeline: StepPipeline
     robot: Robot
@@ -43,23 +46,6 @@ class TwoLinkKind:
     settings: Settings
     errors: ErrorLog
     clock: Clock
-    name: str = "two-link"
-
-    @property
-    def run_id(self) -> int:
-        return self.work.run_id
-
-    @property
-    def parameters(self) -> RunParameters:
-        return self.work.parameters
-
-    @property
-    def start_s(self) -> float:
-        return self.work.start_s
-
-    @start_s.setter
-    def start_s(self, value: float) -> None:
-        self.work.start_s = value
 
     async def teach(self, *, moving: bool) -> None:
         """The goal where the robot stands: moves nothing, so before the start's release."""
@@ -135,7 +121,8 @@ class TwoLinkKind:
             self.work, kind=self.name, overruns=overruns, skipped=skipped, timing=timing
         )
 
-    def summary(
-        self, recorder: Recorder, basis: SummaryBasis, *, abandon: threading.Event | None
+    @staticmethod
+    def summary_from_basis(
+        recorder: Recorder, basis: SummaryBasis, abandon: threading.Event | None = None
     ) -> dict[str, Any]:
         return two_link_summary(recorder, basis, abandon)

@@ -1,0 +1,84 @@
+"""An arm run's summary (issue 20): its basis, what only the running daemon's memory holds
+(daemon/run/summary.py SummaryBasis), and the summary from the basis and the steps read back
+(at the run's end, or at the next start for a deferred one)."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+from daemon.analysis.arm import room_summary, summarize_arm_run
+from daemon.run.arm.step import ArmRunWork
+from daemon.run.summary import SUMMARY_COLUMNS, SummaryBasis, reference_steps, timing_over_steps
+from daemon.storage.recorder import Recorder
+
+
+def arm_basis(
+    work: ArmRunWork, *, kind: str, overruns: int, skipped: int, timing: dict[str, Any]
+) -> SummaryBasis:
+    """An arm run's summary basis (memory only), with the model's warnings and the online
+    adaptation's last estimates (issue 29), which only the running predictor knows."""
+    parameters = work.parameters
+    after: dict[str, Any] = {}
+    identified = getattr(work.predictor, "identified", None)
+    if identified is not None:
+        after["arm_model_warning"] = identified.warning or None
+        after["arm_model_implausible"] = list(identified.implausible)
+    estimates = getattr(work.predictor, "adaptation_estimates", None)
+    if callable(estimates) and getattr(work.predictor, "adapting", False):
+        after["adaptation"] = estimates()
+    return {
+        "kind": kind,
+        "run_id": work.run_id,
+        "fixed": {
+            "deformation_scale": parameters.deformation_scale,
+            "compensation": parameters.compensation,
+            "duty_cycle": parameters.duty_cycle,
+            "measured_poses": [pose.name for pose in work.poses],
+            "step_s": parameters.step_s,
+            "overruns": overruns,
+            "skipped_deadlines": skipped,
+            # a pose with no reference measured: its zero is its first step (flagged
+            # first-step-reference), its drift before that step unseen; said, never silent
+            "reference": {
+                "source": work.reference_source,
+                "missing": dict(work.missing_references),
+            },
+        },
+        "inputs": {
+            "compensation": parameters.compensation,
+            "reference_run": parameters.reference_run,
+            "timing": timing,
+        },
+        "after": after,
+    }
+
+
+def arm_summary(
+    recorder: Recorder, basis: SummaryBasis, abandon: threading.Event | None = None
+) -> dict[str, Any]:
+    """An arm run's summary (issue 20): the 3-D drift and the rotation error (largest, RMS),
+    overall and per measured pose, the largest predicted tool error, and the reduction of the
+    3-D drift against a named uncompensated run of the same duty cycle."""
+    inputs, run_id = basis["inputs"], basis["run_id"]
+    steps = recorder.run_series(run_id, SUMMARY_COLUMNS, abandon)
+    drift_run = inputs["reference_run"]
+    summary: dict[str, Any] = dict(
+        summarize_arm_run(
+            steps,
+            recorder.arm_poses(run_id),
+            compensation=inputs["compensation"],
+            reference=reference_steps(recorder, drift_run),
+            reference_run=drift_run,
+        )
+    )
+    summary.update(
+        {
+            "steps": steps.n_steps,
+            **basis["fixed"],
+            "room": room_summary(steps),
+            "timing": timing_over_steps(inputs["timing"], steps),
+            **basis["after"],
+        }
+    )
+    return summary

@@ -1,0 +1,95 @@
+"""The two-link run's summary (thesis Table 6.1 and the run's timing): its basis, what only
+the running daemon's memory holds (daemon/run/summary.py SummaryBasis), and the summary from the
+basis and the steps read back (at the run's end, or at the next start for a deferred one)."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+
+from daemon.analysis import RunSteps, summarize_run
+from daemon.run.summary import SUMMARY_COLUMNS, SummaryBasis, reference_steps, timing_over_steps
+from daemon.run.two_link.step import RunWork
+from daemon.storage.recorder import Recorder
+
+
+def two_link_basis(
+    work: RunWork, *, kind: str, overruns: int, skipped: int, timing: dict[str, Any]
+) -> SummaryBasis:
+    """A two-link run's summary basis (memory only: cheap, on the event loop)."""
+    parameters = work.parameters
+    reference = work.reference_um.get(0, (None, None))
+    goal = work.goal
+    return {
+        "kind": kind,
+        "run_id": work.run_id,
+        "fixed": {
+            "deformation_scale": parameters.deformation_scale,
+            "compensation": parameters.compensation,
+            "step_s": parameters.step_s,
+            "overruns": overruns,
+            "skipped_deadlines": skipped,
+            "reference": {
+                "source": work.reference_source,
+                "x_um": reference[0],
+                "y_um": reference[1],
+            },
+        },
+        "inputs": {
+            "compensation": parameters.compensation,
+            "reference_run": parameters.reference_run,
+            "timing": timing,
+            "procedure": parameters.procedure,
+            "goal_mm": None if goal is None else list(map(float, goal.position)),
+            "direction": list(map(float, work.direction)),
+        },
+        "after": {},
+    }
+
+
+def two_link_summary(
+    recorder: Recorder, basis: SummaryBasis, abandon: threading.Event | None = None
+) -> dict[str, Any]:
+    """Table 6.1's figures and the run's timing. The steps are columns read chunk by chunk
+    (daemon/storage/series.py), never one record object per step: a day at a 20 ms step is
+    4.32 M steps (benchmarks/bench_stop.py). ``abandon`` gives the read up (shutdown)."""
+    inputs = basis["inputs"]
+    steps = recorder.run_series(basis["run_id"], SUMMARY_COLUMNS, abandon)
+    # the reduction against a measured uncompensated run, when the run names one (checked
+    # at its start: ended, compensation off, same scale); otherwise against the prediction
+    drift_run = inputs["reference_run"]
+    summary: dict[str, Any] = dict(
+        summarize_run(
+            steps,
+            compensation=inputs["compensation"],
+            reference=reference_steps(recorder, drift_run),
+            reference_run=drift_run,
+        )
+    )
+    summary.update(
+        {
+            "steps": steps.n_steps,
+            **basis["fixed"],
+            "uncompensated_measured_max_um": measured_uncompensated_max_um(inputs, steps),
+            "timing": timing_over_steps(inputs["timing"], steps),
+            **basis["after"],
+        }
+    )
+    return summary
+
+
+def measured_uncompensated_max_um(inputs: dict[str, Any], steps: RunSteps) -> float | None:
+    """The largest drift the spot would have shown without the compensating moves: the
+    measured residual less the robot's actual displacement from the goal along the link
+    (issue 6 summary; stationary runs only, where the goal is the only pose)."""
+    goal_mm = inputs["goal_mm"]
+    if goal_mm is None or inputs["procedure"] != "stationary" or steps.n_steps == 0:
+        return None
+    poses_mm = np.column_stack([steps.column(f"pose_{axis}_mm") for axis in "xyz"])
+    direction = np.asarray(inputs["direction"], dtype=float)
+    displacement_um = 1000.0 * (poses_mm - np.asarray(goal_mm, dtype=float)) @ direction
+    values = steps.residual_um - displacement_um
+    values = values[np.isfinite(values)]  # steps with no residual or no pose read back
+    return float(np.abs(values).max()) if values.size else None

@@ -1,0 +1,163 @@
+"""Adding a run kind touches the factory and the new kind's own files only (issue 27): no module
+of the daemon or the API outside daemon/run/kinds.py and the kinds' packages names a specific
+kind. Read from the source (ast), like tests/test_layering.py; the kinds themselves are read
+from the factory (daemon/run/kinds.py KINDS), so a fourth kind is checked without editing this.
+
+"Names a kind" means what would have to change when a kind is added:
+
+- its class or its work's type, referred to anywhere (an import, an isinstance, a call);
+- its name as a value compared with (``==``, ``in``, ``match``) or as a key of a dispatch
+  table (a dict literal mapping names to functions or classes: the old ``_SUMMARIES``);
+- an isinstance on the robot's kind of protocol (OffsetRobot: what the factory chooses by);
+- an import from a kind's package into the kind-neutral run machinery (daemon/run/*.py,
+  daemon/service.py) or the API, but for the listed seams below.
+
+Out of scope, said rather than hidden: the pure core (daemon/model, vision, analysis, arm) may
+not import the run machinery at all (tests/test_layering.py); its analyses read a run's steps
+by their columns (daemon/analysis/arm.py ``is_arm_run``: pose columns), not by a run kind.
+The CLI jobs and the calibration (daemon/commands, daemon/calibration) use the arm package's
+tools (its tool meter, robot face, arm file): they run no run kind and choose none."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+
+from daemon.run.kinds import KINDS
+
+REPO = Path(__file__).resolve().parent.parent
+FACTORY = REPO / "daemon" / "run" / "kinds.py"
+KIND_PACKAGES = frozenset(REPO.joinpath(*kind.__module__.split(".")[:-1]) for kind in KINDS)
+PURE_CORE = tuple(REPO / "daemon" / name for name in ("model", "vision", "analysis", "arm"))
+#: the kind-neutral run machinery and the API: no import from a kind's package
+NEUTRAL = (
+    *sorted((REPO / "daemon" / "run").glob("*.py")),
+    REPO / "daemon" / "service.py",
+    *sorted((REPO / "api").rglob("*.py")),
+)
+#: imports from a kind's package the neutral machinery keeps, and why; none chooses a kind
+SEAMS = {
+    # the arm kind's test seams (Daemon(arm_setup=, arm_meter=)), passed to its build
+    ("daemon/service.py", "daemon.run.arm.setup"),
+    ("daemon/run/start.py", "daemon.run.arm.setup"),
+    # the arm file a daemon's settings name, checked before it serves (arm_file: a path)
+    ("daemon/run/inputs.py", "daemon.run.arm.setup"),
+}
+KIND_NAMES = frozenset(kind.name for kind in KINDS)
+#: each kind's class and its work's type (the ``work`` field: a string, annotations deferred)
+KIND_TYPES = frozenset(
+    {kind.__name__ for kind in KINDS}
+    | {str(f.type) for kind in KINDS for f in dataclasses.fields(kind) if f.name == "work"}
+)
+ROBOT_KINDS = frozenset({"OffsetRobot", "GoalRobot", "SpeedGoalRobot"})
+
+
+def _outside_the_kinds() -> Iterator[Path]:
+    for root in ("daemon", "api"):
+        for path in sorted((REPO / root).rglob("*.py")):
+            if path == FACTORY or any(package in path.parents for package in KIND_PACKAGES):
+                continue
+            if any(core in path.parents for core in PURE_CORE):
+                continue
+            yield path
+
+
+def _constants(node: ast.expr) -> set[object]:
+    if isinstance(node, ast.Constant):
+        return {node.value}
+    if isinstance(node, ast.Tuple | ast.List | ast.Set):
+        return {e.value for e in node.elts if isinstance(e, ast.Constant)}
+    return set()
+
+
+def kind_mentions(source: str, names: frozenset[str], types: frozenset[str]) -> list[str]:
+    """Where ``source`` names a kind (module docstring), as ``line: what``."""
+    found: list[str] = []
+    for node in ast.walk(ast.parse(source)):
+        line = getattr(node, "lineno", 0)
+        if isinstance(node, ast.Name) and node.id in types:
+            found.append(f"{line}: {node.id}")
+        elif isinstance(node, ast.Attribute) and node.attr in types:
+            found.append(f"{line}: {node.attr}")
+        elif isinstance(node, ast.ImportFrom) and any(a.name in types for a in node.names):
+            found.append(f"{line}: import {', '.join(a.name for a in node.names)}")
+        elif isinstance(node, ast.Compare):
+            compared = set().union(*(_constants(c) for c in (node.left, *node.comparators)))
+            if compared & names:
+                found.append(f"{line}: {ast.unparse(node)}")
+        elif isinstance(node, ast.MatchValue) and _constants(node.value) & names:
+            found.append(f"{line}: case {ast.unparse(node.value)}")
+        elif isinstance(node, ast.Dict):
+            keys = set().union(*(_constants(k) for k in node.keys if k is not None))
+            table = all(isinstance(v, ast.Name | ast.Attribute) for v in node.values)
+            if keys & names and table:
+                found.append(f"{line}: dispatch table {sorted(keys & names)}")
+        elif (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id == "isinstance"
+            and len(node.args) == 2
+            and {n.id for n in ast.walk(node.args[1]) if isinstance(n, ast.Name)} & ROBOT_KINDS
+        ):
+            found.append(f"{line}: {ast.unparse(node)}")
+    return found
+
+
+def test_the_factory_knows_every_kind_and_each_package_is_its_own() -> None:
+    assert len(KINDS) == len(KIND_NAMES) == len(KIND_PACKAGES) >= 3
+    assert {"two-link", "arm", "followed"} <= KIND_NAMES
+    assert {"TwoLinkKind", "RunWork", "ArmRunWork", "FollowedWork"} <= KIND_TYPES
+
+
+def test_nothing_outside_the_factory_and_the_kinds_names_a_kind() -> None:
+    found = [
+        f"{path.relative_to(REPO)}:{mention}"
+        for path in _outside_the_kinds()
+        for mention in kind_mentions(path.read_text(encoding="utf-8"), KIND_NAMES, KIND_TYPES)
+    ]
+    assert found == []
+
+
+def test_the_neutral_run_machinery_and_the_api_import_no_kind_package() -> None:
+    packages = {".".join(p.relative_to(REPO).parts) for p in KIND_PACKAGES}
+    found: set[tuple[str, str]] = set()
+    for path in NEUTRAL:
+        if path == FACTORY:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            modules = (
+                [node.module or ""]
+                if isinstance(node, ast.ImportFrom)
+                else [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else []
+            )
+            for module in modules:
+                if any(module == p or module.startswith(p + ".") for p in packages):
+                    found.add((str(path.relative_to(REPO)), module))
+    assert found - SEAMS == set()
+    assert SEAMS - found == set(), "a seam no longer used: drop it from SEAMS"
+
+
+def test_the_check_sees_each_way_of_naming_a_kind() -> None:
+    """The check on the code before this change (summary.py's table, the kinds' isinstance),
+    and what it must not take for a kind (a settings section named like one)."""
+    source = (
+        "from daemon.run.arm.kind import ArmKind\n"  # 1
+        'SUMMARIES = {"two-link": two_link_summary, "arm": arm_summary}\n'  # 2
+        "if isinstance(work, RunWork): pass\n"  # 3
+        'if basis["kind"] == "followed": pass\n'  # 4
+        'if kind.name in ("arm", "two-link"): pass\n'  # 5
+        "if isinstance(robot, OffsetRobot): pass\n"  # 6
+        "match name:\n"
+        '    case "arm": pass\n'  # 8
+        'settings = {"arm": {"enabled": True}, "model": model}\n'  # 9: a section, no kind
+        'print("an arm run")\n'  # 10: words, no kind
+    )
+    lines = {
+        int(m.split(":")[0])
+        for m in kind_mentions(source, frozenset({"two-link", "arm", "followed"}), KIND_TYPES)
+    }
+    assert lines == {1, 2, 3, 4, 5, 6, 8}
