@@ -67,6 +67,9 @@ class AbsentDevice:
     """A camera or IR reader a robot that reports its own joint temperatures does without
     (robot.driver ur-rtde: a followed run uses neither); every read is a DeviceError."""
 
+    #: GET /health says "none" for it, not "open" (daemon/run/sensors.py)
+    absent = True
+
     def __init__(self, what: str) -> None:
         self.what = what
 

@@ -14,6 +14,7 @@ import pytest
 
 from daemon.arm.arm_model import load_arm_model, saved_arm_models_dir
 from daemon.commands import calibrate as calibrate_cli
+from daemon.commands.calibrate_arm_model import _print
 from daemon.storage.recorder import Recorder
 from tests.helpers import REPO_ROOT, run_in_process
 
@@ -126,3 +127,41 @@ def test_no_validate_prints_the_identification_table(
     assert "3. validation skipped (--no-validate)" in out
     with Recorder(tmp_path / "data") as recorder:
         assert [run.id for run in recorder.runs(10, 0)] == [1]
+
+
+def _outcome(reference_run: int | None) -> dict[str, object]:
+    validation = {
+        "id": 4,
+        "drift_3d_max_um": 5.32,
+        "drift_3d_rms_um": 3.76,
+        "rms_over_noise": 1.43,
+        "measurement_sigma_um": 2.64,
+        "reference_run": reference_run,
+        "reduction_3d_percent": None if reference_run is None else 97.1,
+        "reduction_3d_rms_percent": None if reference_run is None else 97.5,
+        "rotation_error_rms_urad": 62.5,
+    }
+    return {
+        "calibration_run": {"id": 3, "duty_cycle": "cal.toml", "drift_3d_max_um": 106.0,
+                            "drift_3d_rms_um": 71.7},
+        "arm_model": "a465-cal",
+        "arm_model_file": "/d/arm-models/a465-cal.toml",
+        "validation_run": validation,
+        "prediction": {"identified": {"marker_rms_mm": 0.0022},
+                       "preset": {"marker_rms_mm": 0.00343}},
+    }  # fmt: skip
+
+
+def test_a_validation_without_a_reference_says_how_to_measure_the_reduction(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The calibration program is not the task: the validation run has no reference run, and
+    the summary says so and how to measure one, never "run None: - %"."""
+    _print(_outcome(None), "table")
+    out = capsys.readouterr().out
+    assert "None" not in out and "- %" not in out, out
+    assert "no reduction measured" in out
+    assert "thermocomp run --arm-model a465-cal --reference-run RUN" in out
+    _print(_outcome(3), "table")
+    out = capsys.readouterr().out
+    assert "reduction of the drift of run 3: 97.1 % (largest), 97.5 % (RMS)" in out

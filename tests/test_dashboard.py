@@ -368,6 +368,55 @@ def test_run_states_and_robot_badges_in_the_apis_words(browser: Browser, server:
 
 
 @pytest.mark.slow
+def test_a_move_refused_by_a_hold_is_not_counted_as_an_error(browser: Browser, server: str) -> None:
+    """After Stop or Hold, a step in flight has its move refused by the held permit
+    (kind "motion-held", the request's reason): the hold doing its job. The errors panel lists
+    it greyed with why, and counts it apart, so that "Errors (none)" still means nothing went
+    wrong; a hold for any other reason (a lost link) stays an error."""
+    page = new_page(browser)
+    held = {
+        "time": 1.0e9,
+        "device": "robot",
+        "kind": "motion-held",
+        "message": "robot: motion is held until resume(): stopped by request",
+    }
+    stale = {
+        "time": 1.0e9 + 1,
+        "device": "camera",
+        "kind": "device",
+        "message": "camera: stale frame: 2.2 s old",
+    }
+
+    def state(errors: list[dict[str, Any]]) -> Any:
+        def answer(route: Route) -> None:
+            real = httpx.get(f"{server}/api/v1/state", timeout=10).json()
+            real["errors"] = errors
+            route.fulfill(status=200, content_type="application/json", body=json.dumps(real))
+
+        return answer
+
+    page.route(re.compile(r".*/api/v1/state$"), state([held]))
+    page.goto(server + "/")
+    page.wait_for_selector("#error-list li.expected")
+    assert page.text_content("#error-count") == "(none) · 1 move refused by a hold"
+    assert "expected: the robot was held" in (page.text_content("#error-list li") or "")
+    page.unroute(re.compile(r".*/api/v1/state$"))
+    # a hold nobody asked for (the UR's link lost) is an error, whatever its kind
+    lost = {**held, "time": 1.0e9 + 2}
+    lost["message"] = "robot: motion is held until resume(): link lost: no RTDE package for 1.0 s"
+    page.route(re.compile(r".*/api/v1/state$"), state([held, lost, stale]))
+    page.reload()
+    page.wait_for_selector("#error-list li:not(.expected)")
+    assert page.text_content("#error-count") == "(2) · 1 move refused by a hold"
+    assert page.locator("#error-list li:not(.expected)").count() == 2
+    assert page.text_content("#error-list li:first-child") == (
+        f"{page.evaluate('new Date(1e12 + 1000).toLocaleTimeString()')} camera device: "
+        "camera: stale frame: 2.2 s old"
+    )
+    assert "link lost" in (page.text_content("#error-list li:nth-child(2)") or "")
+
+
+@pytest.mark.slow
 def test_the_dashboard_runs_under_its_own_csp(browser: Browser, server: str) -> None:
     """With the Content-Security-Policy enforced (no eval-based waits here: selectors only),
     the page loads its scripts and styles, opens the stream, shows the daemon's state and the
@@ -523,4 +572,49 @@ def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
             assert float(sigma[2:]) == pytest.approx(one_sigma, abs=rounding)
         # the history row of the ended run states its 3-D drift and rotation error
         page.locator("#run-history tr td", has_text="3-D").first.wait_for(timeout=60_000)
+        # the start's message does not outlive the run: it ended by itself, and says so
+        page.wait_for_selector(f"#message:text-is('run 1 finished after {steps} steps')")
         assert not page_errors
+
+
+@pytest.mark.slow
+def test_a_followed_ur_says_it_has_no_camera_and_no_rotation(browser: Browser) -> None:
+    """A UR followed by its joint temperatures (config/ur5e-sim.toml, the UR emulator on a
+    loopback address of this test's own): the device badges say the camera and the IR reader
+    are none (grey, not green), the camera panel says the tool is not watched, and the rotation
+    plot's title says the run measures no rotation instead of showing an empty plot."""
+    env = {
+        "THERMOCOMP_API__CONTROL_TOKEN": CONTROL,
+        "THERMOCOMP_ROBOT__HOST": "127.0.36.7",  # UR's fixed ports, on an address of its own
+    }
+    with running_server(["--config", "config/ur5e-sim.toml"], env=env) as base:
+        started = httpx.post(
+            f"{base}/api/v1/runs",
+            json={"duration_s": 600},
+            headers={"Authorization": f"Bearer {CONTROL}"},
+            timeout=30,
+        )
+        assert started.status_code == 201, started.text
+        page = new_page(browser)
+        page.goto(base + "/")
+        page.wait_for_selector("#device-badges .badge")
+        page.wait_for_function(
+            "document.querySelector('#title-rotation').textContent.endsWith("
+            "'not measured in this run')",
+            timeout=60_000,
+        )
+        badges = {
+            page.text_content(f"#device-badges .badge:nth-child({i})") or "" for i in (1, 2, 3)
+        }
+        assert {"camera: none", "ir: none"} <= badges, badges
+        assert (
+            page.locator("#device-badges .badge.device.good:text-is('camera: none')").count() == 0
+        )
+        assert "no camera" in (page.text_content("#frame-caption") or "")
+        # the 3-D drift (the bench's truth) is plotted all the same
+        assert page.evaluate("window.thermocomp.plots.drift3d.data[0].length") > 0
+        httpx.post(
+            f"{base}/api/v1/runs/{started.json()['id']}/stop",
+            headers={"Authorization": f"Bearer {CONTROL}"},
+            timeout=30,
+        )

@@ -53,6 +53,9 @@ async def test_a_followed_run_through_the_api_holds_the_program(tmp_path: Path) 
         assert emulator is not None
         controller = emulator.controller
         regs = controller.registers
+        # no camera and no IR reader: health says so, never "open" as if a frame were to come
+        devices = (await client.get("/api/v1/health")).json()["devices"]
+        assert (devices["camera"], devices["ir"]) == ("none", "none"), devices
         started = await client.post("/api/v1/runs", json={}, headers=CONTROL_HEADERS)
         assert started.status_code == 201, started.text
         run_id = started.json()["id"]

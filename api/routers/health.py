@@ -24,7 +24,8 @@ class Health(BaseModel):
     devices: dict[str, str] = Field(
         description="Per device: the robot's link state (e.g. connected, reconnecting); the "
         "camera's and IR reader's last grab/read: open (none yet), ok, stale or "
-        "'<kind> error' (e.g. timeout error)."
+        "'<kind> error' (e.g. timeout error); none when the robot does without it (a UR "
+        "followed by its joint temperatures)."
     )
     storage: str = Field(
         "ok",

@@ -218,8 +218,8 @@ def not_identified_warning(calibration: ArmCalibration) -> str:
     return (
         f"NOT FULLY CALIBRATED: {', '.join(missing)} could not be identified from the "
         "calibration run and keep the preset's values; the compensation relies on them "
-        "unchecked. Calibrate on the arm's calibration program (thermocomp calibrate model) "
-        "to identify them."
+        "unchecked. A calibration cycle that works these joints longer or harder "
+        "(thermocomp calibrate model --calibration-cycle) can identify them."
     )
 
 

@@ -1,5 +1,5 @@
 """``thermocomp calibrate camera``: the camera's micrometres per pixel and rotation, measured with
-the robot itself (issue 18); the fit is the pure :mod:`daemon.vision.calibration`.
+the robot itself; the fit is the pure :mod:`daemon.vision.calibration`.
 
 With the robot jogged to the goal (the spot near the chip's centre), the command teaches that
 pose as the goal, moves the robot through a square grid of known offsets in the camera plane

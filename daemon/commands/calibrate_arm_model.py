@@ -283,16 +283,32 @@ def _print(outcome: dict[str, Any], table: str) -> None:
         f"residual max {_number(validation['drift_3d_max_um'])} um, RMS "
         f"{_number(validation['drift_3d_rms_um'])} um = "
         f"{_number(validation['rms_over_noise'])} x the 3-D measurement's 1-sigma "
-        f"({_number(validation['measurement_sigma_um'])} um); reduction of the drift of run "
-        f"{validation['reference_run']}: {_number(validation['reduction_3d_percent'])} % "
-        f"(largest), {_number(validation['reduction_3d_rms_percent'])} % (RMS); rotation "
-        f"error RMS {_number(validation['rotation_error_rms_urad'])} urad"
+        f"({_number(validation['measurement_sigma_um'])} um); rotation error RMS "
+        f"{_number(validation['rotation_error_rms_urad'])} urad"
     )
+    print(f"   {_reduction(validation, outcome['arm_model'])}")
     prediction = outcome["prediction"]
     identified, preset = prediction["identified"], prediction["preset"]
     print(
         f"   its thermal displacement predicted, nothing refitted: identified model RMS "
         f"{_um(identified['marker_rms_mm'])} um, preset {_um(preset['marker_rms_mm'])} um"
+    )
+
+
+def _reduction(validation: dict[str, Any], arm_model: str) -> str:
+    """The validation run's reduction, or why there is none: a calibration program is not the
+    task, so its drift is no reference for the task's run (the module docstring, step 3)."""
+    reference = validation["reference_run"]
+    if reference is None:
+        return (
+            "no reduction measured: the calibration run played the calibration program, not "
+            "the task's duty cycle; measure one against an uncompensated run RUN of the task: "
+            f"thermocomp run --arm-model {arm_model} --reference-run RUN"
+        )
+    return (
+        f"reduction of the drift of run {reference}: "
+        f"{_number(validation['reduction_3d_percent'])} % (largest), "
+        f"{_number(validation['reduction_3d_rms_percent'])} % (RMS)"
     )
 
 

@@ -1,5 +1,5 @@
 """``thermocomp calibrate cameras``: each camera's pose in the robot's world from marker positions
-the robot visited (issue 20); the fits are the pure :mod:`daemon.vision.camera_pose` and
+the robot visited; the fits are the pure :mod:`daemon.vision.camera_pose` and
 :mod:`daemon.vision.camera_rig`.
 
 The cameras' intrinsics and distortion come from ``--cameras FILE`` (a camera file, see

@@ -1,5 +1,5 @@
 """``thermocomp calibrate model``: the whole path from a wrong model to a validated one, in one
-command (issue 19), each step of which stays a command of its own:
+command, each step of which stays a command of its own:
 
 1. an uncompensated calibration run at ``--scale`` (``thermocomp run --compensation off``);
 2. identification of the run's network from it, saved in the data directory as NAME
@@ -14,10 +14,12 @@ finished; 1 a run did not finish or a device failed; 2 bad usage, a name already
 identification impossible.
 
 On an arm (``[arm] enabled``, or ``--duty-cycle``) the same chain runs the arm's steps
-(daemon/commands/calibrate_arm_model.py): an uncompensated calibration run of the duty cycle, the
-arm's model identified from it and saved as arm model NAME, a validation run with
-``--arm-model NAME`` whose 3-D residual is measured against the calibration run's drift and
-the measurement's noise; ``--network`` and ``--scale`` do not apply there.
+(daemon/commands/calibrate_arm_model.py): an uncompensated calibration run of the arm's
+calibration program (generated for the task's stations; ``--calibration-cycle`` runs another
+cycle), the arm's model identified from it and saved as arm model NAME, and a validation run
+of the task with ``--arm-model NAME`` whose 3-D residual is compared with the measurement's
+noise (and with the calibration run's drift only when it ran the task itself:
+``--calibration-cycle TASK``); ``--network`` and ``--scale`` do not apply there.
 
 On a UR (``robot.driver = "ur-rtde"``) it is refused in one line, exit status 2: a followed
 run measures no tool error to identify a model from (daemon/commands/followed_refusals.py).

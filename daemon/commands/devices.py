@@ -1,6 +1,6 @@
 """``thermocomp devices check``: open every configured device, grab one frame, one IR image and
-the robot's pose, print what came back and write the preview (issue 18;
-daemon/run/devices_check.py).
+the robot's pose, print what came back and write the preview
+(daemon/run/devices_check.py).
 
 Exit statuses (docs/reference/cli.md): 0 every device answered; 1 a device could not be opened or
 failed to answer (each failure one line, the others still described); 2 bad usage or configuration.

@@ -15,7 +15,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser = subparsers.add_parser(
         "identify",
         help="fit a thermal network's parameters to a recorded run",
-        description="Grey-box identification (issue 9): scale a network's convection, heat "
+        description="Grey-box identification: scale a network's convection, heat "
         "inputs, shaft contact resistances and expansion coefficient, and fit IR offsets, so "
         "that it reproduces a run's IR region temperatures and measured deformation "
         "(least squares on log-parameters, robust loss). Reports each parameter with its "

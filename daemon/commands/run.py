@@ -93,7 +93,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument(
         "--duty-cycle",
         metavar="NAME|PATH",
-        help="an arm run (issue 20): the duty cycle (preset in config/duty or TOML file) to "
+        help="an arm run: the duty cycle (preset in config/duty or TOML file) to "
         "follow, its measured poses corrected in 6-DOF; sets arm.duty_cycle and arm.enabled",
     )
     parser.add_argument(

@@ -14,11 +14,14 @@ from drivers.errors import DeviceError
 
 _T = TypeVar("_T")
 
+#: The state GET /health gives a sensor the configuration does without.
+NO_DEVICE = "none"
+
 
 class Sensors:
     """Grabs and reads bounded in wall time (issue 10), with the state of each sensor's last
     grab/read for GET /health: "open" before the first, then "ok", "stale" or
-    "<error kind> error" (e.g. "timeout error")."""
+    "<error kind> error" (e.g. "timeout error"); "none" for a sensor the robot does without."""
 
     def __init__(
         self,
@@ -33,7 +36,12 @@ class Sensors:
         self._ir = ir
         self._errors = errors
         self._room = room
-        self.states: dict[str, str] = {"camera": "open", "ir": "open"}
+        # a device the robot does without (drivers/factory.py AbsentDevice: a UR followed by
+        # its joint temperatures) is "none", never "open" as if a grab were still to come
+        self.states: dict[str, str] = {
+            name: NO_DEVICE if getattr(device, "absent", False) else "open"
+            for name, device in (("camera", camera), ("ir", ir))
+        }
         if room is not None:
             self.states["room"] = "open"
 

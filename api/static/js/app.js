@@ -5,6 +5,7 @@ import {
 } from "./api.js";
 import { clearAdaptation, showAdaptation } from "./adaptation.js";
 import { clearCameras, preview, showFrame } from "./camera.js";
+import { addError, showErrors } from "./errors.js";
 import { explainState, historyRow, runKind, showRunState } from "./history.js";
 import { headline, showDoing } from "./headline.js";
 import { adaptForm, loadChoices, offerReferences, startBody } from "./form.js";
@@ -116,6 +117,21 @@ window.addEventListener("resize", () => {
 
 // --- state, errors, history ------------------------------------------------------------
 
+// The start's message ("run 2 starting: ...") stays under the buttons until something else is
+// said: when that run ends by itself (finished, aborted, fault), the message says so.
+function endOfStart(run) {
+  const message = $("message");
+  const started = message.textContent.startsWith(`run ${run.id} start`);
+  if (started && !ACTIVE_STATES.includes(run.state)) {
+    // the state's run gives its last step's index (GET /runs/{id} gives steps_recorded)
+    const given = (value) => value !== null && value !== undefined && Number.isFinite(+value);
+    const recorded = given(run.steps_recorded) ? Number(run.steps_recorded)
+      : given(run.step) ? Number(run.step) + 1 : 0;
+    say(`run ${run.id} ${run.state} after ${recorded} steps${
+      run.reason ? ` (${run.reason})` : ""}`, run.state !== "finished");
+  }
+}
+
 function showState(snapshot) {
   if (!snapshot) return;
   state.snapshot = snapshot;
@@ -133,6 +149,7 @@ function showState(snapshot) {
     }
     state.durationS = run.parameters ? Number(run.parameters.duration_s) : null;
     showProgress(Number(run.progress_percent || 0));
+    endOfStart(run);
   }
   const lateness = snapshot.timing && snapshot.timing.lateness_s;
   if (lateness && lateness.p99 !== null && lateness.p99 !== undefined) {
@@ -170,6 +187,7 @@ function showRobot(robot) {
 }
 
 function deviceKind(text) {
+  if (text === "none") return "absent"; // a sensor the robot does without: grey, not green
   if (/error|fault|disconnected/.test(text)) return "bad";
   if (/stale|reconnecting|connecting|awaiting/.test(text)) return "warn";
   return "good";
@@ -182,29 +200,17 @@ async function refreshHealth() {
     const devices = Object.entries(health.devices || {}).sort(([a], [b]) => a.localeCompare(b));
     $("device-badges").replaceChildren(...devices.map(([name, text]) =>
       badge(`${name}: ${text}`, `device ${deviceKind(String(text))}`)));
+    if (health.devices && health.devices.camera === "none") {
+      // a robot followed by its own joint temperatures (a UR): no camera to show
+      $("frame-caption").textContent = "no camera: this robot's tool is not watched; its "
+        + "joint temperatures are the thermal input";
+    }
   } catch { /* health is a convenience; the state and errors say the rest */ }
 }
 
 function showProgress(percent) {
   $("run-progress").value = percent;
   $("run-progress-text").textContent = `${percent.toFixed(1)} %`;
-}
-
-function showErrors(errors) {
-  const list = $("error-list");
-  list.replaceChildren();
-  for (const entry of errors.slice(-50).reverse()) addError(entry, list, false);
-  $("error-count").textContent = errors.length ? `(${errors.length})` : "(none)";
-}
-
-function addError(entry, list = $("error-list"), atTop = true) {
-  const item = element("li");
-  const meta = element("span", "meta");
-  const when = entry.time ? new Date(entry.time * 1000).toLocaleTimeString() : "";
-  meta.textContent = `${when} ${entry.device || ""} ${entry.kind || ""}: `;
-  item.append(meta, document.createTextNode(entry.message || ""));
-  if (atTop) list.prepend(item); else list.append(item);
-  while (list.children.length > 50) list.lastChild.remove();
 }
 
 function markShown() {

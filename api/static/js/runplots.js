@@ -45,6 +45,8 @@ export class RunPlots {
     this.poses = [];
     this.temperatureNames = null;
     this.grouped = false;
+    this.rotationSeen = false;
+    this.driftSeen = false;
   }
 
   // kind: "two-link" | "arm"; run: the run's parameters (compensation, time scale)
@@ -55,6 +57,8 @@ export class RunPlots {
     this.timeScale = Number(parameters.time_scale) || 1;
     this.poses = [];
     this.temperatureNames = null;
+    this.rotationSeen = false;
+    this.driftSeen = false;
     const xLabel = kind === "arm" ? "arm time (h)" : "run time (s)";
     this.charts = {};
     for (const slot of ["residual", "drift3d", "rotation", "predicted", "offset", "temperature"]) {
@@ -96,6 +100,7 @@ export class RunPlots {
       const style = { colour: this.poseColour(pose), width: 2 };
       c.drift3d.add(pose, x, num(step.drift_3d_um), style);
       c.rotation.add(pose, x, num(step.rotation_error_urad), style);
+      this.noteRotation(step);
       c.predicted.add(pose, x, norm(step.predicted_tx_um, step.predicted_ty_um,
         step.predicted_tz_um), style);
       const correction = norm(step.correction_tx_mm, step.correction_ty_mm, step.correction_tz_mm);
@@ -140,6 +145,20 @@ export class RunPlots {
     for (const [name, [sum, count]] of sums) this.charts.temperature.add(name, x, sum / count);
     for (const [region, reading] of Object.entries(ir)) {
       if (reading) this.charts.temperature.add(`IR ${region}`, x, num(reading.mean_c));
+    }
+  }
+
+  // A run that measures the tool's position but never its rotation (a UR followed by its
+  // joint temperatures: the bench's truth gives the 3-D drift only) says so in the rotation
+  // plot's title rather than leaving an empty plot to be read as "no rotation error".
+  noteRotation(step) {
+    if (this.rotationSeen) return;
+    if (num(step.rotation_error_urad) !== null) {
+      this.rotationSeen = true;
+      $("title-rotation").textContent = TITLES.arm.rotation;
+    } else if (!this.driftSeen && num(step.drift_3d_um) !== null) {
+      this.driftSeen = true;
+      $("title-rotation").textContent = `${TITLES.arm.rotation}: not measured in this run`;
     }
   }
 
