@@ -589,6 +589,7 @@ def test_thermocomp_run_prints_an_arm_runs_figures(capsys: pytest.CaptureFixture
     from daemon.commands.run import _print_result
 
     summary = {
+        "kind": "arm",  # as every arm summary says (daemon/run/arm/summary.py)
         "arm_n": 12,
         "drift_3d_max_um": 66.5,
         "drift_3d_rms_um": 56.0,

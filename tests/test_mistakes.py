@@ -237,6 +237,7 @@ def test_a_negative_reduction_is_said_to_be_an_increase(
     """Row negative-reduction: a short run's residual above the prediction (the summary's
     -186.858 %) is printed as the increase it is, never as a negative reduction."""
     summary = {
+        "kind": "two-link",  # as every two-link summary says (daemon/run/two_link/summary.py)
         "n": 3,
         "residual_max_um": 2.0,
         "reduction_basis": "reference",

@@ -263,21 +263,10 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
     print(
         f"run {final['id']} {final['state']}" + (f": {final['reason']}" if final["reason"] else "")
     )
-    rows = (
-        _followed_rows(summary)
-        if summary.get("kind") == "followed"
-        else _arm_rows(summary)
-        if "drift_3d_max_um" in summary
-        else [
-            ("steps with a residual (N)", summary.get("n"), ""),
-            ("residual max |x|", summary.get("residual_max_um"), "um"),
-            ("residual mean x-bar", summary.get("residual_mean_um"), "um"),
-            ("residual std S_x", summary.get("residual_std_um"), "um"),
-            ("std of the mean S_x-bar", summary.get("residual_std_mean_um"), "um"),
-            *_reduction_rows(summary),
-            ("overruns", summary.get("overruns"), ""),
-        ]
-    )
+    # lazy: every run kind's package, only once a run has ended (not for --help)
+    from daemon.run.kinds import summary_rows
+
+    rows = summary_rows(summary)
     for label, value, unit in rows:
         text = f"{_format(value)} {unit}"
         if unit == "%" and isinstance(value, float) and value < 0:
@@ -294,71 +283,6 @@ def _print_result(final: dict[str, Any], as_json: bool) -> None:
         print(f"  {'lateness p50/p99/max':<28} {values} ms")
     if final.get("report"):
         print(f"  {'report':<28} {final['report']}")
-
-
-def _followed_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:
-    """A followed run's figures (a UR playing its own program): the corrections written and,
-    on the UR bench, the bench truth's 3-D tool error with and without them (the truth, not a
-    measurement: a followed run measures with no camera)."""
-    rows: list[tuple[str, object, str]] = [
-        ("corrections written", summary.get("corrections_written"), ""),
-    ]
-    truth = summary.get("bench_truth") or {}
-    if truth.get("steps"):
-        removed = truth.get("removed_fraction")
-        rows += [
-            ("bench truth: steps (N)", truth.get("steps"), ""),
-            ("3-D error RMS, corrected", truth.get("rms_residual_um"), "um"),
-            ("3-D error RMS, uncorrected", truth.get("rms_uncompensated_um"), "um"),
-            ("3-D error max, corrected", truth.get("worst_residual_um"), "um"),
-            ("3-D error max, uncorrected", truth.get("worst_uncompensated_um"), "um"),
-            ("removed (RMS)", None if removed is None else 100.0 * removed, "%"),
-        ]
-    return [*rows, ("overruns", summary.get("overruns"), "")]
-
-
-def _arm_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:
-    """An arm run's figures (issue 20): the tool's 3-D drift and rotation error."""
-    rows: list[tuple[str, object, str]] = [
-        ("steps measured in 3-D (N)", summary.get("arm_n"), ""),
-        ("3-D drift max", summary.get("drift_3d_max_um"), "um"),
-        ("3-D drift RMS", summary.get("drift_3d_rms_um"), "um"),
-        ("rotation error max", summary.get("rotation_error_max_urad"), "urad"),
-        ("rotation error RMS", summary.get("rotation_error_rms_urad"), "urad"),
-        ("predicted tool error max", summary.get("predicted_3d_max_um"), "um"),
-        ("3-D measurement 1-sigma", summary.get("measurement_sigma_um"), "um"),
-        ("rotation meas. 1-sigma", summary.get("measurement_rotation_sigma_urad"), "urad"),
-    ]
-    if summary.get("reduction_basis") == "reference":
-        reference = summary.get("reference_run")
-        rows += [
-            (f"3-D reduction vs run {reference}", summary.get("reduction_3d_percent"), "%"),
-            (f"rotation red. vs run {reference}", summary.get("reduction_rotation_percent"), "%"),
-        ]
-    return [*rows, ("overruns", summary.get("overruns"), "")]
-
-
-def _reduction_rows(summary: dict[str, Any]) -> list[tuple[str, object, str]]:
-    """The drift or reduction lines, named after what they are measured against."""
-    basis = summary.get("reduction_basis")
-    if basis == "drift":
-        return [("measured drift max (off)", summary.get("measured_drift_max_um"), "um")]
-    rows: list[tuple[str, object, str]] = [
-        ("predicted deformation max", summary.get("uncompensated_max_um"), "um"),
-        ("  measured (drift - moves)", summary.get("uncompensated_measured_max_um"), "um"),
-    ]
-    if basis == "reference":
-        rows += [
-            (
-                f"reference run {summary.get('reference_run')} drift",
-                summary.get("reference_max_um"),
-                "um",
-            ),
-            ("  over the first", summary.get("reference_span_s"), "s"),
-            ("reduction (measured)", summary.get("reduction_percent"), "%"),
-        ]
-    rows.append(("vs the prediction", summary.get("reduction_vs_prediction_percent"), "%"))
-    return rows
 
 
 def _format(value: object) -> str:

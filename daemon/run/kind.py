@@ -23,7 +23,7 @@ from typing import Any, ClassVar, Protocol
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
 from daemon.run.step import StepOutcome
-from daemon.run.summary import SummaryBasis
+from daemon.run.summary import SummaryBasis, SummaryRow
 from daemon.storage.recorder import Recorder
 from drivers.clock import Clock
 from drivers.permit import Ticket
@@ -133,6 +133,12 @@ class KindBase(abc.ABC):
     ) -> dict[str, Any]:
         """The kind's summary from ``basis`` (KindBase.summary_basis) and the recorded steps:
         blocking (a worker thread); ``abandon`` gives the read up at its next chunk."""
+
+    @staticmethod
+    @abc.abstractmethod
+    def summary_rows(summary: dict[str, Any]) -> list[SummaryRow]:
+        """The kind's summary as ``thermocomp run`` prints it (found by the summary's
+        ``kind``, daemon/run/kinds.py summary_rows)."""
 
     @property
     def run_id(self) -> int:

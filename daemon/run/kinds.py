@@ -25,7 +25,7 @@ from daemon.run.followed.kind import FollowedKind
 from daemon.run.kind import KindBase, RunKind
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
-from daemon.run.summary import SummaryBasis, fixed_summary
+from daemon.run.summary import SummaryBasis, SummaryRow, fixed_summary
 from daemon.run.two_link.build import build_two_link
 from daemon.run.two_link.kind import TwoLinkKind
 from daemon.storage.recorder import Recorder
@@ -57,3 +57,12 @@ def summary_from_basis(
     kind = _BY_NAME.get(str(basis.get("kind", "")))
     compute = fixed_summary if kind is None else kind.summary_from_basis
     return compute(recorder, basis, abandon)
+
+
+def summary_rows(summary: dict[str, Any]) -> list[SummaryRow]:
+    """A run's summary as ``thermocomp run`` prints it, by the kind the summary names; of a kind
+    this daemon does not know (a later version's), what every run has."""
+    kind = _BY_NAME.get(str(summary.get("kind", "")))
+    if kind is None:
+        return [("overruns", summary.get("overruns"), "")]
+    return kind.summary_rows(summary)

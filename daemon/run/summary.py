@@ -28,6 +28,8 @@ SUMMARY_COLUMNS = (*NUMERIC_COLUMNS, "run_id", "flags", "error")
 #: ``run_id``, ``fixed`` (the summary's entries known without the steps, in order), ``inputs``
 #: (what the reading of the steps needs), ``after`` (entries that follow the steps' own).
 SummaryBasis = dict[str, Any]
+#: One figure of a summary as ``thermocomp run`` prints it: label, value, unit.
+SummaryRow = tuple[str, object, str]
 SummaryFunction = Callable[[Recorder, SummaryBasis, threading.Event | None], dict[str, Any]]
 
 

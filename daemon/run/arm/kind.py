@@ -13,12 +13,12 @@ from typing import Any, ClassVar
 from config import Settings
 from daemon.run.arm.prepare import ArmServices, measure_references, reference_frames, teach_poses
 from daemon.run.arm.step import ArmRunWork
-from daemon.run.arm.summary import arm_basis, arm_summary
+from daemon.run.arm.summary import arm_basis, arm_summary, arm_summary_rows
 from daemon.run.events import ErrorLog
 from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
 from daemon.run.step import StepOutcome
-from daemon.run.summary import SummaryBasis
+from daemon.run.summary import SummaryBasis, SummaryRow
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from drivers.clock import Clock
@@ -73,6 +73,10 @@ class ArmKind(KindBase):
         return arm_basis(
             self.work, kind=self.name, overruns=overruns, skipped=skipped, timing=timing
         )
+
+    @staticmethod
+    def summary_rows(summary: dict[str, Any]) -> list[SummaryRow]:
+        return arm_summary_rows(summary)
 
     @staticmethod
     def summary_from_basis(

@@ -9,7 +9,13 @@ from typing import Any
 
 from daemon.analysis.arm import room_summary, summarize_arm_run
 from daemon.run.arm.step import ArmRunWork
-from daemon.run.summary import SUMMARY_COLUMNS, SummaryBasis, reference_steps, timing_over_steps
+from daemon.run.summary import (
+    SUMMARY_COLUMNS,
+    SummaryBasis,
+    SummaryRow,
+    reference_steps,
+    timing_over_steps,
+)
 from daemon.storage.recorder import Recorder
 
 
@@ -82,3 +88,25 @@ def arm_summary(
         }
     )
     return summary
+
+
+def arm_summary_rows(summary: dict[str, Any]) -> list[SummaryRow]:
+    """An arm run's figures as ``thermocomp run`` prints them: the tool's 3-D drift and
+    rotation error."""
+    rows: list[SummaryRow] = [
+        ("steps measured in 3-D (N)", summary.get("arm_n"), ""),
+        ("3-D drift max", summary.get("drift_3d_max_um"), "um"),
+        ("3-D drift RMS", summary.get("drift_3d_rms_um"), "um"),
+        ("rotation error max", summary.get("rotation_error_max_urad"), "urad"),
+        ("rotation error RMS", summary.get("rotation_error_rms_urad"), "urad"),
+        ("predicted tool error max", summary.get("predicted_3d_max_um"), "um"),
+        ("3-D measurement 1-sigma", summary.get("measurement_sigma_um"), "um"),
+        ("rotation meas. 1-sigma", summary.get("measurement_rotation_sigma_urad"), "urad"),
+    ]
+    if summary.get("reduction_basis") == "reference":
+        reference = summary.get("reference_run")
+        rows += [
+            (f"3-D reduction vs run {reference}", summary.get("reduction_3d_percent"), "%"),
+            (f"rotation red. vs run {reference}", summary.get("reduction_rotation_percent"), "%"),
+        ]
+    return [*rows, ("overruns", summary.get("overruns"), "")]

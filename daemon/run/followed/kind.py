@@ -41,6 +41,7 @@ from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
 from daemon.run.followed.program_pause import ProgramPause
+from daemon.run.followed.summary import followed_summary_rows
 from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
 from daemon.run.stage_times import StageTimes
@@ -52,7 +53,7 @@ from daemon.run.step import (
     begin_record,
     finish_record,
 )
-from daemon.run.summary import SummaryBasis, fixed_summary
+from daemon.run.summary import SummaryBasis, SummaryRow, fixed_summary
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.storage.step_record import StepRecord
@@ -308,6 +309,10 @@ class FollowedKind(KindBase):
             "inputs": {},
             "after": after,
         }
+
+    @staticmethod
+    def summary_rows(summary: dict[str, Any]) -> list[SummaryRow]:
+        return followed_summary_rows(summary)
 
     @staticmethod
     def summary_from_basis(

@@ -20,9 +20,9 @@ from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.services import BenchControl
 from daemon.run.step import StepOutcome
-from daemon.run.summary import SummaryBasis
+from daemon.run.summary import SummaryBasis, SummaryRow
 from daemon.run.two_link.step import RunWork, StepPipeline
-from daemon.run.two_link.summary import two_link_basis, two_link_summary
+from daemon.run.two_link.summary import two_link_basis, two_link_summary, two_link_summary_rows
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.vision import CentroidError, measure_with_camera_settings
@@ -120,6 +120,10 @@ class TwoLinkKind(KindBase):
         return two_link_basis(
             self.work, kind=self.name, overruns=overruns, skipped=skipped, timing=timing
         )
+
+    @staticmethod
+    def summary_rows(summary: dict[str, Any]) -> list[SummaryRow]:
+        return two_link_summary_rows(summary)
 
     @staticmethod
     def summary_from_basis(

@@ -10,7 +10,13 @@ from typing import Any
 import numpy as np
 
 from daemon.analysis import RunSteps, summarize_run
-from daemon.run.summary import SUMMARY_COLUMNS, SummaryBasis, reference_steps, timing_over_steps
+from daemon.run.summary import (
+    SUMMARY_COLUMNS,
+    SummaryBasis,
+    SummaryRow,
+    reference_steps,
+    timing_over_steps,
+)
 from daemon.run.two_link.step import RunWork
 from daemon.storage.recorder import Recorder
 
@@ -93,3 +99,40 @@ def measured_uncompensated_max_um(inputs: dict[str, Any], steps: RunSteps) -> fl
     values = steps.residual_um - displacement_um
     values = values[np.isfinite(values)]  # steps with no residual or no pose read back
     return float(np.abs(values).max()) if values.size else None
+
+
+def two_link_summary_rows(summary: dict[str, Any]) -> list[SummaryRow]:
+    """A two-link run's figures as ``thermocomp run`` prints them: the residual's statistics
+    (thesis Table 6.1) and the drift or reduction they are measured against."""
+    return [
+        ("steps with a residual (N)", summary.get("n"), ""),
+        ("residual max |x|", summary.get("residual_max_um"), "um"),
+        ("residual mean x-bar", summary.get("residual_mean_um"), "um"),
+        ("residual std S_x", summary.get("residual_std_um"), "um"),
+        ("std of the mean S_x-bar", summary.get("residual_std_mean_um"), "um"),
+        *_reduction_rows(summary),
+        ("overruns", summary.get("overruns"), ""),
+    ]
+
+
+def _reduction_rows(summary: dict[str, Any]) -> list[SummaryRow]:
+    """The drift or reduction lines, named after what they are measured against."""
+    basis = summary.get("reduction_basis")
+    if basis == "drift":
+        return [("measured drift max (off)", summary.get("measured_drift_max_um"), "um")]
+    rows: list[SummaryRow] = [
+        ("predicted deformation max", summary.get("uncompensated_max_um"), "um"),
+        ("  measured (drift - moves)", summary.get("uncompensated_measured_max_um"), "um"),
+    ]
+    if basis == "reference":
+        rows += [
+            (
+                f"reference run {summary.get('reference_run')} drift",
+                summary.get("reference_max_um"),
+                "um",
+            ),
+            ("  over the first", summary.get("reference_span_s"), "s"),
+            ("reduction (measured)", summary.get("reduction_percent"), "%"),
+        ]
+    rows.append(("vs the prediction", summary.get("reduction_vs_prediction_percent"), "%"))
+    return rows
