@@ -24,6 +24,10 @@ from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_client import RtdeClient
 from tests.helpers import REPO_ROOT, cli_command, run_cli
 
+#: The UR emulator serves UR's fixed ports (30004, 29999) on a loopback address per test;
+#: the tests of every module that does so share one xdist worker, so no two bind one address.
+pytestmark = pytest.mark.xdist_group("ur-fixed-ports")
+
 UR5E = str(REPO_ROOT / "config" / "ur5e-sim.toml")
 CLI_TIMEOUT_S = 120.0
 
@@ -81,7 +85,7 @@ def test_the_ur_bench_is_described_and_passes() -> None:
     assert "cameras: none checked: a followed run" in out
     assert not failures(out) and not result.stderr.strip()
 
-    as_json = run_cli(["devices", "check", "--config", UR5E, "--json"], env=on_host("127.0.34.6"))
+    as_json = run_cli(["devices", "check", "--config", UR5E, "--json"], env=on_host("127.0.34.11"))
     data = json.loads(as_json.stdout)
     facts = data["robot"]["facts"]
     assert facts["safety"] == "NORMAL" and facts["controller"] == "5.15.0.0"
