@@ -48,11 +48,13 @@ docs: $(VENV)/.installed-dev
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
 # The suite on every core (pytest-xdist): one worker a core (TEST_WORKERS=0: one process);
-# a module with an expensive module fixture or process-wide cache carries an xdist_group
-# and runs whole on one worker (--dist loadgroup). Each worker has its own tmp_path tree,
-# free ports and fixtures; tests/conftest.py's tree guard and timeouts work per worker.
+# each test module runs whole on one worker (--dist loadfile), as it would alone: its module
+# fixtures are built once and its tests never run beside each other. Not loadgroup: with
+# pytest 9.2, xdist 3.8's groups are silently ignored (it renames items through a field
+# pytest no longer reads). Each worker has its own tmp_path tree, free ports and fixtures;
+# tests/conftest.py's tree guard and timeouts work per worker.
 TEST_WORKERS ?= auto
-PYTEST_XDIST := -n $(TEST_WORKERS) --dist loadgroup
+PYTEST_XDIST := -n $(TEST_WORKERS) --dist loadfile
 
 test: lint docs
 	@command -v chromium >/dev/null || { echo "make test: the dashboard test drives Debian's" \

@@ -17,9 +17,6 @@ from daemon.model.model import ModelError
 from daemon.model.observer import STAND_DRIFT_SIGMA_UM, IrObserver
 from tests.test_model_steppers import lumped  # the one-node network of the analytic oracles
 
-# On one xdist worker (make test's --dist loadgroup): its module fixture simulates once.
-pytestmark = pytest.mark.xdist_group("adaptation")
-
 AMBIENT_C = 22.0
 HEAT = {"2": 0.5, "9": 0.5}
 REGIONS = {"node-2": ("2",), "node-9": ("9",), "node-16": ("16",)}

@@ -37,9 +37,6 @@ from tests.helpers import run_in_process
 from tests.test_arm_run import ArmHarness, FakePredictor, run_to_end
 from tests.test_arm_run import arm_settings as run_arm_settings
 
-# On one xdist worker (make test's --dist loadgroup): its module fixture identifies an arm once.
-pytestmark = pytest.mark.xdist_group("arm-identify-cli")
-
 DUTY = "a465-pick-and-place"
 STEPS = 24
 STEP_S = 10.0

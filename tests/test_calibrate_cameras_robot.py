@@ -49,9 +49,6 @@ from drivers.sim.arm_bench import ArmBench
 from drivers.sim.arm_devices import bench_config
 from tests.helpers import REPO_ROOT, run_in_process
 
-# On one xdist worker (make test's --dist loadgroup): its module fixture calibrates once.
-pytestmark = pytest.mark.xdist_group("calibrate-cameras-robot")
-
 ARM_SIM = REPO_ROOT / "config" / "arm-sim.toml"
 #: The initial guess: each camera turned by ~2 mrad and moved by ~3 mm from the truth.
 GUESS_ROTATION_RAD = 2e-3

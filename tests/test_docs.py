@@ -18,9 +18,6 @@ import yaml
 
 from tests.helpers import REPO_ROOT
 
-# On one xdist worker (make test's --dist loadgroup): its module fixture builds the site once.
-pytestmark = pytest.mark.xdist_group("docs")
-
 DOCS = REPO_ROOT / "docs"
 
 

@@ -19,10 +19,6 @@ from tests.hostile.api_cases import API_CASES, DATA_FILES, FIFOS, ApiCase
 from tests.hostile.corpus import ARM_SIM, Case
 from tests.test_api_server import CONTROL
 
-# On one xdist worker (make test's --dist loadgroup): its module fixture starts one server for
-# every case.
-pytestmark = pytest.mark.xdist_group("hostile-api")
-
 AUTH = {"Authorization": f"Bearer {CONTROL}"}
 
 

@@ -13,10 +13,6 @@ import pytest
 from tests.hostile.corpus import FILE_CASES, Case, matches
 from tests.hostile.runner import TIME_LIMIT_S, run_bounded
 
-# On one xdist worker (make test's --dist loadgroup): the fork server of tests/hostile/runner.py
-# imports the command once a process, and is shared with test_mistakes.
-pytestmark = pytest.mark.xdist_group("forkserver")
-
 
 @pytest.mark.parametrize("case", FILE_CASES, ids=[case.id for case in FILE_CASES])
 def test_a_hostile_file_gets_one_line(case: Case, tmp_path: Path) -> None:

@@ -23,9 +23,6 @@ from daemon.model.identify import (
     validate,
 )
 
-# On one xdist worker (make test's --dist loadgroup): its module fixture identifies a model once.
-pytestmark = pytest.mark.xdist_group("identify")
-
 REGIONS = {"node-2": ("2",), "node-9": ("9",), "node-16": ("16",)}
 HEAT = {"2": 0.5, "9": 0.5}
 #: Truth: convection x0.7, heat x1.3 at the left shaft and x1.2 at the middle one, alpha x1.1

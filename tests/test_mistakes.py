@@ -18,10 +18,6 @@ from tests.helpers import REPO_ROOT
 from tests.hostile.corpus import ARM_SIM, CYCLE, URDF_CONFIG, Case, matches
 from tests.hostile.runner import Outcome, run_bounded
 
-# On one xdist worker (make test's --dist loadgroup): the fork server of tests/hostile/runner.py
-# imports the command once a process, and is shared with test_hostile_inputs.
-pytestmark = pytest.mark.xdist_group("forkserver")
-
 ERRORS_PAGE = REPO_ROOT / "docs" / "reference" / "errors.md"
 SIM = (REPO_ROOT / "config" / "sim.toml").read_text("utf-8")
 #: the two-link bench's settings with their data directory in the case's folder

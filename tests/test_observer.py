@@ -12,9 +12,6 @@ from daemon.model import ThermalModel, ThermalNetwork, load_network
 from daemon.model.observer import DRIFT_WARNING, IrObserver, regions_to_nodes
 from drivers.sim.bench import truth_network
 
-# On one xdist worker (make test's --dist loadgroup): its module fixture simulates a run once.
-pytestmark = pytest.mark.xdist_group("observer")
-
 HEAT = {"2": 0.5, "9": 0.5}
 REGIONS = {"node-2": ("2",), "node-9": ("9",), "node-16": ("16",)}
 IR_NOISE_C = 0.05

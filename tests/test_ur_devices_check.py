@@ -24,10 +24,6 @@ from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_client import RtdeClient
 from tests.helpers import REPO_ROOT, cli_command, run_cli
 
-#: The UR emulator serves UR's fixed ports (30004, 29999) on a loopback address per test;
-#: the tests of every module that does so share one xdist worker, so no two bind one address.
-pytestmark = pytest.mark.xdist_group("ur-fixed-ports")
-
 UR5E = str(REPO_ROOT / "config" / "ur5e-sim.toml")
 CLI_TIMEOUT_S = 120.0
 

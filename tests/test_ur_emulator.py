@@ -18,10 +18,6 @@ from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.modes import RuntimeState, SafetyMode
 from drivers.ur.rtde_client import RtdeClient
 
-#: The UR emulator serves UR's fixed ports (30004, 29999) on a loopback address per test;
-#: the tests of every module that does so share one xdist worker, so no two bind one address.
-pytestmark = pytest.mark.xdist_group("ur-fixed-ports")
-
 
 async def connected(host: str, port: int) -> RtdeClient:
     client = RtdeClient(host, port, 5.0)

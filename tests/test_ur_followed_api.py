@@ -21,10 +21,6 @@ from drivers.ur import registers
 from tests.test_api_runs import CONTROL_HEADERS, next_of_type, wait_state
 from tests.test_api_server import CONTROL, READ, serve
 
-#: The UR emulator serves UR's fixed ports (30004, 29999) on a loopback address per test;
-#: the tests of every module that does so share one xdist worker, so no two bind one address.
-pytestmark = pytest.mark.xdist_group("ur-fixed-ports")
-
 WAIT_S = 60.0
 #: a loopback address of this test's own: the emulator serves UR's fixed ports on it
 HOST = "127.0.35.1"

@@ -22,10 +22,6 @@ from drivers.ur import registers
 from drivers.ur.modes import RobotMode, RuntimeState
 from drivers.ur.robot import URRobot
 
-#: The UR emulator serves UR's fixed ports (30004, 29999) on a loopback address per test;
-#: the tests of every module that does so share one xdist worker, so no two bind one address.
-pytestmark = pytest.mark.xdist_group("ur-fixed-ports")
-
 WAIT_S = 10.0
 HOLD_PACKAGE_BYTES = 12
 

@@ -26,10 +26,6 @@ from tests.fakes import params
 from tests.helpers import REPO_ROOT
 from tests.test_ur_program_pause import ur_settings
 
-#: The UR emulator serves UR's fixed ports (30004, 29999) on a loopback address per test;
-#: the tests of every module that does so share one xdist worker, so no two bind one address.
-pytestmark = pytest.mark.xdist_group("ur-fixed-ports")
-
 ANSWER_TIMEOUT_S = 30.0
 
 
