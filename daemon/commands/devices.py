@@ -163,14 +163,7 @@ async def _check_each(settings: Settings, opening: Exception) -> DeviceCheck:
             await probe_ir(ir, settings, check)
     except OPEN_ERRORS as err:
         check.errors["ir"] = _reason("ir", err)
-    for index, device in enumerate(settings.arm.camera_devices if settings.arm.enabled else ()):
-        name = f"tool camera {index}"
-        try:
-            async with camera_driver(device, clock, None) as camera:
-                frame = await asyncio.wait_for(camera.grab(), device.grab_timeout_s)
-                check.tool_frames.append((name, frame))
-        except GRAB_ERRORS as err:
-            check.errors[name] = _reason("camera", err) if str(err) else "no frame in time"
+    await _tool_cameras(settings, check)
     if not check.errors:  # each opened alone: say what failed when they were opened together
         check.errors["devices"] = f"cannot open them together: {opening}"
     return check
