@@ -311,6 +311,30 @@ async def test_each_tool_camera_is_waited_for_its_own_grab_timeout(tmp_path: Pat
         workers.shutdown()
 
 
+async def test_a_camera_that_times_out_ends_the_other_cameras_grabs(tmp_path: Path) -> None:
+    """One camera's timeout fails the measurement, and the others' grabs end with it: none is
+    left pending after the error (with a bare gather the 5-s camera's grab outlived the
+    failed measurement)."""
+    models = rig(2)
+    write_cameras(tmp_path / "cameras.toml", models)
+    devices = [
+        device(serial, tmp_path / "unused.pfs", 12).model_copy(update={"grab_timeout_s": timeout})
+        for serial, timeout in zip(EMULATED, (0.05, 5.0), strict=False)
+    ]
+    settings = arm_settings(devices, tmp_path / "cameras.toml")
+    workers = Workers()
+    try:
+        meter = MultiCameraMeter(settings, [_SilentCamera(), _SilentCamera()], models, workers)
+        before = asyncio.all_tasks()
+        async with asyncio.timeout(4.0):
+            with pytest.raises(DeviceTimeoutError, match=r"no frame within 0.05 s"):
+                await meter.measure(pose(TOOL_MM, TOOL_ROTATION_RAD))
+        pending = [task for task in asyncio.all_tasks() - before if not task.done()]
+        assert pending == []
+    finally:
+        workers.shutdown()
+
+
 @needs_pylon
 async def test_devices_in_another_order_than_the_camera_file_do_not_measure_the_tool(
     tmp_path: Path,

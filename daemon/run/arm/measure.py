@@ -332,9 +332,7 @@ class MultiCameraMeter:
         view_sets: list[list[MarkerView]] = []
         grabbed: Sequence[Frame] = ()
         for _ in range(self._frames if frames is None else frames):
-            grabbed = await asyncio.gather(
-                *(self._grab(c, t) for c, t in zip(self._cameras, self._timeouts_s, strict=True))
-            )
+            grabbed = await self._grab_all()
             view_sets.append(await self._workers.step(self._views, grabbed, expected))
         measurement = await self._workers.step(self._solve, view_sets, expected)
         # the last frames, for the live views (no copy: the images are not written to again)
@@ -377,6 +375,23 @@ class MultiCameraMeter:
         ]
         views = list(view_sets[0]) if len(view_sets) == 1 else mean_views(view_sets)
         return tool_pose(self._models, views, self._markers, expected)
+
+    async def _grab_all(self) -> list[Frame]:
+        """One frame from every camera, together. A camera that fails (its timeout, its
+        error) ends the others' grabs before the error goes up: a bare gather would leave them
+        running after the measurement has failed (seen: a grab still pending when the step
+        went on)."""
+        grabs = [
+            asyncio.ensure_future(self._grab(camera, timeout_s))
+            for camera, timeout_s in zip(self._cameras, self._timeouts_s, strict=True)
+        ]
+        try:
+            return await asyncio.gather(*grabs)
+        except BaseException:
+            for grab in grabs:
+                grab.cancel()
+            await asyncio.gather(*grabs, return_exceptions=True)
+            raise
 
     async def _grab(self, camera: Camera, timeout_s: float) -> Frame:
         # the bench's render does not count against the timeout (drivers/deadline.py)
