@@ -163,7 +163,7 @@ async def taught_robot(poses: Any) -> FakeRobot:
 async def test_the_references_are_measured_with_arm_reference_frames() -> None:
     from daemon.run.arm.prepare import ArmServices, measure_references
     from daemon.run.events import ErrorLog, EventBus
-    from tests.test_arm_run import POSES
+    from tests.fakes_arm import POSES
 
     asked: list[tuple[str, int | None]] = []
 
@@ -199,7 +199,7 @@ async def test_a_missing_reference_is_said_never_a_silent_zero(
     from daemon.run.events import ErrorLog, EventBus
     from daemon.storage.recorder import StepRecord
     from daemon.storage.step_record import STEP_FLAGS
-    from tests.test_arm_run import POSES
+    from tests.fakes_arm import POSES
 
     robot = await taught_robot(POSES)
 

@@ -31,30 +31,20 @@ from daemon.run.devices_check import Devices
 from daemon.run.states import RunParameters, RunState
 from daemon.run.workers import Workers
 from daemon.service import Daemon, RunParameterError
-from drivers.base import DEFAULT_GOAL, GoalRobot, MoveResult, Pose
+from drivers.base import DEFAULT_GOAL, GoalRobot
 from drivers.clock import Clock, make_clock
-from tests.fakes import FakeBench, FakeCamera, FakeIr, FakeRobot, Gate, OpenedDevices
+from tests.fakes import FakeBench, FakeCamera, FakeIr, Gate, OpenedDevices
+from tests.fakes_arm import (
+    POSES,
+    TRUTH_FACTOR,
+    ArmTruth,
+    FakeArmRobot,
+    error_law,
+)
 
 WAIT_S = 30.0
 STEP_S = 10.0
 DURATION_S = 200.0  # 20 steps, 10 per pose
-#: The truth's error law (per model second): translation along each pose's direction and a
-#: rotation about its axis.
-RATE_MM_PER_S = 2e-4  # 40 um over the run
-RATE_RAD_PER_S = 1e-7  # 20 urad over the run
-TRUTH_FACTOR = 1.25  # the truth heats 25 % faster than the controller's model
-
-
-def _pose(name: str, x: float, direction: tuple[float, float, float]) -> MeasuredPose:
-    tool = np.eye(4)
-    tool[:3, :3] = Rotation.from_euler("z", x / 10.0, degrees=True).as_matrix()
-    tool[:3, 3] = (x, 100.0, 400.0)
-    return MeasuredPose(name, np.full(6, x / 1000.0), tool)
-
-
-POSES = (_pose("pick", 500.0, (1.0, 0.0, 0.0)), _pose("place", 300.0, (0.0, 0.6, 0.8)))
-DIRECTIONS = {"pick": np.array([1.0, 0.0, 0.0]), "place": np.array([0.0, 0.6, 0.8])}
-AXES = {"pick": np.array([0.0, 0.0, 1.0]), "place": np.array([1.0, 0.0, 0.0])}
 
 
 def pose6(translation_mm: Any, rotation_rad: Any) -> Pose6:
@@ -66,13 +56,6 @@ async def until(condition: Callable[[], bool]) -> None:
     async with asyncio.timeout(WAIT_S):
         while not condition():  # noqa: ASYNC110 -- the conditions are plain attributes
             await asyncio.sleep(0)
-
-
-def error_law(name: str, t_s: float, factor: float = 1.0) -> Pose6:
-    return Pose6(
-        factor * RATE_MM_PER_S * t_s * DIRECTIONS[name],
-        factor * RATE_RAD_PER_S * t_s * AXES[name],
-    )
 
 
 def _matrix(move: Pose6) -> np.ndarray:
@@ -106,49 +89,6 @@ class FakePredictor:
 
     def temperatures_c(self) -> Mapping[str, float]:
         return {"link-1": 22.0 + self.time_s / 100.0}
-
-
-class ArmTruth:
-    """The fake arm bench: the tool error of the truth since the run started."""
-
-    def __init__(self, clock: Clock) -> None:
-        self.clock = clock
-        self.start_s: float | None = None
-        self.duty_cycles: list[str | None] = []
-
-    def start_arm_run(self, t_s: float, *, duty_cycle: str | None) -> None:
-        self.start_s = t_s
-        self.duty_cycles.append(duty_cycle)
-
-    def error(self, name: str) -> Pose6:
-        assert self.start_s is not None, "the session must start the arm bench"
-        return error_law(name, self.clock.now() - self.start_s, TRUTH_FACTOR)
-
-
-class FakeArmRobot(FakeRobot):
-    """The suite's one fake robot (tests/fakes.py FakeRobot, which passes the Robot contract
-    suite) with the tool's position following the moves from each taught goal; the tool's
-    error is the truth's (FakeMeter)."""
-
-    def __init__(self, truth: ArmTruth) -> None:
-        super().__init__()
-        self.truth = truth
-        self.position = np.array([400.0, 0.0, 300.0])  # where the tool stands at the start
-
-    def _pose(self) -> Pose:
-        return Pose(*self.position)
-
-    def _moved(self, offset_mm: np.ndarray, goal: str) -> None:
-        self.position = np.add(self.taught[goal].position, offset_mm)
-
-    async def teach_goal(self, goal: str = DEFAULT_GOAL) -> Pose:
-        """Moves nothing: the goal is where the robot stands."""
-        pose = await super().teach_goal(goal)
-        self.goal, self.correction = goal, Pose6.zero()
-        return pose
-
-    async def move_incremental(self, delta_mm: Any) -> MoveResult:
-        raise AssertionError("an arm run moves to its named goals only")
 
 
 class FakeMeter:

@@ -35,7 +35,7 @@ from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_con
 from drivers.sim.ur.emulator import UREmulator
 from drivers.ur.robot import URRobot
 from tests.fakes import FakeOffsetRobot, FakeRobot, Gate
-from tests.test_arm_run import ArmTruth, FakeArmRobot
+from tests.fakes_arm import ArmTruth, FakeArmRobot
 
 #: Timeouts short enough for a stall to show in a test, long enough for a loaded machine.
 SETTINGS = RobotSettings(
@@ -127,7 +127,7 @@ def fake() -> AbstractAsyncContextManager[Subject]:
 
 
 def arm_fake() -> AbstractAsyncContextManager[Subject]:
-    """The arm run's fake (tests/test_arm_run.py FakeArmRobot, the fake with the tool
+    """The arm run's fake (tests/fakes_arm.py FakeArmRobot, the fake with the tool
     following its goals): a subclass must keep the contract too."""
     robot = FakeArmRobot(ArmTruth(VirtualClock()))
     robot.move_timeout_s = SETTINGS.move_margin_s
