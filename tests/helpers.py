@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import io
+import logging
 import os
 import socket
 import subprocess
@@ -10,8 +12,9 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stderr, redirect_stdout
 from pathlib import Path
+from unittest import mock
 
 import httpx
 import pytest
@@ -45,6 +48,50 @@ def run_cli(
         text=True,
         timeout=timeout,
         check=False,
+    )
+
+
+def run_main(
+    args: Sequence[str], env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """What ``run_cli`` returns, from the ``thermocomp`` entry point (``api.cli.main``, which
+    ``python -m api`` passes to ``sys.exit``) called in this process: the command's logic
+    without the ~4 s of CPU a fresh interpreter spends importing the stack (issue 27). For
+    what only a process shows (exit by signal, what ``--help`` imports, the interpreter's
+    own stderr) use ``run_cli``.
+
+    As in the subprocess: the working directory is the checkout, ``env`` is added to the
+    environment, stdout and stderr are captured, and the root logger is the one ``main``
+    configures (its handler writes to the captured stderr); all of it is put back after."""
+    from api.cli import main  # lazy: the stack loads for the tests that run a command
+
+    root = logging.getLogger()
+    saved_handlers, saved_level = root.handlers[:], root.level
+    out, err = io.StringIO(), io.StringIO()
+    previous_cwd = os.getcwd()
+    root.handlers = []  # pytest's capture handlers: main's basicConfig would add none
+    try:
+        os.chdir(REPO_ROOT)
+        with (
+            mock.patch.dict(os.environ, env or {}),
+            redirect_stdout(out),
+            redirect_stderr(err),
+        ):
+            try:
+                status = main(list(args))
+            except SystemExit as exit_:  # argparse's usage errors, --help, --version
+                code = exit_.code
+                status = code if isinstance(code, int) else (0 if code is None else 1)
+                if isinstance(code, str):
+                    print(code, file=sys.stderr)
+    finally:
+        for handler in root.handlers:
+            handler.close()
+        root.handlers = saved_handlers
+        root.setLevel(saved_level)
+        os.chdir(previous_cwd)
+    return subprocess.CompletedProcess(
+        ["thermocomp", *args], status, stdout=out.getvalue(), stderr=err.getvalue()
     )
 
 

@@ -21,7 +21,7 @@ from daemon.analysis import steps_from_rows, summarize_run, write_report
 from daemon.analysis.plots import envelope
 from daemon.storage.recorder import Recorder, StepRecord
 from daemon.storage.reports import report_dir
-from tests.helpers import run_cli
+from tests.helpers import run_main
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 STEPS, STEP_S, TAU_S, DEFORMATION_UM = 143, 33.6, 300.0, 150.0
@@ -288,7 +288,7 @@ def test_the_real_command_lists_the_analysis_commands() -> None:
     help_text = build_parser().format_help()
     for command in ("stats", "fit", "report"):
         assert command in help_text
-    bad = run_cli(["stats", "/no/such/file"])
+    bad = run_main(["stats", "/no/such/file"])
     assert bad.returncode == 2 and "cannot read" in bad.stderr and "Traceback" not in bad.stderr
 
 

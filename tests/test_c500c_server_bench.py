@@ -18,7 +18,7 @@ from drivers.c500c.server import C500CServerRobot
 from drivers.clock import ScaledClock
 from drivers.factory import open_devices
 from drivers.sim.server_emulator import C500CServerEmulator
-from tests.helpers import REPO_ROOT, cli_command, run_cli
+from tests.helpers import REPO_ROOT, cli_command, run_cli, run_main
 
 SIM = "config/sim.toml"
 FAST_PATH = {"THERMOCOMP_ROBOT__DRIVER": "c500c-server"}
@@ -59,7 +59,7 @@ async def test_without_the_bench_the_fast_path_is_a_real_driver(
 @pytest.mark.slow
 def test_a_bench_run_through_the_fast_path(tmp_path: Path) -> None:
     options = ["--data-dir", str(tmp_path), "--duration", "20", "--json"]
-    result = run_cli(["run", "--config", SIM, *options], env=FAST_PATH)
+    result = run_main(["run", "--config", SIM, *options], env=FAST_PATH)
     assert result.returncode == 0, result.stderr
     final = json.loads(result.stdout)
     assert final["state"] == "finished"

@@ -31,7 +31,7 @@ from daemon.vision.calibration import (
 from drivers.base import MoveResult, Vector3
 from drivers.clock import VirtualClock
 from drivers.factory import open_devices
-from tests.helpers import run_cli, run_in_process
+from tests.helpers import run_cli, run_in_process, run_main
 
 PITCH = (10.22, 9.72)  # the thesis's calibration (um per px)
 
@@ -252,7 +252,7 @@ def test_a_missing_camera_is_one_line_and_nothing_moves(tmp_path: Path) -> None:
 def test_an_unsupported_pixel_format_is_a_configuration_error(tmp_path: Path) -> None:
     config = tmp_path / "format.toml"
     config.write_text('[camera]\ndriver = "genicam"\npixel_format = "Mono12p"\n')
-    result = run_cli(["calibrate", "camera", "--config", str(config)])
+    result = run_main(["calibrate", "camera", "--config", str(config)])
     assert result.returncode == 2 and result.stdout == ""
     assert f"{config}: camera.pixel_format: Input should be 'Mono8', 'Mono12' or 'Mono16'" in (
         result.stderr

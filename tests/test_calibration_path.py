@@ -34,7 +34,7 @@ from daemon.run.setup import (
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.storage.recorder import Recorder
-from tests.helpers import run_cli, run_in_process
+from tests.helpers import run_in_process, run_main
 from tests.test_api_runs import CONTROL_HEADERS, bench_settings, wait_state
 from tests.test_api_server import serve
 from tests.test_identify_cli import write_run
@@ -202,23 +202,23 @@ def test_from_a_recorded_run_to_a_run_with_its_network(tmp_path: Path) -> None:
         "[bench]\ntruth_network = 'thesis-two-link'\ntruth_heat_scale = 1.3\n"
         f"stand_drift_um = 0.0\n[storage]\ndata_dir = '{data}'\n"
     )
-    recorded = run_cli(
+    recorded = run_main(
         ["run", "--config", str(config), "--compensation", "off", "--duration", "900",
          "--step", "10", "--scale", "20"]
     )  # fmt: skip
     assert recorded.returncode == 0, recorded.stderr
-    saved = run_cli(["identify", "1", "--config", str(config), "--save", "bench-links"])
+    saved = run_main(["identify", "1", "--config", str(config), "--save", "bench-links"])
     assert saved.returncode == 0, saved.stderr
     assert "saved as network 'bench-links'" in saved.stdout
     heat = load_network("bench-links", data).own_heat_w()
     assert heat["2"] == pytest.approx(0.65, rel=0.1)
-    used = run_cli(
+    used = run_main(
         ["run", "--config", str(config), "--network", "bench-links", "--duration", "20",
          "--step", "10", "--prediction", "model+ir", "--json"]
     )  # fmt: skip
     assert used.returncode == 0, used.stderr
     assert json.loads(used.stdout)["parameters"]["heat_w"] == heat
-    overridden = run_cli(
+    overridden = run_main(
         ["run", "--config", str(config), "--network", "bench-links", "--duration", "20",
          "--step", "10", "--heat", "2=0.4", "9=0.4", "--json"]
     )  # fmt: skip
@@ -331,10 +331,10 @@ def test_calibrate_model_chains_the_three_steps(tmp_path: Path) -> None:
     config = tmp_path / "bench.toml"
     config.write_text("[bench]\ntruth_heat_scale = 1.3\ntruth_convection_scale = 0.7\n")
     options = ["--config", str(config), "--data-dir", str(data), "--duration", "900"]
-    refused = run_cli(["calibrate", "model", *options, "--save", "thesis-two-link"])
+    refused = run_main(["calibrate", "model", *options, "--save", "thesis-two-link"])
     assert refused.returncode == 2 and "a preset has that name" in refused.stderr
     assert not data.exists()  # nothing ran
-    result = run_cli(
+    result = run_main(
         ["calibrate", "model", *options, "--step", "10", "--save", "chained", "--json"]
     )
     assert result.returncode == 0, result.stderr

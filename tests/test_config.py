@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from config import CONFIG_DIR, ConfigError, Settings, load_settings
-from tests.helpers import run_cli
+from tests.helpers import run_cli, run_main
 
 
 def test_bundled_files_load() -> None:
@@ -71,6 +71,8 @@ def test_unknown_key_is_an_error(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_cli_exits_2_on_broken_toml(tmp_path: Path) -> None:
+    """The real process (the exit status the shell sees); the other settings errors below
+    call the same entry point in-process (tests.helpers.run_main)."""
     path = tmp_path / "broken.toml"
     path.write_text("[robot\nbaudrate = 57600\n")
     result = run_cli(["serve", "--config", str(path)])
@@ -80,11 +82,10 @@ def test_cli_exits_2_on_broken_toml(tmp_path: Path) -> None:
     assert "Traceback" not in result.stderr
 
 
-@pytest.mark.slow
 def test_cli_exits_2_on_out_of_range_field(tmp_path: Path) -> None:
     path = tmp_path / "lab.toml"
     path.write_text("[robot]\nbaudrate = 12345\n[api]\nport = 70000\n")
-    result = run_cli(["serve", "--config", str(path)])
+    result = run_main(["serve", "--config", str(path)])
     assert result.returncode == 2
     assert f"{path}: robot.baudrate: must be one of 9600, 19200, 38400, 57600, 115200" in (
         result.stderr
@@ -93,15 +94,14 @@ def test_cli_exits_2_on_out_of_range_field(tmp_path: Path) -> None:
     assert "Traceback" not in result.stderr
 
 
-@pytest.mark.slow
 def test_cli_exits_2_on_missing_file(tmp_path: Path) -> None:
-    result = run_cli(["serve", "--config", str(tmp_path / "nope.toml")])
+    result = run_main(["serve", "--config", str(tmp_path / "nope.toml")])
     assert result.returncode == 2
     assert "nope.toml: no such file" in result.stderr
 
 
 def test_cli_exits_2_on_out_of_range_port_option() -> None:
-    result = run_cli(["serve", "--config", "config/sim.toml", "--port", "99999"])
+    result = run_main(["serve", "--config", "config/sim.toml", "--port", "99999"])
     assert result.returncode == 2
     assert "argument --port: must be a TCP port, 0 to 65535, got 99999" in result.stderr
     assert "Traceback" not in result.stderr

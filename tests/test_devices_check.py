@@ -18,7 +18,7 @@ from api.app import create_app
 from daemon.service import Daemon
 from daemon.vision.preview import GAP_PX, HEADER_PX, REGION_COLOUR, SPOT_COLOUR, SPOT_RING_PX
 from drivers.sim.devices import IR_SHAPE
-from tests.helpers import REPO_ROOT, run_cli
+from tests.helpers import REPO_ROOT, run_cli, run_main
 from tests.test_api_runs import CONTROL_HEADERS, bench_settings, wait_state
 from tests.test_api_server import serve
 
@@ -44,7 +44,7 @@ def test_check_on_the_bench_prints_every_device_and_draws_the_preview(tmp_path: 
         '[[ir.regions]]\nname = "shaft"\nx = 20\ny = 50\nwidth = 10\nheight = 20\nnode = "2"\n',
     )
     preview = tmp_path / "preview.png"
-    result = run_cli(["devices", "check", "--config", str(config), "--preview", str(preview)])
+    result = run_main(["devices", "check", "--config", str(config), "--preview", str(preview)])
     assert result.returncode == 0, result.stderr
     out = result.stdout
     assert "camera: 752x582 px, uint16, 16-bit" in out
@@ -84,7 +84,7 @@ def test_json_output_and_a_failing_device_named_in_one_line(tmp_path: Path) -> N
     config = write_config(
         tmp_path, '[[ir.regions]]\nname = "off"\nx = 150\ny = 0\nwidth = 20\nheight = 5\n'
     )
-    result = run_cli(["devices", "check", "--config", str(config), "--json"])
+    result = run_main(["devices", "check", "--config", str(config), "--json"])
     assert result.returncode == 1
     data = json.loads(result.stdout)
     assert data["camera"]["width_px"] == CHIP[1] and data["camera"]["spot"] is not None
@@ -126,7 +126,7 @@ def test_a_robot_that_does_not_answer_leaves_the_cameras_checked(tmp_path: Path)
     )
     assert 'port = "/dev/ttyNOSUCH7"' in text
     config.write_text(text)
-    result = run_cli(["devices", "check", "--config", str(config)])
+    result = run_main(["devices", "check", "--config", str(config)])
     assert result.returncode == 1, result.stderr
     assert "camera: 752x582 px" in result.stdout and "camera: spot found at" in result.stdout
     assert "ir: 160x120 px" in result.stdout

@@ -11,7 +11,7 @@ import pytest
 from api.cli import main
 from daemon.analysis import summarize_run
 from daemon.storage.recorder import Recorder, StepRecord
-from tests.helpers import run_cli
+from tests.helpers import run_main
 from tests.test_analysis_report import synthetic_rows
 
 #: The synthetic run's shaft warms as 22 + 12 (1 - exp(-t / 250 s)) degC, read with 0.08 degC
@@ -52,17 +52,17 @@ def test_fit_of_an_ir_regions_mean_and_max(
 
 @pytest.mark.slow
 def test_an_unknown_region_names_the_ones_there_are(exported: Path) -> None:
-    result = run_cli(["fit", str(exported), "--column", "ir:elbow"])
+    result = run_main(["fit", str(exported), "--column", "ir:elbow"])
     assert result.returncode == 2
     assert "no IR region 'elbow'" in result.stderr
     assert "ir:diode, ir:shaft" in result.stderr and "Traceback" not in result.stderr
     # a plain unknown column lists the columns and, for an export, the IR signals
-    result = run_cli(["fit", str(exported), "--column", "shaft"])
+    result = run_main(["fit", str(exported), "--column", "shaft"])
     assert result.returncode == 2 and "IR regions: ir:diode, ir:shaft" in result.stderr
 
 
 def test_ir_of_a_file_without_ir_json_is_a_usage_error(tmp_path: Path) -> None:
     numbers = tmp_path / "plain.txt"
     numbers.write_text("1 2 3 4 5\n", encoding="utf-8")
-    result = run_cli(["fit", str(numbers), "--column", "ir:shaft"])
+    result = run_main(["fit", str(numbers), "--column", "ir:shaft"])
     assert result.returncode == 2 and "no ir_json column" in result.stderr

@@ -12,7 +12,7 @@ import pytest
 from daemon.commands import identify as identify_cli
 from daemon.model import ThermalModel, load_network
 from daemon.model.identify import apply_parameters, parse_parameters
-from tests.helpers import run_cli, run_in_process
+from tests.helpers import run_cli, run_in_process, run_main
 
 REGIONS = {"node-2": ("2",), "node-9": ("9",), "node-16": ("16",)}
 SCALE = 20.0  # deformation scale of the run (thesis 6.3)
@@ -144,13 +144,13 @@ def test_a_recorded_run_from_the_database(tmp_path: Path) -> None:
         "truth_convection_scale = 0.7\nstand_drift_um = 0.0\n"
         f"[storage]\ndata_dir = '{tmp_path / 'data'}'\n"
     )
-    recorded = run_cli(
+    recorded = run_main(
         ["run", "--config", str(config), "--compensation", "off", "--duration", "1200",
          "--step", "10", "--scale", "20"]
     )  # fmt: skip
     assert recorded.returncode == 0, recorded.stderr
     out = tmp_path / "identified.toml"
-    result = run_cli(["identify", "1", "--config", str(config), "--json", "--out", str(out)])
+    result = run_main(["identify", "1", "--config", str(config), "--json", "--out", str(out)])
     assert result.returncode == 0, result.stderr
     document = json.loads(result.stdout)
     assert document["fit"]["temperature_samples"] == 3 * 120  # node-2, node-9, node-16
@@ -161,7 +161,7 @@ def test_a_recorded_run_from_the_database(tmp_path: Path) -> None:
     assert values["alpha"] == pytest.approx(1.0, rel=0.05)
     assert load_network(out).name == "thesis-two-link-identified"
     # the same run found by --data-dir, whatever storage.data_dir the settings name
-    by_folder = run_cli(
+    by_folder = run_main(
         ["identify", "1", "--config", "config/sim.toml", "--data-dir", str(tmp_path / "data"),
          "--json"]
     )  # fmt: skip

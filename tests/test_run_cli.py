@@ -1,6 +1,8 @@
 """`thermocomp run` on the real simulated bench (C500C driver over a pty to the emulator),
 including the crash test of issue 6: SIGKILL mid-run, restart, every committed step readable
-and the run marked interrupted."""
+and the run marked interrupted. What needs a process (``--help``, the signals) runs the real
+command; the runs and refusals call its entry point in-process (tests.helpers.run_main: the
+same status, stdout and stderr without a fresh interpreter's imports, issue 27)."""
 
 import json
 import os
@@ -16,7 +18,7 @@ import pytest
 
 from daemon.analysis import SUMMARY_KEYS
 from daemon.storage.recorder import DATABASE_NAME, Recorder
-from tests.helpers import REPO_ROOT, cli_command, run_cli
+from tests.helpers import REPO_ROOT, cli_command, run_cli, run_main
 
 SIM = "config/sim.toml"
 KILLED_RUNS = 4
@@ -31,10 +33,10 @@ def test_run_help_lists_the_run_options() -> None:
 
 @pytest.mark.slow
 def test_bad_run_parameters_are_usage_errors(tmp_path: Path) -> None:
-    result = run_cli(["run", "--config", SIM, "--data-dir", str(tmp_path), "--step", "0.001"])
+    result = run_main(["run", "--config", SIM, "--data-dir", str(tmp_path), "--step", "0.001"])
     assert result.returncode == 2
     assert "step_s" in result.stderr and "Traceback" not in result.stderr
-    result = run_cli(["run", "--config", SIM, "--data-dir", str(tmp_path), "--scale", "1000"])
+    result = run_main(["run", "--config", SIM, "--data-dir", str(tmp_path), "--scale", "1000"])
     assert result.returncode == 2
     assert "largest admissible scale" in result.stderr and "Traceback" not in result.stderr
 
@@ -43,7 +45,7 @@ def test_bad_run_parameters_are_usage_errors(tmp_path: Path) -> None:
 def test_a_heat_input_naming_no_node_is_refused_before_the_run(tmp_path: Path) -> None:
     """Issue 19: model.heat_w keys are checked against the run's network at its start (exit
     2), not at the first step after the goal was taught (a traceback)."""
-    result = run_cli(
+    result = run_main(
         ["run", "--config", SIM, "--data-dir", str(tmp_path), "--duration", "5"],
         env={"THERMOCOMP_MODEL__HEAT_W": '{"99": 0.5}'},
     )
@@ -57,14 +59,14 @@ def test_heat_inputs_on_the_command_line_replace_the_settings(tmp_path: Path) ->
     """`--heat 2=0.7 9=0.3` replaces model.heat_w (issue 19: run had no --heat); a node the
     network lacks or a malformed value is a usage error."""
     options = ["--data-dir", str(tmp_path), "--duration", "5", "--json"]
-    result = run_cli(["run", "--config", SIM, *options, "--heat", "2=0.7", "9=0.3"])
+    result = run_main(["run", "--config", SIM, *options, "--heat", "2=0.7", "9=0.3"])
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["parameters"]["heat_w"] == {"2": 0.7, "9": 0.3}
     for bad, message in (
         (["--heat", "17=1", "99=1"], "heat input '99' names no node"),
         (["--heat", "2=hot"], "NODE=WATTS"),
     ):
-        refused = run_cli(["run", "--config", SIM, *options, *bad])
+        refused = run_main(["run", "--config", SIM, *options, *bad])
         assert refused.returncode == 2 and message in refused.stderr, refused.stderr
         assert "Traceback" not in refused.stderr
 
@@ -75,12 +77,12 @@ def test_incremental_moves_below_the_console_resolution_are_refused(tmp_path: Pa
     under the console's 0.001 mm, so the run is refused before it starts, naming a scale that
     works; at that scale the run goes and the robot really moves."""
     options = ["--data-dir", str(tmp_path), "--duration", "60", "--compensation", "incremental"]
-    refused = run_cli(["run", "--config", SIM, *options])
+    refused = run_main(["run", "--config", SIM, *options])
     assert refused.returncode == 2 and "Traceback" not in refused.stderr
     assert "would round to no motion" in refused.stderr
     match = re.search(r"deformation scale (\d+) would work", refused.stderr)
     assert match is not None, refused.stderr
-    result = run_cli(["run", "--config", SIM, *options, "--scale", match.group(1), "--json"])
+    result = run_main(["run", "--config", SIM, *options, "--scale", match.group(1), "--json"])
     assert result.returncode == 0, result.stderr
     final = json.loads(result.stdout)
     assert final["id"] == 1  # the refused run was never recorded
@@ -93,7 +95,7 @@ def test_incremental_moves_below_the_console_resolution_are_refused(tmp_path: Pa
 def test_a_short_compensated_bench_run_prints_its_summary(tmp_path: Path) -> None:
     csv_path = tmp_path / "steps.csv"
     options = ["--data-dir", str(tmp_path), "--duration", "20", "--json", "--csv", str(csv_path)]
-    result = run_cli(["run", "--config", SIM, *options])
+    result = run_main(["run", "--config", SIM, *options])
     assert result.returncode == 0, result.stderr
     final = json.loads(result.stdout)
     assert final["state"] == "finished"
@@ -112,7 +114,7 @@ def test_reduction_is_measured_against_a_named_uncompensated_run(tmp_path: Path)
     """Issue 19: an off run states its drift; a compensated run naming it as its reference
     gets a measured reduction over the time both cover; a compensated run is no reference."""
     options = ["--data-dir", str(tmp_path), "--duration", "30", "--json"]
-    off = run_cli(["run", "--config", SIM, *options, "--compensation", "off"])
+    off = run_main(["run", "--config", SIM, *options, "--compensation", "off"])
     assert off.returncode == 0, off.stderr
     off_final = json.loads(off.stdout)
     drift = off_final["summary"]
@@ -120,7 +122,7 @@ def test_reduction_is_measured_against_a_named_uncompensated_run(tmp_path: Path)
     assert drift["measured_drift_max_um"] == drift["residual_max_um"] > 0
 
     reference = str(off_final["id"])
-    compensated = run_cli(
+    compensated = run_main(
         [
             "run",
             "--config",
@@ -148,7 +150,7 @@ def test_reduction_is_measured_against_a_named_uncompensated_run(tmp_path: Path)
     assert summary["reference_max_um"] == reference_max
     assert abs(summary["reduction_percent"] - 100 * (1 - residual_max / reference_max)) < 1e-9
 
-    refused = run_cli(["run", "--config", SIM, *options, "--reference-run", str(final["id"])])
+    refused = run_main(["run", "--config", SIM, *options, "--reference-run", str(final["id"])])
     assert refused.returncode == 2
     assert "must be an uncompensated run" in refused.stderr and "Traceback" not in refused.stderr
 

@@ -22,7 +22,7 @@ from drivers.sim.ur.controller import URControllerConfig
 from drivers.sim.ur.emulator import UREmulator
 from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_client import RtdeClient
-from tests.helpers import REPO_ROOT, cli_command, run_cli
+from tests.helpers import REPO_ROOT, cli_command, run_main
 
 UR5E = str(REPO_ROOT / "config" / "ur5e-sim.toml")
 CLI_TIMEOUT_S = 120.0
@@ -58,7 +58,7 @@ def failures(out: str) -> list[str]:
 
 @pytest.mark.slow
 def test_the_ur_bench_is_described_and_passes() -> None:
-    result = run_cli(["devices", "check", "--config", UR5E], env=on_host("127.0.34.6"))
+    result = run_main(["devices", "check", "--config", UR5E], env=on_host("127.0.34.6"))
     assert result.returncode == 0, result.stdout + result.stderr
     out = result.stdout
     for line in (
@@ -81,7 +81,7 @@ def test_the_ur_bench_is_described_and_passes() -> None:
     assert "cameras: none checked: a followed run" in out
     assert not failures(out) and not result.stderr.strip()
 
-    as_json = run_cli(["devices", "check", "--config", UR5E, "--json"], env=on_host("127.0.34.11"))
+    as_json = run_main(["devices", "check", "--config", UR5E, "--json"], env=on_host("127.0.34.11"))
     data = json.loads(as_json.stdout)
     facts = data["robot"]["facts"]
     assert facts["safety"] == "NORMAL" and facts["controller"] == "5.15.0.0"
@@ -180,7 +180,7 @@ def test_a_bench_whose_ports_are_taken_is_one_line(host: str) -> None:
     with socket.socket() as taken:
         taken.bind((host, 30004))
         taken.listen()
-        result = run_cli(["devices", "check", "--config", UR5E, "--json"], env=on_host(host))
+        result = run_main(["devices", "check", "--config", UR5E, "--json"], env=on_host(host))
     assert result.returncode == 1
     data = json.loads(result.stdout)
     assert list(data["errors"]) == ["robot"]
@@ -203,7 +203,7 @@ def test_the_calibrations_a_ur_cannot_make_are_refused_in_one_line(
     with socket.socket() as taken:
         taken.bind(("127.0.34.12", 30004))
         taken.listen()
-        result = run_cli(
+        result = run_main(
             [*args, "--config", UR5E],
             env=on_host("127.0.34.12", THERMOCOMP_STORAGE__DATA_DIR=str(tmp_path / "data")),
         )

@@ -16,7 +16,7 @@ from api.cli import build_parser
 from config.settings import CameraSettings
 from daemon.vision import render_spot
 from daemon.vision.cli import collect_files, natural_key
-from tests.helpers import run_cli
+from tests.helpers import run_main
 
 SHAPE = (96, 128)
 UM_PER_PX = (10.22, 9.72)  # the thesis's calibration, given explicitly where it matters
@@ -203,7 +203,7 @@ def test_usage_errors_exit_2(capsys: pytest.CaptureFixture[str], tmp_path: Path)
 
 
 def test_the_installed_command_exits_2_on_bad_paths_without_a_traceback(tmp_path: Path) -> None:
-    result = run_cli(["centroid", str(tmp_path / "missing.png")])
+    result = run_main(["centroid", str(tmp_path / "missing.png")])
     assert result.returncode == 2
     assert "no such file or folder" in result.stderr and "Traceback" not in result.stderr
 
