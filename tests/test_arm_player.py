@@ -9,6 +9,7 @@ left off; stop ends it. Plus the player against a fake robot, and the settings' 
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Callable
 from itertools import pairwise
 from pathlib import Path
@@ -30,7 +31,7 @@ from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
 from drivers.base import LinkState
 from drivers.c500c import protocol as proto
-from drivers.clock import VirtualClock, make_clock
+from drivers.clock import FollowingClock, VirtualClock, make_clock
 from drivers.errors import DeviceError, MotionHeldError
 from drivers.factory import Devices
 from drivers.permit import Ticket
@@ -359,6 +360,37 @@ async def test_the_player_sends_each_poses_latest_correction_and_waits_for_the_m
     player.release()
     await player.stop()
     assert not player.playing
+
+
+async def test_on_a_paced_clock_a_steps_corrections_go_with_the_first_move_after_its_wake() -> (
+    None
+):
+    """The flake of a played run (issue 27): a step hands over the corrections of every pose
+    of the cycle once its model has run on a worker thread; the moves the player started
+    meanwhile carried the old ones, so which moves carried the new ones hung on that thread's
+    speed, and the truth's motors were heated by other motions. On a clock the player paces
+    the step's model takes no run time: the first move after the step's wake carries them."""
+    clock = VirtualClock()
+    robot = await played_robot(clock)
+    player = ArmPlayer(GoalRobotArm(robot), fake_cycle(), clock, 1, robot.permit)
+    shift = Pose6(np.array([0.01, 0.0, 0.0]), np.zeros(3))
+    player.start(player_grant(player))
+    await asyncio.sleep(0)  # playing (pacing the clock) before the step sleeps, as in a run
+    # a: 0-2 s, its dwell 2-3 s, b_1: 3-5 s (under way at the step's wake), c: 5-7 s ...
+    await FollowingClock(clock).sleep_until(4.0)  # the run's step timer, as the session's
+    assert clock.now() == 4.0
+    player.expect("a")  # the step names the pose it measures (the next cycle's a) ...
+    await asyncio.to_thread(time.sleep, 0.2)  # ... its model on a worker thread (slow) ...
+    player.set_corrections({entry.name: shift for entry in fake_cycle()})
+    player.ready()
+    arrival = await player.arrive("a")
+    player.release()
+    await player.stop()
+    assert arrival.arrived_s == 12.0  # c's move and dwell, then a's move: no run time lost
+    corrections = [float(c.translation_mm[0]) for _, c in robot.written]
+    # a and b_1 went before the wake with none, every move after it with the step's
+    assert [g for g, _ in robot.written[:4]] == ["a", "b_1", "c", "a"]
+    assert corrections[:4] == [0.0, 0.0, 0.01, 0.01]
 
 
 async def test_a_refused_move_ends_the_playing_and_reaches_the_next_arrival() -> None:
