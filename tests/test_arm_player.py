@@ -9,6 +9,7 @@ left off; stop ends it. Plus the player against a fake robot, and the settings' 
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Callable
 from itertools import pairwise
 from pathlib import Path
@@ -30,10 +31,11 @@ from daemon.run.states import RunParameters, RunState
 from daemon.service import Daemon
 from drivers.base import LinkState
 from drivers.c500c import protocol as proto
-from drivers.clock import VirtualClock, make_clock
+from drivers.clock import FollowingClock, VirtualClock, make_clock
 from drivers.errors import DeviceError, MotionHeldError
 from drivers.factory import Devices
 from drivers.permit import Ticket
+from drivers.sim.arm_devices import SimArmCamera
 from drivers.sim.emulator import C500CEmulator
 from tests.fakes import FakeRobot, Gate
 
@@ -159,22 +161,62 @@ async def test_the_robot_plays_every_pose_in_order_at_its_speed_and_dwell(tmp_pa
         assert any(np.allclose(shift, correction, atol=6e-4) for shift in shifts), correction
 
 
+#: What a played run records that must not hang on thread timing: the measurement, the IR,
+#: the correction, the prediction, the step's time, the pose read back.
+REPRODUCED = (
+    "drift_3d_um",
+    "measured_tx_um",
+    "measured_sigma_um",
+    "ir_json",
+    "correction_tx_mm",
+    "predicted_tz_um",
+    "actual_s",
+    "pose_x_mm",
+)
+
+
 @pytest.mark.slow
-async def test_a_played_run_is_reproducible(tmp_path: Path) -> None:
-    """Which arrival each step measures does not hang on its worker threads' timing (the step
-    names its pose before its model runs, the move into it waits for the corrections)."""
-    runs = []
+async def test_a_played_run_is_reproducible(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Which arrival each step measures, and which moves carry its corrections, do not hang
+    on its worker threads' timing (the step names its pose before its model runs, every move
+    waits for its corrections on the virtual clock: daemon/run/arm/player.py): the second run's
+    model is slower (issue 27: a handover one move later heated the truth's motors by another
+    motion, 2.3048 against 2.3068 um) and its first camera renders last."""
+    predict, render = ArmStepPipeline._predict_cycle, SimArmCamera._render
+
+    def slow_predict(*args: Any, **kwargs: Any) -> Any:
+        time.sleep(0.3)  # on the step's worker thread, as a loaded machine
+        return predict(*args, **kwargs)
+
+    def slow_render(camera: SimArmCamera, now_s: float, q: Any) -> Any:
+        if camera.index == 0:
+            time.sleep(0.05)  # the cameras' frames come in another order
+        return render(camera, now_s, q)
+
+    runs: list[list[list[Any]]] = []
+    motions: list[list[tuple[float, float, Any]]] = []
     for name in ("a", "b"):
+        if name == "b":
+            monkeypatch.setattr(ArmStepPipeline, "_predict_cycle", staticmethod(slow_predict))
+            monkeypatch.setattr(SimArmCamera, "_render", slow_render)
         settings = settings_for(tmp_path / name, duration_s=60.0)
         async with Daemon(settings, clock=make_clock("virtual")) as daemon:
             info = await daemon.start_run(RunParameters.from_settings(settings))
             async with asyncio.timeout(WAIT_S):
                 await daemon.wait_run()
             assert daemon.recorder is not None
-            runs.append([r.as_dict() for r in daemon.recorder.steps(info["id"])])
-    columns = ("drift_3d_um", "correction_tx_mm", "predicted_tz_um", "actual_s")
-    first, second = ([[s[c] for c in columns] for s in steps] for steps in runs)
-    assert first == second and len(first) == 3
+            steps = [r.as_dict() for r in daemon.recorder.steps(info["id"])]
+            runs.append([[step[c] for c in REPRODUCED] for step in steps])
+            devices = daemon.devices
+            assert isinstance(devices, Devices) and devices.emulator is not None
+            # the motion that heated the truth's motors until the last step
+            last_s = steps[-1]["actual_s"]
+            moved = devices.emulator.state.motions
+            motions.append([(m.start_s, m.end_s, m.target) for m in moved if m.start_s < last_s])
+    assert runs[0] == runs[1] and len(runs[0]) == 3
+    assert motions[0] == motions[1] and len(motions[0]) > TEACHING_MOVES + 3 * len(CYCLE)
 
 
 @pytest.mark.slow
@@ -359,6 +401,35 @@ async def test_the_player_sends_each_poses_latest_correction_and_waits_for_the_m
     player.release()
     await player.stop()
     assert not player.playing
+
+
+async def test_on_a_paced_clock_a_steps_corrections_go_with_the_first_move_after_its_wake() -> None:
+    """The flake of a played run (issue 27): a step hands over the corrections of every pose
+    of the cycle once its model has run on a worker thread; the moves the player started
+    meanwhile carried the old ones, so which moves carried the new ones hung on that thread's
+    speed, and the truth's motors were heated by other motions. On a clock the player paces
+    the step's model takes no run time: the first move after the step's wake carries them."""
+    clock = VirtualClock()
+    robot = await played_robot(clock)
+    player = ArmPlayer(GoalRobotArm(robot), fake_cycle(), clock, 1, robot.permit)
+    shift = Pose6(np.array([0.01, 0.0, 0.0]), np.zeros(3))
+    player.start(player_grant(player))
+    await asyncio.sleep(0)  # playing (pacing the clock) before the step sleeps, as in a run
+    # a: 0-2 s, its dwell 2-3 s, b_1: 3-5 s (under way at the step's wake), c: 5-7 s ...
+    await FollowingClock(clock).sleep_until(4.0)  # the run's step timer, as the session's
+    assert clock.now() == 4.0
+    player.expect("a")  # the step names the pose it measures (the next cycle's a) ...
+    await asyncio.to_thread(time.sleep, 0.2)  # ... its model on a worker thread (slow) ...
+    player.set_corrections({entry.name: shift for entry in fake_cycle()})
+    player.ready()
+    arrival = await player.arrive("a")
+    player.release()
+    await player.stop()
+    assert arrival.arrived_s == 12.0  # c's move and dwell, then a's move: no run time lost
+    corrections = [float(c.translation_mm[0]) for _, c in robot.written]
+    # a and b_1 went before the wake with none, every move after it with the step's
+    assert [g for g, _ in robot.written[:4]] == ["a", "b_1", "c", "a"]
+    assert corrections[:4] == [0.0, 0.0, 0.01, 0.01]
 
 
 async def test_a_refused_move_ends_the_playing_and_reaches_the_next_arrival() -> None:

@@ -22,7 +22,13 @@ is the driver's: after ``robot.stop()`` every move is refused right before its b
 written, so no move of the cycle reaches the robot after a hold.
 
 On a virtual clock (the bench) the player paces it (drivers/clock.py VirtualClock.pacing):
-the time moves with the cycle's moves and dwells, and the run's steps follow it.
+the time moves with the cycle's moves and dwells, and the run's steps follow it. There a step
+that has named its pose holds back EVERY move until its corrections are handed over, not only
+the move into its pose: its model takes no run time (nobody else moves the time meanwhile), so
+which moves carry the new corrections — and so the motion that heats the bench's motors — is
+the same whatever its worker thread's speed (issue 27: a played run on a virtual clock is
+reproducible from its seeds). On a real clock the robot's program keeps its pace: the moves
+started while the model runs carry the previous corrections.
 """
 
 from __future__ import annotations
@@ -174,7 +180,8 @@ class ArmPlayer:
         """A step will measure at the cycle pose ``name``: the move into it waits until the
         step's corrections are handed over (:meth:`ready`), so that it carries them (and,
         on a virtual clock, so that which arrival a step measures does not depend on how long
-        its model took on a worker thread). :meth:`release` withdraws it."""
+        its model took on a worker thread); on a paced clock every move waits for them
+        (module docstring). :meth:`release` withdraws it."""
         self.release()
         self._request = _Request(name, asyncio.get_running_loop().create_future())
 
@@ -224,13 +231,16 @@ class ArmPlayer:
 
     async def _play(self) -> None:
         clock, count = self._clock, len(self.cycle)
+        # a paced clock stands still while we wait: every move waits for a named step's
+        # corrections (module docstring), a real clock's only the move into its pose
+        paced = getattr(clock, "pacing", None) is not None
         logger.info("run %d: playing the duty cycle from pose %d", self._run_id, self.next_index)
         try:
             with self._paced():
                 while not self._stopping:
                     entry = self.cycle[self.next_index]
                     request = self._request
-                    if request is not None and request.name == entry.name:
+                    if request is not None and (paced or request.name == entry.name):
                         await request.ready.wait()  # the move carries the step's corrections
                     correction = self.correction(entry.name)
                     # no move after a hold that came after this playing's request (the driver
