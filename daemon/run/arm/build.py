@@ -16,7 +16,8 @@ from daemon.run.arm.setup import (
     check_played_run,
     plays_duty_cycle,
 )
-from daemon.run.arm.step import ArmRunWork, ArmStepPipeline
+from daemon.run.arm.step import ArmStepPipeline
+from daemon.run.arm.work import ArmRunWork
 from daemon.run.setup import RunParameterError, check_reference_run
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters

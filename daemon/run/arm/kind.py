@@ -12,8 +12,8 @@ from typing import Any, ClassVar
 
 from config import Settings
 from daemon.run.arm.prepare import ArmServices, measure_references, reference_frames, teach_poses
-from daemon.run.arm.step import ArmRunWork
 from daemon.run.arm.summary import arm_basis, arm_summary, arm_summary_rows
+from daemon.run.arm.work import ArmRunWork
 from daemon.run.events import ErrorLog
 from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick

@@ -8,7 +8,7 @@ import threading
 from typing import Any
 
 from daemon.analysis.arm import room_summary, summarize_arm_run
-from daemon.run.arm.step import ArmRunWork
+from daemon.run.arm.work import ArmRunWork
 from daemon.run.summary import (
     SUMMARY_COLUMNS,
     SummaryBasis,
