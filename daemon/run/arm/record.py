@@ -1,6 +1,7 @@
 """What an arm step writes into its record (daemon/run/arm/step.py): the model's prediction,
 the correction, the measured drift of the tool and each camera's view; and the flags of an arm
-step's sensor errors. Columns in the units of daemon/storage/step_record.py (µm, µrad, mm).
+step's sensor errors (their flags are appended where they are found: daemon/run/arm/step.py).
+Columns in the units of daemon/storage/step_record.py (µm, µrad, mm).
 """
 
 from __future__ import annotations
@@ -19,18 +20,8 @@ from daemon.arm.run import (
 )
 from daemon.arm.types import Pose6
 from daemon.run.arm.work import ArmRunWork
-from daemon.run.step import SENSOR_ERROR_FLAGS, CameraView
+from daemon.run.step import CameraView
 from daemon.storage.recorder import StepRecord
-
-#: The flag of a step whose markers could not give a tool pose (a sensor error, like a
-#: centroid error of the two-link bench).
-MARKER_ERROR = "marker-error"
-#: The step whose measurement became its pose's zero: no reference was measured there before
-#: the first correction (daemon/run/arm/prepare.py), so its drift is zero by construction.
-REFERENCE_MISSING = "first-step-reference"
-#: The flag of a step whose room thermometer failed (the model keeps the last room).
-ROOM_ERROR = "room-error"
-ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR, ROOM_ERROR}
 
 
 def camera_views(measurement: ToolMeasurement | None) -> tuple[CameraView, ...]:

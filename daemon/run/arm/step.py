@@ -44,10 +44,6 @@ from daemon.arm.types import Pose6
 from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.player import ArmPlayer
 from daemon.run.arm.record import (
-    ARM_SENSOR_ERROR_FLAGS,
-    MARKER_ERROR,
-    REFERENCE_MISSING,
-    ROOM_ERROR,
     camera_views,
     record_correction,
     record_measurement,
@@ -59,6 +55,7 @@ from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.stage_times import StageTimes
 from daemon.run.step import (
+    SENSOR_ERROR_FLAGS,
     StepOutcome,
     begin_record,
     finish_record,
@@ -70,6 +67,16 @@ from daemon.storage.recorder import Recorder, StepRecord
 from drivers.errors import DeviceError
 
 logger = logging.getLogger(__name__)
+
+#: The flag of a step whose markers could not give a tool pose (a sensor error, like a
+#: centroid error of the two-link bench).
+MARKER_ERROR = "marker-error"
+#: The step whose measurement became its pose's zero: no reference was measured there before
+#: the first correction (daemon/run/arm/prepare.py), so its drift is zero by construction.
+REFERENCE_MISSING = "first-step-reference"
+#: The flag of a step whose room thermometer failed (the model keeps the last room).
+ROOM_ERROR = "room-error"
+ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR, ROOM_ERROR}
 
 #: ArmRunWork is also named here: a step pipeline's callers build its work with it
 __all__ = ["ArmRunWork", "ArmStepPipeline", "correction_limits"]
