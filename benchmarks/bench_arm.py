@@ -72,8 +72,9 @@ from daemon.arm.thermal import ArmThermalModel, describe_arm
 from daemon.arm.types import FloatArray, Pose6
 from daemon.model.observer import IrObserver
 from daemon.vision.multiview import pose_difference, rigid_pose_from_markers
-from drivers.sim.arm_bench import ArmBench, ArmBenchConfig, motion_power, motion_power_batch
+from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
 from drivers.sim.arm_motion import DutyCycleMotion, MotorEnergy
+from drivers.sim.arm_physics import motion_power, motion_power_batch
 
 DUTY = "a465-pick-and-place"
 HOURS = 3600.0

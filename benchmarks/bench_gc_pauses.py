@@ -27,7 +27,6 @@ import argparse
 import asyncio
 import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -36,17 +35,8 @@ from prometheus_client.parser import text_string_to_metric_families
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.bench_api import HEADERS, free_port
-from benchmarks.bench_loop_isolation import (
-    ENDED,
-    POLL_S,
-    ROOT,
-    STEP_S,
-    _reader,
-    busy_processes,
-    start_server,
-)
 from benchmarks.common import print_table, proc_status_mib, write_results
+from benchmarks.served_run import POLL_S, ROOT, STEP_S, busy_processes, run_figures, served_run
 
 METRICS_EVERY_S = 2.0
 VARIANTS = (
@@ -92,54 +82,24 @@ async def _churn(client: httpx.AsyncClient, per_s: float, counts: list[int]) -> 
 async def measured_run(
     seconds: float, env_extra: dict[str, str], churn_per_s: float
 ) -> dict[str, Any]:
-    port = free_port()
-    with tempfile.TemporaryDirectory() as folder:
-        server = start_server(ROOT, Path(folder) / "data", port, env_extra)
-        try:
-            async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}", timeout=60) as c:
-                counts = [0]
-                reader = asyncio.create_task(_reader(port, counts))
-                await asyncio.sleep(0.5)
-                response = await c.post(
-                    "/api/v1/runs",
-                    json={"duration_s": seconds, "step_s": STEP_S, "compensation": "absolute"},
-                    headers=HEADERS,
-                )
-                response.raise_for_status()
-                run_id = response.json()["id"]
-                churned = [0]
-                churn = (
-                    asyncio.create_task(_churn(c, churn_per_s, churned)) if churn_per_s else None
-                )
-                polls = 0
-                while True:
-                    await c.get("/api/v1/state")
-                    polls += 1
-                    if polls % round(METRICS_EVERY_S / POLL_S) == 0:
-                        await c.get("/metrics")
-                    run = (await c.get(f"/api/v1/runs/{run_id}")).json()
-                    if run["state"] in ENDED:
-                        break
-                    await asyncio.sleep(POLL_S)
-                if churn is not None:
-                    churn.cancel()
-                    await asyncio.gather(churn, return_exceptions=True)
-                metrics = _gc_figures((await c.get("/metrics")).text)
-                rss = proc_status_mib("VmRSS", server.pid)
-                locked = proc_status_mib("VmLck", server.pid)
-                reader.cancel()
-                await asyncio.gather(reader, return_exceptions=True)
-        finally:
-            server.terminate()
-            server.wait(timeout=60)
-    summary = run.get("summary") or {}
-    lateness = (summary.get("timing") or {}).get("lateness_s") or {}
-    steps = summary.get("steps", run.get("steps_recorded")) or 0
+    async with served_run(ROOT, seconds, env_extra) as served:
+        c = served.client
+        churned = [0]
+        churn = asyncio.create_task(_churn(c, churn_per_s, churned)) if churn_per_s else None
+
+        async def metrics_now_and_then(polls: int) -> None:
+            if polls % round(METRICS_EVERY_S / POLL_S) == 0:
+                await c.get("/metrics")
+
+        run = await served.wait_ended(metrics_now_and_then)
+        if churn is not None:
+            churn.cancel()
+            await asyncio.gather(churn, return_exceptions=True)
+        metrics = _gc_figures((await c.get("/metrics")).text)
+        rss = proc_status_mib("VmRSS", served.server.pid)
+        locked = proc_status_mib("VmLck", served.server.pid)
     return {
-        "state": run["state"],
-        "steps": steps,
-        "overruns": summary.get("overruns") or 0,
-        "lateness_p99_ms": 1e3 * lateness["p99"] if "p99" in lateness else None,
+        **run_figures(run),
         "rss_mib": rss,
         "locked_mib": locked,
         "churn_requests": churned[0],

@@ -24,32 +24,19 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import json
 import os
 import subprocess
 import sys
 import tempfile
-import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import httpx
-from websockets.asyncio.client import connect
-
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.bench_api import HEADERS, TOKEN, free_port
 from benchmarks.common import print_table, write_results
+from benchmarks.served_run import ROOT, STEP_S, busy_processes, run_figures, served_run
 
-ROOT = Path(__file__).resolve().parent.parent
-STEP_S = 0.020
-ENDED = ("finished", "aborted", "fault", "interrupted", "stopped")
-SERVER_START_S = 60.0
-POLL_S = 0.5
-BUSY = "while 1: pass"
-#: The reference loop, run in a process of its own (benchmarks/bench_fast_path.py).
 REFERENCE = (
     "import asyncio, json, sys; sys.path.insert(0, {root!r});"
     "from benchmarks.bench_fast_path import fixed_step;"
@@ -57,91 +44,17 @@ REFERENCE = (
 )
 
 
-@contextlib.contextmanager
-def busy_processes(count: int) -> Iterator[None]:
-    """``count`` busy loops at normal priority, for the measurement's duration."""
-    processes = [
-        subprocess.Popen(["nice", "-n", "0", sys.executable, "-c", BUSY]) for _ in range(count)
-    ]
-    try:
-        time.sleep(2.0 if count else 0.0)  # let the scheduler see them
-        yield
-    finally:
-        for process in processes:
-            process.terminate()
-        for process in processes:
-            process.wait(timeout=30)
-
-
-def start_server(tree: Path, data_dir: Path, port: int, env_extra: dict[str, str]) -> Any:
-    env = {
-        **os.environ,
-        "PYTHONPATH": str(tree),
-        "THERMOCOMP_API__CONTROL_TOKEN": TOKEN,
-        "THERMOCOMP_STORAGE__DATA_DIR": str(data_dir),
-        "THERMOCOMP_BENCH__CLOCK": "real",
-        "THERMOCOMP_ROBOT__DRIVER": "c500c-server",
-        **env_extra,
-    }
-    command = [sys.executable, "-m", "api", "--log-level", "WARNING", "serve"]
-    command += ["--config", "config/sim.toml", "--host", "127.0.0.1", "--port", str(port)]
-    process = subprocess.Popen(command, cwd=tree, env=env)
-    deadline = time.monotonic() + SERVER_START_S
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(f"http://127.0.0.1:{port}/api/v1/health", timeout=1).status_code == 200:
-                return process
-        except httpx.TransportError:
-            time.sleep(0.1)
-    process.kill()
-    raise SystemExit(f"the server in {tree} did not start")
-
-
-async def _reader(port: int, counts: list[int]) -> None:
-    async with connect(f"ws://127.0.0.1:{port}/api/v1/ws?topics=steps") as ws:
-        async for _ in ws:
-            counts[0] += 1
-
-
 async def daemon_run(tree: Path, seconds: float, env_extra: dict[str, str]) -> dict[str, Any]:
-    port = free_port()
-    with tempfile.TemporaryDirectory() as folder:
-        server = start_server(tree, Path(folder) / "data", port, env_extra)
-        try:
-            async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}", timeout=60) as c:
-                counts = [0]
-                reader = asyncio.create_task(_reader(port, counts))
-                await asyncio.sleep(0.5)
-                response = await c.post(
-                    "/api/v1/runs",
-                    json={"duration_s": seconds, "step_s": STEP_S, "compensation": "absolute"},
-                    headers=HEADERS,
-                )
-                response.raise_for_status()
-                run_id = response.json()["id"]
-                while True:
-                    await c.get("/api/v1/state")
-                    run = (await c.get(f"/api/v1/runs/{run_id}")).json()
-                    if run["state"] in ENDED:
-                        break
-                    await asyncio.sleep(POLL_S)
-                reader.cancel()
-                await asyncio.gather(reader, return_exceptions=True)
-        finally:
-            server.terminate()
-            server.wait(timeout=60)
+    async with served_run(tree, seconds, env_extra) as served:
+        run = await served.wait_ended()
+    figures = run_figures(run)
     summary = run.get("summary") or {}
-    lateness = (summary.get("timing") or {}).get("lateness_s") or {}
-    steps = summary.get("steps", run.get("steps_recorded")) or 0
-    overruns = summary.get("overruns") or 0
+    steps, overruns = figures["steps"], figures["overruns"]
     return {
-        "state": run["state"],
-        "steps": steps,
-        "overruns": overruns,
+        **figures,
         "overrun_pct": 100.0 * overruns / steps if steps else None,
         "skipped": summary.get("skipped_deadlines"),
-        "lateness_p99_ms": 1e3 * lateness["p99"] if "p99" in lateness else None,
-        "ws_messages": counts[0],
+        "ws_messages": served.ws_messages[0],
         "stage_p99_ms": {
             name: round(1e3 * value["p99"], 2)
             for name, value in ((summary.get("timing") or {}).get("stages_s") or {}).items()

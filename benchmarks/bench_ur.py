@@ -47,8 +47,9 @@ from drivers.sim.ur.emulator import UREmulator
 from drivers.ur import registers as regs
 from drivers.ur import rtde_protocol as rtde
 from drivers.ur.registers import RegisterMap
-from drivers.ur.robot import STATE_OUTPUTS, URRobot
+from drivers.ur.robot import URRobot
 from drivers.ur.rtde_client import RtdeClient
+from drivers.ur.state import STATE_OUTPUTS
 
 HOST_PROCESS = "127.0.34.1"
 HOST_INLINE = "127.0.34.2"

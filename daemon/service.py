@@ -24,10 +24,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import threading
-import time
 from collections import deque
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import Callable
 from contextlib import AbstractAsyncContextManager
 from pathlib import Path
 from types import TracebackType
@@ -46,6 +44,7 @@ from daemon.run.events import (
     Subscription,
 )
 from daemon.run.gc_policy import GcPolicy
+from daemon.run.hold_requests import HoldRequests
 from daemon.run.kinds import build_kind
 from daemon.run.pending_summaries import PendingSummaries
 from daemon.run.readmodel import RunReadModel, RunView
@@ -138,8 +137,7 @@ class Daemon:
         #: summaries the last shutdown deferred (daemon/run/pending_summaries.py)
         self.pending_summaries: PendingSummaries | None = None
         #: holds asked here and not yet carried out on the control loop (see hold_pending)
-        self._holds_in_flight = 0
-        self._holds_lock = threading.Lock()
+        self._holds = HoldRequests()
 
     # --- lifecycle ---------------------------------------------------------------------
 
@@ -156,7 +154,7 @@ class Daemon:
             self._exit_stack.callback(self._workers.shutdown)
             self.recorder = await self._workers.db(Recorder, self.settings.storage.data_dir)
             self._exit_stack.callback(self.recorder.close)
-            opener = self._open_devices or _default_opener
+            opener: DeviceOpener = self._open_devices or open_devices
             # opened on the control loop: their ports, readers and tasks belong to it
             device_stack = contextlib.AsyncExitStack()
             self._exit_stack.push_async_callback(control.call, device_stack.aclose)
@@ -208,7 +206,7 @@ class Daemon:
         than once (a second signal): each call holds again and waits for the same ending."""
         if self._devices is None:
             return
-        with self._hold_request():
+        with self._holds.asked():
             await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
             if self.pending_summaries is not None:
                 self.pending_summaries.give_up()  # deferred again: the stop's budget is the run's
@@ -295,7 +293,7 @@ class Daemon:
         """Hold the robot first (before anything is awaited), then pause the run: paused
         means held (docs/explanation/hold.md). A start still preparing is parked."""
         self._active_session()  # RunStateError (nothing held) when no run is active
-        with self._hold_request():
+        with self._holds.asked():
             await self.hold_robot(reason, pause=False)
             async with self._requests:
                 await self._control.run(lambda: self._active_session().pause(reason))
@@ -315,7 +313,7 @@ class Daemon:
         """Stop the current run: the robot holds where it is, the recording is committed.
         Waits for the run to end; returns its info. ``final``: ``stopped`` (a request), or
         ``aborted`` for a caller that stops a run because it cannot go on."""
-        with self._hold_request():
+        with self._holds.asked():
             await self.hold_robot(reason, pause=False)  # first: nothing moves from here on
             async with self._requests:
                 session = await self._control.run(self._active_session)
@@ -330,25 +328,13 @@ class Daemon:
         hold (the fast path's HOLD frame), then a running run pauses and a starting one is
         cancelled."""
         robot = self.devices.robot
-        with self._hold_request():
+        with self._holds.asked():
             robot.permit.hold(reason)  # here, on the caller's thread: motion refused from now
             await self._control.call(lambda: self._hold_there(reason, pause))
 
-    @contextlib.contextmanager
-    def _hold_request(self) -> Iterator[None]:
-        """While a hold asked here is on its way to the control loop (with the pause or stop
-        that follows it): a step refused by that hold meanwhile is not a fault of the run."""
-        with self._holds_lock:
-            self._holds_in_flight += 1
-        try:
-            yield
-        finally:
-            with self._holds_lock:
-                self._holds_in_flight -= 1
-
     def hold_pending(self) -> bool:
         """A hold request has held the permit and has not yet reached the run (any thread)."""
-        return self._holds_in_flight > 0
+        return self._holds.pending()
 
     async def _hold_there(self, reason: str, pause: bool) -> None:
         """On the control loop, where the driver lives: its HOLD, then the run's pause."""
@@ -438,13 +424,8 @@ class Daemon:
         return self.bus.subscribe(maxsize, kinds)
 
     def control_loop_alive(self, max_silence_s: float) -> bool:
-        """For the systemd watchdog (issue 10): False when a running run has recorded no step
-        for ``max_silence_s`` beyond its step period, i.e. the control loop hangs."""
-        view = self.read_model.view
-        if view is None or view.state is not RunState.RUNNING:
-            return True
-        silence_s = time.monotonic() - self.read_model.last_progress_monotonic
-        return silence_s <= max_silence_s + view.parameters.step_s
+        """For the systemd watchdog (issue 10): daemon/run/readmodel.py."""
+        return self.read_model.control_loop_alive(max_silence_s)
 
     def recent_errors(self, limit: int = ERROR_HISTORY) -> list[dict[str, Any]]:
         """The latest device/storage/daemon errors, oldest first."""
@@ -452,29 +433,12 @@ class Daemon:
 
     def snapshot(self) -> dict[str, Any]:
         """Everything the daemon knows now: state, run, last step, devices, timing, errors."""
-        view = self.read_model.view
-        robot_status = self.devices.robot.status() if self._devices is not None else None
-        return {
-            "state": RunState.IDLE.value
-            if view is None or not view.is_active
-            else view.state.value,
-            "run": None if view is None else view.info(self.clock.now()),
-            "last_step": None if view is None else view.last_record,
-            "robot": None
-            if robot_status is None
-            else {
-                "link": robot_status.link.value,
-                "motion_held": robot_status.motion_held,
-                "hold_reason": robot_status.hold_reason,
-                "last_error": robot_status.last_error,
-            },
-            "timing": {
-                **self.timing.summary(),
-                "overruns": 0 if view is None else view.overruns,
-                "skipped": 0 if view is None else view.skipped,
-            },
-            "errors": self.recent_errors(10),
-        }
+        return self.read_model.snapshot(
+            self.clock.now(),
+            robot=self.devices.robot.status() if self._devices is not None else None,
+            timing=self.timing.summary(),
+            errors=self.recent_errors(10),
+        )
 
     # --- internals ---------------------------------------------------------------------
 
@@ -511,9 +475,3 @@ class Daemon:
         if session is None or not session.state.is_active:
             raise RunStateError("no active run")
         return session
-
-
-@contextlib.asynccontextmanager
-async def _default_opener(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
-    async with open_devices(settings, clock) as devices:
-        yield devices

@@ -13,7 +13,8 @@ import pytest
 
 from api.cli import main
 from daemon.analysis import compensation_of, steps_from_rows, summarize_run, write_report
-from daemon.run.setup import RunParameterError, check_reference_run
+from daemon.run.kinds import check_reference_run
+from daemon.run.setup import RunParameterError
 from daemon.run.states import RunParameters
 from daemon.storage.recorder import Recorder, StepRecord
 

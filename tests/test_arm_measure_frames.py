@@ -195,7 +195,8 @@ async def test_a_missing_reference_is_said_never_a_silent_zero(
     from daemon.arm.run import MeasurementError, ToolMeasurement
     from daemon.commands.run import _print_result
     from daemon.run.arm.prepare import ArmServices, measure_references
-    from daemon.run.arm.step import REFERENCE_MISSING, record_measurement
+    from daemon.run.arm.record import record_measurement
+    from daemon.run.arm.step import REFERENCE_MISSING
     from daemon.run.events import ErrorLog, EventBus
     from daemon.storage.recorder import StepRecord
     from daemon.storage.step_record import STEP_FLAGS

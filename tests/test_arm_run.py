@@ -26,7 +26,7 @@ from daemon.arm.run import MeasuredPose, ToolMeasurement
 from daemon.arm.types import Pose6
 from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.setup import ArmPlan
-from daemon.run.arm.step import ToolMeter
+from daemon.run.arm.work import ToolMeter
 from daemon.run.devices_check import Devices
 from daemon.run.states import RunParameters, RunState
 from daemon.run.workers import Workers

@@ -22,7 +22,7 @@ from drivers.c500c import server_protocol as proto
 from drivers.c500c.robot import C500CRobot
 from drivers.c500c.server import C500CServerRobot
 from drivers.errors import DeviceReportedError
-from drivers.sim.arm_bench import true_arm
+from drivers.sim.arm_physics import true_arm
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.joint_arm import (
     ESTIMATED_A465_PULSES_PER_DEG,

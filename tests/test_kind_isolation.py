@@ -161,3 +161,99 @@ def test_the_check_sees_each_way_of_naming_a_kind() -> None:
         for m in kind_mentions(source, frozenset({"two-link", "arm", "followed"}), KIND_TYPES)
     }
     assert lines == {1, 2, 3, 4, 5, 6, 8}
+
+
+#: every kind's own run parameters (KindBase.own_parameters): what tells its runs apart
+OWN_PARAMETERS = frozenset(name for kind in KINDS for name in kind.own_parameters)
+#: where a kind's own parameter is tested outside the kinds, and why; none builds a run
+PARAMETER_SEAMS = {
+    # the identification CLI reads a recorded run back and picks the arm's or the two-link
+    # bench's identification by it: it chooses an analysis, not a run kind (module docstring)
+    "daemon/commands/arm_identify.py",
+}
+
+
+def _is_parameters(node: ast.expr) -> bool:
+    """``parameters``, ``row.parameters``, ``self.parameters``: a run's parameters, not its
+    settings (``settings.arm.duty_cycle`` is the arm section's, read by the CLI jobs)."""
+    return (isinstance(node, ast.Name) and node.id == "parameters") or (
+        isinstance(node, ast.Attribute) and node.attr == "parameters"
+    )
+
+
+def _parameter_read(node: ast.expr, own: frozenset[str]) -> str | None:
+    """The kind's own parameter ``node`` reads from a run's parameters, if it does one."""
+    if isinstance(node, ast.Attribute) and node.attr in own and _is_parameters(node.value):
+        return node.attr
+    if isinstance(node, ast.Subscript) and _is_parameters(node.value):
+        key = node.slice
+        if isinstance(key, ast.Constant) and key.value in own:
+            return str(key.value)
+    if (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Attribute)
+        and node.func.attr == "get"
+        and _is_parameters(node.func.value)
+        and node.args
+        and isinstance(node.args[0], ast.Constant)
+        and node.args[0].value in own
+    ):
+        return str(node.args[0].value)
+    return None
+
+
+def parameter_tests(source: str, own: frozenset[str]) -> list[str]:
+    """Where ``source`` tells kinds apart by a kind's own parameter: compares it (``is None``,
+    ``==``) or tests it (``if parameters.duty_cycle:``), as ``line: what``."""
+    found: list[str] = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Compare):
+            tested = [node.left, *node.comparators]
+        elif isinstance(node, ast.If | ast.IfExp | ast.While):
+            tested = [node.test]
+        elif isinstance(node, ast.BoolOp):
+            tested = list(node.values)
+        elif isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.Not):
+            tested = [node.operand]
+        else:
+            continue
+        for expr in tested:
+            if _parameter_read(expr, own) is not None:
+                found.append(f"{expr.lineno}: {ast.unparse(node).splitlines()[0]}")
+    return found
+
+
+def test_nothing_outside_the_factory_and_the_kinds_tells_kinds_by_their_parameters() -> None:
+    assert OWN_PARAMETERS  # the arm's duty cycle at least
+    found = [
+        f"{path.relative_to(REPO)}:{mention}"
+        for path in _outside_the_kinds()
+        if str(path.relative_to(REPO)) not in PARAMETER_SEAMS
+        for mention in parameter_tests(path.read_text(encoding="utf-8"), OWN_PARAMETERS)
+    ]
+    assert found == []
+    used = {
+        seam
+        for seam in PARAMETER_SEAMS
+        if parameter_tests((REPO / seam).read_text(encoding="utf-8"), OWN_PARAMETERS)
+    }
+    assert used == PARAMETER_SEAMS, "a seam no longer used: drop it from PARAMETER_SEAMS"
+
+
+def test_the_check_sees_each_way_of_testing_a_kind_parameter() -> None:
+    """The check on the code before this change (daemon/run/setup.py check_reference_run told
+    an arm reference from a two-link one by its duty cycle), and what it must not take for it
+    (the arm section of the settings, a parameter passed on untested)."""
+    source = (
+        'reference_duty = row.parameters.get("duty_cycle")\n'  # 1: read, not tested
+        "if (reference_duty is None) != (parameters.duty_cycle is None): pass\n"  # 2
+        'this = "arm" if parameters.duty_cycle is not None else "two-link"\n'  # 3
+        "if parameters.duty_cycle: pass\n"  # 4
+        'if row.parameters["duty_cycle"] == "x": pass\n'  # 5
+        'ok = not self.parameters.get("duty_cycle")\n'  # 6
+        "if settings.arm.duty_cycle is None: pass\n"  # 7: the settings' arm section
+        "load(parameters.duty_cycle)\n"  # 8: used, not tested
+        "if parameters.compensation == 'off': pass\n"  # 9: every kind's parameter
+    )
+    lines = {int(m.split(":")[0]) for m in parameter_tests(source, frozenset({"duty_cycle"}))}
+    assert lines == {2, 3, 4, 5, 6}

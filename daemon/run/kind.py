@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import abc
 import threading
+from collections.abc import Mapping
 from typing import Any, ClassVar, Protocol
 
 from daemon.run.scheduler import Tick
@@ -124,7 +125,25 @@ class KindBase(abc.ABC):
 
     #: the kind's name: the run's info and the dashboard show it, a summary's basis carries it
     name: ClassVar[str]
+    #: how a message names one of its runs ("an arm run")
+    title: ClassVar[str]
+    #: the run parameters that are this kind's own: a run that sets them all is this kind's
+    #: (daemon/run/kinds.py kind_of_parameters). Nothing outside the factory and the kinds'
+    #: packages tests them to tell the kinds apart (tests/test_kind_isolation.py).
+    own_parameters: ClassVar[frozenset[str]] = frozenset()
     work: KindWork
+
+    @staticmethod
+    def reference_hint(parameters: RunParameters) -> str:
+        """What the reference of this kind's run with ``parameters`` must be, for a refusal."""
+        return "an uncompensated run of the same kind"
+
+    @staticmethod
+    def reference_refusal(parameters: RunParameters, reference: Mapping[str, Any]) -> str | None:
+        """Why a recorded run of this kind (its parameters: ``reference``) cannot be the
+        reference of this kind's run with ``parameters``, beyond what every reference needs
+        (daemon/run/kinds.py check_reference_run); None when it can."""
+        return None
 
     @staticmethod
     @abc.abstractmethod

@@ -3,8 +3,12 @@ the only one that knows every kind (KINDS).
 
 - a robot that plays its own program (drivers/base.py OffsetRobot, ``robot.driver =
   "ur-rtde"``): a followed run (daemon/run/followed/), whose duty cycle is the program's;
-- a duty cycle in the parameters: an arm run (daemon/run/arm/);
+- parameters that set a kind's own parameters (KindBase.own_parameters: the arm's duty
+  cycle): that kind's run (daemon/run/arm/);
 - otherwise the two-link bench's run (daemon/run/two_link/).
+
+A recorded run's kind is read the same way from its parameters: a run's reference must be of
+its own kind (:func:`check_reference_run`, which asks the kinds what else they require).
 
 Each kind builds itself (its package's ``build.py``) and carries its summary (daemon/run/
 kind.py KindBase ``summary_from_basis``): a summary a shutdown deferred is found here by the
@@ -16,6 +20,7 @@ changes a run's state or starts it.
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 from typing import Any
 
 from daemon.run.arm.build import build_arm
@@ -23,6 +28,7 @@ from daemon.run.arm.kind import ArmKind
 from daemon.run.followed.build import build_followed
 from daemon.run.followed.kind import FollowedKind
 from daemon.run.kind import KindBase, RunKind
+from daemon.run.setup import RunParameterError, check_comparable, reference_row
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
 from daemon.run.summary import SummaryBasis, SummaryRow, fixed_summary
@@ -42,9 +48,44 @@ async def build_kind(builder: RunBuilder, parameters: RunParameters) -> RunKind:
     robot = builder.devices().robot
     if isinstance(robot, OffsetRobot):  # plays its own program: even with a duty cycle
         return await build_followed(builder, parameters, robot)
-    if parameters.duty_cycle is not None:
-        return await build_arm(builder, parameters)
-    return await build_two_link(builder, parameters)
+    if kind_of_parameters(parameters.model_dump()) is ArmKind:
+        return await build_arm(builder, parameters, check_reference_run)
+    return await build_two_link(builder, parameters, check_reference_run)
+
+
+def kind_of_parameters(parameters: Mapping[str, Any]) -> type[KindBase]:
+    """The kind a run's parameters choose (a started run's, or a recorded run's): the first
+    kind whose own parameters they all set (KindBase.own_parameters), else the two-link
+    bench's. A robot that plays its own program is the robot's choice, not the parameters'
+    (:func:`build_kind`): its runs are recorded with an arm or a two-link run's parameters."""
+    for kind in KINDS:
+        own = kind.own_parameters
+        if own and all(parameters.get(name) is not None for name in own):
+            return kind
+    return TwoLinkKind
+
+
+def check_reference_run(recorder: Recorder, parameters: RunParameters) -> None:
+    """The run named by ``reference_run`` must be an ended, uncompensated run of the same kind
+    at the same deformation scale (and what the kind asks besides: KindBase.reference_refusal):
+    its measured drift is what the summary's reduction compares with (issue 19). Blocking (the
+    database): the kind's build calls it on the database worker."""
+    reference_id = parameters.reference_run
+    if reference_id is None:
+        return
+    row = reference_row(recorder, reference_id)
+    ours, theirs = kind_of_parameters(parameters.model_dump()), kind_of_parameters(row.parameters)
+    if theirs is not ours:
+        # an arm run's summary compares tool drifts, a two-link run's the spot's: a reference
+        # of the other kind has none of the figures (issue 28: it gave a null reduction)
+        raise RunParameterError(
+            f"reference_run {reference_id} is {theirs.title}, this run is {ours.title}: a "
+            f"reference must be {ours.title} too ({ours.reference_hint(parameters)})"
+        )
+    refusal = ours.reference_refusal(parameters, row.parameters)
+    if refusal is not None:
+        raise RunParameterError(f"reference_run {reference_id} {refusal}")
+    check_comparable(reference_id, row.parameters, parameters)
 
 
 def summary_from_basis(

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from daemon.run.states import RunParameters, RunState
+from drivers.base import RobotStatus
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,3 +73,46 @@ class RunReadModel:
 
     def progress(self) -> None:
         self.last_progress_monotonic = time.monotonic()
+
+    def control_loop_alive(self, max_silence_s: float) -> bool:
+        """For the systemd watchdog (issue 10): False when a running run has recorded no step
+        for ``max_silence_s`` beyond its step period, i.e. the control loop hangs."""
+        view = self.view
+        if view is None or view.state is not RunState.RUNNING:
+            return True
+        silence_s = time.monotonic() - self.last_progress_monotonic
+        return silence_s <= max_silence_s + view.parameters.step_s
+
+    def snapshot(
+        self,
+        clock_now: float,
+        *,
+        robot: RobotStatus | None,
+        timing: dict[str, Any],
+        errors: list[dict[str, Any]],
+    ) -> dict[str, Any]:
+        """The daemon's state as the API shows it (GET /state, the WebSocket's first message):
+        the run's, the robot's ``robot`` status, the steps' ``timing`` and the latest
+        ``errors``."""
+        view = self.view
+        return {
+            "state": RunState.IDLE.value
+            if view is None or not view.is_active
+            else view.state.value,
+            "run": None if view is None else view.info(clock_now),
+            "last_step": None if view is None else view.last_record,
+            "robot": None
+            if robot is None
+            else {
+                "link": robot.link.value,
+                "motion_held": robot.motion_held,
+                "hold_reason": robot.hold_reason,
+                "last_error": robot.last_error,
+            },
+            "timing": {
+                **timing,
+                "overruns": 0 if view is None else view.overruns,
+                "skipped": 0 if view is None else view.skipped,
+            },
+            "errors": errors,
+        }

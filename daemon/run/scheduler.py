@@ -160,3 +160,23 @@ def percentiles(values: Iterable[float], overall_max: float | None = None) -> di
     p50, p99 = np.percentile(data, [50, 99])
     top = float(data.max()) if overall_max is None else max(overall_max, float(data.max()))
     return {"p50": float(p50), "p99": float(p99), "max": top}
+
+
+async def sleep_until_woken(clock: Clock, deadline_s: float, wake: asyncio.Event) -> None:
+    """Sleep on ``clock`` until ``deadline_s``, or less when ``wake`` is set (cleared first):
+    a run's sleep that any request ends early (daemon/run/session.py). The clock's own error
+    (a deadline it refuses) is raised."""
+    if clock.now() >= deadline_s:
+        return
+    wake.clear()
+    sleeper = asyncio.ensure_future(clock.sleep_until(deadline_s))
+    waker = asyncio.ensure_future(wake.wait())
+    try:
+        await asyncio.wait({sleeper, waker}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in (sleeper, waker):
+            if not task.done():
+                task.cancel()
+        await asyncio.gather(sleeper, waker, return_exceptions=True)
+    if sleeper.done() and not sleeper.cancelled():
+        sleeper.result()

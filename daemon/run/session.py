@@ -28,17 +28,18 @@ import threading
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from daemon.run import ending
 from daemon.run.gc_policy import GcPolicy
+from daemon.run.grant import RunGrant
 from daemon.run.kind import RunKind
 from daemon.run.publish import RunPublisher
 from daemon.run.readmodel import RunView
-from daemon.run.scheduler import FixedStepTimer
+from daemon.run.scheduler import FixedStepTimer, sleep_until_woken
 from daemon.run.services import BenchControl, SessionServices
 from daemon.run.states import RunState, RunStateError, StateMachine
 from daemon.run.step import StepOutcome, Verdict
-from daemon.run.summary import SummaryBasis, stored_basis
+from daemon.run.summary import stored_basis
 from daemon.storage.recorder import RecorderError
-from daemon.storage.series import SummaryAbandonedError
 from drivers.errors import DeviceError, GoalLostError, MotionHeldError
 from drivers.permit import MotionPermit, Ticket
 
@@ -73,9 +74,9 @@ class RunSession:
         self.finishing = False  # holding the robot, writing the final state and the summary
         self._abandon_summary = threading.Event()  # a shutdown that cannot wait for it
         self._wake = asyncio.Event()
-        #: the ticket of the request that last allowed this run to move (its start, then each
-        #: resume): motion goes on only while no hold came after it
-        self._grant = ticket
+        #: the request that last allowed this run to move (its start, then each resume):
+        #: motion goes on only while no hold came after it
+        self._grant = RunGrant(self.id, services.robot, services.errors, ticket)
         self._prepared = False  # the start's teaching and references are done
         self._publisher = RunPublisher(self.id, services)
         self.task: asyncio.Task[None] | None = None
@@ -86,7 +87,7 @@ class RunSession:
 
     @property
     def permit(self) -> MotionPermit:
-        return self._services.robot.permit
+        return self._grant.permit
 
     def start(self) -> None:
         self._go(RunState.STARTING, None)
@@ -118,7 +119,7 @@ class RunSession:
             raise RunStateError(f"run {self.id}: a hold came during the resume") from err
         except GoalLostError as err:
             self._services.errors.note(err)
-            await self._hold_quietly()
+            await self._grant.hold()
             reason = (
                 f"{err.message}: the run cannot continue (its offsets are from that goal); "
                 "stop it and start a new run at the goal"
@@ -137,12 +138,12 @@ class RunSession:
             or self.state not in (RunState.PAUSED, RunState.FAULT)
             or not self.permit.is_current(ticket)
         ):
-            await self._hold_quietly()  # re-assert: the resume must not undo a later hold
+            await self._grant.hold()  # re-assert: the resume must not undo a later hold
             # and stop again what the resume started (a program the kind played again):
             # the loop stopped it for this pause already and will not again
             await self.kind.stop_playing(self._services.settings.scheduler.stop_grace_s, held=True)
             raise RunStateError(f"run {self.id}: a hold or stop came during the resume")
-        self._grant = ticket
+        self._grant.ticket = ticket
         self._go(RunState.RUNNING if self._prepared else RunState.STARTING, None)
 
     def request_stop(self, reason: str, final: RunState = RunState.STOPPED) -> None:
@@ -181,7 +182,7 @@ class RunSession:
             task.cancel()
         if summary_budget_s is not None:
             _, pending = await asyncio.wait({task}, timeout=summary_budget_s)
-            if pending:  # given up to shut down in time: deferred (logged by _defer_summary)
+            if pending:  # given up to shut down in time: deferred (logged in daemon/run/ending.py)
                 self._abandon_summary.set()
         await asyncio.wait({task})
 
@@ -241,7 +242,7 @@ class RunSession:
             while kind.clock.now() < deadline_s:
                 if not await self._wait_while_held():
                     return False
-                await self._sleep_until(deadline_s)
+                await sleep_until_woken(kind.clock, deadline_s, self._wake)
         if not await self._phase("start the bench", kind.start_bench):
             return False
         if not await self._phase("measure the references", kind.references):
@@ -279,16 +280,12 @@ class RunSession:
             return not self.stop_requested
 
     async def _release(self) -> None:
-        """Motion for this run: a hold from before its start request is released (starting is
-        an explicit request to move again); one that came after it never is -- the start is
-        cancelled (issue 15, point 2; issue 26)."""
-        permit = self.permit
-        if not permit.held and permit.is_current(self._grant):
-            return
+        """Motion for this run (daemon/run/grant.py): a hold that came after the start request
+        cancels the start."""
         try:
-            await self._services.robot.resume(self._grant)
+            await self._grant.release()
         except MotionHeldError:
-            if self.state is RunState.STARTING and not permit.is_current(self._grant):
+            if self.state is RunState.STARTING and not self._grant.current:
                 self.request_stop(
                     "start cancelled: the robot was held after the start was requested"
                 )
@@ -326,8 +323,8 @@ class RunSession:
                 continue
             if timer.next_deadline_s >= end_s - 1e-9:
                 return
-            self.kind.play(self._grant)  # what moves between the steps, for this grant
-            await self._sleep_until(timer.next_wake_s)
+            self.kind.play(self._grant.ticket)  # what moves between the steps, for this grant
+            await sleep_until_woken(self.kind.clock, timer.next_wake_s, self._wake)
             if self.stop_requested or self.state is not RunState.RUNNING:
                 continue  # woken by a request: handled at the top
             # a request that lands during the last yield before the deadline finds this step
@@ -338,21 +335,19 @@ class RunSession:
                 outcome = await self.kind.step(tick)
             finally:
                 collector.step(running=False)
-            self._recorded(outcome)
+            self._recorded(outcome, factor)
             await self._judge(tick.step, outcome.verdict)
             timer.step_done()
             self._services.read_model.progress()
             collector.after_step((timer.next_wake_s - timer.clock.now()) / factor)
 
-    def _recorded(self, outcome: StepOutcome) -> None:
-        """A committed step: the session's last step, then its publication."""
+    def _recorded(self, outcome: StepOutcome, factor: float) -> None:
+        """A committed step: the session's last step, then its publication (the budget in wall
+        seconds, as the stages are timed: ``factor`` run seconds a wall second)."""
         self.step = outcome.record.step
         self.last_record = outcome.record.as_dict()
-        # the budget in wall seconds, as the stages are timed: an accelerated bench clock runs
-        # ``factor`` run seconds a wall second (a virtual clock's time is taken as it is)
-        factor = getattr(self.timer.clock, "factor", 1.0) if self.timer is not None else 1.0
         self._publisher.step(
-            outcome, self.last_record, self.view(), self.kind.parameters.step_s, float(factor)
+            outcome, self.last_record, self.view(), self.kind.parameters.step_s, factor
         )
 
     async def _judge(self, step: int, verdict: Verdict) -> None:
@@ -374,7 +369,7 @@ class RunSession:
             return
         logger.warning("run %d step %d: %s", self.id, step, verdict.reason)
         if self.state is RunState.RUNNING:
-            await self._hold_quietly(f"run {self.id} paused: {verdict.reason}")  # paused: held
+            await self._grant.hold(f"run {self.id} paused: {verdict.reason}")  # paused: held
             self._go(RunState.PAUSED, verdict.reason)
         else:
             logger.info(
@@ -388,7 +383,7 @@ class RunSession:
     async def _fault(self, reason: str) -> None:
         """A device fault: hold motion first, then park the run in ``fault`` until an explicit
         resume -- unless a request (pause, stop) came first: then the fault is on the step."""
-        await self._hold_quietly(f"run {self.id} fault: {reason}")
+        await self._grant.hold(f"run {self.id} fault: {reason}")
         if self.state in (RunState.RUNNING, RunState.STARTING):
             self._go(RunState.FAULT, reason)
         else:
@@ -401,24 +396,6 @@ class RunSession:
             await self._wake.wait()
         return not self.stop_requested
 
-    async def _sleep_until(self, deadline_s: float) -> None:
-        """Sleep on the run clock, waking early for any request."""
-        clock = self.kind.clock
-        if clock.now() >= deadline_s:
-            return
-        self._wake.clear()
-        sleeper = asyncio.ensure_future(clock.sleep_until(deadline_s))
-        waker = asyncio.ensure_future(self._wake.wait())
-        try:
-            await asyncio.wait({sleeper, waker}, return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            for task in (sleeper, waker):
-                if not task.done():
-                    task.cancel()
-            await asyncio.gather(sleeper, waker, return_exceptions=True)
-        if sleeper.done() and not sleeper.cancelled():
-            sleeper.result()  # the clock's own error (a deadline it refuses) is the run's
-
     async def _finish(self, final: RunState, reason: str | None) -> None:
         """Hold the robot, record the final state, then the summary. Never raises: whatever
         fails here, the run still ends in ``final`` with the daemon idle (issue 15, point 5).
@@ -429,7 +406,7 @@ class RunSession:
         try:
             # the hold says why when nothing asked for it first (issue 26: not "stopped by
             # request" after a recording failure aborted the run)
-            await self._hold_quietly(
+            await self._grant.hold(
                 f"run {self.id} {final.value}" + (f": {reason}" if reason else "")
             )
             # after the hold: a robot that plays its own program is paused then, unless the
@@ -439,7 +416,7 @@ class RunSession:
             )
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
-            recorded = await self._record_end(final, reason)
+            recorded = await ending.record_end(services, self.id, final, reason)
             # as the database keeps it: the summary now and a deferred one are the same
             basis = stored_basis(
                 self.kind.summary_basis(
@@ -448,25 +425,13 @@ class RunSession:
                     timing=services.timing.summary(fresh=True),
                 )
             )
-            self.summary = await self._summarize(basis)
+            self.summary = await ending.summarize(services, self.kind, basis, self._abandon_summary)
             if self.summary is None and self._abandon_summary.is_set():  # a shutdown gave it up
-                self.summary_deferred = await self._defer_summary(basis)
+                self.summary_deferred = await ending.defer_summary(services, self.id, basis)
             elif self.summary is not None:
-                if recorded:
-                    try:
-                        await services.workers.db(
-                            services.recorder.set_summary, self.id, self.summary
-                        )
-                    except Exception as err:
-                        logger.error("run %d: cannot record its summary: %s", self.id, err)
-                        services.errors.note(err, device="storage")
-                else:
-                    summary = self.summary
-                    services.post_home(
-                        lambda: services.unrecorded_end.remember(
-                            self.id, final.value, summary, reason
-                        )
-                    )
+                await ending.store_summary(
+                    services, self.id, self.summary, recorded=recorded, final=final, reason=reason
+                )
         except Exception as err:  # a bug in the ending itself: still end (traceback logged)
             logger.exception("run %d: error while ending", self.id)
             services.errors.note(err, device="daemon")
@@ -480,54 +445,6 @@ class RunSession:
                 run_id = self.id
                 services.post_home(lambda: services.reports.submit(run_id))
             logger.info("run %d %s%s", self.id, final.value, f" ({reason})" if reason else "")
-
-    async def _record_end(self, final: RunState, reason: str | None) -> bool:
-        """The final state, committed; False when it could not be (kept and written again by
-        daemon/run/unrecorded_end.py, with the summary once there is one)."""
-        services = self._services
-        try:
-            await services.workers.db(
-                services.recorder.finish_run, self.id, final.value, None, reason
-            )
-        except Exception as err:
-            logger.error("run %d: cannot record its end yet: %s", self.id, err)
-            services.errors.note(err, device="storage")
-            run_id = self.id
-            services.post_home(
-                lambda: services.unrecorded_end.remember(run_id, final.value, None, reason)
-            )
-            return False
-        return True
-
-    async def _summarize(self, basis: SummaryBasis) -> dict[str, Any] | None:
-        services = self._services
-        summarize = functools.partial(
-            self.kind.summary, services.recorder, basis, abandon=self._abandon_summary
-        )
-        try:
-            return await services.workers.db(summarize)
-        except SummaryAbandonedError as err:
-            if not self._abandon_summary.is_set():  # not a shutdown's: nothing to defer to
-                logger.warning("run %d: no summary: %s", self.id, err)
-        except Exception as err:
-            logger.exception("run %d: no summary", self.id)
-            services.errors.note(err, device="storage")
-        return None
-
-    async def _defer_summary(self, basis: SummaryBasis) -> bool:
-        """A shutdown gave the summary up: keep what only memory holds with the run, for the
-        next start to compute it (daemon/run/pending_summaries.py). One row, milliseconds."""
-        services = self._services
-        try:
-            await services.workers.db(services.recorder.defer_summary, self.id, basis)
-        except Exception as err:
-            logger.error("run %d: no summary: cannot defer it: %s", self.id, err)
-            services.errors.note(err, device="storage")
-            return False
-        logger.warning(
-            "run %d: summary deferred to the next start (the stop's budget ran out)", self.id
-        )
-        return True
 
     # --- the one place a state changes ----------------------------------------------------
 
@@ -563,14 +480,3 @@ class RunSession:
             skipped=0 if self.timer is None else self.timer.skipped,
             last_record=self.last_record,
         )
-
-    async def _hold_quietly(self, reason: str | None = None) -> None:
-        """Hold the robot; ``reason`` is what its status says when this hold is the first
-        since the last release (a request's own hold keeps its reason)."""
-        if reason is not None:
-            self.permit.hold(reason)
-        try:
-            await self._services.robot.stop()
-        except DeviceError as err:
-            self._services.errors.note(err)
-            logger.warning("run %d: could not hold the robot: %s", self.id, err)

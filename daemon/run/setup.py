@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,7 +30,7 @@ from daemon.model.compensation import (
 from daemon.model.model import EXACT_NODE_LIMIT
 from daemon.model.observer import OFFSET_SIGMA_C, IrObserver, regions_to_nodes
 from daemon.run.states import RunParameters, heat_at
-from daemon.storage.recorder import Recorder
+from daemon.storage.recorder import Recorder, RunRow
 
 logger = logging.getLogger(__name__)
 
@@ -45,6 +44,11 @@ MAX_CHECKED_STEPS = 200_000
 
 class RunParameterError(InputError):
     """The run's parameters are not admissible (e.g. scale pushes the spot off the chip)."""
+
+
+#: The check of a run's ``reference_run`` (daemon/run/kinds.py check_reference_run): blocking,
+#: RunParameterError when the named run is no reference for this one.
+ReferenceCheck = Callable[[Recorder, RunParameters], None]
 
 
 @dataclass(frozen=True)
@@ -289,13 +293,10 @@ def largest_predicted_deformation_um(
     return largest
 
 
-def check_reference_run(recorder: Recorder, parameters: RunParameters) -> None:
-    """The run named by ``reference_run`` must be an ended, uncompensated run at the same
-    deformation scale: its measured drift is what the summary's reduction compares with
-    (issue 19). Blocking (the database): call it on the database worker."""
-    reference_id = parameters.reference_run
-    if reference_id is None:
-        return
+def reference_row(recorder: Recorder, reference_id: int) -> RunRow:
+    """The run named by ``reference_run``: it must exist and have ended (issue 19). Blocking
+    (the database). Which kind of run it must be is the kind's (daemon/run/kinds.py
+    check_reference_run)."""
     row = recorder.run(reference_id)
     if row is None:
         raise RunParameterError(f"reference_run {reference_id}: no such run")
@@ -304,41 +305,27 @@ def check_reference_run(recorder: Recorder, parameters: RunParameters) -> None:
             f"reference_run {reference_id} is {row.state}: a reference must have ended "
             f"({' or '.join(REFERENCE_STATES)})"
         )
-    reference_duty = row.parameters.get("duty_cycle")
-    if (reference_duty is None) != (parameters.duty_cycle is None):
-        # an arm run's summary compares tool drifts, a two-link run's the spot's: a reference
-        # of the other kind has none of the figures (issue 28: it gave a null reduction)
-        kind = "an arm run" if reference_duty is not None else "a two-link run"
-        this = "an arm run" if parameters.duty_cycle is not None else "a two-link run"
-        raise RunParameterError(
-            f"reference_run {reference_id} is {kind}, this run is {this}: a reference must be "
-            f"{this} too ({_reference_hint(parameters)})"
-        )
-    if reference_duty is not None and parameters.duty_cycle is not None:
-        theirs, ours = Path(str(reference_duty)).stem, Path(parameters.duty_cycle).stem
-        if theirs != ours:
-            raise RunParameterError(
-                f"reference_run {reference_id} followed duty cycle {theirs!r}, this run "
-                f"{ours!r}: their drifts are not comparable"
-            )
-    compensation = row.parameters.get("compensation")
+    return row
+
+
+def check_comparable(
+    reference_id: int, reference: Mapping[str, Any], parameters: RunParameters
+) -> None:
+    """What every kind's reference needs of its parameters ``reference``: uncompensated, at
+    this run's deformation scale -- its measured drift is what the summary's reduction compares
+    with (issue 19)."""
+    compensation = reference.get("compensation")
     if compensation != "off":
         raise RunParameterError(
             f"reference_run {reference_id} was compensated ({compensation}): a reference "
             "must be an uncompensated run (compensation off) measuring the drift"
         )
-    scale = row.parameters.get("deformation_scale", 1.0)
+    scale = reference.get("deformation_scale", 1.0)
     if not math.isclose(float(scale), parameters.deformation_scale):
         raise RunParameterError(
             f"reference_run {reference_id} ran at deformation scale {scale}, this run at "
             f"{parameters.deformation_scale}: their drifts are not comparable"
         )
-
-
-def _reference_hint(parameters: RunParameters) -> str:
-    if parameters.duty_cycle is not None:
-        return f"an uncompensated run of duty cycle {Path(parameters.duty_cycle).stem!r}"
-    return "an uncompensated run of the two-link bench"
 
 
 def unit_vector(vector: tuple[float, float, float]) -> NDArray[np.float64]:

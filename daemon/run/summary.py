@@ -14,6 +14,7 @@ import numpy as np
 
 from daemon.analysis import NUMERIC_COLUMNS, RunSteps
 from daemon.run.scheduler import percentiles
+from daemon.run.states import RunParameters
 from daemon.storage.recorder import Recorder
 
 #: What the summary reads of the steps: no JSON columns (temperatures, IR, stage timings),
@@ -38,6 +39,61 @@ def fixed_summary(
 ) -> dict[str, Any]:
     """The summary of a kind whose figures are all in memory (no steps to read back)."""
     return {**basis["fixed"], **basis["after"]}
+
+
+def measured_basis(
+    kind: str,
+    run_id: int,
+    parameters: RunParameters,
+    *,
+    overruns: int,
+    skipped: int,
+    timing: dict[str, Any],
+    reference: dict[str, Any],
+    fixed: dict[str, Any] | None = None,
+    inputs: dict[str, Any] | None = None,
+    after: dict[str, Any] | None = None,
+) -> SummaryBasis:
+    """The summary basis of a kind that measures a drift against a reference (the two-link
+    bench's and the arm's): the entries every such summary has, with the kind's own ``fixed``
+    entries (after the compensation), its ``reference`` (after its ``source``), its ``inputs``
+    and its ``after`` entries."""
+    return {
+        "kind": kind,
+        "run_id": run_id,
+        "fixed": {
+            "deformation_scale": parameters.deformation_scale,
+            "compensation": parameters.compensation,
+            **(fixed or {}),
+            "step_s": parameters.step_s,
+            "overruns": overruns,
+            "skipped_deadlines": skipped,
+            "reference": reference,
+        },
+        "inputs": {
+            "compensation": parameters.compensation,
+            "reference_run": parameters.reference_run,
+            "timing": timing,
+            **(inputs or {}),
+        },
+        "after": after or {},
+    }
+
+
+def measured_summary(
+    basis: SummaryBasis, steps: RunSteps, figures: dict[str, Any], own: dict[str, Any]
+) -> dict[str, Any]:
+    """A measured kind's summary: its ``figures`` from the steps, then the entries every such
+    summary has -- the number of steps, the basis's fixed entries, the kind's ``own``, the
+    timing over every step, the basis's after entries."""
+    return {
+        **figures,
+        "steps": steps.n_steps,
+        **basis["fixed"],
+        **own,
+        "timing": timing_over_steps(basis["inputs"]["timing"], steps),
+        **basis["after"],
+    }
 
 
 def reference_steps(recorder: Recorder, drift_run: int | None) -> RunSteps | None:

@@ -73,31 +73,21 @@ from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.ur import rtde_protocol as rtde
 from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.describe import describe_ur
-from drivers.ur.modes import RuntimeState
 from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_client import RtdeClient
 from drivers.ur.rtde_protocol import Recipe, Value
+from drivers.ur.state import (
+    MM_PER_M,
+    STATE_OUTPUTS,
+    ProgramWatch,
+    at_or_past,
+    decode_state,
+    next_sequence,
+)
 
 logger = logging.getLogger(__name__)
 
 DEVICE = "robot"
-MM_PER_M = 1000.0
-#: The sequence register is an INT32: it runs 1 .. 2^31 - 1 and wraps to 1 (0 is "no target
-#: yet" for the program).
-SEQUENCE_MAX = (1 << 31) - 1
-#: A sequence further behind the last one than this has wrapped (2^30: two years at 500 Hz).
-SEQUENCE_WRAP_GAP = 1 << 30
-STATE_OUTPUTS = (
-    "timestamp",
-    "actual_q",
-    "actual_qd",
-    "actual_TCP_pose",
-    "actual_TCP_speed",
-    "joint_temperatures",
-    "robot_mode",
-    "safety_mode",
-    "runtime_state",
-)
 
 
 async def _done() -> None:
@@ -124,10 +114,7 @@ class URRobot:
         self._hold_inputs: Recipe | None = None
         self._corrections = asyncio.Lock()  # one correction at a time (module docstring)
         self._stalled = False  # the program stopped accepting corrections: until a resume
-        self._following = False  # follow_program() was called: a program restart is a fault
-        self._program_lost: str | None = None  # why the followed program's state is gone
-        self._accepted_max = 0  # the highest sequence the followed program accepted
-        self._instance = 0  # the followed program's instance (drivers/ur/registers.py)
+        self._program = ProgramWatch()  # a restart of the followed program (module docstring)
         self._seen_sequence = 0  # the sequence register as the controller reads it back
         self._arrived = asyncio.Event()  # set (and replaced) on every state package
         self._last_error: str | None = None
@@ -215,9 +202,12 @@ class URRobot:
             while True:
                 async with asyncio.timeout(self.settings.ur_timeout_s):
                     values = await client.read_data(recipe)
-                self._state = state = self._state_of(recipe, values)
+                self._state = state = decode_state(self.registers, recipe, values)
                 self._seen_sequence = int(values[-1])  # type: ignore[arg-type]
-                self._check_program(state)
+                lost = self._program.check(state)
+                if lost is not None:
+                    logger.warning("UR %s: correction held", lost)
+                    self._hold(lost)
                 self._wake()
         except (DeviceError, TimeoutError) as err:
             message = str(err) or f"no RTDE package for {self.settings.ur_timeout_s} s"
@@ -228,27 +218,6 @@ class URRobot:
         """Wake whatever waits for a state package (or for the link's end)."""
         arrived, self._arrived = self._arrived, asyncio.Event()
         arrived.set()
-
-    def _check_program(self, state: OffsetRobotState) -> None:
-        """After follow_program(): the offset program restarted (seen stopped, or its accepted
-        sequence went back) -- its offset state is gone: hold (module docstring)."""
-        if not self._following or self._program_lost is not None:
-            return
-        accepted = state.accepted_sequence
-        if state.runtime_state == RuntimeState.STOPPED:
-            lost = "the offset program was stopped"
-        elif state.program_instance != self._instance:
-            # a stop and a play between two state packages: nothing else need show it (a
-            # fresh program held from its start accepts nothing, like the old one)
-            lost = "the offset program restarted (a new program instance)"
-        elif accepted < self._accepted_max and self._accepted_max - accepted < SEQUENCE_WRAP_GAP:
-            lost = "the offset program restarted (its accepted sequence went back)"
-        else:
-            self._accepted_max = accepted
-            return
-        self._program_lost = lost
-        logger.warning("UR %s: correction held", lost)
-        self._hold(lost)
 
     def _link_fault(self, client: RtdeClient, message: str) -> None:
         if client is not self._client:
@@ -277,7 +246,7 @@ class URRobot:
         inputs = self._hold_inputs if target is None else self._inputs
         if client is None or inputs is None or not client.connected:
             raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
-        sequence = self._sequence % SEQUENCE_MAX + 1
+        sequence = next_sequence(self._sequence)
         values: list[Value] = [sequence, 1 if self.permit.held else 0]
         if target is not None:
             values.extend(target)
@@ -300,19 +269,12 @@ class URRobot:
             ) from err
 
     def _seen(self, sequence: int) -> Callable[[], bool]:
-        def seen() -> bool:
-            gap = sequence - self._seen_sequence
-            return gap <= 0 or gap > SEQUENCE_WRAP_GAP  # at or past it (or wrapped past)
-
-        return seen
+        return lambda: at_or_past(sequence, self._seen_sequence)
 
     def _accepted(self, sequence: int) -> Callable[[], bool]:
         def accepted() -> bool:
             state = self._state
-            if state is None:
-                return False
-            gap = sequence - state.accepted_sequence
-            return gap <= 0 or gap > SEQUENCE_WRAP_GAP
+            return state is not None and at_or_past(sequence, state.accepted_sequence)
 
         return accepted
 
@@ -408,10 +370,7 @@ class URRobot:
         async with self._lock:
             await self._exchange("the heartbeat")
             state = self.robot_state()
-            self._following = True
-            self._program_lost = None
-            self._accepted_max = state.accepted_sequence
-            self._instance = state.program_instance
+            self._program.follow(state)
             return state
 
     def robot_state(self) -> OffsetRobotState:
@@ -448,10 +407,10 @@ class URRobot:
                 self.permit.release(ticket)  # raises: a hold came after the request
             self.robot_state()  # NotConnectedError when the link is not up and fresh
             await self._exchange("the resume's heartbeat")  # a state from after this call
-            if self._program_lost is not None:
+            if self._program.lost is not None:
                 raise GoalLostError(
                     DEVICE,
-                    f"the controller lost the taught goal: {self._program_lost}; start a new "
+                    f"the controller lost the taught goal: {self._program.lost}; start a new "
                     "run (it follows the program as it is)",
                 )
             self.permit.release(ticket)  # MotionHeldError if a hold came meanwhile
@@ -508,39 +467,3 @@ class URRobot:
 
     async def play_program(self) -> None:
         await self.dashboard.play()
-
-    # -- state packages ----------------------------------------------------------------------
-
-    def _state_of(self, recipe: Recipe, values: tuple[Value, ...]) -> OffsetRobotState:
-        named = dict(zip(recipe.names, values, strict=True))
-        regs = self.registers
-
-        def floats(name: str) -> tuple[float, ...]:
-            value = named[name]
-            assert isinstance(value, tuple)
-            return tuple(float(v) for v in value)
-
-        def integer(name: str) -> int:
-            return int(named[name])  # type: ignore[arg-type]
-
-        pose = floats("actual_TCP_pose")
-        speed = floats("actual_TCP_speed")
-        applied = [float(named[name]) for name in regs.applied]  # type: ignore[arg-type]
-        return OffsetRobotState(
-            timestamp_s=float(named["timestamp"]),  # type: ignore[arg-type]
-            received_s=time.monotonic(),
-            joints_rad=floats("actual_q"),
-            joint_speeds_rad_s=floats("actual_qd"),
-            tcp_pose=(*(v * MM_PER_M for v in pose[:3]), *pose[3:]),  # type: ignore[arg-type]
-            tcp_speed=(*(v * MM_PER_M for v in speed[:3]), *speed[3:]),  # type: ignore[arg-type]
-            joint_temperatures_c=floats("joint_temperatures"),
-            robot_mode=integer("robot_mode"),
-            safety_mode=integer("safety_mode"),
-            runtime_state=integer("runtime_state"),
-            at_pose=integer(regs.at_pose),
-            accepted_sequence=integer(regs.accepted_sequence),
-            program_status=integer(regs.status),
-            applied_offset_mm=(applied[0] * MM_PER_M, applied[1] * MM_PER_M, applied[2] * MM_PER_M),
-            applied_rotation_rad=(applied[3], applied[4], applied[5]),
-            program_instance=integer(regs.instance),
-        )

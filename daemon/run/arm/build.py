@@ -16,8 +16,9 @@ from daemon.run.arm.setup import (
     check_played_run,
     plays_duty_cycle,
 )
-from daemon.run.arm.step import ArmRunWork, ArmStepPipeline
-from daemon.run.setup import RunParameterError, check_reference_run
+from daemon.run.arm.step import ArmStepPipeline
+from daemon.run.arm.work import ArmRunWork
+from daemon.run.setup import ReferenceCheck, RunParameterError
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
 from drivers.clock import FollowingClock
@@ -25,8 +26,11 @@ from drivers.clock import FollowingClock
 logger = logging.getLogger(__name__)
 
 
-async def build_arm(builder: RunBuilder, parameters: RunParameters) -> ArmKind:
-    work, arm = await arm_work(builder, parameters)
+async def build_arm(
+    builder: RunBuilder, parameters: RunParameters, check_reference: ReferenceCheck
+) -> ArmKind:
+    """``check_reference``: the factory's check of a reference run (it knows every kind)."""
+    work, arm = await arm_work(builder, parameters, check_reference)
     # a played duty cycle paces a virtual clock: the run's steps follow it
     clock = builder.clock if arm.player is None else FollowingClock(builder.clock)
     devices = builder.devices()
@@ -35,7 +39,7 @@ async def build_arm(builder: RunBuilder, parameters: RunParameters) -> ArmKind:
 
 
 async def arm_work(
-    builder: RunBuilder, parameters: RunParameters
+    builder: RunBuilder, parameters: RunParameters, check_reference: ReferenceCheck
 ) -> tuple[ArmRunWork, ArmServices]:
     """An arm run (issue 20): the arm's model and poses, its robot face, tool meter and
     step pipeline; RunParameterError when the arm run cannot be built."""
@@ -61,7 +65,7 @@ async def arm_work(
             "arm run: the duty cycle is not played (arm.play_duty_cycle): the robot moves "
             "to its measured poses only; run the cycle's motion on the controller"
         )
-    await workers.db(check_reference_run, recorder, parameters)
+    await workers.db(check_reference, recorder, parameters)
     run_id = await builder.create_run(parameters, plan.snapshot)
     sensors = builder.sensors
     assert sensors is not None

@@ -7,16 +7,19 @@ from __future__ import annotations
 
 import functools
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, ClassVar
 
 from config import Settings
 from daemon.run.arm.prepare import ArmServices, measure_references, reference_frames, teach_poses
-from daemon.run.arm.step import ArmRunWork
 from daemon.run.arm.summary import arm_basis, arm_summary, arm_summary_rows
+from daemon.run.arm.work import ArmRunWork
 from daemon.run.events import ErrorLog
 from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
+from daemon.run.states import RunParameters
 from daemon.run.step import StepOutcome
 from daemon.run.summary import SummaryBasis, SummaryRow
 from daemon.run.workers import Workers
@@ -28,6 +31,8 @@ from drivers.permit import Ticket
 @dataclass(eq=False)
 class ArmKind(KindBase):
     name: ClassVar[str] = "arm"
+    title: ClassVar[str] = "an arm run"
+    own_parameters: ClassVar[frozenset[str]] = frozenset({"duty_cycle"})
     work: ArmRunWork
     arm: ArmServices
     bench: object | None  # the arm bench's truth (drivers/sim/arm_devices.py), when simulated
@@ -35,6 +40,25 @@ class ArmKind(KindBase):
     settings: Settings
     errors: ErrorLog
     clock: Clock
+
+    @staticmethod
+    def reference_hint(parameters: RunParameters) -> str:
+        assert parameters.duty_cycle is not None
+        return f"an uncompensated run of duty cycle {Path(parameters.duty_cycle).stem!r}"
+
+    @staticmethod
+    def reference_refusal(parameters: RunParameters, reference: Mapping[str, Any]) -> str | None:
+        """The reference followed the same duty cycle (by name): another cycle's drift is
+        another motion's."""
+        assert parameters.duty_cycle is not None
+        theirs = Path(str(reference.get("duty_cycle"))).stem
+        ours = Path(parameters.duty_cycle).stem
+        if theirs != ours:
+            return (
+                f"followed duty cycle {theirs!r}, this run {ours!r}: their drifts are not "
+                "comparable"
+            )
+        return None
 
     async def teach(self, *, moving: bool) -> None:
         """Each pose reached by a move and taught there: only once motion is allowed."""

@@ -20,7 +20,8 @@ from config import Settings
 from daemon.arm.run import MeasurementError
 from daemon.arm.types import Pose6
 from daemon.run.arm.player import ArmPlayer
-from daemon.run.arm.step import ArmRobot, ArmRunWork, ArmStepPipeline, ToolMeter
+from daemon.run.arm.step import ArmStepPipeline
+from daemon.run.arm.work import ArmRobot, ArmRunWork, ToolMeter
 from daemon.run.events import ErrorLog
 from drivers.errors import DeviceError
 

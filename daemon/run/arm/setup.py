@@ -20,7 +20,7 @@ from daemon.arm.controller import ArmModelOptions, load_controller
 from daemon.arm.run import ArmPredictor, CyclePose, MeasuredPose
 from daemon.run.arm.measure import MultiCameraMeter
 from daemon.run.arm.robot import GoalRobotArm
-from daemon.run.arm.step import ArmRobot, ToolMeter
+from daemon.run.arm.work import ArmRobot, ToolMeter
 from daemon.run.devices_check import Devices
 from daemon.run.states import RunParameters
 from daemon.run.workers import Workers

@@ -27,11 +27,8 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 
@@ -39,28 +36,26 @@ from config import Settings
 from daemon.arm.correction import CorrectionLimits, check_correction, correction_for
 from daemon.arm.run import (
     ArmPredictor,
-    CyclePose,
-    FloatArray,
     MeasuredPose,
     MeasurementError,
     ToolMeasurement,
-    angle_urad,
-    norm_um,
-    pose_difference,
-    rotation_urad,
-    translation_um,
 )
 from daemon.arm.types import Pose6
 from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.player import ArmPlayer
+from daemon.run.arm.record import (
+    camera_views,
+    record_correction,
+    record_measurement,
+    record_model,
+)
+from daemon.run.arm.work import ArmRobot, ArmRunWork, ToolMeter
 from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.stage_times import StageTimes
-from daemon.run.states import RunParameters
 from daemon.run.step import (
     SENSOR_ERROR_FLAGS,
-    CameraView,
     StepOutcome,
     begin_record,
     finish_record,
@@ -69,9 +64,7 @@ from daemon.run.step import (
 )
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, StepRecord
-from drivers.base import MoveResult, Pose, RobotStatus
 from drivers.errors import DeviceError
-from drivers.permit import MotionPermit, Ticket
 
 logger = logging.getLogger(__name__)
 
@@ -85,95 +78,8 @@ REFERENCE_MISSING = "first-step-reference"
 ROOM_ERROR = "room-error"
 ARM_SENSOR_ERROR_FLAGS = SENSOR_ERROR_FLAGS | {MARKER_ERROR, ROOM_ERROR}
 
-
-class ArmRobot(Protocol):
-    """What an arm run needs of the robot (daemon/run/arm/robot.py over a driver with named taught
-    goals and rotated absolute moves, drivers/base.py GoalRobot). The hold contract is
-    drivers/base.py Robot's: after ``stop()`` every motion command is refused right before its
-    bytes are written."""
-
-    async def teach_pose(self, pose: MeasuredPose) -> Pose:
-        """Bring the tool to ``pose`` and teach it there as the goal ``pose.name``."""
-        ...
-
-    async def move_to_goal(
-        self, goal: str, correction: Pose6, *, speed_percent: int | None = None
-    ) -> MoveResult:
-        """Move to the taught goal ``goal`` shifted by ``correction`` (base frame), at
-        ``speed_percent`` of the controller's speed (None: its current one)."""
-        ...
-
-    @property
-    def permit(self) -> MotionPermit: ...
-
-    async def stop(self) -> None: ...
-
-    async def resume(self, ticket: Ticket | None = None) -> None: ...
-
-    async def actual_pose(self) -> Pose: ...
-
-    def status(self) -> RobotStatus: ...
-
-
-def camera_views(measurement: ToolMeasurement | None) -> tuple[CameraView, ...]:
-    """Each camera's frame of the measurement with the marker centroids it found."""
-    if measurement is None:
-        return ()
-    return tuple(
-        CameraView(
-            camera,
-            image,
-            tuple(
-                (float(x), float(y))
-                for x, y in measurement.centroids_px.get(camera, ())
-                if math.isfinite(x) and math.isfinite(y)
-            ),
-        )
-        for camera, image in sorted(measurement.images.items())
-    )
-
-
-class ToolMeter(Protocol):
-    """The tool's 3-D measurement: every camera's frame -> marker centroids -> triangulated
-    markers -> tool pose (daemon/run/arm/measure.py). Raises DeviceError (a camera) or
-    MeasurementError (the markers)."""
-
-    async def measure(
-        self, expected_pose: FloatArray, frames: int | None = None
-    ) -> ToolMeasurement:
-        """``frames`` per camera (None: the meter's own number, arm.frames_per_measurement)."""
-        ...
-
-
-@dataclass(eq=False)
-class ArmRunWork:
-    """What an arm run's steps carry from one to the next (the arm's RunWork)."""
-
-    run_id: int
-    parameters: RunParameters
-    predictor: ArmPredictor
-    poses: tuple[MeasuredPose, ...]
-    start_s: float = float("nan")  # run clock at step 0
-    taught: dict[str, Pose] = field(default_factory=dict)  # goal name -> pose read back
-    #: the last correction sent for each pose: the step limits apply per pose
-    last_correction: dict[str, Pose6] = field(default_factory=dict)
-    #: the tool pose measured at each taught goal before the first move: the drift's zero
-    reference: dict[str, FloatArray] = field(default_factory=dict)
-    reference_source: str = "each pose's first step"
-    #: the poses whose reference could not be measured before the first correction, with why:
-    #: their zero is their first step's measurement (flagged REFERENCE_MISSING), and the run's
-    #: summary says so (daemon/run/summary.py), never a silent zero
-    missing_references: dict[str, str] = field(default_factory=dict)
-    #: a played duty cycle (daemon/run/arm/player.py): every pose in order, each taught; empty:
-    #: the robot moves to the measured poses only, one per step
-    cycle: tuple[CyclePose, ...] = ()
-
-    def pose_at(self, step: int) -> MeasuredPose:
-        """The measured poses in turn, one per step (the duty cycle's order)."""
-        return self.poses[step % len(self.poses)]
-
-    def previous(self, pose: MeasuredPose) -> Pose6:
-        return self.last_correction.get(pose.name, Pose6.zero())
+#: ArmRunWork is also named here: a step pipeline's callers build its work with it
+__all__ = ["ArmRunWork", "ArmStepPipeline", "correction_limits"]
 
 
 def correction_limits(settings: Settings) -> CorrectionLimits:
@@ -248,7 +154,7 @@ class ArmStepPipeline:
         else:  # every pose of the played cycle at its own configuration, the arm warmed once
             errors_by_pose = await self._workers.step(self._predict_cycle, work, model_s, room_c)
             error = errors_by_pose[pose.name]
-        self._record_model(work, record, error)
+        record_model(work, record, error)
         stages.end("model", started)
 
         # 2. the corrections, checked before anything reaches the robot
@@ -258,7 +164,7 @@ class ArmStepPipeline:
             unsafe = self._hand_to_player(work, player, errors_by_pose)
         if player is not None:
             (player.release if unsafe is not None else player.ready)()
-        self._record_correction(record, correction)
+        record_correction(record, correction)
         stages.end("check", started)
 
         # 3. the move to the pose's taught goal + the correction (played: the cycle's arrival)
@@ -276,7 +182,7 @@ class ArmStepPipeline:
                 else:
                     arrival = await player.arrive(pose.name)
                     result = arrival.result
-                    self._record_correction(record, arrival.correction)
+                    record_correction(record, arrival.correction)
                 round_trips_s = result.round_trips_s
                 if result.pose is None:
                     flags.append("no-readback")
@@ -378,20 +284,6 @@ class ArmStepPipeline:
             out.setdefault(pose.name, predictor.tool_error(pose))
         return out
 
-    @staticmethod
-    def _record_model(work: ArmRunWork, record: StepRecord, error: Pose6) -> None:
-        record.model_time_s = work.predictor.time_s
-        record.predicted_tx_um, record.predicted_ty_um, record.predicted_tz_um = translation_um(
-            error
-        )
-        record.predicted_rx_urad, record.predicted_ry_urad, record.predicted_rz_urad = (
-            rotation_urad(error)
-        )
-        temperatures = work.predictor.temperatures_c()
-        record.model_temperatures_json = json.dumps(
-            {name: round(float(value), 4) for name, value in temperatures.items()}
-        )
-
     # --- 2. the correction ---------------------------------------------------------------
 
     def _correction(
@@ -432,19 +324,6 @@ class ArmStepPipeline:
         work.last_correction.update(accepted)
         player.set_corrections(accepted)
         return refused
-
-    @staticmethod
-    def _record_correction(record: StepRecord, correction: Pose6) -> None:
-        record.correction_tx_mm, record.correction_ty_mm, record.correction_tz_mm = (
-            float(v) for v in correction.translation_mm
-        )
-        record.correction_rx_urad, record.correction_ry_urad, record.correction_rz_urad = (
-            rotation_urad(correction)
-        )
-        # the two-link columns carry the translation too, so 1-D tools still see the offset
-        record.offset_x_mm = record.correction_tx_mm
-        record.offset_y_mm = record.correction_ty_mm
-        record.offset_z_mm = record.correction_tz_mm
 
     # --- 4. measure ----------------------------------------------------------------------
 
@@ -521,26 +400,3 @@ class ArmStepPipeline:
             # step's prediction (on the step's worker: a Kalman update of tens of nodes)
             await self._workers.step(observe, means)
         return means
-
-
-def record_measurement(
-    work: ArmRunWork, pose: MeasuredPose, measurement: ToolMeasurement, record: StepRecord
-) -> bool:
-    """The measured drift of the tool at ``pose``: its measured pose relative to the one
-    measured at the same taught goal before the first move (the first measurement when there
-    was none), in µm and µrad; orientation only from >= 3 markers. True when this measurement
-    became the pose's zero (no reference was measured: its drift is zero by construction)."""
-    taken_as_zero = pose.name not in work.reference
-    reference = work.reference.setdefault(pose.name, measurement.pose)
-    drift = pose_difference(reference, measurement.pose)
-    record.measured_tx_um, record.measured_ty_um, record.measured_tz_um = translation_um(drift)
-    record.drift_3d_um = norm_um(drift)
-    record.measured_sigma_um = measurement.sigma_mm * 1000.0
-    if measurement.oriented:
-        record.measured_rx_urad, record.measured_ry_urad, record.measured_rz_urad = rotation_urad(
-            drift
-        )
-        record.rotation_error_urad = angle_urad(drift)
-        if math.isfinite(measurement.rotation_sigma_rad):
-            record.measured_rotation_sigma_urad = measurement.rotation_sigma_rad * 1e6
-    return taken_as_zero

@@ -8,13 +8,14 @@ import threading
 from typing import Any
 
 from daemon.analysis.arm import room_summary, summarize_arm_run
-from daemon.run.arm.step import ArmRunWork
+from daemon.run.arm.work import ArmRunWork
 from daemon.run.summary import (
     SUMMARY_COLUMNS,
     SummaryBasis,
     SummaryRow,
+    measured_basis,
+    measured_summary,
     reference_steps,
-    timing_over_steps,
 )
 from daemon.storage.recorder import Recorder
 
@@ -33,31 +34,22 @@ def arm_basis(
     estimates = getattr(work.predictor, "adaptation_estimates", None)
     if callable(estimates) and getattr(work.predictor, "adapting", False):
         after["adaptation"] = estimates()
-    return {
-        "kind": kind,
-        "run_id": work.run_id,
-        "fixed": {
-            "deformation_scale": parameters.deformation_scale,
-            "compensation": parameters.compensation,
+    return measured_basis(
+        kind,
+        work.run_id,
+        parameters,
+        overruns=overruns,
+        skipped=skipped,
+        timing=timing,
+        fixed={
             "duty_cycle": parameters.duty_cycle,
             "measured_poses": [pose.name for pose in work.poses],
-            "step_s": parameters.step_s,
-            "overruns": overruns,
-            "skipped_deadlines": skipped,
-            # a pose with no reference measured: its zero is its first step (flagged
-            # first-step-reference), its drift before that step unseen; said, never silent
-            "reference": {
-                "source": work.reference_source,
-                "missing": dict(work.missing_references),
-            },
         },
-        "inputs": {
-            "compensation": parameters.compensation,
-            "reference_run": parameters.reference_run,
-            "timing": timing,
-        },
-        "after": after,
-    }
+        # a pose with no reference measured: its zero is its first step (flagged
+        # first-step-reference), its drift before that step unseen; said, never silent
+        reference={"source": work.reference_source, "missing": dict(work.missing_references)},
+        after=after,
+    )
 
 
 def arm_summary(
@@ -69,25 +61,14 @@ def arm_summary(
     inputs, run_id = basis["inputs"], basis["run_id"]
     steps = recorder.run_series(run_id, SUMMARY_COLUMNS, abandon)
     drift_run = inputs["reference_run"]
-    summary: dict[str, Any] = dict(
-        summarize_arm_run(
-            steps,
-            recorder.arm_poses(run_id),
-            compensation=inputs["compensation"],
-            reference=reference_steps(recorder, drift_run),
-            reference_run=drift_run,
-        )
+    figures = summarize_arm_run(
+        steps,
+        recorder.arm_poses(run_id),
+        compensation=inputs["compensation"],
+        reference=reference_steps(recorder, drift_run),
+        reference_run=drift_run,
     )
-    summary.update(
-        {
-            "steps": steps.n_steps,
-            **basis["fixed"],
-            "room": room_summary(steps),
-            "timing": timing_over_steps(inputs["timing"], steps),
-            **basis["after"],
-        }
-    )
-    return summary
+    return measured_summary(basis, steps, dict(figures), {"room": room_summary(steps)})
 
 
 def arm_summary_rows(summary: dict[str, Any]) -> list[SummaryRow]:

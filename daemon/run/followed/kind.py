@@ -139,6 +139,7 @@ class FollowedWork:
 @dataclass(eq=False)
 class FollowedKind(KindBase):
     name: ClassVar[str] = "followed"
+    title: ClassVar[str] = "a followed run"
     work: FollowedWork
     robot: OffsetRobot
     recorder: Recorder

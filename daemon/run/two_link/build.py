@@ -7,10 +7,10 @@ from __future__ import annotations
 import logging
 
 from daemon.run.setup import (
+    ReferenceCheck,
     build_model,
     build_observer,
     check_admissible_scale,
-    check_reference_run,
     network_snapshot,
     unit_vector,
 )
@@ -22,8 +22,11 @@ from daemon.run.two_link.step import RunWork, StepPipeline
 logger = logging.getLogger(__name__)
 
 
-async def build_two_link(builder: RunBuilder, parameters: RunParameters) -> TwoLinkKind:
-    work = await two_link_work(builder, parameters)
+async def build_two_link(
+    builder: RunBuilder, parameters: RunParameters, check_reference: ReferenceCheck
+) -> TwoLinkKind:
+    """``check_reference``: the factory's check of a reference run (it knows every kind)."""
+    work = await two_link_work(builder, parameters, check_reference)
     sensors = builder.sensors
     assert sensors is not None
     robot = builder.devices().robot
@@ -50,7 +53,9 @@ async def build_two_link(builder: RunBuilder, parameters: RunParameters) -> TwoL
     )
 
 
-async def two_link_work(builder: RunBuilder, parameters: RunParameters) -> RunWork:
+async def two_link_work(
+    builder: RunBuilder, parameters: RunParameters, check_reference: ReferenceCheck
+) -> RunWork:
     """The two-link bench's run: its model, checked scale, reference run and observer."""
     workers, recorder = builder.workers, builder.recorder
     built = await workers.step(build_model, builder.settings, parameters)
@@ -58,7 +63,7 @@ async def two_link_work(builder: RunBuilder, parameters: RunParameters) -> RunWo
     logger.info("run heat: %s (from %s)", parameters.heat_w, built.heat_source)
     direction = unit_vector(builder.settings.model.direction)
     await workers.step(check_admissible_scale, builder.settings, parameters, network, direction)
-    await workers.db(check_reference_run, recorder, parameters)
+    await workers.db(check_reference, recorder, parameters)
     observer = None
     if parameters.prediction == "model+ir":
         reader_regions = tuple(getattr(builder.devices().ir, "regions", ()) or ())

@@ -19,6 +19,7 @@ from daemon.run.kind import KindBase
 from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.services import BenchControl
+from daemon.run.states import RunParameters
 from daemon.run.step import StepOutcome
 from daemon.run.summary import SummaryBasis, SummaryRow
 from daemon.run.two_link.step import RunWork, StepPipeline
@@ -37,6 +38,7 @@ logger = logging.getLogger(__name__)
 @dataclass(eq=False)
 class TwoLinkKind(KindBase):
     name: ClassVar[str] = "two-link"
+    title: ClassVar[str] = "a two-link run"
     work: RunWork
     pipeline: StepPipeline
     robot: Robot
@@ -46,6 +48,10 @@ class TwoLinkKind(KindBase):
     settings: Settings
     errors: ErrorLog
     clock: Clock
+
+    @staticmethod
+    def reference_hint(parameters: RunParameters) -> str:
+        return "an uncompensated run of the two-link bench"
 
     async def teach(self, *, moving: bool) -> None:
         """The goal where the robot stands: moves nothing, so before the start's release."""

@@ -14,8 +14,9 @@ from daemon.run.summary import (
     SUMMARY_COLUMNS,
     SummaryBasis,
     SummaryRow,
+    measured_basis,
+    measured_summary,
     reference_steps,
-    timing_over_steps,
 )
 from daemon.run.two_link.step import RunWork
 from daemon.storage.recorder import Recorder
@@ -28,31 +29,20 @@ def two_link_basis(
     parameters = work.parameters
     reference = work.reference_um.get(0, (None, None))
     goal = work.goal
-    return {
-        "kind": kind,
-        "run_id": work.run_id,
-        "fixed": {
-            "deformation_scale": parameters.deformation_scale,
-            "compensation": parameters.compensation,
-            "step_s": parameters.step_s,
-            "overruns": overruns,
-            "skipped_deadlines": skipped,
-            "reference": {
-                "source": work.reference_source,
-                "x_um": reference[0],
-                "y_um": reference[1],
-            },
-        },
-        "inputs": {
-            "compensation": parameters.compensation,
-            "reference_run": parameters.reference_run,
-            "timing": timing,
+    return measured_basis(
+        kind,
+        work.run_id,
+        parameters,
+        overruns=overruns,
+        skipped=skipped,
+        timing=timing,
+        reference={"source": work.reference_source, "x_um": reference[0], "y_um": reference[1]},
+        inputs={
             "procedure": parameters.procedure,
             "goal_mm": None if goal is None else list(map(float, goal.position)),
             "direction": list(map(float, work.direction)),
         },
-        "after": {},
-    }
+    )
 
 
 def two_link_summary(
@@ -66,24 +56,14 @@ def two_link_summary(
     # the reduction against a measured uncompensated run, when the run names one (checked
     # at its start: ended, compensation off, same scale); otherwise against the prediction
     drift_run = inputs["reference_run"]
-    summary: dict[str, Any] = dict(
-        summarize_run(
-            steps,
-            compensation=inputs["compensation"],
-            reference=reference_steps(recorder, drift_run),
-            reference_run=drift_run,
-        )
+    figures = summarize_run(
+        steps,
+        compensation=inputs["compensation"],
+        reference=reference_steps(recorder, drift_run),
+        reference_run=drift_run,
     )
-    summary.update(
-        {
-            "steps": steps.n_steps,
-            **basis["fixed"],
-            "uncompensated_measured_max_um": measured_uncompensated_max_um(inputs, steps),
-            "timing": timing_over_steps(inputs["timing"], steps),
-            **basis["after"],
-        }
-    )
-    return summary
+    own = {"uncompensated_measured_max_um": measured_uncompensated_max_um(inputs, steps)}
+    return measured_summary(basis, steps, dict(figures), own)
 
 
 def measured_uncompensated_max_um(inputs: dict[str, Any], steps: RunSteps) -> float | None:
