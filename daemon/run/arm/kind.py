@@ -14,8 +14,9 @@ from config import Settings
 from daemon.run.arm.prepare import ArmServices, measure_references, reference_frames, teach_poses
 from daemon.run.arm.step import ArmRunWork
 from daemon.run.arm.summary import arm_basis, arm_summary, arm_summary_rows
+from daemon.run.arm.view import VIEW
 from daemon.run.events import ErrorLog
-from daemon.run.kind import KindBase
+from daemon.run.kind import KindBase, KindView
 from daemon.run.scheduler import Tick
 from daemon.run.step import StepOutcome
 from daemon.run.summary import SummaryBasis, SummaryRow
@@ -27,7 +28,8 @@ from drivers.permit import Ticket
 
 @dataclass(eq=False)
 class ArmKind(KindBase):
-    name: ClassVar[str] = "arm"
+    name: ClassVar[str] = VIEW.name
+    view: ClassVar[KindView] = VIEW
     work: ArmRunWork
     arm: ArmServices
     bench: object | None  # the arm bench's truth (drivers/sim/arm_devices.py), when simulated
