@@ -49,8 +49,8 @@ class PlotSlot(_Frozen):
 
 
 class KindView(_Frozen):
-    """How the dashboard shows a kind (issue 27: the kind owns its view, so adding a kind never
-    edits the page): everything the page used to decide by a kind's name, as data. Served by
+    """How the dashboard shows a kind (the kind owns its view, so adding a kind never edits the
+    page): everything the page used to decide by a kind's name, as data. Served by
     ``GET /api/v1/kinds`` (docs/reference/api.md); the page renders from it and names no kind
     (tests/test_kind_isolation.py).
 
