@@ -206,10 +206,18 @@ def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Pa
     assert page.text_content("#robot-badges .badge.held") == "robot held"
     assert message(page).startswith("hold acknowledged: no motion can be sent")
 
-    # a refused action answers with the API's error message, not a bare status
+    # a refused action answers with the API's error message, not a bare status. Pause is
+    # disabled while paused, so the test enables it and clicks it in one task of the page:
+    # enabled and then clicked apart, the page's own refreshes still in flight after the hold
+    # (its answer's, the state event's, the 3 s poll's) disabled it again in between, and the
+    # click did nothing (no request, no message: a 30 s wait for #message.error under load)
     page.wait_for_function("document.querySelector('#daemon-state').textContent === 'paused'")
-    page.evaluate("document.querySelector('#btn-pause').disabled = false")
-    page.click("#btn-pause")
+    with page.expect_response(re.compile(r".*/runs/1/pause$")) as refused:
+        page.evaluate(
+            "() => { const pause = document.querySelector('#btn-pause');"
+            " pause.disabled = false; pause.click(); }"
+        )
+    assert refused.value.status == 409
     page.wait_for_selector("#message.error")
     assert message(page).startswith("pause refused: 409 conflict: "), message(page)
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -46,6 +47,9 @@ SEAMS = {
     ("daemon/run/inputs.py", "daemon.run.arm.setup"),
 }
 KIND_NAMES = frozenset(kind.name for kind in KINDS)
+#: the dashboard: it renders each kind from the kind's view (GET /kinds), naming none
+STATIC = REPO / "api" / "static"
+DASHBOARD = (*sorted((STATIC / "js").glob("*.js")), STATIC / "index.html", STATIC / "style.css")
 #: each kind's class and its work's type (the ``work`` field: a string, annotations deferred)
 KIND_TYPES = frozenset(
     {kind.__name__ for kind in KINDS}
@@ -257,3 +261,59 @@ def test_the_check_sees_each_way_of_testing_a_kind_parameter() -> None:
     )
     lines = {int(m.split(":")[0]) for m in parameter_tests(source, frozenset({"duty_cycle"}))}
     assert lines == {2, 3, 4, 5, 6}
+
+
+_COMMENTS = re.compile(r"/\*.*?\*/|<!--.*?-->|(?<![:\\])//[^\n]*", re.DOTALL)
+_QUOTED = re.compile(r"""(["'`])((?:\\.|(?!\1)[^\\\n])*)\1""")
+
+
+def page_kind_mentions(source: str, names: frozenset[str]) -> list[str]:
+    """Where a dashboard file (JavaScript, HTML, CSS) names a kind, as ``line: what``: a quoted
+    value that is a kind's name (a string compared with or keying a table, an attribute value,
+    a CSS attribute selector), or a kind's name as an object key (``arm: [...]``). Comments
+    and words in sentences ("the arm's model") are no kind."""
+    found: list[str] = []
+    keys = [re.compile(rf"(?:^|[{{,\s]){re.escape(n)}\s*:(?!:)") for n in names if n.isidentifier()]
+    for number, line in enumerate(_COMMENTS.sub("", source).splitlines(), start=1):
+        quoted = {m.group(2) for m in _QUOTED.finditer(line)} & names
+        keyed = {k.pattern for k in keys if k.search(_QUOTED.sub('""', line))}
+        if quoted or keyed:
+            found.append(f"{number}: {line.strip()}")
+    return found
+
+
+def test_the_dashboard_names_no_kind() -> None:
+    """The page's switches on a kind (its plots, form, runs table, headline, references) are
+    the kind's view (daemon/run/kind.py KindView, GET /kinds): a new kind edits no page file."""
+    found = [
+        f"{path.relative_to(REPO)}:{mention}"
+        for path in DASHBOARD
+        for mention in page_kind_mentions(path.read_text(encoding="utf-8"), KIND_NAMES)
+    ]
+    assert found == []
+
+
+def test_the_page_check_sees_each_way_the_old_dashboard_named_a_kind() -> None:
+    """Lines of the dashboard before the kinds' views (each named a kind), and what the check
+    must not take for one: comments, sentences, a field named like a kind."""
+    source = (
+        'return p.duty_cycle ? "arm" : "two-link";\n'  # 1
+        "const SLOTS = {\n"
+        '  "two-link": ["residual"],\n'  # 3
+        '  arm: ["drift3d"],\n'  # 4
+        "};\n"
+        'if (this.kind === "arm") {\n'  # 6
+        '<label data-kind="two-link">procedure\n'  # 7
+        'body[data-kind="arm"] #frame-canvas { display: none; }\n'  # 8
+        "const what = kind === 'followed' ? 1 : 2;\n"  # 9
+        "// an arm run: the 3-D drift and rotation\n"  # 10: a comment
+        '/* the two-link bench\'s "arm" */\n'  # 11: a comment
+        "const text = `arm ${model.arm}, duty cycle`;\n"  # 12: words and a field
+        'say("an arm run: its model");\n'  # 13: a sentence
+        "const url = `${scheme}://${host}/arm`;\n"  # 14: no kind
+    )
+    lines = {
+        int(m.split(":")[0])
+        for m in page_kind_mentions(source, frozenset({"two-link", "arm", "followed"}))
+    }
+    assert lines == {1, 3, 4, 6, 7, 8, 9}

@@ -108,6 +108,10 @@ RunRequest: type[BaseModel] = create_model(
 
 class RunInfo(BaseModel):
     id: int
+    kind: str | None = Field(
+        description="Its run kind's name, as recorded (GET /kinds gives its view); null for a "
+        "run recorded before runs said their kind."
+    )
     state: str
     reason: str | None
     started_at: float = Field(description="Unix time (s).")
@@ -176,6 +180,7 @@ def run_info(row: RunRow, daemon: Daemon) -> RunInfo:
         eta = 0.0  # ended
     return RunInfo(
         id=row.id,
+        kind=live.kind if live is not None else row.kind,
         state=state,
         reason=reason,
         started_at=row.started_at,

@@ -19,7 +19,9 @@ from __future__ import annotations
 import abc
 import threading
 from collections.abc import Mapping
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar, Literal, Protocol
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
@@ -28,6 +30,76 @@ from daemon.run.summary import SummaryBasis, SummaryRow
 from daemon.storage.recorder import Recorder
 from drivers.clock import Clock
 from drivers.permit import Ticket
+
+#: The dashboard's plot slots (api/static/index.html ``slot-*``): which a kind shows is its view's.
+PlotSlotName = Literal["residual", "drift3d", "rotation", "predicted", "offset", "temperature"]
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class PlotSlot(_Frozen):
+    """One plot a run of the kind draws, in the page's order."""
+
+    slot: PlotSlotName
+    title: str
+    title_uncompensated: str | None = Field(
+        None, description="The title instead when the run's compensation is off."
+    )
+
+
+class KindView(_Frozen):
+    """How the dashboard shows a kind (the kind owns its view, so adding a kind never edits the
+    page): everything the page used to decide by a kind's name, as data. Served by
+    ``GET /api/v1/kinds`` (docs/reference/api.md); the page renders from it and names no kind
+    (tests/test_kind_isolation.py).
+
+    Texts named ``*_text`` are templates: ``{name}`` is the run's parameter ``name``; a
+    template naming a parameter the run left unset gives nothing."""
+
+    name: str = Field(description="The kind's name, as each run record's ``kind`` gives it.")
+    form_title: str = Field(description="The start form's heading on a daemon of this kind.")
+    form_fields: tuple[str, ...] = Field(
+        description="The start form's fields (RunRequest names) only this kind asks for; the "
+        "fields every kind has (compensation, duration, step, time scale, reference) are shown "
+        "always."
+    )
+    plots: tuple[PlotSlot, ...] = Field(description="The plots a run of this kind draws.")
+    series: Literal["axes", "poses"] = Field(
+        description="``axes``: the spot's error, prediction and offset per axis (x, y, z); "
+        "``poses``: the tool's 3-D drift, rotation, prediction and correction, one series per "
+        "measured pose."
+    )
+    time_axis: Literal["run", "model-hours"] = Field(
+        description="The plots' x: the run clock in s, or the model's time in h (a scaled run)."
+    )
+    x_label: str
+    temperature_x_label: str
+    group_temperatures: bool = Field(
+        description="Temperatures averaged per link and joint (node names link.segment)."
+    )
+    rotation_measured: bool = Field(
+        description="Whether a run measures the tool's rotation error; when not, the rotation "
+        "plot says so rather than stay empty."
+    )
+    adaptation: bool = Field(description="Whether its steps carry the model's adapted factors.")
+    reference_runs: bool = Field(
+        description="Whether a run may name an uncompensated ended run as its reference; the "
+        "runs offered are those of ``reference_kinds`` with compensation off."
+    )
+    reference_kinds: tuple[str, ...] = Field(
+        description="The kinds whose runs may be its reference (daemon/run/setup.py "
+        "check_reference_run)."
+    )
+    what_text: str = Field(description="What a run did, in the runs table (e.g. its procedure).")
+    model_text: str = Field(description="The model it used, after ``what_text``.")
+    doing_text: str = Field(description="What the robot does, in the headline.")
+    reference_text: str = Field(description="A reference run, in the form's list.")
+    scaled_time_text: str | None = Field(
+        description="After a run's duration when its time scale is not 1: the model time it "
+        "covered, e.g. 'of arm' ('2 h of arm')."
+    )
 
 
 class RunKind(Protocol):
@@ -131,6 +203,8 @@ class KindBase(abc.ABC):
     #: (daemon/run/kinds.py kind_of_parameters). Nothing outside the factory and the kinds'
     #: packages tests them to tell the kinds apart (tests/test_kind_isolation.py).
     own_parameters: ClassVar[frozenset[str]] = frozenset()
+    #: how the dashboard shows its runs and its start form (the kind's ``view.py``)
+    view: ClassVar[KindView]
     work: KindWork
 
     @staticmethod

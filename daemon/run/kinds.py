@@ -27,7 +27,7 @@ from daemon.run.arm.build import build_arm
 from daemon.run.arm.kind import ArmKind
 from daemon.run.followed.build import build_followed
 from daemon.run.followed.kind import FollowedKind
-from daemon.run.kind import KindBase, RunKind
+from daemon.run.kind import KindBase, KindView, RunKind
 from daemon.run.setup import RunParameterError, check_comparable, reference_row
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
@@ -35,20 +35,29 @@ from daemon.run.summary import SummaryBasis, SummaryRow, fixed_summary
 from daemon.run.two_link.build import build_two_link
 from daemon.run.two_link.kind import TwoLinkKind
 from daemon.storage.recorder import Recorder
-from drivers.base import OffsetRobot
+from drivers.base import OffsetRobot, Robot
 
 #: Every run kind, by the name its runs' summary bases carry.
 KINDS: tuple[type[KindBase], ...] = (TwoLinkKind, ArmKind, FollowedKind)
 _BY_NAME: dict[str, type[KindBase]] = {kind.name: kind for kind in KINDS}
 
 
+def chosen_kind(robot: Robot, parameters: RunParameters) -> type[KindBase]:
+    """The kind a run of ``parameters`` on ``robot`` is: what :func:`build_kind` builds, and
+    what the dashboard's start form asks for (``GET /kinds`` ``default``)."""
+    if isinstance(robot, OffsetRobot):  # plays its own program: even with a duty cycle
+        return FollowedKind
+    return kind_of_parameters(parameters.model_dump())
+
+
 async def build_kind(builder: RunBuilder, parameters: RunParameters) -> RunKind:
     """The run's kind, built (its row created in the run database); RunParameterError when the
     run is not admissible."""
     robot = builder.devices().robot
-    if isinstance(robot, OffsetRobot):  # plays its own program: even with a duty cycle
+    kind = chosen_kind(robot, parameters)
+    if kind is FollowedKind and isinstance(robot, OffsetRobot):  # the check narrows the type
         return await build_followed(builder, parameters, robot)
-    if kind_of_parameters(parameters.model_dump()) is ArmKind:
+    if kind is ArmKind:
         return await build_arm(builder, parameters, check_reference_run)
     return await build_two_link(builder, parameters, check_reference_run)
 
@@ -86,6 +95,11 @@ def check_reference_run(recorder: Recorder, parameters: RunParameters) -> None:
     if refusal is not None:
         raise RunParameterError(f"reference_run {reference_id} {refusal}")
     check_comparable(reference_id, row.parameters, parameters)
+
+
+def kind_views() -> tuple[KindView, ...]:
+    """How the dashboard shows each kind (daemon/run/kind.py KindView), in KINDS's order."""
+    return tuple(kind.view for kind in KINDS)
 
 
 def summary_from_basis(

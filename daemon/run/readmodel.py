@@ -26,6 +26,7 @@ class RunView:
     overruns: int = 0
     skipped: int = 0
     last_record: dict[str, Any] | None = None
+    kind: str = ""  # its run kind's name (daemon/run/kinds.py)
 
     @property
     def is_active(self) -> bool:
@@ -46,6 +47,7 @@ class RunView:
         progress, remaining = self.progress(clock_now)
         return {
             "id": self.id,
+            "kind": self.kind,
             "state": self.state.value,
             "reason": self.reason,
             "step": self.step,

@@ -479,4 +479,5 @@ class RunSession:
             overruns=0 if self.timer is None else self.timer.overruns,
             skipped=0 if self.timer is None else self.timer.skipped,
             last_record=self.last_record,
+            kind=self.kind.name,
         )

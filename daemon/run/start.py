@@ -7,6 +7,7 @@ its request lock and daemon/run/session.py runs what was built.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -40,11 +41,13 @@ class RunBuilder:
     arm_setup: ArmSetup
     arm_meter: ArmMeterFactory
 
-    async def create_run(self, parameters: RunParameters, snapshot: dict[str, Any] | None) -> int:
-        """The run's row in the run database, with its parameters, settings and ``snapshot``
-        (its network or arm model); returns its id."""
+    async def create_run(
+        self, parameters: RunParameters, snapshot: dict[str, Any] | None, *, kind: str
+    ) -> int:
+        """The run's row in the run database, with its parameters, settings, ``snapshot`` (its
+        network or arm model) and its kind's name; returns its id."""
         return await self.workers.db(
-            self.recorder.create_run,
+            functools.partial(self.recorder.create_run, kind=kind),
             parameters.model_dump(mode="json"),
             self.settings.model_dump(mode="json"),
             snapshot,

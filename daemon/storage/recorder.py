@@ -78,7 +78,8 @@ CREATE TABLE IF NOT EXISTS runs (
     network_json TEXT,                 -- the thermal network the controller used
     software_version TEXT NOT NULL,
     summary_json TEXT,                 -- Table 6.1 figures, at the end
-    reason TEXT                        -- why it paused/faulted/ended, if not normally
+    reason TEXT,                       -- why it paused/faulted/ended, if not normally
+    kind TEXT                          -- its run kind's name (daemon/run/kinds.py)
 )
 """
 
@@ -111,6 +112,8 @@ class RunRow:
     step_count: int
     #: its summary was deferred by a shutdown and is computed at the next start
     summary_pending: bool = False
+    #: its run kind's name (daemon/run/kinds.py); None: recorded before runs said their kind
+    kind: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -148,6 +151,7 @@ class Recorder:
             self._db.execute(STEPS_SCHEMA)
             self._db.execute(_PENDING_SUMMARIES_SCHEMA)
             self._add_missing_step_columns()
+            self._add_run_kind_column()
             self._redact_stored_configs()
         except (sqlite3.Error, OSError) as err:
             self._db.close()
@@ -179,6 +183,15 @@ class Recorder:
             if field.name not in present:
                 self._db.execute(f"ALTER TABLE steps ADD COLUMN {field.name} {column_type(field)}")
                 logger.info("run database: added the steps column %s", field.name)
+
+    def _add_run_kind_column(self) -> None:
+        """A database written before runs recorded their kind (issue 27) gains the column; its
+        older runs keep a null kind, which the API says as such rather than guess one from
+        their parameters."""
+        present = {row[1] for row in self._db.execute("PRAGMA table_info(runs)")}
+        if "kind" not in present:
+            self._db.execute("ALTER TABLE runs ADD COLUMN kind TEXT")
+            logger.info("run database: added the runs column kind")
 
     def _redact_stored_configs(self) -> None:
         """Migration (issue 16): a database written before run rows were redacted holds the
@@ -224,11 +237,14 @@ class Recorder:
         network: Mapping[str, Any] | None,
         software_version: str,
         state: str = "starting",
+        *,
+        kind: str | None = None,
     ) -> int:
+        """The run's row; ``kind``: its run kind's name (daemon/run/kinds.py)."""
         with self._write() as db:
             cursor = db.execute(
                 "INSERT INTO runs (state, started_at, parameters_json, config_json, network_json,"
-                " software_version) VALUES (?, ?, ?, ?, ?, ?)",
+                " software_version, kind) VALUES (?, ?, ?, ?, ?, ?, ?)",
                 (
                     state,
                     time.time(),
@@ -236,6 +252,7 @@ class Recorder:
                     _dumps(redact_secrets(config)),  # tokens are never stored
                     None if network is None else _dumps(network),
                     software_version,
+                    kind,
                 ),
             )
             run_id = cursor.lastrowid
@@ -450,7 +467,7 @@ _RUN_SELECT = (
     "SELECT r.id, r.state, r.started_at, r.ended_at, r.parameters_json, r.config_json, "
     "r.network_json, r.software_version, r.summary_json, r.reason, "
     "(SELECT COUNT(*) FROM steps s WHERE s.run_id = r.id), "
-    "EXISTS (SELECT 1 FROM pending_summaries p WHERE p.run_id = r.id) FROM runs r"
+    "EXISTS (SELECT 1 FROM pending_summaries p WHERE p.run_id = r.id), r.kind FROM runs r"
 )
 
 
@@ -468,6 +485,7 @@ def _run_row(row: Sequence[Any]) -> RunRow:
         reason=row[9],
         step_count=row[10],
         summary_pending=bool(row[11]),
+        kind=row[12],
     )
 
 

@@ -6,9 +6,10 @@ import {
 import { clearAdaptation, showAdaptation } from "./adaptation.js";
 import { clearCameras, preview, showFrame } from "./camera.js";
 import { addError, showErrors } from "./errors.js";
-import { explainState, historyRow, runKind, showRunState } from "./history.js";
+import { explainState, historyRow, showRunState } from "./history.js";
 import { headline, showDoing } from "./headline.js";
 import { adaptForm, loadChoices, offerReferences, startBody } from "./form.js";
+import { fill, kinds, loadKinds, startedView, viewOf } from "./kinds.js";
 import { RunPlots } from "./runplots.js";
 import { $, element } from "./util.js";
 
@@ -20,7 +21,6 @@ const ACTIVE_STATES = ["starting", "running", "paused", "stopping", "fault"];
 takeTokenFromAddress();
 
 const state = {
-  kind: null, // the daemon's run kind: "arm" or "two-link" (GET /arm-models)
   runId: null, // the run the plots show
   shownRun: null, // its record (GET /runs/{id})
   daemonState: "idle",
@@ -44,8 +44,9 @@ async function showRun(run, { backfill = true } = {}) {
   state.lastStep = -1;
   state.steps = 0;
   state.seen = new Set();
-  plots.reset(runKind(run) === "arm" || state.kind === "arm" ? "arm" : "two-link",
-    run.parameters || {});
+  // a run whose kind is not known (recorded before runs said their kind) is drawn as this
+  // daemon's runs are
+  plots.reset(viewOf(run) || startedView(), run.parameters || {});
   clearCameras();
   clearAdaptation();
   $("no-run").hidden = true;
@@ -94,7 +95,7 @@ function addStep(step) {
   if (step.run_id !== state.runId || state.seen.has(step.step)) return; // once per step
   state.seen.add(step.step);
   plots.addStep(step);
-  if (runKind(state.shownRun || {}) === "arm" || state.kind === "arm") showAdaptation(step);
+  if (plots.view && plots.view.adaptation) showAdaptation(step);
   state.lastStep = Math.max(state.lastStep, step.step);
   state.steps += 1;
   $("run-step").textContent = String(state.lastStep);
@@ -225,7 +226,7 @@ async function refreshHistory() {
     state.history = page.runs;
     $("run-history").replaceChildren(...page.runs.map((run) => historyRow(run,
       { onPlot: (chosen) => showRun(chosen), shown: run.id === state.runId })));
-    offerReferences(page.runs, state.kind);
+    offerReferences(page.runs, startedView());
     const none = !page.runs.length && state.runId === null;
     $("no-run").hidden = !none; // a first start: what to do, instead of empty plots
     $("plots").classList.toggle("empty", none);
@@ -331,7 +332,7 @@ $("start-form").addEventListener("submit", async (event) => {
   try {
     const run = await api("POST", "/runs", startBody(event.target));
     const p = run.parameters;
-    const what = state.kind === "arm" ? `arm, ${p.duty_cycle}` : p.procedure;
+    const what = fill((viewOf(run) || {}).what_text, p) || run.kind;
     say(`run ${run.id} ${run.state === "starting" ? "starting" : "started"}: ${what}, `
       + `${p.compensation}, ${p.duration_s} s, step ${p.step_s} s`);
     await showRun(run, { backfill: false });
@@ -373,10 +374,18 @@ $("token-form").addEventListener("submit", (event) => {
 window.thermocomp = { state, plots: null, auth };
 Object.defineProperty(window.thermocomp, "plots", { get: () => plots.charts });
 
+// The kinds' views (GET /kinds): the form, the plots and the runs table render from them. Read
+// again by the poll while they could not be read (a token refused for reading).
+async function ensureKinds() {
+  if (kinds.loaded || !(await loadKinds())) return;
+  adaptForm(startedView());
+  if (state.shownRun) showRun(state.shownRun);
+  else plots.reset(startedView());
+  if (state.history.length) refreshHistory();
+}
+
 async function start() {
-  state.kind = await loadChoices();
-  adaptForm(state.kind);
-  plots.reset(state.kind);
+  await Promise.all([ensureKinds(), loadChoices()]);
   if (auth.fromAddress && auth.token) say("control token taken from the address");
   requestAnimationFrame(redraw);
   connect();
@@ -387,6 +396,7 @@ async function start() {
   // the stream carries steps and state changes; a slow poll keeps timing, the robot's
   // badges, the devices, the headline and the history fresh
   setInterval(() => {
+    ensureKinds();
     refreshState();
     refreshHealth();
     headline.poll(state);

@@ -1,9 +1,9 @@
-// The run form adapts to the daemon's run kind: a two-link daemon asks for the procedure,
-// network, deformation scale and heater switch-off; an arm daemon for the duty cycle and the
-// arm model. Both: compensation, duration, step, time scale and the uncompensated reference
-// run the drift removed is measured against. Empty fields take the configured value, shown
-// as the placeholder.
+// The run form adapts to the kind of run this daemon starts (its view, GET /kinds): the
+// fields only that kind asks for, its title, and the uncompensated reference runs when
+// references apply to it. Every kind: compensation, duration, step and time scale. Empty
+// fields take the configured value, shown as the placeholder.
 import { api } from "./api.js";
+import { fill, viewOf } from "./kinds.js";
 import { $, element } from "./util.js";
 
 const FINAL_STATES = ["finished", "stopped"];
@@ -32,15 +32,17 @@ async function loadNetworks() {
 
 // the identified arm models saved in the data directory, each saying where it came from
 async function loadArmModels() {
-  const list = await api("GET", "/arm-models");
-  for (const model of list.arm_models || []) {
-    const fit = model.marker_rms_um === null
-      ? "" : `, fit RMS ${model.marker_rms_um.toFixed(2)} µm`;
-    $("arm-model-select").append(option(model.name,
-      `${model.name} (identified from ${model.source_runs.join(", ")})`,
-      `arm ${model.arm}, duty cycle ${model.duty_cycle}, identified ${model.identified_at}${fit}`));
-  }
-  return Boolean(list.arm_runs);
+  try {
+    const list = await api("GET", "/arm-models");
+    for (const model of list.arm_models || []) {
+      const fit = model.marker_rms_um === null
+        ? "" : `, fit RMS ${model.marker_rms_um.toFixed(2)} µm`;
+      $("arm-model-select").append(option(model.name,
+        `${model.name} (identified from ${model.source_runs.join(", ")})`,
+        `arm ${model.arm}, duty cycle ${model.duty_cycle}, identified ${model.identified_at}`
+          + fit));
+    }
+  } catch { /* the list is a convenience; the preset arm is the default */ }
 }
 
 // the duty cycles a run may name: the API description's own list (RunRequest.duty_cycle)
@@ -83,36 +85,37 @@ async function loadDefaults() {
   } catch { /* the placeholders are a convenience */ }
 }
 
-// "arm" or "two-link", and every list the form offers
+// every list the form offers
 export async function loadChoices() {
-  let arm = false;
-  try { arm = await loadArmModels(); } catch { /* a two-link daemon, or not readable yet */ }
-  await Promise.all([loadNetworks(), loadDutyCycles(), loadDefaults()]);
-  return arm ? "arm" : "two-link";
+  await Promise.all([loadArmModels(), loadNetworks(), loadDutyCycles(), loadDefaults()]);
 }
 
-export function adaptForm(kind) {
-  for (const field of document.querySelectorAll("#start-form [data-kind]")) {
-    field.hidden = field.dataset.kind !== kind;
+// the form of the kind this daemon starts (null: its view is not known yet, the form stays
+// as it is)
+export function adaptForm(view) {
+  if (!view) return;
+  for (const field of document.querySelectorAll("#start-form [data-field]")) {
+    field.hidden = !view.form_fields.includes(field.dataset.field);
   }
-  $("run-kind").textContent = kind === "arm" ? "Start an arm run" : "Start a two-link run";
+  $("reference-field").hidden = !view.reference_runs;
+  $("run-kind").textContent = view.form_title;
 }
 
-// the uncompensated ended runs of this kind: what a run's drift removed is measured against
-export function offerReferences(runs, kind) {
+// the uncompensated ended runs a run of this view may name as its reference: what its drift
+// removed is measured against
+export function offerReferences(runs, view) {
+  if (!view || !view.reference_runs) return;
   const select = $("reference-select");
   const chosen = select.value;
   const offered = runs.filter((run) => {
     const p = run.parameters || {};
-    const arm = Boolean(p.duty_cycle);
     return p.compensation === "off" && FINAL_STATES.includes(run.state)
-      && arm === (kind === "arm");
+      && view.reference_kinds.includes(run.kind);
   });
   select.replaceChildren(option("", offered.length ? "(none: only the model's prediction)"
     : "(none yet: run one with compensation off)"));
   for (const run of offered) {
-    const p = run.parameters;
-    const what = p.duty_cycle || p.procedure || "";
+    const what = fill(viewOf(run).reference_text, run.parameters);
     select.append(option(String(run.id), `run ${run.id}: ${what}, ${run.steps_recorded} steps`));
   }
   if ([...select.options].some((o) => o.value === chosen)) select.value = chosen;

@@ -1,6 +1,7 @@
 // The two lines at the top: what the robot is doing now, and whether the compensation works
 // (the server's "drift removed so far", GET /runs/{id}/drift-removed).
 import { api } from "./api.js";
+import { fill, viewOf } from "./kinds.js";
 import { $ } from "./util.js";
 
 const ACTIVE_STATES = ["starting", "running", "paused", "stopping", "fault"];
@@ -13,8 +14,7 @@ export function showDoing(snapshot, state) {
   let tone = "idle";
   if (run && ACTIVE_STATES.includes(run.state)) {
     const p = run.parameters || {};
-    const what = p.duty_cycle ? `the arm's ${p.duty_cycle} duty cycle`
-      : `a ${p.procedure || ""} two-link run`;
+    const what = fill((viewOf(run) || {}).doing_text, p) || "its run";
     const compensation = p.compensation === "off" ? "no compensation (measuring the drift)"
       : `${p.compensation} compensation`;
     const progress = `${Number(run.progress_percent || 0).toFixed(0)} % of ${p.duration_s} s`;

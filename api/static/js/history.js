@@ -1,13 +1,9 @@
-// The runs table: each run's kind, what it did, its state (its reason on hover and click),
-// its figures and its data; "plot" shows a past run's steps from the database.
+// The runs table: what each run did (as its kind's view describes it, GET /kinds), its state
+// (its reason on hover and click), its figures and its data; "plot" shows a past run's steps
+// from the database.
 import { authHeaders, say } from "./api.js";
+import { fill, viewOf } from "./kinds.js";
 import { element, fixed } from "./util.js";
-
-export function runKind(run) {
-  const p = run.parameters || {};
-  const summary = run.summary || {};
-  return p.duty_cycle || summary.drift_3d_max_um !== undefined ? "arm" : "two-link";
-}
 
 // A run's state in the API's own word (finished, stopped, aborted, fault, interrupted, or
 // an active state), its reason on hover and, on click, in the message line.
@@ -32,7 +28,7 @@ export function explainState(event) {
 export function reductionText(summary) {
   const percent = (value, against) => (value < 0
     ? `none: error above ${against}` : `${Number(value).toFixed(1)} % vs ${against}`);
-  if (summary.drift_3d_max_um !== undefined) { // an arm run: the 3-D drift and rotation
+  if (summary.drift_3d_max_um !== undefined) { // a tool's figures: 3-D drift and rotation
     if (summary.reduction_basis === "drift") {
       const drift = fixed(summary.drift_3d_max_um, 1);
       return drift === null ? "–" : `drift ${drift} µm (off)`;
@@ -57,21 +53,22 @@ export function reductionText(summary) {
 }
 
 function residualText(summary) {
-  if (summary.drift_3d_max_um !== undefined) { // an arm run: the 3-D drift and rotation
+  if (summary.drift_3d_max_um !== undefined) { // a tool's figures: 3-D drift and rotation
     const rotation = fixed(summary.rotation_error_max_urad, 0);
     return `3-D ${fixed(summary.drift_3d_max_um, 2) || "–"}, rot ${rotation || "–"} µrad`;
   }
   return fixed(summary.residual_max_um, 2) || "–";
 }
 
+// what it did and with which model, as its kind's view says; a run whose kind is not known
+// (recorded before runs said their kind) says so rather than have one guessed
 function whatText(run) {
-  const p = run.parameters || {};
-  const kind = runKind(run);
-  const what = kind === "arm" ? `arm: ${p.duty_cycle || "duty cycle"}`
-    : `two-link: ${p.procedure || ""}`;
-  const model = kind === "arm" ? (p.arm_model ? `, model ${p.arm_model}` : "")
-    : (p.network ? `, ${p.network}` : "");
-  return `${what}${model}`;
+  const view = viewOf(run);
+  if (!view) {
+    return run.kind ? `${run.kind} (a kind this daemon does not know)` : "kind not recorded";
+  }
+  const what = fill(view.what_text, run.parameters) || view.name;
+  return `${what}${fill(view.model_text, run.parameters)}`;
 }
 
 function compensationText(run) {
@@ -87,8 +84,10 @@ function durationText(run) {
   const hours = (seconds) => (seconds >= 3600 ? `${(seconds / 3600).toFixed(1)} h`
     : seconds >= 120 ? `${(seconds / 60).toFixed(0)} min` : `${seconds.toFixed(0)} s`);
   const scale = Number(p.time_scale) || 1;
-  const arm = runKind(run) === "arm" && scale !== 1 ? ` (${hours(done * scale)} of arm)` : "";
-  return `${hours(done)} of ${hours(Number(p.duration_s) || 0)}${arm}`;
+  const view = viewOf(run);
+  const scaled = view && view.scaled_time_text && scale !== 1
+    ? ` (${hours(done * scale)} ${view.scaled_time_text})` : "";
+  return `${hours(done)} of ${hours(Number(p.duration_s) || 0)}${scaled}`;
 }
 
 export function historyRow(run, { onPlot, shown }) {

@@ -1,31 +1,15 @@
-// What a run's steps draw, by run kind. A two-link run: its measured error (and the reference
-// run's measured uncompensated drift beside it), the predicted deformation, the commanded
-// compensation, the temperatures. An arm run: the tool's 3-D drift and rotation error at the
-// top, one series per measured pose (poses share no series, so no line zig-zags between
-// them), the predicted tool error and the commanded correction per pose, and the temperatures
-// grouped per link and joint; time in hours of the arm's warm-up.
+// What a run's steps draw, as its kind's view says (GET /kinds; daemon/run/kind.py KindView):
+// which plots, their titles and x axis, and its series. "axes": the spot's measured error (and
+// the reference run's measured uncompensated drift beside it), the predicted deformation and
+// the commanded compensation per axis. "poses": the tool's 3-D drift and rotation error, one
+// series per measured pose (poses share no series, so no line zig-zags between them), the
+// predicted tool error and the commanded correction per pose. Both: the temperatures, grouped
+// per link and joint when the view says so; time in the run's or the model's clock.
 import { Chart } from "./charts.js";
 import { $, naturally, norm, num, palette, parsed, scaled } from "./util.js";
 
-const SLOTS = {
-  "two-link": ["residual", "predicted", "offset", "temperature"],
-  arm: ["drift3d", "rotation", "predicted", "offset", "temperature"],
-};
-const TITLES = {
-  "two-link": {
-    residual: "Measured error of the tool, compensated (µm)",
-    predicted: "Predicted deformation (µm)",
-    offset: "Commanded compensation (µm)",
-    temperature: "Temperatures (°C): model nodes dashed, IR regions solid",
-  },
-  arm: {
-    drift3d: "3-D drift of the tool per measured pose (µm)",
-    rotation: "Rotation error of the tool per measured pose (µrad)",
-    predicted: "Predicted tool error |translation| per pose (µm)",
-    offset: "Commanded correction |translation| per pose (µm)",
-    temperature: "Temperatures (°C): mean per link and joint (model, dashed), IR regions solid",
-  },
-};
+// every plot slot of the page (index.html ``slot-*``); a kind's view says which it shows
+const ALL_SLOTS = ["residual", "drift3d", "rotation", "predicted", "offset", "temperature"];
 const XYZ = palette(3);
 const REFERENCE_COLOUR = "#7a7a7a";
 const POSE_COLOURS = palette(8);
@@ -38,47 +22,52 @@ function groupOf(node, grouped) {
 
 export class RunPlots {
   constructor() {
-    this.kind = null;
+    this.view = null;
     this.charts = {};
     this.compensation = null;
     this.timeScale = 1;
     this.poses = [];
     this.temperatureNames = null;
     this.grouped = false;
-    this.rotationSeen = false;
-    this.driftSeen = false;
   }
 
-  // kind: "two-link" | "arm"; run: the run's parameters (compensation, time scale)
-  reset(kind, parameters = {}) {
+  // view: the run's kind's view (null: none known yet, nothing is drawn); parameters: the
+  // run's (compensation, time scale)
+  reset(view, parameters = {}) {
     for (const chart of Object.values(this.charts)) chart.destroy();
-    this.kind = kind;
+    this.view = view;
     this.compensation = parameters.compensation || null;
     this.timeScale = Number(parameters.time_scale) || 1;
     this.poses = [];
     this.temperatureNames = null;
-    this.rotationSeen = false;
-    this.driftSeen = false;
-    const xLabel = kind === "arm" ? "arm time (h)" : "run time (s)";
     this.charts = {};
-    for (const slot of ["residual", "drift3d", "rotation", "predicted", "offset", "temperature"]) {
-      const shown = SLOTS[kind].includes(slot);
-      $(`slot-${slot}`).hidden = !shown;
-      if (!shown) continue;
+    const plots = new Map(((view && view.plots) || []).map((plot) => [plot.slot, plot]));
+    for (const slot of ALL_SLOTS) {
+      const plot = plots.get(slot);
+      $(`slot-${slot}`).hidden = !plot;
+      if (!plot) continue;
       this.charts[slot] = new Chart(`plot-${slot}`, {
-        xLabel: slot === "temperature" && kind !== "arm" ? "run time (s)" : xLabel,
+        xLabel: slot === "temperature" ? view.temperature_x_label : view.x_label,
         legendTitle: slot === "temperature" ? "legend: temperatures" : "legend",
       });
-      $(`title-${slot}`).textContent = TITLES[kind][slot];
+      let title = plot.title;
+      if (this.compensation === "off" && plot.title_uncompensated) {
+        title = plot.title_uncompensated;
+      }
+      // a run that measures no rotation says so rather than leave an empty plot to be read
+      // as "no rotation error" (a UR followed by its joint temperatures: 3-D drift only)
+      if (slot === "rotation" && !view.rotation_measured) title += ": not measured in this run";
+      $(`title-${slot}`).textContent = title;
     }
-    if (kind === "two-link" && this.compensation === "off") {
-      $("title-residual").textContent = "Measured drift of the tool, compensation off (µm)";
-    }
-    document.body.dataset.kind = kind;
+    document.body.dataset.series = view ? view.series : "";
+  }
+
+  get perPose() {
+    return Boolean(this.view) && this.view.series === "poses";
   }
 
   x(step) {
-    if (this.kind === "arm") {
+    if (this.view && this.view.time_axis === "model-hours") {
       const model = num(step.model_time_s);
       const run = num(step.scheduled_s);
       if (model !== null) return model / 3600;
@@ -93,14 +82,14 @@ export class RunPlots {
   }
 
   addStep(step) {
+    if (!this.view) return;
     const x = this.x(step);
     const c = this.charts;
-    if (this.kind === "arm") {
+    if (this.perPose) {
       const pose = step.arm_pose || "tool";
       const style = { colour: this.poseColour(pose), width: 2 };
       c.drift3d.add(pose, x, num(step.drift_3d_um), style);
       c.rotation.add(pose, x, num(step.rotation_error_urad), style);
-      this.noteRotation(step);
       c.predicted.add(pose, x, norm(step.predicted_tx_um, step.predicted_ty_um,
         step.predicted_tz_um), style);
       const correction = norm(step.correction_tx_mm, step.correction_ty_mm, step.correction_tz_mm);
@@ -113,7 +102,7 @@ export class RunPlots {
         c.offset.add(axis, x, scaled(step[`offset_${axis}_mm`], 1000), { colour: XYZ[i] });
       });
     }
-    this.addTemperatures(step, this.kind === "arm" ? x : num(step.scheduled_s));
+    this.addTemperatures(step, x);
   }
 
   addTemperatures(step, x) {
@@ -122,7 +111,7 @@ export class RunPlots {
     if (!this.temperatureNames) {
       const nodes = Object.keys(model).sort(naturally);
       if (!nodes.length && !Object.keys(ir).length) return;
-      this.grouped = this.kind === "arm" || nodes.some((n) => n.includes("."));
+      this.grouped = this.view.group_temperatures || nodes.some((n) => n.includes("."));
       const groups = [...new Set(nodes.map((n) => groupOf(n, this.grouped)))];
       const regions = Object.keys(ir).sort(naturally);
       const names = [
@@ -148,24 +137,11 @@ export class RunPlots {
     }
   }
 
-  // A run that measures the tool's position but never its rotation (a UR followed by its
-  // joint temperatures: the bench's truth gives the 3-D drift only) says so in the rotation
-  // plot's title rather than leaving an empty plot to be read as "no rotation error".
-  noteRotation(step) {
-    if (this.rotationSeen) return;
-    if (num(step.rotation_error_urad) !== null) {
-      this.rotationSeen = true;
-      $("title-rotation").textContent = TITLES.arm.rotation;
-    } else if (!this.driftSeen && num(step.drift_3d_um) !== null) {
-      this.driftSeen = true;
-      $("title-rotation").textContent = `${TITLES.arm.rotation}: not measured in this run`;
-    }
-  }
-
-  // the measured uncompensated reference run, drawn beside this run's error (dashed, grey on a
-  // two-link run; each pose's own colour on an arm run)
+  // the measured uncompensated reference run, drawn beside this run's error (dashed, grey for
+  // the spot; each pose's own colour for a tool's poses)
   setReference(runId, steps) {
-    if (this.kind === "arm") {
+    if (!this.view) return;
+    if (this.perPose) {
       const byPose = new Map();
       for (const step of steps) {
         const pose = step.arm_pose || "tool";

@@ -66,7 +66,7 @@ async def arm_work(
             "to its measured poses only; run the cycle's motion on the controller"
         )
     await workers.db(check_reference, recorder, parameters)
-    run_id = await builder.create_run(parameters, plan.snapshot)
+    run_id = await builder.create_run(parameters, plan.snapshot, kind=ArmKind.name)
     sensors = builder.sensors
     assert sensors is not None
     permit = builder.devices().robot.permit

@@ -15,9 +15,10 @@ from typing import Any, ClassVar
 from config import Settings
 from daemon.run.arm.prepare import ArmServices, measure_references, reference_frames, teach_poses
 from daemon.run.arm.summary import arm_basis, arm_summary, arm_summary_rows
+from daemon.run.arm.view import VIEW
 from daemon.run.arm.work import ArmRunWork
 from daemon.run.events import ErrorLog
-from daemon.run.kind import KindBase
+from daemon.run.kind import KindBase, KindView
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
 from daemon.run.step import StepOutcome
@@ -30,9 +31,10 @@ from drivers.permit import Ticket
 
 @dataclass(eq=False)
 class ArmKind(KindBase):
-    name: ClassVar[str] = "arm"
     title: ClassVar[str] = "an arm run"
     own_parameters: ClassVar[frozenset[str]] = frozenset({"duty_cycle"})
+    name: ClassVar[str] = VIEW.name
+    view: ClassVar[KindView] = VIEW
     work: ArmRunWork
     arm: ArmServices
     bench: object | None  # the arm bench's truth (drivers/sim/arm_devices.py), when simulated

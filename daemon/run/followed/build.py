@@ -18,7 +18,9 @@ async def build_followed(
     builder: RunBuilder, parameters: RunParameters, robot: OffsetRobot
 ) -> FollowedKind:
     model = await builder.workers.step(followed_model, builder.settings, parameters)
-    run_id = await builder.create_run(parameters, {"kind": FollowedKind.name})
+    run_id = await builder.create_run(
+        parameters, {"kind": FollowedKind.name}, kind=FollowedKind.name
+    )
     return FollowedKind(
         FollowedWork(run_id, parameters),
         robot,

@@ -42,7 +42,8 @@ from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
 from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.followed.summary import followed_summary_rows
-from daemon.run.kind import KindBase
+from daemon.run.followed.view import VIEW
+from daemon.run.kind import KindBase, KindView
 from daemon.run.scheduler import Tick
 from daemon.run.stage_times import StageTimes
 from daemon.run.states import RunParameters
@@ -138,8 +139,9 @@ class FollowedWork:
 
 @dataclass(eq=False)
 class FollowedKind(KindBase):
-    name: ClassVar[str] = "followed"
     title: ClassVar[str] = "a followed run"
+    name: ClassVar[str] = VIEW.name
+    view: ClassVar[KindView] = VIEW
     work: FollowedWork
     robot: OffsetRobot
     recorder: Recorder

@@ -68,5 +68,7 @@ async def two_link_work(
     if parameters.prediction == "model+ir":
         reader_regions = tuple(getattr(builder.devices().ir, "regions", ()) or ())
         observer = build_observer(builder.settings, model, reader_regions)
-    run_id = await builder.create_run(parameters, network_snapshot(network, built.heat_source))
+    run_id = await builder.create_run(
+        parameters, network_snapshot(network, built.heat_source), kind=TwoLinkKind.name
+    )
     return RunWork(run_id, parameters, model, direction, observer)

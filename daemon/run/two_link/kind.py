@@ -15,7 +15,7 @@ import numpy as np
 
 from config import Settings
 from daemon.run.events import ErrorLog
-from daemon.run.kind import KindBase
+from daemon.run.kind import KindBase, KindView
 from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.services import BenchControl
@@ -24,6 +24,7 @@ from daemon.run.step import StepOutcome
 from daemon.run.summary import SummaryBasis, SummaryRow
 from daemon.run.two_link.step import RunWork, StepPipeline
 from daemon.run.two_link.summary import two_link_basis, two_link_summary, two_link_summary_rows
+from daemon.run.two_link.view import VIEW
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.vision import CentroidError, measure_with_camera_settings
@@ -37,8 +38,9 @@ logger = logging.getLogger(__name__)
 
 @dataclass(eq=False)
 class TwoLinkKind(KindBase):
-    name: ClassVar[str] = "two-link"
     title: ClassVar[str] = "a two-link run"
+    name: ClassVar[str] = VIEW.name
+    view: ClassVar[KindView] = VIEW
     work: RunWork
     pipeline: StepPipeline
     robot: Robot
