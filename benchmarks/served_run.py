@@ -23,12 +23,11 @@ from typing import Any
 import httpx
 from websockets.asyncio.client import connect
 
-from benchmarks.bench_api import HEADERS, TOKEN, free_port
+from benchmarks.bench_api import HEADERS, SERVER_START_S, TOKEN, free_port, wait_until_healthy
 
 ROOT = Path(__file__).resolve().parent.parent
 STEP_S = 0.020
 ENDED = ("finished", "aborted", "fault", "interrupted", "stopped")
-SERVER_START_S = 60.0
 POLL_S = 0.5
 BUSY = "while 1: pass"
 
@@ -64,15 +63,7 @@ def start_server(tree: Path, data_dir: Path, port: int, env_extra: dict[str, str
     command = [sys.executable, "-m", "api", "--log-level", "WARNING", "serve"]
     command += ["--config", "config/sim.toml", "--host", "127.0.0.1", "--port", str(port)]
     process = subprocess.Popen(command, cwd=tree, env=env)
-    deadline = time.monotonic() + SERVER_START_S
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(f"http://127.0.0.1:{port}/api/v1/health", timeout=1).status_code == 200:
-                return process
-        except httpx.TransportError:
-            time.sleep(0.1)
-    process.kill()
-    raise SystemExit(f"the server in {tree} did not start")
+    return wait_until_healthy(process, port, SERVER_START_S, f"the server in {tree}")
 
 
 async def _reader(port: int, counts: list[int]) -> None:
