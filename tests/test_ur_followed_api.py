@@ -32,7 +32,9 @@ async def test_a_followed_run_through_the_api_holds_the_program(tmp_path: Path) 
     settings = base.model_validate(
         {
             **base.model_dump(),
-            "robot": {**base.robot.model_dump(), "host": HOST},
+            # the emulator runs in this process: on a loaded machine a second without a state
+            # package is the test starved, not a link fault (tests/test_ur_program_pause.py)
+            "robot": {**base.robot.model_dump(), "host": HOST, "ur_timeout_s": 10.0},
             "scheduler": {**base.scheduler.model_dump(), "step_s": 0.1, "duration_s": 600.0},
             "storage": {**base.storage.model_dump(), "data_dir": str(tmp_path / "data")},
             "api": {"control_token": CONTROL, "read_token": READ, "control_burst": 50},

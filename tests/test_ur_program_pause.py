@@ -35,6 +35,12 @@ from drivers.ur.modes import RuntimeState
 from tests.fakes import params
 
 WAIT_S = 60.0
+#: The driver's link timeout here (robot.ur_timeout_s, 1 s by default): the emulated controller
+#: runs in this process, so on a loaded machine (make test beside two busy loops) a second
+#: without a state package is the test process starved, not a link fault; it held the robot
+#: twice in one loaded run and the run never wrote its corrections. The fault this module
+#: tests is a dropped connection (``drop_connections``), which a longer timeout does not slow.
+LINK_TIMEOUT_S = 10.0
 
 
 def ur_settings(tmp_path: Path, host: str, **robot: Any) -> Settings:
@@ -43,7 +49,12 @@ def ur_settings(tmp_path: Path, host: str, **robot: Any) -> Settings:
     return base.model_validate(
         {
             **base.model_dump(),
-            "robot": {**base.robot.model_dump(), "host": host, **robot},
+            "robot": {
+                **base.robot.model_dump(),
+                "host": host,
+                "ur_timeout_s": LINK_TIMEOUT_S,
+                **robot,
+            },
             "scheduler": {**base.scheduler.model_dump(), "step_s": 0.1, "duration_s": 600.0},
             "storage": {**base.storage.model_dump(), "data_dir": str(tmp_path / "data")},
         }
