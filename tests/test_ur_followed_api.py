@@ -18,6 +18,7 @@ from config import CONFIG_DIR
 from config.settings import load_settings
 from daemon.service import Daemon
 from drivers.ur import registers
+from drivers.ur.modes import RuntimeState
 from tests.test_api_runs import CONTROL_HEADERS, next_of_type, wait_state
 from tests.test_api_server import CONTROL, READ, serve
 
@@ -72,8 +73,13 @@ async def test_a_followed_run_through_the_api_holds_the_program(tmp_path: Path) 
         held = await client.post("/api/v1/robot/stop", headers=CONTROL_HEADERS)
         assert held.status_code == 200 and held.json()["held"] is True
         async with asyncio.timeout(WAIT_S):  # the hold flag reaches the controller, then
-            # its program (a cycle later); what was written before it has been read by then
-            while not controller.program.status & registers.STATUS_HELD:  # noqa: ASYNC110
+            # its program (a cycle later); what was written before it has been read by then.
+            # Or the hold's pause of the program (robot.pause_program_on_hold, sent after the
+            # flag) came before that cycle: a paused program applies nothing either
+            while not (  # noqa: ASYNC110 -- the emulator's state, read not awaited
+                controller.program.status & registers.STATUS_HELD
+                or controller.runtime_state is RuntimeState.PAUSED
+            ):
                 await asyncio.sleep(0.01)
         assert controller.inputs[regs.hold] == 1
         written = controller.writes[regs.target[0]]
