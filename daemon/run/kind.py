@@ -89,7 +89,7 @@ class KindView(_Frozen):
         "runs offered are those of ``reference_kinds`` with compensation off."
     )
     reference_kinds: tuple[str, ...] = Field(
-        description="The kinds whose runs may be its reference (daemon/run/setup.py "
+        description="The kinds whose runs may be its reference (daemon/run/kinds.py "
         "check_reference_run)."
     )
     what_text: str = Field(description="What a run did, in the runs table (e.g. its procedure).")
