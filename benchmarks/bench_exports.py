@@ -160,7 +160,7 @@ def api_csv(client: httpx.Client, run_id: int) -> int:
 
 
 #: the end of a JSON page: ``..."next_from":N}`` (N null at the run's end)
-_NEXT_FROM = re.compile(rb'"next_from":(null|\d+)\}\s*$')
+NEXT_FROM = re.compile(rb'"next_from":(null|\d+)\}\s*$')
 
 
 def api_json(client: httpx.Client, run_id: int) -> int:
@@ -172,7 +172,7 @@ def api_json(client: httpx.Client, run_id: int) -> int:
         answer = client.get(f"/api/v1/runs/{run_id}/steps", params={"from": start, "limit": 5000})
         answer.raise_for_status()
         size += len(answer.content)
-        end = _NEXT_FROM.search(answer.content[-64:])
+        end = NEXT_FROM.search(answer.content[-64:])
         if end is None:
             raise RuntimeError(f"page from {start} does not end in next_from")
         if end.group(1) == b"null":

@@ -188,7 +188,9 @@ async def hold_latency(trials: int) -> dict[str, Any]:
     }
 
 
-async def fixed_step(duration_s: float, inline: bool, freeze: bool) -> dict[str, Any]:
+async def fixed_step(
+    duration_s: float, inline: bool, freeze: bool, step_s: float = STEP_S
+) -> dict[str, Any]:
     loop = asyncio.get_running_loop()
     lateness, durations, began_at, byte_counts = [], [], [], []
     overruns = 0
@@ -197,14 +199,14 @@ async def fixed_step(duration_s: float, inline: bool, freeze: bool) -> dict[str,
         await robot.teach_goal()
         if freeze:
             freeze_startup_heap()  # what `thermocomp serve` does once the daemon is up
-        deadlines = round(duration_s / STEP_S)
+        deadlines = round(duration_s / step_s)
         skipped = 0
         cpu0 = time.process_time()
         with _GcPauses() as collections:
-            start = loop.time() + STEP_S
+            start = loop.time() + step_s
             slot = 0
             while slot < deadlines:
-                deadline = start + slot * STEP_S
+                deadline = start + slot * step_s
                 await asyncio.sleep(max(deadline - loop.time(), 0.0))
                 began = loop.time()
                 began_at.append(time.perf_counter())
@@ -214,11 +216,11 @@ async def fixed_step(duration_s: float, inline: bool, freeze: bool) -> dict[str,
                 durations.append(ended - began)
                 byte_counts.append(result.bytes_sent + result.bytes_received)
                 slot += 1
-                if ended > start + slot * STEP_S:
+                if ended > start + slot * step_s:
                     # An overrun: as the daemon's scheduler (daemon/run/scheduler.py), count it
                     # once and go on at the first deadline still in the future.
                     overruns += 1
-                    first_future = math.floor((ended - start) / STEP_S) + 1
+                    first_future = math.floor((ended - start) / step_s) + 1
                     skipped += first_future - slot
                     slot = first_future
         steps = len(durations)
@@ -237,7 +239,7 @@ async def fixed_step(duration_s: float, inline: bool, freeze: bool) -> dict[str,
     return {
         "emulator": "inline" if inline else "process",
         "heap_frozen": freeze,
-        "step_ms": STEP_S * 1000.0,
+        "step_ms": step_s * 1000.0,
         "duration_s": duration_s,
         "steps": steps,
         "overruns": overruns,
@@ -245,7 +247,7 @@ async def fixed_step(duration_s: float, inline: bool, freeze: bool) -> dict[str,
         "bytes_per_step": byte_count,
         "limit_ms": limit_ms,
         # the fixed step against the wire limit (bytes x 0.0868 ms + move time)
-        "step_to_limit": STEP_S * 1000.0 / limit_ms,
+        "step_to_limit": step_s * 1000.0 / limit_ms,
         "step_p50_ms": _ms(durations, 50),
         "step_p99_ms": _ms(durations, 99),
         "step_max_ms": max(durations) * 1000.0,

@@ -20,13 +20,12 @@ port, an OpenCV read), which the API no longer touches.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import multiprocessing
-import os
-import threading
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, TypeVar
+
+from daemon.storage.background_priority import background_priority
 
 _T = TypeVar("_T")
 
@@ -45,16 +44,6 @@ EXPORT_NICENESS = 10
 SUMMARY_NICENESS = 10
 
 
-def _nicer_thread() -> None:
-    """The calling thread at least :data:`SUMMARY_NICENESS` (Linux: PRIO_PROCESS with a thread
-    id sets that thread's alone). Raising one's niceness needs no privilege; where the host
-    refuses it anyway the thread keeps the daemon's (a slower API, never a wrong summary)."""
-    thread = threading.get_native_id()
-    with contextlib.suppress(OSError):
-        niceness = os.getpriority(os.PRIO_PROCESS, thread)
-        os.setpriority(os.PRIO_PROCESS, thread, max(niceness, SUMMARY_NICENESS))
-
-
 class Workers:
     """``critical``: run first in each ``step`` and ``db`` thread (the control loop's
     scheduling, daemon/run/control_loop.py): a step waits for both -- its CPU work, and its
@@ -67,7 +56,10 @@ class Workers:
         self._db = ThreadPoolExecutor(1, thread_name_prefix="recorder", initializer=critical)
         self._reads = ThreadPoolExecutor(READ_THREADS, thread_name_prefix="api-read")
         self._summaries = ThreadPoolExecutor(
-            1, thread_name_prefix="deferred-summary", initializer=_nicer_thread
+            1,
+            thread_name_prefix="deferred-summary",
+            initializer=background_priority,
+            initargs=(SUMMARY_NICENESS,),
         )
         self._exports: ProcessPoolExecutor | None = None
 
@@ -92,7 +84,7 @@ class Workers:
             self._exports = ProcessPoolExecutor(
                 EXPORT_PROCESSES,
                 mp_context=context,
-                initializer=os.nice,
+                initializer=background_priority,
                 initargs=(EXPORT_NICENESS,),
             )
         return asyncio.get_running_loop().run_in_executor(self._exports, function, *args)

@@ -7,10 +7,19 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from daemon.storage.reports import write_run_report
+from daemon.storage.background_priority import background_priority
+
+#: The report writer runs this much nicer than the daemon, and never at its real-time priority.
+REPORT_NICENESS = 10
 
 
 def main(argv: list[str]) -> int:
+    background_priority(REPORT_NICENESS)
+    # lazy: Matplotlib and the analyses load after the child has left the daemon's real-time
+    # scheduling, which it inherits: a second of imports would otherwise take a core from
+    # every ordinary process of the lab PC
+    from daemon.storage.reports import write_run_report
+
     data_dir, run_id = Path(argv[0]), int(argv[1])
     try:
         write_run_report(data_dir, run_id)
