@@ -38,6 +38,12 @@ def pytest_configure(config: pytest.Config) -> None:
     home = tempfile.mkdtemp(prefix="thermocomp-hypothesis-")
     config.stash[_HYPOTHESIS_HOME] = home
     os.environ["HYPOTHESIS_STORAGE_DIRECTORY"] = home
+    # The daemons the suite starts (servers and CLI runs in subprocesses; in-process ones get it
+    # from tests.fakes.make_settings) ask for no real-time scheduling: where the host grants it
+    # (CI as root), dozens of daemons at SCHED_FIFO on two cores would preempt each other's
+    # steps and the test clients waiting for them. What real-time scheduling does is tested
+    # with explicit priorities (tests/test_control_loop.py, tests/test_realtime_priorities.py).
+    os.environ.setdefault("THERMOCOMP_SCHEDULER__REALTIME_PRIORITY", "0")
     try:
         from hypothesis.configuration import set_hypothesis_home_dir
     except ImportError:  # the dev extra is not installed: nothing to redirect

@@ -449,7 +449,8 @@ def make_settings(tmp_path: Path, **sections: dict[str, Any]) -> Settings:
         "storage": {"data_dir": str(tmp_path), "report_at_end": False},
         "camera": {"width_px": SHAPE[1], "height_px": SHAPE[0], "um_per_px": UM_PER_PX},
         "model": {"heat_w": HEAT_W},
-        "scheduler": {"duration_s": 60.0, "step_s": 1.0},
+        # no real-time scheduling for the suite's daemons (tests/conftest.py says why)
+        "scheduler": {"duration_s": 60.0, "step_s": 1.0, "realtime_priority": 0},
     }
     for name, values in sections.items():
         data[name] = {**data.get(name, {}), **values}
