@@ -250,3 +250,33 @@ def test_a_followed_run_prints_its_own_figures(capsys: pytest.CaptureFixture[str
     assert "  removed (RMS)                87.500 %" in lines
     assert "  3-D error RMS, uncorrected   10.000 um" in lines
     assert not any("residual" in line for line in lines)
+
+
+def test_a_followed_run_prints_what_its_cameras_measured(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """With tool cameras, `thermocomp run` prints the measured residuals and the cameras
+    against the truth; with none, that nothing was measured."""
+    from daemon.commands.run import _print_result
+
+    measured = {
+        "cameras": 6,
+        "measurements": 12,
+        "rms_residual_um": 7.5,
+        "worst_residual_um": 12.0,
+        "rms_uncompensated_um": 30.0,
+        "removed_fraction": 0.75,
+        "mean_sigma_um": 6.5,
+    }
+    versus = {"measurements": 12, "rms_difference_um": 3.25, "worst_difference_sigmas": 1.5}
+    summary = {"kind": "followed", "measured": measured, "measured_vs_truth": versus}
+    _print_result({"id": 5, "state": "stopped", "reason": None, "summary": summary}, False)
+    lines = capsys.readouterr().out.splitlines()
+    assert "  cameras: measurements (N)    12" in lines
+    assert "  cameras: 3-D residual RMS    7.500 um" in lines
+    assert "  cameras: removed (RMS)       75.000 %" in lines
+    assert "  cameras vs bench truth: RMS  3.250 um" in lines
+    none = {"kind": "followed", "measured": {"cameras": 0, "measurements": 0}}
+    _print_result({"id": 6, "state": "stopped", "reason": None, "summary": none}, False)
+    out = capsys.readouterr().out
+    assert "tool measured                none: no camera (model + joint temperatures)" in out
