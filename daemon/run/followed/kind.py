@@ -42,6 +42,7 @@ from daemon.arm.correction import check_correction, correction_for
 from daemon.arm.run import UM_PER_MM, rotation_urad, translation_um
 from daemon.arm.types import FloatArray, Pose6
 from daemon.model.compensation import UnsafeTargetError
+from daemon.run.arm.record import camera_views
 from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
 from daemon.run.followed.measure import DwellMeasurement, MeasuredTally
@@ -242,17 +243,19 @@ class FollowedKind(KindBase):
                 errors.append(str(err))
                 verdict = Verdict("fault", str(err))
             stages.end("move", started)
-        measured = False
+        measured = None
         if self.measurement is not None and verdict is OK:
             started = time.perf_counter()
             measured = await self.measurement.step(state, record, flags, errors)
             stages.end("frame", started)
-        self._measure(record, flags, measured=measured)
+        self._measure(record, flags, measured=measured is not None)
         finish_record(record, flags, errors, stages)
         started = time.perf_counter()
         await self.workers.db(self.recorder.write_step, record)
         stages.end("record", started)
-        return StepOutcome(record, None, verdict, (), stages, stages.ends_s)
+        # the tool cameras' frames of a measured step, with their markers, for the live views
+        views = camera_views(measured)
+        return StepOutcome(record, None, verdict, (), stages, stages.ends_s, views)
 
     @staticmethod
     def _state_into(record: StepRecord, state: OffsetRobotState) -> None:

@@ -148,15 +148,15 @@ class DwellMeasurement:
 
     async def step(
         self, state: OffsetRobotState, record: StepRecord, flags: list[str], errors: list[str]
-    ) -> bool:
-        """Measure the tool if this step is the first of a dwell at a measured pose; True when
-        a measurement went into ``record``. Camera and marker failures are flagged, never
-        raised (the correction goes on without the measurement)."""
+    ) -> ToolMeasurement | None:
+        """Measure the tool if this step is the first of a dwell at a measured pose; the
+        measurement when it went into ``record``, else None. Camera and marker failures are
+        flagged, never raised (the correction goes on without the measurement)."""
         dwell = (state.at_pose, state.program_instance) if state.at_pose else None
         first = dwell is not None and dwell != self._dwell
         self._dwell = dwell
         if not first or not _still(state):
-            return False
+            return None
         pose_name = str(state.at_pose)
         try:
             measurement = await self.meter.measure(
@@ -180,13 +180,16 @@ class DwellMeasurement:
                 errors,
             )
         self._record(pose_name, measurement, after, truth=truth, record=record, flags=flags)
-        return True
+        return measurement
 
-    def _discard(self, flag: str, message: str, flags: list[str], errors: list[str]) -> bool:
+    def _discard(
+        self, flag: str, message: str, flags: list[str], errors: list[str]
+    ) -> ToolMeasurement | None:
+        """The measurement thrown away, flagged (nothing of it recorded): None."""
         flags.append(flag)
         errors.append(message)
         self.tally.discarded[flag] = self.tally.discarded.get(flag, 0) + 1
-        return False
+        return None
 
     def _record(
         self,
