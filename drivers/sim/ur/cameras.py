@@ -55,7 +55,9 @@ class SimURCamera:
     async def __aenter__(self) -> Self:
         # the renderer's bank of dark frames (4 x 5 MP, seconds of CPU) is made now, not at
         # the first grab that sees the tool: that grab falls in a dwell of a fraction of a
-        # second (the frame itself, of the markers wherever they are, is thrown away)
+        # second (the frame itself, of the markers wherever they are, is thrown away). Not in
+        # the background: rendering beside the RTDE stream starved the loop past the driver's
+        # 1 s link timeout (seen in `devices check`); before the driver connects it cannot.
         await off_the_clock(self._renderer.render, self.markers_now())
         return self
 
