@@ -3,7 +3,8 @@ dwells at a measured pose.
 
 The program says where it is: its "at measured pose" register (controller/ur/
 thermocomp_offset.script, drivers/ur/registers.py) is k while it dwells at pose k of its cycle
-and that pose is measured, 0 elsewhere. The first step of each dwell measures the tool once:
+and that pose is measured, 0 elsewhere. The first step of each dwell with the joints at rest
+measures the tool once (a failed try is not repeated in that dwell):
 every camera's frames (``arm.frames_per_measurement``), the marker centroids, the tool's pose
 (the arm run's meter, daemon/run/arm/measure.py, several cameras: thesis 7.2.2), starting from
 the nominal arm's pose at the robot's current joints. The frames count only if the program was
@@ -143,7 +144,7 @@ class DwellMeasurement:
     truth: Callable[[], FloatArray] | None = None
     tally: MeasuredTally = field(default_factory=MeasuredTally)
     references: dict[str, _Reference] = field(default_factory=dict)
-    #: the dwell the last step saw (at-pose register, program instance), measured or not
+    #: the dwell last measured or tried (at-pose register, program instance); None: moving
     _dwell: tuple[int, int] | None = None
 
     async def step(
@@ -153,10 +154,12 @@ class DwellMeasurement:
         measurement when it went into ``record``, else None. Camera and marker failures are
         flagged, never raised (the correction goes on without the measurement)."""
         dwell = (state.at_pose, state.program_instance) if state.at_pose else None
-        first = dwell is not None and dwell != self._dwell
-        self._dwell = dwell
-        if not first or not _still(state):
+        if dwell is None or dwell == self._dwell:
+            self._dwell = dwell  # moving, or this dwell was measured (or tried) already
             return None
+        if not _still(state):
+            return None  # not at rest yet: the next step of the dwell tries
+        self._dwell = dwell
         pose_name = str(state.at_pose)
         try:
             measurement = await self.meter.measure(
