@@ -40,6 +40,13 @@ class ArmSettings(Section):
         description="Arm bench: cameras at each measured pose (simulated; their models "
         "are the bench's unless arm.cameras_file is set).",
     )
+    bench_cameras: StrictBool = Field(
+        False,
+        description="The UR bench (robot.driver ur-rtde, bench.enabled): simulated tool "
+        "cameras, arm.cameras at each measured pose of the program, watching the emulator's true "
+        "tool (the A465's arm bench always has them); false: no camera (a followed run by the "
+        "model and the joint temperatures).",
+    )
     camera_devices: Annotated[tuple[CameraSettings, ...], Field(max_length=MAX_ARM_CAMERAS)] = (
         Field(
             (),

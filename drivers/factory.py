@@ -32,10 +32,12 @@ from drivers.genicam.radiometric import GenICamRadiometricIrReader
 from drivers.ir import OpenCvIrReader, ReplayIrReader
 from drivers.room import W1Thermometer
 from drivers.sim.arm_devices import ArmBenchControl, open_arm_bench
+from drivers.sim.arm_markers import CameraRig
 from drivers.sim.bench import Bench
 from drivers.sim.devices import SimCamera, SimIrReader
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
+from drivers.sim.ur.cameras import ur_bench_cameras
 from drivers.sim.ur.controller import URControllerConfig
 from drivers.sim.ur.emulator import UREmulator
 from drivers.sim.ur.truth import URBenchTruth
@@ -90,10 +92,18 @@ class AbsentDevice:
 async def _open_ur(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
     """A UR (drivers/ur/robot.py) and, with bench.enabled, the UR emulator it talks to over
     loopback TCP (drivers/sim/ur/: the arm plays arm.duty_cycle, its truth seeded by
-    bench.seed). No camera nor IR reader: the joint temperatures are the thermal input."""
+    bench.seed). No spot camera nor IR reader: the joint temperatures are the thermal input.
+    The tool cameras a followed run measures with at the program's measured poses: on
+    hardware ``arm.camera_devices`` with their models (arm.cameras_file), opened as the
+    A465's; on the bench, with ``arm.bench_cameras`` (config/ur5e-sim.toml), ``arm.cameras``
+    simulated cameras at each measured pose watching ``arm.markers_mm`` on the emulator's true
+    tool (drivers/sim/ur/cameras.py). Neither: a run with no camera (model + joint
+    temperatures)."""
     robot_settings = settings.robot
     async with contextlib.AsyncExitStack() as stack:
         emulator: UREmulator | None = None
+        cameras: tuple[Camera, ...] = ()
+        camera_models: tuple[CameraModel, ...] = ()
         if settings.bench.enabled:
             duty = settings.arm.duty_cycle or URControllerConfig.duty
             emulator = UREmulator(
@@ -102,6 +112,8 @@ async def _open_ur(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
                     duty=duty,
                     register_base=robot_settings.register_base,
                     seed=settings.bench.seed,
+                    camera_rig=CameraRig(count=settings.arm.cameras),
+                    markers_tool_mm=settings.arm.markers_mm,
                 ),
                 host=robot_settings.host,
                 rtde_port=robot_settings.rtde_port,
@@ -111,15 +123,33 @@ async def _open_ur(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
             robot_settings = robot_settings.model_copy(
                 update={"rtde_port": emulator.rtde_port, "dashboard_port": emulator.dashboard_port}
             )
+            if _ur_bench_cameras(settings):
+                simulated, camera_models = ur_bench_cameras(emulator.controller, clock)
+                cameras = tuple([await stack.enter_async_context(c) for c in simulated])
+        else:
+            cameras, camera_models = await _open_arm_cameras(settings, clock, stack)
         robot = await stack.enter_async_context(URRobot(robot_settings))
-        logger.info("devices open: UR %s%s", robot_settings.host, " (emulated)" if emulator else "")
+        logger.info(
+            "devices open: UR %s%s, %d tool cameras",
+            robot_settings.host,
+            " (emulated)" if emulator else "",
+            len(cameras),
+        )
         yield Devices(
             camera=AbsentDevice("camera"),
             ir=AbsentDevice("ir"),
             robot=robot,  # type: ignore[arg-type]  # an OffsetRobot: run kind followed
+            cameras=cameras,
+            camera_models=camera_models,
             ur_emulator=emulator,
             ur_truth=None if emulator is None else URBenchTruth(emulator.controller),
         )
+
+
+def _ur_bench_cameras(settings: Settings) -> bool:
+    """The UR bench renders tool cameras when the settings ask for them (arm.bench_cameras:
+    config/ur5e-sim.toml); without, it is the bench of a run with no camera."""
+    return settings.arm.enabled and settings.arm.bench_cameras
 
 
 def _arm_bench(settings: Settings) -> bool:

@@ -587,13 +587,15 @@ def test_an_arm_run_plots_the_3d_drift_and_the_rotation_error(
 
 @pytest.mark.slow
 def test_a_followed_ur_says_it_has_no_camera_and_no_rotation(browser: Browser) -> None:
-    """A UR followed by its joint temperatures (config/ur5e-sim.toml, the UR emulator on a
-    loopback address of this test's own): the device badges say the camera and the IR reader
-    are none (grey, not green), the camera panel says the tool is not watched, and the rotation
-    plot's title says the run measures no rotation instead of showing an empty plot."""
+    """A UR followed by its joint temperatures alone (config/ur5e-sim.toml without its tool
+    cameras, the UR emulator on a loopback address of this test's own): the device badges say
+    the camera and the IR reader are none (grey, not green), the camera panel says the tool is
+    not watched, and the 3-D drift (the bench's truth) is plotted. (A followed run's rotation
+    is the tool cameras', at the program's dwells: none here, its plot stays empty.)"""
     env = {
         "THERMOCOMP_API__CONTROL_TOKEN": CONTROL,
         "THERMOCOMP_ROBOT__HOST": "127.0.36.7",  # UR's fixed ports, on an address of its own
+        "THERMOCOMP_ARM__BENCH_CAMERAS": "false",
     }
     with running_server(["--config", "config/ur5e-sim.toml"], env=env) as base:
         started = httpx.post(
@@ -606,9 +608,9 @@ def test_a_followed_ur_says_it_has_no_camera_and_no_rotation(browser: Browser) -
         page = new_page(browser)
         page.goto(base + "/")
         page.wait_for_selector("#device-badges .badge")
-        page.wait_for_function(
-            "document.querySelector('#title-rotation').textContent.endsWith("
-            "'not measured in this run')",
+        page.wait_for_function(  # the health's devices in (the badges' first fill)
+            "[...document.querySelectorAll('#device-badges .badge')]"
+            ".some(b => b.textContent === 'camera: none')",
             timeout=60_000,
         )
         badges = {
@@ -619,8 +621,7 @@ def test_a_followed_ur_says_it_has_no_camera_and_no_rotation(browser: Browser) -
             page.locator("#device-badges .badge.device.good:text-is('camera: none')").count() == 0
         )
         assert "no camera" in (page.text_content("#frame-caption") or "")
-        # the 3-D drift (the bench's truth) is plotted all the same (the rotation title is
-        # the kind's view, shown before any step: the drift is waited for by itself)
+        # the 3-D drift (the bench's truth) is plotted all the same
         page.wait_for_function(
             "(window.thermocomp.plots.drift3d.data[0] || []).length > 0", timeout=60_000
         )

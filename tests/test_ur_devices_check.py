@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from daemon.vision.cameras import write_cameras
+from drivers.sim.arm_markers import CameraRig
 from drivers.sim.ur.controller import URControllerConfig
 from drivers.sim.ur.emulator import UREmulator
 from drivers.ur.registers import RegisterMap
@@ -78,7 +80,14 @@ def test_the_ur_bench_is_described_and_passes() -> None:
     values = [float(v) for v in temperatures.split(": ")[2].removesuffix(" degC").split()]
     assert len(values) == 6 and all(15.0 < v < 60.0 for v in values)
     assert "robot: offset program: running (instance " in out
-    assert "cameras: none checked: a followed run" in out
+    # the bench's tool cameras (arm.bench_cameras): the camera station's three see the tool's
+    # markers while the program dwells there, else nothing; one frame each, by name
+    cameras = [x for x in out.splitlines() if x.startswith("camera s")]
+    assert [x.split(":")[0] for x in cameras] == [
+        f"camera s{station}-arm-{k}" for station in (0, 1) for k in range(3)
+    ], out
+    assert all("2448x2048 px" in x for x in cameras)
+    assert "cameras: none checked" not in out
     assert not failures(out) and not result.stderr.strip()
 
     as_json = run_main(["devices", "check", "--config", UR5E, "--json"], env=on_host("127.0.34.11"))
@@ -152,8 +161,9 @@ async def test_unreachable_robot_taken_registers_and_a_missing_camera(tmp_path: 
         await other.connect()
         try:
             await other.setup_inputs([RegisterMap(24).sequence])
+            # one camera model for the one device (a followed run measures with both)
             cameras = tmp_path / "cameras.toml"
-            cameras.write_text("")
+            write_cameras(cameras, CameraRig(count=1).cameras((400.0, 0.0, 300.0)))
             status, out, _ = await check(
                 as_robot(
                     "127.0.34.8",
@@ -240,3 +250,33 @@ def test_a_followed_run_prints_its_own_figures(capsys: pytest.CaptureFixture[str
     assert "  removed (RMS)                87.500 %" in lines
     assert "  3-D error RMS, uncorrected   10.000 um" in lines
     assert not any("residual" in line for line in lines)
+
+
+def test_a_followed_run_prints_what_its_cameras_measured(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """With tool cameras, `thermocomp run` prints the measured residuals and the cameras
+    against the truth; with none, that nothing was measured."""
+    from daemon.commands.run import _print_result
+
+    measured = {
+        "cameras": 6,
+        "measurements": 12,
+        "rms_residual_um": 7.5,
+        "worst_residual_um": 12.0,
+        "rms_uncompensated_um": 30.0,
+        "removed_fraction": 0.75,
+        "mean_sigma_um": 6.5,
+    }
+    versus = {"measurements": 12, "rms_difference_um": 3.25, "worst_difference_sigmas": 1.5}
+    summary = {"kind": "followed", "measured": measured, "measured_vs_truth": versus}
+    _print_result({"id": 5, "state": "stopped", "reason": None, "summary": summary}, False)
+    lines = capsys.readouterr().out.splitlines()
+    assert "  cameras: measurements (N)    12" in lines
+    assert "  cameras: 3-D residual RMS    7.500 um" in lines
+    assert "  cameras: removed (RMS)       75.000 %" in lines
+    assert "  cameras vs bench truth: RMS  3.250 um" in lines
+    none = {"kind": "followed", "measured": {"cameras": 0, "measurements": 0}}
+    _print_result({"id": 6, "state": "stopped", "reason": None, "summary": none}, False)
+    out = capsys.readouterr().out
+    assert "tool measured                none: no camera (model + joint temperatures)" in out

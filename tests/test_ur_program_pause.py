@@ -44,7 +44,8 @@ LINK_TIMEOUT_S = 10.0
 
 
 def ur_settings(tmp_path: Path, host: str, **robot: Any) -> Settings:
-    """config/ur5e-sim.toml on ``host`` (a loopback address of the test's own), 10 Hz steps."""
+    """config/ur5e-sim.toml on ``host`` (a loopback address of the test's own), 10 Hz steps,
+    without its tool cameras."""
     base = load_settings(CONFIG_DIR / "ur5e-sim.toml")
     return base.model_validate(
         {
@@ -57,6 +58,9 @@ def ur_settings(tmp_path: Path, host: str, **robot: Any) -> Settings:
             },
             "scheduler": {**base.scheduler.model_dump(), "step_s": 0.1, "duration_s": 600.0},
             "storage": {**base.storage.model_dump(), "data_dir": str(tmp_path / "data")},
+            # the pause is the Dashboard's: no tool camera to render (their holds with the
+            # cameras measuring: tests/test_ur_followed_api.py)
+            "arm": {**base.arm.model_dump(), "bench_cameras": False},
         }
     )
 

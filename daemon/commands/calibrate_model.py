@@ -21,8 +21,8 @@ of the task with ``--arm-model NAME`` whose 3-D residual is compared with the me
 noise (and with the calibration run's drift only when it ran the task itself:
 ``--calibration-cycle TASK``); ``--network`` and ``--scale`` do not apply there.
 
-On a UR (``robot.driver = "ur-rtde"``) it is refused in one line, exit status 2: a followed
-run measures no tool error to identify a model from (daemon/commands/followed_refusals.py).
+On a UR (``robot.driver = "ur-rtde"``) it is refused in one line, exit status 2: no model is
+identified from a followed run yet (daemon/commands/followed_refusals.py).
 """
 
 from __future__ import annotations

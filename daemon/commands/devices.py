@@ -71,15 +71,14 @@ async def _check(settings: Settings) -> DeviceCheck:
 
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     async with open_devices(settings, clock) as devices:
+        # a UR's tool cameras (arm.camera_devices; the UR bench's) open with it: checked there
         check = await check_devices(devices, settings)
-    if settings.robot.driver == "ur-rtde":
-        await _tool_cameras(settings, check)
     return check
 
 
 async def _tool_cameras(settings: Settings, check: DeviceCheck) -> None:
-    """One frame of each real tool camera (arm.camera_devices), each opened on its own; a UR's
-    devices open none (a followed run measures with no camera): they are checked here."""
+    """One frame of each real tool camera (arm.camera_devices), each opened on its own, after
+    a UR's devices did not open together (the robot did not answer): checked here."""
     from daemon.run.devices_check import FOLLOWED_CAMERAS_NOTE  # lazy: OpenCV, not for --help
     from drivers.factory import camera_driver  # lazy: the drivers, not for --help
 

@@ -5,11 +5,11 @@ opens, saying what exists instead and where the docs say it.
 - ``calibrate cameras --robot`` and ``calibrate camera`` move the robot through a pattern of
   absolute moves (tens of millimetres); a UR's PC only shifts the robot's own program, by at
   most 2 mm (controller/ur/thermocomp_offset.script MAX_OFFSET_M), so the pattern cannot be
-  made; and a followed run measures with no camera yet.
+  made.
 - ``calibrate model`` identifies a model from an uncompensated run's *measured* tool errors; a
-  followed run measures none (its thermal input is the joint temperatures; on the bench its
-  "measurement" is the bench's truth, which a lab does not have), so there is nothing to
-  identify from: a UR runs with the arm's preset model and its joint temperatures fused.
+  followed run with tool cameras measures the tool at the program's dwells
+  (daemon/run/followed/measure.py), but identification from a followed run is not built: a UR
+  runs with the arm's preset model and its joint temperatures fused.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ def cameras_refusal(settings: Settings, option: str) -> str | None:
         return None
     return (
         f"{option} moves the robot through a pattern, but a UR (robot.driver ur-rtde) plays its "
-        "own program and the PC only shifts it by at most 2 mm, and a followed run measures "
-        "with no camera: fit a camera file from recorded marker positions instead "
+        "own program and the PC only shifts it by at most 2 mm: fit a camera file from "
+        "recorded marker positions instead "
         f"(calibrate cameras --observations CSV; {UR_DOCS})"
     )
 
@@ -42,8 +42,8 @@ def model_refusal(settings: Settings) -> str | None:
     if not _followed(settings):
         return None
     return (
-        "a UR (robot.driver ur-rtde) has no model calibration: a followed run measures no tool "
-        "error to identify from; it runs with the arm's preset model (arm.arm_file) and its "
-        "joint temperatures as the thermal input (model.prediction = model+ir): start it with "
-        f"`thermocomp run --config ...` ({UR_DOCS})"
+        "a UR (robot.driver ur-rtde) has no model calibration yet: a followed run measures the "
+        "tool at its dwells, but no model is identified from one; it runs with the arm's preset "
+        "model (arm.arm_file) and its joint temperatures as the thermal input "
+        f"(model.prediction = model+ir): start it with `thermocomp run --config ...` ({UR_DOCS})"
     )

@@ -228,10 +228,12 @@ async def probe_robot(robot: Robot, check: DeviceCheck) -> None:
         check.errors["robot"] = str(err) or "no pose"
 
 
-#: What a followed run's check says of its cameras (a UR: drivers.factory opens none).
+#: What a followed run's check says when it has no tool camera (a UR without
+#: arm.camera_devices, the UR bench without arm.bench_cameras).
 FOLLOWED_CAMERAS_NOTE = (
-    "cameras: none checked: a followed run (robot.driver ur-rtde) measures with no camera, "
-    "its thermal input is the joint temperatures (docs/how-to/universal-robots.md)"
+    "cameras: none checked: a followed run (robot.driver ur-rtde) with no tool camera "
+    "(arm.camera_devices; on the bench arm.bench_cameras) measures nothing, its thermal input "
+    "is the joint temperatures (docs/how-to/universal-robots.md)"
 )
 
 

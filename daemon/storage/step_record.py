@@ -121,6 +121,8 @@ STEP_FLAGS: dict[str, str] = {
     "room-error": "arm runs: the room thermometer gave no reading; the model kept the last room",
     "no-measurement": "followed runs: no camera measured the tool this step (the correction is the "
     "model's alone)",
+    "moved-during-frames": "followed runs: the robot's program left its measured pose (or was "
+    "not at rest) while the tool cameras' frames were taken: the measurement was discarded",
     "model-drifting": "the IR observer's innovations stay biased: consider identification",
     "bench-truth": "followed runs on the UR bench: measured_* is the bench truth's residual "
     "tool error (no camera noise), not a camera measurement",

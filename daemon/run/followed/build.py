@@ -1,12 +1,25 @@
 """A followed run built (daemon/run/kinds.py chose it: the robot plays its own program): the
 arm's model of that program (daemon/run/followed/setup.py), the run's row in the run database,
 the bench truth when the UR bench is simulated, and the pause of the robot's program on a
-hold (robot.pause_program_on_hold: daemon/run/followed/program_pause.py). RunParameterError
-when it cannot be built."""
+hold (robot.pause_program_on_hold: daemon/run/followed/program_pause.py), and the tool
+cameras' measurement at the program's dwells when the devices have tool cameras
+(daemon/run/followed/measure.py; none: a run by the model and the joint temperatures).
+RunParameterError when it cannot be built."""
 
 from __future__ import annotations
 
-from daemon.run.followed.kind import FollowedKind, FollowedWork
+import functools
+from typing import Any
+
+import numpy as np
+
+from daemon.arm import kinematics
+from daemon.arm.loading import load_arm
+from daemon.arm.types import FloatArray
+from daemon.run.arm.measure import MultiCameraMeter
+from daemon.run.arm.setup import arm_file
+from daemon.run.followed.kind import BenchTruth, FollowedKind, FollowedWork
+from daemon.run.followed.measure import DwellMeasurement
 from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.followed.setup import followed_model
 from daemon.run.start import RunBuilder
@@ -18,6 +31,9 @@ async def build_followed(
     builder: RunBuilder, parameters: RunParameters, robot: OffsetRobot
 ) -> FollowedKind:
     model = await builder.workers.step(followed_model, builder.settings, parameters)
+    devices = builder.devices()
+    truth: BenchTruth | None = getattr(devices, "ur_truth", None)
+    measurement = await _measurement(builder, devices, robot, truth)
     run_id = await builder.create_run(
         parameters, {"kind": FollowedKind.name}, kind=FollowedKind.name
     )
@@ -30,10 +46,35 @@ async def build_followed(
         builder.errors,
         builder.clock,
         model,
-        getattr(builder.devices(), "ur_truth", None),
+        truth,
         ProgramPause(
             robot if isinstance(robot, ProgramControl) else None,
             enabled=builder.settings.robot.pause_program_on_hold,
             errors=builder.errors,
         ),
+        measurement,
+    )
+
+
+async def _measurement(
+    builder: RunBuilder, devices: Any, robot: OffsetRobot, truth: BenchTruth | None
+) -> DwellMeasurement | None:
+    """The tool cameras' measurement (the arm run's meter on the devices' tool cameras and
+    their models), or None when the devices have no tool camera."""
+    cameras = tuple(getattr(devices, "cameras", ()) or ())
+    if not cameras:
+        return None
+    models = tuple(getattr(devices, "camera_models", ()) or ())
+    arm = await builder.workers.step(load_arm, arm_file(builder.settings))
+
+    def truth_residual_mm() -> FloatArray:
+        assert truth is not None
+        return np.asarray(truth.errors().residual.translation_mm, dtype=np.float64)
+
+    return DwellMeasurement(
+        MultiCameraMeter(builder.settings, cameras, models, builder.workers),
+        functools.partial(kinematics.forward, arm),
+        robot.robot_state,
+        len(cameras),
+        truth=None if truth is None else truth_residual_mm,
     )

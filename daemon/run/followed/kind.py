@@ -10,10 +10,14 @@ motor heat), fuses the joint temperatures as the model's thermal input (daemon/a
 joint_temperatures.py: no IR camera), predicts the tool error at the robot's *current*
 joints, checks the correction against the arm's limits (daemon/arm/correction.py) before
 anything is written, writes it (refused by the driver after a hold: drivers/permit.py) and
-records it with the joint temperatures and where the program was. On the UR bench the bench
-truth's residual tool error is recorded as the step's measurement (flag ``bench-truth``);
-with no bench nothing is measured (flag ``no-measurement``): the tool cameras of a followed
-run are not wired in yet.
+records it with the joint temperatures and where the program was. With tool cameras, the first
+step of each dwell of the program at a measured pose (its at-pose register) then measures the
+tool (daemon/run/followed/measure.py: the frames, the arm run's meter, the residual against the
+pose's first measurement); between measured poses a step only corrects. A step with no
+camera measurement records, on the UR bench, the bench truth's residual tool error (flag
+``bench-truth``); with neither, nothing is measured (flag ``no-measurement``). The summary's
+accuracy comes from the cameras' measurements (``measured``) and, on the bench, from the truth
+(``bench_truth``, and ``measured_vs_truth``: the cameras against the truth).
 
 A hold (pause, stop, fault, shutdown) freezes the correction first (the session's hold, the
 driver's hold flag); then :meth:`FollowedKind.stop_playing` pauses the robot's program through
@@ -38,8 +42,10 @@ from daemon.arm.correction import check_correction, correction_for
 from daemon.arm.run import UM_PER_MM, rotation_urad, translation_um
 from daemon.arm.types import FloatArray, Pose6
 from daemon.model.compensation import UnsafeTargetError
+from daemon.run.arm.record import camera_views
 from daemon.run.arm.step import correction_limits
 from daemon.run.events import ErrorLog
+from daemon.run.followed.measure import DwellMeasurement, MeasuredTally
 from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.followed.summary import followed_summary_rows
 from daemon.run.followed.view import VIEW
@@ -154,6 +160,8 @@ class FollowedKind(KindBase):
     #: pauses the robot's program after a hold, plays it again on the resume
     #: (robot.pause_program_on_hold; daemon/run/followed/program_pause.py)
     program: ProgramPause | None = None
+    #: the tool cameras' measurements at the program's dwells (None: no camera)
+    measurement: DwellMeasurement | None = None
     last_correction: Pose6 = field(default_factory=Pose6.zero)
     corrections_written: int = 0
     tally: TruthTally = field(default_factory=TruthTally)
@@ -235,12 +243,19 @@ class FollowedKind(KindBase):
                 errors.append(str(err))
                 verdict = Verdict("fault", str(err))
             stages.end("move", started)
-        self._measure(record, flags)
+        measured = None
+        if self.measurement is not None and verdict is OK:
+            started = time.perf_counter()
+            measured = await self.measurement.step(state, record, flags, errors)
+            stages.end("frame", started)
+        self._measure(record, flags, measured=measured is not None)
         finish_record(record, flags, errors, stages)
         started = time.perf_counter()
         await self.workers.db(self.recorder.write_step, record)
         stages.end("record", started)
-        return StepOutcome(record, None, verdict, (), stages, stages.ends_s)
+        # the tool cameras' frames of a measured step, with their markers, for the live views
+        views = camera_views(measured)
+        return StepOutcome(record, None, verdict, (), stages, stages.ends_s, views)
 
     @staticmethod
     def _state_into(record: StepRecord, state: OffsetRobotState) -> None:
@@ -263,13 +278,17 @@ class FollowedKind(KindBase):
             {k: round(v, 4) for k, v in temperatures.items()}
         )
 
-    def _measure(self, record: StepRecord, flags: list[str]) -> None:
-        """The bench truth's residual as the step's measurement, when on the UR bench."""
+    def _measure(self, record: StepRecord, flags: list[str], *, measured: bool) -> None:
+        """On the UR bench the truth's residual into the run's tally, and into the step's
+        measurement columns when the cameras did not measure this step."""
         if self.truth is None:
-            flags.append("no-measurement")
+            if not measured:
+                flags.append("no-measurement")
             return
         errors = self.truth.errors()
         residual = self.tally.add(errors)
+        if measured:
+            return
         tx, ty, tz = translation_um(errors.residual)
         record.measured_tx_um, record.measured_ty_um, record.measured_tz_um = tx, ty, tz
         rx, ry, rz = rotation_urad(errors.residual)
@@ -297,8 +316,16 @@ class FollowedKind(KindBase):
     def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:
         """Every figure of this kind's summary is in memory: the basis is all of it."""
         after: dict[str, Any] = {}
+        measurement = self.measurement
+        after["measured"] = (
+            measurement.tally.summary(measurement.cameras)
+            if measurement is not None
+            else MeasuredTally().summary(0)
+        )
         if self.truth is not None:
             after["bench_truth"] = self.tally.summary()
+            if measurement is not None:
+                after["measured_vs_truth"] = measurement.tally.truth_summary()
         return {
             "kind": self.name,
             "run_id": self.run_id,

@@ -1,7 +1,10 @@
 """How the dashboard shows a followed run (daemon/run/kind.py KindView): the arm's plots over
-the program's hours, but no rotation (a UR followed by its joint temperatures: the bench's truth
-gives the tool's 3-D drift only), no adapted factors and no reference run (the model's cold
-state at the start is the reference: daemon/run/followed/kind.py ``references``)."""
+the program's hours, one series per measured pose (the program's at-pose register; "tool"
+while it moves). The 3-D drift is the tool cameras' residual at the first step of each dwell
+and, on the UR bench, the truth's residual at every other step; the rotation error is the
+cameras' only (daemon/run/followed/measure.py: a run with no camera leaves it empty). No
+adapted factors and no reference run (the model's cold state at the start is the reference:
+daemon/run/followed/kind.py ``references``)."""
 
 from __future__ import annotations
 
@@ -20,7 +23,7 @@ VIEW = KindView(
     x_label="program time (h)",
     temperature_x_label="program time (h)",
     group_temperatures=True,
-    rotation_measured=False,
+    rotation_measured=True,
     adaptation=False,
     reference_runs=False,
     reference_kinds=(),

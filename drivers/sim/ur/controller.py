@@ -31,7 +31,8 @@ from daemon.arm import kinematics
 from daemon.arm.duty import DutyCycle, load_duty_cycle
 from daemon.arm.loading import load_arm
 from daemon.arm.types import FloatArray
-from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
+from drivers.sim.arm_bench import DEFAULT_MARKERS_MM, ArmBench, ArmBenchConfig
+from drivers.sim.arm_markers import CameraRig
 from drivers.sim.joint_arm import JointArm, JointArmConfig
 from drivers.sim.ur.player import PlayerState, ProgramPlayer
 from drivers.sim.ur.program import OffsetProgram, ProgramInputs, ProgramLimits
@@ -72,6 +73,11 @@ class URControllerConfig:
     node_spacing_mm: float = 25.0
     temperature_noise_c: float = TEMPERATURE_NOISE_C
     temperature_resolution_c: float = TEMPERATURE_RESOLUTION_C
+    #: the bench's tool cameras (drivers/sim/ur/cameras.py): ``camera_rig.count`` cameras
+    #: set up around each measured pose of the duty cycle, as the A465's arm bench
+    #: (drivers/sim/arm_devices.py bench_config), watching these markers (tool frame, mm)
+    camera_rig: CameraRig = field(default_factory=CameraRig)
+    markers_tool_mm: tuple[tuple[float, float, float], ...] = DEFAULT_MARKERS_MM
 
 
 class URController:
@@ -93,6 +99,10 @@ class URController:
                 seed=config.seed,
                 node_spacing_mm=config.node_spacing_mm,
                 payload_kg=self.duty.payload_kg,
+                # the cameras stand at the program's measured poses (the A465 bench's rule)
+                stations_q_rad=tuple(tuple(p.q_rad) for p in self.duty.measured_poses()),
+                rig=config.camera_rig,
+                markers_tool_mm=config.markers_tool_mm,
             ),
             motion=self.player,
             arm=arm,

@@ -1,0 +1,245 @@
+"""The tool measured by the cameras in a followed run (issue 31), when the robot's own program
+dwells at a measured pose.
+
+The program says where it is: its "at measured pose" register (controller/ur/
+thermocomp_offset.script, drivers/ur/registers.py) is k while it dwells at pose k of its cycle
+and that pose is measured, 0 elsewhere. The first step of each dwell with the joints at rest
+measures the tool once (a failed try is not repeated in that dwell):
+every camera's frames (``arm.frames_per_measurement``), the marker centroids, the tool's pose
+(the arm run's meter, daemon/run/arm/measure.py, several cameras: thesis 7.2.2), starting from
+the nominal arm's pose at the robot's current joints. The frames count only if the program was
+still at that dwell when they were taken: the state read before the grab and the one read after
+it both say pose k, the same program instance, and joints at rest (``STILL_RAD_S``); else the
+measurement is thrown away (flag ``moved-during-frames``) and nothing is recorded from it.
+
+As in an arm run (daemon/run/arm/record.py), a pose's drift is its measured pose relative to
+its *reference*: here the run's first measurement at that pose (flag
+``first-step-reference``: its drift is zero by construction). The robot applies the offset
+the daemon wrote, so the measured drift is the residual (what the correction left); its
+1-sigma combines the measurement's and the reference's. The uncompensated drift is the
+residual less the change of the offset the program applied since the reference.
+
+On the UR bench the truth's residual at the same instant is kept beside each measurement (the
+summary's ``measured_vs_truth``: how far the cameras are from the truth, in their own sigmas);
+the step's columns hold the camera's measurement.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from daemon.arm.run import (
+    UM_PER_MM,
+    MeasurementError,
+    ToolMeasurement,
+    angle_urad,
+    norm_um,
+    rotation_urad,
+    translation_um,
+)
+from daemon.arm.types import FloatArray, pose_difference
+from daemon.run.arm.step import REFERENCE_MISSING
+from daemon.storage.step_record import StepRecord
+from drivers.base import OffsetRobotState
+from drivers.errors import DeviceError
+
+#: A joint faster than this (rad/s) before or after the frames: the robot was not at rest
+#: (0.01 rad/s is 5 mm/s at half a metre; the program's own offset moves the joints by at most
+#: its rate limit, 1 mm/s: controller/ur/thermocomp_offset.script MAX_SPEED_M_S).
+STILL_RAD_S = 0.01
+#: The flag of a measurement thrown away because the program left the dwell during its frames.
+MOVED = "moved-during-frames"
+
+
+class Meter(Protocol):
+    """The tool's 3-D measurement (daemon/run/arm/work.py ToolMeter)."""
+
+    async def measure(
+        self, expected_pose: FloatArray, frames: int | None = None
+    ) -> ToolMeasurement: ...
+
+
+@dataclass
+class MeasuredTally:
+    """The camera-measured residuals of a run: sums for the summary's accuracy, the
+    discarded measurements by cause, and (bench) the cameras against the truth."""
+
+    measurements: int = 0
+    residual_um2: float = 0.0
+    uncompensated_um2: float = 0.0
+    worst_residual_um: float = 0.0
+    sigma_um_sum: float = 0.0
+    poses: dict[str, int] = field(default_factory=dict)
+    discarded: dict[str, int] = field(default_factory=dict)
+    #: (bench) each measurement's distance from the truth, in um and in its own sigmas
+    truth_difference_um: list[float] = field(default_factory=list)
+    truth_difference_sigmas: list[float] = field(default_factory=list)
+
+    def summary(self, cameras: int) -> dict[str, Any]:
+        if cameras == 0:
+            return {
+                "cameras": 0,
+                "measurements": 0,
+                "note": "no camera: the correction is the model's and the joint temperatures' "
+                "alone, nothing measured",
+            }
+        out: dict[str, Any] = {
+            "cameras": cameras,
+            "measurements": self.measurements,
+            "poses": dict(self.poses),
+            "discarded": dict(self.discarded),
+            "reference": "each pose's first measurement in the run",
+        }
+        if self.measurements:
+            rms = math.sqrt(self.residual_um2 / self.measurements)
+            rms_uncompensated = math.sqrt(self.uncompensated_um2 / self.measurements)
+            out |= {
+                "rms_residual_um": rms,
+                "worst_residual_um": self.worst_residual_um,
+                "rms_uncompensated_um": rms_uncompensated,
+                "removed_fraction": 1.0 - rms / rms_uncompensated
+                if rms_uncompensated > 0
+                else None,
+                "mean_sigma_um": self.sigma_um_sum / self.measurements,
+            }
+        return out
+
+    def truth_summary(self) -> dict[str, Any]:
+        """The cameras against the bench truth (the bench only)."""
+        n = len(self.truth_difference_um)
+        if n == 0:
+            return {"measurements": 0}
+        return {
+            "measurements": n,
+            "rms_difference_um": math.sqrt(float(np.mean(np.square(self.truth_difference_um)))),
+            "worst_difference_sigmas": max(self.truth_difference_sigmas),
+            "within_3_sigma_fraction": float(np.mean(np.less(self.truth_difference_sigmas, 3.0))),
+        }
+
+
+@dataclass
+class _Reference:
+    pose: FloatArray  # the tool's measured pose (4x4)
+    sigma_mm: float
+    applied_mm: FloatArray  # the offset the program applied then
+    truth_mm: FloatArray | None  # (bench) the truth's residual then
+
+
+@dataclass
+class DwellMeasurement:
+    """The followed run's measurements at the program's dwells (module docstring); owned by
+    the run's steps (one step at a time)."""
+
+    meter: Meter
+    #: the nominal arm's tool pose (4x4) at joints q: where the meter looks for the markers
+    expected_pose: Callable[[FloatArray], FloatArray]
+    read_state: Callable[[], OffsetRobotState]
+    cameras: int
+    #: (bench) the truth's residual tool translation now (mm; drivers/sim/ur/truth.py)
+    truth: Callable[[], FloatArray] | None = None
+    tally: MeasuredTally = field(default_factory=MeasuredTally)
+    references: dict[str, _Reference] = field(default_factory=dict)
+    #: the dwell last measured or tried (at-pose register, program instance); None: moving
+    _dwell: tuple[int, int] | None = None
+
+    async def step(
+        self, state: OffsetRobotState, record: StepRecord, flags: list[str], errors: list[str]
+    ) -> ToolMeasurement | None:
+        """Measure the tool if this step is the first of a dwell at a measured pose; the
+        measurement when it went into ``record``, else None. Camera and marker failures are
+        flagged, never raised (the correction goes on without the measurement)."""
+        dwell = (state.at_pose, state.program_instance) if state.at_pose else None
+        if dwell is None or dwell == self._dwell:
+            self._dwell = dwell  # moving, or this dwell was measured (or tried) already
+            return None
+        if not _still(state):
+            return None  # not at rest yet: the next step of the dwell tries
+        self._dwell = dwell
+        pose_name = str(state.at_pose)
+        try:
+            measurement = await self.meter.measure(
+                self.expected_pose(np.asarray(state.joints_rad, dtype=np.float64))
+            )
+        except DeviceError as err:
+            return self._discard("camera-error", f"tool cameras: {err}", flags, errors)
+        except MeasurementError as err:
+            return self._discard("marker-error", f"tool markers: {err}", flags, errors)
+        truth = None if self.truth is None else self.truth()
+        try:
+            after = self.read_state()
+        except DeviceError as err:
+            return self._discard(MOVED, f"no robot state after the frames: {err}", flags, errors)
+        if (after.at_pose, after.program_instance) != dwell or not _still(after):
+            return self._discard(
+                MOVED,
+                f"the program left pose {pose_name} during the frames (at pose {after.at_pose}"
+                "): measurement discarded",
+                flags,
+                errors,
+            )
+        self._record(pose_name, measurement, after, truth=truth, record=record, flags=flags)
+        return measurement
+
+    def _discard(
+        self, flag: str, message: str, flags: list[str], errors: list[str]
+    ) -> ToolMeasurement | None:
+        """The measurement thrown away, flagged (nothing of it recorded): None."""
+        flags.append(flag)
+        errors.append(message)
+        self.tally.discarded[flag] = self.tally.discarded.get(flag, 0) + 1
+        return None
+
+    def _record(
+        self,
+        pose_name: str,
+        measurement: ToolMeasurement,
+        after: OffsetRobotState,
+        *,
+        truth: FloatArray | None,
+        record: StepRecord,
+        flags: list[str],
+    ) -> None:
+        applied = np.asarray(after.applied_offset_mm, dtype=np.float64)
+        reference = self.references.get(pose_name)
+        if reference is None:
+            reference = _Reference(measurement.pose, measurement.sigma_mm, applied, truth)
+            self.references[pose_name] = reference
+            flags.append(REFERENCE_MISSING)
+        zero = reference.pose is measurement.pose  # this measurement is the pose's zero
+        drift = pose_difference(reference.pose, measurement.pose)
+        sigma_mm = 0.0 if zero else math.hypot(measurement.sigma_mm, reference.sigma_mm)
+        record.measured_tx_um, record.measured_ty_um, record.measured_tz_um = translation_um(drift)
+        record.drift_3d_um = norm_um(drift)
+        record.measured_sigma_um = sigma_mm * UM_PER_MM
+        if measurement.oriented:
+            record.measured_rx_urad, record.measured_ry_urad, record.measured_rz_urad = (
+                rotation_urad(drift)
+            )
+            record.rotation_error_urad = angle_urad(drift)
+        if zero:
+            return  # no residual measured yet
+        tally = self.tally
+        residual_mm = np.asarray(drift.translation_mm, dtype=np.float64)
+        uncompensated_mm = residual_mm - (applied - reference.applied_mm)
+        residual_um = float(np.linalg.norm(residual_mm)) * UM_PER_MM
+        tally.measurements += 1
+        tally.poses[pose_name] = tally.poses.get(pose_name, 0) + 1
+        tally.residual_um2 += residual_um**2
+        tally.uncompensated_um2 += (float(np.linalg.norm(uncompensated_mm)) * UM_PER_MM) ** 2
+        tally.worst_residual_um = max(tally.worst_residual_um, residual_um)
+        tally.sigma_um_sum += sigma_mm * UM_PER_MM
+        if truth is not None and reference.truth_mm is not None:
+            difference_um = float(
+                np.linalg.norm(residual_mm - (truth - reference.truth_mm)) * UM_PER_MM
+            )
+            tally.truth_difference_um.append(difference_um)
+            tally.truth_difference_sigmas.append(difference_um / max(sigma_mm * UM_PER_MM, 1e-9))
+
+
+def _still(state: OffsetRobotState) -> bool:
+    return max((abs(v) for v in state.joint_speeds_rad_s), default=0.0) < STILL_RAD_S

@@ -1,0 +1,116 @@
+"""When a followed run's step measures the tool (daemon/run/followed/measure.py), against a meter
+that reports known poses: only at the first step of a dwell at a measured pose with the joints
+at rest; once per dwell; the residual against the pose's first measurement with both sigmas;
+the uncompensated drift less the change of the applied offset; frames the program left its
+pose during discarded. (The same on the UR bench with real cameras and the emulator over
+TCP: tests/test_ur_followed_cameras.py.)"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from daemon.arm.run import ToolMeasurement
+from daemon.arm.types import FloatArray
+from daemon.run.followed.measure import MOVED, DwellMeasurement
+from daemon.storage.step_record import StepRecord
+from drivers.base import OffsetRobotState
+
+SIGMA_MM = 0.003
+
+
+def state(
+    at_pose: int, *, speed: float = 0.0, applied_mm: float = 0.0, instance: int = 7
+) -> OffsetRobotState:
+    return OffsetRobotState(
+        timestamp_s=0.0,
+        received_s=0.0,
+        joints_rad=(0.0,) * 6,
+        joint_speeds_rad_s=(speed,) + (0.0,) * 5,
+        tcp_pose=(0.0,) * 6,
+        tcp_speed=(0.0,) * 6,
+        joint_temperatures_c=(22.0,) * 6,
+        robot_mode=7,
+        safety_mode=1,
+        runtime_state=2,
+        at_pose=at_pose,
+        accepted_sequence=0,
+        program_status=0,
+        applied_offset_mm=(applied_mm, 0.0, 0.0),
+        applied_rotation_rad=(0.0, 0.0, 0.0),
+        program_instance=instance,
+    )
+
+
+class Meter:
+    """Reports the tool at x = ``x_mm`` (the test moves it), counting its measurements."""
+
+    def __init__(self) -> None:
+        self.x_mm = 0.0
+        self.calls = 0
+
+    async def measure(
+        self, expected_pose: FloatArray, frames: int | None = None
+    ) -> ToolMeasurement:
+        self.calls += 1
+        pose = np.eye(4)
+        pose[0, 3] = 500.0 + self.x_mm
+        return ToolMeasurement(pose, SIGMA_MM, True, {})
+
+
+def record() -> StepRecord:
+    return StepRecord(run_id=1, step=0, scheduled_s=0.0, actual_s=0.0, lateness_s=0.0)
+
+
+async def test_one_measurement_per_dwell_at_rest_against_the_pose_zero() -> None:
+    meter = Meter()
+    after = [state(1)]
+    dwell = DwellMeasurement(meter, lambda q: np.eye(4), lambda: after[0], 6)
+
+    async def step(s: OffsetRobotState) -> tuple[ToolMeasurement | None, StepRecord, list[str]]:
+        r, flags, errors = record(), [], []
+        return await dwell.step(s, r, flags, errors), r, flags
+
+    assert (await step(state(0)))[0] is None  # moving: no frame
+    assert (await step(state(1, speed=0.05)))[0] is None  # at the pose, not at rest yet
+    assert meter.calls == 0
+    measured, r, flags = await step(state(1))  # at rest: the pose's zero
+    assert measured is not None and "first-step-reference" in flags and r.drift_3d_um == 0.0
+    assert (await step(state(1)))[0] is None and meter.calls == 1  # the same dwell: once
+    await step(state(0))
+    # the next dwell at pose 1: the tool 0.1 mm further, of which the program applied 0.04
+    meter.x_mm = 0.1
+    after[0] = state(1, applied_mm=0.04)
+    measured, r, flags = await step(state(1))
+    assert measured is not None and "first-step-reference" not in flags
+    assert r.measured_tx_um == pytest.approx(100.0) and r.drift_3d_um == pytest.approx(100.0)
+    assert r.measured_sigma_um == pytest.approx(math.hypot(SIGMA_MM, SIGMA_MM) * 1000.0)
+    summary = dwell.tally.summary(6)
+    assert summary["measurements"] == 1 and summary["poses"] == {"1": 1}
+    assert summary["rms_residual_um"] == pytest.approx(100.0)
+    assert summary["rms_uncompensated_um"] == pytest.approx(60.0)  # 100 less the 40 applied
+    # another instance of the program at pose 1 is a new dwell
+    after[0] = state(1, instance=8)
+    assert (await step(state(1, instance=8)))[0] is not None and meter.calls == 3
+
+
+async def test_frames_the_program_left_its_pose_during_are_discarded() -> None:
+    meter = Meter()
+    dwell = DwellMeasurement(meter, lambda q: np.eye(4), lambda: state(0), 6)
+    r, flags, errors = record(), [], []
+    assert await dwell.step(state(2), r, flags, errors) is None
+    assert meter.calls == 1 and flags == [MOVED] and "left pose 2" in errors[0]
+    assert r.measured_tx_um is None and r.drift_3d_um is None  # nothing recorded
+    assert dwell.tally.summary(6)["discarded"] == {MOVED: 1}
+    # a robot moving again after the frames (at the pose, not at rest): discarded too
+    dwell = DwellMeasurement(meter, lambda q: np.eye(4), lambda: state(2, speed=0.05), 6)
+    flags = []
+    assert await dwell.step(state(2), record(), flags, []) is None and flags == [MOVED]
+
+
+def test_a_run_with_no_camera_says_so() -> None:
+    dwell_tally = DwellMeasurement(Meter(), lambda q: np.eye(4), lambda: state(0), 0).tally
+    summary = dwell_tally.summary(0)
+    assert summary["cameras"] == 0 and "no camera" in summary["note"]
