@@ -38,6 +38,8 @@ from concurrent.futures import Future
 from types import TracebackType
 from typing import TypeVar
 
+from drivers.realtime import lower_niceness, realtime_scheduling
+
 logger = logging.getLogger(__name__)
 
 _T = TypeVar("_T")
@@ -45,9 +47,6 @@ _T = TypeVar("_T")
 #: The interpreter's GIL switch interval while a control thread runs (default 5 ms): a thread
 #: woken by its serial reply waits at most this long for a CPU-bound Python thread to let go.
 SWITCH_INTERVAL_S = 0.0005
-#: Niceness change tried for the control thread when real-time scheduling is not permitted
-#: (relative to the process's; lowering it needs CAP_SYS_NICE or LimitNICE too).
-FALLBACK_NICENESS = -10
 #: Niceness change of the daemon's other threads when real-time scheduling is asked for
 #: (relative: from 0 under systemd, -5).
 HOME_NICENESS = -5
@@ -93,37 +92,6 @@ class HomeOutbox:
                 logger.exception("a post from the control loop failed")
 
 
-def realtime_scheduling(priority: int) -> str:
-    """Ask for ``SCHED_FIFO`` at ``priority`` for the calling thread, else a lower niceness;
-    return what it runs with (for the one log line)."""
-    if priority <= 0:
-        return "normal scheduling (realtime_priority = 0)"
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (PermissionError, OSError, AttributeError) as err:
-        reason = getattr(err, "strerror", None) or str(err)
-    else:
-        return f"SCHED_FIFO priority {priority}"
-    try:
-        niceness = _lower_niceness(FALLBACK_NICENESS)
-    except (PermissionError, OSError, AttributeError):
-        return (
-            f"normal scheduling: SCHED_FIFO not permitted ({reason}) nor niceness "
-            f"{FALLBACK_NICENESS:+d}; grant CAP_SYS_NICE or LimitRTPRIO "
-            "(deploy/thermocomp.service)"
-        )
-    return f"niceness {niceness}: SCHED_FIFO not permitted ({reason})"
-
-
-def _lower_niceness(change: int) -> int:
-    """The calling thread's niceness changed by ``change`` (Linux: PRIO_PROCESS with a thread
-    id sets that thread's alone; threads it starts later inherit it); the new niceness."""
-    thread = threading.get_native_id()
-    niceness = max(os.getpriority(os.PRIO_PROCESS, thread) + change, -20)
-    os.setpriority(os.PRIO_PROCESS, thread, niceness)
-    return niceness
-
-
 def home_priority(priority: int) -> str:
     """The daemon's other threads (this one and those it starts later inherit it) made
     :data:`HOME_NICENESS` less nice when real-time scheduling is asked for: the control thread waits
@@ -133,7 +101,7 @@ def home_priority(priority: int) -> str:
     if priority <= 0:
         return "normal scheduling"
     try:
-        niceness = _lower_niceness(HOME_NICENESS)
+        niceness = lower_niceness(HOME_NICENESS)
     except (PermissionError, OSError, AttributeError) as err:
         return f"normal scheduling (niceness {HOME_NICENESS:+d} not permitted: {err})"
     return f"niceness {niceness}"
