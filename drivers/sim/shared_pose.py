@@ -64,12 +64,16 @@ def unpack(data: bytes | memoryview) -> PoseRecord:
 
 
 def write(buffer: memoryview, record: PoseRecord) -> None:
-    """Publish ``record`` (the one writer): sequence odd, the record, sequence even again."""
+    """Publish ``record`` (the one writer): sequence odd, the record, sequence even again.
+
+    The sequence is stored by one 8-byte copy (slice assignment: memcpy), never by
+    ``struct.pack_into``, which zeroes its target before filling it: a reader would see a
+    transient 0 there."""
     (sequence,) = SEQUENCE.unpack_from(buffer, 0)
     data = pack(record)
-    SEQUENCE.pack_into(buffer, 0, sequence + 1)
+    buffer[: SEQUENCE.size] = SEQUENCE.pack(sequence + 1)
     buffer[SEQUENCE.size : SIZE] = data
-    SEQUENCE.pack_into(buffer, 0, sequence + 2)
+    buffer[: SEQUENCE.size] = SEQUENCE.pack(sequence + 2)
 
 
 def read(buffer: memoryview, attempts: int = READ_ATTEMPTS) -> PoseRecord:
