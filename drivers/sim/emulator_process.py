@@ -27,6 +27,7 @@ import collections
 import contextlib
 import logging
 import shutil
+import signal
 import sys
 import tempfile
 import time
@@ -62,6 +63,15 @@ class EmulatorProcessError(DeviceError):
 
     def __init__(self, message: str) -> None:
         super().__init__(DEVICE, message)
+
+
+def _ended(status: int) -> str:
+    """How a child ended, from its return code (negative: the signal that killed it)."""
+    if status < 0:
+        with contextlib.suppress(ValueError):
+            return f"was killed by {signal.Signals(-status).name}"
+        return f"was killed by signal {-status}"
+    return f"exited with status {status}"
 
 
 class EmulatorProcess:
@@ -179,9 +189,12 @@ class EmulatorProcess:
         self.starts += 1
         assert process.stdout is not None and process.stderr is not None
         self._spawn(self._drain_stderr(process.stderr))
+        ended = f"no device path within {self._start_timeout_s:g} s"
         try:
             async with asyncio.timeout(self._start_timeout_s):
                 line = (await process.stdout.readline()).decode(errors="replace").strip()
+                if not line:  # its stdout closed: it is ending
+                    ended = _ended(await process.wait())
         except TimeoutError:
             line = ""
         finally:
@@ -191,10 +204,9 @@ class EmulatorProcess:
                 block.unlink()
         if not line:
             self._release_block(block)
-            await self._stop_child()
+            await self._stop_child()  # its stderr read to the end
             raise EmulatorProcessError(
-                f"did not start within {self._start_timeout_s:g} s "
-                f"(exit status {process.returncode}): {self._stderr_tail()}"
+                f"did not start ({ended}; its stderr: {self._stderr_tail()})"
             )
         if self._block is not None:
             self._release_block(self._block)
@@ -265,21 +277,21 @@ class EmulatorProcess:
             lived_s = time.monotonic() - self._started_at
             if lived_s < MIN_LIFETIME_S:
                 logger.error(
-                    "emulated controller: process %d exited with status %s %.1f s after its "
-                    "start (%s); not restarted: the robot's link stays down until the daemon "
-                    "is restarted (check bench.emulator and the emulator's error above)",
+                    "emulated controller: process %d %s %.1f s after its start (its stderr: "
+                    "%s); not restarted: the robot's link stays down until the daemon is "
+                    "restarted with a working emulator (or bench.emulator = inline)",
                     process.pid,
-                    status,
+                    _ended(status),
                     lived_s,
                     self._stderr_tail(),
                 )
                 return
             logger.error(
-                "emulated controller: process %d exited with status %s (%s); the robot's link "
-                "is down (the driver holds and reconnects); starting a fresh controller (a "
-                "power cycle: its taught goals are gone)",
+                "emulated controller: process %d %s (its stderr: %s); the robot's link is "
+                "down (the driver holds and reconnects); starting a fresh controller (a power "
+                "cycle: its taught goals are gone)",
                 process.pid,
-                status,
+                _ended(status),
                 self._stderr_tail(),
             )
             try:
