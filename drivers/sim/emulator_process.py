@@ -185,6 +185,9 @@ class EmulatorProcess:
         except OSError as err:
             self._release_block(block)
             raise EmulatorProcessError(f"cannot start {self._python}: {err}") from err
+        except BaseException:  # cancelled: no name left in /dev/shm
+            self._release_block(block)
+            raise
         self._process, self._started_at = process, time.monotonic()
         self.starts += 1
         assert process.stdout is not None and process.stderr is not None
@@ -296,6 +299,10 @@ class EmulatorProcess:
             )
             try:
                 await self._start()
-            except EmulatorProcessError as err:
-                logger.error("emulated controller: restart failed: %s", err)
+            except (EmulatorProcessError, OSError) as err:
+                logger.error(
+                    "emulated controller: the fresh controller did not start (%s); the robot's "
+                    "link stays down until the daemon is restarted",
+                    err,
+                )
                 return

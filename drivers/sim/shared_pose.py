@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from multiprocessing import resource_tracker
 from multiprocessing.shared_memory import SharedMemory
 
+from drivers.errors import DeviceError
 from drivers.sim.ash_state import Location, as_location
 
 #: The sequence number: even when the record is whole, odd while it is written.
@@ -37,8 +38,12 @@ SIZE = SEQUENCE.size + RECORD.size
 READ_ATTEMPTS = 10_000
 
 
-class SharedPoseError(Exception):
-    """The shared pose cannot be read: never written, or a write that never ended."""
+class SharedPoseError(DeviceError):
+    """The shared pose cannot be read: never written, or a write that never ended (a device
+    fault of the emulated controller, handled as the driver's are)."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__("emulated controller", message)
 
 
 @dataclass(frozen=True, slots=True)
