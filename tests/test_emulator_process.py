@@ -108,10 +108,12 @@ def test_the_child_ends_when_the_daemon_is_killed() -> None:
             sys.executable,
             "-c",
             "import asyncio, sys\n"
+            "from pathlib import Path\n"
             "from drivers.sim.emulator_process import EmulatorProcess\n"
             "async def main():\n"
             "    async with EmulatorProcess(['--no-pacing']) as child:\n"
             "        print(child.pid, flush=True)\n"
+            "        print(Path(child.device_path).parent, flush=True)\n"
             "        await asyncio.sleep(60)\n"
             "asyncio.run(main())\n",
         ],
@@ -121,13 +123,19 @@ def test_the_child_ends_when_the_daemon_is_killed() -> None:
     )
     assert parent.stdout is not None
     child_pid = int(parent.stdout.readline())
+    link_directory = Path(parent.stdout.readline().strip())
+    assert link_directory.is_dir()
     parent.kill()
     parent.wait(timeout=10)
     parent.stdout.close()
     deadline = time.monotonic() + 10
     while time.monotonic() < deadline and os.path.exists(f"/proc/{child_pid}"):
         time.sleep(0.05)
-    assert not os.path.exists(f"/proc/{child_pid}"), "the emulator outlived its daemon"
+    outlived = os.path.exists(f"/proc/{child_pid}")
+    if outlived:
+        os.kill(child_pid, signal.SIGKILL)  # no orphan left by a failing test
+    assert not outlived, "the emulator outlived its daemon"
+    assert not link_directory.exists(), "the emulator left its link's directory behind"
 
 
 @pytest.mark.parametrize(

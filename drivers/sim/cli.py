@@ -149,7 +149,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.set_defaults(handler=run)
 
 
-def _stop_at_eof(stop: asyncio.Event) -> None:
+def _stop_at_eof(stop: asyncio.Event, parent_gone: asyncio.Event) -> None:
     """Standard input readable: at its end (the parent's pipe closed: the parent ended, however
     it ended) stop serving; anything else on it is ignored."""
     try:
@@ -158,17 +158,18 @@ def _stop_at_eof(stop: asyncio.Event) -> None:
         data = b""
     if not data:
         asyncio.get_running_loop().remove_reader(sys.stdin.fileno())
+        parent_gone.set()
         stop.set()
 
 
 async def _serve(emulator: C500CEmulator, args: argparse.Namespace) -> None:
-    stop = asyncio.Event()
+    stop, parent_gone = asyncio.Event(), asyncio.Event()
     loop = asyncio.get_running_loop()
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, stop.set)
     loop.add_signal_handler(signal.SIGUSR1, emulator.press_pause_continue)
     if args.exit_with_stdin:
-        loop.add_reader(sys.stdin.fileno(), _stop_at_eof, stop)
+        loop.add_reader(sys.stdin.fileno(), _stop_at_eof, stop, parent_gone)
     async with contextlib.AsyncExitStack() as stack:
         if args.pose_shm is not None:
             stack.enter_context(_publishing_pose(emulator, args.pose_shm))
@@ -181,6 +182,11 @@ async def _serve(emulator: C500CEmulator, args: argparse.Namespace) -> None:
         gc.freeze()
         print(emulator.device_path, flush=True)
         await stop.wait()
+    if parent_gone.is_set() and args.link is not None:
+        # Stopped because its parent is gone (however it ended): the directory of the link,
+        # made by the parent (drivers/sim/emulator_process.py), goes too once empty.
+        with contextlib.suppress(OSError):
+            args.link.parent.rmdir()
     print("thermocomp emulate: stopped", flush=True)
 
 
