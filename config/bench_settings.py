@@ -21,6 +21,13 @@ class BenchSettings(Section):
         description="real: wall time; accelerated: wall time x time_factor; virtual: jump to "
         "the next deadline (an hour in seconds).",
     )
+    emulator: Literal["inline", "process"] = Field(
+        "inline",
+        description="Where the emulated C500C controller runs (robot.driver sim or "
+        "c500c-server): inline in the daemon's process (tests' virtual clocks), or process: "
+        "its own process at the control loop's real-time priority, like the real controller "
+        "(timing measurements; needs clock real).",
+    )
     time_factor: Annotated[float, Field(gt=0, le=1e6)] = Field(
         100.0, description="Speed-up of the accelerated clock (bench seconds per wall second)."
     )

@@ -118,6 +118,29 @@ class Settings(Section):
             )
         return self
 
+    @model_validator(mode="after")
+    def _emulator_in_its_own_process(self) -> Self:
+        # Another process shares only the machine's clock (CLOCK_MONOTONIC): a virtual or
+        # accelerated clock is this process's own. The joint arm (the arm bench) and the UR
+        # emulator are served in-process only.
+        if self.bench.emulator != "process":
+            return self
+        arm_bench = self.arm.enabled and self.robot.driver == "sim"
+        if (
+            self.bench.clock != "real"
+            or not self.bench.enabled
+            or self.robot.driver not in ("sim", "c500c-server")
+            or arm_bench
+        ):
+            raise ValueError(
+                "bench.emulator 'process' needs bench.clock real, bench.enabled and "
+                "robot.driver sim or c500c-server without arm.enabled (got bench.clock "
+                f"{self.bench.clock}, bench.enabled {str(self.bench.enabled).lower()}, "
+                f"robot.driver {self.robot.driver}, arm.enabled "
+                f"{str(self.arm.enabled).lower()})"
+            )
+        return self
+
     bench: BenchSettings = BenchSettings()
     camera: CameraSettings = CameraSettings()
     ir: IrSettings = IrSettings()

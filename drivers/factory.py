@@ -6,6 +6,8 @@ benchmarks) and ``.emulator``. The simulated robot is the real C500C driver talk
 in-process emulator over a real pseudo-terminal, so the daemon exercises the same code on the
 bench as in the lab. ``robot.driver = "c500c-server"`` (the fast path) is likewise the real
 server driver talking to the emulated server program on a pty when the bench is enabled.
+With ``bench.emulator = "process"`` either emulator runs as a child process instead
+(drivers/sim/emulator_process.py; issue 30) and the bench reads its pose from shared memory.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from drivers.sim.arm_markers import CameraRig
 from drivers.sim.bench import Bench
 from drivers.sim.devices import SimCamera, SimIrReader
 from drivers.sim.emulator import C500CEmulator, EmulatorConfig
+from drivers.sim.emulator_process import EmulatorProcess
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
 from drivers.sim.ur.cameras import ur_bench_cameras
 from drivers.sim.ur.controller import URControllerConfig
@@ -53,6 +56,8 @@ class Devices:
     robot: Robot
     bench: Bench | None = None  # the simulated bench's truth; None on hardware
     emulator: C500CEmulator | None = None  # the emulated controller behind the sim robot
+    #: the emulated controller in its own process instead (bench.emulator = "process")
+    emulator_process: EmulatorProcess | None = None
     # the arm bench (issue 20, arm.enabled): the cameras watching the tool, their models,
     # and the truth an arm run starts (drivers/sim/arm_devices.py)
     cameras: tuple[Camera, ...] = ()
@@ -222,7 +227,9 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
         return
     async with contextlib.AsyncExitStack() as stack:
         bench = bench_for(settings, clock)
-        robot, emulator = await robot_driver(settings, bench, stack)
+        robot, controller = await robot_driver(settings, bench, stack)
+        emulator = controller if isinstance(controller, C500CEmulator) else None
+        process = controller if isinstance(controller, EmulatorProcess) else None
         camera = camera_driver(settings.camera, clock, bench)
         ir = ir_driver(settings, clock, bench)
 
@@ -244,6 +251,7 @@ async def open_devices(settings: Settings, clock: Clock) -> AsyncIterator[Device
             robot=robot,
             bench=bench,
             emulator=emulator,
+            emulator_process=process,
             cameras=cameras,
             camera_models=camera_models,
             room=room,
@@ -255,14 +263,54 @@ def bench_for(settings: Settings, clock: Clock) -> Bench | None:
     return Bench(settings, clock) if _simulated(settings) or _emulated_server(settings) else None
 
 
+def emulator_arguments(settings: Settings, *, seed: int) -> list[str]:
+    """``thermocomp emulate c500c``'s arguments for the emulator the settings configure (the
+    inline one's: :func:`emulated_server` and the console's EmulatorConfig below)."""
+    robot = settings.robot
+    common = [
+        "--seed",
+        str(seed),
+        "--noise-um",
+        repr(settings.bench.robot_noise_um),
+        "--move-ms",
+        repr(robot.emulator_move_ms),
+        *([] if robot.emulator_paced else ["--no-pacing"]),
+    ]
+    if robot.driver == "sim":
+        return [*common, "--baud", str(robot.baudrate), "--application", robot.application]
+    return [
+        "--server",
+        *common,
+        "--baud",
+        str(robot.server_baudrate),
+        "--silence-s",
+        repr(robot.server_silence_s),
+    ]
+
+
 async def robot_driver(
     settings: Settings, bench: Bench | None, stack: contextlib.AsyncExitStack
-) -> tuple[Robot, C500CEmulator | None]:
+) -> tuple[Robot, C500CEmulator | EmulatorProcess | None]:
     """The robot driver (not yet opened) and, on the bench, its emulated controller (started
-    in ``stack``, its pose attached to the bench); ``sim`` and the emulated fast path need the
-    bench. ``thermocomp devices check`` opens each device with these on its own."""
+    in ``stack``, its pose attached to the bench): in this process, or in its own with
+    ``bench.emulator = "process"`` (drivers/sim/emulator_process.py); ``sim`` and the emulated
+    fast path need the bench. ``thermocomp devices check`` opens each device with these on
+    its own."""
     emulator: C500CEmulator | None = None
     robot_settings = settings.robot
+    if settings.bench.emulator == "process" and (
+        _emulated_server(settings) or robot_settings.driver == "sim"
+    ):
+        assert bench is not None
+        process = EmulatorProcess(
+            emulator_arguments(settings, seed=bench.robot_seed),
+            realtime_priority=settings.scheduler.realtime_priority,
+        )
+        await stack.enter_async_context(process)
+        bench.attach_robot(process.actual_pose)
+        if robot_settings.driver == "sim":
+            return C500CRobot(robot_settings, port=process.device_path), process
+        return C500CServerRobot(robot_settings, port=process.device_path), process
     if _emulated_server(settings):
         assert bench is not None
         emulator = emulated_server(settings, seed=bench.robot_seed)

@@ -16,7 +16,7 @@ import pytest
 
 from daemon.run.control_loop import HOME_REALTIME_PRIORITY, ControlLoop
 from daemon.run.workers import EXPORT_NICENESS, SUMMARY_NICENESS, Workers
-from daemon.storage import background_priority as background
+from drivers import realtime as background
 
 _T = TypeVar("_T")
 

@@ -26,7 +26,7 @@ the lab PC's ordinary processes (two busy loops: 0.8-1.3 % of 20 ms steps overra
 others at niceness -5, 0.1 % with every thread real-time; benchmarks/bench_loop_isolation.py)
 makes it wait for a time slice, a priority inversion. The GIL also bounds what the API can take
 at that priority to about one core. The background work (exports, reports, deferred summaries)
-leaves real-time scheduling first (daemon/storage/background_priority.py). When the host does
+leaves real-time scheduling first (drivers/realtime.py ``background_priority``). When the host does
 not permit it (no ``CAP_SYS_NICE`` nor ``LimitRTPRIO``), lower niceness is tried, then one log
 line says what the loop runs with. deploy/thermocomp.service grants what it needs.
 """
@@ -46,6 +46,8 @@ from concurrent.futures import Future
 from types import TracebackType
 from typing import TypeVar
 
+from drivers.realtime import lower_niceness, realtime_scheduling
+
 logger = logging.getLogger(__name__)
 
 _T = TypeVar("_T")
@@ -53,9 +55,6 @@ _T = TypeVar("_T")
 #: The interpreter's GIL switch interval while a control thread runs (default 5 ms): a thread
 #: woken by its serial reply waits at most this long for a CPU-bound Python thread to let go.
 SWITCH_INTERVAL_S = 0.0005
-#: Niceness change tried for the control thread when real-time scheduling is not permitted
-#: (relative to the process's; lowering it needs CAP_SYS_NICE or LimitNICE too).
-FALLBACK_NICENESS = -10
 #: Real-time priority of the daemon's other threads (the API's), below the control thread's
 #: (``scheduler.realtime_priority``) so that a step preempts them, above every ordinary process.
 HOME_REALTIME_PRIORITY = 1
@@ -104,37 +103,6 @@ class HomeOutbox:
                 logger.exception("a post from the control loop failed")
 
 
-def realtime_scheduling(priority: int) -> str:
-    """Ask for ``SCHED_FIFO`` at ``priority`` for the calling thread, else a lower niceness;
-    return what it runs with (for the one log line)."""
-    if priority <= 0:
-        return "normal scheduling (realtime_priority = 0)"
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (PermissionError, OSError, AttributeError) as err:
-        reason = getattr(err, "strerror", None) or str(err)
-    else:
-        return f"SCHED_FIFO priority {priority}"
-    try:
-        niceness = _lower_niceness(FALLBACK_NICENESS)
-    except (PermissionError, OSError, AttributeError):
-        return (
-            f"normal scheduling: SCHED_FIFO not permitted ({reason}) nor niceness "
-            f"{FALLBACK_NICENESS:+d}; grant CAP_SYS_NICE or LimitRTPRIO "
-            "(deploy/thermocomp.service)"
-        )
-    return f"niceness {niceness}: SCHED_FIFO not permitted ({reason})"
-
-
-def _lower_niceness(change: int) -> int:
-    """The calling thread's niceness changed by ``change`` (Linux: PRIO_PROCESS with a thread
-    id sets that thread's alone; threads it starts later inherit it); the new niceness."""
-    thread = threading.get_native_id()
-    niceness = max(os.getpriority(os.PRIO_PROCESS, thread) + change, -20)
-    os.setpriority(os.PRIO_PROCESS, thread, niceness)
-    return niceness
-
-
 def home_priority(priority: int) -> str:
     """The daemon's other threads (this one and those it starts later inherit it) at
     ``SCHED_FIFO`` :data:`HOME_REALTIME_PRIORITY` when real-time scheduling is asked for, else
@@ -152,7 +120,7 @@ def home_priority(priority: int) -> str:
     else:
         return f"SCHED_FIFO priority {home}"
     try:
-        niceness = _lower_niceness(HOME_NICENESS)
+        niceness = lower_niceness(HOME_NICENESS)
     except (PermissionError, OSError, AttributeError) as err:
         return (
             f"normal scheduling (SCHED_FIFO not permitted: {reason}; "

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, TypeVar
 
-from daemon.storage.background_priority import background_priority
+from drivers.realtime import background_priority
 
 _T = TypeVar("_T")
 

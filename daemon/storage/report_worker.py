@@ -7,7 +7,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from daemon.storage.background_priority import background_priority
+from drivers.realtime import background_priority
 
 #: The report writer runs this much nicer than the daemon, and never at its real-time priority.
 REPORT_NICENESS = 10

@@ -84,6 +84,10 @@ class Console:
         self.motion_not_before = 0.0
         self._after_button: str | None = None  # the motion command waiting for the button
         self._button: asyncio.Event | None = None
+        #: called each time the motion record (previous_actual, actual, motion_end_s) changes,
+        #: before the command that changed it is answered: the emulator in its own process
+        #: publishes it for the bench there (drivers/sim/shared_pose.py; issue 30)
+        self.on_motion: Callable[[], None] | None = None
 
     @property
     def prompt(self) -> bytes:
@@ -165,6 +169,8 @@ class Console:
         else:
             state.actual = state.commanded = state.previous_actual
         state.motion_end_s = now_s
+        if self.on_motion is not None:
+            self.on_motion()
 
     def shift_location(self, base: Sequence[float], offset: Sequence[float]) -> Location:
         """`wshift`'s arithmetic (the fast-path program's `shift_w` too): with an arm, a
@@ -310,6 +316,8 @@ class Console:
         state.motion_end_s = now_s + self.config.move_ms / 1000.0
         state.motions.append(MotionRecord(now_s, state.motion_end_s, target, state.speed_percent))
         state.motion_count += 1
+        if self.on_motion is not None:
+            self.on_motion()
 
     async def _finish(self) -> None:
         clock = self.config.clock

@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import gc
+import os
 import signal
 import sys
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -20,6 +23,7 @@ from typing import TYPE_CHECKING
 from config.cli import non_negative_float, non_negative_int, port_number
 from config.faults import Fault
 from config.settings import SUPPORTED_BAUDRATES
+from drivers.realtime import realtime_scheduling
 from drivers.sim.ur import cli as ur_cli  # light: its work is imported when it runs
 
 if TYPE_CHECKING:  # the emulators (NumPy) load when one is served, not for --help
@@ -113,17 +117,63 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         default="firmware",
         help="w0/w2 layout: the firmware's (default) or this project's older single line",
     )
+    parser.add_argument(
+        "--silence-s",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="with --server: the program halts and holds after this long without a frame "
+        "(default 1 s, controller/thermocomp_server.r3 SILENCE_MS)",
+    )
+    parser.add_argument(
+        "--pose-shm",
+        metavar="NAME",
+        help="publish the arm's motion record in this shared memory block, created by the "
+        "caller (drivers/sim/shared_pose.py: the bench of a daemon running this emulator in "
+        "its own process, bench.emulator = process)",
+    )
+    parser.add_argument(
+        "--exit-with-stdin",
+        action="store_true",
+        help="stop when standard input closes (the parent that started it has ended)",
+    )
+    parser.add_argument(
+        "--realtime-priority",
+        type=non_negative_int,
+        default=0,
+        metavar="N",
+        help="run at SCHED_FIFO priority N when the host permits it (else a lower niceness); "
+        "0: normal scheduling",
+    )
     ur_cli.add_arguments(parser)
     parser.set_defaults(handler=run)
 
 
-async def _serve(emulator: C500CEmulator) -> None:
-    stop = asyncio.Event()
+def _stop_at_eof(stop: asyncio.Event, parent_gone: asyncio.Event) -> None:
+    """Standard input readable: at its end (the parent's pipe closed: the parent ended, however
+    it ended) stop serving; anything else on it is ignored."""
+    try:
+        data = os.read(sys.stdin.fileno(), 4096)
+    except OSError:
+        data = b""
+    if not data:
+        asyncio.get_running_loop().remove_reader(sys.stdin.fileno())
+        parent_gone.set()
+        stop.set()
+
+
+async def _serve(emulator: C500CEmulator, args: argparse.Namespace) -> None:
+    stop, parent_gone = asyncio.Event(), asyncio.Event()
     loop = asyncio.get_running_loop()
     for signum in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(signum, stop.set)
     loop.add_signal_handler(signal.SIGUSR1, emulator.press_pause_continue)
-    async with emulator:
+    if args.exit_with_stdin:
+        loop.add_reader(sys.stdin.fileno(), _stop_at_eof, stop, parent_gone)
+    async with contextlib.AsyncExitStack() as stack:
+        if args.pose_shm is not None:
+            stack.enter_context(_publishing_pose(emulator, args.pose_shm))
+        await stack.enter_async_context(emulator)
         # The emulator stands in for another machine: a full collection of the heap this
         # process imported (the whole stack, ~10-15 ms in CPython 3.11) would delay its paced
         # replies as no controller does. Freeze it once started, as the daemon does its own
@@ -132,7 +182,35 @@ async def _serve(emulator: C500CEmulator) -> None:
         gc.freeze()
         print(emulator.device_path, flush=True)
         await stop.wait()
+    if parent_gone.is_set() and args.link is not None:
+        # Stopped because its parent is gone (however it ended): the directory of the link,
+        # made by the parent (drivers/sim/emulator_process.py), goes too once empty.
+        with contextlib.suppress(OSError):
+            args.link.parent.rmdir()
     print("thermocomp emulate: stopped", flush=True)
+
+
+@contextlib.contextmanager
+def _publishing_pose(emulator: C500CEmulator, name: str) -> Iterator[None]:
+    """Publish the console's motion record in the shared block ``name`` now and each time it
+    changes (before the command that changed it is answered: the host never sees a reply
+    before the pose it implies); the block is the caller's (it unlinks it)."""
+    from drivers.sim import shared_pose  # lazy: loads with the emulator, not for --help
+
+    block = shared_pose.attach(name)
+    state = emulator.state
+
+    def publish() -> None:
+        record = shared_pose.record_of(state.previous_actual, state.actual, state.motion_end_s)
+        shared_pose.write(shared_pose.buffer_of(block), record)
+
+    publish()
+    emulator.console.on_motion = publish
+    try:
+        yield
+    finally:
+        emulator.console.on_motion = None
+        block.close()
 
 
 def _joint_arm(args: argparse.Namespace) -> JointArmConfig | None:
@@ -152,6 +230,16 @@ def run(args: argparse.Namespace) -> int:
 
     if args.device == "ur":
         return ur_cli.run(args)
+    if args.pose_shm is not None and args.arm is not None:
+        print("thermocomp emulate: --pose-shm needs an emulator without --arm", file=sys.stderr)
+        return 2
+    if args.silence_s is not None and (not args.server or args.silence_s <= 0):
+        print("thermocomp emulate: --silence-s is the server's and > 0", file=sys.stderr)
+        return 2
+    if args.realtime_priority:
+        # The emulated controller stands for another machine, which the lab PC's load does not
+        # touch: it runs at the control loop's priority (issue 30; drivers/realtime.py).
+        print(f"thermocomp emulate: {realtime_scheduling(args.realtime_priority)}", file=sys.stderr)
 
     try:
         joint_arm = _joint_arm(args)
@@ -183,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
         link_path=args.link,
     )
     try:
-        asyncio.run(_serve(emulator))
+        asyncio.run(_serve(emulator, args))
     except OSError as err:
         print(f"thermocomp emulate: {err}", file=sys.stderr)
         return 1
@@ -201,6 +289,7 @@ def _run_server(args: argparse.Namespace, joint_arm: JointArmConfig | None) -> i
         return 2
     # lazy: the emulators (NumPy) load when one is served, not for --help
     from drivers.sim.server_emulator import (
+        DEFAULT_SILENCE_TIMEOUT_S,
         SERVER_BAUDRATE,
         C500CServerEmulator,
         server_emulator_config,
@@ -212,6 +301,7 @@ def _run_server(args: argparse.Namespace, joint_arm: JointArmConfig | None) -> i
         move_ms=args.move_ms,
         baudrate=args.baud or SERVER_BAUDRATE,
         paced=not args.no_pacing,
+        silence_timeout_s=args.silence_s or DEFAULT_SILENCE_TIMEOUT_S,
     )
     config = replace(config, console=replace(config.console, joint_arm=joint_arm))
     emulator = C500CServerEmulator(
@@ -221,7 +311,7 @@ def _run_server(args: argparse.Namespace, joint_arm: JointArmConfig | None) -> i
         link_path=args.link,
     )
     try:
-        asyncio.run(_serve(emulator))
+        asyncio.run(_serve(emulator, args))
     except OSError as err:
         print(f"thermocomp emulate: {err}", file=sys.stderr)
         return 1
