@@ -26,7 +26,7 @@ from drivers.c500c.server import C500CServerRobot
 from drivers.clock import make_clock
 from drivers.factory import Devices, open_devices
 from drivers.sim import emulator_process
-from drivers.sim.emulator_process import EmulatorProcess, EmulatorProcessError
+from drivers.sim.emulator_process import SHARED_POSE_PREFIX, EmulatorProcess, EmulatorProcessError
 from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_config
 from tests.helpers import REPO_ROOT
 
@@ -39,7 +39,10 @@ PROCESS = {
 
 
 def shm_names() -> set[str]:
-    return {name for name in os.listdir("/dev/shm") if name.startswith("psm_")}
+    """The shared pose blocks of this process's emulators (named with its pid: other tests on
+    other xdist workers make shared memory of their own at the same time)."""
+    mine = f"{SHARED_POSE_PREFIX}{os.getpid()}-"
+    return {name for name in os.listdir("/dev/shm") if name.startswith(mine)}
 
 
 def alive(pid: int) -> bool:

@@ -53,7 +53,7 @@ def test_a_write_that_never_ends_is_an_error_not_a_hang(block: SharedMemory) -> 
     shared_pose.write(buffer, shared_pose.PoseRecord((0.0,) * 6, (1.0,) * 6, 1.0))
     shared_pose.SEQUENCE.pack_into(buffer, 0, 3)  # a writer that died mid-write
     with pytest.raises(shared_pose.SharedPoseError, match="never ended"):
-        shared_pose.read(buffer, attempts=100)
+        shared_pose.read(buffer, timeout_s=0.05)
 
 
 WRITER = """

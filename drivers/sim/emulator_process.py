@@ -26,6 +26,8 @@ import asyncio
 import collections
 import contextlib
 import logging
+import os
+import secrets
 import shutil
 import signal
 import sys
@@ -42,6 +44,9 @@ from drivers.sim import shared_pose
 from drivers.sim.ash_state import Location
 
 logger = logging.getLogger(__name__)
+#: The shared pose blocks' names (/dev/shm): the daemon's pid and a random part, so a leak is
+#: named and tells whose it is.
+SHARED_POSE_PREFIX = "thermocomp-pose-"
 
 #: How long the child may take to print its device path (s): it imports the whole stack first
 #: (~1 s on an idle development machine, several on a loaded one).
@@ -157,7 +162,11 @@ class EmulatorProcess:
 
     async def _start(self) -> None:
         """One child: a fresh block, the child attached to it, its device path read."""
-        block = SharedMemory(create=True, size=shared_pose.SIZE)
+        block = SharedMemory(
+            name=f"{SHARED_POSE_PREFIX}{os.getpid()}-{secrets.token_hex(4)}",
+            create=True,
+            size=shared_pose.SIZE,
+        )
         name = block.name.lstrip("/")
         command = [
             self._python,

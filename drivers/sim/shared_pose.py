@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import struct
 import sys
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from multiprocessing import resource_tracker
@@ -33,9 +34,16 @@ SEQUENCE = struct.Struct("<Q")
 RECORD = struct.Struct("<6d6dd")
 #: Bytes of the shared block.
 SIZE = SEQUENCE.size + RECORD.size
-#: Reads tried before a reader gives up: a write is a few microseconds of the emulator's
-#: Python, so thousands of retries mean a writer that died mid-write, not a busy one.
-READ_ATTEMPTS = 10_000
+#: Reads tried back to back before the reader sleeps: a write is a few microseconds of the
+#: emulator's Python, so most reads that meet one find it ended a few reads later.
+SPIN_READS = 100
+#: The reader's sleep between spins (s): lets a writer that the kernel preempted mid-write (a
+#: loaded machine: the emulator at normal priority) run and end its write.
+SPIN_PAUSE_S = 0.0002
+#: How long a reader waits for a write to end (s) before it calls the writer dead mid-write:
+#: far beyond any preemption of a live process (tests/test_shared_pose.py races a writer on a
+#: loaded machine; a fixed 10,000 hot reads gave up within a few milliseconds there).
+READ_TIMEOUT_S = 1.0
 
 
 class SharedPoseError(DeviceError):
@@ -81,20 +89,26 @@ def write(buffer: memoryview, record: PoseRecord) -> None:
     buffer[: SEQUENCE.size] = SEQUENCE.pack(sequence + 2)
 
 
-def read(buffer: memoryview, attempts: int = READ_ATTEMPTS) -> PoseRecord:
-    """The last whole record; SharedPoseError when none was ever written or no read of
-    ``attempts`` found the sequence even and unchanged around the copy."""
-    for _ in range(attempts):
-        (before,) = SEQUENCE.unpack_from(buffer, 0)
-        if before % 2:
-            continue
-        data = bytes(buffer[SEQUENCE.size : SIZE])
-        (after,) = SEQUENCE.unpack_from(buffer, 0)
-        if before == after:
-            if before == 0:
-                raise SharedPoseError("the emulator has not published its pose yet")
-            return unpack(data)
-    raise SharedPoseError(f"no whole pose record in {attempts} reads: a write never ended")
+def read(buffer: memoryview, timeout_s: float = READ_TIMEOUT_S) -> PoseRecord:
+    """The last whole record; SharedPoseError when none was ever written or no read within
+    ``timeout_s`` found the sequence even and unchanged around the copy."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        for _ in range(SPIN_READS):
+            (before,) = SEQUENCE.unpack_from(buffer, 0)
+            if before % 2:
+                continue
+            data = bytes(buffer[SEQUENCE.size : SIZE])
+            (after,) = SEQUENCE.unpack_from(buffer, 0)
+            if before == after:
+                if before == 0:
+                    raise SharedPoseError("the emulator has not published its pose yet")
+                return unpack(data)
+        if time.monotonic() > deadline:
+            raise SharedPoseError(
+                f"no whole pose record within {timeout_s:g} s: a write never ended"
+            )
+        time.sleep(SPIN_PAUSE_S)
 
 
 def record_of(
