@@ -1,8 +1,7 @@
-"""Who runs at which priority when real-time scheduling is granted (issue 30): the control
-thread at ``scheduler.realtime_priority``, the daemon's other threads real-time below it (the
-GIL: a holder preempted by the PC's ordinary processes would hold up a step), and the
-background work -- deferred summaries, export processes -- back at normal scheduling and nicer,
-never at a real-time priority taking a core from the lab PC for seconds."""
+"""The background work leaves the daemon's scheduling (issue 30): deferred summaries and export
+processes started from a real-time thread (the control loop's) or a less nice one (the API's)
+run at normal scheduling and nicer, never at a real-time priority taking a core from the lab
+PC for seconds. (The control loop's own scheduling: tests/test_control_loop.py.)"""
 
 from __future__ import annotations
 
@@ -14,17 +13,16 @@ from typing import TypeVar
 
 import pytest
 
-from daemon.run.control_loop import HOME_REALTIME_PRIORITY, ControlLoop
 from daemon.run.workers import EXPORT_NICENESS, SUMMARY_NICENESS, Workers
 from drivers import realtime as background
 
 _T = TypeVar("_T")
 
 
-def _in_a_fifo_thread(work: Callable[[], _T], priority: int = HOME_REALTIME_PRIORITY) -> _T:
+def _in_a_fifo_thread(work: Callable[[], _T], priority: int = 1) -> _T:
     """``work()`` on a thread of its own at SCHED_FIFO ``priority`` (the test's own threads
-    are never changed); skipped where the host refuses real-time scheduling, as the daemon
-    then asks for niceness instead (tests/test_control_loop.py covers that fallback)."""
+    are never changed); skipped where the host refuses real-time scheduling: then nothing
+    real-time is there to leave (test_background_priority_never_lowers_a_niceness still runs)."""
     result: list[_T] = []
     errors: list[BaseException] = []
 
@@ -59,47 +57,6 @@ def _policy() -> tuple[int, int, int]:
     )
 
 
-def test_the_other_threads_run_real_time_below_the_control_thread_and_come_back() -> None:
-    async def enter() -> tuple[tuple[int, int, int], tuple[int, int, int], str, str]:
-        async with ControlLoop(threaded=True, realtime_priority=10) as control:
-            home = _policy()
-            on_control = await control.run(_policy)
-            said = (control.scheduling, control.home_scheduling)
-        return home, on_control, *said
-
-    def work() -> tuple[tuple[int, int, int], tuple[int, int, int], str, str, tuple[int, int, int]]:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # as a daemon starts
-        return (*asyncio.run(enter()), _policy())
-
-    home, on_control, scheduling, home_scheduling, after = _in_a_fifo_thread(work)
-    assert on_control[:2] == (os.SCHED_FIFO, 10), scheduling
-    assert home[:2] == (os.SCHED_FIFO, HOME_REALTIME_PRIORITY), home_scheduling
-    assert home_scheduling == f"SCHED_FIFO priority {HOME_REALTIME_PRIORITY}"
-    assert after[0] == os.SCHED_OTHER  # the thread is given back as it came
-
-
-def test_the_other_threads_ask_for_niceness_where_real_time_is_refused(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    def refuse(*_: object) -> None:
-        raise PermissionError(1, "Operation not permitted")
-
-    lowered: list[int] = []
-    monkeypatch.setattr(os, "sched_setscheduler", refuse)
-    monkeypatch.setattr(os, "setpriority", lambda _which, _who, value: lowered.append(value))
-    said = control_home_scheduling()
-    assert said.startswith("niceness") and "SCHED_FIFO not permitted" in said
-    assert lowered  # the niceness fallback was asked for
-
-
-def control_home_scheduling() -> str:
-    async def enter() -> str:
-        async with ControlLoop(threaded=True, realtime_priority=10) as control:
-            return control.home_scheduling
-
-    return asyncio.run(enter())
-
-
 def test_background_priority_leaves_real_time_and_is_nicer() -> None:
     def work() -> tuple[tuple[int, int, int], tuple[int, int, int]]:
         before = _policy()
@@ -122,7 +79,7 @@ def test_background_priority_never_lowers_a_niceness(monkeypatch: pytest.MonkeyP
 
 
 def test_deferred_summaries_and_exports_run_outside_real_time() -> None:
-    """Started from a real-time thread (as the daemon's API threads are), the deferred
+    """Started from a real-time thread (as from the control loop's), the deferred
     summaries' thread and the export processes run at normal scheduling, at least as nice as
     their constants."""
 

@@ -17,17 +17,12 @@ thread), and no state is copied between processes. The GIL is the price: the oth
 Python work can still delay a step by up to the interpreter's switch interval, lowered here to
 :data:`SWITCH_INTERVAL_S`.
 
-Real-time scheduling is asked for when ``realtime_priority`` > 0 (``SCHED_FIFO``; Linux applies
-``sched_setscheduler(0, ...)`` to the calling thread): the control thread (and the threads a
-step waits on) at ``realtime_priority``, the daemon's other threads at
-:data:`HOME_REALTIME_PRIORITY`, below it. The others need it too because of the GIL: the control
-thread waits for it whenever another thread of the process holds it, and a holder preempted by
-the lab PC's ordinary processes (two busy loops: 0.8-1.3 % of 20 ms steps overran with the
-others at niceness -5, 0.1 % with every thread real-time; benchmarks/bench_loop_isolation.py)
-makes it wait for a time slice, a priority inversion. The GIL also bounds what the API can take
-at that priority to about one core. The background work (exports, reports, deferred summaries)
-leaves real-time scheduling first (drivers/realtime.py ``background_priority``). When the host does
-not permit it (no ``CAP_SYS_NICE`` nor ``LimitRTPRIO``), lower niceness is tried, then one log
+Real-time scheduling is asked for the control thread (and the threads a step waits on) when
+``realtime_priority`` > 0 (``SCHED_FIFO``; Linux applies ``sched_setscheduler(0, ...)`` to the
+calling thread), and a lower niceness for the daemon's other threads (:func:`home_priority`);
+the background work (exports, reports, deferred summaries) goes back to normal scheduling at a
+higher niceness first (drivers/realtime.py ``background_priority``). When the host does not
+permit it (no ``CAP_SYS_NICE`` nor ``LimitRTPRIO``), a lower niceness is tried, then one log
 line says what the loop runs with. deploy/thermocomp.service grants what it needs.
 """
 
@@ -55,11 +50,8 @@ _T = TypeVar("_T")
 #: The interpreter's GIL switch interval while a control thread runs (default 5 ms): a thread
 #: woken by its serial reply waits at most this long for a CPU-bound Python thread to let go.
 SWITCH_INTERVAL_S = 0.0005
-#: Real-time priority of the daemon's other threads (the API's), below the control thread's
-#: (``scheduler.realtime_priority``) so that a step preempts them, above every ordinary process.
-HOME_REALTIME_PRIORITY = 1
-#: Niceness change of the daemon's other threads when real-time scheduling is asked for but
-#: not permitted (relative: from 0 under systemd, -5).
+#: Niceness change of the daemon's other threads when real-time scheduling is asked for
+#: (relative: from 0 under systemd, -5).
 HOME_NICENESS = -5
 #: Largest number of posts waiting for the API's loop; the oldest is dropped past it (a loop
 #: stalled that long has lost its subscribers' events anyway: their queues are bounded too).
@@ -104,29 +96,21 @@ class HomeOutbox:
 
 
 def home_priority(priority: int) -> str:
-    """The daemon's other threads (this one and those it starts later inherit it) at
-    ``SCHED_FIFO`` :data:`HOME_REALTIME_PRIORITY` when real-time scheduling is asked for, else
-    :data:`HOME_NICENESS` less nice: the control thread waits for the GIL whenever another
-    thread holds it, and a holder preempted by the lab PC's other processes would make it wait
-    for a whole time slice (a priority inversion that real-time scheduling of the control
-    thread alone cannot undo: the module's docstring has the numbers)."""
+    """The daemon's other threads (this one and those it starts later inherit it) made
+    :data:`HOME_NICENESS` less nice when real-time scheduling is asked for: the control thread waits
+    for the GIL whenever another thread holds it, and a holder preempted by the lab PC's other
+    processes would make it wait for a whole time slice. Real-time scheduling for them too
+    (``SCHED_FIFO`` 1, below the control thread) was measured against this and gained nothing
+    (0 and 1 overruns in 3,000 20 ms steps against 0 and 0, two busy loops, load 2.1-2.5;
+    benchmarks/bench_loop_isolation.py), so the API's work stays below the PC's real-time
+    budget."""
     if priority <= 0:
         return "normal scheduling"
-    home = min(HOME_REALTIME_PRIORITY, priority)
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(home))
-    except (PermissionError, OSError, AttributeError) as err:
-        reason = getattr(err, "strerror", None) or str(err)
-    else:
-        return f"SCHED_FIFO priority {home}"
     try:
         niceness = lower_niceness(HOME_NICENESS)
     except (PermissionError, OSError, AttributeError) as err:
-        return (
-            f"normal scheduling (SCHED_FIFO not permitted: {reason}; "
-            f"niceness {HOME_NICENESS:+d} not permitted: {err})"
-        )
-    return f"niceness {niceness} (SCHED_FIFO not permitted: {reason})"
+        return f"normal scheduling (niceness {HOME_NICENESS:+d} not permitted: {err})"
+    return f"niceness {niceness}"
 
 
 class ControlLoop:
@@ -148,8 +132,6 @@ class ControlLoop:
         self.home_scheduling = "unchanged"
         self._home_tid = 0
         self._home_niceness = 0
-        self._home_policy = os.SCHED_OTHER
-        self._home_param = os.sched_param(0)
 
     @property
     def loop(self) -> asyncio.AbstractEventLoop:
@@ -169,8 +151,6 @@ class ControlLoop:
         self._outbox = HomeOutbox(self._home)
         self._home_tid = threading.get_native_id()
         self._home_niceness = os.getpriority(os.PRIO_PROCESS, self._home_tid)
-        self._home_policy = os.sched_getscheduler(0)
-        self._home_param = os.sched_getparam(0)
         self.home_scheduling = home_priority(self._priority)
         ready: Future[asyncio.AbstractEventLoop] = Future()
         self._thread = threading.Thread(
@@ -225,8 +205,6 @@ class ControlLoop:
         if self._thread.is_alive():
             logger.error("the control loop's thread did not end in %.0f s", JOIN_TIMEOUT_S)
         sys.setswitchinterval(self._switch_interval)
-        with contextlib.suppress(OSError):  # back to what it was (a lowering is always allowed)
-            os.sched_setscheduler(self._home_tid, self._home_policy, self._home_param)
         with contextlib.suppress(OSError):  # back to what it was (a raise is always allowed)
             os.setpriority(os.PRIO_PROCESS, self._home_tid, self._home_niceness)
         self._thread = None
