@@ -63,6 +63,14 @@ def adapted_names(joints: int, across_link: bool) -> list[str]:
     return [*names, "share"] if across_link else names
 
 
+def ir_observed_names(joints: int, across_link: bool, regions: Sequence[str]) -> list[str]:
+    """What the IR alone can teach (prediction ``model+ir`` without the tool): each joint's
+    heat, the convection, the bending share (across the links) and each region's offset; not
+    the expansion, which changes no temperature."""
+    names = [n for n in adapted_names(joints, across_link) if n != "alpha"]
+    return [*names, *(f"offset:{region}" for region in regions)]
+
+
 @dataclass(frozen=True)
 class AdaptedEstimate:
     """One factor now: its value (a factor or a share), its 1-sigma and its prior."""
@@ -134,6 +142,11 @@ class ArmAdaptation:
         self._poses: list[int] = []
         self._markers: list[FloatArray] = []
         self._regions: dict[str, list[float]] = {name: [] for name in spec.regions}
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The adapted parameters' names."""
+        return tuple(spec.name for spec in self.specs)
 
     # -- inputs ---------------------------------------------------------------------------------
 
@@ -252,7 +265,7 @@ class ArmAdaptation:
             )
         run = self._run([self.time_s, self.time_s], np.zeros((2, 3)), [0, 0])
         shares = tuple(joint.plus_share for joint in description.joints)
-        scales = apply_values(self.specs, self.values, len(shares), [], shares)
+        scales = apply_values(self.specs, self.values, len(shares), list(self.spec.regions), shares)
         outputs = output_responses(
             description,
             self.spec.node_spacing_mm,
@@ -287,4 +300,5 @@ __all__ = [
     "AdaptedEstimate",
     "ArmAdaptation",
     "adapted_names",
+    "ir_observed_names",
 ]
