@@ -50,7 +50,7 @@ FACTORS = ("heat", "expansion", "convection", "capacity", "share")
 
 
 def cached_run(
-    cache: Path, settings: Any, label: str, cycle: str, seed: int, hours: float, every: float
+    cache: Path, settings: Any, label: str, cycle: str, seed: int, *, hours: float, every: float
 ) -> SimulatedRun:
     path = cache / f"{label}-{seed}-{hours:g}-{every:g}.pickle"
     if path.exists():
@@ -63,9 +63,9 @@ def cached_run(
 
 def true_factors(truth: Any, settings: Any) -> dict[str, Any]:
     """The truth's factors in the controller's terms (module docstring)."""
-    from drivers.sim.arm_devices import bench_config  # lazy: a benchmark's own tool
     from daemon.arm.controller import ArmModelOptions, load_controller
     from daemon.run.arm.setup import arm_file
+    from drivers.sim.arm_devices import bench_config  # lazy: a benchmark's own tool
 
     options = ArmModelOptions(bending=True, motor_side_share=settings.arm.motor_side_share)
     controller = load_controller(arm_file(settings), settings.arm.duty_cycle, options)
@@ -111,7 +111,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--every", type=float, default=240.0)
     parser.add_argument("--cache", default=None, help="folder keeping the simulated runs")
     args = parser.parse_args(argv)
-    truth_path = args.scenario if "/" in args.scenario else str(TRUTHS_DIR / f"{args.scenario}.toml")
+    truth_path = (
+        args.scenario if "/" in args.scenario else str(TRUTHS_DIR / f"{args.scenario}.toml")
+    )
     load_arm_truth(truth_path)
     cache = Path(args.cache or tempfile.mkdtemp(prefix="arm-factors-")) / Path(truth_path).stem
     cache.mkdir(parents=True, exist_ok=True)
@@ -120,8 +122,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         settings = bench_settings(truth_path, TASKS[args.task], args.seed, data_dir)
         seed = args.seed  # the noise seeds as bench_arm_scenarios.py draws them
         run = cached_run(
-            cache, settings, args.task, TASKS[args.task], seed + NOISE[args.task], args.hours,
-            args.every,
+            cache, settings, args.task, TASKS[args.task], seed + NOISE[args.task],
+            hours=args.hours, every=args.every,
         )  # fmt: skip
         truth = true_factors(load_arm_truth(truth_path), settings)
         ir = args.base.endswith("+ir")
@@ -136,7 +138,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                 else TASKS[label]
             )
             source = cached_run(
-                cache, settings, label, cycle, seed + NOISE[label], args.hours, args.every
+                cache,
+                settings,
+                label,
+                cycle,
+                seed + NOISE[label],
+                hours=args.hours,
+                every=args.every,
             )
             base, _ = calibrate(settings, source, "base")
         else:

@@ -351,9 +351,12 @@ class ArmController:
             self.adaptation = self._new_adaptation(
                 regions,
                 # one pose for the spec's sake: no tool is measured here
-                [marker_sensitivity(self.arm, np.zeros(self.arm.dof), np.zeros((1, 3)),
-                                    self.options.bending)],  # fmt: skip
-                ir_observed_names(len(self.arm.joints), self.options.bending, regions),
+                [
+                    marker_sensitivity(
+                        self.arm, np.zeros(self.arm.dof), np.zeros((1, 3)), self.options.bending
+                    )
+                ],
+                ir_observed_names(len(self.arm.joints), self.options.bending, list(regions)),
                 marker_sigma_mm=1.0,  # no tool measurement: its residuals are all missing
                 temperature_sigma_c=self._observer_noise_c,
             )
