@@ -249,6 +249,7 @@ def test_unknown_or_foreign_arm_models_are_refused(tmp_path: Path) -> None:
         RunParameters(arm_model="other")
 
 
+@pytest.mark.slow
 def test_model_plus_ir_estimates_from_the_regions_and_the_identified_offsets(
     tmp_path: Path,
 ) -> None:
