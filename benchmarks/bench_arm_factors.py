@@ -110,6 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--hours", type=float, default=8.0)
     parser.add_argument("--every", type=float, default=240.0)
     parser.add_argument("--cache", default=None, help="folder keeping the simulated runs")
+    parser.add_argument("--base-only", action="store_true", help="the base controller alone")
     args = parser.parse_args(argv)
     truth_path = (
         args.scenario if "/" in args.scenario else str(TRUTHS_DIR / f"{args.scenario}.toml")
@@ -163,6 +164,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         variants += [(f"true {f}", [f]) for f in FACTORS]
         variants += [(f"all true but {f}", [g for g in FACTORS if g != f]) for f in FACTORS]
         variants += [("all true", list(FACTORS))]
+        if args.base_only:
+            variants = variants[:1]
         for k, (label, names) in enumerate(variants):
             model = with_factors(base, truth, names)
             name = f"variant-{k}"
