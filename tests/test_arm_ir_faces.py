@@ -18,6 +18,7 @@ from daemon.arm.controller import ArmController
 from daemon.arm.ir_regions import region_face, region_name, region_nodes, region_point
 from daemon.arm.loading import load_arm
 from daemon.arm.thermal import ArmThermalModel
+from daemon.model.calibration import CalibratedParameter
 from daemon.run.arm.setup import ArmPlan, default_arm_setup
 from daemon.run.states import RunParameters
 from drivers.sim.arm_bench import ArmBench, ArmBenchConfig
@@ -147,3 +148,46 @@ def test_model_plus_ir_learns_the_bending_share_from_both_faces(tmp_path: Path) 
     estimates, error = _share_learned(tmp_path / "mean", ["upper-arm-mid", "forearm-mid"])
     assert abs(estimates["share"][0] - 0.55) > 0.1
     assert error > 0.5
+
+
+@pytest.mark.slow
+def test_model_plus_ir_holds_what_the_arm_model_identified(tmp_path: Path) -> None:
+    """An identified model's factors were fitted to the tool: the IR estimate keeps them
+    (the waist's heat x2, far from every IR region, and the shoulder's x1.5, identified) and
+    only teaches the offsets, so on readings of that very model the compensation's links are
+    the model's own (a held factor must still be carried: one left out of the estimate's
+    parameters would fall back to 1)."""
+    parameters = (
+        CalibratedParameter("heat:1", 2.0, 0.02, 0.01),
+        CalibratedParameter("heat:2", 1.5, 0.015, 0.01),
+        CalibratedParameter("convection", 1.2, 0.012, 0.01),
+        CalibratedParameter("share", 0.7, 0.004),
+    )
+    model = ArmModel(
+        "identified", "CRS A465", (2.0, 1.5, 1.0, 1.0, 1.0, 1.0), convection_scale=1.2,
+        bending_shares=(0.7,) * 6, parameters=parameters,
+    )  # fmt: skip
+    save_model(tmp_path, model)
+    plan = plan_for(tmp_path, arm_model="identified", prediction="model+ir")
+    truth_plan = plan_for(tmp_path, arm_model="identified")
+    controller, truth = plan.predictor, truth_plan.predictor
+    assert isinstance(controller, ArmController) and isinstance(truth, ArmController)
+    regions = ["upper-arm-mid", *(region_name("upper-arm", 0.05, f) for f in ("plus", "minus"))]
+    nodes = region_nodes(truth.thermal, regions)
+
+    def reading() -> dict[str, float]:
+        now = truth.thermal.temperatures_c
+        return {name: float(now[list(group)].mean()) + 0.2 for name, group in nodes.items()}
+
+    controller.observe(reading())
+    for minutes in range(20, 4 * 60 + 1, 20):
+        controller.advance_to(minutes * 60.0)
+        truth.advance_to(minutes * 60.0)
+        controller.observe(reading())
+    estimates = controller.adaptation_estimates()
+    assert estimates["heat:1"][0] == pytest.approx(2.0, rel=1e-3)
+    assert estimates["heat:2"][0] == pytest.approx(1.5, rel=1e-3)
+    assert estimates["share"][0] == pytest.approx(0.7, abs=1e-3)
+    assert estimates["offset:upper-arm-mid"][0] == pytest.approx(0.2, abs=0.02)
+    for adapted, own in zip(controller.link_states(), truth.link_states(), strict=True):
+        assert adapted.mean_rise_c == pytest.approx(own.mean_rise_c, rel=0.02, abs=1e-3)
