@@ -249,7 +249,15 @@ def test_unknown_or_foreign_arm_models_are_refused(tmp_path: Path) -> None:
         RunParameters(arm_model="other")
 
 
-def test_model_plus_ir_observes_the_regions_from_the_identified_offsets(tmp_path: Path) -> None:
+@pytest.mark.slow
+def test_model_plus_ir_estimates_from_the_regions_and_the_identified_offsets(
+    tmp_path: Path,
+) -> None:
+    """model+ir (issue 29): the IR regions that name a link point feed the model's estimate
+    (the adaptation's fit on the IR alone), with the arm model's offsets and their 1-sigma as
+    the prior. Oracle: the same model with the shoulder heating 1.6x: its IR regions read
+    (plus the offsets) teach the shoulder's factor and the upper arm's rise, which the
+    compensation then uses."""
     offsets = {"upper-arm-mid": 0.4, "forearm-mid": -0.1}
     save_model(
         tmp_path,
@@ -261,34 +269,39 @@ def test_model_plus_ir_observes_the_regions_from_the_identified_offsets(tmp_path
             ir_offset_sigma_c={"upper-arm-mid": 0.05, "forearm-mid": 0.05},
         ),
     )
+    save_model(tmp_path, ArmModel("truth", "CRS A465", (1.0, 1.6, 1.0, 1.0, 1.0, 1.0)))
     _, plan = plan_for(tmp_path, arm_model="ir", prediction="model+ir")
+    _, truth_plan = plan_for(tmp_path, arm_model="truth")
     controller = plan.predictor  # type: ignore[attr-defined]
+    truth = truth_plan.predictor  # type: ignore[attr-defined]
     nodes = region_nodes(controller.thermal, offsets)
 
-    def reading(warmer_c: float) -> dict[str, float]:
-        """What the IR would read of the model's nodes, the upper arm ``warmer_c`` warmer."""
-        now = controller.thermal.temperatures_c
+    def reading() -> dict[str, float]:
+        now = truth.thermal.temperatures_c
         values = {
-            name: float(now[list(group)].mean())
-            + offsets[name]
-            + (warmer_c if "upper" in name else 0)
-            for name, group in nodes.items()
+            name: float(now[list(group)].mean()) + offsets[name] for name, group in nodes.items()
         }
         return {**values, "not-a-link-mid": 99.0}  # a region naming no link point: ignored
 
-    controller.observe(reading(0.0))  # the first reading attaches the observer
-    observer = controller.observer
-    assert observer is not None and set(observer.regions) == set(offsets)
-    assert observer.offsets_c == pytest.approx(offsets, abs=1e-9)  # from the arm model
-    controller.advance_to(3600.0)  # the covariance follows the model's steps
-    assert observer.time_s == pytest.approx(3600.0)
-    before = controller.thermal.temperatures_c.copy()
-    controller.observe(reading(2.0))
-    after = controller.thermal.temperatures_c
-    upper = list(nodes["upper-arm-mid"])
-    assert 0.5 < float((after - before)[upper].mean()) <= 2.0 + 1e-9
-    forearm = list(nodes["forearm-mid"])
-    assert abs(float((after - before)[forearm].mean())) < 0.5
+    controller.observe(reading())  # the first reading starts the estimate
+    adaptation = controller.adaptation
+    assert adaptation is not None
+    assert {n for n in adaptation.names if n.startswith("offset:")} == {
+        f"offset:{r}" for r in offsets
+    }
+    assert "alpha" not in adaptation.names  # the IR cannot see the expansion
+    for minutes in range(10, 8 * 60 + 1, 10):
+        controller.advance_to(minutes * 60.0)
+        truth.advance_to(minutes * 60.0)
+        controller.observe(reading())
+    estimates = controller.adaptation_estimates()
+    assert estimates["offset:upper-arm-mid"][0] == pytest.approx(0.4, abs=0.02)
+    assert estimates["offset:forearm-mid"][0] == pytest.approx(-0.1, abs=0.02)
+    assert estimates["heat:2"][0] == pytest.approx(1.6, rel=0.05)
+    true_rise = truth.link_states()[1].mean_rise_c
+    preset_rise = controller.thermal.link_states()[1].mean_rise_c
+    assert true_rise > 1.2 * preset_rise  # the shoulder's heat matters to the upper arm
+    assert controller.link_states()[1].mean_rise_c == pytest.approx(true_rise, rel=0.02)
     error = controller.tool_error(plan.poses[0])  # type: ignore[attr-defined]
     assert np.all(np.isfinite(error.translation_mm))
 

@@ -136,6 +136,14 @@ def test_the_analytic_jacobian_is_the_central_difference() -> None:
     values = np.array([0.1, -0.2, 0.03, 0.2, -0.1, 0.7, 0.4])
     numeric = central_jacobian(problem.weighted, values, 1e-5, relative=False)
     np.testing.assert_allclose(problem.jacobian(values), numeric, rtol=2e-4, atol=1e-6)
+    # the fit's iterations take forward differences of the network factors (one pass each
+    # instead of two): first order in the step, still the derivative to ~1e-4 of its scale
+    forward = problem.jacobian(values, central=False)
+    scale = np.abs(numeric).max(axis=0)
+    assert np.all(np.abs(forward - numeric) <= 2e-3 * scale + 1e-6)
+    passes = problem.passes
+    problem.jacobian(values * 1.01, central=False)
+    assert problem.passes - passes == 1 + 3  # the point, then convection, capacity, share
 
 
 @pytest.mark.slow

@@ -63,6 +63,25 @@ def adapted_names(joints: int, across_link: bool) -> list[str]:
     return [*names, "share"] if across_link else names
 
 
+def ir_observed_names(
+    joints: int, across_link: bool, regions: Sequence[str], seen_links: Sequence[int]
+) -> list[str]:
+    """What the IR alone can teach (prediction ``model+ir`` without the tool): the heat of
+    each joint at an end of a link a region sees (``seen_links``: their indices; joint ``k``
+    joins link ``k - 1`` to link ``k``, arm_network.build_arm_network), the convection, the
+    bending share (across the links) and each region's offset. Not the expansion, which
+    changes no temperature, nor the heat of a joint far from every region: the IR barely
+    sees it, and a fit free to move it uses it to absorb what the model's structure misses
+    at the regions (issue 29, corner-high task A, identified + IR: the wrist's heats moved
+    from 1 to 0.4-0.8 and 95.0 % of the drift was removed where the identified model alone
+    removed 97.3 %)."""
+    near = sorted({j for link in seen_links for j in (link, link + 1) if 0 <= j < joints})
+    names = [*(f"heat:{j + 1}" for j in near), "convection"]
+    if across_link:
+        names.append("share")
+    return [*names, *(f"offset:{region}" for region in regions)]
+
+
 @dataclass(frozen=True)
 class AdaptedEstimate:
     """One factor now: its value (a factor or a share), its 1-sigma and its prior."""
@@ -134,6 +153,11 @@ class ArmAdaptation:
         self._poses: list[int] = []
         self._markers: list[FloatArray] = []
         self._regions: dict[str, list[float]] = {name: [] for name in spec.regions}
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The adapted parameters' names."""
+        return tuple(spec.name for spec in self.specs)
 
     # -- inputs ---------------------------------------------------------------------------------
 
@@ -252,7 +276,7 @@ class ArmAdaptation:
             )
         run = self._run([self.time_s, self.time_s], np.zeros((2, 3)), [0, 0])
         shares = tuple(joint.plus_share for joint in description.joints)
-        scales = apply_values(self.specs, self.values, len(shares), [], shares)
+        scales = apply_values(self.specs, self.values, len(shares), list(self.spec.regions), shares)
         outputs = output_responses(
             description,
             self.spec.node_spacing_mm,
@@ -287,4 +311,5 @@ __all__ = [
     "AdaptedEstimate",
     "ArmAdaptation",
     "adapted_names",
+    "ir_observed_names",
 ]

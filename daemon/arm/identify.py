@@ -19,7 +19,8 @@ the model is linear between changes of the network's factors, so the fit's Jacob
 analytic in the heats (their own responses), alpha (the prediction itself) and the offsets (1),
 and only a network factor (convection, capacity, share) needs new responses: one pass of the
 network's modes on the measured outputs alone (daemon/arm/identify_response.py), cached per
-factor set, central differences of those. The markers' displacement is linear in each link's
+factor set, forward differences of those while the fit iterates and central ones at the
+solution (its covariance). The markers' displacement is linear in each link's
 strain and bend (daemon/arm/response.py marker_sensitivity).
 
 :func:`daemon.arm.identify_final.identify_arm_final` is the calibration's whole fit: every
@@ -236,9 +237,11 @@ class _ArmProblem:
         markers, regions = self.predictions(values)
         return self._weigh(markers - self.measured_markers, regions - self.measured_regions)
 
-    def jacobian(self, values: FloatArray) -> FloatArray:
-        """d weighted / d values: analytic for heats, alpha and offsets, central differences
-        of the network's responses for its factors (module docstring)."""
+    def jacobian(self, values: FloatArray, *, central: bool = True) -> FloatArray:
+        """d weighted / d values: analytic for heats, alpha and offsets, differences of the
+        network's responses for its factors (module docstring): central, or forward
+        (``central=False``: one network pass per factor instead of two, from the point's own
+        responses, which are cached; what the fit's iterations use)."""
         scales = self.scales(values)
         parts = self._parts(self._factors(scales))
         markers, regions = parts
@@ -258,7 +261,7 @@ class _ArmProblem:
                 d_regions = np.zeros_like(regions[j])
                 for region in spec.targets:
                     d_regions[:, self.region_names.index(region)] = 1.0
-            else:
+            elif central:
                 up, down = values.copy(), values.copy()
                 up[k] += NETWORK_STEP
                 down[k] -= NETWORK_STEP
@@ -266,6 +269,13 @@ class _ArmProblem:
                 minus_m, minus_r = self.predictions(down)
                 d_markers = (plus_m - minus_m) / (2.0 * NETWORK_STEP)
                 d_regions = (plus_r - minus_r) / (2.0 * NETWORK_STEP)
+            else:
+                up = values.copy()
+                up[k] += NETWORK_STEP
+                plus_m, plus_r = self.predictions(up)
+                here_m, here_r = self._combine(scales, parts)
+                d_markers = (plus_m - here_m) / NETWORK_STEP
+                d_regions = (plus_r - here_r) / NETWORK_STEP
             columns.append(self._weigh(d_markers, d_regions))
         return np.column_stack(columns)
 
@@ -344,7 +354,9 @@ def _identify_arm(
                     f"{len(specs)} parameters, pass {_pass}/2, iteration {_count[0]}, "
                     f"cost {cost:.4g}, {problem.passes} network passes"
                 )
-            return problem.jacobian(x)
+            # forward differences while iterating (half the network passes: issue 29's
+            # 30-s target); the covariance below takes central ones at the solution
+            return problem.jacobian(x, central=False)
 
         result = least_squares(
             problem.weighted,

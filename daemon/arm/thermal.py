@@ -33,6 +33,9 @@ from daemon.model.model import ModelError, Stepper, ThermalModel
 from daemon.model.network import steady_state_c
 
 AmbientInput = float | Callable[[float], float]
+#: A link's two faces when the model resolves the temperature across it: "plus" carries the
+#: motor housings (arm_network's plus_share side), "minus" is the opposite face.
+FACES = ("plus", "minus")
 
 
 class ArmThermalModel:
@@ -182,6 +185,18 @@ class ArmThermalModel:
         """Indices (into ``temperatures_c``) of one link's own nodes (joints excluded)."""
         index = link if isinstance(link, int) else self.link_names.index(link)
         return self._layout.link_nodes[index]
+
+    def link_face_node_indices(self, link: str | int, face: str | None) -> IntArray:
+        """A link's nodes on one face: ``"plus"`` (the motor housings' side, whose heat bends
+        the link) or ``"minus"`` (the other), the link's row there when the model resolves
+        the temperature across it (``across_link``); both rows otherwise or for ``None``."""
+        index = link if isinstance(link, int) else self.link_names.index(link)
+        if face is None or not self._layout.plus_rows:
+            return self._layout.link_nodes[index]
+        if face not in FACES:
+            raise ValueError(f"a link's face is one of {FACES}, not {face!r}")
+        rows = self._layout.plus_rows if face == "plus" else self._layout.minus_rows
+        return rows[index]
 
     def node_positions_mm(self, q_rad: ArrayLike) -> FloatArray:
         """Every node's 3-D position (mm, base frame) with the arm at ``q_rad``: each node

@@ -39,7 +39,9 @@ measured twice with other noise (a calibration cycle, then a run).
   vibration: what limits a photogrammetric system at a metre, not the centroid).
 - IR regions: the mean of the true nodes within ``ir_half_width_mm`` of a point at a fraction
   along a link, plus a constant per-region offset (1-sigma ``ir_offset_sigma_c``; the FLIR's
-  +-2 degC accuracy, thesis 3.2.2, after a rough calibration) and noise ``ir_noise_c``.
+  +-2 degC accuracy, thesis 3.2.2, after a rough calibration) and noise ``ir_noise_c``. A
+  region named for one face of its link (``<link>-mid.plus``, daemon/arm/ir_regions.py) sees
+  that face's row of the truth only.
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ import numpy as np
 from config.arm_truth import ArmTruth
 from daemon.arm import kinematics
 from daemon.arm.description import Arm
+from daemon.arm.ir_regions import region_face
 from daemon.arm.loading import load_arm
 from daemon.arm.thermal import ArmThermalModel
 from daemon.arm.types import FloatArray, LinkThermalState
@@ -369,7 +372,8 @@ class ArmBench:
         thermal = self.thermal
         rows: dict[str, FloatArray] = {}
         for name, link, fraction in self.config.ir_regions:
-            nodes = np.asarray(thermal.link_node_indices(link), dtype=np.intp)
+            face = region_face(name)[1]  # a region on one face sees that face only
+            nodes = np.asarray(thermal.link_face_node_indices(link, face), dtype=np.intp)
             along = thermal.network.positions_mm[nodes]
             point = along[0] + fraction * (along[-1] - along[0])
             inside = nodes[np.abs(along - point) <= self.config.ir_half_width_mm]

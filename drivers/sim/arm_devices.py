@@ -34,6 +34,7 @@ from config import Settings
 from config.arm_truth import ArmTruth, load_arm_truth
 from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle, load_duty_cycle
+from daemon.arm.ir_regions import region_name
 from daemon.arm.loading import load_arm
 from daemon.vision.markers import marker_pixels
 from daemon.vision.multiview import CameraModel
@@ -50,9 +51,27 @@ from drivers.sim.joint_arm import DEFAULT_ACCELERATION_DEG_S2, DEFAULT_SPEED_DEG
 #: The emulated arm's joint speed is its real one times this on a virtual clock (a virtual run
 #: jumps from deadline to deadline, a move over the pty takes loop time: keep it short).
 VIRTUAL_SPEED_FACTOR = 1000.0
-#: IR regions of the arm bench: the middle of each of these links (by index; thesis 3.2.2's
-#: regions along the bar, one per link here).
-IR_LINKS = (1, 2)
+#: Where along a link its end regions are (fraction from its proximal joint): 5 %, ~15 mm
+#: from the A465 upper arm's flange, the IR region's half width.
+IR_END_FRACTION = 0.05
+#: IR regions of the arm bench: (link index, fraction along it, face or None for the section's
+#: mean). The middle of the upper arm and of the forearm (thesis 3.2.2's regions along the
+#: bar: their mean temperature, what grows the link), and both faces of each of them next to
+#: its proximal joint (the shoulder, the elbow). What bends a link is the temperature
+#: difference across it, and it sits where the joint's housing heats one face first: about
+#: 1 degC across the upper arm by the shoulder after 8 h of a task, 0.03 degC at its middle
+#: (below the IR's noise). A region on the section's mean cannot see it, and a wrong bending
+#: share in the controller's model then stays wrong (issue 29, corner-low truth: the preset
+#: with the room and the mean IR removes 65-70 % of the drift, 73-79 % even with every other
+#: factor true; docs/explanation/bench-truth.md).
+IR_REGIONS: tuple[tuple[int, float, str | None], ...] = (
+    (1, 0.5, None),
+    (2, 0.5, None),
+    (1, IR_END_FRACTION, "plus"),
+    (1, IR_END_FRACTION, "minus"),
+    (2, IR_END_FRACTION, "plus"),
+    (2, IR_END_FRACTION, "minus"),
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,12 +111,14 @@ def bench_config(settings: Settings, arm: Arm, duty: DutyCycle | None, seed: int
     """The arm bench's make-up from the settings: its truth (``bench.arm_truth``, checked
     when the settings loaded; none: the default truth), the arm file, a camera station of
     ``arm.cameras`` cameras at each measured pose of the default duty cycle (else at the zero
-    configuration), the tool's markers, IR regions in the middle of IR_LINKS."""
+    configuration), the tool's markers, the IR regions of IR_REGIONS."""
     stations: tuple[tuple[float, ...], ...] = ()
     if duty is not None:
         stations = tuple(tuple(pose.q_rad) for pose in duty.measured_poses())
     regions = tuple(
-        (f"{arm.links[i].name}-mid", arm.links[i].name, 0.5) for i in IR_LINKS if i < arm.dof
+        (region_name(arm.links[i].name, fraction, face), arm.links[i].name, fraction)
+        for i, fraction, face in IR_REGIONS
+        if i < arm.dof
     )
     name = settings.bench.arm_truth
     truth = ArmTruth() if name is None else load_arm_truth(name)
