@@ -37,7 +37,8 @@ import numpy as np
 from config import Settings, load_settings
 from daemon.arm.arm_model import ArmModel, arm_model_toml, new_arm_model_path
 from daemon.arm.calibration_program import duty_cycle_toml, program_for_task
-from daemon.arm.controller import ArmController, ArmModelOptions, load_controller
+from daemon.arm.controller import ArmController, ArmModelOptions
+from daemon.arm.controller_loading import load_controller
 from daemon.arm.duty import DutyCycle, arm_inverse, load_duty_cycle
 from daemon.arm.identify_final import ArmCalibration, identify_arm_final
 from daemon.arm.identify_parameters import default_parameters

@@ -63,7 +63,8 @@ def cached_run(
 
 def true_factors(truth: Any, settings: Any) -> dict[str, Any]:
     """The truth's factors in the controller's terms (module docstring)."""
-    from daemon.arm.controller import ArmModelOptions, load_controller
+    from daemon.arm.controller import ArmModelOptions
+    from daemon.arm.controller_loading import load_controller
     from daemon.run.arm.setup import arm_file
     from drivers.sim.arm_devices import bench_config  # lazy: a benchmark's own tool
 

@@ -27,7 +27,8 @@ from daemon.arm.arm_model import (
     named_arm_model_path,
     saved_arm_models_dir,
 )
-from daemon.arm.controller import ArmModelOptions, load_controller
+from daemon.arm.controller import ArmModelOptions
+from daemon.arm.controller_loading import load_controller
 from daemon.arm.ir_regions import region_nodes, region_point
 from daemon.commands import identify as identify_cli
 from daemon.run.arm.setup import ArmSetupError, arm_file, default_arm_setup

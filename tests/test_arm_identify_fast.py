@@ -271,7 +271,8 @@ def test_a_controller_with_adaptation_approaches_an_arm_it_was_not_told() -> Non
     every 10 minutes, the adapted controller's prediction over the last third is much closer
     to the truth's than the preset's is."""
     from daemon.arm.arm_model import ArmModel
-    from daemon.arm.controller import ArmModelOptions, load_controller
+    from daemon.arm.controller import ArmModelOptions
+    from daemon.arm.controller_loading import load_controller
 
     options = ArmModelOptions(bending=True, motor_side_share=0.75, model_dt_s=60.0)
     truth_model = ArmModel(
@@ -317,7 +318,8 @@ def test_adaptation_follows_the_room_the_controller_follows() -> None:
     room's, so the room is not soaked into the factors: alpha and convection come back, and the
     adapted prediction over the last third is far closer to the truth's than the preset's."""
     from daemon.arm.arm_model import ArmModel
-    from daemon.arm.controller import ArmModelOptions, load_controller
+    from daemon.arm.controller import ArmModelOptions
+    from daemon.arm.controller_loading import load_controller
     from daemon.arm.ir_regions import region_nodes
 
     options = ArmModelOptions(bending=True, motor_side_share=0.75, model_dt_s=60.0)

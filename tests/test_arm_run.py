@@ -401,7 +401,8 @@ def test_fake_robot_is_a_goal_robot() -> None:
 
 
 def test_controller_heats_from_the_duty_cycle_and_predicts_at_each_pose() -> None:
-    from daemon.arm.controller import ArmModelOptions, load_controller
+    from daemon.arm.controller import ArmModelOptions
+    from daemon.arm.controller_loading import load_controller
     from daemon.arm.kinematics import forward, tool_error
 
     controller = load_controller(

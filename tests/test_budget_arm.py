@@ -15,7 +15,8 @@ from daemon.analysis.budget_arm import (
     visible_pixels,
 )
 from daemon.arm.arm_model import ArmModel
-from daemon.arm.controller import ArmModelOptions, load_controller
+from daemon.arm.controller import ArmModelOptions
+from daemon.arm.controller_loading import load_controller
 from daemon.model.calibration import CalibratedParameter
 from daemon.run.arm.setup import ARMS_DIR
 from daemon.vision.tool_pose import measure_tool_pose

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from daemon.arm.controller import ArmController, ArmModelOptions, load_controller
+from daemon.arm.controller import ArmController, ArmModelOptions
+from daemon.arm.controller_loading import load_controller
 from daemon.arm.joint_temperatures import JointTemperatureError, JointTemperatureModel
 from daemon.arm.kinematics import tool_error
 from daemon.run.arm.setup import ARMS_DIR

@@ -11,7 +11,8 @@ import pytest
 
 from config import ConfigError, load_settings
 from config.room_settings import RoomSettings
-from daemon.arm.controller import ArmModelOptions, load_controller
+from daemon.arm.controller import ArmModelOptions
+from daemon.arm.controller_loading import load_controller
 from daemon.arm.room import ambient_series, readings_of
 from daemon.arm.thermal import ArmThermalModel
 from daemon.run.arm.setup import ARMS_DIR

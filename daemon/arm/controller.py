@@ -10,40 +10,40 @@ exactly) and advances the arm's thermal network (daemon/arm/thermal.py). The too
 a measured pose is kinematics.tool_error at that pose's joint angles with the links' current
 thermal states.
 
-With an identified arm model (daemon/arm/arm_model.py, ``--arm-model NAME``) each joint's heat
-is the motor model's times its identified factor, the network's convection and the links'
-expansion coefficient are scaled (factors the calibration could not identify are 1.0: the
-preset's), and with an IR observer (:meth:`ArmController.attach_observer`, prediction
-``model+ir``) daemon.model.observer's Kalman filter corrects the arm's node temperatures from
-the IR regions each step, starting from the identified IR offsets (as benchmarks/bench_arm.py).
+With an identified arm model (daemon/arm/arm_model.py, ``--arm-model NAME``) each joint's heat,
+the convection and the links' expansion are the model's factors (1.0, the preset's, where not
+identified). ``model+ir`` estimates from the IR what it can see (:meth:`ArmController.observe`);
+a UR's joint temperatures go through a Kalman filter (:meth:`ArmController.attach_observer`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from daemon.arm.adaptation import (
-    PRIOR_LOG_SIGMA,
     ArmAdaptation,
     adapted_names,
     ir_observed_names,
 )
 from daemon.arm.arm_model import ArmModel, check_fits
 from daemon.arm.arm_network import describe_arm
+from daemon.arm.controller_priors import (
+    DEFAULT_OFFSET_SIGMA_C,
+    adaptation_priors,
+    observer_adapted,
+)
 from daemon.arm.description import Arm
-from daemon.arm.duty import DutyCycle, check_taught_on, load_duty_cycle
+from daemon.arm.duty import DutyCycle
+from daemon.arm.goal_names import goal_names
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.identify_response import factored_description
 from daemon.arm.ir_regions import region_nodes
-from daemon.arm.kinematics import forward, inverse, tool_error, tool_errors
-from daemon.arm.loading import load_arm
+from daemon.arm.kinematics import forward, tool_error, tool_errors
 from daemon.arm.response import ArmModelSpec, marker_sensitivity
 from daemon.arm.run import CyclePose, FloatArray, MeasuredPose
 from daemon.arm.thermal import ArmThermalModel
@@ -51,12 +51,6 @@ from daemon.arm.types import LinkThermalState, Pose6
 from daemon.model.adaptation import adapted_parameters
 from daemon.model.observer import IrObserver
 
-#: The observer's prior on an IR offset the model file gives no uncertainty for (degC): the
-#: FLIR's +-2 degC accuracy, as the two-link observer (daemon/model/observer.py).
-DEFAULT_OFFSET_SIGMA_C = 2.0
-#: The least prior 1-sigma of a log factor the IR observer adapts (an identified factor's
-#: relative standard error can be tiny; the observer must still be able to move it).
-OBSERVER_MIN_LOG_SIGMA = 0.05
 #: The prior 1-sigma (a log factor's, or a share's) of a factor the IR estimate holds at the
 #: model's value (ArmController._ir_unknowns).
 HELD_SIGMA = 1e-4
@@ -161,33 +155,11 @@ class ArmController:
             offsets_c=offsets,
             offset_sigma_c=sigma,
             initial_sigma_c=initial_sigma_c,
-            adapt=adapted_parameters(model.network, *self._observer_adapted()),
+            adapt=adapted_parameters(
+                model.network, *observer_adapted(self.identified, self.thermal.joint_node_names)
+            ),
         )
         return self.observer
-
-    def _observer_adapted(self) -> tuple[list[str], dict[str, tuple[float, float]]]:
-        """What the IR observer estimates with the temperatures (issue 29): each joint's heat
-        (at its node) and the convection, as factors of this model's (prior 1), each with
-        the 1-sigma its identification left (PRIOR_LOG_SIGMA where not identified). Without
-        them a wrong heat or convection comes back between two IR readings: the filter
-        corrected the temperatures, never what drives them (corner-low truth, preset with the
-        IR: 43 % of the drift removed with the temperatures alone)."""
-        fitted = {} if self.identified is None else {p.name: p for p in self.identified.parameters}
-
-        def sigma(name: str) -> float:
-            p = fitted.get(name)
-            if p is not None and p.identifiable and p.relative_error is not None:
-                return max(float(p.relative_error), OBSERVER_MIN_LOG_SIGMA)
-            return PRIOR_LOG_SIGMA
-
-        names: list[str] = []
-        priors: dict[str, tuple[float, float]] = {}
-        for j, node in enumerate(self.thermal.joint_node_names):
-            names.append(f"heat:{node}")
-            priors[f"heat:{node}"] = (1.0, sigma(f"heat:{j + 1}"))
-        names.append("convection")
-        priors["convection"] = (1.0, sigma("convection"))
-        return names, priors
 
     @property
     def time_s(self) -> float:
@@ -211,39 +183,6 @@ class ArmController:
     @property
     def adapting(self) -> bool:
         return bool(self._adapt_poses)
-
-    def _priors(
-        self, regions: Mapping[str, object] | None = None
-    ) -> dict[str, tuple[float, float]]:
-        """The adaptation's prior: this model's factors; the 1-sigma of an identified one its
-        relative standard error (the default where not identified); each IR region's offset
-        (``regions``) the identified one with its 1-sigma, else 0 within the camera's
-        accuracy (DEFAULT_OFFSET_SIGMA_C)."""
-        fitted = {} if self.identified is None else {p.name: p for p in self.identified.parameters}
-        values = {f"heat:{j + 1}": float(v) for j, v in enumerate(self.heat_scales)}
-        values["alpha"] = self.alpha_scale
-        values["convection"] = 1.0 if self.identified is None else self.identified.convection_scale
-        priors = {}
-        for name, value in values.items():
-            p = fitted.get(name)
-            sigma = PRIOR_LOG_SIGMA
-            if p is not None and p.identifiable and p.relative_error is not None:
-                sigma = max(float(p.relative_error), 0.01)
-            priors[name] = (value, sigma)
-        share = fitted.get("share")
-        if share is not None and share.identifiable and share.standard_error is not None:
-            # an identified share keeps its own (absolute) 1-sigma, not the preset's wide prior:
-            # the IR alone would otherwise move it to what fits the regions, not the tool
-            priors["share"] = (float(share.value), max(float(share.standard_error), 0.005))
-        offsets = {} if self.identified is None else self.identified.ir_offsets_c
-        spreads = {} if self.identified is None else self.identified.ir_offset_sigma_c
-        for region in regions or ():
-            spread = float(spreads.get(region, math.inf))
-            if region not in offsets or not math.isfinite(spread) or spread <= 0.0:
-                priors[f"offset:{region}"] = (0.0, DEFAULT_OFFSET_SIGMA_C)
-            else:
-                priors[f"offset:{region}"] = (float(offsets[region]), spread)
-        return priors
 
     def adapt(
         self, pose: MeasuredPose, displacement_mm: FloatArray, reading_c: Mapping[str, float]
@@ -349,7 +288,12 @@ class ArmController:
         faces, so a wrong share comes back between two readings (issue 29, corner-low truth
         with regions on both faces: 70 % of the drift removed with the filter, 84 % with the
         share estimated). With ``arm.adapt`` the adaptation already takes the IR with the
-        tool (:meth:`adapt`): nothing more here."""
+        tool (:meth:`adapt`): nothing more here. A filter attached explicitly
+        (:meth:`attach_observer`: a UR's joint temperatures, daemon/arm/joint_temperatures.py)
+        still takes the reading."""
+        if self.observer is not None:
+            self.observer.update(reading_c)
+            return
         if self._observer_noise_c is None or self.adapting:
             return
         if self.adaptation is None:
@@ -423,7 +367,13 @@ class ArmController:
         """An adaptation of ``names`` on this model, fed the heat and the air so far; with
         ``free``, the others are held at this model's values (a prior of HELD_SIGMA: the
         adaptation's model must still carry them, e.g. an identified joint's heat)."""
-        priors = {k: v for k, v in self._priors(regions).items() if k in names}
+        priors = {
+            k: v
+            for k, v in adaptation_priors(
+                self.identified, self.heat_scales, self.alpha_scale, regions
+            ).items()
+            if k in names
+        }
         if free is not None:
             priors = {k: (v[0], v[1] if k in free else HELD_SIGMA) for k, v in priors.items()}
             for name in names:
@@ -530,54 +480,3 @@ class ArmController:
 
 #: A goal name: a letter, then letters, digits or underscores, 14 at most (drivers/goals.py
 #: GOAL_NAME; the pure core does not import drivers).
-_GOAL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,13}")
-
-
-def goal_names(names: Sequence[str], keep: set[str]) -> list[str]:
-    """A distinct valid goal name for each pose name: ``keep`` (the measured poses, already
-    goals) and valid names as they are, others with each other character as ``_`` (e.g.
-    ``pick-above`` -> ``pick_above``), else ``p<index>``."""
-    used = set(keep)
-    out = []
-    for index, name in enumerate(names):
-        if name in keep:
-            out.append(name)
-            continue
-        candidate = re.sub(r"[^A-Za-z0-9_]", "_", name)
-        if not _GOAL_NAME.fullmatch(candidate) or candidate in used:
-            candidate = f"p{index}"
-        while candidate in used:
-            candidate += "_"
-        used.add(candidate)
-        out.append(candidate)
-    return out
-
-
-def load_controller(
-    arm_path: str | Path,
-    duty_cycle: str | Path,
-    options: ArmModelOptions,
-    identified: ArmModel | None = None,
-) -> ArmController:
-    """The arm file and the duty cycle (tool poses in the file are solved on this arm)."""
-    arm, duty = load_arm_and_duty(arm_path, duty_cycle)
-    return ArmController(arm, duty, options, identified=identified)
-
-
-def load_arm_and_duty(arm_path: str | Path, duty_cycle: str | Path) -> tuple[Arm, DutyCycle]:
-    """The arm file and a duty cycle taught on it (tool poses in the file solved on this arm);
-    ArmError or DutyCycleError in one line (``check_taught_on``)."""
-    arm = load_arm(arm_path)
-    return arm, load_duty_on(arm, arm_path, duty_cycle)
-
-
-def load_duty_on(arm: Arm, arm_path: str | Path, duty_cycle: str | Path) -> DutyCycle:
-    """A duty cycle taught on ``arm`` (loaded from ``arm_path``): its tool poses solved on
-    it; DutyCycleError in one line (``check_taught_on``)."""
-
-    def solve(pose: FloatArray, seed: FloatArray) -> FloatArray:
-        return inverse(arm, pose, seed)
-
-    duty = load_duty_cycle(duty_cycle, solve)
-    check_taught_on(duty, arm, arm_path)
-    return duty

@@ -49,7 +49,8 @@ import numpy as np
 
 from config import Settings
 from daemon.arm.arm_model import ArmModel
-from daemon.arm.controller import ArmController, ArmModelOptions, load_controller
+from daemon.arm.controller import ArmController, ArmModelOptions
+from daemon.arm.controller_loading import load_controller
 from daemon.arm.identify import (
     ArmFitQuality,
     ArmIdentification,

@@ -49,7 +49,8 @@ from daemon.arm.arm_model import (
     load_arm_model,
     named_arm_model_path,
 )
-from daemon.arm.controller import ArmModelOptions, load_controller
+from daemon.arm.controller import ArmModelOptions
+from daemon.arm.controller_loading import load_controller
 from daemon.commands.budget_record import Recordings, record
 from daemon.model import NetworkError, load_network, steady_state_c
 from daemon.run.arm.setup import arm_file

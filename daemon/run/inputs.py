@@ -16,7 +16,7 @@ from pathlib import Path
 from config import Settings
 from config.inputs import InputError
 from daemon.arm.arm_model import check_fits, load_arm_model, named_arm_model_path
-from daemon.arm.controller import load_duty_on
+from daemon.arm.controller_loading import load_duty_on
 from daemon.arm.loading import load_arm
 from daemon.model import load_network
 from daemon.model.presets import named_network_path

@@ -16,7 +16,8 @@ from typing import Any, cast
 from config import CONFIG_DIR, Settings
 from config.inputs import InputError
 from daemon.arm.arm_model import load_arm_model, named_arm_model_path
-from daemon.arm.controller import ArmModelOptions, load_controller
+from daemon.arm.controller import ArmModelOptions
+from daemon.arm.controller_loading import load_controller
 from daemon.arm.run import ArmPredictor, CyclePose, MeasuredPose
 from daemon.run.arm.measure import MultiCameraMeter
 from daemon.run.arm.robot import GoalRobotArm

@@ -5,7 +5,8 @@ followed by the robot's joint temperatures (daemon/arm/joint_temperatures.py).""
 from __future__ import annotations
 
 from config import Settings
-from daemon.arm.controller import ArmModelOptions, load_controller
+from daemon.arm.controller import ArmModelOptions
+from daemon.arm.controller_loading import load_controller
 from daemon.arm.joint_temperatures import JointTemperatureModel
 from daemon.run.arm.setup import arm_file
 from daemon.run.setup import RunParameterError
