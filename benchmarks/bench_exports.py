@@ -163,6 +163,15 @@ def api_csv(client: httpx.Client, run_id: int) -> int:
 NEXT_FROM = re.compile(rb'"next_from":(null|\d+)\}\s*$')
 
 
+def next_page(page: bytes, start: int) -> int | None:
+    """The ``from`` of the page after ``page`` (the one from ``start``), None at the run's end,
+    read from the page's last bytes."""
+    end = NEXT_FROM.search(page[-64:])
+    if end is None:
+        raise RuntimeError(f"page from {start} does not end in next_from")
+    return None if end.group(1) == b"null" else int(end.group(1))
+
+
 def api_json(client: httpx.Client, run_id: int) -> int:
     """Every page, each read to its end; the next page's ``from`` is taken from the page's
     last bytes (parsing 190 MB of JSON in this client cost as much CPU as the export itself:
@@ -172,12 +181,10 @@ def api_json(client: httpx.Client, run_id: int) -> int:
         answer = client.get(f"/api/v1/runs/{run_id}/steps", params={"from": start, "limit": 5000})
         answer.raise_for_status()
         size += len(answer.content)
-        end = NEXT_FROM.search(answer.content[-64:])
-        if end is None:
-            raise RuntimeError(f"page from {start} does not end in next_from")
-        if end.group(1) == b"null":
+        following = next_page(answer.content, start)
+        if following is None:
             return size
-        start = int(end.group(1))
+        start = following
 
 
 def _children(pid: int) -> list[int]:

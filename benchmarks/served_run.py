@@ -31,7 +31,7 @@ import httpx
 from websockets.asyncio.client import connect
 
 from benchmarks.bench_api import HEADERS, SERVER_START_S, TOKEN, free_port, wait_until_healthy
-from benchmarks.bench_exports import NEXT_FROM, fill_run
+from benchmarks.bench_exports import fill_run, next_page
 
 ROOT = Path(__file__).resolve().parent.parent
 STEP_S = 0.020
@@ -142,12 +142,10 @@ async def _export_json(client: httpx.AsyncClient, run_id: int) -> int:
         )
         answer.raise_for_status()
         size += len(answer.content)
-        end = NEXT_FROM.search(answer.content[-64:])
-        if end is None:
-            raise RuntimeError(f"page from {start} does not end in next_from")
-        if end.group(1) == b"null":
+        following = next_page(answer.content, start)
+        if following is None:
             return size
-        start = int(end.group(1))
+        start = following
 
 
 async def _exporter(port: int, run_id: int, as_csv: bool, counts: ExportCounts) -> None:
