@@ -204,7 +204,12 @@ def test_dashboard_drives_a_live_run(browser: Browser, server: str, tmp_path: Pa
     page.click("#btn-hold")
     page.wait_for_selector("#robot-badges .badge.held")
     assert page.text_content("#robot-badges .badge.held") == "robot held"
-    assert message(page).startswith("hold acknowledged: no motion can be sent")
+    # the badge comes from the state event, the message from the hold's answer: either may
+    # land first (CI saw the badge while the message still said "resumed")
+    page.wait_for_function(
+        "document.querySelector('#message').textContent.startsWith('hold acknowledged')"
+    )
+    assert message(page).startswith("hold acknowledged: no motion can be sent"), message(page)
 
     # a refused action answers with the API's error message, not a bare status. Pause is
     # disabled while paused, so the test enables it and clicks it in one task of the page:
