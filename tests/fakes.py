@@ -408,6 +408,8 @@ class FakeCamera:
 class FakeIr:
     def __init__(self, clock: Clock) -> None:
         self.clock = clock
+        self.reads = 0
+        self.gates: dict[int, Gate] = {}  # read number (0 = the first) -> gate
 
     async def __aenter__(self) -> Self:
         return self
@@ -416,6 +418,10 @@ class FakeIr:
         return None
 
     async def read(self) -> IrReading:
+        gate = self.gates.get(self.reads)
+        self.reads += 1
+        if gate is not None:
+            await gate.pass_through()
         region = RegionTemperature("shaft", 25.0, 26.5, "9")
         return IrReading({"shaft": region}, self.clock.now(), 0)
 
@@ -479,6 +485,11 @@ class Harness:
     def camera(self) -> FakeCamera:
         assert self.devices is not None
         return self.devices.camera
+
+    @property
+    def ir(self) -> FakeIr:
+        assert self.devices is not None
+        return self.devices.ir
 
 
 def params(settings: Settings, **overrides: Any) -> RunParameters:

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from daemon.run.scheduler import Tick
 from daemon.run.states import RunParameters
-from daemon.run.step import StepOutcome
+from daemon.run.step import MeasuringStep, StepOutcome
 from daemon.run.summary import SummaryBasis, SummaryRow
 from daemon.storage.recorder import Recorder
 from drivers.clock import Clock
@@ -138,8 +138,10 @@ class RunKind(Protocol):
         when the robot cannot go on (the session faults, and does it again after a resume)."""
         ...
 
-    async def step(self, tick: Tick) -> StepOutcome:
-        """One step: model -> check -> move -> measure -> record (committed) -> verdict."""
+    async def step(self, tick: Tick) -> StepOutcome | MeasuringStep:
+        """One step: model -> check -> move -> measure -> record (committed) -> verdict; or,
+        once its frame is taken, the step still measuring (daemon/run/step.py MeasuringStep:
+        its record is committed after the previous step's and before the next one's)."""
         ...
 
     async def resumed(self) -> None:

@@ -37,7 +37,7 @@ from daemon.run.readmodel import RunView
 from daemon.run.scheduler import FixedStepTimer, sleep_until_woken
 from daemon.run.services import BenchControl, SessionServices
 from daemon.run.states import RunState, RunStateError, StateMachine
-from daemon.run.step import StepOutcome, Verdict
+from daemon.run.step import MeasuringStep, StepOutcome, Verdict
 from daemon.run.summary import stored_basis
 from daemon.storage.recorder import RecorderError
 from drivers.errors import DeviceError, GoalLostError, MotionHeldError
@@ -79,6 +79,8 @@ class RunSession:
         self._grant = RunGrant(self.id, services.robot, services.errors, ticket)
         self._prepared = False  # the start's teaching and references are done
         self._publisher = RunPublisher(self.id, services)
+        #: the step whose measurement and record overlap the next step's move (at most one)
+        self._measuring: MeasuringStep | None = None
         self.task: asyncio.Task[None] | None = None
 
     @property
@@ -310,8 +312,10 @@ class RunSession:
         collector.defer_full()
         while True:
             if self.stop_requested or self.state is RunState.STOPPING:
+                await self._settle()
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
+                await self._settle()  # the last step's record and verdict before the wait
                 collector.resume_automatic()
                 await self.kind.stop_playing(
                     self._services.settings.scheduler.stop_grace_s, held=True
@@ -322,6 +326,7 @@ class RunSession:
                 collector.defer_full()
                 continue
             if timer.next_deadline_s >= end_s - 1e-9:
+                await self._settle()
                 return
             self.kind.play(self._grant.ticket)  # what moves between the steps, for this grant
             await sleep_until_woken(self.kind.clock, timer.next_wake_s, self._wake)
@@ -335,11 +340,48 @@ class RunSession:
                 outcome = await self.kind.step(tick)
             finally:
                 collector.step(running=False)
-            self._recorded(outcome, factor)
-            await self._judge(tick.step, outcome.verdict)
+            # the previous step's measurement overlapped this step's move: collected now, so
+            # steps are published and judged in order and at most one measures at a time
+            await self._settle()
+            if isinstance(outcome, MeasuringStep):
+                self._measuring = outcome
+                if outcome.settle_before_next:
+                    await self._settle()
+            else:
+                self._recorded(outcome, factor)
+                await self._judge(tick.step, outcome.verdict)
             timer.step_done()
             self._services.read_model.progress()
             collector.after_step((timer.next_wake_s - timer.clock.now()) / factor)
+
+    async def _settle(self) -> None:
+        """The step still measuring (if any): wait for its committed record, publish it and
+        act on its verdict (a RecorderError it met is raised here, as from the step)."""
+        measuring = self._measuring
+        if measuring is None:
+            return
+        try:
+            # shielded: a stop that abandons the loop leaves it for _settle_at_end to record
+            outcome = await asyncio.shield(measuring.outcome)
+        finally:
+            if measuring.outcome.done():
+                self._measuring = None
+        timer = self.timer
+        factor = 1.0 if timer is None else float(getattr(timer.clock, "factor", 1.0))
+        self._recorded(outcome, factor)
+        await self._judge(measuring.step, outcome.verdict)
+
+    async def _settle_at_end(self) -> None:
+        """After the hold at the end: a measurement the loop left (its task was cancelled)
+        still gets its record; whatever it met is logged, the run ends anyway."""
+        measuring = self._measuring
+        if measuring is None:
+            return
+        try:
+            await self._settle()
+        except Exception as err:  # the run is ending: what is lost is said, once
+            logger.error("run %d step %d: not recorded: %s", self.id, measuring.step, err)
+            self._services.errors.note(err, device="storage")
 
     def _recorded(self, outcome: StepOutcome, factor: float) -> None:
         """A committed step: the session's last step, then its publication (the budget in wall
@@ -414,6 +456,7 @@ class RunSession:
             await self.kind.stop_playing(
                 services.settings.scheduler.stop_grace_s, held=final is not RunState.FINISHED
             )
+            await self._settle_at_end()
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
             recorded = await ending.record_end(services, self.id, final, reason)

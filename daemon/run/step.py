@@ -6,6 +6,7 @@ followed/kind.py)."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -54,6 +55,20 @@ class StepOutcome:
     stage_ends_s: dict[str, float] = field(default_factory=dict)
     # an arm step: each tool camera's frame and the markers it measured, for live views
     views: tuple[CameraView, ...] = ()
+
+
+@dataclass(frozen=True, eq=False)
+class MeasuringStep:
+    """A step whose move is made and whose frame is taken, while its centroid, IR reading and
+    record are still under way (issue 30: they overlap the next step's move, so a 20 ms step
+    pays only model -> check -> move -> frame on its period). ``outcome`` ends with the
+    committed step's outcome; the session collects it after the next step's move, or at once
+    when ``settle_before_next``: the next step needs this measurement before it predicts (an
+    observer fuses it into the model) or before it moves (sensor_error_policy "pause")."""
+
+    step: int
+    outcome: asyncio.Task[StepOutcome]
+    settle_before_next: bool
 
 
 @dataclass(frozen=True, eq=False)

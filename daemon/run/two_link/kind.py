@@ -20,7 +20,7 @@ from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.services import BenchControl
 from daemon.run.states import RunParameters
-from daemon.run.step import StepOutcome
+from daemon.run.step import MeasuringStep, StepOutcome
 from daemon.run.summary import SummaryBasis, SummaryRow
 from daemon.run.two_link.step import RunWork, StepPipeline
 from daemon.run.two_link.summary import two_link_basis, two_link_summary, two_link_summary_rows
@@ -108,7 +108,7 @@ class TwoLinkKind(KindBase):
         work.reference_um[0] = (result.x_um, result.y_um)
         work.reference_source = "goal before the first move"
 
-    async def step(self, tick: Tick) -> StepOutcome:
+    async def step(self, tick: Tick) -> StepOutcome | MeasuringStep:
         return await self.pipeline.run(self.work, tick)
 
     async def resumed(self) -> None:

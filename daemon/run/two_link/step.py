@@ -7,6 +7,7 @@ operator's requests that may have arrived meanwhile.
 
 from __future__ import annotations
 
+import asyncio
 import functools
 import json
 import logging
@@ -35,6 +36,7 @@ from daemon.run.stage_times import StageTimes
 from daemon.run.states import ProcedurePoint, RunParameters, heat_at, procedure_point
 from daemon.run.step import (
     SENSOR_ERROR_FLAGS,
+    MeasuringStep,
     StepOutcome,
     begin_record,
     finish_record,
@@ -95,8 +97,10 @@ class StepPipeline:
         self._workers = workers
         self._errors = errors
         self._now = clock_now
+        # the last step still measuring (MeasuringStep): the next record is written after it
+        self._measuring: asyncio.Task[StepOutcome] | None = None
 
-    async def run(self, work: RunWork, tick: Tick) -> StepOutcome:
+    async def run(self, work: RunWork, tick: Tick) -> StepOutcome | MeasuringStep:
         parameters = work.parameters
         run_time_s = tick.scheduled_s - work.start_s
         record, flags = begin_record(work.run_id, parameters, work.start_s, tick)
@@ -139,14 +143,111 @@ class StepPipeline:
                 device_fault = str(err)
         stages.end("move", started)
 
-        # 4. measure: frame -> centroid, and the IR regions
-        frame: Frame | None = None
+        # 4. measure: the frame now (it shows the pose this step moved to); its centroid, the
+        # IR reading and the record overlap the next step's move (MeasuringStep)
         if point.capture and device_fault is None and unsafe is None:
-            frame = await self._measure(
-                work, point=point, record=record, flags=flags, errors=errors, stages=stages
+            frame, age_s = await self._grab(flags, errors, stages)
+            measuring = asyncio.create_task(
+                self._measured(
+                    work,
+                    point=point,
+                    tick=tick,
+                    record=record,
+                    frame=frame,
+                    frame_age_s=age_s,
+                    flags=flags,
+                    errors=errors,
+                    stages=stages,
+                    previous=self._measuring,
+                ),
+                name=f"run {work.run_id} step {tick.step}: measure and record",
             )
+            self._measuring = measuring
+            return MeasuringStep(tick.step, measuring, self._settle_before_next(work))
+        return await self._recorded(
+            work,
+            tick=tick,
+            record=record,
+            frame=None,
+            flags=flags,
+            errors=errors,
+            stages=stages,
+            unsafe=unsafe,
+            device_fault=device_fault,
+            round_trips_s=round_trips_s,
+            previous=self._measuring,
+        )
 
-        # 5. record, committed before the next step begins
+    def _settle_before_next(self, work: RunWork) -> bool:
+        """Whether the next step must wait for this one's measurement before it begins: an
+        observer fuses the measurement into the model the next step predicts with, and the
+        "pause" policy pauses on a sensor error before another move is made."""
+        return work.observer is not None or self._settings.scheduler.sensor_error_policy == "pause"
+
+    async def _measured(
+        self,
+        work: RunWork,
+        *,
+        point: ProcedurePoint,
+        tick: Tick,
+        record: StepRecord,
+        frame: Frame | None,
+        frame_age_s: float,
+        flags: list[str],
+        errors: list[str],
+        stages: StageTimes,
+        previous: asyncio.Task[StepOutcome] | None,
+    ) -> StepOutcome:
+        """The step's centroid and IR reading, then its record: after the previous step's
+        (the devices are read and the records written in step order)."""
+        await _after(previous)
+        started = time.perf_counter()
+        if frame is not None:
+            await self._centroid(
+                work,
+                point=point,
+                frame=frame,
+                age_s=frame_age_s,
+                record=record,
+                flags=flags,
+                errors=errors,
+            )
+        stages.end("centroid", started)
+        started = time.perf_counter()
+        await self._infrared(work, record, flags, errors)
+        stages.end("ir", started)
+        return await self._recorded(
+            work,
+            tick=tick,
+            record=record,
+            frame=frame,
+            flags=flags,
+            errors=errors,
+            stages=stages,
+            unsafe=None,
+            device_fault=None,
+            round_trips_s=(),
+            previous=previous,
+        )
+
+    async def _recorded(
+        self,
+        work: RunWork,
+        *,
+        tick: Tick,
+        record: StepRecord,
+        frame: Frame | None,
+        flags: list[str],
+        errors: list[str],
+        stages: StageTimes,
+        unsafe: str | None,
+        device_fault: str | None,
+        round_trips_s: tuple[float, ...],
+        previous: asyncio.Task[StepOutcome] | None,
+    ) -> StepOutcome:
+        """5. record, committed after the previous step's (the records stay in step order:
+        readers page through them by step) and before the next step's; then the verdict."""
+        await _after(previous)
         finish_record(record, flags, errors, stages)
         started = time.perf_counter()
         archive_every = self._settings.storage.archive_every
@@ -267,35 +368,23 @@ class StepPipeline:
 
     # --- 4. measure ----------------------------------------------------------------------
 
-    async def _measure(
-        self,
-        work: RunWork,
-        *,
-        point: ProcedurePoint,
-        record: StepRecord,
-        flags: list[str],
-        errors: list[str],
-        stages: StageTimes,
-    ) -> Frame | None:
+    async def _grab(
+        self, flags: list[str], errors: list[str], stages: StageTimes
+    ) -> tuple[Frame | None, float]:
+        """The step's frame and its age when taken (its staleness is judged at the grab, not
+        when its centroid is computed a step later)."""
         started = time.perf_counter()
         frame: Frame | None = None
+        age_s = 0.0
         try:
             frame = await self._sensors.grab()
+            age_s = self._now() - frame.timestamp_s
         except DeviceError as err:
             self._errors.note(err)
             flags.append("camera-error")
             errors.append(str(err))
         stages.end("frame", started)
-        started = time.perf_counter()
-        if frame is not None:
-            await self._centroid(
-                work, point=point, frame=frame, record=record, flags=flags, errors=errors
-            )
-        stages.end("centroid", started)
-        started = time.perf_counter()
-        await self._infrared(work, record, flags, errors)
-        stages.end("ir", started)
-        return frame
+        return frame, age_s
 
     async def _centroid(
         self,
@@ -303,6 +392,7 @@ class StepPipeline:
         *,
         point: ProcedurePoint,
         frame: Frame,
+        age_s: float,
         record: StepRecord,
         flags: list[str],
         errors: list[str],
@@ -310,7 +400,6 @@ class StepPipeline:
         camera_settings = self._settings.camera
         if frame.timestamp_source == "host":  # issue 18: say when the time is not exposure's
             flags.append("host-timestamp")
-        age_s = self._now() - frame.timestamp_s
         stale = age_s > camera_settings.max_age_s
         if stale:
             flags.append("stale-frame")
@@ -381,6 +470,13 @@ class StepPipeline:
             )
             if work.observer.drifting:
                 flags.append("model-drifting")
+
+
+async def _after(previous: asyncio.Task[StepOutcome] | None) -> None:
+    """Wait for the previous step's measurement to end; its errors are the session's to
+    handle (it collects that step): here only the order."""
+    if previous is not None and not previous.done():
+        await asyncio.wait({previous})
 
 
 def _vector3(array: NDArray[np.float64]) -> tuple[float, float, float]:
