@@ -47,7 +47,7 @@ SUMMARY_NICENESS = 10
 class Workers:
     """``critical``: run first in each ``step`` and ``db`` thread (the control loop's
     scheduling, daemon/run/control_loop.py): a step waits for both -- its CPU work, and its
-    record committed before the next step begins -- so they share the loop's priority."""
+    record committed in step order -- so they share the loop's priority."""
 
     def __init__(self, critical: Callable[[], object] | None = None) -> None:
         self._step = ThreadPoolExecutor(

@@ -1,7 +1,9 @@
 """Crash-safe recording of runs and steps in SQLite (WAL, synchronous=FULL).
 
-Every step is committed in its own transaction before the next step begins, so a crash (even
-SIGKILL) loses at most the step in progress and never leaves a partial one: SQLite's WAL
+Every step is committed in its own transaction, in step order: before the next step begins
+(arm and followed runs) or while the next step moves (two-link runs, whose measurement
+overlaps the next move: daemon/run/step.py MeasuringStep). A crash (even SIGKILL) loses at
+most the steps in progress (one measuring, one moving) and never leaves a partial one: SQLite's WAL
 commit is atomic, and ``synchronous=FULL`` makes it durable. A run found in a live state when
 the recorder opens was left by a crash and is marked ``interrupted``; its steps are kept.
 

@@ -1,8 +1,15 @@
-"""One step of a run (thesis 6.4), top to bottom: model -> target check -> move -> measure ->
-record. The pipeline computes the step and returns its outcome (the committed record, the
-frame, and a verdict: ok, pause(reason) or fault(reason)); it never changes the run's state.
-What the verdict does to the run is decided in one place, daemon/run/session.py, against the
-operator's requests that may have arrived meanwhile.
+"""One step of a run (thesis 6.4), top to bottom: model -> target check -> move -> frame ->
+centroid and IR -> record. The pipeline computes the step and returns its outcome (the
+committed record, the frame, and a verdict: ok, pause(reason) or fault(reason)); it never
+changes the run's state. What the verdict does to the run is decided in one place,
+daemon/run/session.py, against the operator's requests that may have arrived meanwhile.
+
+Once the frame is taken the step returns a MeasuringStep (issue 30): its centroid, IR reading
+and record overlap the next step's move, which the thesis's step allows -- the move is computed
+from the model alone (6.4.1), and the measurement only says what the move achieved. The frame
+itself is taken before the next move (it must show this step's pose); measurements and records
+stay in step order; an observer (whose update the next prediction uses) or the "pause" sensor
+policy (which must act before another move) makes the next step wait for it first.
 """
 
 from __future__ import annotations
