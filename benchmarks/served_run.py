@@ -165,6 +165,10 @@ async def _exporter(port: int, run_id: int, as_csv: bool, counts: ExportCounts) 
             counts.megabytes += size / 1e6
 
 
+#: The stages a step does before the next deadline; the rest may overlap the next step's move.
+MOVING_STAGES = ("model", "check", "move", "frame")
+
+
 @dataclass
 class ServedRun:
     """The server (its process), a client of its API, the run started, and the WebSocket
@@ -179,12 +183,20 @@ class ServedRun:
     stages: list[dict[str, float]] = field(default_factory=list)
 
     def long_steps(self, period_s: float) -> dict[str, Any]:
-        """The steps whose stages took longer than the period (each one an overrun): how
-        many, and per stage the longest it took in one of them (ms)."""
+        """The steps whose stages took longer than the period: how many, per stage the
+        longest it took in one of them (ms), and how many of them overran on the period's
+        own stages (model to frame; a two-link step's centroid, IR and record overlap the next
+        step's move, daemon/run/step.py MeasuringStep) or in that overlapped part alone."""
         long = [s for s in self.stages if sum(s.values()) > period_s]
         names = sorted({name for s in long for name in s})
         return {
             "count": len(long),
+            "moving_over_period": sum(
+                sum(s.get(n, 0.0) for n in MOVING_STAGES) > period_s for s in long
+            ),
+            "measuring_over_period": sum(
+                sum(v for n, v in s.items() if n not in MOVING_STAGES) > period_s for s in long
+            ),
             "stage_max_ms": {n: round(1e3 * max(s.get(n, 0.0) for s in long), 2) for n in names},
         }
 

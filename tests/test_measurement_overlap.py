@@ -1,4 +1,4 @@
-"""Issue 30: a step's centroid, IR reading and record overlap the next step's move.
+"""Issue 30: a step's centroid, IR reading and record overlap the next steps' moves.
 
 The step's period pays model -> check -> move -> frame; the rest of the step (daemon/run/step.py
 ``MeasuringStep``) finishes while the next step moves, its result on its own record, the
@@ -14,9 +14,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pytest
 
+from daemon.run.session import MEASURING_STEPS
 from daemon.run.states import RunState
 from daemon.service import Daemon
+from daemon.storage.recorder import RecorderError, StepRecord
 from drivers.errors import DeviceError
 from tests.fakes import Gate, Harness, make_settings, params
 
@@ -51,14 +54,15 @@ async def test_the_next_step_moves_while_a_step_still_measures(tmp_path: Path) -
     async with harness.daemon as daemon:
         assert daemon.recorder is not None
         gate, _ = await gated_step(harness, daemon)
-        # step 3 takes its frame (after its move) while step 2 waits for its IR reading:
-        # grabs 0 (the reference) to 4
-        frames = GATED_READ + 3
+        # steps 3 and 4 move and take their frames while step 2 waits for its IR reading (and
+        # they for step 2's measurement): the reference and steps 0 to 4
+        frames = 1 + GATED_READ + MEASURING_STEPS
         await until(lambda: harness.camera.sequence >= frames)
         run = daemon.run
         assert run is not None and run.step == 1  # step 2 is not published before its record
         assert [s.step for s in daemon.recorder.steps(run.id)] == [0, 1]
-        # and no further: at most one step measures while another moves
+        assert harness.ir.reads == GATED_READ + 1  # the devices are read in step order
+        # and no further: at most MEASURING_STEPS steps measure while the next one moves
         await asyncio.sleep(0.05)
         assert harness.camera.sequence == frames
         gate.open()
@@ -126,3 +130,31 @@ async def test_a_stop_while_a_step_measures_keeps_its_record(tmp_path: Path) -> 
     assert [s.step for s in steps] == list(range(len(steps)))
     assert len(steps) >= GATED_READ + 1  # step 2's measurement was recorded
     assert steps[GATED_READ].ir_json is not None
+
+
+async def test_no_record_is_written_after_one_that_failed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # one commit fails (a full disk that then has room again): the steps measuring behind it
+    # must not leave a gap in the record
+    settings = make_settings(tmp_path)
+    harness = Harness(settings)
+    async with harness.daemon as daemon:
+        recorder = daemon.recorder
+        assert recorder is not None
+        write_step = recorder.write_step
+
+        def failing_once(record: StepRecord) -> None:
+            if record.step == 3:
+                raise RecorderError("database or disk is full")
+            write_step(record)
+
+        monkeypatch.setattr(recorder, "write_step", failing_once)
+        info = await daemon.start_run(params(settings))
+        final = await daemon.wait_run()
+        steps = recorder.steps(info["id"])
+    assert final["state"] == "aborted" and final["reason"] == (
+        "recording failed: database or disk is full"
+    )
+    assert harness.robot.held
+    assert [s.step for s in steps] == [0, 1, 2]

@@ -21,6 +21,7 @@ changes only here.
 from __future__ import annotations
 
 import asyncio
+import collections
 import functools
 import logging
 import math
@@ -46,6 +47,12 @@ from drivers.permit import MotionPermit, Ticket
 __all__ = ["BenchControl", "ResumeRefusedError", "RunSession", "SessionServices"]
 
 logger = logging.getLogger(__name__)
+
+#: At most this many steps measure and record while later steps move (daemon/run/step.py
+#: MeasuringStep): a commit that waits on a slow fsync (34 ms seen on a lab VM's disk, where
+#: the median is 0.5 ms) then delays the publication of a few 20 ms steps, not their moves.
+#: A crash loses at most these steps' records and the moving one's.
+MEASURING_STEPS = 3
 
 
 class ResumeRefusedError(RunStateError):
@@ -79,8 +86,8 @@ class RunSession:
         self._grant = RunGrant(self.id, services.robot, services.errors, ticket)
         self._prepared = False  # the start's teaching and references are done
         self._publisher = RunPublisher(self.id, services)
-        #: the step whose measurement and record overlap the next step's move (at most one)
-        self._measuring: MeasuringStep | None = None
+        #: the steps whose measurement and record overlap the next steps' moves, oldest first
+        self._measuring: collections.deque[MeasuringStep] = collections.deque()
         self.task: asyncio.Task[None] | None = None
 
     @property
@@ -340,48 +347,48 @@ class RunSession:
                 outcome = await self.kind.step(tick)
             finally:
                 collector.step(running=False)
-            # the previous step's measurement overlapped this step's move: collected now, so
-            # steps are published and judged in order and at most one measures at a time
-            await self._settle()
             if isinstance(outcome, MeasuringStep):
-                self._measuring = outcome
-                if outcome.settle_before_next:
-                    await self._settle()
+                self._measuring.append(outcome)
+                # the steps before overlapped this step's move: those done are collected now
+                # (published and judged in step order); the oldest is waited for when too many
+                # are under way, and this one at once when the next step needs it
+                await self._settle(keep=0 if outcome.settle_before_next else MEASURING_STEPS - 1)
             else:
+                await self._settle()
                 self._recorded(outcome, factor)
                 await self._judge(tick.step, outcome.verdict)
             timer.step_done()
             self._services.read_model.progress()
             collector.after_step((timer.next_wake_s - timer.clock.now()) / factor)
 
-    async def _settle(self) -> None:
-        """The step still measuring (if any): wait for its committed record, publish it and
-        act on its verdict (a RecorderError it met is raised here, as from the step)."""
-        measuring = self._measuring
-        if measuring is None:
-            return
-        try:
-            # shielded: a stop that abandons the loop leaves it for _settle_at_end to record
-            outcome = await asyncio.shield(measuring.outcome)
-        finally:
-            if measuring.outcome.done():
-                self._measuring = None
-        timer = self.timer
-        factor = 1.0 if timer is None else float(getattr(timer.clock, "factor", 1.0))
-        self._recorded(outcome, factor)
-        await self._judge(measuring.step, outcome.verdict)
+    async def _settle(self, keep: int = 0) -> None:
+        """Collect the steps still measuring, oldest first: each one done, and as many more as
+        leave at most ``keep`` under way: wait for its committed record, publish it and act on
+        its verdict (a RecorderError it met is raised here, as from the step)."""
+        pending = self._measuring
+        while pending and (len(pending) > keep or pending[0].outcome.done()):
+            measuring = pending[0]
+            try:
+                # shielded: a stop that abandons the loop leaves it for _settle_at_end
+                outcome = await asyncio.shield(measuring.outcome)
+            finally:
+                if measuring.outcome.done():
+                    pending.popleft()
+            timer = self.timer
+            factor = 1.0 if timer is None else float(getattr(timer.clock, "factor", 1.0))
+            self._recorded(outcome, factor)
+            await self._judge(measuring.step, outcome.verdict)
 
     async def _settle_at_end(self) -> None:
-        """After the hold at the end: a measurement the loop left (its task was cancelled)
-        still gets its record; whatever it met is logged, the run ends anyway."""
-        measuring = self._measuring
-        if measuring is None:
-            return
-        try:
-            await self._settle()
-        except Exception as err:  # the run is ending: what is lost is said, once
-            logger.error("run %d step %d: not recorded: %s", self.id, measuring.step, err)
-            self._services.errors.note(err, device="storage")
+        """After the hold at the end: measurements the loop left (its task was cancelled)
+        still get their records; whatever they met is logged, the run ends anyway."""
+        while self._measuring:
+            step = self._measuring[0].step
+            try:
+                await self._settle(keep=len(self._measuring) - 1)
+            except Exception as err:  # the run is ending: what is lost is said, once
+                logger.error("run %d step %d: not recorded: %s", self.id, step, err)
+                self._services.errors.note(err, device="storage")
 
     def _recorded(self, outcome: StepOutcome, factor: float) -> None:
         """A committed step: the session's last step, then its publication (the budget in wall

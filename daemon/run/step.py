@@ -60,9 +60,10 @@ class StepOutcome:
 @dataclass(frozen=True, eq=False)
 class MeasuringStep:
     """A step whose move is made and whose frame is taken, while its centroid, IR reading and
-    record are still under way (issue 30: they overlap the next step's move, so a 20 ms step
+    record are still under way (issue 30: they overlap the next steps' moves, so a 20 ms step
     pays only model -> check -> move -> frame on its period). ``outcome`` ends with the
-    committed step's outcome; the session collects it after the next step's move, or at once
+    committed step's outcome; the session collects it in step order once it is done, at most
+    session.MEASURING_STEPS behind the step moving, or at once
     when ``settle_before_next``: the next step needs this measurement before it predicts (an
     observer fuses it into the model) or before it moves (sensor_error_policy "pause")."""
 

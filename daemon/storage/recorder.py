@@ -1,9 +1,10 @@
 """Crash-safe recording of runs and steps in SQLite (WAL, synchronous=FULL).
 
 Every step is committed in its own transaction, in step order: before the next step begins
-(arm and followed runs) or while the next step moves (two-link runs, whose measurement
-overlaps the next move: daemon/run/step.py MeasuringStep). A crash (even SIGKILL) loses at
-most the steps in progress (one measuring, one moving) and never leaves a partial one: SQLite's WAL
+(arm and followed runs) or while the next steps move (two-link runs, whose measurement
+overlaps the next moves: daemon/run/step.py MeasuringStep, daemon/run/session.py
+MEASURING_STEPS). A crash (even SIGKILL) loses at most the steps in progress (normally one; at
+most three measuring and one moving) and never leaves a partial one: SQLite's WAL
 commit is atomic, and ``synchronous=FULL`` makes it durable. A run found in a live state when
 the recorder opens was left by a crash and is marked ``interrupted``; its steps are kept.
 

@@ -5,7 +5,7 @@ changes the run's state. What the verdict does to the run is decided in one plac
 daemon/run/session.py, against the operator's requests that may have arrived meanwhile.
 
 Once the frame is taken the step returns a MeasuringStep (issue 30): its centroid, IR reading
-and record overlap the next step's move, which the thesis's step allows -- the move is computed
+and record overlap the next steps' moves, which the thesis's step allows -- the move is computed
 from the model alone (6.4.1), and the measurement only says what the move achieved. The frame
 itself is taken before the next move (it must show this step's pose); measurements and records
 stay in step order; an observer (whose update the next prediction uses) or the "pause" sensor
@@ -51,7 +51,7 @@ from daemon.run.step import (
     step_verdict,
 )
 from daemon.run.workers import Workers
-from daemon.storage.recorder import Recorder, StepRecord
+from daemon.storage.recorder import Recorder, RecorderError, StepRecord
 from daemon.vision import CentroidError, measure_with_camera_settings
 from daemon.vision.calibration import camera_to_robot
 from drivers.base import Frame, MoveResult, Pose, Robot
@@ -104,8 +104,8 @@ class StepPipeline:
         self._workers = workers
         self._errors = errors
         self._now = clock_now
-        # the last step still measuring (MeasuringStep): the next record is written after it
-        self._measuring: asyncio.Task[StepOutcome] | None = None
+        # the last step's place in the order of measurements and records (MeasuringStep)
+        self._last_turn: _Turn | None = None
 
     async def run(self, work: RunWork, tick: Tick) -> StepOutcome | MeasuringStep:
         parameters = work.parameters
@@ -151,7 +151,9 @@ class StepPipeline:
         stages.end("move", started)
 
         # 4. measure: the frame now (it shows the pose this step moved to); its centroid, the
-        # IR reading and the record overlap the next step's move (MeasuringStep)
+        # IR reading and the record overlap the next steps' moves (MeasuringStep)
+        previous, turn = self._last_turn, _Turn()
+        self._last_turn = turn
         if point.capture and device_fault is None and unsafe is None:
             frame, age_s = await self._grab(flags, errors, stages)
             measuring = asyncio.create_task(
@@ -165,11 +167,11 @@ class StepPipeline:
                     flags=flags,
                     errors=errors,
                     stages=stages,
-                    previous=self._measuring,
+                    previous=previous,
+                    turn=turn,
                 ),
                 name=f"run {work.run_id} step {tick.step}: measure and record",
             )
-            self._measuring = measuring
             return MeasuringStep(tick.step, measuring, self._settle_before_next(work))
         return await self._recorded(
             work,
@@ -182,7 +184,8 @@ class StepPipeline:
             unsafe=unsafe,
             device_fault=device_fault,
             round_trips_s=round_trips_s,
-            previous=self._measuring,
+            previous=previous,
+            turn=turn,
         )
 
     def _settle_before_next(self, work: RunWork) -> bool:
@@ -203,26 +206,31 @@ class StepPipeline:
         flags: list[str],
         errors: list[str],
         stages: StageTimes,
-        previous: asyncio.Task[StepOutcome] | None,
+        previous: _Turn | None,
+        turn: _Turn,
     ) -> StepOutcome:
-        """The step's centroid and IR reading, then its record: after the previous step's
-        (the devices are read and the records written in step order)."""
-        await _after(previous)
-        started = time.perf_counter()
-        if frame is not None:
-            await self._centroid(
-                work,
-                point=point,
-                frame=frame,
-                age_s=frame_age_s,
-                record=record,
-                flags=flags,
-                errors=errors,
-            )
-        stages.end("centroid", started)
-        started = time.perf_counter()
-        await self._infrared(work, record, flags, errors)
-        stages.end("ir", started)
+        """The step's centroid and IR reading after the previous step's (the devices are
+        read in step order), then its record after the previous step's record."""
+        try:
+            if previous is not None:
+                await previous.measured.wait()
+            started = time.perf_counter()
+            if frame is not None:
+                await self._centroid(
+                    work,
+                    point=point,
+                    frame=frame,
+                    age_s=frame_age_s,
+                    record=record,
+                    flags=flags,
+                    errors=errors,
+                )
+            stages.end("centroid", started)
+            started = time.perf_counter()
+            await self._infrared(work, record, flags, errors)
+            stages.end("ir", started)
+        finally:
+            turn.measured.set()  # whatever happened here: the next step's measurement goes on
         return await self._recorded(
             work,
             tick=tick,
@@ -235,6 +243,7 @@ class StepPipeline:
             device_fault=None,
             round_trips_s=(),
             previous=previous,
+            turn=turn,
         )
 
     async def _recorded(
@@ -250,20 +259,34 @@ class StepPipeline:
         unsafe: str | None,
         device_fault: str | None,
         round_trips_s: tuple[float, ...],
-        previous: asyncio.Task[StepOutcome] | None,
+        previous: _Turn | None,
+        turn: _Turn,
     ) -> StepOutcome:
         """5. record, committed after the previous step's (the records stay in step order:
         readers page through them by step) and before the next step's; then the verdict."""
-        await _after(previous)
-        finish_record(record, flags, errors, stages)
-        started = time.perf_counter()
-        archive_every = self._settings.storage.archive_every
-        if frame is not None and archive_every and tick.step % archive_every == 0:
-            record.frame_path = await self._workers.db(
-                self._recorder.archive_frame, work.run_id, tick.step, frame.image
-            )
-        await self._workers.db(self._recorder.write_step, record)
-        stages.end("record", started)
+        turn.measured.set()
+        try:
+            if previous is not None:
+                await previous.written.wait()
+                if previous.failed is not None:  # no gap: nothing is written after it
+                    turn.failed = previous.failed
+                    raise RecorderError(f"step {tick.step} not recorded: {previous.failed}")
+            finish_record(record, flags, errors, stages)
+            started = time.perf_counter()
+            archive_every = self._settings.storage.archive_every
+            if frame is not None and archive_every and tick.step % archive_every == 0:
+                record.frame_path = await self._workers.db(
+                    self._recorder.archive_frame, work.run_id, tick.step, frame.image
+                )
+            await self._workers.db(self._recorder.write_step, record)
+            stages.end("record", started)
+        except BaseException as err:
+            turn.failed = turn.failed or f"step {tick.step}'s record failed: {err}"
+            raise
+        finally:
+            # a failed write is the session's to handle (it collects this step): the next
+            # record still goes after this one
+            turn.written.set()
         verdict = step_verdict(
             self._settings,
             unsafe=unsafe,
@@ -479,11 +502,14 @@ class StepPipeline:
                 flags.append("model-drifting")
 
 
-async def _after(previous: asyncio.Task[StepOutcome] | None) -> None:
-    """Wait for the previous step's measurement to end; its errors are the session's to
-    handle (it collects that step): here only the order."""
-    if previous is not None and not previous.done():
-        await asyncio.wait({previous})
+@dataclass(eq=False)
+class _Turn:
+    """A step's place in the order of measurements and records: the next step measures once
+    this one has (``measured``) and writes its record once this one's is written."""
+
+    measured: asyncio.Event = field(default_factory=asyncio.Event)
+    written: asyncio.Event = field(default_factory=asyncio.Event)
+    failed: str | None = None  # why its record was not written (then no later one is)
 
 
 def _vector3(array: NDArray[np.float64]) -> tuple[float, float, float]:
