@@ -28,7 +28,7 @@ from config import Settings
 from daemon import service as service_module
 from daemon.run.scheduler import FixedStepTimer
 from daemon.run.states import RunState
-from daemon.run.two_link import step as step_module
+from daemon.run.two_link import measure as measure_module
 from daemon.run.two_link.kind import TwoLinkKind
 from daemon.run.two_link.step import StepPipeline
 from daemon.service import Daemon, ResumeRefusedError
@@ -282,7 +282,7 @@ INJECTIONS: dict[str, Callable[[pytest.MonkeyPatch, Harness], None]] = {
     "prepare": lambda mp, h: mp.setattr(h.robot, "teach_goal", _raise_async),
     "model": lambda mp, h: mp.setattr(StepPipeline, "_advance_model", _raise_async),
     "move": lambda mp, h: mp.setattr(h.robot, "move_absolute", _raise_async),
-    "measure": lambda mp, h: mp.setattr(step_module, "measure_with_camera_settings", _raise),
+    "measure": lambda mp, h: mp.setattr(measure_module, "measure_with_camera_settings", _raise),
     "record": lambda mp, h: mp.setattr(h.daemon.recorder, "write_step", _raise),
     "loop": lambda mp, h: mp.setattr(FixedStepTimer, "step_done", _raise),
 }

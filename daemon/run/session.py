@@ -21,7 +21,6 @@ changes only here.
 from __future__ import annotations
 
 import asyncio
-import collections
 import functools
 import logging
 import math
@@ -33,6 +32,7 @@ from daemon.run import ending
 from daemon.run.gc_policy import GcPolicy
 from daemon.run.grant import RunGrant
 from daemon.run.kind import RunKind
+from daemon.run.measuring import MEASURING_STEPS, StepsMeasuring
 from daemon.run.publish import RunPublisher
 from daemon.run.readmodel import RunView
 from daemon.run.scheduler import FixedStepTimer, sleep_until_woken
@@ -47,12 +47,6 @@ from drivers.permit import MotionPermit, Ticket
 __all__ = ["BenchControl", "ResumeRefusedError", "RunSession", "SessionServices"]
 
 logger = logging.getLogger(__name__)
-
-#: At most this many steps measure and record while later steps move (daemon/run/step.py
-#: MeasuringStep): a commit that waits on a slow fsync (34 ms seen on a lab VM's disk, where
-#: the median is 0.5 ms) then delays the publication of a few 20 ms steps, not their moves.
-#: A crash loses at most these steps' records and the moving one's.
-MEASURING_STEPS = 3
 
 
 class ResumeRefusedError(RunStateError):
@@ -86,8 +80,7 @@ class RunSession:
         self._grant = RunGrant(self.id, services.robot, services.errors, ticket)
         self._prepared = False  # the start's teaching and references are done
         self._publisher = RunPublisher(self.id, services)
-        #: the steps whose measurement and record overlap the next steps' moves, oldest first
-        self._measuring: collections.deque[MeasuringStep] = collections.deque()
+        self._measuring = StepsMeasuring(self._collect)  # overlapping later steps' moves
         self.task: asyncio.Task[None] | None = None
 
     @property
@@ -306,6 +299,7 @@ class RunSession:
         collector = self._services.gc_policy
         try:
             await self._steps(collector)
+            await self._measuring.settle()  # the steps still measuring, before the run ends
         finally:
             collector.step(running=False)
             collector.resume_automatic()
@@ -319,10 +313,9 @@ class RunSession:
         collector.defer_full()
         while True:
             if self.stop_requested or self.state is RunState.STOPPING:
-                await self._settle()
                 return
             if self.state in (RunState.PAUSED, RunState.FAULT):
-                await self._settle()  # the last step's record and verdict before the wait
+                await self._measuring.settle()  # the last step's record and verdict before the wait
                 collector.resume_automatic()
                 await self.kind.stop_playing(
                     self._services.settings.scheduler.stop_grace_s, held=True
@@ -333,7 +326,6 @@ class RunSession:
                 collector.defer_full()
                 continue
             if timer.next_deadline_s >= end_s - 1e-9:
-                await self._settle()
                 return
             self.kind.play(self._grant.ticket)  # what moves between the steps, for this grant
             await sleep_until_woken(self.kind.clock, timer.next_wake_s, self._wake)
@@ -347,52 +339,25 @@ class RunSession:
                 outcome = await self.kind.step(tick)
             finally:
                 collector.step(running=False)
-            if isinstance(outcome, MeasuringStep):
-                self._measuring.append(outcome)
-                # the steps before overlapped this step's move: those done are collected now
-                # (published and judged in step order); the oldest is waited for when too many
-                # are under way, and this one at once when the next step needs it
-                await self._settle(keep=0 if outcome.settle_before_next else MEASURING_STEPS - 1)
-            else:
-                await self._settle()
-                self._recorded(outcome, factor)
-                await self._judge(tick.step, outcome.verdict)
+            # the steps before overlapped this step's move: those done are collected now
+            # (published and judged in step order); the oldest is waited for when too many are
+            # under way, and this one at once when it is done or the next step needs it
+            measuring = MeasuringStep.of(tick.step, outcome)
+            self._measuring.add(measuring)
+            await self._measuring.settle(keep=measuring.may_overlap * (MEASURING_STEPS - 1))
             timer.step_done()
             self._services.read_model.progress()
             collector.after_step((timer.next_wake_s - timer.clock.now()) / factor)
 
-    async def _settle(self, keep: int = 0) -> None:
-        """Collect the steps still measuring, oldest first: each one done, and as many more as
-        leave at most ``keep`` under way: wait for its committed record, publish it and act on
-        its verdict (a RecorderError it met is raised here, as from the step)."""
-        pending = self._measuring
-        while pending and (len(pending) > keep or pending[0].outcome.done()):
-            measuring = pending[0]
-            try:
-                # shielded: a stop that abandons the loop leaves it for _settle_at_end
-                outcome = await asyncio.shield(measuring.outcome)
-            finally:
-                if measuring.outcome.done():
-                    pending.popleft()
-            timer = self.timer
-            factor = 1.0 if timer is None else float(getattr(timer.clock, "factor", 1.0))
-            self._recorded(outcome, factor)
-            await self._judge(measuring.step, outcome.verdict)
+    async def _collect(self, step: int, outcome: StepOutcome) -> None:
+        """A committed step, in step order: published, then its verdict acted on."""
+        self._recorded(outcome)
+        await self._judge(step, outcome.verdict)
 
-    async def _settle_at_end(self) -> None:
-        """After the hold at the end: measurements the loop left (its task was cancelled)
-        still get their records; whatever they met is logged, the run ends anyway."""
-        while self._measuring:
-            step = self._measuring[0].step
-            try:
-                await self._settle(keep=len(self._measuring) - 1)
-            except Exception as err:  # the run is ending: what is lost is said, once
-                logger.error("run %d step %d: not recorded: %s", self.id, step, err)
-                self._services.errors.note(err, device="storage")
-
-    def _recorded(self, outcome: StepOutcome, factor: float) -> None:
+    def _recorded(self, outcome: StepOutcome) -> None:
         """A committed step: the session's last step, then its publication (the budget in wall
         seconds, as the stages are timed: ``factor`` run seconds a wall second)."""
+        factor = 1.0 if self.timer is None else float(getattr(self.timer.clock, "factor", 1.0))
         self.step = outcome.record.step
         self.last_record = outcome.record.as_dict()
         self._publisher.step(
@@ -463,7 +428,7 @@ class RunSession:
             await self.kind.stop_playing(
                 services.settings.scheduler.stop_grace_s, held=final is not RunState.FINISHED
             )
-            await self._settle_at_end()
+            await self._measuring.settle_at_end(self.id, services.errors)
             if self.state is not RunState.STOPPING and self.machine.can(RunState.STOPPING):
                 self._go(RunState.STOPPING, reason)
             recorded = await ending.record_end(services, self.id, final, reason)

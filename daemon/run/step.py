@@ -68,8 +68,22 @@ class MeasuringStep:
     observer fuses it into the model) or before it moves (sensor_error_policy "pause")."""
 
     step: int
-    outcome: asyncio.Task[StepOutcome]
+    outcome: asyncio.Future[StepOutcome]
     settle_before_next: bool
+
+    @property
+    def may_overlap(self) -> bool:
+        """Whether later steps may move before this one is collected."""
+        return not (self.settle_before_next or self.outcome.done())
+
+    @classmethod
+    def of(cls, step: int, outcome: StepOutcome | MeasuringStep) -> MeasuringStep:
+        """``outcome`` as a step to collect in order (a step that measured nothing is done)."""
+        if isinstance(outcome, MeasuringStep):
+            return outcome
+        done: asyncio.Future[StepOutcome] = asyncio.get_running_loop().create_future()
+        done.set_result(outcome)
+        return cls(step, done, settle_before_next=True)
 
 
 @dataclass(frozen=True, eq=False)

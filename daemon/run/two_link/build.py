@@ -17,7 +17,8 @@ from daemon.run.setup import (
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
 from daemon.run.two_link.kind import TwoLinkKind
-from daemon.run.two_link.step import RunWork, StepPipeline
+from daemon.run.two_link.step import StepPipeline
+from daemon.run.two_link.work import RunWork
 
 logger = logging.getLogger(__name__)
 

@@ -22,9 +22,10 @@ from daemon.run.services import BenchControl
 from daemon.run.states import RunParameters
 from daemon.run.step import MeasuringStep, StepOutcome
 from daemon.run.summary import SummaryBasis, SummaryRow
-from daemon.run.two_link.step import RunWork, StepPipeline
+from daemon.run.two_link.step import StepPipeline
 from daemon.run.two_link.summary import two_link_basis, two_link_summary, two_link_summary_rows
 from daemon.run.two_link.view import VIEW
+from daemon.run.two_link.work import RunWork
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder
 from daemon.vision import CentroidError, measure_with_camera_settings

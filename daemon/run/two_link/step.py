@@ -15,10 +15,8 @@ policy (which must act before another move) makes the next step wait for it firs
 from __future__ import annotations
 
 import asyncio
-import functools
 import json
 import logging
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,33 +25,29 @@ import numpy as np
 from numpy.typing import NDArray
 
 from config import Settings
-from daemon.model import ThermalModel
 from daemon.model.compensation import (
     CompensationLimits,
     UnsafeTargetError,
     check_offset,
     compensation_offset_mm,
 )
-from daemon.model.network import UM_PER_MM
-from daemon.model.observer import IrObserver
 from daemon.run.events import ErrorLog
 from daemon.run.scheduler import Tick
 from daemon.run.sensors import Sensors
 from daemon.run.stage_times import StageTimes
-from daemon.run.states import ProcedurePoint, RunParameters, heat_at, procedure_point
+from daemon.run.states import ProcedurePoint, heat_at, procedure_point
 from daemon.run.step import (
     SENSOR_ERROR_FLAGS,
     MeasuringStep,
     StepOutcome,
     begin_record,
     finish_record,
-    read_infrared,
     step_verdict,
 )
+from daemon.run.two_link.measure import StepMeasurement
+from daemon.run.two_link.work import RunWork
 from daemon.run.workers import Workers
 from daemon.storage.recorder import Recorder, RecorderError, StepRecord
-from daemon.vision import CentroidError, measure_with_camera_settings
-from daemon.vision.calibration import camera_to_robot
 from drivers.base import Frame, MoveResult, Pose, Robot
 from drivers.errors import DeviceError
 
@@ -62,27 +56,6 @@ logger = logging.getLogger(__name__)
 #: Model advances above this many node-substeps of work go to the step's worker thread (numpy
 #: releases the GIL); a 17-node exact step is a few microseconds and stays on the loop.
 MODEL_WORK_OFF_LOOP = 200_000
-
-
-@dataclass(eq=False)
-class RunWork:
-    """What a run's steps carry from one to the next: the model and the compensation's
-    memory. Only the pipeline (and the session's resume, for the incremental mode) touch it."""
-
-    run_id: int
-    parameters: RunParameters
-    model: ThermalModel
-    direction: NDArray[np.float64]  # unit vector of the link axis, world coordinates
-    observer: IrObserver | None = None  # prediction "model+ir": the IR Kalman filter
-    goal: Pose | None = None  # taught operational goal
-    start_s: float = math.nan  # run clock at step 0
-    last_offset_mm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-    last_target_mm: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
-    reference_um: dict[int, tuple[float, float]] = field(default_factory=dict)
-    reference_source: str = "first step"  # where the drift's zero was measured
-    # None until the first step sets the procedure's heat (even an empty one: a run told to
-    # heat nothing must not keep its network's own heat)
-    model_heat: dict[str, float] | None = None
 
 
 class StepPipeline:
@@ -104,6 +77,9 @@ class StepPipeline:
         self._workers = workers
         self._errors = errors
         self._now = clock_now
+        self._measurement = StepMeasurement(
+            settings, sensors=sensors, workers=workers, errors=errors, clock_now=clock_now
+        )
         # the last step's place in the order of measurements and records (MeasuringStep)
         self._last_turn: _Turn | None = None
 
@@ -155,7 +131,7 @@ class StepPipeline:
         previous, turn = self._last_turn, _Turn()
         self._last_turn = turn
         if point.capture and device_fault is None and unsafe is None:
-            frame, age_s = await self._grab(flags, errors, stages)
+            frame, age_s = await self._measurement.grab(flags, errors, stages)
             measuring = asyncio.create_task(
                 self._measured(
                     work,
@@ -167,6 +143,7 @@ class StepPipeline:
                     flags=flags,
                     errors=errors,
                     stages=stages,
+                    round_trips_s=round_trips_s,
                     previous=previous,
                     turn=turn,
                 ),
@@ -206,6 +183,7 @@ class StepPipeline:
         flags: list[str],
         errors: list[str],
         stages: StageTimes,
+        round_trips_s: tuple[float, ...],
         previous: _Turn | None,
         turn: _Turn,
     ) -> StepOutcome:
@@ -216,7 +194,7 @@ class StepPipeline:
                 await previous.measured.wait()
             started = time.perf_counter()
             if frame is not None:
-                await self._centroid(
+                await self._measurement.centroid(
                     work,
                     point=point,
                     frame=frame,
@@ -227,7 +205,7 @@ class StepPipeline:
                 )
             stages.end("centroid", started)
             started = time.perf_counter()
-            await self._infrared(work, record, flags, errors)
+            await self._measurement.infrared(work, record, flags, errors)
             stages.end("ir", started)
         finally:
             turn.measured.set()  # whatever happened here: the next step's measurement goes on
@@ -241,7 +219,7 @@ class StepPipeline:
             stages=stages,
             unsafe=None,
             device_fault=None,
-            round_trips_s=(),
+            round_trips_s=round_trips_s,
             previous=previous,
             turn=turn,
         )
@@ -395,111 +373,6 @@ class StepPipeline:
         if result is not None:
             return result.pose, result.round_trips_s
         return await self._robot.actual_pose(), ()
-
-    # --- 4. measure ----------------------------------------------------------------------
-
-    async def _grab(
-        self, flags: list[str], errors: list[str], stages: StageTimes
-    ) -> tuple[Frame | None, float]:
-        """The step's frame and its age when taken (its staleness is judged at the grab, not
-        when its centroid is computed a step later)."""
-        started = time.perf_counter()
-        frame: Frame | None = None
-        age_s = 0.0
-        try:
-            frame = await self._sensors.grab()
-            age_s = self._now() - frame.timestamp_s
-        except DeviceError as err:
-            self._errors.note(err)
-            flags.append("camera-error")
-            errors.append(str(err))
-        stages.end("frame", started)
-        return frame, age_s
-
-    async def _centroid(
-        self,
-        work: RunWork,
-        *,
-        point: ProcedurePoint,
-        frame: Frame,
-        age_s: float,
-        record: StepRecord,
-        flags: list[str],
-        errors: list[str],
-    ) -> None:
-        camera_settings = self._settings.camera
-        if frame.timestamp_source == "host":  # issue 18: say when the time is not exposure's
-            flags.append("host-timestamp")
-        stale = age_s > camera_settings.max_age_s
-        if stale:
-            flags.append("stale-frame")
-            errors.append(self._sensors.stale("camera", "frame", age_s))
-        try:
-            result = await self._workers.step(
-                functools.partial(
-                    measure_with_camera_settings,
-                    camera_gain_e_per_count=frame.gain_e_per_count,
-                ),
-                frame.image,
-                camera_settings,
-            )
-        except CentroidError as err:
-            flags.append("centroid-error")
-            errors.append(f"centroid: {err}")
-            return
-        if result.gain_source not in {"config", "camera"}:
-            # the noise model was measured on this frame (or could not be): say so
-            flags.append("gain-from-frame" if result.gain_source == "frames" else "gain-unknown")
-        record.centroid_x_px, record.centroid_y_px = result.x_px, result.y_px
-        record.centroid_x_um, record.centroid_y_um = result.x_um, result.y_um
-        if stale:  # a stale frame is recorded and flagged, never used
-            return
-        reference = work.reference_um.setdefault(point.pose_index, (result.x_um, result.y_um))
-        record.drift_x_um = result.x_um - reference[0]
-        record.drift_y_um = result.y_um - reference[1]
-        # the drift in world coordinates (the camera's calibrated rotation, issue 18), along
-        # the link: the residual of the compensation (thesis 6.2)
-        world_um = camera_to_robot(
-            (record.drift_x_um, record.drift_y_um), self._settings.camera.rotation_deg
-        )
-        record.residual_um = float(np.dot(world_um, work.direction))
-        if work.observer is not None:
-            # the link's own deformation: the drift with the commanded compensation taken out
-            # (daemon.model.identify.measured_deformation_um), for an adapted "alpha" only
-            scale = work.parameters.deformation_scale
-            offset_um = float(np.dot(work.last_offset_mm, work.direction)) * UM_PER_MM
-            work.observer.update_deformation(
-                (record.residual_um - offset_um) / scale,
-                self._settings.observer.deformation_noise_um / scale,
-                scale,
-            )
-
-    async def _infrared(
-        self, work: RunWork, record: StepRecord, flags: list[str], errors: list[str]
-    ) -> None:
-        reading = await read_infrared(
-            self._sensors,
-            self._errors,
-            self._now,
-            self._settings,
-            record=record,
-            flags=flags,
-            errors=errors,
-        )
-        if reading is not None and work.observer is not None:
-            innovation = work.observer.update(
-                {name: region.mean_c for name, region in reading.regions.items()}
-            )
-            if innovation is not None:
-                record.innovation_nis = innovation.nis
-            record.observer_json = json.dumps(
-                {
-                    name: [round(value, 6), round(sigma, 6)]
-                    for name, (value, sigma) in work.observer.parameter_estimates().items()
-                }
-            )
-            if work.observer.drifting:
-                flags.append("model-drifting")
 
 
 @dataclass(eq=False)

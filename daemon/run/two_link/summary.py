@@ -18,7 +18,7 @@ from daemon.run.summary import (
     measured_summary,
     reference_steps,
 )
-from daemon.run.two_link.step import RunWork
+from daemon.run.two_link.work import RunWork
 from daemon.storage.recorder import Recorder
 
 
