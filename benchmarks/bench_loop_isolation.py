@@ -147,14 +147,23 @@ def main() -> int:
         choices=["inline", "process"],
         default="inline",
         help="this tree's daemons: the bench's emulated controller in the daemon's process or "
-        "its own (bench.emulator); the baseline keeps its own",
+        "its own (bench.emulator)",
+    )
+    parser.add_argument(
+        "--baseline-emulator",
+        choices=["inline", "process"],
+        default="inline",
+        help="the same for the baseline (process: a baseline that has bench.emulator)",
     )
     parser.add_argument("--name", default="loop_isolation", help="results/<name>.json")
     args = parser.parse_args()
     load = ServedLoad(
         step_s=args.step_ms / 1000.0, ws_clients=args.ws_clients, exporters=args.exporters
     )
-    this_env = {"THERMOCOMP_BENCH__EMULATOR": "process"} if args.emulator == "process" else {}
+    emulator_env = {
+        which: {"THERMOCOMP_BENCH__EMULATOR": "process"} if choice == "process" else {}
+        for which, choice in (("this", args.emulator), ("base", args.baseline_emulator))
+    }
     print(
         f"step {args.step_ms:g} ms, {args.seconds:g} s per run, {load.ws_clients} WebSocket "
         f"clients, {load.exporters} exporters, emulator {args.emulator}",
@@ -175,7 +184,7 @@ def main() -> int:
                         else:
                             tree = ROOT if which == "this" else base
                             assert tree is not None
-                            env = {**env_extra, **(this_env if which == "this" else {})}
+                            env = {**env_extra, **emulator_env[which]}
                             result = asyncio.run(daemon_run(tree, args.seconds, env, load, prefix))
                         load_after = os.getloadavg()[0]
                     row = {
@@ -232,6 +241,7 @@ def main() -> int:
             "ws_clients": load.ws_clients,
             "exporters": load.exporters,
             "emulator": args.emulator,
+            "baseline_emulator": args.baseline_emulator,
             "baseline": args.baseline,
             "runs": rows,
         },
