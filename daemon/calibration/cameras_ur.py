@@ -46,6 +46,7 @@ from daemon.calibration.camera_run_ur import (
     DwellRobot,
     Station,
     URRecording,
+    own_station_rows,
     record_ur_pattern,
     stations_of,
 )
@@ -156,8 +157,8 @@ def run_with_ur(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_FAILURE
-    rows = run.recording.rows
-    if args.save_observations is not None:
+    rows, notes = own_station_rows(recording)
+    if args.save_observations is not None:  # the rows fitted: --observations fits them again
         write_observations(args.save_observations, rows)
     try:
         calibrated, skipped = fit_robot_rows(models, rows, False)
@@ -185,6 +186,7 @@ def run_with_ur(args: argparse.Namespace) -> int:
             "offsets": len(shifts),
             "retried_dwells": recording.retried,
             "start_offset_mm": list(recording.start_offset_mm),
+            "views_left_out": notes,
         },
     )
     return EXIT_OK
