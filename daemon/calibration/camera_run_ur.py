@@ -7,23 +7,28 @@ and MAX_ROTATION_RAD, changing by at most 1 mm/s and 1 mrad/s, frozen by the hol
 its watchdog). So the A465's pattern of absolute moves (daemon/calibration/camera_run.py) becomes
 a pattern of *offsets*, and its poses are visited where the program itself stands still: at its
 measured poses, whose dwells the program announces in its at-pose register (the followed run's
-rule, daemon/run/followed/measure.py). For each offset of the pattern, in order:
+rule, daemon/run/followed/measure.py). Every station (``--station``, default every measured
+pose of arm.duty_cycle) gets the whole pattern, its offsets in order, and one loop over the
+state packages does it:
 
-1. the PC writes it as the correction (drivers/ur/robot.py ``set_correction``: refused before
-   any byte beyond robot.correction_limit_*, or after a hold); the program walks its applied
-   offset there at its rate limit, wherever the arm is in its cycle;
-2. at each measured pose of the program asked for (``--station``, default all of them), the PC
-   waits for a state package that shows that dwell (at-pose register k, the program's instance
-   unchanged) with the joints at rest, the applied offset (the program's output registers)
-   equal to the written one, and the actual TCP pose (RTDE ``actual_TCP_pose``: the
-   controller's kinematics at the encoders' joints) steady to STEADY_MM since the package
-   before: the pose of the pattern is confirmed;
+1. the PC writes the offset it needs next as the correction (drivers/ur/robot.py
+   ``set_correction``: refused before any byte beyond robot.correction_limit_*, or after a
+   hold): while the program dwells at a station, that station's next offset; while it moves,
+   the next offset of the station it comes to next (cycle order), so that the program walks
+   its applied offset there at its rate limit on the way and the dwell is spent on frames;
+2. the pose of the pattern is confirmed when a state package shows the dwell (at-pose
+   register k of that station, the program's instance unchanged) with the joints at rest, the
+   applied offset (the program's output registers) equal to the written one, and the actual
+   TCP pose (RTDE ``actual_TCP_pose``: the controller's kinematics at the encoders' joints)
+   steady to STEADY_MM since the package before;
 3. every camera grabs a frame; a state package after the frames must show the same dwell, the
-   same applied offset and the same TCP pose, else the frames are thrown away and the next
-   dwell at that pose tries again (counted: ``retried``);
+   same applied offset and the same TCP pose, else the frames are thrown away and the pose is
+   tried again (counted: ``retried``);
 4. each marker found is one observation row at its nominal position ``R m + p``, (R, p) the
    actual TCP pose: the cameras are calibrated in the controller's frame, the frame every
-   correction is written in, exactly as the A465's from its ``w2`` read-back.
+   correction is written in, exactly as the A465's from its ``w2`` read-back. That frame
+   differs from the true one by the arm's kinematic error *at the station*, so each camera is
+   fitted from its own station's rows only (:func:`own_station_rows`).
 
 The TCP pose also checks the program: at one measured pose, the TCP's translation less the
 applied offset (the program's path there) must stay within PATH_TOLERANCE_MM over the pattern,
