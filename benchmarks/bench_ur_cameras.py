@@ -13,8 +13,9 @@ per camera:
 - per station, the tool position error its fitted cameras give together: the markers at the
   station's taught pose (where the controller believes the tool is) projected through the true
   cameras without noise, measured with the fitted ones (daemon/run/arm/measure.py tool_pose,
-  the meter of a followed run), and with the guess for comparison: the absolute error (um), and the error of a 200 um drift with 50 urad of
-  turn (what a followed run records: the pose relative to the run's first measurement);
+  the meter of a followed run), and with the guess for comparison: the absolute error (um),
+  and the error of a 200 um drift with 50 urad of turn (what a followed run records: the pose
+  relative to the run's first measurement);
 - the conditioning of the fit on the rows it used: the condition number of the weighted
   Jacobian of the pixels in the pose (extrinsics: what is fitted) and in the pose plus the
   intrinsics fx, fy, cx, cy and k1 (a full model), and the full model's 1-sigma of the focal
