@@ -24,9 +24,9 @@ import io
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import pytest
@@ -38,7 +38,6 @@ from daemon.calibration import cameras_ur
 from daemon.calibration.camera_pattern import Shift, robot_pattern
 from daemon.calibration.camera_run_ur import (
     CalibrationStopped,
-    DwellRobot,
     URRecording,
     record_ur_pattern,
     stations_of,
@@ -46,11 +45,10 @@ from daemon.calibration.camera_run_ur import (
 from daemon.commands import calibrate as calibrate_cli
 from daemon.vision.cameras import load_cameras, write_cameras
 from daemon.vision.multiview import CameraModel
-from drivers.base import Frame, OffsetRobotState
+from drivers.base import Frame
 from drivers.clock import make_clock
 from drivers.errors import MotionHeldError
 from drivers.factory import open_devices
-from drivers.permit import MotionPermit
 from drivers.sim.arm_markers import CameraRig
 from drivers.sim.ur.cameras import SimURCamera
 from drivers.sim.ur.controller import URController, URControllerConfig
@@ -323,78 +321,42 @@ async def test_a_program_that_does_not_dwell_stops_the_pattern(tmp_path: Path) -
         assert recording.poses == 0
 
 
-# --- the pattern against a scripted robot: the TCP must follow the offset --------------------
+# --- a program that reports an offset it does not apply -------------------------------------
 
 
-class ScriptedRobot:
-    """At measured pose 1 for ever, the offset applied at once; ``follows``: the TCP moves with
-    the applied offset (else the program reports an offset it does not apply)."""
+@pytest.mark.slow
+async def test_a_tcp_that_does_not_follow_the_offset_stops_the_pattern(tmp_path: Path) -> None:
+    """The emulated controller's actual TCP pose made to ignore the offset its program reports
+    applied (the joints of the taught path alone): the pattern stops at its second offset."""
+    from daemon.arm import kinematics
 
-    def __init__(self, *, follows: bool) -> None:
-        self.permit = MotionPermit()
-        self.follows = follows
-        self.offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
-        self.state = OffsetRobotState(
-            timestamp_s=0.0,
-            received_s=0.0,
-            joints_rad=(0.0,) * 6,
-            joint_speeds_rad_s=(0.0,) * 6,
-            tcp_pose=(500.0, 0.0, 300.0, 0.0, 0.0, 0.0),
-            tcp_speed=(0.0,) * 6,
-            joint_temperatures_c=(25.0,) * 6,
-            robot_mode=7,
-            safety_mode=1,
-            runtime_state=2,
-            at_pose=1,
-            accepted_sequence=0,
-            program_status=0,
-            applied_offset_mm=(0.0, 0.0, 0.0),
-            applied_rotation_rad=(0.0, 0.0, 0.0),
-            program_instance=7,
-        )
+    settings = _settings(tmp_path, "127.0.37.7", CALIBRATION_PROGRAM)
+    stations = stations_of(load_duty_cycle(CALIBRATION_PROGRAM), "camera")
+    async with open_devices(settings, make_clock("real")) as devices:
+        assert devices.ur_emulator is not None
+        controller = devices.ur_emulator.controller
 
-    async def set_correction(self, offset_mm: Any, rotation_rad: Any = (0.0, 0.0, 0.0)) -> int:
-        self.permit.require()
-        self.offset = tuple(offset_mm)
-        return 1
+        def tcp_of_the_path(t_s: float) -> tuple[float, ...]:
+            _, _, nominal = controller.joint_state(t_s)
+            pose = kinematics.forward(controller.arm, nominal)
+            rotvec = Rotation.from_matrix(pose[:3, :3]).as_rotvec()
+            return (*(float(v) / 1000.0 for v in pose[:3, 3]), *(float(v) for v in rotvec))
 
-    async def read_state(self) -> OffsetRobotState:
-        await asyncio.sleep(0)
-        shift = self.offset if self.follows else (0.0, 0.0, 0.0)
-        tcp = (500.0 + shift[0], shift[1], 300.0 + shift[2], 0.0, 0.0, 0.0)
-        self.state = replace(self.state, applied_offset_mm=self.offset, tcp_pose=tcp)
-        return self.state
-
-    async def follow_program(self) -> OffsetRobotState:
-        return await self.read_state()
-
-
-async def test_a_tcp_that_does_not_follow_the_offset_stops_the_pattern() -> None:
-    station = stations_of(load_duty_cycle("ur5e-pick-and-place"), "camera")
-    scripted = replace(station[0], at_poses=frozenset({1}))
-    shifts = robot_pattern(0.25, 2, 0.0, 0)
-    good = await record_ur_pattern(
-        cast(DwellRobot, ScriptedRobot(follows=True)),
-        (),
-        (),
-        np.zeros((0, 3)),
-        shifts,
-        stations=[scripted],
-        wait_s=5.0,
-        grab_timeout_s=1.0,
-    )
-    assert good.poses == len(shifts) and good.returned
-    with pytest.raises(CalibrationStopped, match="does not shift the tool"):
-        await record_ur_pattern(
-            cast(DwellRobot, ScriptedRobot(follows=False)),
-            (),
-            (),
-            np.zeros((0, 3)),
-            shifts,
-            stations=[scripted],
-            wait_s=5.0,
-            grab_timeout_s=1.0,
-        )
+        controller.tcp_pose = tcp_of_the_path  # type: ignore[method-assign]
+        recording = URRecording("")
+        with pytest.raises(CalibrationStopped, match="does not shift the tool"):
+            await record_ur_pattern(
+                devices.robot,  # type: ignore[arg-type]
+                (),
+                (),
+                np.zeros((0, 3)),
+                robot_pattern(0.25, 2, 0.0, 0),
+                stations=stations,
+                wait_s=60.0,
+                grab_timeout_s=5.0,
+                recording=recording,
+            )
+        assert recording.poses == 1 and recording.returned
 
 
 # --- bad usage: exit 2, one line, nothing opened ---------------------------------------------
@@ -449,3 +411,92 @@ def test_the_default_pattern_is_half_the_correction_limit() -> None:
     assert farthest == pytest.approx(0.5 * math.sqrt(3.0) * settings.robot.correction_limit_mm)
     assert all(s.rotation_rad == (0.0, 0.0, 0.0) for s in shifts)
     assert isinstance(shifts[0], Shift)
+
+
+# --- the followed run loads the written camera file -----------------------------------------
+
+
+async def test_a_followed_run_measures_with_arm_cameras_file(tmp_path: Path) -> None:
+    """arm.cameras_file (what `calibrate cameras --robot --write` wrote) is the followed run's
+    camera models, on the bench too (else the bench's own); a file that does not match the
+    cameras is one RunParameterError."""
+    from types import SimpleNamespace
+
+    from daemon.run.followed.build import _measurement
+    from daemon.run.setup import RunParameterError
+
+    truth = bench_cameras(load_settings(UR5E))
+    written = tmp_path / "cameras.toml"
+    write_cameras(written, perturbed(truth))
+    workers = SimpleNamespace(step=asyncio.to_thread)
+    devices = SimpleNamespace(cameras=tuple(object() for _ in truth), camera_models=truth)
+
+    async def models_of(cameras_file: Path | None) -> tuple[CameraModel, ...]:
+        settings = load_settings(
+            lab_file(tmp_path, "127.0.37.5", cameras_file, CALIBRATION_PROGRAM)
+        )
+        builder = SimpleNamespace(settings=settings, workers=workers)
+        robot = SimpleNamespace(robot_state=lambda: None)
+        measurement = await _measurement(builder, devices, robot, None)  # type: ignore[arg-type]
+        assert measurement is not None
+        return measurement.meter._models  # type: ignore[attr-defined,no-any-return]
+
+    loaded = await models_of(written)
+    expected = load_cameras(written)
+    assert [m.name for m in loaded] == [m.name for m in expected]
+    assert all(np.allclose(a.centre_mm, b.centre_mm) for a, b in zip(loaded, expected, strict=True))
+    assert await models_of(None) == truth
+    write_cameras(written, list(truth[:3]))
+    with pytest.raises(RunParameterError, match="6 tool cameras but 3 camera models"):
+        await models_of(written)
+
+
+@pytest.mark.slow
+async def test_a_followed_run_with_the_written_file_measures_what_the_truth_does(
+    calibrated: Calibrated, tmp_path: Path
+) -> None:
+    """The whole path: the written file as arm.cameras_file, a followed run of the production
+    program; after each pose's zero the truth's arm is made 15 degC warmer than the model
+    knows, and the residuals the calibrated cameras measure are the truth's within their
+    sigmas (as tests/test_ur_followed_cameras.py checks with the bench's true cameras)."""
+    from daemon.run.states import RunState
+    from daemon.service import Daemon
+    from drivers.sim.ur.emulator import UREmulator
+    from tests.fakes import params
+    from tests.test_ur_followed_cameras import (
+        FLOOR_UM,
+        SIGMAS,
+        WARMER_C,
+        measured,
+        steps_of,
+        until,
+        ur_settings,
+    )
+
+    assert calibrated.status == 0, calibrated.err
+    settings = ur_settings(tmp_path, "127.0.37.6", cameras_file=str(calibrated.written))
+    async with Daemon(settings) as daemon:
+        emulator = getattr(daemon.devices, "ur_emulator", None)
+        assert isinstance(emulator, UREmulator)
+        info = await daemon.start_run(params(settings))
+        run_id = int(info["id"])
+        await daemon.wait_state(RunState.RUNNING)
+
+        def zeros() -> int:
+            steps = steps_of(daemon, run_id)
+            return len({s["arm_pose"] for s in steps if "first-step-reference" in s["flags"]})
+
+        await until(lambda: zeros() == 2, "each measured pose's zero")
+        thermal = emulator.controller.bench.thermal
+        thermal.set_temperatures(thermal.temperatures_c + WARMER_C)
+        await until(lambda: len(measured(steps_of(daemon, run_id))) >= 6, "measurements")
+        final = await daemon.stop()
+    # the run's own comparison of each measurement with the truth at its frames (a
+    # measurement whose frames outlasted the dwell on a loaded machine is discarded, not
+    # compared: daemon/run/followed/measure.py)
+    summary = final["summary"]
+    assert summary["measured"]["rms_residual_um"] > 50.0  # the warming, far beyond the noise
+    versus = summary["measured_vs_truth"]
+    assert versus["measurements"] >= 2
+    assert versus["rms_difference_um"] < SIGMAS * summary["measured"]["mean_sigma_um"] + FLOOR_UM
+    assert versus["within_3_sigma_fraction"] >= 0.5
