@@ -201,8 +201,7 @@ def test_a_bench_whose_ports_are_taken_is_one_line(host: str) -> None:
 @pytest.mark.parametrize(
     ("args", "what"),
     [
-        (["calibrate", "cameras", "--robot"], "--robot moves the robot through a pattern"),
-        (["calibrate", "camera"], "calibrate camera moves the robot through a pattern"),
+        (["calibrate", "camera"], "has no spot camera: its tool cameras are calibrated"),
         (["calibrate", "model", "--save", "ur"], "has no model calibration"),
     ],
 )

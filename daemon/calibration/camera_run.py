@@ -225,7 +225,7 @@ async def record_pattern(
             found = await asyncio.to_thread(
                 find_markers, models, frames, world, search_half_px=search_half_px, sensors=sensors
             )
-            _add_rows(record, models, found, world, tool)
+            add_rows(record, models, found, world, tool)
             record.poses += 1
     finally:
         try:
@@ -238,7 +238,7 @@ async def record_pattern(
     return record
 
 
-def _add_rows(
+def add_rows(
     record: Recording,
     models: Sequence[CameraModel],
     found: Sequence[MarkerFind],

@@ -18,12 +18,13 @@ import argparse
 import asyncio
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from config import load_settings
+from config import Settings, load_settings
 from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from daemon.calibration.camera_fit import (
     Calibrated,
@@ -143,10 +144,20 @@ def fit_robot_rows(
     return Calibrated(kept, marker, marker_se), skipped
 
 
-def run_with_robot(args: argparse.Namespace) -> int:
-    settings = load_settings(args.config)
+@dataclass(frozen=True, eq=False)
+class Guess:
+    """What ``--robot`` starts from: the camera file (the initial guess) and the search
+    window's half-width (px)."""
+
+    models: tuple[CameraModel, ...]
+    path: Path
+    search_half_px: int
+
+
+def robot_guess(args: argparse.Namespace, settings: Settings) -> Guess | str:
+    """The guess of ``--robot`` (A465 and UR alike), or the one line refusing it."""
     if not settings.arm.enabled:
-        return _usage(
+        return (
             "--robot needs the [arm] section with enabled = true (the arm, its markers and "
             "the cameras watching them)"
         )
@@ -154,14 +165,26 @@ def run_with_robot(args: argparse.Namespace) -> int:
         Path(settings.arm.cameras_file) if settings.arm.cameras_file is not None else None
     )
     if path is None:
-        return _usage(
+        return (
             "no camera file: give --cameras FILE or set arm.cameras_file (the initial guess: "
             "intrinsics known, poses approximate)"
         )
     try:
         models = load_cameras(path)
     except CameraFileError as err:
-        return _usage(str(err))
+        return str(err)
+    search = SEARCH_HALF_PX if args.search_px is None else args.search_px
+    if search < 4:
+        return "--search-px must be 4 or more"
+    return Guess(models, path, search)
+
+
+def run_with_robot(args: argparse.Namespace) -> int:
+    settings = load_settings(args.config)
+    guess = robot_guess(args, settings)
+    if isinstance(guess, str):
+        return _usage(guess)
+    models, path, search = guess.models, guess.path, guess.search_half_px
     size, turn = default_size_turn(settings)
     size = size if args.size is None else args.size
     # turns only make the markers' offset observable: without --fit-marker the tool keeps its
@@ -169,9 +192,6 @@ def run_with_robot(args: argparse.Namespace) -> int:
     turn = (turn if args.fit_marker else 0.0) if args.turn is None else args.turn
     if args.fit_marker and turn == 0.0:
         return _usage("--fit-marker needs the tool to turn: --turn must be above 0")
-    search = SEARCH_HALF_PX if args.search_px is None else args.search_px
-    if search < 4:
-        return _usage("--search-px must be 4 or more")
     try:
         shifts = robot_pattern(size, args.per_axis, turn, args.seed)
         check_pattern(settings, shifts)
@@ -220,11 +240,11 @@ def run_with_robot(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_FAILURE
-    _report(args, run, models=models, calibrated=calibrated, skipped=skipped, guess_path=path)
+    report(args, run, models=models, calibrated=calibrated, skipped=skipped, guess_path=path)
     return EXIT_OK
 
 
-def _report(
+def report(
     args: argparse.Namespace,
     run: RobotRun,
     *,
@@ -232,7 +252,10 @@ def _report(
     calibrated: Calibrated,
     skipped: dict[str, str],
     guess_path: Path,
+    extra: dict[str, object] | None = None,
 ) -> None:
+    """The fitted cameras (JSON or summary lines), the camera file printed or written;
+    ``extra``: more JSON keys (and one summary line each)."""
     record = run.recording
     fitted = {fit.camera.name: fit for fit in calibrated.fits}
     cameras = [fitted[m.name].camera if m.name in fitted else m for m in models]
@@ -258,7 +281,7 @@ def _report(
                 "translation_mm": run.kinematic_error[0],
                 "rotation_mrad": run.kinematic_error[1],
             }
-        print(json.dumps(data, indent=2))
+        print(json.dumps(data | (extra or {}), indent=2))
     else:
         missed = ", ".join(f"{n} {k}" for n, k in record.missed.items() if k)
         print(
@@ -282,6 +305,8 @@ def _report(
                 f"(the arm's kinematic error at the goal: {run.kinematic_error[0]:.3f} mm, "
                 f"{run.kinematic_error[1]:.3f} mrad)"
             )
+        for key, value in (extra or {}).items():
+            print(f"# {key}: {json.dumps(value)}")
         if args.write is None:
             print(cameras_toml(cameras), end="")
     if args.write is not None:

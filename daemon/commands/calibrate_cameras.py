@@ -23,8 +23,10 @@ are either
   ``--turn`` rad (the whole pattern within arm.calibration_max_* or the arm's correction
   limits, else nothing moves), grabs a frame from every camera at each and finds every marker
   near where the initial guess puts it (daemon/calibration/camera_run.py); cameras that saw
-  too few markers keep their pose. On a UR (``robot.driver = "ur-rtde"``) ``--robot`` is
-  refused in one line: the PC does not move a UR (daemon/commands/followed_refusals.py).
+  too few markers keep their pose. On a UR (``robot.driver = "ur-rtde"``) the PC does not
+  move the robot: the cube is a pattern of offsets (±``--size``, default half
+  robot.correction_limit_mm) the robot's own program applies, recorded while it dwells at its
+  measured poses (all of them, or ``--station NAME``; daemon/calibration/cameras_ur.py).
 
 The marker sits at ``--marker`` (mm, tool frame; default 0,0,0: the tool point, so that x, y,
 z are the marker's own positions), i.e. at ``R marker + p`` in the world. With
@@ -60,7 +62,6 @@ from daemon.calibration.camera_observations import (
     read_observations,
     write_observations,
 )
-from daemon.commands.followed_refusals import cameras_refusal
 
 
 # numpy, OpenCV and SciPy are imported where they are used: `--help` answers at once (issue 16);
@@ -216,10 +217,11 @@ def run_calibrate_cameras(args: argparse.Namespace) -> int:
         print(f"{PROG}: --turn must be between 0 and pi rad", file=sys.stderr)
         return EXIT_USAGE
     if args.robot:
-        refusal = cameras_refusal(load_settings(args.config), "--robot")
-        if refusal is not None:  # a UR: one line, before anything opens
-            print(f"{PROG}: {refusal}", file=sys.stderr)
-            return EXIT_USAGE
+        if load_settings(args.config).robot.driver == "ur-rtde":
+            # lazy: the UR's pattern (offsets at its program's dwells) loads only for a UR
+            from daemon.calibration.cameras_ur import run_with_ur
+
+            return run_with_ur(args)
         return run_with_robot(args)
     robot_only = [
         option

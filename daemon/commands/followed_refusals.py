@@ -2,10 +2,11 @@
 ``ur-rtde``, a followed run: daemon/run/followed/), each refused in ONE line before anything
 opens, saying what exists instead and where the docs say it.
 
-- ``calibrate cameras --robot`` and ``calibrate camera`` move the robot through a pattern of
-  absolute moves (tens of millimetres); a UR's PC only shifts the robot's own program, by at
-  most 2 mm (controller/ur/thermocomp_offset.script MAX_OFFSET_M), so the pattern cannot be
-  made.
+- ``calibrate camera`` calibrates the two-link bench's spot camera with a grid of absolute
+  moves; a UR has no spot camera, and its PC only shifts the robot's own program, by at most
+  2 mm (controller/ur/thermocomp_offset.script MAX_OFFSET_M). Its tool cameras are calibrated
+  by ``calibrate cameras --robot``, which on a UR records a pattern of offsets at the
+  program's dwells (daemon/calibration/cameras_ur.py).
 - ``calibrate model`` identifies a model from an uncompensated run's *measured* tool errors; a
   followed run with tool cameras measures the tool at the program's dwells
   (daemon/run/followed/measure.py), but identification from a followed run is not built: a UR
@@ -25,15 +26,14 @@ def _followed(settings: Settings) -> bool:
 
 
 def cameras_refusal(settings: Settings, option: str) -> str | None:
-    """The one line refusing a camera calibration that moves the robot (``option``: what was
+    """The one line refusing the spot camera's calibration on a UR (``option``: what was
     asked), or None when the robot can make it."""
     if not _followed(settings):
         return None
     return (
         f"{option} moves the robot through a pattern, but a UR (robot.driver ur-rtde) plays its "
-        "own program and the PC only shifts it by at most 2 mm: fit a camera file from "
-        "recorded marker positions instead "
-        f"(calibrate cameras --observations CSV; {UR_DOCS})"
+        "own program and has no spot camera: its tool cameras are calibrated at the "
+        f"program's dwells with `calibrate cameras --robot` ({UR_DOCS})"
     )
 
 

@@ -9,6 +9,7 @@ RunParameterError when it cannot be built."""
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -22,8 +23,10 @@ from daemon.run.followed.kind import BenchTruth, FollowedKind, FollowedWork
 from daemon.run.followed.measure import DwellMeasurement
 from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.followed.setup import followed_model
+from daemon.run.setup import RunParameterError
 from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
+from daemon.vision.cameras import CameraFileError, load_cameras
 from drivers.base import OffsetRobot, ProgramControl
 
 
@@ -60,11 +63,25 @@ async def _measurement(
     builder: RunBuilder, devices: Any, robot: OffsetRobot, truth: BenchTruth | None
 ) -> DwellMeasurement | None:
     """The tool cameras' measurement (the arm run's meter on the devices' tool cameras and
-    their models), or None when the devices have no tool camera."""
+    their models: arm.cameras_file when set, e.g. the one `calibrate cameras --robot` wrote,
+    else the devices' own, as an A465 arm run's daemon/run/arm/setup.py), or None when the
+    devices have no tool camera."""
     cameras = tuple(getattr(devices, "cameras", ()) or ())
     if not cameras:
         return None
-    models = tuple(getattr(devices, "camera_models", ()) or ())
+    cameras_file = builder.settings.arm.cameras_file
+    if cameras_file is None:
+        models = tuple(getattr(devices, "camera_models", ()) or ())
+    else:
+        try:
+            models = tuple(await builder.workers.step(load_cameras, Path(cameras_file)))
+        except CameraFileError as err:
+            raise RunParameterError(f"arm.cameras_file: {err}") from err
+    if len(models) != len(cameras):
+        raise RunParameterError(
+            f"{len(cameras)} tool cameras but {len(models)} camera models "
+            f"(arm.cameras_file {cameras_file}): one model per camera, same order"
+        )
     arm = await builder.workers.step(load_arm, arm_file(builder.settings))
 
     def truth_residual_mm() -> FloatArray:
