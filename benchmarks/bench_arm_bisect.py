@@ -101,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         steps.append((t_s, np.asarray(watts, dtype=np.float64)))
         advance(t_s, watts)
 
-    bench.thermal.advance_to = recording  # type: ignore[method-assign]
+    bench.thermal.advance_to = recording  # type: ignore[method-assign,assignment]
     schedule = measurement_schedule(duty, args.hours * 3600.0, args.every)
     room_start = bench.room_read()
     times, drift, rooms, qs = [], [], [], []
