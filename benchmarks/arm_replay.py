@@ -42,7 +42,7 @@ from daemon.arm.controller_loading import load_controller
 from daemon.arm.duty import DutyCycle, arm_inverse, load_duty_cycle
 from daemon.arm.identify_final import ArmCalibration, identify_arm_final
 from daemon.arm.identify_parameters import default_parameters
-from daemon.arm.ir_regions import identification_regions, region_nodes
+from daemon.arm.ir_regions import region_nodes
 from daemon.arm.loading import load_arm
 from daemon.arm.response import ArmModelSpec, ArmRunData, marker_sensitivity
 from daemon.arm.room import ambient_series
@@ -187,7 +187,7 @@ def simulate(
             for k in range(steps)
         ]
     )
-    names = identification_regions(sorted(regions[0]))  # as daemon/commands/arm_identify.py
+    names = sorted(regions[0])  # every region, as daemon/commands/arm_identify.py
     nodes = region_nodes(controller.thermal, names)
     time_s = np.array(times)
     room_c = np.array(rooms)

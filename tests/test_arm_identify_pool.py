@@ -85,3 +85,29 @@ def test_heats_a_cycle_cannot_tell_apart_are_identified_together(
     for name, value in (("alpha", 0.95), ("convection", 1.2)):
         fitted = calibration.final.parameter(name)
         assert abs(fitted.value - value) < 3 * fitted.standard_error, fitted
+
+
+def test_the_faces_join_the_fit_only_when_the_means_leave_much_heat_open() -> None:
+    from types import SimpleNamespace
+    from typing import Any, cast
+
+    from daemon.arm.identify_final import ArmCalibration, faces_needed
+    from daemon.model.identify import FittedParameter
+
+    # task A of the A465 (the shoulder 83 % of the heat) and task B (the elbow 20 %)
+    watts = np.array([2.4, 32.9, 3.7, 0.0, 0.4, 0.1])
+    run = SimpleNamespace(joint_heat_w=np.tile(watts, (10, 1)))
+
+    def calibration(missed: set[int]) -> ArmCalibration:
+        fitted = [
+            FittedParameter(f"heat:{j}", 1.0, 0.1, 0.1, j not in missed, "") for j in range(1, 7)
+        ]
+        full = cast(Any, SimpleNamespace(parameters=fitted))
+        return ArmCalibration(tuple(p.name for p in fitted), full, None, {})
+
+    heats = cast(Any, run)
+    assert not faces_needed(heats, calibration(set()))
+    assert not faces_needed(heats, calibration({1, 5, 6}))  # 6.9 % of the heat: the wrists'
+    assert faces_needed(heats, calibration({2, 3}))  # the shoulder and the elbow
+    assert faces_needed(heats, calibration({3, 5}))  # 9.8 + 1.0 % of the heat
+    assert not faces_needed(heats, calibration({5, 6}))
