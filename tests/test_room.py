@@ -166,3 +166,48 @@ def test_the_arm_model_follows_the_room_it_reads() -> None:
     assert warming.follows_room and not blind.follows_room
     with pytest.raises(ValueError, match="finite"):
         warming.follow_room(math.nan)
+
+
+def test_the_arm_models_radiation_is_linearised_at_the_room_it_starts_in() -> None:
+    from daemon.arm.arm_network import radiation_h_w_per_m2k
+    from daemon.arm.controller import ArmController
+
+    # a controller configured for 22 degC started in a room read at 17: the links lose heat
+    # by radiation linearised at 17 (4 eps sigma T^3 is 5 % less than at 22), as a model
+    # built at 17 does, step for step; before, the network kept 22's and the warm-up came out
+    # short (issue 29, cold-draughty room: 1.8 um of the tool's drift)
+    heated = _controller()
+    assert isinstance(heated, ArmController)
+    assert heated.options.ambient_c == 22.0
+    regions = {"probe": (0, 1)}
+    heated.attach_observer(regions, 0.05)
+    before = heated.observer
+    heated.follow_room(17.0)
+    assert heated.thermal.linearised_at_c == 17.0
+    assert heated.observer is not before  # the filter runs on the new network
+    assert heated.observer is not None and heated.observer.model is heated.thermal.thermal_model
+    oracle = ArmThermalModel(
+        heated.thermal.description,
+        node_spacing_mm=heated.thermal.node_spacing_mm,
+        ambient_c=17.0,
+        dt_s=heated.options.model_dt_s,
+        across_link=True,
+    )
+    link = heated.thermal.description.links[1]
+    node = int(heated.thermal.link_node_indices(1)[0])
+    ratio = (
+        heated.thermal.network.ambient_conductance_w_per_c[node]
+        / oracle.network.ambient_conductance_w_per_c[node]
+    )
+    assert ratio == pytest.approx(1.0, rel=1e-12)
+    at_22 = link.h_w_per_m2k + radiation_h_w_per_m2k(link.emissivity, 22.0)
+    at_17 = link.h_w_per_m2k + radiation_h_w_per_m2k(link.emissivity, 17.0)
+    assert at_17 / at_22 < 0.99  # the change is worth testing
+    for k in range(1, 13):
+        heated.follow_room(17.0)
+        heated.advance_to(600.0 * k)
+        oracle.advance_to(600.0 * k, heated.last_heat_w)
+    rise = heated.thermal.temperatures_c - 17.0
+    assert float(np.max(rise)) > 1.0  # it warmed
+    difference = heated.thermal.temperatures_c - oracle.temperatures_c
+    assert float(np.max(np.abs(difference))) < 1e-9 * float(np.max(rise)) + 1e-9

@@ -112,6 +112,7 @@ class ArmController:
         )
         self.last_heat_w: FloatArray = np.zeros(joints)
         self.observer: IrObserver | None = None
+        self._observer_args: tuple[dict[str, Sequence[int]], float, float, float] = ({}, 0, 0, 0)
         self._observer_noise_c: float | None = None
         self.description = description
         self.adaptation: ArmAdaptation | None = None
@@ -139,6 +140,7 @@ class ArmController:
         their 1-sigma as prior (the largest over the regions; ``offset_sigma_c`` when the
         model gives none); ``initial_sigma_c``: the nodes' own prior (0: the model's start is
         exact)."""
+        self._observer_args = (dict(regions), ir_noise_c, offset_sigma_c, initial_sigma_c)
         names = self.thermal.node_names
         offsets: Mapping[str, float] = {}
         sigma = offset_sigma_c
@@ -238,11 +240,15 @@ class ArmController:
         model's ambient follows the room instead of ``options.ambient_c``. The first reading,
         before the model has moved, is the cold arm's temperature and reference (it stood in
         that room); each advance then holds the mean of the readings at its two ends (the
-        trapezoid rule: a room changing linearly is followed exactly)."""
+        trapezoid rule: a room changing linearly is followed exactly). The first also sets
+        the air the links' radiation is linearised at (ArmThermalModel.start_at)."""
         if not np.isfinite(room_c):
             raise ValueError(f"room temperature must be finite, got {room_c}")
         if self._room_last is None and self.time_s == 0.0:
-            self.thermal.start_at(room_c)
+            model = self.thermal.thermal_model
+            self.thermal.start_at(room_c)  # its radiation linearised at this room
+            if self.observer is not None and self.thermal.thermal_model is not model:
+                self.attach_observer(*self._observer_args)  # on the new network
             self._room_last = room_c
             self._ambient_start_c = room_c
         self._room_next = room_c

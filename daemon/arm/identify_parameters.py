@@ -4,8 +4,9 @@ fits them).
 
 Kinds (``kind`` or ``kind:ARGUMENT``):
 
-* ``heat:J`` (joint J, 1-based) or ``heat`` (every joint, one factor): the heat really released
-  in the joint per watt the motor model predicts from the motion;
+* ``heat:J`` (joint J, 1-based), ``heat:J+K+...`` (those joints, one factor: a pool,
+  :func:`pooled_heat_name`) or ``heat`` (every joint, one factor): the heat really released in
+  the joint per watt the motor model predicts from the motion;
 * ``convection``: h of every surface (links and joint housings);
 * ``alpha``: the expansion coefficient of every link;
 * ``capacity``: the heat capacity of every joint's motor and gearbox housing (their masses are
@@ -51,6 +52,8 @@ ARM_PARAMETER_KINDS: tuple[ArmParameterKind, ...] = (
 #: Kinds that change the network itself (its modes are recomputed); the others scale or shift
 #: the responses of one network linearly.
 NETWORK_KINDS: frozenset[str] = frozenset({"convection", "capacity", "share"})
+#: Joins the joints of a pooled heat factor's name (``heat:1+3+5``).
+POOL_SEPARATOR = "+"
 #: The fit's bounds of a bending share: below 0.3 the housing's side would get the least of
 #: its own flange's heat; 0.99 leaves the other row a path.
 SHARE_BOUNDS = (0.3, 0.99)
@@ -145,9 +148,10 @@ def parse_parameters(
         kind, _, argument = spec.partition(":")
         if kind in ("heat", "share"):
             if argument:
-                if not argument.isdigit() or not 1 <= int(argument) <= joints:
+                numbers = argument.split(POOL_SEPARATOR) if kind == "heat" else [argument]
+                if not all(n.isdigit() and 1 <= int(n) <= joints for n in numbers):
                     raise IdentificationError(f"{spec!r}: joints are numbered 1..{joints}")
-                indices: tuple[int, ...] = (int(argument) - 1,)
+                indices: tuple[int, ...] = tuple(int(n) - 1 for n in numbers)
             else:
                 indices = tuple(range(joints))
             if kind == "share" and not across_link:
@@ -194,6 +198,21 @@ class ArmScales:
     offsets_c: dict[str, float]
     capacity: float = 1.0
     shares: tuple[float, ...] | None = None
+
+
+def pooled_heat_name(joints: Sequence[int]) -> str:
+    """The name of one heat factor shared by ``joints`` (1-based): ``heat:1+3+5``."""
+    return "heat:" + POOL_SEPARATOR.join(str(j) for j in sorted(joints))
+
+
+def heat_joints(name: str) -> tuple[int, ...]:
+    """The joints (1-based) a ``heat:J`` or pooled ``heat:J+K`` name acts on; () for others
+    (a plain ``heat`` included: it names no joint)."""
+    kind, _, argument = name.strip().partition(":")
+    numbers = argument.split(POOL_SEPARATOR)
+    if kind != "heat" or not all(n.isdigit() for n in numbers):
+        return ()
+    return tuple(int(n) for n in numbers)
 
 
 def initial_values(specs: Sequence[ArmParameter], prior_shares: Sequence[float]) -> FloatArray:
@@ -253,13 +272,16 @@ __all__ = [
     "ARM_PARAMETER_KINDS",
     "NETWORK_KINDS",
     "PHYSICAL_RANGES",
+    "POOL_SEPARATOR",
     "SHARE_BOUNDS",
     "ArmParameter",
     "ArmParameterKind",
     "ArmScales",
     "apply_values",
     "default_parameters",
+    "heat_joints",
     "initial_values",
     "outside_physical_range",
     "parse_parameters",
+    "pooled_heat_name",
 ]

@@ -83,12 +83,14 @@ def region_nodes(model: ArmThermalModel, names: Iterable[str]) -> dict[str, tupl
 
 
 def identification_regions(names: Iterable[str]) -> list[str]:
-    """The regions identification fits: the section means, not a face. A face by a joint
-    sits where the temperature across the link is steep and the controller's model has one
-    50-mm node; its mismatch (~0.2 degC) pulls the fitted factors (issue 29, hot-motors task
-    A: 9.1 um, 3.0x the meter's sigma with the faces, 6.0 um, 2.0x without; the default
-    bench's heat:2 14 standard errors off its truth). The tool, which identification fits
-    too, sees the bend itself; the faces serve model+ir, which has no tool."""
+    """The regions identification fits first: the section means, not a face (the faces join
+    only when the means leave the joints' heats open, identify_final.faces_needed). A face by
+    a joint sits where the temperature across the link is steep and the controller's model
+    has one 50-mm node; its mismatch (~0.2 degC) pulls the fitted factors (issue 29,
+    hot-motors task A: 9.1 um, 3.0x the meter's sigma with the faces, 6.0 um, 2.0x without;
+    the default bench's heat:2 14 standard errors off its truth). The tool, which
+    identification fits too, sees the bend itself; the faces serve model+ir, which has no
+    tool."""
     return [name for name in names if region_face(name)[1] is None]
 
 

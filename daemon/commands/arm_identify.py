@@ -62,7 +62,7 @@ from daemon.arm.identify import (
 )
 from daemon.arm.identify_final import ArmCalibration, identify_arm_final
 from daemon.arm.identify_parameters import default_parameters, outside_physical_range
-from daemon.arm.ir_regions import identification_regions, region_nodes
+from daemon.arm.ir_regions import region_nodes
 from daemon.arm.room import ambient_series, readings_of
 from daemon.calibration.identify_run import (
     recorded_parameters,
@@ -170,7 +170,9 @@ def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
             for k in range(steps)
         ]
     )
-    names = identification_regions(sorted({name for reading in readings for name in reading}))
+    # every region the run read: identify_arm_final fits the section means first and the
+    # faces only when the means leave the heats open
+    names = sorted({name for reading in readings for name in reading})
     nodes = region_nodes(controller.thermal, names)
     data = ArmRunData(
         heat_step_s=IDENTIFY_STEP_S,
