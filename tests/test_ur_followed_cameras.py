@@ -208,6 +208,62 @@ async def test_frames_the_program_left_its_pose_during_are_discarded(tmp_path: P
     assert final["summary"]["measured"]["discarded"]["moved-during-frames"] >= 2
 
 
+def outcomes(steps: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The measuring steps whose measurement is in: taken, or discarded for moving."""
+    return [
+        s
+        for s in steps
+        if s["measured_sigma_um"] is not None or "moved-during-frames" in s["flags"]
+    ]
+
+
+@pytest.mark.slow
+async def test_the_steps_go_on_while_the_cameras_measure(tmp_path: Path) -> None:
+    """Cameras whose frames come 0.4 s after the grab (four 0.1 s periods): the steps after
+    a measuring step are recorded while its frames are still on their way (before, the step
+    waited for the meter: no later step was recorded before the frames were in, and a
+    measuring step overran its period); each measurement then lands in the measuring step's
+    own row (the program at a measured pose then), and no row is left ``measuring``."""
+    settings = ur_settings(tmp_path, "127.0.31.34")
+    async with Daemon(settings) as daemon:
+        devices = daemon.devices
+        emulator = getattr(devices, "ur_emulator", None)
+        assert isinstance(emulator, UREmulator)
+        cameras = tuple(getattr(devices, "cameras", ()))
+        info = await daemon.start_run(params(settings))
+        run_id = int(info["id"])
+        #: at each frame's delivery: the last step recorded by then
+        delivered: list[int] = []
+        for camera in cameras:
+            assert isinstance(camera, SimURCamera)
+
+            async def slow(grab: Callable[[], Any] = camera.grab) -> Frame:
+                frame: Frame = await grab()
+                await asyncio.sleep(0.4)
+                delivered.append(max(s["step"] for s in steps_of(daemon, run_id)))
+                return frame
+
+            camera.grab = slow  # type: ignore[method-assign]
+        await daemon.wait_state(RunState.RUNNING)
+        await until(lambda: len(outcomes(steps_of(daemon, run_id))) >= 2, "two measurements")
+        await daemon.stop()
+        steps = steps_of(daemon, run_id)
+    measuring = [s["step"] for s in outcomes(steps)]
+    frames = len(cameras)
+    assert frames == 6 and len(delivered) >= 2 * frames
+    # each of the first two measurements' frames came after a later step was recorded
+    for k in range(2):
+        assert max(delivered[k * frames : (k + 1) * frames]) > measuring[k], (delivered, measuring)
+    assert not [s["step"] for s in steps if "measuring" in s["flags"].split(",")]
+    measured_poses = {
+        str(k + 1) for k, pose in enumerate(emulator.controller.duty.poses) if pose.measure
+    }
+    for step in outcomes(steps):
+        assert step["arm_pose"] in measured_poses
+        if step["measured_sigma_um"] is not None:  # the cameras' columns, not the truth's
+            assert "bench-truth" not in step["flags"]
+
+
 @pytest.mark.slow
 async def test_a_followed_run_with_no_camera_says_so(tmp_path: Path) -> None:
     settings = ur_settings(tmp_path, "127.0.31.33", bench_cameras=False)
