@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -129,16 +130,30 @@ async def test_one_measurement_per_dwell_at_rest_against_the_pose_zero() -> None
     assert (await step(state(1, instance=8)))[0] is not None and meter.calls == 3
 
 
+def reads(*states: OffsetRobotState) -> Callable[[], OffsetRobotState]:
+    """The robot's latest state, read after read: each of ``states`` once, the last for ever."""
+    queue = list(states)
+    return lambda: queue.pop(0) if len(queue) > 1 else queue[0]
+
+
+async def test_a_dwell_the_latest_state_has_left_starts_nothing() -> None:
+    """The step's state says pose 2 at rest, the latest one (read when starting) says the
+    program moved on: no frame is grabbed."""
+    meter = Meter()
+    dwell = DwellMeasurement(meter, lambda q: np.eye(4), lambda: state(0), 6)
+    assert not dwell.start(state(2), record(), []) and not dwell.pending and meter.calls == 0
+
+
 async def test_frames_the_program_left_its_pose_during_are_discarded() -> None:
     meter = Meter()
     rows = Rows()
-    dwell = DwellMeasurement(meter, lambda q: np.eye(4), lambda: state(0), 6)
+    dwell = DwellMeasurement(meter, lambda q: np.eye(4), reads(state(2), state(0)), 6)
     measured, row, flags = await measure_now(dwell, state(2), rows)
     assert measured is None and row is not None
     assert meter.calls == 1 and flags == ["bench-truth", MOVED] and "left pose 2" in row.error
     assert dwell.tally.summary(6)["discarded"] == {MOVED: 1}
     # a robot moving again after the frames (at the pose, not at rest): discarded too
-    dwell = DwellMeasurement(meter, lambda q: np.eye(4), lambda: state(2, speed=0.05), 6)
+    dwell = DwellMeasurement(meter, lambda q: np.eye(4), reads(state(2), state(2, speed=0.05)), 6)
     measured, row, flags = await measure_now(dwell, state(2), rows)
     assert measured is None and flags == ["bench-truth", MOVED]
 

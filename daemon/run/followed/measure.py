@@ -223,6 +223,14 @@ class DwellMeasurement:
             return False
         if not _still(state) or self._pending is not None:
             return False  # not at rest yet, or the last dwell's still measured: next step
+        try:
+            latest = self.read_state()
+        except DeviceError:
+            return False
+        # the latest state too (the step's may be a DB write or a collected measurement old):
+        # frames are grabbed right after this, as when the step measured itself
+        if (latest.at_pose, latest.program_instance) != dwell or not _still(latest):
+            return False
         self._dwell = dwell
         flags.append(MEASURING)
         task = asyncio.get_running_loop().create_task(
