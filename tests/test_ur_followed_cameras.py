@@ -16,6 +16,7 @@ UR driver, the bench's tool cameras rendering the emulator's true tool, the daem
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -206,6 +207,71 @@ async def test_frames_the_program_left_its_pose_during_are_discarded(tmp_path: P
         assert "left pose" in step["error"] and "bench-truth" in step["flags"]
     assert final["summary"]["measured"]["measurements"] == 0
     assert final["summary"]["measured"]["discarded"]["moved-during-frames"] >= 2
+
+
+def outcomes(steps: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The measuring steps whose measurement is in: taken, or discarded for moving."""
+    return [
+        s
+        for s in steps
+        if s["measured_sigma_um"] is not None or "moved-during-frames" in s["flags"]
+    ]
+
+
+@pytest.mark.slow
+async def test_the_steps_go_on_while_the_cameras_measure(tmp_path: Path) -> None:
+    """Cameras that hold each frame until two more steps than at the grab are recorded (at
+    most 20 s): the steps after a measuring step are recorded while its frames are still on
+    their way (before, the step waited for the meter: no later step could be recorded before
+    the frames were in, and a measuring step overran its period). Held on the steps, not on
+    wall-clock time: a loaded machine only makes the wait longer. Each measurement then lands
+    in the measuring step's own row (the program at a measured pose then; frames held past
+    the dwell are discarded there), and no row is left ``measuring``."""
+    settings = ur_settings(tmp_path, "127.0.31.34")
+    async with Daemon(settings) as daemon:
+        devices = daemon.devices
+        emulator = getattr(devices, "ur_emulator", None)
+        assert isinstance(emulator, UREmulator)
+        cameras = tuple(getattr(devices, "cameras", ()))
+        info = await daemon.start_run(params(settings))
+        run_id = int(info["id"])
+        #: at each frame's delivery: the last step recorded by then
+        delivered: list[int] = []
+        for camera in cameras:
+            assert isinstance(camera, SimURCamera)
+
+            async def slow(grab: Callable[[], Any] = camera.grab) -> Frame:
+                def last() -> int:
+                    return max((s["step"] for s in steps_of(daemon, run_id)), default=-1)
+
+                at_grab = last()
+                frame: Frame = await grab()
+                with contextlib.suppress(TimeoutError):  # the old design: never
+                    async with asyncio.timeout(20.0):
+                        while last() < at_grab + 2:  # noqa: ASYNC110 -- the database, polled
+                            await asyncio.sleep(0.02)
+                delivered.append(last())
+                return frame
+
+            camera.grab = slow  # type: ignore[method-assign]
+        await daemon.wait_state(RunState.RUNNING)
+        await until(lambda: len(outcomes(steps_of(daemon, run_id))) >= 2, "two measurements")
+        await daemon.stop()
+        steps = steps_of(daemon, run_id)
+    measuring = [s["step"] for s in outcomes(steps)]
+    frames = len(cameras)
+    assert frames == 6 and len(delivered) >= 2 * frames
+    # each of the first two measurements' frames came after a later step was recorded
+    for k in range(2):
+        assert max(delivered[k * frames : (k + 1) * frames]) > measuring[k], (delivered, measuring)
+    assert not [s["step"] for s in steps if "measuring" in s["flags"].split(",")]
+    measured_poses = {
+        str(k + 1) for k, pose in enumerate(emulator.controller.duty.poses) if pose.measure
+    }
+    for step in outcomes(steps):
+        assert step["arm_pose"] in measured_poses
+        if step["measured_sigma_um"] is not None:  # the cameras' columns, not the truth's
+            assert "bench-truth" not in step["flags"]
 
 
 @pytest.mark.slow

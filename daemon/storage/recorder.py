@@ -278,13 +278,16 @@ class Recorder:
                 (state, time.time(), None if summary is None else _dumps(summary), reason, run_id),
             )
 
-    def write_step(self, record: StepRecord) -> None:
-        """Insert one step and commit it (durably) before returning."""
+    def write_step(self, record: StepRecord, *, replace: bool = False) -> None:
+        """Insert one step and commit it (durably) before returning; ``replace``: rewrite the
+        step's row written before (a followed run's measurement that finished after its step:
+        daemon/run/followed/measure.py)."""
         values = dataclasses.astuple(record)
         placeholders = ",".join("?" * len(values))
+        verb = "INSERT OR REPLACE" if replace else "INSERT"
         with self._write() as db:
             db.execute(
-                f"INSERT INTO steps ({','.join(STEP_COLUMNS)}) VALUES ({placeholders})", values
+                f"{verb} INTO steps ({','.join(STEP_COLUMNS)}) VALUES ({placeholders})", values
             )
 
     def archive_frame(self, run_id: int, step: int, image: NDArray[np.integer]) -> str:

@@ -123,6 +123,9 @@ STEP_FLAGS: dict[str, str] = {
     "model's alone)",
     "moved-during-frames": "followed runs: the robot's program left its measured pose (or was "
     "not at rest) while the tool cameras' frames were taken: the measurement was discarded",
+    "measuring": "followed runs: this step started a measurement of the tool that was not in "
+    "when the row was written; the row is written again when it is (this flag then gives way "
+    "to the measurement, or to the reason it was discarded)",
     "model-drifting": "the IR observer's innovations stay biased: consider identification",
     "bench-truth": "followed runs on the UR bench: measured_* is the bench truth's residual "
     "tool error (no camera noise), not a camera measurement",

@@ -105,13 +105,23 @@ class MarkerWindow:
 
 
 class MarkerRenderer:
-    """Frames of one camera; every random draw from ``rng`` (the camera's own stream)."""
+    """Frames of one camera; every random draw from ``rng`` (the camera's own stream).
+    ``bank``: a list of dark frames shared with other renderers of the same rig and image size
+    (filled by the first that renders; its noise drawn from that one's stream): each frame is
+    a bank frame rolled by a random shift of the camera's own, so sharing keeps every camera's
+    noise statistics and makes the bank once instead of once per camera."""
 
-    def __init__(self, camera: CameraModel, rig: CameraRig, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        camera: CameraModel,
+        rig: CameraRig,
+        rng: np.random.Generator,
+        bank: list[NDArray[np.generic]] | None = None,
+    ) -> None:
         self.camera = camera
         self.rig = rig
         self.rng = rng
-        self._bank: list[NDArray[np.generic]] = []
+        self._bank: list[NDArray[np.generic]] = [] if bank is None else bank
 
     def _kwargs(self) -> dict[str, object]:
         rig = self.rig
@@ -160,11 +170,11 @@ class MarkerRenderer:
         """A whole frame with every marker's spot (blocking: call it in a thread)."""
         width, height = self.camera.image_size_px
         shape = (height, width)
-        if not self._bank:
-            self._bank = [
+        if not self._bank:  # filled in place: a shared bank is filled for every renderer
+            self._bank.extend(
                 render_spot(shape=shape, peak_fraction=0.0, **self._kwargs())  # type: ignore[arg-type]
                 for _ in range(NOISE_BANK_SIZE)
-            ]
+            )
         field = self._bank[int(self.rng.integers(NOISE_BANK_SIZE))]
         shift = (int(self.rng.integers(shape[0])), int(self.rng.integers(shape[1])))
         frame = np.roll(field, shift, axis=(0, 1))

@@ -181,6 +181,15 @@ class MotorEnergy:
             return self._periodic_energy(t_s)
         return self._forward_energy(t_s)
 
+    def integrate_to(self, t_s: float) -> None:
+        """A forward source: integrate the motion up to ``t_s`` now, when not done yet (a
+        periodic or still source is integrated at construction: nothing to do). Called
+        often, this spreads the sampling over time, so that no single ``energy_j`` call
+        samples a whole truth step of motion at once (the UR emulator's cycle:
+        drivers/sim/ur/controller.py)."""
+        if not (self._still or self._periodic) and t_s > self._time_s:
+            self._forward_energy(t_s)
+
     def _periodic_energy(self, t_s: float) -> FloatArray:
         cycles = math.floor(t_s / self._period_s)
         phase = t_s - cycles * self._period_s

@@ -40,7 +40,7 @@ import enum
 import math
 import struct
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 #: The protocol version the client asks for and the emulator speaks (the guide: version 2 adds
 #: the output frequency and the recipe ids).
@@ -130,15 +130,22 @@ class TextMessage:
 
 @dataclass(frozen=True, slots=True)
 class Recipe:
-    """A set-up recipe: its id and its variables' names and types (in package order)."""
+    """A set-up recipe: its id and its variables' names and types (in package order).
+
+    Its struct and each variable's width are computed once here: a data package is packed or
+    parsed every controller cycle (500 Hz), and rebuilding the struct from the types' enum
+    properties was most of a package's parsing cost (benchmarks/bench_ur.py, issue 31)."""
 
     id: int
     names: tuple[str, ...]
     types: tuple[DataType, ...]
+    struct: struct.Struct = field(init=False, repr=False, compare=False)
+    #: each variable's number of values (1: a scalar), in package order
+    widths: tuple[int, ...] = field(init=False, repr=False, compare=False)
 
-    @property
-    def struct(self) -> struct.Struct:
-        return recipe_struct(self.types)
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "struct", recipe_struct(self.types))
+        object.__setattr__(self, "widths", tuple(t.width for t in self.types))
 
 
 # --- framing ------------------------------------------------------------------------------
@@ -311,18 +318,18 @@ def recipe_struct(types: Iterable[DataType]) -> struct.Struct:
     return struct.Struct(">" + "".join(t.format for t in types))
 
 
-def _flatten(types: Sequence[DataType], values: Sequence[Value]) -> list[Scalar]:
-    if len(values) != len(types):
-        raise RtdeFormatError(f"{len(types)} values expected, got {len(values)}")
+def _flatten(recipe: Recipe, values: Sequence[Value]) -> list[Scalar]:
+    if len(values) != len(recipe.widths):
+        raise RtdeFormatError(f"{len(recipe.widths)} values expected, got {len(values)}")
     flat: list[Scalar] = []
-    for data_type, value in zip(types, values, strict=True):
-        if data_type.width == 1:
+    for data_type, width, value in zip(recipe.types, recipe.widths, values, strict=True):
+        if width == 1:
             if isinstance(value, tuple):
                 raise RtdeFormatError(f"{data_type.wire_name}: one value expected")
             flat.append(value)
         else:
-            if not isinstance(value, tuple) or len(value) != data_type.width:
-                raise RtdeFormatError(f"{data_type.wire_name}: {data_type.width} values expected")
+            if not isinstance(value, tuple) or len(value) != width:
+                raise RtdeFormatError(f"{data_type.wire_name}: {width} values expected")
             flat.extend(value)
     return flat
 
@@ -330,7 +337,7 @@ def _flatten(types: Sequence[DataType], values: Sequence[Value]) -> list[Scalar]
 def data_package(recipe: Recipe, values: Sequence[Value]) -> bytes:
     """A DATA_PACKAGE of ``recipe`` with ``values`` in the recipe's order."""
     try:
-        body = recipe.struct.pack(*_flatten(recipe.types, values))
+        body = recipe.struct.pack(*_flatten(recipe, values))
     except struct.error as err:
         raise RtdeFormatError(f"values do not fit recipe {recipe.id}: {err}") from err
     return pack(PackageType.DATA_PACKAGE, bytes([recipe.id]) + body)
@@ -354,9 +361,8 @@ def parse_data_package(payload: bytes, recipe: Recipe) -> tuple[Value, ...]:
     flat = layout.unpack_from(payload, 1)
     values: list[Value] = []
     index = 0
-    for data_type in recipe.types:
-        width = data_type.width
-        values.append(flat[index] if width == 1 else tuple(flat[index : index + width]))
+    for width in recipe.widths:
+        values.append(flat[index] if width == 1 else flat[index : index + width])
         index += width
     return tuple(values)
 

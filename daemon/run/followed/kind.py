@@ -27,6 +27,7 @@ a program that pause paused.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import threading
@@ -244,11 +245,15 @@ class FollowedKind(KindBase):
                 verdict = Verdict("fault", str(err))
             stages.end("move", started)
         measured = None
-        if self.measurement is not None and verdict is OK:
+        if self.measurement is not None:
+            # the measurement is off the step's path (measure.py): a finished one is written
+            # into its own step's row, and this step starts one when the program dwells
             started = time.perf_counter()
-            measured = await self.measurement.step(state, record, flags, errors)
+            measured = await self.measurement.collect(self._rewrite)
+            if verdict is OK:
+                self.measurement.start(state, record, flags)
             stages.end("frame", started)
-        self._measure(record, flags, measured=measured is not None)
+        self._measure(record, flags)
         finish_record(record, flags, errors, stages)
         started = time.perf_counter()
         await self.workers.db(self.recorder.write_step, record)
@@ -278,17 +283,19 @@ class FollowedKind(KindBase):
             {k: round(v, 4) for k, v in temperatures.items()}
         )
 
-    def _measure(self, record: StepRecord, flags: list[str], *, measured: bool) -> None:
+    async def _rewrite(self, record: StepRecord) -> None:
+        """A measuring step's row again, with its measurement (measure.py)."""
+        await self.workers.db(functools.partial(self.recorder.write_step, record, replace=True))
+
+    def _measure(self, record: StepRecord, flags: list[str]) -> None:
         """On the UR bench the truth's residual into the run's tally, and into the step's
-        measurement columns when the cameras did not measure this step."""
+        measurement columns (a camera measurement this step started replaces them when it is
+        in: measure.py); elsewhere the step says nothing is measured (yet)."""
         if self.truth is None:
-            if not measured:
-                flags.append("no-measurement")
+            flags.append("no-measurement")
             return
         errors = self.truth.errors()
         residual = self.tally.add(errors)
-        if measured:
-            return
         tx, ty, tz = translation_um(errors.residual)
         record.measured_tx_um, record.measured_ty_um, record.measured_tz_um = tx, ty, tz
         rx, ry, rz = rotation_urad(errors.residual)
@@ -309,9 +316,13 @@ class FollowedKind(KindBase):
 
     async def stop_playing(self, grace_s: float, *, held: bool) -> None:
         """The session's hold has frozen the program's offset already; after a hold (not at
-        the run's end) the program itself is paused, within ``grace_s`` (program_pause.py)."""
+        the run's end) the program itself is paused, within ``grace_s`` (program_pause.py).
+        Then a measurement in flight is waited for (within ``grace_s``) and written into its
+        step's row: the run's summary, taken next, counts it."""
         if held and self.program is not None:
             await self.program.pause(grace_s)
+        if self.measurement is not None:
+            await self.measurement.collect(self._rewrite, wait_s=grace_s)
 
     def summary_basis(self, *, overruns: int, skipped: int, timing: dict[str, Any]) -> SummaryBasis:
         """Every figure of this kind's summary is in memory: the basis is all of it."""

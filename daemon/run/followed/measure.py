@@ -4,13 +4,24 @@ dwells at a measured pose.
 The program says where it is: its "at measured pose" register (controller/ur/
 thermocomp_offset.script, drivers/ur/registers.py) is k while it dwells at pose k of its cycle
 and that pose is measured, 0 elsewhere. The first step of each dwell with the joints at rest
-measures the tool once (a failed try is not repeated in that dwell):
+starts one measurement of the tool (a failed try is not repeated in that dwell):
 every camera's frames (``arm.frames_per_measurement``), the marker centroids, the tool's pose
 (the arm run's meter, daemon/run/arm/measure.py, several cameras: thesis 7.2.2), starting from
 the nominal arm's pose at the robot's current joints. The frames count only if the program was
 still at that dwell when they were taken: the state read before the grab and the one read after
 it both say pose k, the same program instance, and joints at rest (``STILL_RAD_S``); else the
 measurement is thrown away (flag ``moved-during-frames``) and nothing is recorded from it.
+
+**The steps do not wait for the meter.** Six cameras' frames and the fit take 60-100 ms on the
+UR bench (closing note of 2026-11-27), most of a 0.1 s step: measured inside the step, a
+measuring step overran its period while the robot dwelt, and the correction of the next step
+came late. So the measuring step only *starts* the measurement (a task of its own, flag
+``measuring``) and goes on: its record is written as any step's. A later step (or the run's
+hold or end: :meth:`DwellMeasurement.collect` with a wait) takes the finished measurement and
+rewrites the measuring step's row with it (Recorder.write_step ``replace``): the measurement
+stays attached to the step whose frames it is, with that step's joints and time, and the flag
+``measuring`` gives way to the outcome. One measurement at a time: a dwell that begins while
+the last one is still being measured starts its own at its first step after that.
 
 As in an arm run (daemon/run/arm/record.py), a pose's drift is its measured pose relative to
 its *reference*: here the run's first measurement at that pose (flag
@@ -26,8 +37,11 @@ the step's columns hold the camera's measurement.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -54,6 +68,24 @@ from drivers.errors import DeviceError
 STILL_RAD_S = 0.01
 #: The flag of a measurement thrown away because the program left the dwell during its frames.
 MOVED = "moved-during-frames"
+#: The flag of a step whose measurement was started and was not in when its row was written.
+MEASURING = "measuring"
+#: The flags a camera measurement replaces (kind.py: the step's "nothing measured" marks).
+UNMEASURED_FLAGS = frozenset({MEASURING, "bench-truth", "no-measurement"})
+#: The record's measurement columns: a camera measurement replaces all of them (the bench
+#: truth's values that the measuring step recorded meanwhile included).
+MEASURED_COLUMNS = (
+    "measured_tx_um",
+    "measured_ty_um",
+    "measured_tz_um",
+    "measured_rx_urad",
+    "measured_ry_urad",
+    "measured_rz_urad",
+    "drift_3d_um",
+    "rotation_error_urad",
+    "measured_sigma_um",
+    "measured_rotation_sigma_urad",
+)
 
 
 class Meter(Protocol):
@@ -130,10 +162,38 @@ class _Reference:
     truth_mm: FloatArray | None  # (bench) the truth's residual then
 
 
+@dataclass(frozen=True)
+class _Taken:
+    """A measurement whose frames were taken during the dwell."""
+
+    pose_name: str
+    measurement: ToolMeasurement
+    after: OffsetRobotState  # the robot's state read after the frames
+    truth: FloatArray | None  # (bench) the truth's residual right after the frames
+
+
+@dataclass(frozen=True)
+class _Discarded:
+    flag: str
+    message: str
+
+
+@dataclass(eq=False)
+class _Pending:
+    """A measurement in flight: the measuring step's record (as written) and its task."""
+
+    record: StepRecord
+    task: asyncio.Task[_Taken | _Discarded]
+
+
+#: Writes a step's row again (the kind's: Recorder.write_step with replace, on the db worker).
+RowWriter = Callable[[StepRecord], Awaitable[object]]
+
+
 @dataclass
 class DwellMeasurement:
     """The followed run's measurements at the program's dwells (module docstring); owned by
-    the run's steps (one step at a time)."""
+    the run's steps (one step at a time), with at most one measurement in flight."""
 
     meter: Meter
     #: the nominal arm's tool pose (4x4) at joints q: where the meter looks for the markers
@@ -146,64 +206,119 @@ class DwellMeasurement:
     references: dict[str, _Reference] = field(default_factory=dict)
     #: the dwell last measured or tried (at-pose register, program instance); None: moving
     _dwell: tuple[int, int] | None = None
+    _pending: _Pending | None = None
 
-    async def step(
-        self, state: OffsetRobotState, record: StepRecord, flags: list[str], errors: list[str]
-    ) -> ToolMeasurement | None:
-        """Measure the tool if this step is the first of a dwell at a measured pose; the
-        measurement when it went into ``record``, else None. Camera and marker failures are
-        flagged, never raised (the correction goes on without the measurement)."""
+    @property
+    def pending(self) -> bool:
+        """A measurement is in flight (started, not collected)."""
+        return self._pending is not None
+
+    def start(self, state: OffsetRobotState, record: StepRecord, flags: list[str]) -> bool:
+        """Start measuring the tool if this step is the first of a dwell at a measured pose
+        with the joints at rest (and no measurement is in flight); True when started (flag
+        ``measuring`` on the step). Returns at once: :meth:`collect` takes the result."""
         dwell = (state.at_pose, state.program_instance) if state.at_pose else None
         if dwell is None or dwell == self._dwell:
             self._dwell = dwell  # moving, or this dwell was measured (or tried) already
-            return None
-        if not _still(state):
-            return None  # not at rest yet: the next step of the dwell tries
+            return False
+        if not _still(state) or self._pending is not None:
+            return False  # not at rest yet, or the last dwell's still measured: next step
+        try:
+            latest = self.read_state()
+        except DeviceError:
+            return False
+        # the latest state too (the step's may be a DB write or a collected measurement old):
+        # frames are grabbed right after this, as when the step measured itself
+        if (latest.at_pose, latest.program_instance) != dwell or not _still(latest):
+            return False
         self._dwell = dwell
+        flags.append(MEASURING)
+        task = asyncio.get_running_loop().create_task(
+            self._measure(state, dwell), name=f"followed-measurement-{record.step}"
+        )
+        self._pending = _Pending(record, task)
+        return True
+
+    async def collect(
+        self, write: RowWriter, *, wait_s: float | None = None
+    ) -> ToolMeasurement | None:
+        """The measurement in flight, when it is in: its outcome into the measuring step's
+        row (rewritten through ``write``) and the tally; the measurement when the row took
+        it, else None. ``wait_s``: wait that long for it (the run's hold or end), then give it
+        up (flag camera-error on its step); None: only take it if it is in already."""
+        pending = self._pending
+        if pending is None:
+            return None
+        task = pending.task
+        if not task.done():
+            if wait_s is None:
+                return None
+            await asyncio.wait({task}, timeout=wait_s)
+        self._pending = None
+        if task.done():
+            outcome = task.result()  # a bug in the meter raises here, in a step
+        else:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+            outcome = _Discarded("camera-error", f"tool cameras: no measurement in {wait_s} s")
+        record = dataclasses.replace(pending.record)
+        flags = [f for f in record.flags.split(",") if f and f != MEASURING]
+        errors = [record.error] if record.error else []
+        measurement = None
+        if isinstance(outcome, _Taken):
+            flags = [f for f in flags if f not in UNMEASURED_FLAGS]
+            for name in MEASURED_COLUMNS:
+                setattr(record, name, None)
+            self._record(outcome, record=record, flags=flags)
+            measurement = outcome.measurement
+        else:
+            self._discard(outcome.flag, outcome.message, flags, errors)
+        record.flags = ",".join(flags)
+        record.error = "; ".join(errors)
+        await write(record)
+        return measurement
+
+    async def _measure(
+        self, state: OffsetRobotState, dwell: tuple[int, int]
+    ) -> _Taken | _Discarded:
+        """The frames, the fit and the check that the program stayed in its dwell (a task of
+        its own: module docstring). Camera and marker failures are outcomes, never raised."""
         pose_name = str(state.at_pose)
         try:
             measurement = await self.meter.measure(
                 self.expected_pose(np.asarray(state.joints_rad, dtype=np.float64))
             )
         except DeviceError as err:
-            return self._discard("camera-error", f"tool cameras: {err}", flags, errors)
+            return _Discarded("camera-error", f"tool cameras: {err}")
         except MeasurementError as err:
-            return self._discard("marker-error", f"tool markers: {err}", flags, errors)
+            return _Discarded("marker-error", f"tool markers: {err}")
         truth = None if self.truth is None else self.truth()
         try:
             after = self.read_state()
         except DeviceError as err:
-            return self._discard(MOVED, f"no robot state after the frames: {err}", flags, errors)
+            return _Discarded(MOVED, f"no robot state after the frames: {err}")
         if (after.at_pose, after.program_instance) != dwell or not _still(after):
-            return self._discard(
+            return _Discarded(
                 MOVED,
                 f"the program left pose {pose_name} during the frames (at pose {after.at_pose}"
                 "): measurement discarded",
-                flags,
-                errors,
             )
-        self._record(pose_name, measurement, after, truth=truth, record=record, flags=flags)
-        return measurement
+        return _Taken(pose_name, measurement, after, truth)
 
-    def _discard(
-        self, flag: str, message: str, flags: list[str], errors: list[str]
-    ) -> ToolMeasurement | None:
-        """The measurement thrown away, flagged (nothing of it recorded): None."""
+    def _discard(self, flag: str, message: str, flags: list[str], errors: list[str]) -> None:
+        """The measurement thrown away, flagged (nothing of it recorded)."""
         flags.append(flag)
         errors.append(message)
         self.tally.discarded[flag] = self.tally.discarded.get(flag, 0) + 1
-        return None
 
-    def _record(
-        self,
-        pose_name: str,
-        measurement: ToolMeasurement,
-        after: OffsetRobotState,
-        *,
-        truth: FloatArray | None,
-        record: StepRecord,
-        flags: list[str],
-    ) -> None:
+    def _record(self, taken: _Taken, *, record: StepRecord, flags: list[str]) -> None:
+        pose_name, measurement, after, truth = (
+            taken.pose_name,
+            taken.measurement,
+            taken.after,
+            taken.truth,
+        )
         applied = np.asarray(after.applied_offset_mm, dtype=np.float64)
         reference = self.references.get(pose_name)
         if reference is None:

@@ -14,8 +14,9 @@ the A465's (drivers/sim/arm_devices.py SimArmCamera).
 The controller runs on the event loop (drivers/sim/ur/emulator.py), so the truth is read there
 (the joints, the warm tool: a millisecond) and only the 5 MP render goes to a worker thread
 (off the grab's deadline: drivers/deadline.py): the worker never touches the truth the loop
-advances. Each camera draws its noise from its own seeded stream; opening a camera renders its
-bank of dark frames (seconds of CPU: the UR bench with cameras opens that much slower).
+advances. Each camera draws its noise from its own seeded stream; the cameras share one bank
+of dark frames (per image size), rendered when the first camera opens (seconds of CPU: the UR
+bench with cameras opens that much slower).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from __future__ import annotations
 from typing import Self
 
 import numpy as np
+from numpy.typing import NDArray
 
 from daemon.vision.markers import marker_pixels
 from daemon.vision.multiview import CameraModel
@@ -100,12 +102,20 @@ def ur_bench_cameras(
     streams = np.random.SeedSequence([controller.config.seed, CAMERA_STREAM]).spawn(
         len(bench.cameras)
     )
+    # one bank of dark frames per image size, shared (MarkerRenderer): six cameras' banks took
+    # 13.5 s to render at the bench's opening, one bank a sixth of that
+    banks: dict[tuple[int, int], list[NDArray[np.generic]]] = {}
     cameras = tuple(
         SimURCamera(
             controller,
             k,
             clock,
-            MarkerRenderer(model, bench.config.rig, np.random.default_rng(stream)),
+            MarkerRenderer(
+                model,
+                bench.config.rig,
+                np.random.default_rng(stream),
+                banks.setdefault(model.image_size_px, []),
+            ),
         )
         for k, (model, stream) in enumerate(zip(bench.cameras, streams, strict=True))
     )

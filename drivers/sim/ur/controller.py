@@ -49,6 +49,11 @@ from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_protocol import CONTROLLER_CYCLE_S, DataType, Value
 
 JACOBIAN_REUSE_RAD = 5e-3
+#: Every this many controller cycles (0.1 s) the thermal truth follows the arm's motion
+#: (ArmBench.follow_motion: ~0.7 ms for 10 motion samples), so that its 2-s step never
+#: samples a whole step of motion inside one 2-ms cycle (~6 ms: three cycles late, and every
+#: correction written meanwhile applied late; benchmarks/bench_ur.py).
+TRUTH_FOLLOW_CYCLES = 50
 TEMPERATURE_NOISE_C = 0.05  # ESTIMATE
 TEMPERATURE_RESOLUTION_C = 0.0625  # ESTIMATE: a 1/16 degC digital sensor
 #: The emulated controller's software version (PolyScope >= 5.6: path_offset_set exists).
@@ -189,6 +194,8 @@ class URController:
         regs = self.registers
         if self.player.state is PlayerState.PLAYING:
             self.player.advance(t_s)
+        if self.cycles % TRUTH_FOLLOW_CYCLES == 0:
+            self.bench.follow_motion(t_s)
         if self.player.state is PlayerState.PLAYING and not self.program_frozen:
             sequence = self.inputs[regs.sequence]
             hold = self.inputs[regs.hold]
@@ -234,7 +241,9 @@ class URController:
         """actual_TCP_pose: x, y, z (m) and a rotation vector (rad), base frame."""
         q, _, _ = self.joint_state(t_s)
         pose = kinematics.forward(self.arm, q)
-        rotvec = Rotation.from_matrix(pose[:3, :3]).as_rotvec()
+        # assume_valid: a product of rotations is orthonormal to rounding; SciPy's check
+        # (an orthogonalisation) was three quarters of this call's time at 500 Hz
+        rotvec = Rotation.from_matrix(pose[:3, :3], assume_valid=True).as_rotvec()
         return (*(float(v) / 1000.0 for v in pose[:3, 3]), *(float(v) for v in rotvec))
 
     def tcp_speed(self, t_s: float) -> tuple[float, ...]:
