@@ -18,6 +18,10 @@ What the run recorded, read back READ-ONLY (as daemon/commands/identify.py reads
 - each step's IR regions (``ir_json``) tied to the model's nodes by name
   (daemon/arm/ir_regions.py: ``<link>-mid``, ``<link>@<fraction>``).
 
+A followed run (a UR playing its own program, issue 31) is read by
+daemon/commands/followed_identify.py: its cameras' measurements at the program's dwells, its
+joint temperatures as the thermal input; the fit and everything after it are the same.
+
 The fit (daemon/arm/identify_final.py identify_arm_final): every parameter first (heat per joint,
 convection, alpha, the joints' capacity, with ``arm.bending`` the bending share, one IR offset
 per region), reported with its standard error and whether the run identifies it; then the
@@ -128,6 +132,11 @@ def _number(value: object) -> float:
 def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     """The recorded arm run as identification sees it (module docstring)."""
     parameters, config = recorded_run(data_dir, run_id)
+    # lazy: followed_identify builds on this module (ArmRun); a UR's run is read there
+    from daemon.commands.followed_identify import is_followed_run, load_followed_run
+
+    if is_followed_run(config):  # a UR that played its own program (issue 31)
+        return load_followed_run(data_dir, run_id, parameters, config)
     if not is_arm_run(parameters):
         raise ArmRunInputError(f"run {run_id} is not an arm run (no duty cycle)")
     settings = Settings.model_validate(config)

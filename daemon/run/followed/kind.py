@@ -211,7 +211,7 @@ class FollowedKind(KindBase):
         started = time.perf_counter()
         try:
             correction = check_correction(
-                correction_for(error, self.parameters.deformation_scale),
+                self._correction(error),
                 self.last_correction,
                 correction_limits(self.settings),
             )
@@ -256,6 +256,14 @@ class FollowedKind(KindBase):
         # the tool cameras' frames of a measured step, with their markers, for the live views
         views = camera_views(measured)
         return StepOutcome(record, None, verdict, (), stages, stages.ends_s, views)
+
+    def _correction(self, error: Pose6) -> Pose6:
+        """The correction to write: the one cancelling ``error``, or zero in an uncompensated
+        run (compensation off: ``calibrate model``'s calibration run, whose cameras must see
+        the arm's whole drift; zero is still written each step, the program's heartbeat)."""
+        if self.parameters.compensation == "off":
+            return Pose6.zero()
+        return correction_for(error, self.parameters.deformation_scale)
 
     @staticmethod
     def _state_into(record: StepRecord, state: OffsetRobotState) -> None:
