@@ -67,15 +67,16 @@ class _BenchMeter:
     bench: ArmBench
     q_rad: FloatArray = field(default_factory=lambda: np.zeros(6))
     station: int = 0
-    measurements: int = 0
+    #: each measurement's own 1-sigma of the 3-D position (mm): the measurement's noise
+    sigmas_mm: list[float] = field(default_factory=list)
 
     async def measure(
         self, expected_pose: FloatArray, frames: int | None = None
     ) -> ToolMeasurement:
         del expected_pose, frames  # the rendered windows are at the true tool already
-        self.measurements += 1
         fit = self.bench.measure_tool(self.station, self.q_rad)
         sigma_mm, sigma_rad = pose_sigmas(fit.covariance)  # as the arm run's meter reports it
+        self.sigmas_mm.append(sigma_mm)
         return ToolMeasurement(fit.pose, sigma_mm, True, {}, sigma_rad)
 
 
@@ -112,9 +113,9 @@ def record_calibration_run(
     step_s: float = 0.25,
     measure_every_s: float = 120.0,
     record_every_s: float = 20.0,
-) -> int:
+) -> tuple[int, list[float]]:
     """An uncompensated followed run of ``hours`` recorded into ``data_dir``'s run database
-    (module docstring); its id."""
+    (module docstring): its id, and each camera measurement's own 3-D 1-sigma (mm)."""
     parameters = RunParameters.from_settings(settings, compensation="off")
     bench = controller.bench
     taught = controller.duty.poses
@@ -168,7 +169,7 @@ def record_calibration_run(
             step += 1
             last_record = t
         recorder.finish_run(run_id, "finished", {"kind": FollowedKind.name}, None)
-    return run_id
+    return run_id, meter.sigmas_mm
 
 
 def compensated_removal(
