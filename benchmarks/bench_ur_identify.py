@@ -51,7 +51,7 @@ UM_PER_MM = 1000.0
 
 
 def scenarios(quick: bool) -> list[tuple[str, int, dict[str, Any]]]:
-    nominal = [("nominal seed 1", 1, {})]
+    nominal: list[tuple[str, int, dict[str, Any]]] = [("nominal seed 1", 1, {})]
     if quick:
         return nominal
     return [
@@ -113,19 +113,16 @@ def one(name: str, seed: int, truth: dict[str, Any], hours: float, bending: bool
         record_cpu = time.process_time() - began
         outcome, identify_wall = calibrate(data_dir, run_id)
         model = outcome["identified"]["arm_model"]
-        rows = {}
-        for row, prediction, arm_model in (
-            ("preset", "model", None),
-            ("preset + joints", "model+ir", None),
-            ("identified + joints", "model+ir", "bench"),
-        ):
-            rows[row] = compensated_removal(
-                settings_in(data_dir, bending, prediction),
-                emulated(seed, truth),
-                hours=hours,
-                sample_s=SAMPLE_S,
-                arm_model=arm_model,
-            )
+        rows = compensated_removal(
+            {
+                "preset": (settings_in(data_dir, bending, "model"), None),
+                "preset + joints": (settings_in(data_dir, bending), None),
+                "identified + joints": (settings_in(data_dir, bending), "bench"),
+            },
+            emulated(seed, truth),
+            hours=hours,
+            sample_s=SAMPLE_S,
+        )
     sigma_um = UM_PER_MM * sum(sigmas_mm) / len(sigmas_mm)
     refit = outcome["identified"]["refit"]
     return {

@@ -173,24 +173,28 @@ def record_calibration_run(
 
 
 def compensated_removal(
-    settings: Settings,
+    runs: dict[str, tuple[Settings, str | None]],
     controller: URController,
     *,
     hours: float,
     sample_s: float = 60.0,
-    arm_model: str | None = None,
-) -> dict[str, Any]:
-    """A compensated followed run replayed against the truth (benchmarks/bench_ur_followed.py's
-    method): every ``sample_s`` the followed run's model (daemon/run/followed/setup.py; with
-    ``arm_model`` the identified one) is advanced, fed the joint temperatures, and its
-    correction at the program's joints is taken as applied; the residual is the truth's error
-    plus it. Returns the RMS over the last half (a warm arm) and the worst, uncompensated
-    beside it."""
-    parameters = RunParameters.from_settings(settings, step_s=sample_s, arm_model=arm_model)
-    model = followed_model(settings, parameters)
+) -> dict[str, dict[str, Any]]:
+    """Compensated followed runs replayed against the truth (benchmarks/bench_ur_followed.py's
+    method), one pass of the truth for all: every ``sample_s`` each run's model (the followed
+    run's, daemon/run/followed/setup.py, with its settings and its arm model: None for the
+    preset) is advanced, fed the joint temperatures (as its settings' prediction says), and
+    its correction at the program's joints is taken as applied; the residual is the truth's
+    error plus it. Per run: the RMS over the last half (a warm arm), the worst, and the
+    uncompensated drift beside them."""
+    models = {
+        name: followed_model(
+            settings, RunParameters.from_settings(settings, step_s=sample_s, arm_model=arm_model)
+        )
+        for name, (settings, arm_model) in runs.items()
+    }
     bench = controller.bench
     controller.player.play(0.0)
-    residual: list[float] = []
+    residual: dict[str, list[float]] = {name: [] for name in models}
     uncompensated: list[float] = []
     for t in (float(v) for v in np.arange(sample_s, hours * 3600.0 + 1e-6, sample_s)):
         controller.player.advance(t)
@@ -199,20 +203,24 @@ def compensated_removal(
         q = controller.player.joints(t)
         error = pose_difference(bench.tool_pose_cold(q), bench.tool_pose_true(q)).translation_mm
         uncompensated.append(float(np.linalg.norm(error)) * UM_PER_MM)
-        model.advance_to(t)
-        model.observe(temperatures)
-        correction = correction_for(model.tool_error(q)).translation_mm
-        residual.append(float(np.linalg.norm(error + correction)) * UM_PER_MM)
-    warm = len(residual) // 2
+        for name, model in models.items():
+            model.advance_to(t)
+            model.observe(temperatures)
+            correction = correction_for(model.tool_error(q)).translation_mm
+            residual[name].append(float(np.linalg.norm(error + correction)) * UM_PER_MM)
+    warm = len(uncompensated) // 2
 
     def rms(values: list[float]) -> float:
         return math.sqrt(sum(v * v for v in values) / len(values))
 
     return {
-        "samples": len(residual),
-        "uncompensated_rms_um": rms(uncompensated[warm:]),
-        "uncompensated_max_um": max(uncompensated),
-        "rms_um": rms(residual[warm:]),
-        "max_um": max(residual),
-        "removed": 1.0 - rms(residual[warm:]) / rms(uncompensated[warm:]),
+        name: {
+            "samples": len(values),
+            "uncompensated_rms_um": rms(uncompensated[warm:]),
+            "uncompensated_max_um": max(uncompensated),
+            "rms_um": rms(values[warm:]),
+            "max_um": max(values),
+            "removed": 1.0 - rms(values[warm:]) / rms(uncompensated[warm:]),
+        }
+        for name, values in residual.items()
     }
