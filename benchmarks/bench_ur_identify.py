@@ -15,7 +15,8 @@ measurement code; the tool measured by the bench's rendered cameras):
    every SAMPLE_S the followed run's model is advanced, fed the joint temperatures, its
    correction at the program's joints applied exactly) with: no model at all (uncompensated),
    the preset model alone, the preset + joint temperatures, the identified model + joint
-   temperatures.
+   temperatures, and as the reference of what the model's structure allows, the truth's own
+   factors + joint temperatures.
 
 Removal = 1 - rms(residual) / rms(uncompensated) over the last half (a warm arm); "x sigma" =
 the residual RMS over the cameras' own 3-D 1-sigma (mean of the calibration run's single
@@ -42,6 +43,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.common import print_table, write_results
 from benchmarks.ur_recorded import compensated_removal, emulated, record_calibration_run
 from config.settings import Settings, load_settings
+from daemon.arm.arm_model import ArmModel, arm_model_toml, new_arm_model_path
+from drivers.sim.ur.controller import URController
 
 CONFIG = Path(__file__).resolve().parent.parent / "config" / "ur5e-sim.toml"
 HOURS = 8.0
@@ -102,6 +105,27 @@ def calibrate(data_dir: Path, run_id: int) -> tuple[dict[str, Any], float]:
     return json.loads(out.getvalue()), wall
 
 
+def write_truth_factors(data_dir: Path, controller: URController) -> None:
+    """The reference row's arm model: the truth's own factors (each joint's heat, convection,
+    alpha, capacity) given to the model, as benchmarks/bench_arm_factors.py does; what it
+    leaves is the model's structure (the truth's bending, geometry, finer network), not the
+    identification."""
+    bench = controller.bench
+    config = bench.config
+    model = ArmModel(
+        name="truth",
+        arm=controller.arm.name,
+        heat_scales=tuple(float(v) for v in bench.heat_scales),
+        convection_scale=config.convection_scale,
+        alpha_scale=config.alpha_scale,
+        capacity_scale=config.capacity_scale,
+        duty_cycle=controller.duty.name,
+    )
+    path = new_arm_model_path("truth", data_dir)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(arm_model_toml(model, header="the bench truth's factors"), "utf-8")
+
+
 def one(name: str, seed: int, truth: dict[str, Any], hours: float, bending: bool) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="bench-ur-identify-") as folder:
         data_dir = Path(folder)
@@ -113,13 +137,16 @@ def one(name: str, seed: int, truth: dict[str, Any], hours: float, bending: bool
         record_cpu = time.process_time() - began
         outcome, identify_wall = calibrate(data_dir, run_id)
         model = outcome["identified"]["arm_model"]
+        controller = emulated(seed, truth)
+        write_truth_factors(data_dir, controller)
         rows = compensated_removal(
             {
                 "preset": (settings_in(data_dir, bending, "model"), None),
                 "preset + joints": (settings_in(data_dir, bending), None),
                 "identified + joints": (settings_in(data_dir, bending), "bench"),
+                "truth's factors + joints": (settings_in(data_dir, bending), "truth"),
             },
-            emulated(seed, truth),
+            controller,
             hours=hours,
             sample_s=SAMPLE_S,
         )

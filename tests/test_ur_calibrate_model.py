@@ -95,6 +95,11 @@ def test_calibrate_model_identifies_the_motor_heat_the_preset_gets_wrong(tmp_pat
     assert controller.identified.heat_scales[1] == pytest.approx(value)
     assert set(controller.identified.ir_offsets_c) <= {f"joint{k}" for k in range(1, 7)}
     assert controller.identified.ir_offsets_c  # the joint sensors' offsets were identified
+    # `thermocomp identify RUN` reads the followed run the same way (no save: the table)
+    table = run_main(["identify", str(run_id)], env={"THERMOCOMP_STORAGE__DATA_DIR": str(data)})
+    assert table.returncode == 0, table.stderr
+    row = next(line for line in table.stdout.splitlines() if line.startswith("heat:2 "))
+    assert float(row.split()[2]) == pytest.approx(value, rel=1e-3)  # printed to 4 digits
 
 
 def test_a_recorded_run_with_no_camera_measurement_is_refused_in_one_line(
