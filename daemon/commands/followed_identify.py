@@ -1,5 +1,6 @@
 """A recorded FOLLOWED run (issue 31: a UR playing its own program, daemon/run/followed/) as the
-arm's identification sees it (daemon/arm/identify.py, the A465's: nothing is fitted here).
+arm's identification sees it (daemon/arm/identify.py, the A465's: nothing is fitted here), for
+daemon/commands/arm_identify.py load_arm_run.
 
 What the followed run recorded, read back READ-ONLY (daemon/commands/arm_identify.py reads an
 arm run the same way; its ArmRun is what this module returns, so the fit, the identifiability
@@ -46,12 +47,7 @@ from daemon.arm.controller_loading import load_controller
 from daemon.arm.identify import ArmModelSpec, ArmRunData, marker_sensitivity
 from daemon.arm.joint_temperatures import joint_regions
 from daemon.arm.room import ambient_series, readings_of
-from daemon.commands.arm_identify import (
-    IDENTIFY_STEP_S,
-    TOOL_POINT_MM,
-    ArmRun,
-    ArmRunInputError,
-)
+from daemon.commands.arm_run import IDENTIFY_STEP_S, TOOL_POINT_MM, ArmRun, ArmRunInputError
 from daemon.run.arm.setup import arm_file
 from daemon.storage.recorder import DATABASE_NAME
 
@@ -98,7 +94,8 @@ def load_followed_run(
     """The recorded followed run as identification sees it (module docstring);
     ArmRunInputError in one line when it cannot be identified from."""
     settings = Settings.model_validate(config)
-    duty = parameters.get("duty_cycle") or settings.arm.duty_cycle
+    # the program the run followed (its parameters', from arm.duty_cycle: RunParameters)
+    duty: str | None = parameters.get("duty_cycle", settings.arm.duty_cycle)
     if duty is None:
         raise ArmRunInputError(f"run {run_id}: a followed run without a duty cycle")
     options = ArmModelOptions(
