@@ -188,3 +188,42 @@ async def test_an_uncompensated_followed_run_writes_zero_corrections(tmp_path: P
         ).fetchall()
     assert len(rows) >= 5 and all(row[:3] == (0.0, 0.0, 0.0) for row in rows)
     assert max(abs(v) for row in rows for v in row[3:]) > 0.1  # um: the model did predict
+
+
+@pytest.mark.slow
+def test_the_chain_runs_a_followed_calibration_run_on_the_ur_bench(tmp_path: Path) -> None:
+    """The whole step 1 on the real-clock UR bench (emulator over loopback, rendered cameras):
+    an uncompensated followed run of the program measured at its dwells, identified and saved.
+    Seconds of warm-up identify only the joint sensors' offsets: the model is saved with its
+    loud warning, every other factor the preset's."""
+    data = tmp_path / "data"
+    result = run_main(
+        [
+            "calibrate",
+            "model",
+            "--config",
+            UR5E,
+            "--save",
+            "short",
+            "--duration",
+            "12",
+            "--no-validate",
+            "--json",
+        ],
+        env={
+            "THERMOCOMP_STORAGE__DATA_DIR": str(data),
+            "THERMOCOMP_ROBOT__HOST": "127.0.34.77",
+        },
+    )
+    assert result.returncode == 0, result.stderr
+    outcome = json.loads(result.stdout)
+    calibration = outcome["calibration_run"]
+    assert calibration["state"] == "finished" and calibration["measurements"] >= 1
+    model = outcome["identified"]["arm_model"]
+    assert "heat:2" in model["not_identified"]
+    assert (data / "arm-models" / "short.toml").read_text().count("NOT FULLY CALIBRATED") == 1
+    with sqlite3.connect(data / DATABASE_NAME) as db:
+        corrections = db.execute(
+            "SELECT DISTINCT correction_tx_mm, correction_ty_mm, correction_tz_mm FROM steps"
+        ).fetchall()
+    assert corrections == [(0.0, 0.0, 0.0)]  # compensation off: zero written every step
