@@ -22,7 +22,9 @@ import pytest
 
 from benchmarks.ur_recorded import emulated, record_calibration_run
 from config.settings import Settings, load_settings
+from daemon.arm.arm_model import ArmModel, arm_model_toml, new_arm_model_path
 from daemon.run.followed.setup import followed_model
+from daemon.run.setup import RunParameterError
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.storage.recorder import DATABASE_NAME
@@ -227,3 +229,15 @@ def test_the_chain_runs_a_followed_calibration_run_on_the_ur_bench(tmp_path: Pat
             "SELECT DISTINCT correction_tx_mm, correction_ty_mm, correction_tz_mm FROM steps"
         ).fetchall()
     assert corrections == [(0.0, 0.0, 0.0)]  # compensation off: zero written every step
+
+
+def test_a_followed_run_refuses_an_arm_model_of_another_arm_in_one_line(tmp_path: Path) -> None:
+    """An A465's arm model given to a UR's followed run: refused before the run, one line."""
+    settings = ur_settings(tmp_path)
+    path = new_arm_model_path("a465-cell", tmp_path)
+    path.parent.mkdir(parents=True)
+    path.write_text(arm_model_toml(ArmModel("a465-cell", "crs-a465", (1.0,) * 6)), "utf-8")
+    with pytest.raises(RunParameterError) as refused:
+        followed_model(settings, RunParameters.from_settings(settings, arm_model="a465-cell"))
+    assert "identified on arm 'crs-a465', this run's arm is 'UR5e'" in str(refused.value)
+    assert "\n" not in str(refused.value)

@@ -10,7 +10,9 @@ motor heat), fuses the joint temperatures as the model's thermal input (daemon/a
 joint_temperatures.py: no IR camera), predicts the tool error at the robot's *current*
 joints, checks the correction against the arm's limits (daemon/arm/correction.py) before
 anything is written, writes it (refused by the driver after a hold: drivers/permit.py) and
-records it with the joint temperatures and where the program was. With tool cameras, the first
+records it with the joint temperatures and where the program was (compensation off, the
+calibration run of ``calibrate model``: a zero correction is written, the program's heartbeat,
+so the cameras see the whole drift). With tool cameras, the first
 step of each dwell of the program at a measured pose (its at-pose register) then measures the
 tool (daemon/run/followed/measure.py: the frames, the arm run's meter, the residual against the
 pose's first measurement); between measured poses a step only corrects. A step with no
