@@ -47,7 +47,8 @@ from daemon.arm.loading import load_arm
 from daemon.arm.response import ArmModelSpec, ArmRunData, marker_sensitivity
 from daemon.arm.room import ambient_series
 from daemon.arm.run import MeasuredPose
-from daemon.commands.arm_identify import IDENTIFY_STEP_S, TOOL_POINT_MM, arm_model_from
+from daemon.commands.arm_identify import arm_model_from
+from daemon.commands.arm_run import IDENTIFY_STEP_S, TOOL_POINT_MM
 from daemon.run.arm.prepare import reference_frames
 from daemon.run.arm.setup import ArmPlan, arm_file, default_arm_setup
 from daemon.run.states import RunParameters

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon.commands.arm_identify import IDENTIFY_STEP_S, load_arm_run
+from daemon.commands.arm_identify import load_arm_run
+from daemon.commands.arm_run import IDENTIFY_STEP_S
 from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.storage.recorder import DATABASE_NAME

@@ -199,14 +199,18 @@ def test_a_bench_whose_ports_are_taken_is_one_line(host: str) -> None:
 
 
 @pytest.mark.parametrize(
-    ("args", "what"),
+    ("args", "what", "extra"),
     [
-        (["calibrate", "camera"], "has no spot camera: its tool cameras are calibrated"),
-        (["calibrate", "model", "--save", "ur"], "has no model calibration"),
+        (["calibrate", "camera"], "has no spot camera: its tool cameras are calibrated", {}),
+        (
+            ["calibrate", "model", "--save", "ur"],
+            "has no tool camera (arm.bench_cameras)",
+            {"THERMOCOMP_ARM__BENCH_CAMERAS": "false"},
+        ),
     ],
 )
 def test_the_calibrations_a_ur_cannot_make_are_refused_in_one_line(
-    args: list[str], what: str, tmp_path: Path
+    args: list[str], what: str, extra: dict[str, str], tmp_path: Path
 ) -> None:
     """Before anything opens: the emulator's ports are taken and no data directory is made."""
     with socket.socket() as taken:
@@ -214,7 +218,9 @@ def test_the_calibrations_a_ur_cannot_make_are_refused_in_one_line(
         taken.listen()
         result = run_main(
             [*args, "--config", UR5E],
-            env=on_host("127.0.34.12", THERMOCOMP_STORAGE__DATA_DIR=str(tmp_path / "data")),
+            env=on_host(
+                "127.0.34.12", THERMOCOMP_STORAGE__DATA_DIR=str(tmp_path / "data"), **extra
+            ),
         )
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()

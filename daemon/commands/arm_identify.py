@@ -18,6 +18,10 @@ What the run recorded, read back READ-ONLY (as daemon/commands/identify.py reads
 - each step's IR regions (``ir_json``) tied to the model's nodes by name
   (daemon/arm/ir_regions.py: ``<link>-mid``, ``<link>@<fraction>``).
 
+A followed run (a UR playing its own program, issue 31) is read by
+daemon/commands/followed_identify.py: its cameras' measurements at the program's dwells, its
+joint temperatures as the thermal input; the fit and everything after it are the same.
+
 The fit (daemon/arm/identify_final.py identify_arm_final): every parameter first (heat per joint,
 convection, alpha, the joints' capacity, with ``arm.bending`` the bending share, one IR offset
 per region), reported with its standard error and whether the run identifies it; then the
@@ -49,7 +53,7 @@ import numpy as np
 
 from config import Settings
 from daemon.arm.arm_model import ArmModel
-from daemon.arm.controller import ArmController, ArmModelOptions
+from daemon.arm.controller import ArmModelOptions
 from daemon.arm.controller_loading import load_controller
 from daemon.arm.identify import (
     ArmFitQuality,
@@ -67,29 +71,12 @@ from daemon.arm.room import ambient_series, readings_of
 from daemon.calibration.identify_run import (
     recorded_parameters,
 )
+from daemon.commands.arm_run import IDENTIFY_STEP_S, TOOL_POINT_MM, ArmRun, ArmRunInputError
+from daemon.commands.followed_identify import is_followed_run, load_followed_run
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.identify import IdentificationError
 from daemon.run.arm.setup import arm_file
 from daemon.storage.recorder import DATABASE_NAME
-
-#: The heat record's step for identification (arm time, s): a measurement's time is rounded to
-#: it; the links' time constants are tens of minutes (benchmarks/bench_arm.py IDENTIFY_STEP_S).
-IDENTIFY_STEP_S = 20.0
-#: The tool point: identification fits the measured translation of the tool's origin.
-TOOL_POINT_MM = np.zeros((1, 3))
-
-
-class ArmRunInputError(Exception):
-    """The arm run cannot be read (exit status 1)."""
-
-
-@dataclass(frozen=True)
-class ArmRun:
-    name: str
-    controller: ArmController
-    data: ArmRunData
-    spec: ArmModelSpec
-    duty_cycle: str
 
 
 def recorded_run(data_dir: Path, run_id: int) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -128,6 +115,8 @@ def _number(value: object) -> float:
 def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     """The recorded arm run as identification sees it (module docstring)."""
     parameters, config = recorded_run(data_dir, run_id)
+    if is_followed_run(config):  # a UR that played its own program (issue 31)
+        return load_followed_run(data_dir, run_id, parameters, config)
     if not is_arm_run(parameters):
         raise ArmRunInputError(f"run {run_id} is not an arm run (no duty cycle)")
     settings = Settings.model_validate(config)

@@ -24,7 +24,6 @@ from daemon.calibration.identify_run import (
     write_outputs,
 )
 from daemon.commands.arm_identify import (
-    ArmRunInputError,
     ArmValidation,
     ImplausibleModelError,
     arm_model_of,
@@ -35,6 +34,7 @@ from daemon.commands.arm_identify import (
     validate_arm_run,
     validated_model,
 )
+from daemon.commands.arm_run import ArmRunInputError
 from daemon.model.identify import IdentificationError
 
 #: At most one progress line per this many seconds (the fit's iterations take milliseconds).

@@ -42,7 +42,7 @@ CALIBRATION_PROGRAMS_FOLDER = "calibration-programs"
 
 if TYPE_CHECKING:
     from daemon.arm.identify import ArmIdentification
-    from daemon.commands.arm_identify import ArmRun
+    from daemon.commands.arm_run import ArmRun
 
 
 def run_calibrate_arm_model(args: argparse.Namespace, settings: Settings) -> int:
@@ -98,7 +98,6 @@ def _identify_and_save(
     from daemon.arm.arm_model import arm_model_toml
     from daemon.calibration.identify_run import write_outputs
     from daemon.commands.arm_identify import (
-        ArmRunInputError,
         ImplausibleModelError,
         arm_model_of,
         checked_for_save,
@@ -106,6 +105,7 @@ def _identify_and_save(
         load_arm_run,
     )
     from daemon.commands.arm_identify_cli import format_arm_result, progress_to_stderr
+    from daemon.commands.arm_run import ArmRunInputError
     from daemon.model.identify import IdentificationError
 
     try:
@@ -173,7 +173,8 @@ def _prediction_check(
     """Step 3's offline part: the validation run predicted by the identified model and by the
     preset, nothing refitted (blocking)."""
     # lazy: SciPy and the run database load when the command runs, not for --help (issue 16)
-    from daemon.commands.arm_identify import ArmRunInputError, load_arm_run, validate_arm_run
+    from daemon.commands.arm_identify import load_arm_run, validate_arm_run
+    from daemon.commands.arm_run import ArmRunInputError
     from daemon.model.identify import IdentificationError
 
     try:

@@ -21,8 +21,12 @@ of the task with ``--arm-model NAME`` whose 3-D residual is compared with the me
 noise (and with the calibration run's drift only when it ran the task itself:
 ``--calibration-cycle TASK``); ``--network`` and ``--scale`` do not apply there.
 
-On a UR (``robot.driver = "ur-rtde"``) it is refused in one line, exit status 2: no model is
-identified from a followed run yet (daemon/commands/followed_refusals.py).
+On a UR (``robot.driver = "ur-rtde"``) the arm's chain runs on the robot's own program
+(daemon/commands/calibrate_ur_model.py): an uncompensated followed run measured by the tool
+cameras at the program's dwells (or ``--calibration-run RUN``, one already recorded), the
+arm's identification from it with the joint temperatures as the thermal input, saved as arm
+model NAME, and a compensated validation followed run with it. With no tool camera it is
+refused in one line, exit status 2 (daemon/commands/followed_refusals.py).
 """
 
 from __future__ import annotations
@@ -47,6 +51,7 @@ from config.cli import (
 )
 from daemon.commands.calibrate_arm_model import run_calibrate_arm_model
 from daemon.commands.calibrate_chain import PROG, StepFailedError, run_alone
+from daemon.commands.calibrate_ur_model import run_calibrate_ur_model
 from daemon.commands.followed_refusals import model_refusal
 from daemon.commands.run import _finite
 
@@ -112,6 +117,12 @@ def add_parser(kinds: argparse._SubParsersAction[argparse.ArgumentParser]) -> No
         action="store_true",
         help="an arm: save the model even with a value outside its physical range (flagged)",
     )
+    parser.add_argument(
+        "--calibration-run",
+        type=int,
+        metavar="RUN",
+        help="a UR: identify this recorded uncompensated followed run instead of running one",
+    )
     parser.add_argument("--no-validate", action="store_true", help="stop after identification")
     parser.add_argument("--data-dir", type=Path, help="folder of the run database")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -140,10 +151,17 @@ def run_calibrate_model(args: argparse.Namespace) -> int:
     from daemon.calibration.identify_run import saved_network_path
 
     settings = _settings(args)
-    refusal = model_refusal(settings)
-    if refusal is not None:  # a UR: one line, before anything opens
+    refusal = model_refusal(settings, recorded=args.calibration_run is not None)
+    if refusal is None and args.calibration_run is not None and settings.robot.driver != "ur-rtde":
+        refusal = (
+            "--calibration-run is a UR's (robot.driver ur-rtde); another robot's recorded run "
+            "is identified with thermocomp identify RUN --save NAME"
+        )
+    if refusal is not None:  # one line, before anything opens
         print(f"{PROG}: {refusal}", file=sys.stderr)
         return EXIT_USAGE
+    if settings.robot.driver == "ur-rtde":  # issue 31: the robot plays its own program
+        return run_calibrate_ur_model(args, settings)
     if settings.arm.enabled:  # issue 20: the arm's chain
         return run_calibrate_arm_model(args, settings)
     if args.scale is None:

@@ -7,10 +7,10 @@ opens, saying what exists instead and where the docs say it.
   2 mm (controller/ur/thermocomp_offset.script MAX_OFFSET_M). Its tool cameras are calibrated
   by ``calibrate cameras --robot``, which on a UR records a pattern of offsets at the
   program's dwells (daemon/calibration/cameras_ur.py).
-- ``calibrate model`` identifies a model from an uncompensated run's *measured* tool errors; a
-  followed run with tool cameras measures the tool at the program's dwells
-  (daemon/run/followed/measure.py), but identification from a followed run is not built: a UR
-  runs with the arm's preset model and its joint temperatures fused.
+- ``calibrate model`` identifies a model from an uncompensated run's *measured* tool errors:
+  on a UR the followed run's tool cameras at the program's dwells
+  (daemon/run/followed/measure.py, daemon/commands/calibrate_ur_model.py); with no tool camera
+  there is nothing to identify from, unless a recorded run is given (``--calibration-run``).
 """
 
 from __future__ import annotations
@@ -37,13 +37,18 @@ def cameras_refusal(settings: Settings, option: str) -> str | None:
     )
 
 
-def model_refusal(settings: Settings) -> str | None:
-    """The one line refusing ``calibrate model`` on a UR, or None elsewhere."""
-    if not _followed(settings):
+def model_refusal(settings: Settings, *, recorded: bool = False) -> str | None:
+    """The one line refusing ``calibrate model`` on a UR with no tool camera to measure its
+    calibration run (``recorded``: a recorded run is identified instead), or None."""
+    if not _followed(settings) or recorded:
         return None
+    arm = settings.arm
+    cameras = arm.bench_cameras if settings.bench.enabled else bool(arm.camera_devices)
+    if arm.enabled and cameras:
+        return None
+    where = "arm.bench_cameras" if settings.bench.enabled else "arm.camera_devices"
     return (
-        "a UR (robot.driver ur-rtde) has no model calibration yet: a followed run measures the "
-        "tool at its dwells, but no model is identified from one; it runs with the arm's preset "
-        "model (arm.arm_file) and its joint temperatures as the thermal input "
-        f"(model.prediction = model+ir): start it with `thermocomp run --config ...` ({UR_DOCS})"
+        "a UR (robot.driver ur-rtde) is calibrated from the tool cameras' measurements at its "
+        f"program's dwells, and this configuration has no tool camera ({where}): add them, or "
+        f"identify a recorded followed run with --calibration-run RUN ({UR_DOCS})"
     )

@@ -37,9 +37,12 @@ async def build_followed(
     devices = builder.devices()
     truth: BenchTruth | None = getattr(devices, "ur_truth", None)
     measurement = await _measurement(builder, devices, robot, truth)
-    run_id = await builder.create_run(
-        parameters, {"kind": FollowedKind.name}, kind=FollowedKind.name
-    )
+    identified = model.controller.identified  # the arm model (calibrate model), or None
+    snapshot = {
+        "kind": FollowedKind.name,
+        "arm_model": None if identified is None else identified.provenance(),
+    }
+    run_id = await builder.create_run(parameters, snapshot, kind=FollowedKind.name)
     return FollowedKind(
         FollowedWork(run_id, parameters),
         robot,

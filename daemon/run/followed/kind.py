@@ -10,7 +10,9 @@ motor heat), fuses the joint temperatures as the model's thermal input (daemon/a
 joint_temperatures.py: no IR camera), predicts the tool error at the robot's *current*
 joints, checks the correction against the arm's limits (daemon/arm/correction.py) before
 anything is written, writes it (refused by the driver after a hold: drivers/permit.py) and
-records it with the joint temperatures and where the program was. With tool cameras, the first
+records it with the joint temperatures and where the program was (compensation off, the
+calibration run of ``calibrate model``: a zero correction is written, the program's heartbeat,
+so the cameras see the whole drift). With tool cameras, the first
 step of each dwell of the program at a measured pose (its at-pose register) then measures the
 tool (daemon/run/followed/measure.py: the frames, the arm run's meter, the residual against the
 pose's first measurement); between measured poses a step only corrects. A step with no
@@ -212,7 +214,7 @@ class FollowedKind(KindBase):
         started = time.perf_counter()
         try:
             correction = check_correction(
-                correction_for(error, self.parameters.deformation_scale),
+                self._correction(error),
                 self.last_correction,
                 correction_limits(self.settings),
             )
@@ -261,6 +263,14 @@ class FollowedKind(KindBase):
         # the tool cameras' frames of a measured step, with their markers, for the live views
         views = camera_views(measured)
         return StepOutcome(record, None, verdict, (), stages, stages.ends_s, views)
+
+    def _correction(self, error: Pose6) -> Pose6:
+        """The correction to write: the one cancelling ``error``, or zero in an uncompensated
+        run (compensation off: ``calibrate model``'s calibration run, whose cameras must see
+        the arm's whole drift; zero is still written each step, the program's heartbeat)."""
+        if self.parameters.compensation == "off":
+            return Pose6.zero()
+        return correction_for(error, self.parameters.deformation_scale)
 
     @staticmethod
     def _state_into(record: StepRecord, state: OffsetRobotState) -> None:

@@ -1,10 +1,13 @@
 """What a followed run (daemon/run/followed/kind.py) is built from: the arm's model of the
-program the robot plays (the arm file and the run's duty cycle: daemon/arm/controller.py),
-followed by the robot's joint temperatures (daemon/arm/joint_temperatures.py)."""
+program the robot plays (the arm file and the run's duty cycle: daemon/arm/controller.py;
+with ``arm_model`` the factors ``calibrate model`` identified on this arm, as an arm run's
+``--arm-model``), followed by the robot's joint temperatures
+(daemon/arm/joint_temperatures.py)."""
 
 from __future__ import annotations
 
 from config import Settings
+from daemon.arm.arm_model import ArmModel, load_arm_model, named_arm_model_path
 from daemon.arm.controller import ArmModelOptions
 from daemon.arm.controller_loading import load_controller
 from daemon.arm.joint_temperatures import JointTemperatureModel
@@ -36,9 +39,23 @@ def followed_model(settings: Settings, parameters: RunParameters) -> JointTemper
         model_dt_s=parameters.step_s * parameters.time_scale,
     )
     try:
-        controller = load_controller(arm_file(settings), duty, options)
+        identified = _identified(settings, parameters.arm_model)
+        controller = load_controller(arm_file(settings), duty, options, identified)
     except (OSError, ValueError) as err:
         raise RunParameterError(f"followed run: {err}") from err
+    if identified is not None and identified.arm != controller.arm.name:
+        raise RunParameterError(
+            f"followed run: arm model {identified.name!r} was identified on arm "
+            f"{identified.arm!r}, this run's arm is {controller.arm.name!r}"
+        )
     return JointTemperatureModel(
         controller, JOINT_SENSOR_NOISE_C, observe=parameters.prediction != "model"
     )
+
+
+def _identified(settings: Settings, name: str | None) -> ArmModel | None:
+    """The arm model ``name`` in the data directory (``calibrate model --save NAME``), or
+    None for the arm's preset."""
+    if name is None:
+        return None
+    return load_arm_model(named_arm_model_path(name, settings.storage.data_dir))

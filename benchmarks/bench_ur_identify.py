@@ -1,0 +1,231 @@
+"""``calibrate model`` on the UR bench (issue 31 target: 8 h UR5e program, identified + joint
+temperatures >= 95 % removed and <= 2x the measurement noise; preset and uncompensated beside
+it, in the same run).
+
+Per scenario, on an ACCELERATED clock (benchmarks/ur_recorded.py: the emulated controller
+sampled without its 500 Hz network loop; the followed run's own recording and dwell
+measurement code; the tool measured by the bench's rendered cameras):
+
+1. an uncompensated followed run of ``--hours`` of the program is recorded (one camera
+   measurement per pose every MEASURE_EVERY_S, the joint temperatures every 20 s);
+2. ``thermocomp calibrate model --calibration-run RUN --no-validate --force`` identifies it
+   (the command itself, in this process; ``--force`` so that a model with a value outside its
+   physical range is still measured: the table says when the command would have refused it);
+3. the compensated run is replayed against the same truth (ur_recorded.compensated_removal:
+   every SAMPLE_S the followed run's model is advanced, fed the joint temperatures, its
+   correction at the program's joints applied exactly) with: no model at all (uncompensated),
+   the preset model alone, the preset + joint temperatures, the identified model + joint
+   temperatures, and as the reference of what the model's structure allows, the truth's own
+   factors + joint temperatures.
+
+Removal = 1 - rms(residual) / rms(uncompensated) over the last half (a warm arm); "x sigma" =
+the residual RMS over the cameras' own 3-D 1-sigma (mean of the calibration run's single
+measurements). Scenarios: the nominal bench (seed 1), and truths written to break the preset:
+motors heating 60 % more (x1.6), convection halved (0.4 against the bench's 0.8), the room
+drifting +1 degC/h. The worst identified row is printed last.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from benchmarks.common import print_table, write_results
+from benchmarks.ur_recorded import compensated_removal, emulated, record_calibration_run
+from config.settings import Settings, load_settings
+from daemon.arm.arm_model import ArmModel, arm_model_toml, new_arm_model_path
+from drivers.sim.ur.controller import URController
+
+CONFIG = Path(__file__).resolve().parent.parent / "config" / "ur5e-sim.toml"
+HOURS = 8.0
+MEASURE_EVERY_S = 120.0
+SAMPLE_S = 60.0
+UM_PER_MM = 1000.0
+
+
+def scenarios(quick: bool) -> list[tuple[str, int, dict[str, Any]]]:
+    nominal: list[tuple[str, int, dict[str, Any]]] = [("nominal seed 1", 1, {})]
+    if quick:
+        return nominal
+    return [
+        *nominal,
+        ("motors x1.6", 1, {"heat_scales": (1.6,) * 6}),
+        ("convection halved", 1, {"convection_scale": 0.4}),
+        ("room +1 degC/h", 1, {"ambient_drift_c_per_h": 1.0}),
+    ]
+
+
+def settings_in(data_dir: Path, bending: bool, prediction: str = "model+ir") -> Settings:
+    """The UR bench's settings; ``bending``: arm.bending for the model (it resolves each
+    link's temperature across it and bends it: the truth's motor housings sit on one side)."""
+    data = load_settings(CONFIG).model_dump()
+    data["storage"]["data_dir"] = str(data_dir)
+    data["model"]["prediction"] = prediction
+    data["arm"]["bending"] = bending
+    return Settings.model_validate(data)
+
+
+def calibrate(data_dir: Path, run_id: int) -> tuple[dict[str, Any], float]:
+    """The command on the recorded run: its JSON outcome and its wall time (s)."""
+    from api.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    began = time.perf_counter()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = main(
+            [
+                "calibrate",
+                "model",
+                "--config",
+                str(CONFIG),
+                "--save",
+                "bench",
+                "--force",
+                "--data-dir",
+                str(data_dir),
+                "--calibration-run",
+                str(run_id),
+                "--no-validate",
+                "--json",
+            ]
+        )
+    wall = time.perf_counter() - began
+    if status != 0:
+        raise SystemExit(f"calibrate model failed ({status}): {err.getvalue().strip()}")
+    return json.loads(out.getvalue()), wall
+
+
+def write_truth_factors(data_dir: Path, controller: URController) -> None:
+    """The reference row's arm model: the truth's own factors (each joint's heat, convection,
+    alpha, capacity) given to the model, as benchmarks/bench_arm_factors.py does; what it
+    leaves is the model's structure (the truth's bending, geometry, finer network), not the
+    identification."""
+    bench = controller.bench
+    config = bench.config
+    model = ArmModel(
+        name="truth",
+        arm=controller.arm.name,
+        heat_scales=tuple(float(v) for v in bench.heat_scales),
+        convection_scale=config.convection_scale,
+        alpha_scale=config.alpha_scale,
+        capacity_scale=config.capacity_scale,
+        duty_cycle=controller.duty.name,
+    )
+    path = new_arm_model_path("truth", data_dir)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(arm_model_toml(model, header="the bench truth's factors"), "utf-8")
+
+
+def one(name: str, seed: int, truth: dict[str, Any], hours: float, bending: bool) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory(prefix="bench-ur-identify-") as folder:
+        data_dir = Path(folder)
+        settings = settings_in(data_dir, bending)
+        began = time.process_time()
+        run_id, sigmas_mm = record_calibration_run(
+            settings, emulated(seed, truth), data_dir, hours=hours, measure_every_s=MEASURE_EVERY_S
+        )
+        record_cpu = time.process_time() - began
+        outcome, identify_wall = calibrate(data_dir, run_id)
+        model = outcome["identified"]["arm_model"]
+        controller = emulated(seed, truth)
+        write_truth_factors(data_dir, controller)
+        rows = compensated_removal(
+            {
+                "preset": (settings_in(data_dir, bending, "model"), None),
+                "preset + joints": (settings_in(data_dir, bending), None),
+                "identified + joints": (settings_in(data_dir, bending), "bench"),
+                "truth's factors + joints": (settings_in(data_dir, bending), "truth"),
+            },
+            controller,
+            hours=hours,
+            sample_s=SAMPLE_S,
+        )
+    sigma_um = UM_PER_MM * sum(sigmas_mm) / len(sigmas_mm)
+    refit = outcome["identified"]["refit"]
+    return {
+        "scenario": name,
+        "measurements": len(sigmas_mm),
+        "sigma_um": sigma_um,
+        "rows": rows,
+        "parameters": {
+            p["name"]: [p["value"], p["standard_error"], p["identifiable"]]
+            for p in refit["parameters"]
+        },
+        "not_identified": model.get("not_identified"),
+        "implausible": model.get("implausible"),
+        "record_cpu_s": record_cpu,
+        "identify_wall_s": identify_wall,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="2 h, nominal only")
+    parser.add_argument("--hours", type=float, help=f"default {HOURS:g} (2 with --quick)")
+    parser.add_argument("--bending", action="store_true", help="the model with arm.bending")
+    parser.add_argument("--only", help="run only the scenarios whose name contains this")
+    parser.add_argument("--name", default="ur_identify", help="the results file's name")
+    args = parser.parse_args()
+    hours = args.hours or (2.0 if args.quick else HOURS)
+    results: dict[str, Any] = {
+        "hours": hours,
+        "measure_every_s": MEASURE_EVERY_S,
+        "bending": args.bending,
+        "runs": [],
+    }
+    load_before = os.getloadavg()[0]
+    table = []
+    for name, seed, truth in scenarios(args.quick):
+        if args.only and args.only not in name:
+            continue
+        r = one(name, seed, truth, hours, args.bending)
+        results["runs"].append(r)
+        uncompensated = r["rows"]["preset"]["uncompensated_rms_um"]
+        for row, v in r["rows"].items():
+            table.append(
+                [
+                    name,
+                    row,
+                    uncompensated,
+                    v["rms_um"],
+                    f"{100 * v['removed']:.1f} %",
+                    v["rms_um"] / r["sigma_um"],
+                    v["max_um"],
+                ]
+            )
+        print(f"{name}: identified {json.dumps(r['parameters'])}", file=sys.stderr)
+    results["load_1min"] = [load_before, os.getloadavg()[0]]
+    print(f"{hours:g} h of the UR5e program; calibration on the recorded uncompensated run")
+    print_table(
+        ["scenario", "prediction", "uncomp rms um", "rms um", "removed", "x sigma", "max um"],
+        table,
+    )
+    worst = min(results["runs"], key=lambda r: r["rows"]["identified + joints"]["removed"])
+    w = worst["rows"]["identified + joints"]
+    print(
+        f"worst identified + joints: {worst['scenario']}: {100 * w['removed']:.1f} % removed, "
+        f"{w['rms_um'] / worst['sigma_um']:.2f} x sigma ({worst['sigma_um']:.2f} um); "
+        f"implausible: {worst['implausible'] or 'none'}"
+    )
+    for r in results["runs"]:
+        print(
+            f"{r['scenario']}: {r['measurements']} measurements, sigma {r['sigma_um']:.2f} um, "
+            f"not identified {r['not_identified']}, implausible {r['implausible']}, record CPU "
+            f"{r['record_cpu_s']:.0f} s, identification {r['identify_wall_s']:.1f} s"
+        )
+    print(f"load (1 min) before/after: {results['load_1min']}")
+    write_results(args.name, results)
+
+
+if __name__ == "__main__":
+    main()

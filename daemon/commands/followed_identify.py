@@ -1,0 +1,204 @@
+"""A recorded FOLLOWED run (issue 31: a UR playing its own program, daemon/run/followed/) as the
+arm's identification sees it (daemon/arm/identify.py, the A465's: nothing is fitted here), for
+daemon/commands/arm_identify.py load_arm_run.
+
+What the followed run recorded, read back READ-ONLY (daemon/commands/arm_identify.py reads an
+arm run the same way; its ArmRun is what this module returns, so the fit, the identifiability
+flags, the physical ranges, the saved arm model and ``--validate`` are the A465's):
+
+- the measured tool errors are the run's CAMERA measurements at the program's dwells
+  (daemon/run/followed/measure.py): steps with a measured translation and neither the flag
+  ``bench-truth`` (the UR bench's truth, not a camera) nor a discard. Each is the tool's pose
+  relative to that pose's first measurement in the run (flag ``first-step-reference``), less
+  the change of the correction the run wrote since then (zero in ``calibrate model``'s
+  calibration run, compensation off). The identification's displacement is from the cold
+  start, so the first measurement is taken as the cold tool: the program's first dwells come
+  seconds after the start, when the arm has not warmed (a followed run assumes a robot that
+  starts cold, as daemon/arm/joint_temperatures.py JOINT_INITIAL_SIGMA_C says);
+- the pose is the program's at-pose register (``arm_pose``: k, the k-th pose of the taught
+  cycle, 1-based), its sensitivity at that pose's taught joints (the robot dwells there);
+- the thermal input is the JOINT TEMPERATURES (``ir_json``: ``joint1`` .. ``jointN``), each
+  tied to its joint's heat node as the followed run's observer ties it
+  (daemon/arm/joint_temperatures.py joint_regions), with one sensor offset each
+  (``offset:jointK``, saved as the model's ``ir_offsets_c`` that the run's observer starts
+  from); every step's reading is used, one per IDENTIFY_STEP_S, not only the measured steps';
+- the motor heat is the program's duty cycle on the run's time, as the followed run's own
+  model advances (daemon/run/followed/setup.py): identification and the run that uses the
+  model see the same heat input. The joints the robot actually made are not recorded per step
+  (StepRecord has no joint columns); on a robot that plays its program without pauses the two
+  agree to within the program's phase at the run's start (the UR5e program's cycle is 7.5 s,
+  under half of one IDENTIFY_STEP_S).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+from contextlib import closing
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from config import Settings
+from daemon.arm.controller import ArmModelOptions
+from daemon.arm.controller_loading import load_controller
+from daemon.arm.identify import ArmModelSpec, ArmRunData, marker_sensitivity
+from daemon.arm.joint_temperatures import joint_regions
+from daemon.arm.room import ambient_series, readings_of
+from daemon.commands.arm_run import IDENTIFY_STEP_S, TOOL_POINT_MM, ArmRun, ArmRunInputError
+from daemon.run.arm.setup import arm_file
+from daemon.storage.recorder import DATABASE_NAME
+
+#: Flags of a step whose measurement columns are not a camera measurement of the tool.
+NOT_CAMERA = frozenset({"bench-truth", "moved-during-frames", "camera-error", "marker-error"})
+
+_COLUMNS = (
+    "actual_s, arm_pose, measured_tx_um, measured_ty_um, measured_tz_um, "
+    "correction_tx_mm, correction_ty_mm, correction_tz_mm, ir_json, room_c, flags"
+)
+
+
+def is_followed_run(config: dict[str, Any]) -> bool:
+    """A run recorded with robot.driver ur-rtde is a followed run (daemon/run/kinds.py)."""
+    robot = config.get("robot") or {}
+    return robot.get("driver") == "ur-rtde"
+
+
+def _rows(data_dir: Path, run_id: int) -> list[tuple[Any, ...]]:
+    path = Path(data_dir) / DATABASE_NAME
+    try:
+        with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
+            return list(
+                db.execute(
+                    f"SELECT {_COLUMNS} FROM steps WHERE run_id = ? ORDER BY step", (run_id,)
+                )
+            )
+    except sqlite3.Error as err:
+        raise ArmRunInputError(f"cannot read {path}: {err}") from err
+
+
+def _vector(values: tuple[Any, ...], scale: float = 1.0) -> np.ndarray[Any, np.dtype[np.float64]]:
+    return np.array([float(v) * scale if v is not None else 0.0 for v in values])
+
+
+def _camera_measured(row: tuple[Any, ...]) -> bool:
+    flags = set(filter(None, (row[10] or "").split(",")))
+    return bool(row[1]) and row[2] is not None and not flags & NOT_CAMERA
+
+
+def load_followed_run(
+    data_dir: Path, run_id: int, parameters: dict[str, Any], config: dict[str, Any]
+) -> ArmRun:
+    """The recorded followed run as identification sees it (module docstring);
+    ArmRunInputError in one line when it cannot be identified from."""
+    settings = Settings.model_validate(config)
+    # the program the run followed (its parameters', from arm.duty_cycle: RunParameters)
+    duty: str | None = parameters.get("duty_cycle", settings.arm.duty_cycle)
+    if duty is None:
+        raise ArmRunInputError(f"run {run_id}: a followed run without a duty cycle")
+    options = ArmModelOptions(
+        motion_dt_s=settings.arm.motion_dt_s,
+        ambient_c=settings.model.ambient_c,
+        bending=settings.arm.bending,
+        motor_side_share=settings.arm.motor_side_share,
+        model_dt_s=IDENTIFY_STEP_S,
+    )
+    try:
+        controller = load_controller(arm_file(settings), duty, options)
+    except (OSError, ValueError) as err:
+        raise ArmRunInputError(f"run {run_id}: its arm or duty cycle: {err}") from err
+    taught = controller.duty.poses
+    measured_poses = [k + 1 for k, pose in enumerate(taught) if pose.measure]
+    index = {str(k): n for n, k in enumerate(measured_poses)}
+    regions = joint_regions(controller)
+    time_scale = float(parameters.get("time_scale", 1.0))
+    rows = _rows(data_dir, run_id)
+    times: list[float] = []
+    pose_index: list[int] = []
+    displacement: list[np.ndarray[Any, np.dtype[np.float64]]] = []
+    readings: list[dict[str, float]] = []
+    rooms: list[tuple[float | None, float | None]] = []
+    reference_correction: dict[str, np.ndarray[Any, np.dtype[np.float64]]] = {}
+    last_bin = -1
+    cameras = 0
+    for row in rows:
+        if row[0] is None:
+            continue
+        t = float(row[0]) * time_scale
+        rooms.append((t, row[9]))
+        camera = _camera_measured(row) and str(row[1]) in index
+        this_bin = math.floor(t / IDENTIFY_STEP_S)
+        if not camera and this_bin == last_bin:
+            continue  # one joint-temperature reading per heat step between the measurements
+        reading = _joint_reading(row[8], regions)
+        if camera:
+            cameras += 1
+            correction = _vector(row[5:8])
+            reference = reference_correction.setdefault(str(row[1]), correction)
+            measured = _vector(row[2:5], 1e-3)
+            displacement.append(measured - (correction - reference))
+            pose_index.append(index[str(row[1])])
+        elif reading:
+            displacement.append(np.full(3, math.nan))
+            pose_index.append(0)
+        else:
+            continue
+        last_bin = this_bin
+        times.append(t)
+        readings.append(reading)
+    if cameras < 2:
+        raise ArmRunInputError(
+            f"run {run_id} has {cameras} camera measurement(s) of the tool: identification "
+            "needs the tool measured at the program's dwells over hours (tool cameras: "
+            "arm.bench_cameras on the UR bench, arm.camera_devices on a robot)"
+        )
+    steps = math.ceil(max(times) / IDENTIFY_STEP_S) + 1
+    heat = np.array(
+        [
+            controller.mean_heat_w(k * IDENTIFY_STEP_S, (k + 1) * IDENTIFY_STEP_S)
+            for k in range(steps)
+        ]
+    )
+    data = ArmRunData(
+        heat_step_s=IDENTIFY_STEP_S,
+        joint_heat_w=heat,
+        ambient_c=ambient_series(
+            *readings_of(rooms), IDENTIFY_STEP_S, steps, settings.model.ambient_c
+        ),
+        time_s=np.array([round(t / IDENTIFY_STEP_S) * IDENTIFY_STEP_S for t in times]),
+        pose_index=np.array(pose_index, dtype=np.intp),
+        marker_displacement_mm=np.array(displacement).reshape(len(times), 1, 3),
+        region_c={r: np.array([reading.get(r, math.nan) for reading in readings]) for r in regions},
+        name=f"run {run_id}",
+    )
+    spec = ArmModelSpec(
+        description=controller.thermal.description,
+        node_spacing_mm=controller.thermal.node_spacing_mm,
+        regions=regions,
+        sensitivities=[
+            marker_sensitivity(
+                controller.arm, np.asarray(taught[k - 1].q_rad), TOOL_POINT_MM, options.bending
+            )
+            for k in measured_poses
+        ],
+        across_link=controller.thermal.across_link,
+    )
+    return ArmRun(f"run {run_id}", controller, data, spec, str(duty))
+
+
+def _joint_reading(text: str | None, regions: dict[str, tuple[int, ...]]) -> dict[str, float]:
+    """The step's joint temperatures (degC) by region name; empty when it has none."""
+    if not text:
+        return {}
+    try:
+        values = json.loads(text)
+    except json.JSONDecodeError:
+        return {}
+    reading: dict[str, float] = {}
+    for name in regions:
+        value = values.get(name, {}).get("mean_c") if isinstance(values, dict) else None
+        if isinstance(value, int | float) and math.isfinite(value):
+            reading[name] = float(value)
+    return reading
