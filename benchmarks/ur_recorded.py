@@ -45,6 +45,10 @@ from drivers.sim.arm_bench import ArmBench
 from drivers.sim.ur.controller import URController, URControllerConfig
 from drivers.ur.modes import RobotMode, RuntimeState, SafetyMode
 
+#: The longest a dwell's measurement is waited for (s, wall): the bench's frames and fit take
+#: well under a second; a hang fails the recording instead of blocking it.
+MEASURE_WAIT_S = 60.0
+
 UM_PER_MM = 1000.0
 
 
@@ -160,16 +164,35 @@ def record_calibration_run(
                 meter.q_rad = np.asarray(state.joints_rad)
                 meter.station = stations[at_pose]
                 state_now.append(state)
-                measured = asyncio.run(measurement.step(state, record, flags, errors))
+                measured, record = asyncio.run(_measure_now(measurement, state, record, flags))
                 state_now.clear()
                 if measured is not None:
                     last_measured[at_pose] = t
-            record.flags, record.error = ",".join(flags), "; ".join(errors)
+            else:
+                record.flags, record.error = ",".join(flags), "; ".join(errors)
             recorder.write_step(record)
             step += 1
             last_record = t
         recorder.finish_run(run_id, "finished", {"kind": FollowedKind.name}, None)
     return run_id, meter.sigmas_mm
+
+
+async def _measure_now(
+    measurement: DwellMeasurement, state: OffsetRobotState, record: StepRecord, flags: list[str]
+) -> tuple[ToolMeasurement | None, StepRecord]:
+    """The followed run's dwell measurement as its steps make it (start, then collect into
+    the step's row), waited for here: the bench's clock stands still while it measures."""
+    if not measurement.start(state, record, flags):
+        record.flags = ",".join(flags)
+        return None, record
+    record.flags = ",".join(flags)
+    rows: list[StepRecord] = []
+
+    async def keep(row: StepRecord) -> None:
+        rows.append(row)
+
+    found = await measurement.collect(keep, wait_s=MEASURE_WAIT_S)
+    return found, rows[-1]
 
 
 def compensated_removal(
