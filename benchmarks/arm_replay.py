@@ -37,7 +37,7 @@ import numpy as np
 from config import Settings, load_settings
 from daemon.arm.arm_model import ArmModel, arm_model_toml, new_arm_model_path
 from daemon.arm.calibration_program import duty_cycle_toml, program_for_task
-from daemon.arm.controller import ArmController, ArmModelOptions
+from daemon.arm.controller import ArmController
 from daemon.arm.controller_loading import load_controller
 from daemon.arm.duty import DutyCycle, arm_inverse, load_duty_cycle
 from daemon.arm.identify_final import ArmCalibration, identify_arm_final
@@ -48,7 +48,7 @@ from daemon.arm.response import ArmModelSpec, ArmRunData, marker_sensitivity
 from daemon.arm.room import ambient_series
 from daemon.arm.run import MeasuredPose
 from daemon.commands.arm_identify import arm_model_from
-from daemon.commands.arm_run import IDENTIFY_STEP_S, TOOL_POINT_MM
+from daemon.commands.arm_run import IDENTIFY_STEP_S, TOOL_POINT_MM, identify_options
 from daemon.run.arm.prepare import reference_frames
 from daemon.run.arm.setup import ArmPlan, arm_file, default_arm_setup
 from daemon.run.states import RunParameters
@@ -145,13 +145,7 @@ def simulate(
     settings = settings.model_copy(
         update={"arm": settings.arm.model_copy(update={"duty_cycle": duty_name})}
     )
-    options = ArmModelOptions(
-        motion_dt_s=settings.arm.motion_dt_s,
-        ambient_c=settings.model.ambient_c,
-        bending=settings.arm.bending,
-        motor_side_share=settings.arm.motor_side_share,
-        model_dt_s=IDENTIFY_STEP_S,
-    )
+    options = identify_options(settings)
     controller = load_controller(arm_file(settings), duty_name, options)
     duty = controller.duty
     poses = controller.measured_poses(settings.arm.measured_poses)

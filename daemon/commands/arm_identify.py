@@ -53,7 +53,6 @@ import numpy as np
 
 from config import Settings
 from daemon.arm.arm_model import ArmModel
-from daemon.arm.controller import ArmModelOptions
 from daemon.arm.controller_loading import load_controller
 from daemon.arm.identify import (
     ArmFitQuality,
@@ -71,7 +70,13 @@ from daemon.arm.room import ambient_series, readings_of
 from daemon.calibration.identify_run import (
     recorded_parameters,
 )
-from daemon.commands.arm_run import IDENTIFY_STEP_S, TOOL_POINT_MM, ArmRun, ArmRunInputError
+from daemon.commands.arm_run import (
+    IDENTIFY_STEP_S,
+    TOOL_POINT_MM,
+    ArmRun,
+    ArmRunInputError,
+    identify_options,
+)
 from daemon.commands.followed_identify import is_followed_run, load_followed_run
 from daemon.model.calibration import CalibratedParameter
 from daemon.model.identify import IdentificationError
@@ -120,13 +125,7 @@ def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
     if not is_arm_run(parameters):
         raise ArmRunInputError(f"run {run_id} is not an arm run (no duty cycle)")
     settings = Settings.model_validate(config)
-    options = ArmModelOptions(
-        motion_dt_s=settings.arm.motion_dt_s,
-        ambient_c=settings.model.ambient_c,
-        bending=settings.arm.bending,
-        motor_side_share=settings.arm.motor_side_share,
-        model_dt_s=IDENTIFY_STEP_S,
-    )
+    options = identify_options(settings)
     try:
         controller = load_controller(arm_file(settings), parameters["duty_cycle"], options)
         poses = controller.measured_poses(settings.arm.measured_poses)

@@ -42,12 +42,17 @@ from typing import Any
 import numpy as np
 
 from config import Settings
-from daemon.arm.controller import ArmModelOptions
 from daemon.arm.controller_loading import load_controller
 from daemon.arm.identify import ArmModelSpec, ArmRunData, marker_sensitivity
 from daemon.arm.joint_temperatures import joint_regions
 from daemon.arm.room import ambient_series, readings_of
-from daemon.commands.arm_run import IDENTIFY_STEP_S, TOOL_POINT_MM, ArmRun, ArmRunInputError
+from daemon.commands.arm_run import (
+    IDENTIFY_STEP_S,
+    TOOL_POINT_MM,
+    ArmRun,
+    ArmRunInputError,
+    identify_options,
+)
 from daemon.run.arm.setup import arm_file
 from daemon.storage.recorder import DATABASE_NAME
 
@@ -98,13 +103,7 @@ def load_followed_run(
     duty: str | None = parameters.get("duty_cycle", settings.arm.duty_cycle)
     if duty is None:
         raise ArmRunInputError(f"run {run_id}: a followed run without a duty cycle")
-    options = ArmModelOptions(
-        motion_dt_s=settings.arm.motion_dt_s,
-        ambient_c=settings.model.ambient_c,
-        bending=settings.arm.bending,
-        motor_side_share=settings.arm.motor_side_share,
-        model_dt_s=IDENTIFY_STEP_S,
-    )
+    options = identify_options(settings)
     try:
         controller = load_controller(arm_file(settings), duty, options)
     except (OSError, ValueError) as err:
