@@ -11,6 +11,9 @@ own (daemon/run/arm/setup.py), played along the task's run step by step; its res
 measured drift less its prediction:
 
 - none: the drift (the basis of "removed");
+- oracle: the truth's own tool error as the prediction (a perfect model): what is left is the
+  meter's error (its noise and its references'), the most any controller can remove as
+  measured;
 - preset: the arm file's model, its ambient held at model.ambient_c;
 - preset+room: following the room thermometer;
 - preset+room+ir: and the IR observer (prediction model+ir);
@@ -71,6 +74,7 @@ ARMS: dict[str, tuple[str, dict[str, str]]] = {
 TASKS = ARMS["a465"][1]
 CONTROLLERS = (
     "none",
+    "oracle",
     "preset",
     "preset+room",
     "preset+room+ir",
@@ -117,6 +121,9 @@ def evaluate(
     for name in controllers:
         if name == "none":
             results[name] = residual_figures(run, np.zeros_like(run.displacement_mm))
+            continue
+        if name == "oracle":  # the truth's own tool error as the prediction: the meter's cap
+            results[name] = residual_figures(run, run.true_displacement_mm)
             continue
         source, ir, adapt, room = PLANS[name]
         model = {"program": "program", "other": f"task-{other}"}.get(source or "")
