@@ -48,7 +48,7 @@ from numpy.typing import ArrayLike
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.arm_replay import bench_settings, measurement_schedule, simulate
-from benchmarks.bench_arm_scenarios import NOISE, TASKS
+from benchmarks.bench_arm_scenarios import ARMS, NOISE, TASKS
 from config.arm_truth import TRUTHS_DIR
 from daemon.arm import kinematics
 from daemon.arm.arm_model import ArmModel
@@ -69,6 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenario", default="cold-draughty-room")
     parser.add_argument("--task", default="B", choices=tuple(TASKS))
+    parser.add_argument("--arm", default="a465", choices=sorted(ARMS), help="the arm and its tasks")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--hours", type=float, default=8.0)
     parser.add_argument("--every", type=float, default=240.0)
@@ -77,8 +78,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     truth_path = str(TRUTHS_DIR / f"{args.scenario}.toml")
+    arm_name, cycles = ARMS[args.arm]
+    cycle = cycles[args.task]
     with tempfile.TemporaryDirectory(prefix="bench-arm-bisect-") as folder:
-        settings = bench_settings(truth_path, TASKS[args.task], args.seed, Path(folder))
+        settings = bench_settings(truth_path, cycle, args.seed, Path(folder), arm=arm_name)
     options = ArmModelOptions(
         motion_dt_s=settings.arm.motion_dt_s,
         ambient_c=settings.model.ambient_c,
@@ -86,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         motor_side_share=settings.arm.motor_side_share,
         model_dt_s=IDENTIFY_STEP_S,
     )
-    controller = load_controller(arm_file(settings), TASKS[args.task], options)
+    controller = load_controller(arm_file(settings), cycle, options)
     duty = controller.duty
     config = bench_config(settings, controller.arm, duty, settings.bench.seed)
     config = dataclasses.replace(config, payload_kg=duty.payload_kg)
@@ -188,7 +191,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             capacity_scale=config.capacity_scale,
             bending_shares=(config.plus_share,) * len(scales),
         )  # fmt: skip
-        played = load_controller(arm_file(settings), TASKS[args.task], options, model)
+        played = load_controller(arm_file(settings), cycle, options, model)
         played.follow_room(room_start)
         out = np.zeros_like(drift_mm)
         for m, t in enumerate(times):
@@ -215,7 +218,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     if args.meter:
         run = simulate(
-            settings, TASKS[args.task], args.seed + NOISE[args.task], args.hours * 3600.0,
+            settings, cycle, args.seed + NOISE[args.task], args.hours * 3600.0,
             args.every,
         )  # fmt: skip
         if run.time_s.shape != np.asarray(times).shape or not np.allclose(run.time_s, times):

@@ -11,6 +11,9 @@ own (daemon/run/arm/setup.py), played along the task's run step by step; its res
 measured drift less its prediction:
 
 - none: the drift (the basis of "removed");
+- oracle: the truth's own tool error as the prediction (a perfect model): what is left is the
+  meter's error (its noise and its references'), the most any controller can remove as
+  measured;
 - preset: the arm file's model, its ambient held at model.ambient_c;
 - preset+room: following the room thermometer;
 - preset+room+ir: and the IR observer (prediction model+ir);
@@ -63,9 +66,15 @@ from benchmarks.arm_truths import random_truth_toml
 from benchmarks.common import print_table, write_results
 from config.arm_truth import TRUTHS_DIR, implausible, load_arm_truth
 
-TASKS = {"A": "a465-pick-and-place", "B": "a465-machine-tending"}
+#: Per arm (--arm): its arm file and its two tasks.
+ARMS: dict[str, tuple[str, dict[str, str]]] = {
+    "a465": ("crs-a465", {"A": "a465-pick-and-place", "B": "a465-machine-tending"}),
+    "ur5e": ("ur5e", {"A": "ur5e-pick-and-place", "B": "ur5e-machine-tending"}),
+}
+TASKS = ARMS["a465"][1]
 CONTROLLERS = (
     "none",
+    "oracle",
     "preset",
     "preset+room",
     "preset+room+ir",
@@ -99,9 +108,13 @@ PLANS: dict[str, tuple[str | None, bool, bool, bool]] = {
 
 
 def evaluate(
-    settings: Any, runs: dict[str, Any], task: str, controllers: Sequence[str]
+    settings: Any,
+    runs: dict[str, Any],
+    task: str,
+    controllers: Sequence[str],
+    cycles: dict[str, str] = TASKS,
 ) -> dict[str, Any]:
-    """Every controller along task ``task``'s run."""
+    """Every controller along task ``task``'s run (``cycles``: task -> duty cycle)."""
     run = runs[task]
     other = "B" if task == "A" else "A"
     results: dict[str, Any] = {}
@@ -109,11 +122,14 @@ def evaluate(
         if name == "none":
             results[name] = residual_figures(run, np.zeros_like(run.displacement_mm))
             continue
+        if name == "oracle":  # the truth's own tool error as the prediction: the meter's cap
+            results[name] = residual_figures(run, run.true_displacement_mm)
+            continue
         source, ir, adapt, room = PLANS[name]
         model = {"program": "program", "other": f"task-{other}"}.get(source or "")
         if model is not None and model not in runs["models"]:
             continue
-        plan = plan_for(settings, TASKS[task], arm_model=model, ir=ir, adapt=adapt)
+        plan = plan_for(settings, cycles[task], arm_model=model, ir=ir, adapt=adapt)
         started = time.perf_counter()
         played = replay(plan, run, room=room)
         rows = slice(2 * run.time_s.size // 3, None) if adapt else slice(None)
@@ -133,15 +149,20 @@ def scenario(
     *,
     tasks: Sequence[str],
     controllers: Sequence[str],
+    arm: str = "a465",
+    frames: int = 1,
 ) -> dict[str, Any]:
     """The runs, calibrations and every controller on each task of one truth."""
     found: dict[str, Any] = {"calibrations": {}, "tasks": {}}
+    arm_file, task_cycles = ARMS[arm]
     with tempfile.TemporaryDirectory(prefix="bench-arm-scenarios-") as folder:
         data_dir = Path(folder)
-        settings = bench_settings(truth, TASKS["A"], seed, data_dir)
+        settings = bench_settings(
+            truth, task_cycles["A"], seed, data_dir, arm=arm_file, frames=frames
+        )
         runs: dict[str, Any] = {"models": set()}
-        cycles = {"program": calibration_program(settings, TASKS["A"], data_dir)}
-        cycles.update({task: TASKS[task] for task in ("A", "B")})
+        cycles = {"program": calibration_program(settings, task_cycles["A"], data_dir)}
+        cycles.update({task: task_cycles[task] for task in ("A", "B")})
         for label, cycle in cycles.items():
             if label != "program" and label not in tasks and "other-cycle+room" not in controllers:
                 continue
@@ -154,12 +175,16 @@ def scenario(
         for label in sorted(wanted):
             name = "program" if label == "program" else f"task-{label}"
             started = time.perf_counter()
+            cpu_started = time.process_time()
             model, calibration = calibrate(settings, runs[label], name)
             wall = time.perf_counter() - started
+            cpu = time.process_time() - cpu_started
             runs["models"].add(name)
             final = {p.name: p for p in calibration.final.parameters} if calibration.final else {}
             found["calibrations"][name] = {
                 "identification_wall_s": wall,
+                "identification_cpu_s": cpu,
+                "load_average": list(os.getloadavg()),
                 "drift_rms_3d_um": runs[label].drift_rms_um,
                 "measurements": int(runs[label].time_s.size),
                 "not_identified": list(calibration.not_identified),
@@ -178,7 +203,7 @@ def scenario(
                 "final_names": list(final),
             }
         for task in tasks:
-            found["tasks"][task] = evaluate(settings, runs, task, controllers)
+            found["tasks"][task] = evaluate(settings, runs, task, controllers, task_cycles)
         found["meter_sigma_um"] = runs[tasks[0]].meter_sigma_um
     return found
 
@@ -214,7 +239,7 @@ def cell(figures: dict[str, Any] | None, controller: str) -> str:
     mark = "" if met is None else (" ok" if met else " MISS")
     return (
         f"{figures['rms_3d_um']:.1f} um {100 * figures['removed']:.1f} % "
-        f"{figures['rms_over_sigma']:.1f}s{mark}"
+        f"{figures['rms_over_sigma']:.1f}s{mark} (truth {100 * figures['true_removed']:.1f} %)"
     )
 
 
@@ -227,13 +252,15 @@ def print_scenario(name: str, found: dict[str, Any], controllers: Sequence[str])
     )
     tasks = list(found["tasks"])
     print_table(
-        ["controller", *(f"task {t}: RMS, removed, RMS/sigma" for t in tasks)],
+        ["controller", *(f"task {t}: RMS, removed, RMS/sigma (on the truth)" for t in tasks)],
         [[c, *(cell(found["tasks"][t].get(c), c) for t in tasks)] for c in controllers],
     )
     for label, calibration in found["calibrations"].items():
         print(
-            f"  calibration on {label}: {calibration['identification_wall_s']:.1f} s wall; not "
-            f"identified: {', '.join(calibration['not_identified']) or 'none'}"
+            f"  calibration on {label}: {calibration['identification_wall_s']:.1f} s wall, "
+            f"{calibration['identification_cpu_s']:.1f} s CPU (load "
+            f"{calibration['load_average'][0]:.1f}); not identified: "
+            f"{', '.join(calibration['not_identified']) or 'none'}"
         )
 
 
@@ -252,6 +279,7 @@ def worst_cases(results: dict[str, Any]) -> list[dict[str, Any]]:
             continue
         name, task, figures = min(cases, key=lambda c: (c[2]["removed"], -c[2]["rms_over_sigma"]))
         highest = max(cases, key=lambda c: c[2]["rms_over_sigma"])
+        worst_true = min(cases, key=lambda c: c[2]["true_removed"])
         met = sum(bool(target_met(controller, c[2])) for c in cases)
         out.append(
             {
@@ -261,6 +289,8 @@ def worst_cases(results: dict[str, Any]) -> list[dict[str, Any]]:
                 "removed": figures["removed"],
                 "rms_3d_um": figures["rms_3d_um"],
                 "rms_over_sigma": figures["rms_over_sigma"],
+                "true_removed": figures["true_removed"],
+                "worst_true_removed": [worst_true[0], worst_true[1], worst_true[2]["true_removed"]],
                 "highest_rms_over_sigma": [highest[0], highest[1], highest[2]["rms_over_sigma"]],
                 "met": met,
                 "cases": len(cases),
@@ -279,6 +309,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--hours", type=float, default=8.0)
     parser.add_argument("--every", type=float, default=240.0, help="s of arm time per measurement")
     parser.add_argument("--tasks", default="A,B")
+    parser.add_argument("--arm", default="a465", choices=sorted(ARMS), help="the arm and its tasks")
+    parser.add_argument(
+        "--frames", type=int, default=1, help="arm.frames_per_measurement (frames per measurement)"
+    )
     parser.add_argument("--controllers", default=",".join(CONTROLLERS))
     parser.add_argument("--name", default="bench_arm_scenarios", help="results file's name")
     args = parser.parse_args(argv)
@@ -287,6 +321,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown controllers {sorted(unknown)} (known: {', '.join(CONTROLLERS)})")
     tasks = [t for t in args.tasks.split(",") if t]
+    arm_file, cycles = ARMS[args.arm]
     started = time.perf_counter()
     names = [n for n in args.scenarios.split(",") if n]
     with tempfile.TemporaryDirectory(prefix="bench-arm-truths-") as folder:
@@ -301,9 +336,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             truths[f"random-{k + 1}"] = str(path)
             drawn[f"random-{k + 1}"] = text
         print(
-            f"A465 on the simulated bench, {args.hours:g} h per run, a measurement every "
-            f"{args.every:g} s of arm time; tasks {', '.join(f'{t}={TASKS[t]}' for t in tasks)}; "
-            f"{len(truths)} truths"
+            f"{arm_file} on the simulated bench, {args.hours:g} h per run, a measurement of "
+            f"{args.frames} frame(s) every {args.every:g} s of arm time; tasks "
+            f"{', '.join(f'{t}={cycles[t]}' for t in tasks)}; {len(truths)} truths"
         )
         results: dict[str, Any] = {}
         for name, truth in truths.items():
@@ -316,6 +351,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 args.every,
                 tasks=tasks,
                 controllers=controllers,
+                arm=args.arm,
+                frames=args.frames,
             )
             found.update(
                 plausible=not problems,
@@ -330,13 +367,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     worst = worst_cases(results)
     print("\nworst plausible case per target:")
     print_table(
-        ["target", "scenario", "task", "RMS um", "removed", "RMS/sigma", "met", "worst RMS/sigma"],
+        [
+            "target", "scenario", "task", "RMS um", "removed", "RMS/sigma", "met",
+            "worst RMS/sigma", "its truth removed", "worst truth removed",
+        ],
         [
             [
                 w["controller"], w["scenario"], w["task"], w["rms_3d_um"],
                 f"{100 * w['removed']:.1f} %", w["rms_over_sigma"], f"{w['met']}/{w['cases']}",
                 f"{w['highest_rms_over_sigma'][2]:.2f} ({w['highest_rms_over_sigma'][0]} "
                 f"{w['highest_rms_over_sigma'][1]})",
+                f"{100 * w['true_removed']:.1f} %",
+                f"{100 * w['worst_true_removed'][2]:.1f} % ({w['worst_true_removed'][0]} "
+                f"{w['worst_true_removed'][1]})",
             ]
             for w in worst
         ],
@@ -344,18 +387,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     walls = [
         c["identification_wall_s"] for f in results.values() for c in f["calibrations"].values()
     ]
+    cpus = [c["identification_cpu_s"] for f in results.values() for c in f["calibrations"].values()]
     load = os.getloadavg()
     total = time.perf_counter() - started
     if walls:
         print(
             f"\nidentification: {len(walls)} fits, {min(walls):.1f}-{max(walls):.1f} s wall "
-            f"(median {float(np.median(walls)):.1f} s)"
+            f"(median {float(np.median(walls)):.1f} s), {min(cpus):.1f}-{max(cpus):.1f} s CPU "
+            f"(median {float(np.median(cpus)):.1f} s)"
         )
     print(f"total {total:.0f} s wall; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     write_results(
         args.name,
         {
-            "tasks": {t: TASKS[t] for t in tasks},
+            "arm": arm_file,
+            "frames_per_measurement": args.frames,
+            "tasks": {t: cycles[t] for t in tasks},
             "hours": args.hours,
             "every_s": args.every,
             "seed": args.seed,
@@ -364,6 +411,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "scenarios": results,
             "worst": worst,
             "identification_wall_s": walls,
+            "identification_cpu_s": cpus,
             "wall_s": total,
             "load_average": list(load),
         },

@@ -54,6 +54,12 @@ BASE_SPECIFIC_HEAT_J_PER_KGK = 896.0  # 6061-T6 (thesis Table 3.1)
 DEFAULT_BASE_R_AMBIENT_C_PER_W = 0.8
 #: Free convection on a slowly moving arm (thesis 3.4 measured 7.75 W/m^2K on a moving link).
 DEFAULT_H_W_PER_M2K = 7.75
+#: Two candidate bending axes (the frame's y and z) count as a tie when their cosines with the
+#: link differ by less than this: a UR5e's upper arm and forearm lie along their frame's x, a
+#: tie, and a DH length 0.2 mm off (the bench truth's default draw) tilts them by 5e-4; with
+#: an absolute 1e-9 that tilt turned the truth's bending plane 90 deg from the controller's
+#: (issue 29: 14 of the 29 um drift of a UR5e's 2 hours were that plane). 0.05 is 3 deg.
+BEND_AXIS_TIE = 0.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -385,7 +391,11 @@ def describe_arm(
         along = np.subtract(end, start)
         size = float(np.linalg.norm(along))
         along = along / size if size > 0.0 else bend_frame[:, 0]
-        axis = 1 if abs(bend_frame[:, 1] @ along) < abs(bend_frame[:, 2] @ along) - 1e-9 else 2
+        axis = (
+            1
+            if abs(bend_frame[:, 1] @ along) < abs(bend_frame[:, 2] @ along) - BEND_AXIS_TIE
+            else 2
+        )
         candidate = bend_frame[:, axis]
         links[-1] = dataclasses.replace(
             links[-1], across_axis=(float(candidate[0]), float(candidate[1]), float(candidate[2]))
