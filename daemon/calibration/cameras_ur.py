@@ -206,7 +206,10 @@ async def calibrate_with_ur(
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     async with open_devices(settings, clock) as devices:
         robot = devices.robot
-        if not callable(getattr(robot, "read_state", None)):
+        if not all(
+            callable(getattr(robot, name, None))
+            for name in ("read_state", "hold_dwell", "release_dwell")
+        ):
             raise PatternError(f"the robot driver {type(robot).__name__} follows no program")
         cameras = devices.cameras
         if len(cameras) != len(models):

@@ -9,6 +9,9 @@ PC -> robot (input registers, written by the UR driver):
 
     input_int_register_{B}        sequence: +1 on every write (the heartbeat; wraps at 2^31)
     input_int_register_{B+1}      hold: 1 freezes the offset where it is, 0 follows
+    input_int_register_{B+2}      frames: k while the PC takes the tool cameras' frames at
+                                  measured pose k (the program holds that dwell until it is
+                                  0 again, at most FRAMES_TIMEOUT_S: tc_wait_for_frames), else 0
     input_double_register_{B..B+5}  the correction target dx, dy, dz (m), rx, ry, rz (rad)
 
 robot -> PC (output registers, written by the program every controller cycle):
@@ -24,6 +27,11 @@ robot -> PC (output registers, written by the program every controller cycle):
 
 B is 24..41 (registers 0-23 collide with the fieldbus adapters: the upper range; B+5 <= 46
 keeps register 47 free, which ur-rtde's RTDEIOInterface uses as its command register).
+
+The frames register has a recipe of its own (:attr:`RegisterMap.frames_inputs`): a
+measurement's start and end write it, never the correction nor the hold flag. It moves
+nothing: it only makes the program stay at rest on a measured pose longer (a safe side), so it
+is written whether the correction is held or not.
 """
 
 from __future__ import annotations
@@ -67,6 +75,15 @@ class RegisterMap:
     @property
     def hold(self) -> str:
         return int_input(self.base + 1)
+
+    @property
+    def frames(self) -> str:
+        return int_input(self.base + 2)
+
+    @property
+    def frames_inputs(self) -> tuple[str, ...]:
+        """The driver's frames recipe: the frames register alone (module docstring)."""
+        return (self.frames,)
 
     @property
     def target(self) -> tuple[str, ...]:

@@ -38,6 +38,19 @@ A lost link (no state package for robot.ur_timeout_s, a closed or garbled connec
 fault: the correction is held, the link reconnects in the background (drivers/reconnect.py)
 and stays held until an explicit resume. Nothing here moves the robot: the robot moves by its
 own program; this driver only shifts that program's path within the program's limits.
+
+**Holding a dwell for the cameras** (:meth:`URRobot.hold_dwell`, :meth:`URRobot.release_dwell`;
+issue 31). A followed run measures the tool while the program dwells at a measured pose; a PC
+that is slower than the taught dwell (a loaded lab PC: its frames took 0.8-2.9 s against a
+0.5 s dwell) would see the program leave during its frames and throw the measurement away,
+every time. So the PC writes the frames register (drivers/ur/registers.py, a recipe of its
+own) with the pose it measures, and the program's ``tc_wait_for_frames`` (controller/ur/
+thermocomp_offset.script) keeps the arm at rest there until the register is 0 again, at most
+FRAMES_TIMEOUT_S, and never while the PC is silent. :meth:`hold_dwell` waits for the
+controller's read-back of the register, so the state it returns says whether the program was
+still at that dwell when it learnt of the frames. Written whether the correction is held or
+not: it moves nothing. Each connection starts with the register at 0 (a PC that crashed mid-
+frames left its pose there).
 """
 
 from __future__ import annotations
@@ -116,6 +129,8 @@ class URRobot:
         self._stalled = False  # the program stopped accepting corrections: until a resume
         self._program = ProgramWatch()  # a restart of the followed program (module docstring)
         self._seen_sequence = 0  # the sequence register as the controller reads it back
+        self._seen_frames = 0  # the frames register as the controller reads it back
+        self._frames_inputs: Recipe | None = None
         self._arrived = asyncio.Event()  # set (and replaced) on every state package
         self._last_error: str | None = None
         self._sequence = 0  # the last one written
@@ -174,19 +189,26 @@ class URRobot:
         try:
             await client.connect()
             outputs = await client.setup_outputs(
-                (*STATE_OUTPUTS, *self.registers.outputs, self.registers.sequence),
+                (
+                    *STATE_OUTPUTS,
+                    *self.registers.outputs,
+                    self.registers.sequence,
+                    self.registers.frames,
+                ),
                 settings.rtde_frequency_hz,
             )
             inputs = await client.setup_inputs(self.registers.inputs)
             hold_inputs = await client.setup_inputs(self.registers.hold_inputs)
+            frames_inputs = await client.setup_inputs(self.registers.frames_inputs)
             await client.start()
         except BaseException:
             client.close()
             raise
         self._client, self._outputs, self._inputs = client, outputs, inputs
-        self._hold_inputs = hold_inputs
+        self._hold_inputs, self._frames_inputs = hold_inputs, frames_inputs
         self._link = LinkState.CONNECTED
         self._write()
+        self._write_frames(0)  # no frames in flight on a new link (module docstring)
         self._reader = asyncio.get_running_loop().create_task(
             self._read_loop(client, outputs), name="ur-rtde-reader"
         )
@@ -203,7 +225,8 @@ class URRobot:
                 async with asyncio.timeout(self.settings.ur_timeout_s):
                     values = await client.read_data(recipe)
                 self._state = state = decode_state(self.registers, recipe, values)
-                self._seen_sequence = int(values[-1])  # type: ignore[arg-type]
+                self._seen_sequence = int(values[-2])  # type: ignore[arg-type]
+                self._seen_frames = int(values[-1])  # type: ignore[arg-type]
                 lost = self._program.check(state)
                 if lost is not None:
                     logger.warning("UR %s: correction held", lost)
@@ -253,6 +276,14 @@ class URRobot:
         client.send(rtde.data_package(inputs, values))
         self._sequence = sequence
         return sequence
+
+    def _write_frames(self, pose: int) -> None:
+        """The frames register now (the frames recipe: nothing else)."""
+        client = self._client
+        recipe = self._frames_inputs
+        if client is None or recipe is None or not client.connected:
+            raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
+        client.send(rtde.data_package(recipe, [pose]))
 
     async def _until(self, reached: Callable[[], bool], what: str) -> None:
         """Wait for a state package after which ``reached()``; DeviceTimeoutError after
@@ -372,6 +403,28 @@ class URRobot:
             state = self.robot_state()
             self._program.follow(state)
             return state
+
+    async def hold_dwell(self, pose: int) -> OffsetRobotState:
+        """Ask the program to hold its dwell at measured pose ``pose`` (>= 1) while the PC
+        takes its frames (module docstring), and return the first state package after the
+        controller read the request back: its at-pose register says whether the program was
+        still at that dwell (and so holds it). DeviceTimeoutError / NotConnectedError as
+        :meth:`read_state`. Always follow with :meth:`release_dwell`."""
+        if pose < 1:
+            raise ValueError(f"a measured pose is 1 or more, not {pose}")
+        self._require_link()
+        self._write_frames(pose)
+        await self._until(
+            lambda: self._seen_frames == pose,
+            f"the controller did not read back the frames request for pose {pose}",
+        )
+        return self.robot_state()
+
+    def release_dwell(self) -> None:
+        """The frames are taken: the program may leave its dwell (frames register 0). Never
+        raises: without a link the program lets go by itself (its watchdog, its timeout)."""
+        with contextlib.suppress(DeviceError, OSError):
+            self._write_frames(0)
 
     def robot_state(self) -> OffsetRobotState:
         state = self._state
