@@ -36,8 +36,12 @@ is written whether the correction is held or not.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+from drivers.base import Vector3
+from drivers.errors import DeviceError
+from drivers.goals import require_finite
 from drivers.ur.rtde_variables import double_input, double_output, int_input, int_output
 
 #: The default base register and the allowed range of bases (module docstring).
@@ -54,6 +58,35 @@ STATUS_WAITING = 16  # no target received since the program started: offset zero
 
 #: The six components of a correction on the wire.
 AXES = ("dx", "dy", "dz", "rx", "ry", "rz")
+MM_PER_M = 1000.0
+
+
+def wire_target(
+    offset_mm: Vector3,
+    rotation_rad: Vector3,
+    limit_mm: float,
+    limit_rad: float,
+    *,
+    device: str,
+) -> tuple[float, ...]:
+    """A correction (mm, rotation vector in rad) as the six target registers (m, rad); a
+    DeviceError before any byte when not finite or over the PC's limits
+    (robot.correction_limit_mm / _rad)."""
+    require_finite(offset_mm, "correction", device)
+    require_finite(rotation_rad, "correction rotation", device)
+    length = math.hypot(*offset_mm)
+    angle = math.hypot(*rotation_rad)
+    if length > limit_mm:
+        raise DeviceError(
+            device, f"refused correction of {length:.4f} mm > robot.correction_limit_mm {limit_mm}"
+        )
+    if angle > limit_rad:
+        raise DeviceError(
+            device,
+            f"refused correction rotation of {angle:.6f} rad > robot.correction_limit_rad "
+            f"{limit_rad}",
+        )
+    return (*(v / MM_PER_M for v in offset_mm), *(float(v) for v in rotation_rad))
 
 
 @dataclass(frozen=True, slots=True)

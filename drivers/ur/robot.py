@@ -39,18 +39,12 @@ fault: the correction is held, the link reconnects in the background (drivers/re
 and stays held until an explicit resume. Nothing here moves the robot: the robot moves by its
 own program; this driver only shifts that program's path within the program's limits.
 
-**Holding a dwell for the cameras** (:meth:`URRobot.hold_dwell`, :meth:`URRobot.release_dwell`;
-issue 31). A followed run measures the tool while the program dwells at a measured pose; a PC
-that is slower than the taught dwell (a loaded lab PC: its frames took 0.8-2.9 s against a
-0.5 s dwell) would see the program leave during its frames and throw the measurement away,
-every time. So the PC writes the frames register (drivers/ur/registers.py, a recipe of its
-own) with the pose it measures, and the program's ``tc_wait_for_frames`` (controller/ur/
-thermocomp_offset.script) keeps the arm at rest there until the register is 0 again, at most
-FRAMES_TIMEOUT_S, and never while the PC is silent. :meth:`hold_dwell` waits for the
-controller's read-back of the register, so the state it returns says whether the program was
-still at that dwell when it learnt of the frames. Written whether the correction is held or
-not: it moves nothing. Each connection starts with the register at 0 (a PC that crashed mid-
-frames left its pose there).
+**Holding a dwell for the cameras** (:meth:`URRobot.hold_dwell`, :meth:`URRobot.release_dwell`):
+the frames register (drivers/ur/registers.py) asks the program's ``tc_wait_for_frames`` to
+keep the arm at rest on a measured pose while the PC takes its frames (a loaded PC is slower
+than a taught dwell: daemon/run/followed/measure.py). :meth:`hold_dwell` waits for the
+controller's read-back, so its state says whether the program was still at that dwell. It
+moves nothing, so it is written held or not; each connection starts with it at 0.
 """
 
 from __future__ import annotations
@@ -58,7 +52,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 import time
 from collections.abc import Callable, Coroutine
 from types import TracebackType
@@ -80,17 +73,15 @@ from drivers.errors import (
     MotionHeldError,
     NotConnectedError,
 )
-from drivers.goals import require_finite
 from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.ur import rtde_protocol as rtde
 from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.describe import describe_ur
-from drivers.ur.registers import RegisterMap
+from drivers.ur.registers import RegisterMap, wire_target
 from drivers.ur.rtde_client import RtdeClient
 from drivers.ur.rtde_protocol import Recipe, Value
 from drivers.ur.state import (
-    MM_PER_M,
     STATE_OUTPUTS,
     ProgramWatch,
     at_or_past,
@@ -315,23 +306,8 @@ class URRobot:
         await self._until(self._seen(self._write()), f"the controller did not read back {what}")
 
     def _checked(self, offset_mm: Vector3, rotation_rad: Vector3) -> tuple[float, ...]:
-        require_finite(offset_mm, "correction", DEVICE)
-        require_finite(rotation_rad, "correction rotation", DEVICE)
-        length = math.hypot(*offset_mm)
-        angle = math.hypot(*rotation_rad)
-        if length > self.settings.correction_limit_mm:
-            raise DeviceError(
-                DEVICE,
-                f"refused correction of {length:.4f} mm > robot.correction_limit_mm "
-                f"{self.settings.correction_limit_mm}",
-            )
-        if angle > self.settings.correction_limit_rad:
-            raise DeviceError(
-                DEVICE,
-                f"refused correction rotation of {angle:.6f} rad > robot.correction_limit_rad "
-                f"{self.settings.correction_limit_rad}",
-            )
-        return (*(v / MM_PER_M for v in offset_mm), *(float(v) for v in rotation_rad))
+        limits = (self.settings.correction_limit_mm, self.settings.correction_limit_rad)
+        return wire_target(offset_mm, rotation_rad, *limits, device=DEVICE)
 
     # -- the OffsetRobot protocol ------------------------------------------------------------
 
