@@ -22,6 +22,7 @@ from playwright.sync_api import Browser, Page, Route, sync_playwright
 from daemon.arm.arm_model import ArmModel, arm_model_toml, saved_arm_models_dir
 from daemon.run.states import RunState
 from tests.helpers import running_server
+from tests.loopback import loopback_host
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
@@ -599,7 +600,7 @@ def test_a_followed_ur_says_it_has_no_camera_and_no_rotation(browser: Browser) -
     is the tool cameras', at the program's dwells: none here, its plot stays empty.)"""
     env = {
         "THERMOCOMP_API__CONTROL_TOKEN": CONTROL,
-        "THERMOCOMP_ROBOT__HOST": "127.0.36.7",  # UR's fixed ports, on an address of its own
+        "THERMOCOMP_ROBOT__HOST": loopback_host(),  # UR's fixed ports, on an address of its own
         "THERMOCOMP_ARM__BENCH_CAMERAS": "false",
     }
     with running_server(["--config", "config/ur5e-sim.toml"], env=env) as base:

@@ -27,11 +27,9 @@ from drivers.base import OffsetRobot, Robot
 from drivers.clock import make_clock
 from drivers.errors import NotConnectedError
 from drivers.factory import open_devices
+from tests.loopback import loopback_host
 
 WAIT_S = 60.0
-#: this file's own loopback addresses (the emulator serves UR's fixed ports on them)
-HOST = "127.0.31.21"
-HOST_NONE = "127.0.31.22"
 #: half-width of the window a rendered spot's centroid is measured in (px)
 HALF_PX = 12
 #: the truth's arm made this much warmer than the room before the tool is measured (degC)
@@ -70,7 +68,7 @@ async def _at_pose(robot: Robot, pose: int) -> None:
 
 @pytest.mark.slow
 async def test_the_ur_bench_cameras_see_the_markers_on_the_true_tool(tmp_path: Path) -> None:
-    settings = ur_bench(tmp_path, HOST)
+    settings = ur_bench(tmp_path, loopback_host())
     assert settings.arm.bench_cameras and settings.arm.cameras == 3
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     workers = Workers()
@@ -134,7 +132,7 @@ async def test_the_ur_bench_cameras_see_the_markers_on_the_true_tool(tmp_path: P
 
 
 async def test_a_ur_bench_without_bench_cameras_has_none(tmp_path: Path) -> None:
-    settings = ur_bench(tmp_path, HOST_NONE, bench_cameras=False)
+    settings = ur_bench(tmp_path, loopback_host(), bench_cameras=False)
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     async with open_devices(settings, clock) as devices:
         assert devices.cameras == () and devices.camera_models == ()

@@ -53,6 +53,7 @@ from drivers.sim.arm_markers import CameraRig
 from drivers.sim.ur.cameras import SimURCamera
 from drivers.sim.ur.controller import URController, URControllerConfig
 from tests.helpers import run_in_process
+from tests.loopback import loopback_host
 
 UR5E = CONFIG_DIR / "ur5e-sim.toml"
 #: The camera-calibration program: the pick-and-place program's measured poses, 12 s dwells.
@@ -136,11 +137,12 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
     """One calibration of both stations (2 x 2 x 2 offsets of +-0.25 mm) from a perturbed file,
     with every grab logged in the emulated controller."""
     directory = tmp_path_factory.mktemp("urcamcal")
-    settings = load_settings(lab_file(directory, "127.0.37.1", None, CALIBRATION_PROGRAM))
+    host = loopback_host()
+    settings = load_settings(lab_file(directory, host, None, CALIBRATION_PROGRAM))
     truth = bench_cameras(settings)
     guess = directory / "guess.toml"
     write_cameras(guess, perturbed(truth))
-    lab = lab_file(directory, "127.0.37.1", guess, CALIBRATION_PROGRAM)
+    lab = lab_file(directory, host, guess, CALIBRATION_PROGRAM)
     written, observations = directory / "cameras.toml", directory / "moves.csv"
     grabs: list[tuple[int, tuple[float, ...], tuple[float, ...]]] = []
     original = SimURCamera.grab
@@ -257,7 +259,7 @@ def _settings(tmp_path: Path, host: str, duty: str) -> Settings:
 
 @pytest.mark.slow
 async def test_a_hold_stops_the_pattern_and_freezes_the_offset(tmp_path: Path) -> None:
-    settings = _settings(tmp_path, "127.0.37.2", CALIBRATION_PROGRAM)
+    settings = _settings(tmp_path, loopback_host(), CALIBRATION_PROGRAM)
     stations = stations_of(load_duty_cycle(CALIBRATION_PROGRAM), "camera")
     shifts = robot_pattern(0.4, 3, 0.0, 0)
     recording = URRecording("")
@@ -298,7 +300,7 @@ async def test_a_hold_stops_the_pattern_and_freezes_the_offset(tmp_path: Path) -
 
 @pytest.mark.slow
 async def test_a_program_that_does_not_dwell_stops_the_pattern(tmp_path: Path) -> None:
-    settings = _settings(tmp_path, "127.0.37.3", "ur5e-pick-and-place")
+    settings = _settings(tmp_path, loopback_host(), "ur5e-pick-and-place")
     stations = stations_of(load_duty_cycle("ur5e-pick-and-place"), None)
     async with open_devices(settings, make_clock("real")) as devices:
         assert devices.ur_emulator is not None
@@ -330,7 +332,7 @@ async def test_a_tcp_that_does_not_follow_the_offset_stops_the_pattern(tmp_path:
     applied (the joints of the taught path alone): the pattern stops at its second offset."""
     from daemon.arm import kinematics
 
-    settings = _settings(tmp_path, "127.0.37.7", CALIBRATION_PROGRAM)
+    settings = _settings(tmp_path, loopback_host(), CALIBRATION_PROGRAM)
     stations = stations_of(load_duty_cycle(CALIBRATION_PROGRAM), "camera")
     async with open_devices(settings, make_clock("real")) as devices:
         assert devices.ur_emulator is not None
@@ -390,7 +392,7 @@ def test_bad_usage_is_refused_before_anything_opens(
 ) -> None:
     guess = tmp_path / "guess.toml"
     write_cameras(guess, bench_cameras(load_settings(UR5E)))
-    lab = lab_file(tmp_path, "127.0.37.4", guess, "ur5e-pick-and-place")
+    lab = lab_file(tmp_path, loopback_host(), guess, "ur5e-pick-and-place")
     status, out, err = run_in_process(
         calibrate_cli.register,
         ["calibrate", "cameras", "--robot", "--config", str(lab), *extra],
@@ -433,7 +435,7 @@ async def test_a_followed_run_measures_with_arm_cameras_file(tmp_path: Path) -> 
 
     async def models_of(cameras_file: Path | None) -> tuple[CameraModel, ...]:
         settings = load_settings(
-            lab_file(tmp_path, "127.0.37.5", cameras_file, CALIBRATION_PROGRAM)
+            lab_file(tmp_path, loopback_host(), cameras_file, CALIBRATION_PROGRAM)
         )
         builder = SimpleNamespace(settings=settings, workers=workers)
         robot = SimpleNamespace(robot_state=lambda: None)
@@ -467,6 +469,7 @@ async def test_a_followed_run_with_the_written_file_measures_what_the_truth_does
         FLOOR_UM,
         SIGMAS,
         WARMER_C,
+        flag_counts,
         measured,
         steps_of,
         until,
@@ -474,7 +477,7 @@ async def test_a_followed_run_with_the_written_file_measures_what_the_truth_does
     )
 
     assert calibrated.status == 0, calibrated.err
-    settings = ur_settings(tmp_path, "127.0.37.6", cameras_file=str(calibrated.written))
+    settings = ur_settings(tmp_path, loopback_host(), cameras_file=str(calibrated.written))
     async with Daemon(settings) as daemon:
         emulator = getattr(daemon.devices, "ur_emulator", None)
         assert isinstance(emulator, UREmulator)
@@ -486,10 +489,18 @@ async def test_a_followed_run_with_the_written_file_measures_what_the_truth_does
             steps = steps_of(daemon, run_id)
             return len({s["arm_pose"] for s in steps if "first-step-reference" in s["flags"]})
 
-        await until(lambda: zeros() == 2, "each measured pose's zero")
+        await until(
+            lambda: zeros() == 2,
+            "each measured pose's zero",
+            lambda: flag_counts(daemon, run_id),
+        )
         thermal = emulator.controller.bench.thermal
         thermal.set_temperatures(thermal.temperatures_c + WARMER_C)
-        await until(lambda: len(measured(steps_of(daemon, run_id))) >= 6, "measurements")
+        await until(
+            lambda: len(measured(steps_of(daemon, run_id))) >= 6,
+            "measurements",
+            lambda: flag_counts(daemon, run_id),
+        )
         final = await daemon.stop()
     # the run's own comparison of each measurement with the truth at its frames (a
     # measurement whose frames outlasted the dwell on a loaded machine is discarded, not

@@ -31,6 +31,7 @@ from daemon.storage.recorder import DATABASE_NAME
 from drivers.clock import make_clock
 from tests.fakes import make_settings, params
 from tests.helpers import REPO_ROOT, run_main
+from tests.loopback import loopback_host
 from tests.test_followed_kind import WAIT_S, FollowedDevices
 
 UR5E = str(REPO_ROOT / "config" / "ur5e-sim.toml")
@@ -214,7 +215,7 @@ def test_the_chain_runs_a_followed_calibration_run_on_the_ur_bench(tmp_path: Pat
         ],
         env={
             "THERMOCOMP_STORAGE__DATA_DIR": str(data),
-            "THERMOCOMP_ROBOT__HOST": "127.0.34.77",
+            "THERMOCOMP_ROBOT__HOST": loopback_host(),
         },
     )
     assert result.returncode == 0, result.stderr

@@ -25,6 +25,7 @@ from drivers.sim.ur.emulator import UREmulator
 from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_client import RtdeClient
 from tests.helpers import REPO_ROOT, cli_command, run_main
+from tests.loopback import loopback_host
 
 UR5E = str(REPO_ROOT / "config" / "ur5e-sim.toml")
 CLI_TIMEOUT_S = 120.0
@@ -60,19 +61,20 @@ def failures(out: str) -> list[str]:
 
 @pytest.mark.slow
 def test_the_ur_bench_is_described_and_passes() -> None:
-    result = run_main(["devices", "check", "--config", UR5E], env=on_host("127.0.34.6"))
+    host = loopback_host()
+    result = run_main(["devices", "check", "--config", UR5E], env=on_host(host))
     assert result.returncode == 0, result.stdout + result.stderr
     out = result.stdout
     for line in (
         "robot: connected",
-        "robot: RTDE: 127.0.34.6:30004, protocol version 2 accepted, state at 125 Hz",
+        f"robot: RTDE: {host}:30004, protocol version 2 accepted, state at 125 Hz",
         "robot: controller: 5.15.0.0",
         "robot: robot mode: RUNNING",
         "robot: safety: NORMAL",
         "robot: program (RTDE): PLAYING",
         "robot: program (Dashboard): PLAYING thermocomp.urp",
         "robot: remote control: true",
-        "robot: registers: input int 24-25 and double 24-29 set up by this PC (free: no other "
+        "robot: registers: input int 24-26 and double 24-29 set up by this PC (free: no other "
         "RTDE client holds them); output int 24-27, double 24-29",
     ):
         assert line in out.splitlines(), out
@@ -90,7 +92,9 @@ def test_the_ur_bench_is_described_and_passes() -> None:
     assert "cameras: none checked" not in out
     assert not failures(out) and not result.stderr.strip()
 
-    as_json = run_main(["devices", "check", "--config", UR5E, "--json"], env=on_host("127.0.34.11"))
+    as_json = run_main(
+        ["devices", "check", "--config", UR5E, "--json"], env=on_host(loopback_host())
+    )
     data = json.loads(as_json.stdout)
     facts = data["robot"]["facts"]
     assert facts["safety"] == "NORMAL" and facts["controller"] == "5.15.0.0"
@@ -102,9 +106,10 @@ async def test_what_would_stop_a_run_is_one_line_each() -> None:
     # the program's REG_BASE is 30, the PC's 24: the offset program is silent where the PC
     # reads; a protective stop halts the arm
     config = URControllerConfig(register_base=30)
-    async with UREmulator(config, host="127.0.34.7") as ur:
+    host = loopback_host()
+    async with UREmulator(config, host=host) as ur:
         ur.protective_stop()
-        status, out, err = await check(as_robot("127.0.34.7"))
+        status, out, err = await check(as_robot(host))
         assert status == 1
         assert failures(out) == [
             "robot safety: FAILED: PROTECTIVE_STOP: clear it on the pendant",
@@ -118,15 +123,13 @@ async def test_what_would_stop_a_run_is_one_line_each() -> None:
         # the operator stopped the program; the Dashboard Server is not where the PC looks
         ur.operator_stop()
         with socket.socket() as probe:  # a port nothing listens on
-            probe.bind(("127.0.34.7", 0))
+            probe.bind((host, 0))
             closed = probe.getsockname()[1]
-        status, out, _ = await check(
-            as_robot("127.0.34.7", THERMOCOMP_ROBOT__DASHBOARD_PORT=str(closed))
-        )
+        status, out, _ = await check(as_robot(host, THERMOCOMP_ROBOT__DASHBOARD_PORT=str(closed)))
         assert status == 1
         lines = failures(out)
         assert "robot program: FAILED: STOPPED: load the production program with " in lines[1]
-        assert lines[-1].startswith("robot Dashboard: FAILED: Dashboard Server 127.0.34.7:")
+        assert lines[-1].startswith(f"robot Dashboard: FAILED: Dashboard Server {host}:")
         assert lines[-1].endswith(
             "a hold cannot pause the program (robot.pause_program_on_hold; port "
             "robot.dashboard_port)"
@@ -134,7 +137,7 @@ async def test_what_would_stop_a_run_is_one_line_each() -> None:
         # without the pause on a hold the Dashboard is described, not a failure
         status, out, _ = await check(
             as_robot(
-                "127.0.34.7",
+                host,
                 THERMOCOMP_ROBOT__DASHBOARD_PORT=str(closed),
                 THERMOCOMP_ROBOT__PAUSE_PROGRAM_ON_HOLD="false",
             )
@@ -145,18 +148,19 @@ async def test_what_would_stop_a_run_is_one_line_each() -> None:
 
 @pytest.mark.slow
 async def test_unreachable_robot_taken_registers_and_a_missing_camera(tmp_path: Path) -> None:
-    status, out, err = await check(as_robot("127.0.34.9"))
+    nobody = loopback_host()  # nothing listens there
+    status, out, err = await check(as_robot(nobody))
     assert status == 1
     assert failures(out) == [
-        "robot: FAILED: RTDE 127.0.34.9:30004: [Errno 111] Connect call failed "
-        "('127.0.34.9', 30004)"
+        f"robot: FAILED: RTDE {nobody}:30004: [Errno 111] Connect call failed ('{nobody}', 30004)"
     ]
     assert err.strip().splitlines() == [
-        "thermocomp devices check: robot: RTDE 127.0.34.9:30004: [Errno 111] Connect call "
-        "failed ('127.0.34.9', 30004)"
+        f"thermocomp devices check: robot: RTDE {nobody}:30004: [Errno 111] Connect call "
+        f"failed ('{nobody}', 30004)"
     ]
 
-    async with UREmulator(host="127.0.34.8") as ur:
+    host = loopback_host()
+    async with UREmulator(host=host) as ur:
         other = RtdeClient(ur.host, ur.rtde_port, 5.0)  # another PC holds our registers
         await other.connect()
         try:
@@ -166,7 +170,7 @@ async def test_unreachable_robot_taken_registers_and_a_missing_camera(tmp_path: 
             write_cameras(cameras, CameraRig(count=1).cameras((400.0, 0.0, 300.0)))
             status, out, _ = await check(
                 as_robot(
-                    "127.0.34.8",
+                    host,
                     THERMOCOMP_ARM__CAMERAS_FILE=str(cameras),
                     THERMOCOMP_ARM__CAMERA_DEVICES=json.dumps(
                         [{"driver": "replay", "replay_dir": str(tmp_path / "no-frames")}]
@@ -184,9 +188,9 @@ async def test_unreachable_robot_taken_registers_and_a_missing_camera(tmp_path: 
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("host", ["127.0.34.6"])
-def test_a_bench_whose_ports_are_taken_is_one_line(host: str) -> None:
+def test_a_bench_whose_ports_are_taken_is_one_line() -> None:
     """The UR bench's emulator cannot open (its ports are taken by another bench): one line."""
+    host = loopback_host()
     with socket.socket() as taken:
         taken.bind((host, 30004))
         taken.listen()
@@ -213,14 +217,13 @@ def test_the_calibrations_a_ur_cannot_make_are_refused_in_one_line(
     args: list[str], what: str, extra: dict[str, str], tmp_path: Path
 ) -> None:
     """Before anything opens: the emulator's ports are taken and no data directory is made."""
+    host = loopback_host()
     with socket.socket() as taken:
-        taken.bind(("127.0.34.12", 30004))
+        taken.bind((host, 30004))
         taken.listen()
         result = run_main(
             [*args, "--config", UR5E],
-            env=on_host(
-                "127.0.34.12", THERMOCOMP_STORAGE__DATA_DIR=str(tmp_path / "data"), **extra
-            ),
+            env=on_host(host, THERMOCOMP_STORAGE__DATA_DIR=str(tmp_path / "data"), **extra),
         )
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()

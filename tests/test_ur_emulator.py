@@ -17,6 +17,7 @@ from drivers.ur import rtde_protocol as rtde
 from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.modes import RuntimeState, SafetyMode
 from drivers.ur.rtde_client import RtdeClient
+from tests.loopback import loopback_host
 
 
 async def connected(host: str, port: int) -> RtdeClient:
@@ -27,8 +28,9 @@ async def connected(host: str, port: int) -> RtdeClient:
 
 @pytest.mark.parametrize("frequency_hz", [500.0, 125.0, 30.0])
 async def test_the_output_frequency_is_honoured_cycle_by_cycle(frequency_hz: float) -> None:
-    async with UREmulator(host="127.0.33.1") as ur:
-        client = await connected("127.0.33.1", ur.rtde_port)
+    host = loopback_host()
+    async with UREmulator(host=host) as ur:
+        client = await connected(host, ur.rtde_port)
         try:
             assert client.controller_version == (5, 15, 0, 0)
             recipe = await client.setup_outputs(["timestamp"], frequency_hz)
@@ -50,8 +52,9 @@ async def test_the_output_frequency_is_honoured_cycle_by_cycle(frequency_hz: flo
 
 
 async def test_unknown_outputs_are_not_found_and_a_refused_recipe_gets_id_zero() -> None:
-    async with UREmulator(host="127.0.33.2") as ur:
-        client = await connected("127.0.33.2", ur.rtde_port)
+    host = loopback_host()
+    async with UREmulator(host=host) as ur:
+        client = await connected(host, ur.rtde_port)
         try:
             reply = await client.request(
                 rtde.setup_outputs(125.0, ["timestamp", "actual_qqq"]),
@@ -66,8 +69,9 @@ async def test_unknown_outputs_are_not_found_and_a_refused_recipe_gets_id_zero()
 
 async def test_a_fieldbus_makes_the_lower_registers_in_use() -> None:
     config = URControllerConfig(fieldbus=True)
-    async with UREmulator(config, host="127.0.33.3") as ur:
-        client = await connected("127.0.33.3", ur.rtde_port)
+    host = loopback_host()
+    async with UREmulator(config, host=host) as ur:
+        client = await connected(host, ur.rtde_port)
         try:
             with pytest.raises(ProtocolError, match="input_int_register_3 IN_USE"):
                 await client.setup_inputs(["input_int_register_3"])
@@ -78,8 +82,9 @@ async def test_a_fieldbus_makes_the_lower_registers_in_use() -> None:
 
 
 async def test_protective_stop_pauses_and_the_dashboard_recovers() -> None:
-    async with UREmulator(host="127.0.33.4") as ur:
-        dashboard = DashboardClient("127.0.33.4", ur.dashboard_port, 5.0)
+    host = loopback_host()
+    async with UREmulator(host=host) as ur:
+        dashboard = DashboardClient(host, ur.dashboard_port, 5.0)
         ur.protective_stop()
         assert await dashboard.safety_status() == "PROTECTIVE_STOP"
         assert await dashboard.program_state() == "PAUSED"

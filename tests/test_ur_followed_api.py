@@ -19,23 +19,23 @@ from config.settings import load_settings
 from daemon.service import Daemon
 from drivers.ur import registers
 from drivers.ur.modes import RuntimeState
+from tests.loopback import loopback_host
 from tests.test_api_runs import CONTROL_HEADERS, next_of_type, wait_state
 from tests.test_api_server import CONTROL, READ, serve
 
 WAIT_S = 60.0
-#: a loopback address of this test's own: the emulator serves UR's fixed ports on it
-HOST = "127.0.35.1"
 
 
 @pytest.mark.slow
 async def test_a_followed_run_through_the_api_holds_the_program(tmp_path: Path) -> None:
     base = load_settings(CONFIG_DIR / "ur5e-sim.toml")
+    host = loopback_host()  # the emulator serves UR's fixed ports on an address of its own
     settings = base.model_validate(
         {
             **base.model_dump(),
             # the emulator runs in this process: on a loaded machine a second without a state
             # package is the test starved, not a link fault (tests/test_ur_program_pause.py)
-            "robot": {**base.robot.model_dump(), "host": HOST, "ur_timeout_s": 10.0},
+            "robot": {**base.robot.model_dump(), "host": host, "ur_timeout_s": 10.0},
             "scheduler": {**base.scheduler.model_dump(), "step_s": 0.1, "duration_s": 600.0},
             "storage": {**base.storage.model_dump(), "data_dir": str(tmp_path / "data")},
             "api": {"control_token": CONTROL, "read_token": READ, "control_burst": 50},

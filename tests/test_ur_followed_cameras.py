@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -35,9 +36,10 @@ from drivers.sim.ur.controller import URController
 from drivers.sim.ur.emulator import UREmulator
 from drivers.sim.ur.truth import URBenchTruth
 from tests.fakes import params
+from tests.loopback import loopback_host
 
 WAIT_S = 90.0
-LINK_TIMEOUT_S = 10.0
+LINK_TIMEOUT_S = 30.0
 #: how much warmer than the daemon's model the truth's arm is made after the zeros (degC)
 WARMER_C = 15.0
 #: the cameras' residual against the truth's: within this many of its 1-sigma, plus this floor
@@ -54,7 +56,14 @@ def ur_settings(tmp_path: Path, host: str, **arm: Any) -> Settings:
             **base.model_dump(),
             # a loaded machine's render of a frame, and the slow camera below, within it
             "camera": {**base.camera.model_dump(), "grab_timeout_s": 10.0},
-            "robot": {**base.robot.model_dump(), "host": host, "ur_timeout_s": LINK_TIMEOUT_S},
+            # the emulator runs in this process: on a loaded machine seconds without a state
+            # package, or a read-back, are the test starved, not a link fault
+            "robot": {
+                **base.robot.model_dump(),
+                "host": host,
+                "ur_timeout_s": LINK_TIMEOUT_S,
+                "command_timeout_s": LINK_TIMEOUT_S,
+            },
             "scheduler": {**base.scheduler.model_dump(), "step_s": 0.1, "duration_s": 600.0},
             "storage": {**base.storage.model_dump(), "data_dir": str(tmp_path / "data")},
             "arm": {**base.arm.model_dump(), **arm},
@@ -90,11 +99,24 @@ class GrabLog:
             camera.grab = logged  # type: ignore[method-assign]
 
 
-async def until(condition: Callable[[], bool], what: str) -> None:
-    async with asyncio.timeout(WAIT_S):
-        while not condition():  # noqa: ASYNC110 -- the daemon's state, read not awaited
-            await asyncio.sleep(0.02)
-    assert condition(), what
+async def until(
+    condition: Callable[[], bool], what: str, explain: Callable[[], object] | None = None
+) -> None:
+    """Wait up to WAIT_S for ``condition``; else fail saying ``what`` (and ``explain()``)."""
+    try:
+        async with asyncio.timeout(WAIT_S):
+            while not condition():  # noqa: ASYNC110 -- the daemon's state, read not awaited
+                await asyncio.sleep(0.02)
+    except TimeoutError:
+        pytest.fail(f"{what}: not within {WAIT_S} s; {explain() if explain else ''}")
+
+
+def flag_counts(daemon: Daemon, run_id: int) -> str:
+    """What the run's steps say so far: how many, and each flag's count (a failure's why)."""
+    steps = steps_of(daemon, run_id)
+    flags = Counter(f for s in steps for f in s["flags"].split(",") if f)
+    errors = Counter(s["error"].split(":")[0] for s in steps if s["error"])
+    return f"{len(steps)} steps, flags {dict(flags)}, errors {dict(errors)}"
 
 
 def steps_of(daemon: Daemon, run_id: int) -> list[dict[str, Any]]:
@@ -109,7 +131,7 @@ def measured(steps: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 @pytest.mark.slow
 async def test_a_followed_run_measures_the_tool_at_the_dwells(tmp_path: Path) -> None:
-    settings = ur_settings(tmp_path, "127.0.31.31")
+    settings = ur_settings(tmp_path, loopback_host())
     async with Daemon(settings) as daemon:
         devices = daemon.devices
         emulator = getattr(devices, "ur_emulator", None)
@@ -125,7 +147,11 @@ async def test_a_followed_run_measures_the_tool_at_the_dwells(tmp_path: Path) ->
             steps = steps_of(daemon, run_id)
             return {s["arm_pose"] for s in steps if "first-step-reference" in s["flags"]}
 
-        await until(lambda: len(zeros()) == 2, "each measured pose's zero")
+        await until(
+            lambda: len(zeros()) == 2,
+            "each measured pose's zero",
+            lambda: flag_counts(daemon, run_id),
+        )
         references = len(log.grabs)
         thermal = emulator.controller.bench.thermal
         thermal.set_temperatures(thermal.temperatures_c + WARMER_C)
@@ -133,6 +159,7 @@ async def test_a_followed_run_measures_the_tool_at_the_dwells(tmp_path: Path) ->
         await until(
             lambda: len(measured(steps_of(daemon, run_id))) >= 6,
             "measurements after the warming",
+            lambda: flag_counts(daemon, run_id),
         )
         final = await daemon.stop()
         steps = steps_of(daemon, run_id)
@@ -182,15 +209,17 @@ async def test_a_followed_run_measures_the_tool_at_the_dwells(tmp_path: Path) ->
 
 @pytest.mark.slow
 async def test_frames_the_program_left_its_pose_during_are_discarded(tmp_path: Path) -> None:
-    """Cameras that deliver their frames later than the dwell lasts (1.5 s for a dwell of at
-    most 1 s): the program has left its pose when the frames are in; each measurement is
-    discarded and flagged, nothing recorded (the frames show the tool: it is the state read
-    after them that throws them away)."""
-    settings = ur_settings(tmp_path, "127.0.31.32")
+    """A program taught without tc_wait_for_frames (its dwells end on time) and cameras that
+    deliver their frames later than the dwell lasts (1.5 s for a dwell of at most 1 s): the
+    program has left its pose when the frames are in; each measurement is discarded and
+    flagged, nothing recorded (the frames show the tool: it is the state read after them that
+    throws them away)."""
+    settings = ur_settings(tmp_path, loopback_host())
     async with Daemon(settings) as daemon:
         devices = daemon.devices
         emulator = getattr(devices, "ur_emulator", None)
         assert isinstance(emulator, UREmulator)
+        emulator.controller.waits_for_frames = False
         GrabLog(emulator, tuple(getattr(devices, "cameras", ())), delay_s=1.5)
         info = await daemon.start_run(params(settings))
         run_id = int(info["id"])
@@ -227,7 +256,7 @@ async def test_the_steps_go_on_while_the_cameras_measure(tmp_path: Path) -> None
     wall-clock time: a loaded machine only makes the wait longer. Each measurement then lands
     in the measuring step's own row (the program at a measured pose then; frames held past
     the dwell are discarded there), and no row is left ``measuring``."""
-    settings = ur_settings(tmp_path, "127.0.31.34")
+    settings = ur_settings(tmp_path, loopback_host())
     async with Daemon(settings) as daemon:
         devices = daemon.devices
         emulator = getattr(devices, "ur_emulator", None)
@@ -276,7 +305,7 @@ async def test_the_steps_go_on_while_the_cameras_measure(tmp_path: Path) -> None
 
 @pytest.mark.slow
 async def test_a_followed_run_with_no_camera_says_so(tmp_path: Path) -> None:
-    settings = ur_settings(tmp_path, "127.0.31.33", bench_cameras=False)
+    settings = ur_settings(tmp_path, loopback_host(), bench_cameras=False)
     async with Daemon(settings) as daemon:
         assert getattr(daemon.devices, "cameras", ()) == ()
         info = await daemon.start_run(params(settings))

@@ -118,6 +118,7 @@ def test_the_scripts_constants_are_the_programs() -> None:
     assert constant("MAX_SPEED_M_S") == prog.MAX_SPEED_M_S
     assert constant("MAX_ANGULAR_SPEED_RAD_S") == prog.MAX_ANGULAR_SPEED_RAD_S
     assert constant("WATCHDOG_S") == prog.WATCHDOG_S
+    assert constant("FRAMES_TIMEOUT_S") == prog.FRAMES_TIMEOUT_S
     assert constant("CYCLE_S") == CYCLE
     assert constant("REG_BASE") == registers.DEFAULT_REGISTER_BASE
     # the status values the script writes are the register map's bits

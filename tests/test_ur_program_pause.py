@@ -33,6 +33,7 @@ from drivers.sim.ur.emulator import UREmulator
 from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.modes import RuntimeState
 from tests.fakes import params
+from tests.loopback import loopback_host
 
 WAIT_S = 60.0
 #: The driver's link timeout here (robot.ur_timeout_s, 1 s by default): the emulated controller
@@ -126,7 +127,7 @@ def paused_after_the_freeze(log: DashboardLog, written_at_hold: int) -> None:
 async def test_a_hold_pauses_the_program_after_the_freeze_and_the_resume_plays_it(
     tmp_path: Path,
 ) -> None:
-    settings = ur_settings(tmp_path, "127.0.34.1")
+    settings = ur_settings(tmp_path, loopback_host())
     async with Daemon(settings) as daemon:
         emulator, log = await follow(daemon, settings)
         assert runtime(emulator) is RuntimeState.PLAYING
@@ -159,7 +160,7 @@ async def test_a_hold_pauses_the_program_after_the_freeze_and_the_resume_plays_i
 async def test_a_stop_and_a_fault_pause_the_program_a_finished_run_does_not(
     tmp_path: Path,
 ) -> None:
-    settings = ur_settings(tmp_path, "127.0.34.2")
+    settings = ur_settings(tmp_path, loopback_host())
     async with Daemon(settings) as daemon:
         emulator, log = await follow(daemon, settings)
         final = await daemon.stop()
@@ -208,7 +209,8 @@ async def follow_to_end(daemon: Daemon, settings: Settings) -> tuple[UREmulator,
 async def test_a_shutdown_pauses_the_program_and_the_setting_off_pauses_nothing(
     tmp_path: Path,
 ) -> None:
-    settings = ur_settings(tmp_path, "127.0.34.3")
+    host = loopback_host()
+    settings = ur_settings(tmp_path, host)
     async with Daemon(settings) as daemon:
         emulator, log = await follow(daemon, settings)
         await daemon.shutdown()
@@ -216,7 +218,7 @@ async def test_a_shutdown_pauses_the_program_and_the_setting_off_pauses_nothing(
         assert runtime(emulator) is RuntimeState.PAUSED
         paused_after_the_freeze(log, log.controller.writes[log.target])
 
-    off = ur_settings(tmp_path / "off", "127.0.34.3", pause_program_on_hold=False)
+    off = ur_settings(tmp_path / "off", host, pause_program_on_hold=False)
     async with Daemon(off) as daemon:
         emulator, log = await follow(daemon, off)
         await daemon.hold_robot()
@@ -227,7 +229,7 @@ async def test_a_shutdown_pauses_the_program_and_the_setting_off_pauses_nothing(
 
 
 async def test_a_dashboard_that_refuses_is_noted_and_the_hold_stands(tmp_path: Path) -> None:
-    settings = ur_settings(tmp_path, "127.0.34.4")
+    settings = ur_settings(tmp_path, loopback_host())
     async with Daemon(settings) as daemon:
         emulator, log = await follow(daemon, settings)
         await daemon._control.call(emulator.dashboard.close)  # the Dashboard Server is gone
@@ -267,7 +269,7 @@ class Dashboard:
 
 @pytest.fixture
 async def emulator() -> AsyncIterator[UREmulator]:
-    async with UREmulator(host="127.0.34.5") as ur:
+    async with UREmulator(host=loopback_host()) as ur:
         yield ur
 
 
@@ -326,11 +328,11 @@ async def test_a_refusal_and_a_silent_dashboard_are_noted_within_the_grace(
             await reader.read()  # accepts, never answers (not even the welcome line)
         writer.close()
 
-    server = await asyncio.start_server(silent, "127.0.34.5", 0)
+    server = await asyncio.start_server(silent, "127.0.0.1", 0)  # a port of its own
     try:
         port = server.sockets[0].getsockname()[1]
         hanging = ProgramPause(
-            Dashboard(DashboardClient("127.0.34.5", port, 30.0)), enabled=True, errors=log
+            Dashboard(DashboardClient("127.0.0.1", port, 30.0)), enabled=True, errors=log
         )
         started = time.monotonic()
         await hanging.pause(0.3)  # the grace bounds it, not the client's 30 s
@@ -347,7 +349,7 @@ async def test_a_hold_during_the_resume_pauses_the_program_it_played_again(
 ) -> None:
     """A hold that lands while the resume plays the program again (here: as the Dashboard's
     ``play`` arrives) wins: the resume is refused and the program is paused again."""
-    settings = ur_settings(tmp_path, "127.0.34.10")
+    settings = ur_settings(tmp_path, loopback_host())
     async with Daemon(settings) as daemon:
         emulator, log = await follow(daemon, settings)
         await daemon.hold_robot()

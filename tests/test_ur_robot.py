@@ -21,6 +21,7 @@ from drivers.sim.ur.emulator import UREmulator
 from drivers.ur import registers
 from drivers.ur.modes import RobotMode, RuntimeState
 from drivers.ur.robot import URRobot
+from tests.loopback import loopback_host
 
 WAIT_S = 10.0
 HOLD_PACKAGE_BYTES = 12
@@ -69,7 +70,7 @@ def bytes_sent(robot: URRobot) -> int:
 
 
 async def test_state_and_a_correction_applied_by_the_emulated_program() -> None:
-    async with bench("127.0.32.1", autoplay=False) as (ur, robot):
+    async with bench(loopback_host(), autoplay=False) as (ur, robot):
         offset_robot: OffsetRobot = robot  # the protocol, checked by mypy
         assert offset_robot.status().link is LinkState.CONNECTED
         state = robot.robot_state()
@@ -112,9 +113,10 @@ joints_deg = [30.0, -100.0, 100.0, -90.0, -90.0, 0.0]
 async def test_the_offset_reaches_the_program_and_moves_the_tool(tmp_path: Path) -> None:
     duty = tmp_path / "long-dwell.toml"
     duty.write_text(LONG_DWELL)  # the robot dwells at a measured pose while the offset moves
+    host = loopback_host()
     async with (
-        UREmulator(URControllerConfig(duty=str(duty)), host="127.0.32.2"),
-        URRobot(settings("127.0.32.2"), first_backoff_s=0.05) as robot,
+        UREmulator(URControllerConfig(duty=str(duty)), host=host),
+        URRobot(settings(host), first_backoff_s=0.05) as robot,
     ):
         await until(lambda: robot._state is not None)
         before = robot.robot_state().tcp_pose
@@ -134,7 +136,7 @@ async def test_the_offset_reaches_the_program_and_moves_the_tool(tmp_path: Path)
 
 
 async def test_hold_is_effective_before_its_first_await_and_freezes_the_program() -> None:
-    async with bench("127.0.32.3") as (ur, robot):
+    async with bench(loopback_host()) as (ur, robot):
         await robot.set_correction((0.2, 0.0, 0.0))
         sent = bytes_sent(robot)
         await until(lambda: ur.controller.writes[robot.registers.target[0]] == 1)
@@ -161,7 +163,7 @@ async def test_hold_is_effective_before_its_first_await_and_freezes_the_program(
 
 
 async def test_a_resume_racing_a_hold_never_releases_it() -> None:
-    async with bench("127.0.32.4") as (_, robot):
+    async with bench(loopback_host()) as (_, robot):
         await robot.stop()
         async with robot._lock:  # the resume waits here, as behind a reconnection
             resume = asyncio.create_task(robot.resume())
@@ -189,7 +191,7 @@ async def test_a_resume_racing_a_hold_never_releases_it() -> None:
 async def test_bad_corrections_are_refused_before_any_byte(
     offset: tuple[float, float, float], rotation: tuple[float, float, float]
 ) -> None:
-    async with bench("127.0.32.5") as (ur, robot):
+    async with bench(loopback_host()) as (ur, robot):
         sent = bytes_sent(robot)
         with pytest.raises(DeviceError, match="refused"):
             await robot.set_correction(offset, rotation)
@@ -198,7 +200,7 @@ async def test_bad_corrections_are_refused_before_any_byte(
 
 
 async def test_link_loss_holds_reconnects_and_stays_held_until_resume() -> None:
-    async with bench("127.0.32.6") as (ur, robot):
+    async with bench(loopback_host()) as (ur, robot):
         await robot.set_correction((0.05, 0.0, 0.0))
         ur.drop_connections()
         await until(lambda: robot.status().motion_held)
@@ -221,7 +223,7 @@ async def test_link_loss_holds_reconnects_and_stays_held_until_resume() -> None:
 
 
 async def test_silence_is_a_fault_within_the_timeout() -> None:
-    async with bench("127.0.32.7") as (ur, robot):
+    async with bench(loopback_host()) as (ur, robot):
         ur.silence(True)
         await until(lambda: robot.status().motion_held, timeout_s=3.0)
         assert "link lost" in (robot.status().hold_reason or "")
@@ -233,8 +235,9 @@ async def test_silence_is_a_fault_within_the_timeout() -> None:
 
 
 async def test_closing_the_driver_sets_the_hold_flag_first() -> None:
-    async with UREmulator(host="127.0.32.8") as ur:
-        async with URRobot(settings("127.0.32.8")) as robot:
+    host = loopback_host()
+    async with UREmulator(host=host) as ur:
+        async with URRobot(settings(host)) as robot:
             await robot.set_correction((0.1, 0.0, 0.0))
             hold = robot.registers.hold
         await until(lambda: ur.controller.inputs[hold] == 1)
@@ -242,7 +245,7 @@ async def test_closing_the_driver_sets_the_hold_flag_first() -> None:
 
 
 async def test_cancelled_calls_leave_nothing_half_done() -> None:
-    async with bench("127.0.32.9") as (_, robot):
+    async with bench(loopback_host()) as (_, robot):
         await robot.stop()
         async with robot._lock:
             resume = asyncio.create_task(robot.resume())
@@ -266,9 +269,9 @@ async def test_a_connect_cancelled_while_waiting_for_the_controller() -> None:
         await reader.read()  # accepts, never answers
         writer.close()
 
-    server = await asyncio.start_server(mute, "127.0.32.10", 0)
+    server = await asyncio.start_server(mute, "127.0.0.1", 0)  # a port of its own
     port = server.sockets[0].getsockname()[1]
-    robot = URRobot(settings("127.0.32.10", rtde_port=port, ur_timeout_s=30.0))
+    robot = URRobot(settings("127.0.0.1", rtde_port=port, ur_timeout_s=30.0))
     opening = asyncio.create_task(robot.__aenter__())
     await asyncio.sleep(0.1)
     opening.cancel()

@@ -1,6 +1,7 @@
 """The UR emulator checked by clients nobody here wrote: ur-rtde's RTDEReceiveInterface,
 RTDEIOInterface and DashboardClient (PyPI ``ur-rtde``), over loopback on UR's fixed ports, one
-127.0.0.N address per test. ur-rtde runs in a subprocess (tests/ur_rtde_clients.py says why).
+loopback address per test (tests/loopback.py). ur-rtde runs in a subprocess
+(tests/ur_rtde_clients.py says why).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from drivers.ur.modes import RobotMode, RuntimeState, SafetyMode
 from drivers.ur.rtde_client import RtdeClient
 from tests.fakes import params
 from tests.helpers import REPO_ROOT
+from tests.loopback import loopback_host
 from tests.test_ur_program_pause import ur_settings
 
 ANSWER_TIMEOUT_S = 30.0
@@ -32,8 +34,9 @@ ANSWER_TIMEOUT_S = 30.0
 class UrRtde:
     """ur-rtde's clients in a subprocess, one JSON answer per command."""
 
-    def __init__(self, process: asyncio.subprocess.Process) -> None:
+    def __init__(self, process: asyncio.subprocess.Process, host: str) -> None:
         self.process = process
+        self.host = host  # the loopback address the clients dial (UR's fixed ports)
 
     async def ask(self, command: str) -> dict[str, Any]:
         assert self.process.stdin is not None and self.process.stdout is not None
@@ -50,8 +53,8 @@ class UrRtde:
 
 
 @pytest.fixture
-async def ur_rtde(request: pytest.FixtureRequest) -> AsyncIterator[UrRtde]:
-    host = request.param
+async def ur_rtde() -> AsyncIterator[UrRtde]:
+    host = loopback_host()
     process = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
@@ -63,7 +66,7 @@ async def ur_rtde(request: pytest.FixtureRequest) -> AsyncIterator[UrRtde]:
         cwd=REPO_ROOT,
     )
     try:
-        yield UrRtde(process)
+        yield UrRtde(process, host)
     finally:
         if process.returncode is None:
             assert process.stdin is not None
@@ -82,9 +85,8 @@ async def settle(ur: UREmulator, seconds: float) -> None:
         await asyncio.sleep(0.02)
 
 
-@pytest.mark.parametrize("ur_rtde", ["127.0.31.1"], indirect=True)
 async def test_receive_interface_reads_pose_joints_temperatures_and_modes(ur_rtde: UrRtde) -> None:
-    async with UREmulator(URControllerConfig(autoplay=False), host="127.0.31.1") as ur:
+    async with UREmulator(URControllerConfig(autoplay=False), host=ur_rtde.host) as ur:
         state = await ur_rtde.ask("receive")
         controller = ur.controller
         assert state["connected"]
@@ -110,16 +112,15 @@ async def test_receive_interface_reads_pose_joints_temperatures_and_modes(ur_rtd
         assert ur.rtde.sessions and ur.rtde.sessions[0].frequency_hz == 500.0
 
 
-@pytest.mark.parametrize("ur_rtde", ["127.0.31.2"], indirect=True)
 async def test_io_interface_writes_the_upper_input_registers(ur_rtde: UrRtde) -> None:
-    async with UREmulator(host="127.0.31.2") as ur:
+    async with UREmulator(host=ur_rtde.host) as ur:
         assert (await ur_rtde.ask("io_int 42 7"))["ok"]
         assert (await ur_rtde.ask("io_double 46 -0.00025"))["ok"]
         await settle(ur, 0.05)
         assert ur.controller.inputs["input_int_register_42"] == 7
         assert ur.controller.inputs["input_double_register_46"] == -0.00025
         # read back through RTDE by a second client: the controller reports its inputs
-        client = RtdeClient("127.0.31.2", ur.rtde_port, 5.0)
+        client = RtdeClient(ur_rtde.host, ur.rtde_port, 5.0)
         try:
             await client.connect()
             recipe = await client.setup_outputs(
@@ -137,9 +138,8 @@ async def test_io_interface_writes_the_upper_input_registers(ur_rtde: UrRtde) ->
             await client.aclose()
 
 
-@pytest.mark.parametrize("ur_rtde", ["127.0.31.3"], indirect=True)
 async def test_dashboard_client_plays_pauses_and_reads_the_program_state(ur_rtde: UrRtde) -> None:
-    async with UREmulator(host="127.0.31.3") as ur:
+    async with UREmulator(host=ur_rtde.host) as ur:
         assert (await ur_rtde.ask("dash programState"))["answer"] == "PLAYING thermocomp.urp"
         await ur_rtde.ask("dash pause")  # ur-rtde raises unless "Pausing program" comes back
         assert (await ur_rtde.ask("dash programState"))["answer"] == "PAUSED thermocomp.urp"
@@ -158,14 +158,13 @@ async def test_dashboard_client_plays_pauses_and_reads_the_program_state(ur_rtde
         assert ur.dashboard.commands[:2] == ["programState", "pause"]
 
 
-@pytest.mark.parametrize("ur_rtde", ["127.0.31.4"], indirect=True)
 async def test_dashboard_client_reads_the_program_paused_by_a_daemon_hold(
     ur_rtde: UrRtde, tmp_path: Path
 ) -> None:
     """A followed run's hold (robot.pause_program_on_hold, on by default) pauses the robot's
     program through the Dashboard Server: ur-rtde's DashboardClient reads it PAUSED, and
     PLAYING again after the run's resume."""
-    settings = ur_settings(tmp_path, "127.0.31.4")
+    settings = ur_settings(tmp_path, ur_rtde.host)
     async with Daemon(settings) as daemon:
         await daemon.start_run(params(settings))
         await daemon.wait_state(RunState.RUNNING)

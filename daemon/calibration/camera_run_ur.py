@@ -21,9 +21,12 @@ state packages does it:
    applied offset (the program's output registers) equal to the written one, and the actual
    TCP pose (RTDE ``actual_TCP_pose``: the controller's kinematics at the encoders' joints)
    steady to STEADY_MM since the package before;
-3. every camera grabs a frame; a state package after the frames must show the same dwell, the
-   same applied offset and the same TCP pose, else the frames are thrown away and the pose is
-   tried again (counted: ``retried``);
+3. the program is asked to hold its dwell for the frames (``hold_dwell``: the frames register
+   and the program's ``tc_wait_for_frames``, controller/ur/README.md; the followed run's rule,
+   so a loaded PC still takes its frames inside the dwell) and the read-back must still show
+   the dwell; every camera grabs a frame; a state package after the frames must show the same
+   dwell, the same applied offset and the same TCP pose, else the frames are thrown away and
+   the pose is tried again (counted: ``retried``); then the program is let go;
 4. each marker found is one observation row at its nominal position ``R m + p``, (R, p) the
    actual TCP pose: the cameras are calibrated in the controller's frame, the frame every
    correction is written in, exactly as the A465's from its ``w2`` read-back. That frame
@@ -102,9 +105,14 @@ class CalibrationStopped(DeviceError):
 
 
 class DwellRobot(OffsetRobot, Protocol):
-    """What the pattern needs of a UR (drivers/ur/robot.py URRobot)."""
+    """What the pattern needs of a UR (drivers/ur/robot.py URRobot): its state read back, and
+    the program's dwell held while the cameras take their frames."""
 
     async def read_state(self) -> OffsetRobotState: ...
+
+    async def hold_dwell(self, pose: int) -> OffsetRobotState: ...
+
+    def release_dwell(self) -> None: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -288,9 +296,21 @@ async def record_ur_pattern(
             before = state
             if here is None or not confirmed:
                 continue
-            frames = await asyncio.gather(*(grab(camera, grab_timeout_s) for camera in cameras))
-            after = await robot.read_state()
-            if not (
+            try:
+                held = await robot.hold_dwell(state.at_pose)
+                if (held.at_pose, held.program_instance) == (
+                    state.at_pose,
+                    state.program_instance,
+                ) and still(held):
+                    frames = await asyncio.gather(
+                        *(grab(camera, grab_timeout_s) for camera in cameras)
+                    )
+                    after: OffsetRobotState | None = await robot.read_state()
+                else:
+                    after = None  # the dwell ended before the hold: no frames
+            finally:
+                robot.release_dwell()
+            if after is None or not (
                 after.at_pose == state.at_pose
                 and after.program_instance == state.program_instance
                 and still(after)

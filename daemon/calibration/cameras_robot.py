@@ -74,9 +74,60 @@ MIN_SPREAD_OF_DISTANCE = 0.02
 MAX_REDUCED_CHI2 = 25.0
 
 
-def _usage(message: str) -> int:
+def usage(message: str) -> int:
+    """Bad usage, before anything opens: one line, EXIT_USAGE (A465 and UR alike)."""
     print(f"{PROG}: {message}", file=sys.stderr)
     return EXIT_USAGE
+
+
+def pattern_stopped(err: DeviceError, done: int, total: int, where: str) -> int:
+    """A device error stopped the pattern after ``done`` of ``total`` poses: one line saying
+    ``where`` the robot (A465) or the correction (UR) is now, EXIT_FAILURE."""
+    print(
+        f"{PROG}: {err}; the pattern stopped after {done} of {total} poses, {where}",
+        file=sys.stderr,
+    )
+    return EXIT_FAILURE
+
+
+def fit_and_report(
+    args: argparse.Namespace,
+    run: RobotRun,
+    rows: list[Observation],
+    *,
+    models: tuple[CameraModel, ...],
+    guess_path: Path,
+    hint: str,
+    extra: dict[str, object] | None = None,
+) -> int:
+    """The recorded ``rows`` (``--save-observations``: written first, as fitted) fitted into
+    the cameras (:func:`fit_robot_rows`, ``--fit-marker``) and reported (:func:`report`):
+    EXIT_OK; a failed fit, or no camera fitted (one line ending with ``hint``): EXIT_FAILURE."""
+    if args.save_observations is not None:  # the rows fitted: --observations fits them again
+        write_observations(args.save_observations, rows)
+    try:
+        calibrated, skipped = fit_robot_rows(models, rows, args.fit_marker)
+    except MultiviewError as err:
+        print(f"{PROG}: {err}", file=sys.stderr)
+        return EXIT_FAILURE
+    if calibrated is None:
+        print(
+            f"{PROG}: no camera calibrated from {run.recording.poses} poses: "
+            + "; ".join(f"{name} {why}" for name, why in skipped.items())
+            + f" ({hint})",
+            file=sys.stderr,
+        )
+        return EXIT_FAILURE
+    report(
+        args,
+        run,
+        models=models,
+        calibrated=calibrated,
+        skipped=skipped,
+        guess_path=guess_path,
+        extra=extra,
+    )
+    return EXIT_OK
 
 
 def fit_robot_rows(
@@ -183,7 +234,7 @@ def run_with_robot(args: argparse.Namespace) -> int:
     settings = load_settings(args.config)
     guess = robot_guess(args, settings)
     if isinstance(guess, str):
-        return _usage(guess)
+        return usage(guess)
     models, path, search = guess.models, guess.path, guess.search_half_px
     size, turn = default_size_turn(settings)
     size = size if args.size is None else args.size
@@ -191,7 +242,7 @@ def run_with_robot(args: argparse.Namespace) -> int:
     # orientation (an offset then shifts every camera alike; docs/how-to/calibrate-cameras.md)
     turn = (turn if args.fit_marker else 0.0) if args.turn is None else args.turn
     if args.fit_marker and turn == 0.0:
-        return _usage("--fit-marker needs the tool to turn: --turn must be above 0")
+        return usage("--fit-marker needs the tool to turn: --turn must be above 0")
     try:
         shifts = robot_pattern(size, args.per_axis, turn, args.seed)
         check_pattern(settings, shifts)
@@ -200,7 +251,7 @@ def run_with_robot(args: argparse.Namespace) -> int:
         if args.joints is not None:
             joints_pose(settings, args.joints)
     except PatternError as err:
-        return _usage(str(err))
+        return usage(str(err))
     recording = Recording("")
     try:
         run = asyncio.run(
@@ -215,33 +266,19 @@ def run_with_robot(args: argparse.Namespace) -> int:
             )
         )
     except PatternError as err:
-        return _usage(str(err))
+        return usage(str(err))
     except DeviceError as err:
         back = "returned to" if recording.returned else "could NOT return to"
-        print(
-            f"{PROG}: {err}; the pattern stopped after {recording.poses} of {len(shifts)} poses, "
-            f"the robot {back} the goal {recording.goal!r}",
-            file=sys.stderr,
-        )
-        return EXIT_FAILURE
-    rows = run.recording.rows
-    if args.save_observations is not None:
-        write_observations(args.save_observations, rows)
-    try:
-        calibrated, skipped = fit_robot_rows(models, rows, args.fit_marker)
-    except MultiviewError as err:
-        print(f"{PROG}: {err}", file=sys.stderr)
-        return EXIT_FAILURE
-    if calibrated is None:
-        print(
-            f"{PROG}: no camera calibrated from {run.recording.poses} poses: "
-            + "; ".join(f"{name} {why}" for name, why in skipped.items())
-            + " (is the goal in front of the cameras? is the camera file's guess near?)",
-            file=sys.stderr,
-        )
-        return EXIT_FAILURE
-    report(args, run, models=models, calibrated=calibrated, skipped=skipped, guess_path=path)
-    return EXIT_OK
+        where = f"the robot {back} the goal {recording.goal!r}"
+        return pattern_stopped(err, recording.poses, len(shifts), where)
+    return fit_and_report(
+        args,
+        run,
+        run.recording.rows,
+        models=models,
+        guess_path=path,
+        hint="is the goal in front of the cameras? is the camera file's guess near?",
+    )
 
 
 def report(

@@ -29,17 +29,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
-import sys
 from collections.abc import Sequence
 from typing import cast
 
 import numpy as np
 
 from config import Settings, load_settings
-from config.cli import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from daemon.arm.duty import DutyCycleError, load_duty_cycle
 from daemon.arm.kinematics import forward
-from daemon.calibration.camera_observations import PROG, write_observations
 from daemon.calibration.camera_pattern import PatternError, Shift, robot_pattern
 from daemon.calibration.camera_run import RobotRun, controller_frame_truth
 from daemon.calibration.camera_run_ur import (
@@ -50,9 +47,9 @@ from daemon.calibration.camera_run_ur import (
     record_ur_pattern,
     stations_of,
 )
-from daemon.calibration.cameras_robot import fit_robot_rows, report, robot_guess
+from daemon.calibration.cameras_robot import fit_and_report, pattern_stopped, robot_guess, usage
 from daemon.run.arm.measure import device_sensors
-from daemon.vision.multiview import CameraModel, MultiviewError
+from daemon.vision.multiview import CameraModel
 from drivers.clock import make_clock
 from drivers.errors import DeviceError
 from drivers.factory import Devices, open_devices
@@ -61,11 +58,6 @@ from drivers.factory import Devices, open_devices
 #: (arm.duty_cycle's period), plus WAIT_MARGIN_S (the first offset may be a millimetre away).
 WAIT_CYCLES = 3.0
 WAIT_MARGIN_S = 10.0
-
-
-def _usage(message: str) -> int:
-    print(f"{PROG}: {message}", file=sys.stderr)
-    return EXIT_USAGE
 
 
 def default_size(settings: Settings) -> float:
@@ -114,12 +106,12 @@ def run_with_ur(args: argparse.Namespace) -> int:
     settings = load_settings(args.config)
     refusal = _checked_args(args)
     if refusal is not None:
-        return _usage(refusal)
+        return usage(refusal)
     guess = robot_guess(args, settings)
     if isinstance(guess, str):
-        return _usage(guess)
+        return usage(guess)
     if settings.arm.duty_cycle is None:
-        return _usage(
+        return usage(
             "a UR's calibration needs arm.duty_cycle: the program's measured poses are where "
             "the pattern is recorded (its at-pose register)"
         )
@@ -130,7 +122,7 @@ def run_with_ur(args: argparse.Namespace) -> int:
         shifts = robot_pattern(size, args.per_axis, args.turn or 0.0, args.seed)
         check_ur_pattern(settings, shifts)
     except (DutyCycleError, ValueError, PatternError) as err:
-        return _usage(str(err))
+        return usage(str(err))
     models = guess.models
     recording = URRecording("")
     total = len(shifts) * len(stations)
@@ -147,40 +139,21 @@ def run_with_ur(args: argparse.Namespace) -> int:
             )
         )
     except PatternError as err:
-        return _usage(str(err))
+        return usage(str(err))
     except DeviceError as err:
         back = "returned to" if recording.returned else "could NOT return to"
         start = ", ".join(f"{v:.4f}" for v in recording.start_offset_mm)
-        print(
-            f"{PROG}: {err}; the pattern stopped after {recording.poses} of {total} poses, "
-            f"the correction {back} where it started ({start}) mm",
-            file=sys.stderr,
-        )
-        return EXIT_FAILURE
+        where = f"the correction {back} where it started ({start}) mm"
+        return pattern_stopped(err, recording.poses, total, where)
     rows, notes = own_station_rows(recording)
-    if args.save_observations is not None:  # the rows fitted: --observations fits them again
-        write_observations(args.save_observations, rows)
-    try:
-        calibrated, skipped = fit_robot_rows(models, rows, False)
-    except MultiviewError as err:
-        print(f"{PROG}: {err}", file=sys.stderr)
-        return EXIT_FAILURE
-    if calibrated is None:
-        print(
-            f"{PROG}: no camera calibrated from {run.recording.poses} poses: "
-            + "; ".join(f"{name} {why}" for name, why in skipped.items())
-            + " (are the cameras in front of the program's measured poses? is the camera "
-            "file's guess near?)",
-            file=sys.stderr,
-        )
-        return EXIT_FAILURE
-    report(
+    return fit_and_report(
         args,
         run,
+        rows,
         models=models,
-        calibrated=calibrated,
-        skipped=skipped,
         guess_path=guess.path,
+        hint="are the cameras in front of the program's measured poses? is the camera "
+        "file's guess near?",
         extra={
             "robot": "ur-rtde: offsets at the program's measured poses",
             "offsets": len(shifts),
@@ -189,7 +162,6 @@ def run_with_ur(args: argparse.Namespace) -> int:
             "views_left_out": notes,
         },
     )
-    return EXIT_OK
 
 
 async def calibrate_with_ur(
@@ -206,7 +178,10 @@ async def calibrate_with_ur(
     clock = make_clock(settings.bench.clock, settings.bench.time_factor)
     async with open_devices(settings, clock) as devices:
         robot = devices.robot
-        if not callable(getattr(robot, "read_state", None)):
+        if not all(
+            callable(getattr(robot, name, None))
+            for name in ("read_state", "hold_dwell", "release_dwell")
+        ):
             raise PatternError(f"the robot driver {type(robot).__name__} follows no program")
         cameras = devices.cameras
         if len(cameras) != len(models):

@@ -120,7 +120,7 @@ async def describe_ur(robot: URRobot) -> RobotDescription:
     facts.append(
         (
             "registers",
-            f"input int {_span((registers.sequence, registers.hold))} and double "
+            f"input int {_span((registers.sequence, registers.hold, registers.frames))} and double "
             f"{_span(registers.target)} set up by this PC (free: no other RTDE client holds "
             f"them); output int {_span(registers.outputs[:4])}, double "
             f"{_span(registers.applied)}",

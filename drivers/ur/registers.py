@@ -9,6 +9,9 @@ PC -> robot (input registers, written by the UR driver):
 
     input_int_register_{B}        sequence: +1 on every write (the heartbeat; wraps at 2^31)
     input_int_register_{B+1}      hold: 1 freezes the offset where it is, 0 follows
+    input_int_register_{B+2}      frames: k while the PC takes the tool cameras' frames at
+                                  measured pose k (the program holds that dwell until it is
+                                  0 again, at most FRAMES_TIMEOUT_S: tc_wait_for_frames), else 0
     input_double_register_{B..B+5}  the correction target dx, dy, dz (m), rx, ry, rz (rad)
 
 robot -> PC (output registers, written by the program every controller cycle):
@@ -24,12 +27,21 @@ robot -> PC (output registers, written by the program every controller cycle):
 
 B is 24..41 (registers 0-23 collide with the fieldbus adapters: the upper range; B+5 <= 46
 keeps register 47 free, which ur-rtde's RTDEIOInterface uses as its command register).
+
+The frames register has a recipe of its own (:attr:`RegisterMap.frames_inputs`): a
+measurement's start and end write it, never the correction nor the hold flag. It moves
+nothing: it only makes the program stay at rest on a measured pose longer (a safe side), so it
+is written whether the correction is held or not.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+from drivers.base import Vector3
+from drivers.errors import DeviceError
+from drivers.goals import require_finite
 from drivers.ur.rtde_variables import double_input, double_output, int_input, int_output
 
 #: The default base register and the allowed range of bases (module docstring).
@@ -46,6 +58,35 @@ STATUS_WAITING = 16  # no target received since the program started: offset zero
 
 #: The six components of a correction on the wire.
 AXES = ("dx", "dy", "dz", "rx", "ry", "rz")
+MM_PER_M = 1000.0
+
+
+def wire_target(
+    offset_mm: Vector3,
+    rotation_rad: Vector3,
+    limit_mm: float,
+    limit_rad: float,
+    *,
+    device: str,
+) -> tuple[float, ...]:
+    """A correction (mm, rotation vector in rad) as the six target registers (m, rad); a
+    DeviceError before any byte when not finite or over the PC's limits
+    (robot.correction_limit_mm / _rad)."""
+    require_finite(offset_mm, "correction", device)
+    require_finite(rotation_rad, "correction rotation", device)
+    length = math.hypot(*offset_mm)
+    angle = math.hypot(*rotation_rad)
+    if length > limit_mm:
+        raise DeviceError(
+            device, f"refused correction of {length:.4f} mm > robot.correction_limit_mm {limit_mm}"
+        )
+    if angle > limit_rad:
+        raise DeviceError(
+            device,
+            f"refused correction rotation of {angle:.6f} rad > robot.correction_limit_rad "
+            f"{limit_rad}",
+        )
+    return (*(v / MM_PER_M for v in offset_mm), *(float(v) for v in rotation_rad))
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,6 +108,15 @@ class RegisterMap:
     @property
     def hold(self) -> str:
         return int_input(self.base + 1)
+
+    @property
+    def frames(self) -> str:
+        return int_input(self.base + 2)
+
+    @property
+    def frames_inputs(self) -> tuple[str, ...]:
+        """The driver's frames recipe: the frames register alone (module docstring)."""
+        return (self.frames,)
 
     @property
     def target(self) -> tuple[str, ...]:

@@ -38,6 +38,13 @@ A lost link (no state package for robot.ur_timeout_s, a closed or garbled connec
 fault: the correction is held, the link reconnects in the background (drivers/reconnect.py)
 and stays held until an explicit resume. Nothing here moves the robot: the robot moves by its
 own program; this driver only shifts that program's path within the program's limits.
+
+**Holding a dwell for the cameras** (:meth:`URRobot.hold_dwell`, :meth:`URRobot.release_dwell`):
+the frames register (drivers/ur/registers.py) asks the program's ``tc_wait_for_frames`` to
+keep the arm at rest on a measured pose while the PC takes its frames (a loaded PC is slower
+than a taught dwell: daemon/run/followed/measure.py). :meth:`hold_dwell` waits for the
+controller's read-back, so its state says whether the program was still at that dwell. It
+moves nothing, so it is written held or not; each connection starts with it at 0.
 """
 
 from __future__ import annotations
@@ -45,7 +52,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 import time
 from collections.abc import Callable, Coroutine
 from types import TracebackType
@@ -67,17 +73,15 @@ from drivers.errors import (
     MotionHeldError,
     NotConnectedError,
 )
-from drivers.goals import require_finite
 from drivers.permit import MotionPermit, Ticket
 from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.ur import rtde_protocol as rtde
 from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.describe import describe_ur
-from drivers.ur.registers import RegisterMap
+from drivers.ur.registers import RegisterMap, wire_target
 from drivers.ur.rtde_client import RtdeClient
 from drivers.ur.rtde_protocol import Recipe, Value
 from drivers.ur.state import (
-    MM_PER_M,
     STATE_OUTPUTS,
     ProgramWatch,
     at_or_past,
@@ -116,6 +120,8 @@ class URRobot:
         self._stalled = False  # the program stopped accepting corrections: until a resume
         self._program = ProgramWatch()  # a restart of the followed program (module docstring)
         self._seen_sequence = 0  # the sequence register as the controller reads it back
+        self._seen_frames = 0  # the frames register as the controller reads it back
+        self._frames_inputs: Recipe | None = None
         self._arrived = asyncio.Event()  # set (and replaced) on every state package
         self._last_error: str | None = None
         self._sequence = 0  # the last one written
@@ -174,19 +180,26 @@ class URRobot:
         try:
             await client.connect()
             outputs = await client.setup_outputs(
-                (*STATE_OUTPUTS, *self.registers.outputs, self.registers.sequence),
+                (
+                    *STATE_OUTPUTS,
+                    *self.registers.outputs,
+                    self.registers.sequence,
+                    self.registers.frames,
+                ),
                 settings.rtde_frequency_hz,
             )
             inputs = await client.setup_inputs(self.registers.inputs)
             hold_inputs = await client.setup_inputs(self.registers.hold_inputs)
+            frames_inputs = await client.setup_inputs(self.registers.frames_inputs)
             await client.start()
         except BaseException:
             client.close()
             raise
         self._client, self._outputs, self._inputs = client, outputs, inputs
-        self._hold_inputs = hold_inputs
+        self._hold_inputs, self._frames_inputs = hold_inputs, frames_inputs
         self._link = LinkState.CONNECTED
         self._write()
+        self._write_frames(0)  # no frames in flight on a new link (module docstring)
         self._reader = asyncio.get_running_loop().create_task(
             self._read_loop(client, outputs), name="ur-rtde-reader"
         )
@@ -203,7 +216,8 @@ class URRobot:
                 async with asyncio.timeout(self.settings.ur_timeout_s):
                     values = await client.read_data(recipe)
                 self._state = state = decode_state(self.registers, recipe, values)
-                self._seen_sequence = int(values[-1])  # type: ignore[arg-type]
+                self._seen_sequence = int(values[-2])  # type: ignore[arg-type]
+                self._seen_frames = int(values[-1])  # type: ignore[arg-type]
                 lost = self._program.check(state)
                 if lost is not None:
                     logger.warning("UR %s: correction held", lost)
@@ -254,6 +268,14 @@ class URRobot:
         self._sequence = sequence
         return sequence
 
+    def _write_frames(self, pose: int) -> None:
+        """The frames register now (the frames recipe: nothing else)."""
+        client = self._client
+        recipe = self._frames_inputs
+        if client is None or recipe is None or not client.connected:
+            raise NotConnectedError(DEVICE, f"not connected ({self._link.value})")
+        client.send(rtde.data_package(recipe, [pose]))
+
     async def _until(self, reached: Callable[[], bool], what: str) -> None:
         """Wait for a state package after which ``reached()``; DeviceTimeoutError after
         robot.command_timeout_s, NotConnectedError when the link goes."""
@@ -284,23 +306,8 @@ class URRobot:
         await self._until(self._seen(self._write()), f"the controller did not read back {what}")
 
     def _checked(self, offset_mm: Vector3, rotation_rad: Vector3) -> tuple[float, ...]:
-        require_finite(offset_mm, "correction", DEVICE)
-        require_finite(rotation_rad, "correction rotation", DEVICE)
-        length = math.hypot(*offset_mm)
-        angle = math.hypot(*rotation_rad)
-        if length > self.settings.correction_limit_mm:
-            raise DeviceError(
-                DEVICE,
-                f"refused correction of {length:.4f} mm > robot.correction_limit_mm "
-                f"{self.settings.correction_limit_mm}",
-            )
-        if angle > self.settings.correction_limit_rad:
-            raise DeviceError(
-                DEVICE,
-                f"refused correction rotation of {angle:.6f} rad > robot.correction_limit_rad "
-                f"{self.settings.correction_limit_rad}",
-            )
-        return (*(v / MM_PER_M for v in offset_mm), *(float(v) for v in rotation_rad))
+        limits = (self.settings.correction_limit_mm, self.settings.correction_limit_rad)
+        return wire_target(offset_mm, rotation_rad, *limits, device=DEVICE)
 
     # -- the OffsetRobot protocol ------------------------------------------------------------
 
@@ -372,6 +379,28 @@ class URRobot:
             state = self.robot_state()
             self._program.follow(state)
             return state
+
+    async def hold_dwell(self, pose: int) -> OffsetRobotState:
+        """Ask the program to hold its dwell at measured pose ``pose`` (>= 1) while the PC
+        takes its frames (module docstring), and return the first state package after the
+        controller read the request back: its at-pose register says whether the program was
+        still at that dwell (and so holds it). DeviceTimeoutError / NotConnectedError as
+        :meth:`read_state`. Always follow with :meth:`release_dwell`."""
+        if pose < 1:
+            raise ValueError(f"a measured pose is 1 or more, not {pose}")
+        self._require_link()
+        self._write_frames(pose)
+        await self._until(
+            lambda: self._seen_frames == pose,
+            f"the controller did not read back the frames request for pose {pose}",
+        )
+        return self.robot_state()
+
+    def release_dwell(self) -> None:
+        """The frames are taken: the program may leave its dwell (frames register 0). Never
+        raises: without a link the program lets go by itself (its watchdog, its timeout)."""
+        with contextlib.suppress(DeviceError, OSError):
+            self._write_frames(0)
 
     def robot_state(self) -> OffsetRobotState:
         state = self._state

@@ -12,10 +12,9 @@ import time
 
 from drivers.base import OffsetRobotState
 from drivers.ur.modes import RuntimeState
-from drivers.ur.registers import RegisterMap
+from drivers.ur.registers import MM_PER_M, RegisterMap
 from drivers.ur.rtde_protocol import Recipe, Value
 
-MM_PER_M = 1000.0
 #: The sequence register is an INT32: it runs 1 .. 2^31 - 1 and wraps to 1 (0 is "no target
 #: yet" for the program).
 SEQUENCE_MAX = (1 << 31) - 1

@@ -20,7 +20,7 @@ from daemon.arm.types import FloatArray
 from daemon.run.arm.measure import MultiCameraMeter
 from daemon.run.arm.setup import arm_file
 from daemon.run.followed.kind import BenchTruth, FollowedKind, FollowedWork
-from daemon.run.followed.measure import DwellMeasurement
+from daemon.run.followed.measure import DwellHold, DwellMeasurement
 from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.followed.setup import followed_model
 from daemon.run.setup import RunParameterError
@@ -97,4 +97,5 @@ async def _measurement(
         robot.robot_state,
         len(cameras),
         truth=None if truth is None else truth_residual_mm,
+        hold=robot if isinstance(robot, DwellHold) else None,
     )

@@ -12,6 +12,20 @@ still at that dwell when they were taken: the state read before the grab and the
 it both say pose k, the same program instance, and joints at rest (``STILL_RAD_S``); else the
 measurement is thrown away (flag ``moved-during-frames``) and nothing is recorded from it.
 
+**The program holds its dwell for the frames** (a robot with ``hold_dwell``: :class:`DwellHold`,
+drivers/ur/robot.py). A PC slower than the taught dwell saw the program leave during every
+measurement: on a loaded PC (two busy loops beside the run) the frames and the fit took
+0.8-2.9 s against dwells of 0.5-1 s, and every measurement was thrown away. So the measurement
+first asks the program to hold the dwell (the frames register, answered by the program's
+``tc_wait_for_frames``: controller/ur/README.md) and takes its frames only when the
+controller's read-back shows the program still at that dwell; it lets the program go once the
+state after the frames is read (also when it fails or is cancelled). The program holds at most
+its FRAMES_TIMEOUT_S (5 s), and not while the PC is silent: past that the check after the
+frames throws them away as before. Why not the other ways: computing after the frames would
+take only the fit out of the dwell, while the frames too slow down with the PC's load; the
+emulator in its own process would spare only the bench, not a lab PC (docs/how-to/
+universal-robots.md, "Cameras on a UR").
+
 **The steps do not wait for the meter.** Six cameras' frames and the fit take 60-100 ms on the
 UR bench (closing note of 2026-11-27), most of a 0.1 s step: measured inside the step, a
 measuring step overran its period while the robot dwelt, and the correction of the next step
@@ -43,7 +57,7 @@ import dataclasses
 import math
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -190,6 +204,21 @@ class _Pending:
 RowWriter = Callable[[StepRecord], Awaitable[object]]
 
 
+@runtime_checkable
+class DwellHold(Protocol):
+    """A robot whose program holds a measured pose's dwell while the PC takes its frames
+    (module docstring; drivers/ur/robot.py URRobot)."""
+
+    async def hold_dwell(self, pose: int) -> OffsetRobotState:
+        """Ask for the hold at measured pose ``pose``; the state after the controller read
+        the request back."""
+        ...
+
+    def release_dwell(self) -> None:
+        """The frames are taken (never raises)."""
+        ...
+
+
 @dataclass
 class DwellMeasurement:
     """The followed run's measurements at the program's dwells (module docstring); owned by
@@ -202,6 +231,9 @@ class DwellMeasurement:
     cameras: int
     #: (bench) the truth's residual tool translation now (mm; drivers/sim/ur/truth.py)
     truth: Callable[[], FloatArray] | None = None
+    #: the robot's dwell hold for the frames (module docstring); None: the program's dwells
+    #: end on time
+    hold: DwellHold | None = None
     tally: MeasuredTally = field(default_factory=MeasuredTally)
     references: dict[str, _Reference] = field(default_factory=dict)
     #: the dwell last measured or tried (at-pose register, program instance); None: moving
@@ -282,8 +314,31 @@ class DwellMeasurement:
     async def _measure(
         self, state: OffsetRobotState, dwell: tuple[int, int]
     ) -> _Taken | _Discarded:
-        """The frames, the fit and the check that the program stayed in its dwell (a task of
-        its own: module docstring). Camera and marker failures are outcomes, never raised."""
+        """The dwell held, the frames, the fit and the check that the program stayed in its
+        dwell (a task of its own: module docstring). Camera and marker failures are outcomes,
+        never raised."""
+        hold = self.hold
+        if hold is None:
+            return await self._frames(state, dwell)
+        pose_name = str(state.at_pose)
+        try:
+            try:
+                held = await hold.hold_dwell(state.at_pose)
+            except DeviceError as err:
+                return _Discarded(MOVED, f"the dwell at pose {pose_name} was not held: {err}")
+            if (held.at_pose, held.program_instance) != dwell or not _still(held):
+                return _Discarded(
+                    MOVED,
+                    f"the program left pose {pose_name} before it held the dwell for the frames "
+                    f"(at pose {held.at_pose}): no frames taken",
+                )
+            return await self._frames(state, dwell)
+        finally:
+            hold.release_dwell()
+
+    async def _frames(self, state: OffsetRobotState, dwell: tuple[int, int]) -> _Taken | _Discarded:
+        """The frames and the fit, then the state after them: the program still at the dwell,
+        or the measurement is thrown away."""
         pose_name = str(state.at_pose)
         try:
             measurement = await self.meter.measure(

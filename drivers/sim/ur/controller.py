@@ -35,7 +35,7 @@ from drivers.sim.arm_bench import DEFAULT_MARKERS_MM, ArmBench, ArmBenchConfig
 from drivers.sim.arm_markers import CameraRig
 from drivers.sim.joint_arm import JointArm, JointArmConfig
 from drivers.sim.ur.player import PlayerState, ProgramPlayer
-from drivers.sim.ur.program import OffsetProgram, ProgramInputs, ProgramLimits
+from drivers.sim.ur.program import OffsetProgram, ProgramInputs, ProgramLimits, holds_dwell
 from drivers.ur import rtde_variables as names
 from drivers.ur.modes import (
     ROBOT_STATUS_POWER_ON,
@@ -83,6 +83,11 @@ class URControllerConfig:
     #: (drivers/sim/arm_devices.py bench_config), watching these markers (tool frame, mm)
     camera_rig: CameraRig = field(default_factory=CameraRig)
     markers_tool_mm: tuple[tuple[float, float, float], ...] = DEFAULT_MARKERS_MM
+    #: the taught program calls tc_wait_for_frames(k) after the Wait of each measured pose
+    #: (controller/ur/README.md): it holds the dwell while the PC takes its frames
+    #: (drivers/sim/ur/program.py holds_dwell); False: a program taught without it, whose
+    #: dwells end on time whatever the PC does
+    waits_for_frames: bool = True
 
 
 class URController:
@@ -134,6 +139,9 @@ class URController:
         self._state: tuple[FloatArray, FloatArray, FloatArray] = (np.zeros(6),) * 3
         self._temperatures_t = -math.inf
         self._temperatures: tuple[float, ...] = (self.bench.config.ambient_c,) * 6
+        #: config.waits_for_frames, switchable while it runs (a test's program taught without)
+        self.waits_for_frames = config.waits_for_frames
+        self.player.holds = self._holds_dwell
         if config.autoplay:
             self.player.play(0.0)
 
@@ -180,6 +188,14 @@ class URController:
         return True
 
     # -- the controller cycle ----------------------------------------------------------------
+
+    def _holds_dwell(self, pose: int, held_s: float) -> bool:
+        """The taught program's tc_wait_for_frames(pose) waits on this cycle."""
+        if not self.waits_for_frames:
+            return False
+        frames = self.inputs[self.registers.frames]
+        assert isinstance(frames, int)
+        return holds_dwell(pose, frames, self.program.pc_silent, held_s, self.config.limits)
 
     def write_input(self, name: str, value: Value) -> None:
         """An RTDE client's input (already checked against the recipe's type)."""

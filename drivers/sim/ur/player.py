@@ -11,11 +11,17 @@ the arm and resets the program to its start.
 
 ``at_pose(now)`` is the program's "at measured pose" output: k (1-based) while the robot
 dwells at pose k of the cycle and that pose is measured, else 0.
+
+At the end of a measured pose's dwell the program asks ``holds(k, held_s)`` every cycle (the
+main program's ``tc_wait_for_frames``: drivers/sim/ur/program.py ``holds_dwell``): while it
+says so the robot stays at rest there, ``at_pose`` still k, and the next move starts in the
+cycle it lets go. ``held_s``: how long the dwell has been held past its taught length.
 """
 
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 
 import numpy as np
 
@@ -51,6 +57,10 @@ class ProgramPlayer:
         self._left_s = 0.0
         self._at_start = True  # STOPPED at the first pose: PLAY dwells there first
         self.cycles = 0  # completed cycles
+        #: (pose k, held_s) -> hold the dwell at measured pose k on (module docstring)
+        self.holds: Callable[[int, float], bool] = lambda pose, held_s: False
+        #: when the dwell being held for the frames had its taught end (None: not held)
+        self._held_from_s: float | None = None
 
     # -- controls ----------------------------------------------------------------------------
 
@@ -87,6 +97,7 @@ class ProgramPlayer:
         self.arm.halt(now_s)
         self.state = PlayerState.STOPPED
         self.index, self._moving, self._at_start = 0, False, False
+        self._held_from_s = None
 
     # -- time --------------------------------------------------------------------------------
 
@@ -100,12 +111,24 @@ class ProgramPlayer:
             if self._moving:
                 self._moving = False
                 self._until_s = start_s + self.duty.poses[self.index].dwell_s
+            elif self._held(now_s):
+                self._until_s = now_s  # at rest this cycle; the next one asks again
+                return
             else:
+                self._held_from_s = None
                 self.index = (self.index + 1) % len(self._poses)
                 if self.index == 0:
                     self.cycles += 1
                 self._moving = True
                 self._until_s = self._move(self.index, start_s)
+
+    def _held(self, now_s: float) -> bool:
+        """The ended dwell is held for the PC's frames this cycle (module docstring)."""
+        if not self.duty.poses[self.index].measure:
+            return False
+        if self._held_from_s is None:
+            self._held_from_s = self._until_s
+        return self.holds(self.index + 1, now_s - self._held_from_s)
 
     def _move(self, index: int, start_s: float) -> float:
         pose = self.duty.poses[index]
@@ -122,7 +145,11 @@ class ProgramPlayer:
         """The "at measured pose" output (module docstring)."""
         if self._moving or self.state is PlayerState.STOPPED:
             return 0
-        if self.state is PlayerState.PLAYING and now_s >= self._until_s:
+        if (
+            self.state is PlayerState.PLAYING
+            and now_s >= self._until_s
+            and self._held_from_s is None
+        ):
             return 0
         return self.index + 1 if self.duty.poses[self.index].measure else 0
 

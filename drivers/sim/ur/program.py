@@ -24,6 +24,13 @@ to better than 1e-9 rad.
 
 Before the first target the offset is zero and STATUS_WAITING is set; a sequence of 0 is "no
 target yet" (the driver's first write is 1).
+
+**Holding a dwell for the frames** (the main program's ``tc_wait_for_frames(k)``, after the
+Wait of measured pose k; drivers/ur/robot.py ``hold_dwell``). The program stays at rest on
+pose k past its taught dwell while the frames register (input int B+2) says k, until it says
+anything else, the PC is silent (the watchdog above), or FRAMES_TIMEOUT_S have passed since
+the taught dwell ended: :func:`holds_dwell`. The emulator's taught program
+(drivers/sim/ur/player.py) asks it at the end of every measured dwell.
 """
 
 from __future__ import annotations
@@ -59,6 +66,12 @@ MAX_ANGULAR_SPEED_RAD_S = 0.001
 #: The PC's heartbeat must change the sequence within this (s); the driver writes at least
 #: every robot.ur_heartbeat_s (default 0.1 s).
 WATCHDOG_S = 0.5
+#: The longest the main program holds a measured pose's dwell for the PC's frames
+#: (tc_wait_for_frames, module docstring): a measurement takes ~0.1 s on an idle PC and
+#: 0.8-2.9 s on a loaded one (closing note of 2026-11-27); a PC slower than this is in trouble,
+#: and the production program must not stand still longer for it (the frames are then thrown
+#: away by the PC: the program left during them).
+FRAMES_TIMEOUT_S = 5.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,6 +82,7 @@ class ProgramLimits:
     max_angular_speed_rad_s: float = MAX_ANGULAR_SPEED_RAD_S
     watchdog_s: float = WATCHDOG_S
     cycle_s: float = CONTROLLER_CYCLE_S
+    frames_timeout_s: float = FRAMES_TIMEOUT_S
 
     @property
     def watchdog_cycles(self) -> int:
@@ -102,6 +116,11 @@ class OffsetProgram:
     #: drawn once when the program starts, as the script's random() (registers.py)
     instance: int = field(default_factory=lambda: random.randint(1, INSTANCE_MAX))
 
+    @property
+    def pc_silent(self) -> bool:
+        """The heartbeat watchdog has fired (the script's global ``tc_pc_silent``)."""
+        return self._silent_cycles >= self.limits.watchdog_cycles
+
     def step(self, inputs: ProgramInputs) -> Offset:
         """One controller cycle: the offset to apply (``applied`` afterwards)."""
         self.cycles += 1
@@ -131,6 +150,15 @@ class OffsetProgram:
         self.applied = applied
         self.status = STATUS_RATE_LIMITED if limited else 0
         return applied
+
+
+def holds_dwell(
+    pose: int, frames: int, pc_silent: bool, held_s: float, limits: ProgramLimits
+) -> bool:
+    """``tc_wait_for_frames(pose)`` goes on waiting this cycle (module docstring): the frames
+    register still says this pose, the PC is not silent, and the hold has lasted
+    ``held_s`` < FRAMES_TIMEOUT_S."""
+    return frames == pose and not pc_silent and held_s < limits.frames_timeout_s
 
 
 def within_limits(target: Sequence[float], limits: ProgramLimits) -> bool:
