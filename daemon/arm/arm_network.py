@@ -39,6 +39,10 @@ KELVIN = 273.15
 IntArray = NDArray[np.intp]
 #: Default node spacing along a link; the bench's truth uses a finer one.
 DEFAULT_NODE_SPACING_MM = 50.0
+#: A link's direction components along its bending frame's y and z closer than this are a
+#: tie (its rows split across z): 0.01 is 0.6 degrees, far above an arm's geometry errors
+#: (the bench truth's 0.2 mrad) and far below a link truly nearer one axis.
+ACROSS_TIE = 1e-2
 #: A link with no length (a wrist whose DH a and d are 0) still holds metal: this much.
 MIN_LINK_LENGTH_MM = 40.0
 #: Estimates where an arm file gives none: motor + gearbox housing of a small arm's joint
@@ -380,12 +384,18 @@ def describe_arm(
         # The frame warm_arm bends the link's geometry in (after its first joint's geometry,
         # Arm.geometry_mm, at the zero configuration) carries a gradient along its y and z
         # only: the rows are split across that frame's y or z, whichever is more nearly
-        # perpendicular to the link (z on a tie: "up" for most arms' zero pose).
+        # perpendicular to the link (z on a tie: "up" for most arms' zero pose). A tie is
+        # within ACROSS_TIE: a link along its frame's x (a UR's upper arm and forearm) is
+        # perpendicular to both, and an arm measured a fraction of a milliradian off that
+        # (the bench truth's geometry errors, drivers/sim/arm_physics.py true_arm) must not
+        # have its housings' side turned by 90 degrees (it turned the UR truth's bending
+        # into y while the model's stayed in z: issue 31).
         bend_frame = frames[own[0] + 1 if own else k + 1][:3, :3]
         along = np.subtract(end, start)
         size = float(np.linalg.norm(along))
         along = along / size if size > 0.0 else bend_frame[:, 0]
-        axis = 1 if abs(bend_frame[:, 1] @ along) < abs(bend_frame[:, 2] @ along) - 1e-9 else 2
+        nearer_y = abs(bend_frame[:, 1] @ along) < abs(bend_frame[:, 2] @ along) - ACROSS_TIE
+        axis = 1 if nearer_y else 2
         candidate = bend_frame[:, axis]
         links[-1] = dataclasses.replace(
             links[-1], across_axis=(float(candidate[0]), float(candidate[1]), float(candidate[2]))
