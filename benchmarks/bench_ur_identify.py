@@ -25,10 +25,10 @@ motors heating 60 % more (x1.6), convection halved (0.4 against the bench's 0.8)
 drifting +1 degC/h, the links' bending share 0.85 (the preset's 0.75), the wrist's three
 motors heating x0.6. The worst identified row is printed last.
 
-The model's structure is config/ur5e-sim.toml's: arm.bending (identification fits the bending
-share) and the UR bench's room thermometer (room.driver sim: recorded each step, the model's
-ambient); ``--no-bending`` / ``--no-room`` measure the model without them (what issue 31's
-closing note 5 measured).
+The model is config/ur5e-sim.toml's with arm.bending on (identification fits the bending
+share; the config leaves it off for its CPU cost) and the UR bench's room thermometer
+(room.driver sim: recorded each step, the model's ambient); ``--no-bending`` / ``--no-room``
+measure the model without them (what issue 31's closing note 5 measured).
 """
 
 from __future__ import annotations

@@ -49,6 +49,7 @@ def ur_settings(data_dir: Path, room: str) -> Settings:
     data = load_settings(Path(UR5E)).model_dump()
     data["storage"]["data_dir"] = str(data_dir)
     data["room"]["driver"] = room
+    data["arm"]["bending"] = True  # recorded with the run: identification fits the share
     return Settings.model_validate(data)
 
 
