@@ -22,7 +22,13 @@ Removal = 1 - rms(residual) / rms(uncompensated) over the last half (a warm arm)
 the residual RMS over the cameras' own 3-D 1-sigma (mean of the calibration run's single
 measurements). Scenarios: the nominal bench (seed 1), and truths written to break the preset:
 motors heating 60 % more (x1.6), convection halved (0.4 against the bench's 0.8), the room
-drifting +1 degC/h. The worst identified row is printed last.
+drifting +1 degC/h, the links' bending share 0.85 (the preset's 0.75), the wrist's three
+motors heating x0.6. The worst identified row is printed last.
+
+The model is config/ur5e-sim.toml's with arm.bending on (identification fits the bending
+share; the config leaves it off for its CPU cost) and the UR bench's room thermometer
+(room.driver sim: recorded each step, the model's ambient); ``--no-bending`` / ``--no-room``
+measure the model without them (what issue 31's closing note 5 measured).
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ import os
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -62,21 +69,40 @@ def scenarios(quick: bool) -> list[tuple[str, int, dict[str, Any]]]:
         ("motors x1.6", 1, {"heat_scales": (1.6,) * 6}),
         ("convection halved", 1, {"convection_scale": 0.4}),
         ("room +1 degC/h", 1, {"ambient_drift_c_per_h": 1.0}),
+        # written to break the model's structure: the housings' side warmer than the preset's
+        # 0.75, the wrist's motors heating far less than the motor model says
+        ("bending share 0.85", 1, {"plus_share": 0.85}),
+        ("wrist motors x0.6", 1, {"heat_scales": (1.0, 1.0, 1.0, 0.6, 0.6, 0.6)}),
     ]
 
 
-def settings_in(data_dir: Path, bending: bool, prediction: str = "model+ir") -> Settings:
-    """The UR bench's settings; ``bending``: arm.bending for the model (it resolves each
-    link's temperature across it and bends it: the truth's motor housings sit on one side)."""
+@dataclass(frozen=True)
+class Structure:
+    """What the model is given besides its factors: ``bending`` (arm.bending: it resolves
+    each link's temperature across it and bends it, the truth's motor housings sit on one
+    side; identification then fits the bending share) and ``room`` (room.driver sim: the
+    bench's room thermometer, recorded and followed; else the model holds model.ambient_c)."""
+
+    bending: bool
+    room: bool
+
+    def label(self) -> str:
+        return f"bending {'on' if self.bending else 'off'}, room {'sim' if self.room else 'none'}"
+
+
+def settings_in(data_dir: Path, structure: Structure, prediction: str = "model+ir") -> Settings:
+    """The UR bench's settings (config/ur5e-sim.toml) with the model's ``structure``."""
     data = load_settings(CONFIG).model_dump()
     data["storage"]["data_dir"] = str(data_dir)
     data["model"]["prediction"] = prediction
-    data["arm"]["bending"] = bending
+    data["arm"]["bending"] = structure.bending
+    data["room"]["driver"] = "sim" if structure.room else "none"
     return Settings.model_validate(data)
 
 
 def calibrate(data_dir: Path, run_id: int) -> tuple[dict[str, Any], float]:
-    """The command on the recorded run: its JSON outcome and its wall time (s)."""
+    """The command on the recorded run (its settings are the run's own, recorded with it):
+    its JSON outcome and its wall time (s)."""
     from api.cli import main
 
     out, err = io.StringIO(), io.StringIO()
@@ -105,11 +131,11 @@ def calibrate(data_dir: Path, run_id: int) -> tuple[dict[str, Any], float]:
     return json.loads(out.getvalue()), wall
 
 
-def write_truth_factors(data_dir: Path, controller: URController) -> None:
+def write_truth_factors(data_dir: Path, controller: URController, bending: bool) -> None:
     """The reference row's arm model: the truth's own factors (each joint's heat, convection,
-    alpha, capacity) given to the model, as benchmarks/bench_arm_factors.py does; what it
-    leaves is the model's structure (the truth's bending, geometry, finer network), not the
-    identification."""
+    alpha, capacity, with ``bending`` its bending share) given to the model, as
+    benchmarks/bench_arm_factors.py does; what it leaves is the model's structure (the
+    truth's geometry, finer network; without bending its bending), not the identification."""
     bench = controller.bench
     config = bench.config
     model = ArmModel(
@@ -118,18 +144,21 @@ def write_truth_factors(data_dir: Path, controller: URController) -> None:
         heat_scales=tuple(float(v) for v in bench.heat_scales),
         convection_scale=config.convection_scale,
         alpha_scale=config.alpha_scale,
-        capacity_scale=config.capacity_scale,
         duty_cycle=controller.duty.name,
+        capacity_scale=config.capacity_scale,
+        bending_shares=(config.plus_share,) * len(bench.heat_scales) if bending else (),
     )
     path = new_arm_model_path("truth", data_dir)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(arm_model_toml(model, header="the bench truth's factors"), "utf-8")
 
 
-def one(name: str, seed: int, truth: dict[str, Any], hours: float, bending: bool) -> dict[str, Any]:
+def one(
+    name: str, seed: int, truth: dict[str, Any], hours: float, structure: Structure
+) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="bench-ur-identify-") as folder:
         data_dir = Path(folder)
-        settings = settings_in(data_dir, bending)
+        settings = settings_in(data_dir, structure)
         began = time.process_time()
         run_id, sigmas_mm = record_calibration_run(
             settings, emulated(seed, truth), data_dir, hours=hours, measure_every_s=MEASURE_EVERY_S
@@ -138,13 +167,13 @@ def one(name: str, seed: int, truth: dict[str, Any], hours: float, bending: bool
         outcome, identify_wall = calibrate(data_dir, run_id)
         model = outcome["identified"]["arm_model"]
         controller = emulated(seed, truth)
-        write_truth_factors(data_dir, controller)
+        write_truth_factors(data_dir, controller, structure.bending)
         rows = compensated_removal(
             {
-                "preset": (settings_in(data_dir, bending, "model"), None),
-                "preset + joints": (settings_in(data_dir, bending), None),
-                "identified + joints": (settings_in(data_dir, bending), "bench"),
-                "truth's factors + joints": (settings_in(data_dir, bending), "truth"),
+                "preset": (settings_in(data_dir, structure, "model"), None),
+                "preset + joints": (settings_in(data_dir, structure), None),
+                "identified + joints": (settings_in(data_dir, structure), "bench"),
+                "truth's factors + joints": (settings_in(data_dir, structure), "truth"),
             },
             controller,
             hours=hours,
@@ -172,23 +201,32 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="2 h, nominal only")
     parser.add_argument("--hours", type=float, help=f"default {HOURS:g} (2 with --quick)")
-    parser.add_argument("--bending", action="store_true", help="the model with arm.bending")
-    parser.add_argument("--only", help="run only the scenarios whose name contains this")
+    parser.add_argument(
+        "--no-bending", action="store_true", help="the model without arm.bending (no share)"
+    )
+    parser.add_argument(
+        "--no-room", action="store_true", help="no room thermometer (room.driver none)"
+    )
+    parser.add_argument(
+        "--only", help="run only the scenarios whose name contains this (comma: any of these)"
+    )
     parser.add_argument("--name", default="ur_identify", help="the results file's name")
     args = parser.parse_args()
     hours = args.hours or (2.0 if args.quick else HOURS)
+    structure = Structure(bending=not args.no_bending, room=not args.no_room)
     results: dict[str, Any] = {
         "hours": hours,
         "measure_every_s": MEASURE_EVERY_S,
-        "bending": args.bending,
+        "bending": structure.bending,
+        "room": structure.room,
         "runs": [],
     }
     load_before = os.getloadavg()[0]
     table = []
     for name, seed, truth in scenarios(args.quick):
-        if args.only and args.only not in name:
+        if args.only and not any(part in name for part in args.only.split(",")):
             continue
-        r = one(name, seed, truth, hours, args.bending)
+        r = one(name, seed, truth, hours, structure)
         results["runs"].append(r)
         uncompensated = r["rows"]["preset"]["uncompensated_rms_um"]
         for row, v in r["rows"].items():
@@ -205,7 +243,10 @@ def main() -> None:
             )
         print(f"{name}: identified {json.dumps(r['parameters'])}", file=sys.stderr)
     results["load_1min"] = [load_before, os.getloadavg()[0]]
-    print(f"{hours:g} h of the UR5e program; calibration on the recorded uncompensated run")
+    print(
+        f"{hours:g} h of the UR5e program; calibration on the recorded uncompensated run; "
+        f"model: {structure.label()}"
+    )
     print_table(
         ["scenario", "prediction", "uncomp rms um", "rms um", "removed", "x sigma", "max um"],
         table,

@@ -14,7 +14,9 @@ tool measured by the bench's cameras (rendered marker windows, centroids, triang
 fit: drivers/sim/arm_bench.py measure_tool, the UR bench cameras' renderer). To keep the
 rendering cheap a dwell is measured at most once per ``measure_every_s`` per pose (the daemon
 measures every dwell); between measurements one step per ``record_every_s`` carries the joint
-temperatures (the daemon records every step).
+temperatures (the daemon records every step). With a room thermometer (room.driver not none:
+the bench's, drivers/sim/ur/room.py) every recorded step carries its reading (``room_c``), as
+the followed run records it, and the replayed models follow it (follow_room).
 """
 
 from __future__ import annotations
@@ -121,6 +123,7 @@ def record_calibration_run(
     """An uncompensated followed run of ``hours`` recorded into ``data_dir``'s run database
     (module docstring): its id, and each camera measurement's own 3-D 1-sigma (mm)."""
     parameters = RunParameters.from_settings(settings, compensation="off")
+    room = settings.room.driver != "none"
     bench = controller.bench
     taught = controller.duty.poses
     stations = {k + 1: n for n, k in enumerate(i for i, p in enumerate(taught) if p.measure)}
@@ -156,6 +159,8 @@ def record_calibration_run(
                 state = dataclasses.replace(state, at_pose=0)
             record = StepRecord(run_id=run_id, step=step, scheduled_s=t, actual_s=t, lateness_s=0.0)
             FollowedKind._state_into(record, state)
+            if room:  # the followed run's step reads the room first (FollowedKind._read_room)
+                record.room_c = controller.room_temperature(t)
             record.correction_tx_mm = record.correction_ty_mm = record.correction_tz_mm = 0.0
             flags: list[str] = []
             errors: list[str] = []
@@ -207,14 +212,17 @@ def compensated_removal(
     run's, daemon/run/followed/setup.py, with its settings and its arm model: None for the
     preset) is advanced, fed the joint temperatures (as its settings' prediction says), and
     its correction at the program's joints is taken as applied; the residual is the truth's
-    error plus it. Per run: the RMS over the last half (a warm arm), the worst, and the
-    uncompensated drift beside them."""
+    error plus it. A run whose settings have a room thermometer (room.driver) follows the
+    bench's room sensor (one reading per sample, before the advance, as the followed run).
+    Per run: the RMS over the last half (a warm arm), the worst, and the uncompensated drift
+    beside them."""
     models = {
         name: followed_model(
             settings, RunParameters.from_settings(settings, step_s=sample_s, arm_model=arm_model)
         )
         for name, (settings, arm_model) in runs.items()
     }
+    rooms = {name for name, (settings, _) in runs.items() if settings.room.driver != "none"}
     bench = controller.bench
     controller.player.play(0.0)
     residual: dict[str, list[float]] = {name: [] for name in models}
@@ -222,11 +230,14 @@ def compensated_removal(
     for t in (float(v) for v in np.arange(sample_s, hours * 3600.0 + 1e-6, sample_s)):
         controller.player.advance(t)
         temperatures = controller.joint_temperatures(t)
+        room_c = controller.room_temperature(t) if rooms else math.nan
         bench.advance_to(t)
         q = controller.player.joints(t)
         error = pose_difference(bench.tool_pose_cold(q), bench.tool_pose_true(q)).translation_mm
         uncompensated.append(float(np.linalg.norm(error)) * UM_PER_MM)
         for name, model in models.items():
+            if name in rooms:
+                model.follow_room(room_c)
             model.advance_to(t)
             model.observe(temperatures)
             correction = correction_for(model.tool_error(q)).translation_mm

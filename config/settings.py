@@ -111,10 +111,12 @@ class Settings(Section):
     @model_validator(mode="after")
     def _simulated_room_on_the_arm_bench(self) -> Self:
         arm_bench = self.arm.enabled and self.bench.enabled and self.robot.driver == "sim"
-        if self.room.driver == "sim" and not arm_bench:
+        ur_bench = self.bench.enabled and self.robot.driver == "ur-rtde"  # issue 31
+        if self.room.driver == "sim" and not (arm_bench or ur_bench):
             raise ValueError(
-                "room.driver 'sim' is the arm bench's room thermometer: it needs arm.enabled, "
-                "bench.enabled and robot.driver sim (on hardware: room.driver w1)"
+                "room.driver 'sim' is the arm bench's or the UR bench's room thermometer: it "
+                "needs bench.enabled and robot.driver sim (with arm.enabled) or ur-rtde (on "
+                "hardware: room.driver w1)"
             )
         return self
 

@@ -43,6 +43,7 @@ from drivers.sim.server_emulator import C500CServerEmulator, server_emulator_con
 from drivers.sim.ur.cameras import ur_bench_cameras
 from drivers.sim.ur.controller import URControllerConfig
 from drivers.sim.ur.emulator import UREmulator
+from drivers.sim.ur.room import SimURRoom
 from drivers.sim.ur.truth import URBenchTruth
 from drivers.ur.robot import URRobot
 
@@ -103,10 +104,12 @@ async def _open_ur(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
     A465's; on the bench, with ``arm.bench_cameras`` (config/ur5e-sim.toml), ``arm.cameras``
     simulated cameras at each measured pose watching ``arm.markers_mm`` on the emulator's true
     tool (drivers/sim/ur/cameras.py). Neither: a run with no camera (model + joint
-    temperatures)."""
+    temperatures). The room thermometer of room.driver (a UR has none of its own): on the
+    bench ``sim`` reads the emulator truth's room (drivers/sim/ur/room.py)."""
     robot_settings = settings.robot
     async with contextlib.AsyncExitStack() as stack:
         emulator: UREmulator | None = None
+        simulated_room: RoomThermometer | None = None
         cameras: tuple[Camera, ...] = ()
         camera_models: tuple[CameraModel, ...] = ()
         if settings.bench.enabled:
@@ -128,17 +131,20 @@ async def _open_ur(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
             robot_settings = robot_settings.model_copy(
                 update={"rtde_port": emulator.rtde_port, "dashboard_port": emulator.dashboard_port}
             )
+            simulated_room = SimURRoom(emulator.controller, clock)
             if _ur_bench_cameras(settings):
                 simulated, camera_models = ur_bench_cameras(emulator.controller, clock)
                 cameras = tuple([await stack.enter_async_context(c) for c in simulated])
         else:
             cameras, camera_models = await _open_arm_cameras(settings, clock, stack)
+        room = await _open_room(settings, clock, stack, simulated_room)
         robot = await stack.enter_async_context(URRobot(robot_settings))
         logger.info(
-            "devices open: UR %s%s, %d tool cameras",
+            "devices open: UR %s%s, %d tool cameras, room thermometer %s",
             robot_settings.host,
             " (emulated)" if emulator else "",
             len(cameras),
+            settings.room.driver,
         )
         yield Devices(
             camera=AbsentDevice("camera"),
@@ -146,6 +152,7 @@ async def _open_ur(settings: Settings, clock: Clock) -> AsyncIterator[Devices]:
             robot=robot,  # type: ignore[arg-type]  # an OffsetRobot: run kind followed
             cameras=cameras,
             camera_models=camera_models,
+            room=room,
             ur_emulator=emulator,
             ur_truth=None if emulator is None else URBenchTruth(emulator.controller),
         )
@@ -355,8 +362,8 @@ async def _open_room(
     stack: contextlib.AsyncExitStack,
     simulated: RoomThermometer | None,
 ) -> RoomThermometer | None:
-    """The room thermometer of room.driver, opened in ``stack``: the arm bench's simulated one
-    (``simulated``), a 1-Wire sensor, or none."""
+    """The room thermometer of room.driver, opened in ``stack``: the arm bench's or the UR
+    bench's simulated one (``simulated``), a 1-Wire sensor, or none."""
     driver = settings.room.driver
     if driver == "none":
         return None

@@ -39,6 +39,10 @@ KELVIN = 273.15
 IntArray = NDArray[np.intp]
 #: Default node spacing along a link; the bench's truth uses a finer one.
 DEFAULT_NODE_SPACING_MM = 50.0
+#: A link's direction components along its bending frame's y and z closer than this are a
+#: tie (its rows split across z): 0.01 is 0.6 degrees, far above an arm's geometry errors
+#: (the bench truth's 0.2 mrad) and far below a link truly nearer one axis.
+ACROSS_TIE = 1e-2
 #: A link with no length (a wrist whose DH a and d are 0) still holds metal: this much.
 MIN_LINK_LENGTH_MM = 40.0
 #: Estimates where an arm file gives none: motor + gearbox housing of a small arm's joint
@@ -54,12 +58,6 @@ BASE_SPECIFIC_HEAT_J_PER_KGK = 896.0  # 6061-T6 (thesis Table 3.1)
 DEFAULT_BASE_R_AMBIENT_C_PER_W = 0.8
 #: Free convection on a slowly moving arm (thesis 3.4 measured 7.75 W/m^2K on a moving link).
 DEFAULT_H_W_PER_M2K = 7.75
-#: Two candidate bending axes (the frame's y and z) count as a tie when their cosines with the
-#: link differ by less than this: a UR5e's upper arm and forearm lie along their frame's x, a
-#: tie, and a DH length 0.2 mm off (the bench truth's default draw) tilts them by 5e-4; with
-#: an absolute 1e-9 that tilt turned the truth's bending plane 90 deg from the controller's
-#: (issue 29: 14 of the 29 um drift of a UR5e's 2 hours were that plane). 0.05 is 3 deg.
-BEND_AXIS_TIE = 0.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -386,16 +384,18 @@ def describe_arm(
         # The frame warm_arm bends the link's geometry in (after its first joint's geometry,
         # Arm.geometry_mm, at the zero configuration) carries a gradient along its y and z
         # only: the rows are split across that frame's y or z, whichever is more nearly
-        # perpendicular to the link (z on a tie: "up" for most arms' zero pose).
+        # perpendicular to the link (z on a tie: "up" for most arms' zero pose). A tie is
+        # within ACROSS_TIE: a link along its frame's x (a UR's upper arm and forearm) is
+        # perpendicular to both, and an arm measured a fraction of a milliradian off that
+        # (the bench truth's geometry errors, drivers/sim/arm_physics.py true_arm) must not
+        # have its housings' side turned by 90 degrees (it turned the UR truth's bending
+        # into y while the model's stayed in z: issue 31).
         bend_frame = frames[own[0] + 1 if own else k + 1][:3, :3]
         along = np.subtract(end, start)
         size = float(np.linalg.norm(along))
         along = along / size if size > 0.0 else bend_frame[:, 0]
-        axis = (
-            1
-            if abs(bend_frame[:, 1] @ along) < abs(bend_frame[:, 2] @ along) - BEND_AXIS_TIE
-            else 2
-        )
+        nearer_y = abs(bend_frame[:, 1] @ along) < abs(bend_frame[:, 2] @ along) - ACROSS_TIE
+        axis = 1 if nearer_y else 2
         candidate = bend_frame[:, axis]
         links[-1] = dataclasses.replace(
             links[-1], across_axis=(float(candidate[0]), float(candidate[1]), float(candidate[2]))

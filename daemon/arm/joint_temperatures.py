@@ -77,6 +77,12 @@ class JointTemperatureModel:
     def advance_to(self, t_s: float) -> None:
         self.controller.advance_to(t_s)
 
+    def follow_room(self, room_c: float) -> None:
+        """A room thermometer's reading, taken before the next advance: the model's ambient
+        follows it (ArmController.follow_room; the first reading is the cold arm's
+        temperature). A UR reports no air temperature: a lab adds one (room.driver)."""
+        self.controller.follow_room(room_c)
+
     def observe(self, temperatures_c: Sequence[float]) -> None:
         """Fuse one reading (degC, base joint first); non-finite values are skipped."""
         if len(temperatures_c) != len(self.regions):

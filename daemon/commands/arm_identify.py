@@ -57,24 +57,20 @@ from daemon.arm.controller_loading import load_controller
 from daemon.arm.identify import (
     ArmFitQuality,
     ArmIdentification,
-    ArmModelSpec,
-    ArmRunData,
     Progress,
     evaluate_arm,
-    marker_sensitivity,
 )
 from daemon.arm.identify_final import ArmCalibration, identify_arm_final
 from daemon.arm.identify_parameters import default_parameters, outside_physical_range
 from daemon.arm.ir_regions import region_nodes
-from daemon.arm.room import ambient_series, readings_of
 from daemon.calibration.identify_run import (
     recorded_parameters,
 )
 from daemon.commands.arm_run import (
-    IDENTIFY_STEP_S,
-    TOOL_POINT_MM,
     ArmRun,
     ArmRunInputError,
+    RunRows,
+    assemble_arm_run,
     identify_options,
 )
 from daemon.commands.followed_identify import is_followed_run, load_followed_run
@@ -151,40 +147,20 @@ def load_arm_run(data_dir: Path, run_id: int) -> ArmRun:
         readings.append({name: _number(value.get("mean_c")) for name, value in regions.items()})
     if len(times) < 2:
         raise ArmRunInputError(f"run {run_id} has fewer than two measured steps")
-    steps = math.ceil(max(times) / IDENTIFY_STEP_S) + 1
-    heat = np.array(
-        [
-            controller.mean_heat_w(k * IDENTIFY_STEP_S, (k + 1) * IDENTIFY_STEP_S)
-            for k in range(steps)
-        ]
-    )
     # every region the run read: identify_arm_final fits the section means first and the
     # faces only when the means leave the heats open
     names = sorted({name for reading in readings for name in reading})
-    nodes = region_nodes(controller.thermal, names)
-    data = ArmRunData(
-        heat_step_s=IDENTIFY_STEP_S,
-        joint_heat_w=heat,
-        ambient_c=ambient_series(
-            *readings_of(rooms), IDENTIFY_STEP_S, steps, settings.model.ambient_c
-        ),
-        time_s=np.array([round(t / IDENTIFY_STEP_S) * IDENTIFY_STEP_S for t in times]),
-        pose_index=np.array(pose_index, dtype=np.intp),
-        marker_displacement_mm=np.array(displacement),
-        region_c={r: np.array([reading.get(r, math.nan) for reading in readings]) for r in nodes},
-        name=f"run {run_id}",
+    walked = RunRows(times, pose_index, np.array(displacement), readings, rooms)
+    return assemble_arm_run(
+        f"run {run_id}",
+        controller,
+        walked,
+        options=options,
+        settings=settings,
+        regions=region_nodes(controller.thermal, names),
+        pose_q_rad=[pose.q_rad for pose in poses],
+        duty_cycle=str(parameters["duty_cycle"]),
     )
-    spec = ArmModelSpec(
-        description=controller.thermal.description,
-        node_spacing_mm=controller.thermal.node_spacing_mm,
-        regions=nodes,
-        sensitivities=[
-            marker_sensitivity(controller.arm, pose.q_rad, TOOL_POINT_MM, options.bending)
-            for pose in poses
-        ],
-        across_link=controller.thermal.across_link,
-    )
-    return ArmRun(f"run {run_id}", controller, data, spec, str(parameters["duty_cycle"]))
 
 
 def identify_arm_run(

@@ -29,6 +29,7 @@ import argparse
 import asyncio
 import json
 import sys
+from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -47,9 +48,6 @@ if TYPE_CHECKING:
 
 def run_calibrate_arm_model(args: argparse.Namespace, settings: Settings) -> int:
     """The arm chain (module docstring); the exit statuses of the two-link one."""
-    # lazy: NumPy and SciPy load when the command runs, not for --help (issue 16)
-    from daemon.arm.arm_model import new_arm_model_path
-
     for given, option in ((args.network, "--network"), (args.scale, "--scale")):
         if given is not None:
             print(
@@ -65,20 +63,37 @@ def run_calibrate_arm_model(args: argparse.Namespace, settings: Settings) -> int
             file=sys.stderr,
         )
         return EXIT_USAGE
+    return run_arm_chain(args, settings, _chain, _print)
+
+
+def run_arm_chain(
+    args: argparse.Namespace,
+    settings: Settings,
+    chain: Callable[
+        [Settings, argparse.Namespace, Path], Coroutine[Any, Any, tuple[dict[str, Any], str]]
+    ],
+    report: Callable[[dict[str, Any], str], None],
+) -> int:
+    """An arm's chain run after its refusals (the A465's, a UR's: calibrate_ur_model.py): the
+    arm model's file named (a bad NAME: usage), ``chain`` run to its outcome (a step failed:
+    its status, one line), the outcome printed as JSON (``--json``) or by ``report``."""
+    # lazy: NumPy and SciPy load when the command runs, not for --help (issue 16)
+    from daemon.arm.arm_model import new_arm_model_path
+
     try:
         saved = new_arm_model_path(args.save, settings.storage.data_dir)
     except ValueError as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return EXIT_USAGE
     try:
-        outcome, table = asyncio.run(_chain(settings, args, saved))
+        outcome, table = asyncio.run(chain(settings, args, saved))
     except StepFailedError as err:
         print(f"{PROG}: {err}", file=sys.stderr)
         return err.status
     if args.json:
         print(json.dumps(_finite(outcome), indent=2, default=str, allow_nan=False))
     else:
-        _print(outcome, table)
+        report(outcome, table)
     return EXIT_OK
 
 

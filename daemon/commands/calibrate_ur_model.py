@@ -25,16 +25,18 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
 from config import Settings
-from config.cli import EXIT_OK, EXIT_USAGE
-from daemon.commands.calibrate_arm_model import _identify_and_save, _prediction_check
-from daemon.commands.calibrate_chain import PROG, StepFailedError, run_alone
-from daemon.commands.run import _finite
+from config.cli import EXIT_USAGE
+from daemon.commands.calibrate_arm_model import (
+    _identify_and_save,
+    _prediction_check,
+    run_arm_chain,
+)
+from daemon.commands.calibrate_chain import PROG, run_alone
 
 
 def ur_usage_error(args: argparse.Namespace) -> str | None:
@@ -55,30 +57,13 @@ def ur_usage_error(args: argparse.Namespace) -> str | None:
 
 def run_calibrate_ur_model(args: argparse.Namespace, settings: Settings) -> int:
     """The UR chain (module docstring); the exit statuses of the arm's."""
-    # lazy: NumPy and SciPy load when the command runs, not for --help (issue 16)
-    from daemon.arm.arm_model import new_arm_model_path
-
     refusal = ur_usage_error(args)
     if refusal is None and settings.arm.duty_cycle is None:
         refusal = "a UR is calibrated on the program it plays: set arm.duty_cycle"
     if refusal is not None:
         print(f"{PROG}: {refusal}", file=sys.stderr)
         return EXIT_USAGE
-    try:
-        saved = new_arm_model_path(args.save, settings.storage.data_dir)
-    except ValueError as err:
-        print(f"{PROG}: {err}", file=sys.stderr)
-        return EXIT_USAGE
-    try:
-        outcome, table = asyncio.run(_chain(settings, args, saved))
-    except StepFailedError as err:
-        print(f"{PROG}: {err}", file=sys.stderr)
-        return err.status
-    if args.json:
-        print(json.dumps(_finite(outcome), indent=2, default=str, allow_nan=False))
-    else:
-        _print(outcome, table)
-    return EXIT_OK
+    return run_arm_chain(args, settings, _chain, _print)
 
 
 async def _chain(

@@ -43,14 +43,13 @@ import numpy as np
 
 from config import Settings
 from daemon.arm.controller_loading import load_controller
-from daemon.arm.identify import ArmModelSpec, ArmRunData, marker_sensitivity
 from daemon.arm.joint_temperatures import joint_regions
-from daemon.arm.room import ambient_series, readings_of
 from daemon.commands.arm_run import (
     IDENTIFY_STEP_S,
-    TOOL_POINT_MM,
     ArmRun,
     ArmRunInputError,
+    RunRows,
+    assemble_arm_run,
     identify_options,
 )
 from daemon.run.arm.setup import arm_file
@@ -153,38 +152,18 @@ def load_followed_run(
             "needs the tool measured at the program's dwells over hours (tool cameras: "
             "arm.bench_cameras on the UR bench, arm.camera_devices on a robot)"
         )
-    steps = math.ceil(max(times) / IDENTIFY_STEP_S) + 1
-    heat = np.array(
-        [
-            controller.mean_heat_w(k * IDENTIFY_STEP_S, (k + 1) * IDENTIFY_STEP_S)
-            for k in range(steps)
-        ]
-    )
-    data = ArmRunData(
-        heat_step_s=IDENTIFY_STEP_S,
-        joint_heat_w=heat,
-        ambient_c=ambient_series(
-            *readings_of(rooms), IDENTIFY_STEP_S, steps, settings.model.ambient_c
-        ),
-        time_s=np.array([round(t / IDENTIFY_STEP_S) * IDENTIFY_STEP_S for t in times]),
-        pose_index=np.array(pose_index, dtype=np.intp),
-        marker_displacement_mm=np.array(displacement).reshape(len(times), 1, 3),
-        region_c={r: np.array([reading.get(r, math.nan) for reading in readings]) for r in regions},
-        name=f"run {run_id}",
-    )
-    spec = ArmModelSpec(
-        description=controller.thermal.description,
-        node_spacing_mm=controller.thermal.node_spacing_mm,
+    measured = np.array(displacement).reshape(len(times), 1, 3)
+    walked = RunRows(times, pose_index, measured, readings, rooms)
+    return assemble_arm_run(
+        f"run {run_id}",
+        controller,
+        walked,
+        options=options,
+        settings=settings,
         regions=regions,
-        sensitivities=[
-            marker_sensitivity(
-                controller.arm, np.asarray(taught[k - 1].q_rad), TOOL_POINT_MM, options.bending
-            )
-            for k in measured_poses
-        ],
-        across_link=controller.thermal.across_link,
+        pose_q_rad=[np.asarray(taught[k - 1].q_rad) for k in measured_poses],
+        duty_cycle=str(duty),
     )
-    return ArmRun(f"run {run_id}", controller, data, spec, str(duty))
 
 
 def _joint_reading(text: str | None, regions: dict[str, tuple[int, ...]]) -> dict[str, float]:

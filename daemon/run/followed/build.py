@@ -59,6 +59,7 @@ async def build_followed(
             errors=builder.errors,
         ),
         measurement,
+        builder.sensors,
     )
 
 

@@ -17,7 +17,11 @@ step of each dwell of the program at a measured pose (its at-pose register) then
 tool (daemon/run/followed/measure.py: the frames, the arm run's meter, the residual against the
 pose's first measurement); between measured poses a step only corrects. A step with no
 camera measurement records, on the UR bench, the bench truth's residual tool error (flag
-``bench-truth``); with neither, nothing is measured (flag ``no-measurement``). The summary's
+``bench-truth``); with neither, nothing is measured (flag ``no-measurement``). With a room
+thermometer (room.driver: a UR has none of its own) each step reads it first, records it
+(``room_c``) and the model's ambient follows it (daemon/arm/controller.py follow_room, as an
+A465 arm run: issue 29); without one the model holds model.ambient_c and the summary's
+``room`` says so (a warming room would otherwise be read as the joints heating). The summary's
 accuracy comes from the cameras' measurements (``measured``) and, on the bench, from the truth
 (``bench_truth``, and ``measured_vs_truth``: the cameras against the truth).
 
@@ -41,12 +45,13 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from config import Settings
+from daemon.analysis.arm import NO_ROOM_NOTE
 from daemon.arm.correction import check_correction, correction_for
 from daemon.arm.run import UM_PER_MM, rotation_urad, translation_um
 from daemon.arm.types import FloatArray, Pose6
 from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.record import camera_views
-from daemon.run.arm.step import correction_limits
+from daemon.run.arm.step import ROOM_ERROR, correction_limits
 from daemon.run.events import ErrorLog
 from daemon.run.followed.measure import DwellMeasurement, MeasuredTally
 from daemon.run.followed.program_pause import ProgramPause
@@ -54,6 +59,7 @@ from daemon.run.followed.summary import followed_summary_rows
 from daemon.run.followed.view import VIEW
 from daemon.run.kind import KindBase, KindView
 from daemon.run.scheduler import Tick
+from daemon.run.sensors import Sensors
 from daemon.run.stage_times import StageTimes
 from daemon.run.states import RunParameters
 from daemon.run.step import (
@@ -83,6 +89,8 @@ class FollowedModel(Protocol):
     def tool_error(self, q_rad: Sequence[float] | FloatArray) -> Pose6: ...
 
     def temperatures_c(self) -> Mapping[str, float]: ...
+
+    def follow_room(self, room_c: float) -> None: ...
 
 
 class TruthErrors(Protocol):
@@ -137,6 +145,40 @@ class TruthTally:
 
 
 @dataclass
+class RoomTally:
+    """The room thermometer's readings over the run, for its summary (an arm run's
+    daemon/analysis/arm.py room_summary, kept in memory as the followed run's other figures)."""
+
+    readings: int = 0
+    first_c: float = math.nan
+    last_c: float = math.nan
+    min_c: float = math.inf
+    max_c: float = -math.inf
+    errors: int = 0
+
+    def add(self, room_c: float) -> None:
+        if self.readings == 0:
+            self.first_c = room_c
+        self.readings += 1
+        self.last_c = room_c
+        self.min_c, self.max_c = min(self.min_c, room_c), max(self.max_c, room_c)
+
+    def summary(self, thermometer: bool) -> dict[str, Any]:
+        if not thermometer or self.readings == 0:
+            note = NO_ROOM_NOTE if not thermometer else "the room thermometer gave no reading"
+            return {"measured": False, "readings": 0, "errors": self.errors, "note": note}
+        return {
+            "measured": True,
+            "readings": self.readings,
+            "errors": self.errors,
+            "first_c": self.first_c,
+            "last_c": self.last_c,
+            "min_c": self.min_c,
+            "max_c": self.max_c,
+        }
+
+
+@dataclass
 class FollowedWork:
     """What a followed run's steps carry besides the kind's services: its identity and start
     (the last correction written and the bench truth's tally are the kind's)."""
@@ -165,9 +207,13 @@ class FollowedKind(KindBase):
     program: ProgramPause | None = None
     #: the tool cameras' measurements at the program's dwells (None: no camera)
     measurement: DwellMeasurement | None = None
+    #: the daemon's sensors, for the room thermometer (None, or none open: the model holds
+    #: model.ambient_c)
+    sensors: Sensors | None = None
     last_correction: Pose6 = field(default_factory=Pose6.zero)
     corrections_written: int = 0
     tally: TruthTally = field(default_factory=TruthTally)
+    room: RoomTally = field(default_factory=RoomTally)
 
     async def teach(self, *, moving: bool) -> None:
         """The program's poses are taught on the robot: the run takes the program as it is
@@ -181,9 +227,18 @@ class FollowedKind(KindBase):
     async def references(self) -> None:
         """The model's cold state at the run's start is the reference."""
 
-    def _predict(self, model_time_s: float, state: OffsetRobotState) -> Pose6:
-        """On a worker: the model to ``model_time_s``, the joint temperatures fused, the tool
-        error at the robot's current joints."""
+    @property
+    def has_room(self) -> bool:
+        return self.sensors is not None and self.sensors.has_room
+
+    def _predict(
+        self, model_time_s: float, state: OffsetRobotState, room_c: float | None = None
+    ) -> Pose6:
+        """On a worker: the room's reading to the model (its ambient until the next one), the
+        model to ``model_time_s``, the joint temperatures fused, the tool error at the robot's
+        current joints."""
+        if room_c is not None:
+            self.model.follow_room(room_c)
         self.model.advance_to(model_time_s)
         self.model.observe(state.joint_temperatures_c)
         return self.model.tool_error(np.asarray(state.joints_rad, np.float64))
@@ -207,7 +262,8 @@ class FollowedKind(KindBase):
             await self.workers.db(self.recorder.write_step, record)
             return StepOutcome(record, None, Verdict("fault", str(err)), (), stages, stages.ends_s)
         self._state_into(record, state)
-        error = await self.workers.step(self._predict, model_time_s, state)
+        room_c = await self._read_room(record, flags, errors)
+        error = await self.workers.step(self._predict, model_time_s, state, room_c)
         record.model_time_s = model_time_s
         self._prediction_into(record, error)
         stages.end("model", started)
@@ -263,6 +319,25 @@ class FollowedKind(KindBase):
         # the tool cameras' frames of a measured step, with their markers, for the live views
         views = camera_views(measured)
         return StepOutcome(record, None, verdict, (), stages, stages.ends_s, views)
+
+    async def _read_room(
+        self, record: StepRecord, flags: list[str], errors: list[str]
+    ) -> float | None:
+        """The room thermometer's reading (recorded), or None: no thermometer, or it failed
+        (flagged room-error, noted; the model keeps the last room, as an arm run's)."""
+        if self.sensors is None or not self.sensors.has_room:
+            return None
+        try:
+            reading = await self.sensors.read_room()
+        except DeviceError as err:
+            self.errors.note(err)
+            self.room.errors += 1
+            flags.append(ROOM_ERROR)
+            errors.append(str(err))
+            return None
+        record.room_c = reading.temperature_c
+        self.room.add(reading.temperature_c)
+        return reading.temperature_c
 
     def _correction(self, error: Pose6) -> Pose6:
         """The correction to write: the one cancelling ``error``, or zero in an uncompensated
@@ -343,6 +418,7 @@ class FollowedKind(KindBase):
             if measurement is not None
             else MeasuredTally().summary(0)
         )
+        after["room"] = self.room.summary(self.has_room)
         if self.truth is not None:
             after["bench_truth"] = self.tally.summary()
             if measurement is not None:

@@ -46,4 +46,12 @@ def followed_summary_rows(summary: dict[str, Any]) -> list[SummaryRow]:
             ("3-D error max, uncorrected", truth.get("worst_uncompensated_um"), "um"),
             ("removed (RMS)", None if removed is None else 100.0 * removed, "%"),
         ]
+    room = summary.get("room") or {}
+    if room.get("measured"):
+        rows += [
+            ("room: first reading", room.get("first_c"), "degC"),
+            ("room: last reading", room.get("last_c"), "degC"),
+        ]
+    elif room:
+        rows.append(("room", "not measured: the model held model.ambient_c (room.driver)", ""))
     return [*rows, ("overruns", summary.get("overruns"), "")]

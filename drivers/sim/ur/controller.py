@@ -281,6 +281,12 @@ class URController:
             self._temperatures_t = t_s
         return self._temperatures
 
+    def room_temperature(self, t_s: float) -> float:
+        """The lab's room thermometer beside the robot, read at ``t_s`` (degC): not an RTDE
+        output (a UR has no air sensor) but the DS18B20 a lab adds (room.driver), reading
+        the bench truth's room with its lag, noise and resolution (drivers/sim/arm_room.py)."""
+        return self.bench.room_sensor.read(t_s)
+
     def value(self, name: str, t_s: float) -> Value:
         """The RTDE output ``name`` at ``t_s`` (a name in rtde_variables.OUTPUTS)."""
         if name in self.outputs:
