@@ -143,8 +143,10 @@ class BenchSettings(Section):
     )
     ir_faults: str = Field(
         "",
-        description="Sim IR reader faults, as camera_faults: no-frame, late=S, unreadable "
-        "(a thermal frame that is not finite); @N: the N-th read since it opened.",
+        description="Sim IR reader faults, as camera_faults: no-frame, late=S (a reading "
+        "exposed S before it is read, with no wait: the IR is read while the next steps "
+        "move), unreadable (a thermal frame that is not finite); @N: the N-th read since it "
+        "opened.",
     )
 
     camera_gain_e_per_count: PositiveFloat = Field(

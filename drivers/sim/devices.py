@@ -13,10 +13,20 @@ A40M's thermal sensitivity, thesis 3.2.2) and a fixed offset within its +-2 degC
 Both inject the sensor faults of ``bench.camera_faults`` / ``bench.ir_faults`` (issue 10; the
 spec and kinds in config/faults.py), counted per grab/read since the device opened:
 ``no-frame`` never returns (until the caller's timeout cancels it: it does not sleep on the
-clock, which a virtual clock would jump forward by the wait), ``late=S`` returns S seconds of
-the run clock after the exposure it is stamped with, ``unreadable`` delivers data that the real
+clock, which a virtual clock would jump forward by the wait), ``late=S`` delivers a measurement
+S seconds of the run clock after the exposure it is stamped with, ``unreadable`` delivers data that the real
 drivers' own checks refuse (``drivers.camera.to_grey``, ``drivers.ir.finite_thermal_frame``),
 so the sim exercises those checks. ``faults_applied`` lists what struck: (count, kind).
+
+A late frame is a wait on the clock: the camera is grabbed inside its step, before the next
+deadline, so on a virtual clock the jump costs the run its time exactly as a real wait would.
+A late IR reading is one exposed S seconds before it is read (the reader's buffer held it),
+with no wait: the IR is read while the next steps move (issue 30's overlap), and a wait there
+would jump a virtual clock under a step already woken -- where it lands (before that step
+begins, between its frame and its age check, after it) would depend on thread timing, and so
+would which steps are flagged. What the daemon must do with a late reading depends only on
+its age, which this gives exactly; the content is the link's temperatures at the read (the
+truth cannot be evaluated in its past), and a stale reading is never used.
 """
 
 from __future__ import annotations
@@ -93,6 +103,13 @@ async def _late(clock: Clock, exposed_s: float, fault: Fault[SensorFaultKind] | 
     """A late delivery: return ``fault.seconds`` of the run clock after the exposure."""
     if fault is not None and fault.kind == "late" and fault.seconds is not None:
         await clock.sleep_until(exposed_s + fault.seconds)
+
+
+def _late_by_s(fault: Fault[SensorFaultKind] | None) -> float:
+    """How long before its read a late reading was exposed (0 for any other fault)."""
+    if fault is not None and fault.kind == "late" and fault.seconds is not None:
+        return fault.seconds
+    return 0.0
 
 
 class SimCamera:
@@ -274,11 +291,10 @@ class SimIrReader:
             frame = self.frame_c(t_s)
             if fault is not None and fault.kind == "unreadable":
                 frame[LINK_ROWS[0] : LINK_ROWS[1]] = np.nan  # rows lost in transfer
-            await _late(self.clock, t_s, fault)
             frame = finite_thermal_frame(frame, "sim")  # the real driver's check
             reading = IrReading(
                 regions=region_temperatures(frame, self.regions),
-                timestamp_s=t_s,
+                timestamp_s=t_s - _late_by_s(fault),  # held in the buffer: no wait (docstring)
                 sequence=self._sequence,
                 frame_c=frame,
             )
