@@ -13,10 +13,11 @@ A40M's thermal sensitivity, thesis 3.2.2) and a fixed offset within its +-2 degC
 Both inject the sensor faults of ``bench.camera_faults`` / ``bench.ir_faults`` (issue 10; the
 spec and kinds in config/faults.py), counted per grab/read since the device opened:
 ``no-frame`` never returns (until the caller's timeout cancels it: it does not sleep on the
-clock, which a virtual clock would jump forward by the wait), ``late=S`` delivers a measurement
-S seconds of the run clock after the exposure it is stamped with, ``unreadable`` delivers data that the real
-drivers' own checks refuse (``drivers.camera.to_grey``, ``drivers.ir.finite_thermal_frame``),
-so the sim exercises those checks. ``faults_applied`` lists what struck: (count, kind).
+clock, which a virtual clock would jump forward by the wait), ``late=S`` delivers a
+measurement S seconds of the run clock after the exposure it is stamped with (below),
+``unreadable`` delivers data that the real drivers' own checks refuse
+(``drivers.camera.to_grey``, ``drivers.ir.finite_thermal_frame``), so the sim exercises those
+checks. ``faults_applied`` lists what struck: (count, kind).
 
 A late frame is a wait on the clock: the camera is grabbed inside its step, before the next
 deadline, so on a virtual clock the jump costs the run its time exactly as a real wait would.
