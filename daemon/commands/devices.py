@@ -96,6 +96,41 @@ async def _tool_cameras(settings: Settings, check: DeviceCheck) -> None:
             check.errors[name] = _reason("camera", err) if str(err) else "no frame in time"
 
 
+async def _check_without(settings: Settings, opening: Exception) -> DeviceCheck:
+    """The check after the devices did not open together with ``opening``: when the room
+    thermometer was what failed, everything else is checked as usual and the room is its one
+    failed line; else each device on its own (:func:`_check_each`)."""
+    from daemon.run.devices_check import NO_ROOM_NOTE  # lazy: OpenCV, not for --help
+
+    if not (isinstance(opening, DeviceError) and opening.device == "room"):
+        return await _check_each(settings, opening)
+    no_room = settings.room.model_copy(update={"driver": "none"})
+    try:
+        check = await _check(settings.model_copy(update={"room": no_room}))
+    except OPEN_ERRORS as err:  # another device failed as well
+        check = await _check_each(settings, err)
+    if NO_ROOM_NOTE in check.notes:
+        check.notes.remove(NO_ROOM_NOTE)  # there is one: it failed
+    check.errors["room"] = _reason("room", opening)
+    return check
+
+
+async def _room_alone(settings: Settings, check: DeviceCheck) -> None:
+    """The 1-Wire room thermometer opened and read on its own (the bench's simulated one
+    needs the bench: it is checked with the others or not at all)."""
+    from daemon.run.devices_check import probe_room  # lazy: OpenCV, not for --help
+    from drivers.room import W1Thermometer  # lazy: the drivers, not for --help
+
+    if settings.room.driver != "w1":
+        return
+    clock = make_clock(settings.bench.clock, settings.bench.time_factor)
+    try:
+        async with W1Thermometer(settings.room, clock) as room:
+            await probe_room(room, settings, check)
+    except OPEN_ERRORS as err:
+        check.errors["room"] = _reason("room", err)
+
+
 async def _check_each_ur(settings: Settings, opening: Exception) -> DeviceCheck:
     """A UR's check after its devices did not open: the robot alone (or, on the bench, the
     emulator's error), then the tool cameras, each failure its own line."""
@@ -116,6 +151,7 @@ async def _check_each_ur(settings: Settings, opening: Exception) -> DeviceCheck:
         except OPEN_ERRORS as err:
             check.errors["robot"] = _reason("robot", err)
     await _tool_cameras(settings, check)
+    await _room_alone(settings, check)
     return check
 
 
@@ -163,6 +199,7 @@ async def _check_each(settings: Settings, opening: Exception) -> DeviceCheck:
     except OPEN_ERRORS as err:
         check.errors["ir"] = _reason("ir", err)
     await _tool_cameras(settings, check)
+    await _room_alone(settings, check)
     if not check.errors:  # each opened alone: say what failed when they were opened together
         check.errors["devices"] = f"cannot open them together: {opening}"
     return check
@@ -185,7 +222,7 @@ def run_devices_check(args: argparse.Namespace) -> int:
     try:
         check = asyncio.run(_check(settings))
     except OPEN_ERRORS as err:  # one device did not open: check every device on its own
-        check = asyncio.run(_check_each(settings, err))
+        check = asyncio.run(_check_without(settings, err))
     if args.json:
         print(json.dumps(check.as_dict(), indent=2))
     else:

@@ -34,6 +34,8 @@ from drivers.base import (
     IrReading,
     Pose,
     Robot,
+    RoomReading,
+    RoomThermometer,
 )
 from drivers.deadline import bounded
 from drivers.errors import DeviceError
@@ -71,6 +73,8 @@ class DeviceCheck:
     tool_frames: list[tuple[str, Frame]] = field(default_factory=list)
     #: what a robot that describes itself reported (a UR: drivers/ur/describe.py)
     robot_facts: tuple[tuple[str, str], ...] = ()
+    #: the room thermometer's reading (room.driver; issue 29): None when none or it failed
+    room: RoomReading | None = None
     #: what was not checked and why (one line each; not a failure)
     notes: list[str] = field(default_factory=list)
 
@@ -107,6 +111,9 @@ class DeviceCheck:
                 },
             },
             "robot": self._robot_dict(),
+            "room": None
+            if self.room is None
+            else {"temperature_c": self.room.temperature_c, "sensor": self.room.sensor},
             "notes": list(self.notes),
             "errors": dict(self.errors),
         }
@@ -167,6 +174,7 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
     """Grab one frame (of every tool camera on an arm), read one IR image and the robot's
     pose; measure the spot."""
     check = DeviceCheck(regions=ir_regions(devices, settings))
+    await probe_room(getattr(devices, "room", None), settings, check)
     # a robot that describes itself (a UR, the only one today) plays its own program: a
     # followed run's devices, no spot camera or IR camera to probe
     if isinstance(devices.robot, DescribedRobot):
@@ -179,6 +187,27 @@ async def check_devices(devices: Devices, settings: Settings) -> DeviceCheck:
     await probe_ir(devices.ir, settings, check)
     await probe_robot(devices.robot, check)
     return check
+
+
+#: What the check says when no room thermometer is configured (room.driver none).
+NO_ROOM_NOTE = (
+    "room: no thermometer (room.driver none): the model holds model.ambient_c, and a room "
+    "that warms during a run is read as the robot heating (docs/how-to/identify-arm-model.md)"
+)
+
+
+async def probe_room(room: RoomThermometer | None, settings: Settings, check: DeviceCheck) -> None:
+    """One reading of the room thermometer (room.driver), into ``check``: a thermometer that
+    does not answer fails the check as any device does (a run would flag every step
+    room-error and hold the last room), none configured is a note."""
+    if room is None:
+        if settings.room.driver == "none" and settings.arm.enabled:  # the two-link has no room
+            check.notes.append(NO_ROOM_NOTE)
+        return
+    try:
+        check.room = await bounded(room.read(), "room", "reading", settings.room.read_timeout_s)
+    except (DeviceError, TimeoutError) as err:
+        check.errors["room"] = str(err) or "no reading within room.read_timeout_s"
 
 
 async def probe_camera(camera: Camera, settings: Settings, check: DeviceCheck) -> None:
@@ -304,6 +333,9 @@ def describe(check: DeviceCheck) -> list[str]:
     if robot is not None and "facts" in robot:
         lines.append(f"robot: {robot['link']}")
         lines.extend(f"robot: {name}: {fact}" for name, fact in robot["facts"].items())
+    room = data["room"]
+    if room is not None:
+        lines.append(f"room: {room['temperature_c']:.2f} degC ({room['sensor']})")
     lines.extend(data["notes"])
     lines.extend(f"{device}: FAILED: {error}" for device, error in data["errors"].items())
     return lines
