@@ -340,7 +340,7 @@ class IrObserver:
             return
         n = self._nodes
         transition = self._transition(tau)
-        with one_blas_thread():  # daemon/model/blas.py: threaded, these cost 16 ms each
+        with one_blas_thread(self._p.shape[0]):  # daemon/model/blas.py: 16 ms each threaded
             if self._response is not None:
                 self._predict_adapted(tau, transition)
                 self._start_c = self.model.temperatures_c
@@ -396,7 +396,7 @@ class IrObserver:
         state = np.concatenate([self.model.temperatures_c, self._offsets, self._theta, stand])
         z = np.array([measurements_c[self._region_names[k]] for k in used])
         innovation = z - h @ state
-        with one_blas_thread():  # daemon/model/blas.py
+        with one_blas_thread(self._p.shape[0]):  # daemon/model/blas.py
             hp = h @ self._p
             s = hp @ h.T + np.diag(self._noise_c2[used])
             gain = np.asarray(np.linalg.solve(s, hp).T, dtype=np.float64)
