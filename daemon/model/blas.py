@@ -2,11 +2,12 @@
 
 OpenBLAS runs a matrix product on several threads once its size passes a threshold, and
 that threshold lies inside the observers' sizes: on this project's 2-core machine under load
-an 88 x 88 product ``A @ B.T`` took ~16 ms of CPU on two threads against ~40 us on one
-(``A @ B`` of the same size stayed on one thread; 82 x 82 was the first threaded ``A @ B.T``,
-128 x 128 the first ``A @ B``): the waiting thread spins until its helper is scheduled. The
-UR's followed model with the links' bending has an 88-state Kalman filter (75 nodes, 6 joint
-offsets, 7 adapted factors): its step cost 29.9 ms of CPU instead of ~1.6 ms, all of it in
+an 88 x 88 product ``A @ B.T`` took ~16 ms of CPU on two threads against ~40 us on one (the
+waiting thread spins until its helper is scheduled). ``A @ B`` of that size stayed on one
+thread; of the sizes tried, 82 x 82 was the smallest threaded ``A @ B.T`` (80 x 80 was not),
+128 x 128 the smallest threaded ``A @ B`` (100 x 100 was not). The UR's followed model with
+the links' bending has an 88-state Kalman filter (75 nodes, 6 joint offsets, 7 adapted
+factors): its step cost 29.9 ms of CPU instead of ~1.6 ms on one thread, nearly all of it in
 those products (issue 31, docs/how-to/universal-robots.md).
 
 :func:`one_blas_thread` limits BLAS to one thread for a block of such work. The controller
