@@ -25,10 +25,10 @@ motors heating 60 % more (x1.6), convection halved (0.4 against the bench's 0.8)
 drifting +1 degC/h, the links' bending share 0.85 (the preset's 0.75), the wrist's three
 motors heating x0.6. The worst identified row is printed last.
 
-The model is config/ur5e-sim.toml's with arm.bending on (identification fits the bending
-share; the config leaves it off for its CPU cost) and the UR bench's room thermometer
-(room.driver sim: recorded each step, the model's ambient); ``--no-bending`` / ``--no-room``
-measure the model without them (what issue 31's closing note 5 measured).
+The model is config/ur5e-sim.toml's as shipped: arm.bending on (identification fits the
+bending share) and the UR bench's room thermometer (room.driver sim: recorded each step, the
+model's ambient); ``--no-bending`` / ``--no-room`` measure the model without them (what issue
+31's closing note 5 measured). The results record what the config gave.
 """
 
 from __future__ import annotations
@@ -213,12 +213,17 @@ def main() -> None:
     parser.add_argument("--name", default="ur_identify", help="the results file's name")
     args = parser.parse_args()
     hours = args.hours or (2.0 if args.quick else HOURS)
-    structure = Structure(bending=not args.no_bending, room=not args.no_room)
+    shipped = load_settings(CONFIG)
+    structure = Structure(
+        bending=shipped.arm.bending and not args.no_bending,
+        room=shipped.room.driver != "none" and not args.no_room,
+    )
     results: dict[str, Any] = {
         "hours": hours,
         "measure_every_s": MEASURE_EVERY_S,
         "bending": structure.bending,
         "room": structure.room,
+        "config": {"arm.bending": shipped.arm.bending, "room.driver": shipped.room.driver},
         "runs": [],
     }
     load_before = os.getloadavg()[0]

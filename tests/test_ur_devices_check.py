@@ -36,8 +36,10 @@ def on_host(host: str, **extra: str) -> dict[str, str]:
 
 
 def as_robot(host: str, **extra: str) -> dict[str, str]:
-    """The settings of a real UR at ``host``: no bench (the test runs the emulator)."""
-    return on_host(host, THERMOCOMP_BENCH__ENABLED="false", **extra)
+    """The settings of a real UR at ``host``: no bench (the test runs the emulator), and no
+    room thermometer (the bench's is refused off the bench; a lab's DS18B20, room.driver w1,
+    is not on this machine)."""
+    return on_host(host, THERMOCOMP_BENCH__ENABLED="false", THERMOCOMP_ROOM__DRIVER="none", **extra)
 
 
 async def check(env: dict[str, str], *args: str) -> tuple[int, str, str]:

@@ -39,6 +39,8 @@ from daemon.model.adaptation import (
     AdaptedParameter,
     ParameterResponse,
 )
+from daemon.model.blas import one_blas_thread
+from daemon.model.covariance import joseph_update, propagate_nodes
 from daemon.model.identify import observation_matrix
 from daemon.model.model import ModelError, NetworkModes, ThermalModel
 from daemon.model.network import FloatArray
@@ -338,14 +340,15 @@ class IrObserver:
             return
         n = self._nodes
         transition = self._transition(tau)
-        if self._response is not None:
-            self._predict_adapted(tau, transition)
-            self._start_c = self.model.temperatures_c
-            return
-        p = self._p
-        p[:n, :n] = transition @ p[:n, :n] @ transition.T + np.diag(self._q * tau)
-        p[:n, n:] = transition @ p[:n, n:]
-        p[n:, :n] = p[:n, n:].T
+        with one_blas_thread(self._p.shape[0]):  # daemon/model/blas.py: 16 ms each threaded
+            if self._response is not None:
+                self._predict_adapted(tau, transition)
+                self._start_c = self.model.temperatures_c
+                return
+            p = self._p
+            p[:n, :n] = transition @ p[:n, :n] @ transition.T + np.diag(self._q * tau)
+            p[:n, n:] = transition @ p[:n, n:]
+            p[n:, :n] = p[:n, n:].T
         self._start_c = self.model.temperatures_c
 
     def _predict_adapted(self, tau: float, transition: FloatArray) -> None:
@@ -360,9 +363,10 @@ class IrObserver:
             self._theta, model.heat_w, model.ambient_c, 0.5 * (self._start_c + nominal)
         )
         model.set_temperatures(nominal + gain @ drive)
-        jacobian = np.eye(self._p.shape[0])
-        jacobian[:n, :n] = transition + gain * d_temperature  # Gamma diag(d db / dT)
-        jacobian[:n, thetas] = gain @ columns
+        # the Jacobian [[a, b], [0, I]]: the offsets and log factors are constants
+        a = transition + gain * d_temperature  # Gamma diag(d db / dT)
+        b = np.zeros((n, self._p.shape[0] - n))
+        b[:, thetas.start - n : thetas.stop - n] = gain @ columns
         noise = np.zeros(self._p.shape[0])
         noise[:n] = self._q * tau
         noise[thetas] = self._theta_walk * tau
@@ -372,7 +376,7 @@ class IrObserver:
             # a camera servo rather than a model; constant, it is the least-squares gain of
             # the whole run so far
             noise[self._alpha] = 0.0
-        self._p = jacobian @ self._p @ jacobian.T + np.diag(noise)
+        self._p = propagate_nodes(self._p, n, a, b, noise)
 
     def update(self, measurements_c: Mapping[str, float]) -> Innovation | None:
         """Fuse one IR reading (region -> mean degC; unknown regions, NaN values and regions of
@@ -392,15 +396,14 @@ class IrObserver:
         state = np.concatenate([self.model.temperatures_c, self._offsets, self._theta, stand])
         z = np.array([measurements_c[self._region_names[k]] for k in used])
         innovation = z - h @ state
-        s = h @ self._p @ h.T + np.diag(self._noise_c2[used])
-        gain = np.linalg.solve(s, h @ self._p).T
-        state = state + gain @ innovation
-        # Joseph form: stays symmetric positive semi-definite whatever the rounding.
-        identity_minus = np.eye(state.size) - gain @ h
-        self._p = (
-            identity_minus @ self._p @ identity_minus.T
-            + gain @ np.diag(self._noise_c2[used]) @ gain.T
-        )
+        with one_blas_thread(self._p.shape[0]):  # daemon/model/blas.py
+            hp = h @ self._p
+            s = hp @ h.T + np.diag(self._noise_c2[used])
+            gain = np.asarray(np.linalg.solve(s, hp).T, dtype=np.float64)
+            state = state + gain @ innovation
+            # the Joseph form (right for any gain, not only the optimal one), expanded by
+            # its rank: m readings, products of rank m (daemon/model/covariance.py)
+            self._p = joseph_update(self._p, gain, h, hp, self._noise_c2[used])
         measured = len(self._region_names)
         self.model.set_temperatures(state[:n])
         self._start_c = state[:n].copy()
