@@ -14,8 +14,10 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
+from daemon.arm.motors import arm_motors, heat_from_current_w
 from daemon.run.states import RunState
 from daemon.service import Daemon
 from drivers.errors import ProtocolError
@@ -110,6 +112,40 @@ async def test_receive_interface_reads_pose_joints_temperatures_and_modes(ur_rtd
         assert state["safety_mode"] == SafetyMode.PROTECTIVE_STOP
         assert state["protective_stopped"]
         assert ur.rtde.sessions and ur.rtde.sessions[0].frequency_hz == 500.0
+
+
+async def test_receive_interface_reads_the_motion_a_followed_run_heats_with(
+    ur_rtde: UrRtde,
+) -> None:
+    """ur-rtde's getActualQd, getTargetQdd and getActualCurrent read the emulated arm's motion
+    (what a followed run's measured heat is computed from: drivers/ur/motion.py) with the
+    guide's semantics: the played program's joint speeds and accelerations at the package's
+    timestamp, and motor currents whose copper loss, with the motor's resistance and friction
+    (daemon/arm/motors.py heat_from_current_w), is the bench truth's heat of that motion."""
+    async with UREmulator(host=ur_rtde.host) as ur:
+        controller = ur.controller
+        motors = arm_motors(controller.arm)
+        moving = resting = 0
+        async with asyncio.timeout(ANSWER_TIMEOUT_S):
+            while moving < 3 or resting < 1:
+                answer = await ur_rtde.ask("motion")
+                t = answer["before"]
+                if answer["after"] != t:
+                    continue  # a package arrived between the getters
+                sample = controller.player.sample(t)
+                assert answer["qd"] == pytest.approx(list(sample.qd_rad_s), abs=1e-9)
+                assert answer["qdd"] == pytest.approx(list(sample.qdd_rad_s2), abs=1e-9)
+                current = np.array(answer["current"])
+                heat = heat_from_current_w(motors, sample.qd_rad_s, current)
+                truth = controller.bench.power(sample)
+                np.testing.assert_allclose(heat * controller.bench.heat_scales, truth, rtol=1e-6)
+                if np.any(np.abs(sample.qd_rad_s) > 0.05):
+                    moving += 1
+                else:
+                    resting += 1
+                    # at rest the shoulder and elbow motors hold the arm against gravity
+                    assert abs(current[1]) > 0.1 and abs(current[2]) > 0.1
+                await asyncio.sleep(0.05)
 
 
 async def test_io_interface_writes_the_upper_input_registers(ur_rtde: UrRtde) -> None:

@@ -11,6 +11,14 @@ JACOBIAN_REUSE_RAD since the last one
 exact at the poses where the program dwells and the tool is measured). ``actual_TCP_pose`` is
 the forward kinematics of those joints (the nominal arm: what the controller believes).
 
+``actual_current`` is each joint motor's current for the motion the emulated arm makes, on the
+bench truth's arm (its motors, friction and payload: drivers/sim/arm_physics.py
+motor_current): the current whose copper loss heats the truth's joints, as a real UR's
+"Actual joint currents" are its motors' (ASSUMED: the RTDE guide says no more). Computed at
+the program's nominal joints (the offset's joint delta, microradians, changes no torque), and
+only for a recipe that asks for it: ~0.4 ms per package while the arm moves (the torque of
+one sample through daemon/arm/motors.py), reused while it rests.
+
 Joint temperatures come from the arm bench's thermal truth (drivers/sim/arm_bench.py) heated
 by the motion the emulated arm really made, read like a sensor: Gaussian noise of
 TEMPERATURE_NOISE_C and a resolution of TEMPERATURE_RESOLUTION_C (both ESTIMATES: UR publishes
@@ -33,6 +41,8 @@ from daemon.arm.loading import load_arm
 from daemon.arm.types import FloatArray
 from drivers.sim.arm_bench import DEFAULT_MARKERS_MM, ArmBench, ArmBenchConfig
 from drivers.sim.arm_markers import CameraRig
+from drivers.sim.arm_motion import PowerFunction
+from drivers.sim.arm_physics import motor_current
 from drivers.sim.joint_arm import JointArm, JointArmConfig
 from drivers.sim.ur.player import PlayerState, ProgramPlayer
 from drivers.sim.ur.program import OffsetProgram, ProgramInputs, ProgramLimits, holds_dwell
@@ -137,6 +147,8 @@ class URController:
         self._jacobian: FloatArray = np.eye(6)
         self._state_t: float | None = None
         self._state: tuple[FloatArray, FloatArray, FloatArray] = (np.zeros(6),) * 3
+        self._current: tuple[tuple[float, ...] | None, tuple[float, ...]] = (None, ())
+        self._current_of: tuple[ArmBench | None, PowerFunction | None] = (None, None)
         self._temperatures_t = -math.inf
         self._temperatures: tuple[float, ...] = (self.bench.config.ambient_c,) * 6
         #: config.waits_for_frames, switchable while it runs (a test's program taught without)
@@ -269,6 +281,23 @@ class URController:
         twist = self._jacobian_at(q) @ qd
         return (*(float(v) / 1000.0 for v in twist[:3]), *(float(v) for v in twist[3:]))
 
+    def joint_currents(self, t_s: float) -> tuple[float, ...]:
+        """actual_current: each joint motor's current (A) now (module docstring), on the
+        truth's arm (a bench replaced after the start, benchmarks/ur_recorded.py: its own);
+        the last value again while the arm's motion sample is the same (at rest)."""
+        sample = self.player.sample(t_s)
+        key = (*sample.q_rad, *sample.qd_rad_s, *sample.qdd_rad_s2)
+        bench, current = self._current_of
+        if bench is not self.bench or current is None:
+            current = motor_current(self.bench.true_arm, self.bench.config.payload_kg)
+            self._current_of = (self.bench, current)
+            self._current = (None, ())
+        if self._current[0] == key:
+            return self._current[1]
+        values = tuple(float(v) for v in current(sample))
+        self._current = (key, values)
+        return values
+
     def joint_temperatures(self, t_s: float) -> tuple[float, ...]:
         """The joints' temperatures as the controller's sensors read them (degC)."""
         step = self.bench.config.truth_step_s
@@ -329,7 +358,9 @@ _GETTERS: dict[str, Getter] = {
     "actual_q": lambda c, t: _vector(c.joint_state(t)[0]),
     "target_q": lambda c, t: _vector(c.joint_state(t)[0]),
     "actual_qd": lambda c, t: _vector(c.joint_state(t)[1]),
+    "actual_current": lambda c, t: c.joint_currents(t),
     "target_qd": lambda c, t: _vector(c.joint_state(t)[1]),
+    "target_qdd": lambda c, t: _vector(c.player.sample(t).qdd_rad_s2),
     "actual_TCP_pose": lambda c, t: c.tcp_pose(t),
     "target_TCP_pose": lambda c, t: c.tcp_pose(t),
     "actual_TCP_speed": lambda c, t: c.tcp_speed(t),
