@@ -1,0 +1,187 @@
+"""A followed run's motor heat from the motion the robot actually made (issue 31, arm.heat_from
+``measured``: drivers/ur/motion.py, daemon/run/followed/heat.py), against the duty cycle's.
+
+Through the daemon on the UR bench (the emulated controller over RTDE on a loopback address of
+the test's own): the program paused by the Dashboard's ``pause`` holds the arm at rest, and the
+steps of the pause record the heat of an arm at rest -- the bench truth's own heat of that rest,
+to the truth's motor factors -- where the duty cycle would have heated the model with the
+program's motion. The recorded heat then feeds identification
+(daemon/commands/followed_identify.py) after a restart; ur-rtde's own client reads the fields
+the heat comes from (tests/test_ur_rtde_clients.py).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import sqlite3
+from contextlib import closing
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from daemon.arm.heat import JointHeatProfile
+from daemon.arm.loading import load_arm
+from daemon.arm.types import JointSample
+from daemon.commands.followed_identify import load_followed_run
+from daemon.run.followed.heat import RecordedHeat, parse_heat_json
+from daemon.run.states import RunState
+from daemon.service import Daemon
+from daemon.storage.recorder import DATABASE_NAME, Recorder
+from daemon.storage.step_record import StepRecord
+from drivers.ur.dashboard_client import DashboardClient
+from drivers.ur.modes import RuntimeState
+from tests.fakes import params
+from tests.loopback import loopback_host
+from tests.test_ur_program_pause import emulator_of, until, ur_settings
+
+#: How long the program stays paused (s): tens of 10 Hz steps.
+PAUSE_S = 2.0
+#: The measured heat of the arm at rest against the truth's (times its motor factors): the
+#: model's torques are the nominal arm's, the truth's its own geometry (0.2 mm, 0.2 mrad
+#: errors: 0.3-0.6 % of the shoulder's and elbow's holding torque's square)
+REST_RTOL = 0.01
+REST_ATOL_W = 1e-3
+
+
+def moving(sample: JointSample) -> bool:
+    return bool(np.max(np.abs(sample.qd_rad_s)) > 0.2)
+
+
+def _heat_rows(data_dir: Path, run_id: int) -> list[tuple[float, float, np.ndarray[Any, Any]]]:
+    path = data_dir / DATABASE_NAME
+    with closing(sqlite3.connect(path)) as db:
+        texts = [
+            row[0]
+            for row in db.execute(
+                "SELECT heat_json FROM steps WHERE run_id = ? ORDER BY step", (run_id,)
+            )
+        ]
+    rows = [parse_heat_json(text, 6) for text in texts]
+    return [row for row in rows if row is not None]
+
+
+@pytest.mark.slow
+async def test_a_paused_program_heats_the_model_as_the_arm_at_rest(tmp_path: Path) -> None:
+    """The Dashboard's pause mid-run: the steps of the pause record the heat of the arm at
+    rest (times the truth's motor factors, the truth's own heat of that rest to 1 %), and
+    the duty cycle's heat over the same steps -- the reference -- is far from it; the model's
+    controller advanced with the recorded heat."""
+    host = loopback_host()
+    settings = ur_settings(tmp_path, host)
+    async with Daemon(settings) as daemon:
+        emulator = emulator_of(daemon)
+        controller = emulator.controller
+        started = await daemon.start_run(params(settings))
+        await daemon.wait_state(RunState.RUNNING)
+        run_id = int(started["id"])
+        writes = controller.writes[controller.registers.target[0]]
+        await until(lambda: controller.writes[controller.registers.target[0]] >= writes + 10, "")
+        # paused mid-move: the arm halts where no taught dwell holds it
+        await until(lambda: moving(controller.player.sample(emulator.now())), "a move")
+        dashboard = DashboardClient(host, emulator.dashboard_port, 5.0)
+        await dashboard.pause()
+        assert controller.runtime_state is RuntimeState.PAUSED
+        paused_at = emulator.now()
+        rest = controller.player.sample(paused_at)
+        await asyncio.sleep(PAUSE_S)
+        await dashboard.play()
+        await asyncio.sleep(1.0)
+        truth_rest_w = controller.bench.power(rest)
+        scales = controller.bench.heat_scales
+        await daemon.stop()
+    rows = _heat_rows(tmp_path / "data", run_id)
+    assert len(rows) > 30
+    at_rest = [
+        (start, end, power)
+        for start, end, power in rows
+        if np.allclose(power * scales, truth_rest_w, rtol=REST_RTOL, atol=REST_ATOL_W)
+    ]
+    # every step inside the pause (its first and last may share the motion around it)
+    steps = PAUSE_S / settings.scheduler.step_s
+    assert len(at_rest) >= steps - 4, (len(at_rest), steps)
+    profile = JointHeatProfile.from_duty(
+        load_arm(settings.arm.arm_file),
+        emulator.controller.duty,
+        resolution_s=settings.arm.motion_dt_s,
+    )
+    measured_error = duty_error = 0.0
+    for start, end, power in at_rest:
+        duty = profile.step_power_w(start, end)
+        measured_error += float(np.abs(power * scales - truth_rest_w).sum())
+        duty_error += float(np.abs(duty * scales - truth_rest_w).sum())
+    # the duty cycle moves the base and wrists, which do no work at rest: watts off per step
+    assert duty_error > 0.5 * len(at_rest), duty_error / len(at_rest)
+    assert measured_error < 0.02 * duty_error
+    # the steps outside the pause heat as the moving program (not the rest)
+    assert any(power[0] > 0.1 for _, _, power in rows), "the base joint never moved"
+    assert not math.isclose(sum(p.sum() for _, _, p in rows), len(rows) * truth_rest_w.sum())
+
+
+def _recorded_run(data_dir: Path, heat_rows: list[tuple[float, float, list[float]]]) -> int:
+    """A followed run's steps with joint temperatures, two camera measurements and the given
+    recorded heat, written by the recorder (then closed: a daemon restarted reads it)."""
+    with Recorder(data_dir) as recorder:
+        run_id = recorder.create_run(
+            {"duty_cycle": "ur5e-pick-and-place", "time_scale": 1.0},
+            {"robot": {"driver": "ur-rtde"}, "arm": {"enabled": True, "arm_file": "ur5e"}},
+            {"kind": "followed"},
+            "test",
+            kind="followed",
+        )
+        for step, (start, end, power) in enumerate(heat_rows):
+            record = StepRecord(
+                run_id=run_id, step=step, scheduled_s=end, actual_s=end, lateness_s=0.0
+            )
+            record.ir_json = json.dumps({f"joint{k + 1}": {"mean_c": 22.0} for k in range(6)})
+            record.heat_json = json.dumps({"from_s": start, "to_s": end, "joint_w": power})
+            if step in (1, len(heat_rows) - 1):  # two measurements at the camera pose (1)
+                record.arm_pose = "1"
+                record.measured_tx_um = record.measured_ty_um = record.measured_tz_um = 0.0
+                record.correction_tx_mm = record.correction_ty_mm = 0.0
+                record.correction_tz_mm = 0.0
+            recorder.write_step(record)
+        recorder.finish_run(run_id, "finished", {"kind": "followed"}, None)
+    return run_id
+
+
+def test_the_recorded_heat_survives_a_restart_and_feeds_identification(tmp_path: Path) -> None:
+    """Steps recorded with their measured heat (a pause in the middle: nothing but the
+    shoulder's and elbow's holding heat for 400 s), the recorder closed and the run read back
+    as `calibrate model` reads a followed run: identification's heat per 20-s step is the
+    recorded one (exactly its time-weighted mean), not the duty cycle's; before the first
+    recorded step the duty cycle's fills in."""
+    data = tmp_path / "data"
+    moving = [3.0, 9.0, 7.0, 1.0, 0.2, 0.1]
+    resting = [0.0, 1.5, 6.0, 0.8, 0.0, 0.0]
+    rows: list[tuple[float, float, list[float]]] = []
+    t = 40.0  # the first 40 s: no record (the duty cycle's)
+    while t < 1200.0:
+        power = resting if 400.0 <= t < 800.0 else moving
+        rows.append((t, t + 10.0, power))
+        t += 10.0
+    run_id = _recorded_run(data, rows)
+    with Recorder(data):  # a restarted daemon opens the database again (its migration)
+        pass
+    run = load_followed_run(
+        data,
+        run_id,
+        {"duty_cycle": "ur5e-pick-and-place", "time_scale": 1.0},
+        {"robot": {"driver": "ur-rtde"}, "arm": {"enabled": True, "arm_file": "ur5e"}},
+    )
+    heat = run.data.joint_heat_w
+    step = run.data.heat_step_s
+    assert isinstance(run.controller.heat, RecordedHeat)
+    duty = run.controller.heat.fallback
+    for k in range(len(heat)):
+        t0, t1 = k * step, (k + 1) * step
+        if t1 <= 40.0:
+            np.testing.assert_allclose(heat[k], duty.step_power_w(t0, t1))
+        elif t0 >= 400.0 and t1 <= 800.0:
+            np.testing.assert_allclose(heat[k], resting)
+            assert np.abs(duty.step_power_w(t0, t1) - resting).sum() > 1.0
+        elif t0 >= 40.0 and t1 <= 400.0:
+            np.testing.assert_allclose(heat[k], moving)
