@@ -148,6 +148,31 @@ async def test_receive_interface_reads_the_motion_a_followed_run_heats_with(
                 await asyncio.sleep(0.05)
 
 
+@pytest.mark.slow
+async def test_io_interface_sets_the_speed_slider_the_program_plays_at(ur_rtde: UrRtde) -> None:
+    """ur-rtde's setSpeedSlider(0.5) reaches the emulated controller (speed_slider_mask and
+    _fraction): getSpeedScaling reads 0.5 and the program's moves from then on run at most at
+    half their taught joint speeds (the arm still moves: a followed run's measured heat is
+    that slower motion's)."""
+    async with UREmulator(host=ur_rtde.host) as ur:
+        controller = ur.controller
+        assert (await ur_rtde.ask("slider 0.5"))["ok"]
+        await settle(ur, 0.05)
+        assert controller.player.speed_fraction == 0.5
+        assert (await ur_rtde.ask("motion"))["speed_scaling"] == 0.5
+        await settle(ur, 2.5)  # the move in progress (at full speed) is over
+        start = ur.now()
+        await settle(ur, 8.0)  # more than one slowed cycle's moves
+        duty = controller.duty
+        limit = np.asarray(duty.max_speed_rad_s) * max(pose.speed for pose in duty.poses)
+        times = np.arange(start, ur.now(), 0.005)
+        ratio = max(
+            float(np.max(np.abs(controller.player.sample(float(t)).qd_rad_s) / limit))
+            for t in times
+        )
+        assert 0.2 < ratio <= 0.5 + 1e-9, ratio
+
+
 async def test_io_interface_writes_the_upper_input_registers(ur_rtde: UrRtde) -> None:
     async with UREmulator(host=ur_rtde.host) as ur:
         assert (await ur_rtde.ask("io_int 42 7"))["ok"]

@@ -19,6 +19,10 @@ the program's nominal joints (the offset's joint delta, microradians, changes no
 only for a recipe that asks for it: ~0.4 ms per package while the arm moves (the torque of
 one sample through daemon/arm/motors.py), reused while it rests.
 
+The speed slider (RTDE inputs ``speed_slider_mask`` = 1 and ``speed_slider_fraction``, as
+ur-rtde's ``setSpeedSlider`` writes them) slows the played program (drivers/sim/ur/player.py);
+``speed_scaling`` and ``target_speed_fraction`` report it.
+
 Joint temperatures come from the arm bench's thermal truth (drivers/sim/arm_bench.py) heated
 by the motion the emulated arm really made, read like a sensor: Gaussian noise of
 TEMPERATURE_NOISE_C and a resolution of TEMPERATURE_RESOLUTION_C (both ESTIMATES: UR publishes
@@ -59,6 +63,8 @@ from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_protocol import CONTROLLER_CYCLE_S, DataType, Value
 
 JACOBIAN_REUSE_RAD = 5e-3
+#: The slowest the speed slider plays the program (a fraction of 0 would never end a move).
+MIN_SPEED_FRACTION = 0.01
 #: Every this many controller cycles (0.1 s) the thermal truth follows the arm's motion
 #: (ArmBench.follow_motion: ~0.7 ms for 10 motion samples), so that its 2-s step never
 #: samples a whole step of motion inside one 2-ms cycle (~6 ms: three cycles late, and every
@@ -220,6 +226,10 @@ class URController:
         self.time_s = t_s
         self.cycles += 1
         regs = self.registers
+        fraction = self.inputs.get("speed_slider_fraction")
+        if self.inputs.get("speed_slider_mask") == 1 and isinstance(fraction, float):
+            # the guide: with its mask set, the fraction is the speed slider's
+            self.player.speed_fraction = min(1.0, max(MIN_SPEED_FRACTION, fraction))
         if self.player.state is PlayerState.PLAYING:
             self.player.advance(t_s)
         if self.cycles % TRUTH_FOLLOW_CYCLES == 0:
@@ -372,8 +382,8 @@ _GETTERS: dict[str, Getter] = {
     "runtime_state": lambda c, t: int(c.runtime_state),
     "robot_status_bits": lambda c, t: _robot_bits(c),
     "safety_status_bits": lambda c, t: _safety_bits(c),
-    "speed_scaling": lambda c, t: 1.0,
-    "target_speed_fraction": lambda c, t: 1.0,
+    "speed_scaling": lambda c, t: c.player.speed_fraction,
+    "target_speed_fraction": lambda c, t: c.player.speed_fraction,
     "actual_execution_time": lambda c, t: 0.1,
     "joint_mode": lambda c, t: (253,) * 6,  # JOINT_RUNNING_MODE
     "actual_main_voltage": lambda c, t: 48.0,
