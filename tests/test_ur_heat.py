@@ -29,15 +29,17 @@ import pytest
 from benchmarks.ur_recorded import emulated, record_calibration_run
 from daemon.arm.heat import JointHeatProfile
 from daemon.arm.loading import load_arm
+from daemon.arm.motors import joint_heat_batch_w
 from daemon.arm.types import JointSample
 from daemon.commands.followed_identify import load_followed_run
-from daemon.run.followed.heat import RecordedHeat, parse_heat_json
+from daemon.run.followed.heat import MeasuredHeat, RecordedHeat, parse_heat_json
 from daemon.run.states import RunState
 from daemon.service import Daemon
 from daemon.storage.recorder import DATABASE_NAME, Recorder
 from daemon.storage.step_record import StepRecord
 from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.modes import RuntimeState
+from drivers.ur.motion import MotionSamples
 from tests.fakes import params
 from tests.helpers import run_main
 from tests.loopback import loopback_host
@@ -245,3 +247,57 @@ def test_identification_of_a_paused_program_recovers_the_truths_heat(tmp_path: P
         errors[label] = max(abs(heat[f"heat:{j}"] / truth_scales[j - 1] - 1.0) for j in (1, 2, 3))
     assert errors["measured"] < 0.08, errors
     assert errors["duty-cycle"] > max(0.15, 2.0 * errors["measured"]), errors
+
+
+class _Constant:
+    """A fallback heat source of constant power."""
+
+    def __init__(self, power: list[float]) -> None:
+        self.power = np.array(power)
+
+    def step_power_w(self, t0_s: float, t1_s: float) -> np.ndarray[Any, Any]:
+        return self.power.copy()
+
+
+def test_recorded_heat_is_the_time_weighted_record_and_the_fallback_in_its_gaps() -> None:
+    record = RecordedHeat(_Constant([1.0, 0.0]), 2)
+    record.hold(10.0, 20.0, [3.0, 1.0])
+    record.hold(20.0, 30.0, [5.0, 2.0])
+    record.hold(40.0, 50.0, [7.0, 4.0])  # a gap 30-40 s: the fallback's
+    np.testing.assert_allclose(record.step_power_w(40.0, 50.0), [7.0, 4.0])  # as held
+    np.testing.assert_allclose(record.step_power_w(15.0, 25.0), [4.0, 1.5])
+    expected = (5 * 1.0 + 10 * 3.0 + 10 * 5.0 + 10 * 1.0 + 10 * 7.0 + 10 * 1.0) / 55.0
+    assert record.step_power_w(5.0, 60.0)[0] == pytest.approx(expected)
+    assert record.covered_s == 30.0
+    with pytest.raises(ValueError, match="before the last one's end"):
+        record.hold(45.0, 55.0, [1.0, 1.0])
+    with pytest.raises(ValueError, match="finite joint powers"):
+        record.hold(50.0, 60.0, [math.nan, 1.0])
+
+
+def test_measured_heat_of_the_played_cycle_is_the_duty_cycles_heat() -> None:
+    """The packages of the taught cycle played without pauses (125 Hz, as the UR bench's
+    driver receives them) give the duty cycle's own heat per joint over whole cycles (the
+    same motor model); a gap in the packages holds the heat of the package after it; a
+    controller clock that goes back restarts the integration."""
+    controller = emulated(1, {})
+    arm, duty = controller.arm, controller.duty
+    heat = MeasuredHeat(arm, duty.payload_kg)
+    times = np.arange(0.0, 3 * duty.period_s + 1e-9, 1 / 125)
+    q, qd, qdd = duty.state(times)
+    heat.add(MotionSamples(times, q, qd, qdd))
+    mean = heat.take_mean_w()
+    assert mean is not None
+    profile = JointHeatProfile.from_duty(arm, duty, resolution_s=0.005)
+    np.testing.assert_allclose(mean, profile.mean_power_w, rtol=2e-3, atol=1e-6)
+    # 30 s without packages, then the arm at rest: the gap is the rest's heat
+    rest_t = np.array([times[-1] + 30.0, times[-1] + 30.5])
+    rest = np.repeat(q[-1:], 2, axis=0)
+    still = np.zeros_like(rest)
+    heat.add(MotionSamples(rest_t, rest, still, still))
+    rest_w = heat.take_mean_w()
+    assert rest_w is not None and heat.gaps == 1
+    expected = joint_heat_batch_w(arm, rest[:1], still[:1], still[:1], payload_kg=duty.payload_kg)
+    np.testing.assert_allclose(rest_w, expected[0], rtol=1e-9, atol=1e-12)
+    heat.add(MotionSamples(np.array([1.0]), rest[:1], still[:1], still[:1]))
+    assert heat.clock_resets == 1

@@ -114,6 +114,7 @@ async def test_receive_interface_reads_pose_joints_temperatures_and_modes(ur_rtd
         assert ur.rtde.sessions and ur.rtde.sessions[0].frequency_hz == 500.0
 
 
+@pytest.mark.slow
 async def test_receive_interface_reads_the_motion_a_followed_run_heats_with(
     ur_rtde: UrRtde,
 ) -> None:

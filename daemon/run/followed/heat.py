@@ -14,6 +14,11 @@ controller's HeatSource). A package at rest heats by the copper loss of holding 
 against gravity (the motors hold a paused UR; a real controller's brakes engage only when it
 powers the arm off, not modelled).
 
+A gap in the packages (the driver's log keeps drivers/ur/motion.py KEEP_S, 10 s: a run held
+longer, whose program the hold paused) holds the heat of the first package after it: the arm's
+state when the run resumes (at rest, on a program paused by the hold), not a ramp from the
+motion before it.
+
 The step's heat is recorded (``heat_json``: the model's interval and each joint's mean W), and
 ``calibrate model`` on a followed run reads it back into the same :class:`RecordedHeat`
 (daemon/commands/followed_identify.py), so identification sees the heat the run saw.
@@ -41,6 +46,9 @@ DUTY_CYCLE = "duty-cycle"
 #: The segments a live run keeps (its model only asks for the last one, the adaptation for
 #: the last ADAPTATION_STEP_S): 4096 steps of 0.1 s, 7 minutes.
 LIVE_SEGMENTS = 4096
+#: Packages further apart than this (s of the controller's clock) leave a gap: the heat over it
+#: is the later package's (MeasuredHeat.add).
+GAP_S = 1.0
 #: Two intervals' ends closer than this (s of arm time) are the same instant.
 SAME_TIME_S = 1e-9
 
@@ -136,6 +144,8 @@ class MeasuredHeat:
         self.packages = 0
         #: times the controller's clock went back (a restarted controller): the meter restarted
         self.clock_resets = 0
+        #: gaps of more than GAP_S between two packages (module docstring)
+        self.gaps = 0
 
     def add(self, samples: MotionSamples) -> None:
         if len(samples) == 0:
@@ -150,10 +160,16 @@ class MeasuredHeat:
         )
         for t, row in zip(samples.times_s, power, strict=True):
             time_s = float(t)
-            if self._last_time is not None and time_s < self._last_time:
+            last = self._last_time
+            if last is not None and time_s < last:
                 # a new controller clock: the heat since its start is this package's onwards
                 self.clock_resets += 1
                 self._meter = HeatMeter(self.joints)
+            elif last is not None and time_s - last > GAP_S:
+                # packages lost (the driver's log keeps KEEP_S: a run held longer, its program
+                # paused on the hold): the gap holds this package's heat, not a ramp to it
+                self.gaps += 1
+                self._meter.add(last, row)
             self._meter.add(time_s, row)
             self._last_time = time_s
         self.packages += len(samples)
@@ -199,6 +215,7 @@ def parse_heat_json(text: str | None, joints: int) -> tuple[float, float, FloatA
 
 __all__ = [
     "DUTY_CYCLE",
+    "GAP_S",
     "LIVE_SEGMENTS",
     "MEASURED",
     "FollowedHeat",
@@ -213,16 +230,19 @@ __all__ = [
 class FollowedHeat:
     """A followed run's measured heat (module docstring): the robot's motion log, the heat of
     its packages and the record the model's controller reads its heat from.
-    :meth:`on` makes the record ``controller``'s heat source (the duty cycle's as fallback)."""
+    :meth:`on` makes the record ``controller``'s heat source (the duty cycle's as fallback).
+    ``feed`` None: the caller passes the packages to :meth:`hold` itself (a replay)."""
 
-    def __init__(self, feed: MotionFeed, measured: MeasuredHeat, record: RecordedHeat) -> None:
+    def __init__(
+        self, feed: MotionFeed | None, measured: MeasuredHeat, record: RecordedHeat
+    ) -> None:
         self.feed = feed
         self.measured = measured
         self.record = record
 
     @classmethod
     def on(
-        cls, controller: ArmController, feed: MotionFeed, keep: int | None = LIVE_SEGMENTS
+        cls, controller: ArmController, feed: MotionFeed | None, keep: int | None = LIVE_SEGMENTS
     ) -> FollowedHeat:
         record = RecordedHeat(controller.heat, len(controller.arm.joints), keep=keep)
         controller.heat = record
@@ -231,7 +251,7 @@ class FollowedHeat:
 
     def take(self) -> MotionSamples:
         """The packages since the last take (on the event loop: the driver's log is its)."""
-        return self.feed.take_motion()
+        return MotionSamples.empty() if self.feed is None else self.feed.take_motion()
 
     def hold(self, samples: MotionSamples, start_s: float, end_s: float) -> str | None:
         """On the model's worker, before its advance from ``start_s`` to ``end_s``: the
@@ -251,4 +271,5 @@ class FollowedHeat:
             "from": MEASURED,
             "packages": self.measured.packages,
             "clock_resets": self.measured.clock_resets,
+            "gaps": self.measured.gaps,
         }

@@ -137,6 +137,8 @@ class URController:
         self.inputs: dict[str, Value] = {
             name: _zero(t) for name, t in names.INPUTS.items() if "register" in name
         }
+        # the speed slider (module docstring): at full speed until a client sets it
+        self.inputs.update(speed_slider_mask=0, speed_slider_fraction=1.0)
         self.outputs: dict[str, Value] = {
             name: _zero(names.OUTPUTS[name]) for name in self.registers.outputs
         }
