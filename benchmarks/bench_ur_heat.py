@@ -12,7 +12,8 @@ On an ACCELERATED clock (benchmarks/ur_recorded.py, as bench_ur_identify.py), pe
    model alone (no joint temperatures) on each heat; the preset + joint temperatures on each
    heat; each identified model + joint temperatures on its own heat; and the truth's own
    factors + joint temperatures on the measured heat (the reference: what the model's
-   structure allows).
+   structure allows), and the truth's own factors alone (no joint temperatures) on each heat:
+   the heat source's effect with nothing to absorb it.
 
 Removal = 1 - rms(residual) / rms(uncompensated) over the last half of the day (a warm arm).
 The identified heat factors are printed beside the truth's. Scenarios: the nominal bench
@@ -132,6 +133,15 @@ def one(
                     settings_in(measured_dir, "measured"),
                     "truth",
                 ),
+                # the heat alone, without the joint temperatures to absorb its error
+                "truth's factors, model only, measured heat": (
+                    settings_in(measured_dir, "measured", "model"),
+                    "truth",
+                ),
+                "truth's factors, model only, duty-cycle heat": (
+                    settings_in(measured_dir, "duty-cycle", "model"),
+                    "truth",
+                ),
             },
             controller,
             hours=hours,
@@ -158,6 +168,7 @@ def main() -> None:
     parser.add_argument("--hours", type=float, help=f"default {HOURS:g}")
     parser.add_argument("--pause", type=float, nargs=2, metavar=("FROM_H", "TO_H"))
     parser.add_argument("--name", default="ur_heat", help="the results file's name")
+    parser.add_argument("--only", help="run only the scenarios whose name contains this")
     parser.add_argument(
         "--bending", action="store_true", help="arm.bending on (the share identified too)"
     )
@@ -174,6 +185,8 @@ def main() -> None:
     }
     table = []
     for name, seed, truth in scenarios(args.quick):
+        if args.only and args.only not in name:
+            continue
         r = one(name, seed, truth, hours, (pause_h[0], pause_h[1]))
         results["runs"].append(r)
         for row, v in r["rows"].items():

@@ -7,6 +7,8 @@ and program modes, and the program's registers: at which measured pose it is, wh
 it accepted, its status, the offset it applies) at robot.rtde_frequency_hz, and writes the
 correction, a sequence number and a hold flag into the input registers
 (drivers/ur/registers.py) on every correction and at least every robot.ur_heartbeat_s.
+Every state package's joints, speeds and target accelerations also go into a bounded log
+(drivers/ur/motion.py, :meth:`URRobot.take_motion`): a followed run's motor heat.
 
 **The hold** (drivers.base.Robot's contract, drivers/permit.py). :meth:`URRobot.stop` holds
 from the moment it is called: the permit is held and the hold flag written to the controller
