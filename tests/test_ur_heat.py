@@ -101,7 +101,11 @@ async def test_a_paused_program_heats_the_model_as_the_arm_at_rest(tmp_path: Pat
         await asyncio.sleep(1.0)
         truth_rest_w = controller.bench.power(rest)
         scales = controller.bench.heat_scales
-        await daemon.stop()
+        final = await daemon.stop()
+    summary = final["summary"]["heat"]
+    # 125 packages a second over the run's ~4 s; none lost, the clock never went back
+    assert summary["from"] == "measured" and summary["packages"] > 300, summary
+    assert summary["gaps"] == 0 and summary["clock_resets"] == 0, summary
     rows = _heat_rows(tmp_path / "data", run_id)
     assert len(rows) > 30
     at_rest = [
