@@ -17,6 +17,12 @@ measures every dwell); between measurements one step per ``record_every_s`` carr
 temperatures (the daemon records every step). With a room thermometer (room.driver not none:
 the bench's, drivers/sim/ur/room.py) every recorded step carries its reading (``room_c``), as
 the followed run records it, and the replayed models follow it (follow_room).
+
+The motor heat (arm.heat_from): with ``measured`` every recorded step carries the heat of the
+motion the emulated arm made since the last one (``heat_json``: the program's joints sampled
+every HEAT_SAMPLE_S, as the driver's log of RTDE packages, through the followed run's own
+daemon/run/followed/heat.py), and a replayed model with that setting advances on it. ``pauses``
+((start s, end s) of emulator time) pause the program as the Dashboard's ``pause`` does.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ from daemon.arm.correction import correction_for
 from daemon.arm.run import ToolMeasurement
 from daemon.arm.types import FloatArray, pose_difference
 from daemon.run.arm.measure import pose_sigmas
+from daemon.run.followed.heat import MEASURED, FollowedHeat, MeasuredHeat, heat_json
 from daemon.run.followed.kind import FollowedKind
 from daemon.run.followed.measure import DwellMeasurement
 from daemon.run.followed.setup import followed_model
@@ -45,13 +52,57 @@ from daemon.storage.step_record import StepRecord
 from drivers.base import OffsetRobotState
 from drivers.sim.arm_bench import ArmBench
 from drivers.sim.ur.controller import URController, URControllerConfig
+from drivers.sim.ur.player import PlayerState
 from drivers.ur.modes import RobotMode, RuntimeState, SafetyMode
+from drivers.ur.motion import MotionSamples
 
 #: The longest a dwell's measurement is waited for (s, wall): the bench's frames and fit take
 #: well under a second; a hang fails the recording instead of blocking it.
 MEASURE_WAIT_S = 60.0
 
 UM_PER_MM = 1000.0
+#: The program's motion sampled for the measured heat (s): the driver logs 125-500 packages a
+#: second; 20 a second keeps the heat of the UR5e program's moves within 0.2 % (the
+#: closing note's 0.1 % at 125 Hz, 0.9 % at 10 Hz) at a tenth of the CPU.
+HEAT_SAMPLE_S = 0.05
+
+Pauses = tuple[tuple[float, float], ...]
+
+
+class ProgramMotion:
+    """The played program's motion since the last take, sampled every ``dt_s`` up to the
+    emulator time the caller has advanced the program to (a drivers/ur/motion.py log)."""
+
+    def __init__(self, controller: URController, dt_s: float = HEAT_SAMPLE_S) -> None:
+        self.controller = controller
+        self.dt_s = dt_s
+        self._next_s = 0.0
+
+    def take(self, until_s: float) -> MotionSamples:
+        times = np.arange(self._next_s, until_s + 1e-9, self.dt_s)
+        if not len(times):
+            return MotionSamples.empty()
+        self._next_s = float(times[-1]) + self.dt_s
+        samples = [self.controller.player.sample(float(t)) for t in times]
+        return MotionSamples(
+            times,
+            np.array([s.q_rad for s in samples]),
+            np.array([s.qd_rad_s for s in samples]),
+            np.array([s.qdd_rad_s2 for s in samples]),
+        )
+
+
+def follow_pauses(controller: URController, t_s: float, pauses: Pauses) -> None:
+    """The program paused while ``t_s`` is in one of ``pauses``, playing otherwise (the
+    Dashboard's pause and play at ``t_s``); then played up to ``t_s``."""
+    player = controller.player
+    paused = any(start <= t_s < end for start, end in pauses)
+    if paused and player.state is PlayerState.PLAYING:
+        player.advance(t_s)
+        player.pause(t_s)
+    elif not paused and player.state is PlayerState.PAUSED:
+        player.play(t_s)
+    player.advance(t_s)
 
 
 def emulated(seed: int, truth: dict[str, Any]) -> URController:
@@ -119,9 +170,17 @@ def record_calibration_run(
     step_s: float = 0.25,
     measure_every_s: float = 120.0,
     record_every_s: float = 20.0,
+    pauses: Pauses = (),
 ) -> tuple[int, list[float]]:
     """An uncompensated followed run of ``hours`` recorded into ``data_dir``'s run database
     (module docstring): its id, and each camera measurement's own 3-D 1-sigma (mm)."""
+    motion = ProgramMotion(controller)
+    heat = (
+        MeasuredHeat(controller.arm, controller.duty.payload_kg)
+        if settings.arm.heat_from == MEASURED
+        else None
+    )
+    heat_from_s = 0.0
     parameters = RunParameters.from_settings(settings, compensation="off")
     room = settings.room.driver != "none"
     bench = controller.bench
@@ -149,7 +208,7 @@ def record_calibration_run(
         last_record = -math.inf
         for k in range(1, round(hours * 3600.0 / step_s) + 1):
             t = k * step_s
-            controller.player.advance(t)
+            follow_pauses(controller, t, pauses)
             at_pose = controller.player.at_pose(t)
             due = at_pose and t - last_measured.get(at_pose, -math.inf) >= measure_every_s
             if not due and t - last_record < record_every_s:
@@ -161,6 +220,12 @@ def record_calibration_run(
             FollowedKind._state_into(record, state)
             if room:  # the followed run's step reads the room first (FollowedKind._read_room)
                 record.room_c = controller.room_temperature(t)
+            if heat is not None:  # the motion since the last recorded step (FollowedHeat)
+                heat.add(motion.take(t))
+                power = heat.take_mean_w()
+                if power is not None:
+                    record.heat_json = heat_json(heat_from_s, t, power, MEASURED)
+                heat_from_s = t
             record.correction_tx_mm = record.correction_ty_mm = record.correction_tz_mm = 0.0
             flags: list[str] = []
             errors: list[str] = []
@@ -206,13 +271,16 @@ def compensated_removal(
     *,
     hours: float,
     sample_s: float = 60.0,
+    pauses: Pauses = (),
 ) -> dict[str, dict[str, Any]]:
     """Compensated followed runs replayed against the truth (benchmarks/bench_ur_followed.py's
     method), one pass of the truth for all: every ``sample_s`` each run's model (the followed
     run's, daemon/run/followed/setup.py, with its settings and its arm model: None for the
     preset) is advanced, fed the joint temperatures (as its settings' prediction says), and
     its correction at the program's joints is taken as applied; the residual is the truth's
-    error plus it. A run whose settings have a room thermometer (room.driver) follows the
+    error plus it. A run whose settings say arm.heat_from measured advances on the heat of the
+    program's motion since the last sample (the followed run's FollowedHeat), the program
+    paused over ``pauses``. A run whose settings have a room thermometer (room.driver) follows the
     bench's room sensor (one reading per sample, before the advance, as the followed run).
     Per run: the RMS over the last half (a warm arm), the worst, and the uncompensated drift
     beside them."""
@@ -223,12 +291,19 @@ def compensated_removal(
         for name, (settings, arm_model) in runs.items()
     }
     rooms = {name for name, (settings, _) in runs.items() if settings.room.driver != "none"}
+    motion = ProgramMotion(controller)
+    heats = {
+        name: FollowedHeat.on(models[name].controller, None)
+        for name, (settings, _) in runs.items()
+        if settings.arm.heat_from == MEASURED
+    }
     bench = controller.bench
     controller.player.play(0.0)
     residual: dict[str, list[float]] = {name: [] for name in models}
     uncompensated: list[float] = []
     for t in (float(v) for v in np.arange(sample_s, hours * 3600.0 + 1e-6, sample_s)):
-        controller.player.advance(t)
+        follow_pauses(controller, t, pauses)
+        samples = motion.take(t)
         temperatures = controller.joint_temperatures(t)
         room_c = controller.room_temperature(t) if rooms else math.nan
         bench.advance_to(t)
@@ -238,6 +313,8 @@ def compensated_removal(
         for name, model in models.items():
             if name in rooms:
                 model.follow_room(room_c)
+            if name in heats:
+                heats[name].hold(samples, model.time_s, t)
             model.advance_to(t)
             model.observe(temperatures)
             correction = correction_for(model.tool_error(q)).translation_mm

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Self
+from typing import Annotated, Literal, Self
 
 from pydantic import Field, StrictBool, model_validator
 
@@ -104,6 +104,14 @@ class ArmSettings(Section):
     )
     motion_dt_s: Annotated[float, Field(gt=0, le=10)] = Field(
         0.05, description="Time step of the duty cycle's motion samples for motor heat (s)."
+    )
+    heat_from: Literal["measured", "duty-cycle"] = Field(
+        "measured",
+        description="A followed run (robot.driver ur-rtde): the motor heat of the motion the "
+        "robot actually made (every RTDE package's joints, speeds, accelerations: paused or "
+        "slowed programs heat the model as they heat the arm), or of the taught duty cycle "
+        "played without pauses (the arm run's, issue 20). Recorded per step for `calibrate "
+        "model`. Other run kinds play the duty cycle themselves: its heat.",
     )
     bending: StrictBool = Field(
         False, description="Links bend from a temperature gradient across them."

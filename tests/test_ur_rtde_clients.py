@@ -14,8 +14,10 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
+from daemon.arm.motors import arm_motors, heat_from_current_w
 from daemon.run.states import RunState
 from daemon.service import Daemon
 from drivers.errors import ProtocolError
@@ -110,6 +112,66 @@ async def test_receive_interface_reads_pose_joints_temperatures_and_modes(ur_rtd
         assert state["safety_mode"] == SafetyMode.PROTECTIVE_STOP
         assert state["protective_stopped"]
         assert ur.rtde.sessions and ur.rtde.sessions[0].frequency_hz == 500.0
+
+
+@pytest.mark.slow
+async def test_receive_interface_reads_the_motion_a_followed_run_heats_with(
+    ur_rtde: UrRtde,
+) -> None:
+    """ur-rtde's getActualQd, getTargetQdd and getActualCurrent read the emulated arm's motion
+    (what a followed run's measured heat is computed from: drivers/ur/motion.py) with the
+    guide's semantics: the played program's joint speeds and accelerations at the package's
+    timestamp, and motor currents whose copper loss, with the motor's resistance and friction
+    (daemon/arm/motors.py heat_from_current_w), is the bench truth's heat of that motion."""
+    async with UREmulator(host=ur_rtde.host) as ur:
+        controller = ur.controller
+        motors = arm_motors(controller.arm)
+        moving = resting = 0
+        async with asyncio.timeout(ANSWER_TIMEOUT_S):
+            while moving < 3 or resting < 1:
+                answer = await ur_rtde.ask("motion")
+                t = answer["before"]
+                if answer["after"] != t:
+                    continue  # a package arrived between the getters
+                sample = controller.player.sample(t)
+                assert answer["qd"] == pytest.approx(list(sample.qd_rad_s), abs=1e-9)
+                assert answer["qdd"] == pytest.approx(list(sample.qdd_rad_s2), abs=1e-9)
+                current = np.array(answer["current"])
+                heat = heat_from_current_w(motors, sample.qd_rad_s, current)
+                truth = controller.bench.power(sample)
+                np.testing.assert_allclose(heat * controller.bench.heat_scales, truth, rtol=1e-6)
+                if np.any(np.abs(sample.qd_rad_s) > 0.05):
+                    moving += 1
+                else:
+                    resting += 1
+                    # at rest the shoulder and elbow motors hold the arm against gravity
+                    assert abs(current[1]) > 0.1 and abs(current[2]) > 0.1
+                await asyncio.sleep(0.05)
+
+
+@pytest.mark.slow
+async def test_io_interface_sets_the_speed_slider_the_program_plays_at(ur_rtde: UrRtde) -> None:
+    """ur-rtde's setSpeedSlider(0.5) reaches the emulated controller (speed_slider_mask and
+    _fraction): getSpeedScaling reads 0.5 and the program's moves from then on run at most at
+    half their taught joint speeds (the arm still moves: a followed run's measured heat is
+    that slower motion's)."""
+    async with UREmulator(host=ur_rtde.host) as ur:
+        controller = ur.controller
+        assert (await ur_rtde.ask("slider 0.5"))["ok"]
+        await settle(ur, 0.05)
+        assert controller.player.speed_fraction == 0.5
+        assert (await ur_rtde.ask("motion"))["speed_scaling"] == 0.5
+        await settle(ur, 2.5)  # the move in progress (at full speed) is over
+        start = ur.now()
+        await settle(ur, 8.0)  # more than one slowed cycle's moves
+        duty = controller.duty
+        limit = np.asarray(duty.max_speed_rad_s) * max(pose.speed for pose in duty.poses)
+        times = np.arange(start, ur.now(), 0.005)
+        ratio = max(
+            float(np.max(np.abs(controller.player.sample(float(t)).qd_rad_s) / limit))
+            for t in times
+        )
+        assert 0.2 < ratio <= 0.5 + 1e-9, ratio
 
 
 async def test_io_interface_writes_the_upper_input_registers(ur_rtde: UrRtde) -> None:

@@ -5,7 +5,10 @@ reads one command per line on stdin and answers one JSON line on stdout.
 A subprocess, not a thread: ur-rtde's calls block in C++ while holding the interpreter lock,
 so called from a thread of the test they would stop the event loop that serves the emulator.
 
-Commands: ``receive`` (a snapshot of RTDEReceiveInterface's getters), ``io_int N V`` and
+Commands: ``receive`` (a snapshot of RTDEReceiveInterface's getters), ``motion`` (the
+controller's timestamp, then the joint speeds, target accelerations and currents, then the
+timestamp again: both alike, the three are of one package), ``slider F``
+(RTDEIOInterface.setSpeedSlider), ``io_int N V`` and
 ``io_double N V`` (RTDEIOInterface with the upper range registers), ``dash WORD`` (one
 DashboardClient call: play, pause, stop, programState, robotmode, safetystatus,
 unlockProtectiveStop), ``quit``.
@@ -46,6 +49,21 @@ def main(host: str) -> None:
                     "runtime_state": receiver.getRuntimeState(),
                     "protective_stopped": receiver.isProtectiveStopped(),
                 }
+            elif words[0] == "motion":
+                if receiver is None:
+                    receiver = rtde_receive.RTDEReceiveInterface(host)
+                answer = {
+                    "before": receiver.getTimestamp(),
+                    "qd": receiver.getActualQd(),
+                    "qdd": receiver.getTargetQdd(),
+                    "current": receiver.getActualCurrent(),
+                    "speed_scaling": receiver.getSpeedScaling(),
+                    "after": receiver.getTimestamp(),
+                }
+            elif words[0] == "slider":
+                if io is None:
+                    io = rtde_io.RTDEIOInterface(host, use_upper_range_registers=True)
+                answer = {"ok": io.setSpeedSlider(float(words[1]))}
             elif words[0] in ("io_int", "io_double"):
                 if io is None:
                     io = rtde_io.RTDEIOInterface(host, use_upper_range_registers=True)

@@ -31,7 +31,7 @@ from daemon.arm.arm_model import ArmModel
 from daemon.arm.controller import ArmController, ArmModelOptions
 from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle
-from daemon.arm.heat import JointHeatProfile
+from daemon.arm.heat import HeatSource, JointHeatProfile
 from daemon.arm.run import MeasuredPose
 from daemon.vision.multiview import CameraModel, MultiviewError, depths_mm, project
 from daemon.vision.tool_pose import measure_tool_pose
@@ -116,7 +116,7 @@ def tool_drifts_um(
     end_s: float,
     options: ArmModelOptions,
     identified: ArmModel | None = None,
-    heat: JointHeatProfile | None = None,
+    heat: HeatSource | None = None,
 ) -> FloatArray:
     """The model's predicted tool translation (µm, poses x 3) at each pose after ``end_s`` of
     the duty cycle from cold."""

@@ -40,7 +40,7 @@ from daemon.arm.controller_priors import (
 from daemon.arm.description import Arm
 from daemon.arm.duty import DutyCycle
 from daemon.arm.goal_names import goal_names
-from daemon.arm.heat import JointHeatProfile
+from daemon.arm.heat import HeatSource, JointHeatProfile
 from daemon.arm.identify_response import factored_description
 from daemon.arm.ir_regions import region_nodes
 from daemon.arm.kinematics import forward, tool_error, tool_errors
@@ -79,7 +79,7 @@ class ArmController:
         duty: DutyCycle,
         options: ArmModelOptions = ArmModelOptions(),
         *,
-        heat: JointHeatProfile | None = None,
+        heat: HeatSource | None = None,
         thermal: ArmThermalModel | None = None,
         identified: ArmModel | None = None,
     ) -> None:
@@ -96,7 +96,10 @@ class ArmController:
             self.heat_scales = np.array(identified.heat_scales, dtype=np.float64)
             self.alpha_scale = identified.alpha_scale
             convection = identified.convection_scale
-        self.heat = heat or JointHeatProfile.from_duty(arm, duty, resolution_s=options.motion_dt_s)
+        #: the motor heat (the duty cycle's; a followed run's measured motion: a HeatSource)
+        self.heat: HeatSource = heat or JointHeatProfile.from_duty(
+            arm, duty, resolution_s=options.motion_dt_s
+        )
         description = describe_arm(arm, plus_share=options.motor_side_share)
         if identified is not None:  # issue 29: identified capacity and bending shares
             description = factored_description(

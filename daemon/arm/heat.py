@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -22,6 +23,14 @@ from daemon.arm.types import FloatArray
 
 #: Default integration step of one cycle's heat (s): a few per acceleration ramp.
 DEFAULT_RESOLUTION_S = 0.005
+
+
+class HeatSource(Protocol):
+    """Where a model's motor heat comes from: the mean heat per joint over an interval of arm
+    time (W). :class:`JointHeatProfile` (a duty cycle's commanded motion), or the heat of the
+    motion a robot actually made (a followed run: daemon/run/followed/heat.py)."""
+
+    def step_power_w(self, t0_s: float, t1_s: float) -> FloatArray: ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,4 +132,4 @@ class HeatMeter:
         return mean
 
 
-__all__ = ["DEFAULT_RESOLUTION_S", "HeatMeter", "JointHeatProfile"]
+__all__ = ["DEFAULT_RESOLUTION_S", "HeatMeter", "HeatSource", "JointHeatProfile"]

@@ -22,17 +22,21 @@ flags, the physical ranges, the saved arm model and ``--validate`` are the A465'
   (daemon/arm/joint_temperatures.py joint_regions), with one sensor offset each
   (``offset:jointK``, saved as the model's ``ir_offsets_c`` that the run's observer starts
   from); every step's reading is used, one per IDENTIFY_STEP_S, not only the measured steps';
-- the motor heat is the program's duty cycle on the run's time, as the followed run's own
-  model advances (daemon/run/followed/setup.py): identification and the run that uses the
-  model see the same heat input. The joints the robot actually made are not recorded per step
-  (StepRecord has no joint columns); on a robot that plays its program without pauses the two
-  agree to within the program's phase at the run's start (the UR5e program's cycle is 7.5 s,
-  under half of one IDENTIFY_STEP_S).
+- the motor heat is the heat the run's model saw: each step's recorded ``heat_json`` (the
+  motion the robot actually made, arm.heat_from measured: daemon/run/followed/heat.py) as a
+  RecordedHeat, the controller's heat source; where no step recorded one (arm.heat_from
+  duty-cycle, a run recorded before issue 31's measured heat, a gap) the program's duty cycle
+  on the run's time, as the run's model then advanced. So identification and the run see the
+  same heat input: a program paused or slowed during the calibration run heats the
+  identification's model as it heated the arm, and its factors are not bent to explain the
+  cooling of a pause the duty cycle never had.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import math
 import sqlite3
 from contextlib import closing
@@ -42,7 +46,9 @@ from typing import Any
 import numpy as np
 
 from config import Settings
+from daemon.arm.controller import ArmController
 from daemon.arm.controller_loading import load_controller
+from daemon.arm.heat import HeatSource
 from daemon.arm.joint_temperatures import joint_regions
 from daemon.commands.arm_run import (
     IDENTIFY_STEP_S,
@@ -53,14 +59,17 @@ from daemon.commands.arm_run import (
     identify_options,
 )
 from daemon.run.arm.setup import arm_file
+from daemon.run.followed.heat import RecordedHeat, parse_heat_json
 from daemon.storage.recorder import DATABASE_NAME
+
+logger = logging.getLogger(__name__)
 
 #: Flags of a step whose measurement columns are not a camera measurement of the tool.
 NOT_CAMERA = frozenset({"bench-truth", "moved-during-frames", "camera-error", "marker-error"})
 
 _COLUMNS = (
     "actual_s, arm_pose, measured_tx_um, measured_ty_um, measured_tz_um, "
-    "correction_tx_mm, correction_ty_mm, correction_tz_mm, ir_json, room_c, flags"
+    "correction_tx_mm, correction_ty_mm, correction_tz_mm, ir_json, room_c, flags, {heat}"
 )
 
 
@@ -74,10 +83,11 @@ def _rows(data_dir: Path, run_id: int) -> list[tuple[Any, ...]]:
     path = Path(data_dir) / DATABASE_NAME
     try:
         with closing(sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)) as db:
+            # a database no daemon opened since issue 31's measured heat lacks its column
+            present = {row[1] for row in db.execute("PRAGMA table_info(steps)")}
+            columns = _COLUMNS.format(heat="heat_json" if "heat_json" in present else "NULL")
             return list(
-                db.execute(
-                    f"SELECT {_COLUMNS} FROM steps WHERE run_id = ? ORDER BY step", (run_id,)
-                )
+                db.execute(f"SELECT {columns} FROM steps WHERE run_id = ? ORDER BY step", (run_id,))
             )
     except sqlite3.Error as err:
         raise ArmRunInputError(f"cannot read {path}: {err}") from err
@@ -113,6 +123,7 @@ def load_followed_run(
     regions = joint_regions(controller)
     time_scale = float(parameters.get("time_scale", 1.0))
     rows = _rows(data_dir, run_id)
+    controller.heat = _recorded_heat(controller, rows)
     times: list[float] = []
     pose_index: list[int] = []
     displacement: list[np.ndarray[Any, np.dtype[np.float64]]] = []
@@ -164,6 +175,22 @@ def load_followed_run(
         pose_q_rad=[np.asarray(taught[k - 1].q_rad) for k in measured_poses],
         duty_cycle=str(duty),
     )
+
+
+def _recorded_heat(controller: ArmController, rows: list[tuple[Any, ...]]) -> HeatSource:
+    """The heat the run's model saw (module docstring): the steps' recorded heat over the duty
+    cycle's where none was recorded; the duty cycle's alone when no step recorded any."""
+    joints = len(controller.arm.joints)
+    record = RecordedHeat(controller.heat, joints)
+    for row in rows:
+        parsed = parse_heat_json(row[11], joints)
+        if parsed is not None:
+            with contextlib.suppress(ValueError):  # out of time order: not the run's own
+                record.hold(*parsed)
+    if not len(record):
+        return controller.heat
+    logger.info("followed run: recorded heat over %.2f h of arm time", record.covered_s / 3600)
+    return record
 
 
 def _joint_reading(text: str | None, regions: dict[str, tuple[int, ...]]) -> dict[str, float]:

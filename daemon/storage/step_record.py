@@ -77,6 +77,10 @@ class StepRecord:
     # the room thermometer's reading at the step (degC; issue 29, room.driver): the ambient
     # the arm model followed; empty without a thermometer (the model held model.ambient_c)
     room_c: float | None = None
+    # a followed run's motor heat over the model's advance (issue 31, arm.heat_from measured:
+    # daemon/run/followed/heat.py): {"from_s", "to_s" (arm time), "joint_w": [W per joint],
+    # "source"}; `calibrate model` reads it back; empty: the duty cycle's heat
+    heat_json: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

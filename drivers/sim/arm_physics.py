@@ -12,7 +12,13 @@ import dataclasses
 import numpy as np
 
 from daemon.arm.description import Arm
-from daemon.arm.motors import arm_motors, joint_heat_batch_w, joint_heat_w
+from daemon.arm.motors import (
+    arm_motors,
+    joint_heat_batch_w,
+    joint_heat_w,
+    motor_torque_nm,
+    torques_nm,
+)
 from daemon.arm.thermal import ArmThermalDescription, describe_arm
 from daemon.arm.types import FloatArray, JointSample
 from drivers.sim.arm_motion import BatchPowerFunction, PowerFunction
@@ -88,6 +94,24 @@ def motion_power(arm: Arm, payload_kg: float = 0.0) -> PowerFunction:
         return heat
 
     return power
+
+
+def motor_current(arm: Arm, payload_kg: float = 0.0) -> PowerFunction:
+    """Each joint motor's current (A) for a motion sample: the torque the sample takes
+    (:func:`daemon.arm.motors.torques_nm`, with the arm's own motors and friction, carrying
+    ``payload_kg``) through the gearbox to the motor side (``motor_torque_nm``) over the torque
+    constant: ``I = tau_m / k_t``, signed as the torque. Its ``R I^2`` is the copper loss of
+    :func:`motion_power` (daemon/arm/motors.py), so the heat computed back from it with the
+    motor's resistance and friction is that sample's heat."""
+    motors = arm_motors(arm)
+
+    def current(sample: JointSample) -> FloatArray:
+        torque = torques_nm(arm, sample, motors=motors, payload_kg=payload_kg)
+        tau_m = motor_torque_nm(motors, sample.qd_rad_s, torque)
+        result: FloatArray = np.asarray(tau_m / motors.k_t, dtype=np.float64)
+        return result
+
+    return current
 
 
 def motion_power_batch(arm: Arm, payload_kg: float = 0.0) -> BatchPowerFunction:

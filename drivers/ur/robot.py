@@ -7,6 +7,8 @@ and program modes, and the program's registers: at which measured pose it is, wh
 it accepted, its status, the offset it applies) at robot.rtde_frequency_hz, and writes the
 correction, a sequence number and a hold flag into the input registers
 (drivers/ur/registers.py) on every correction and at least every robot.ur_heartbeat_s.
+Every state package's joints, speeds and target accelerations also go into a bounded log
+(drivers/ur/motion.py, :meth:`URRobot.take_motion`): a followed run's motor heat.
 
 **The hold** (drivers.base.Robot's contract, drivers/permit.py). :meth:`URRobot.stop` holds
 from the moment it is called: the permit is held and the hold flag written to the controller
@@ -78,6 +80,7 @@ from drivers.reconnect import RECONNECT_FIRST_BACKOFF_S, Reconnector
 from drivers.ur import rtde_protocol as rtde
 from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.describe import describe_ur
+from drivers.ur.motion import MotionLog, MotionSamples
 from drivers.ur.registers import RegisterMap, wire_target
 from drivers.ur.rtde_client import RtdeClient
 from drivers.ur.rtde_protocol import Recipe, Value
@@ -127,6 +130,8 @@ class URRobot:
         self._sequence = 0  # the last one written
         self._target: tuple[float, ...] = (0.0,) * 6  # the correction on the wire (m, rad)
         self._state: OffsetRobotState | None = None
+        #: every state package's joints, speeds and currents, for a followed run's motor heat
+        self.motion = MotionLog(settings.rtde_frequency_hz)
         self._lock = asyncio.Lock()  # resume and the reconnection, one at a time
         self._reader: asyncio.Task[None] | None = None
         self._heartbeat: asyncio.Task[None] | None = None
@@ -216,6 +221,7 @@ class URRobot:
                 async with asyncio.timeout(self.settings.ur_timeout_s):
                     values = await client.read_data(recipe)
                 self._state = state = decode_state(self.registers, recipe, values)
+                self.motion.add_package(recipe, values)
                 self._seen_sequence = int(values[-2])  # type: ignore[arg-type]
                 self._seen_frames = int(values[-1])  # type: ignore[arg-type]
                 lost = self._program.check(state)
@@ -401,6 +407,11 @@ class URRobot:
         raises: without a link the program lets go by itself (its watchdog, its timeout)."""
         with contextlib.suppress(DeviceError, OSError):
             self._write_frames(0)
+
+    def take_motion(self) -> MotionSamples:
+        """The motion the robot made since the last take: every state package's controller
+        time, joints, speeds and motor currents (drivers/ur/motion.py)."""
+        return self.motion.take()
 
     def robot_state(self) -> OffsetRobotState:
         state = self._state

@@ -24,6 +24,8 @@ STATE_OUTPUTS = (
     "timestamp",
     "actual_q",
     "actual_qd",
+    # the motor heat of a followed run (drivers/ur/motion.py, daemon/run/followed/heat.py)
+    "target_qdd",
     "actual_TCP_pose",
     "actual_TCP_speed",
     "joint_temperatures",

@@ -124,7 +124,8 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
         "period_s": controller.duty.period_s,
         "measured_poses": [pose.name for pose in poses],
         "node_names": list(controller.thermal.node_names),
-        "mean_joint_heat_w": controller.heat.mean_power_w.tolist(),
+        # over one cycle from its start: the cycle's mean (JointHeatProfile.mean_power_w)
+        "mean_joint_heat_w": controller.mean_heat_w(0.0, controller.duty.period_s).tolist(),
         "motion_dt_s": arm_settings.motion_dt_s,
         "ambient_c": settings.model.ambient_c,
         "room": settings.room.driver,  # none: the model holds ambient_c (issue 29)

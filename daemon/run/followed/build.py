@@ -1,7 +1,8 @@
 """A followed run built (daemon/run/kinds.py chose it: the robot plays its own program): the
 arm's model of that program (daemon/run/followed/setup.py), the run's row in the run database,
 the bench truth when the UR bench is simulated, and the pause of the robot's program on a
-hold (robot.pause_program_on_hold: daemon/run/followed/program_pause.py), and the tool
+hold (robot.pause_program_on_hold: daemon/run/followed/program_pause.py), the motor heat of
+the motion the robot makes (arm.heat_from measured: daemon/run/followed/heat.py), and the tool
 cameras' measurement at the program's dwells when the devices have tool cameras
 (daemon/run/followed/measure.py; none: a run by the model and the joint temperatures).
 RunParameterError when it cannot be built."""
@@ -9,16 +10,25 @@ RunParameterError when it cannot be built."""
 from __future__ import annotations
 
 import functools
+import logging
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from config import Settings
 from daemon.arm import kinematics
+from daemon.arm.joint_temperatures import JointTemperatureModel
 from daemon.arm.loading import load_arm
 from daemon.arm.types import FloatArray
 from daemon.run.arm.measure import MultiCameraMeter
 from daemon.run.arm.setup import arm_file
+from daemon.run.followed.heat import (
+    DUTY_CYCLE,
+    MEASURED,
+    FollowedHeat,
+    MotionFeed,
+)
 from daemon.run.followed.kind import BenchTruth, FollowedKind, FollowedWork
 from daemon.run.followed.measure import DwellHold, DwellMeasurement
 from daemon.run.followed.program_pause import ProgramPause
@@ -28,6 +38,8 @@ from daemon.run.start import RunBuilder
 from daemon.run.states import RunParameters
 from daemon.vision.cameras import CameraFileError, load_cameras
 from drivers.base import OffsetRobot, ProgramControl
+
+logger = logging.getLogger(__name__)
 
 
 async def build_followed(
@@ -42,6 +54,8 @@ async def build_followed(
         "kind": FollowedKind.name,
         "arm_model": None if identified is None else identified.provenance(),
     }
+    heat, heat_note = _heat(builder.settings, model, robot)
+    snapshot["heat_from"] = MEASURED if heat is not None else DUTY_CYCLE
     run_id = await builder.create_run(parameters, snapshot, kind=FollowedKind.name)
     return FollowedKind(
         FollowedWork(run_id, parameters),
@@ -60,7 +74,23 @@ async def build_followed(
         ),
         measurement,
         builder.sensors,
+        heat,
+        heat_note,
     )
+
+
+def _heat(
+    settings: Settings, model: JointTemperatureModel, robot: OffsetRobot
+) -> tuple[FollowedHeat | None, str]:
+    """The measured motor heat (arm.heat_from measured, a robot that logs its motion), its
+    record made the model's heat source; else None and why the duty cycle's heat is used."""
+    if settings.arm.heat_from == DUTY_CYCLE:
+        return None, "arm.heat_from is duty-cycle"
+    if not isinstance(robot, MotionFeed):
+        note = "the robot logs no motion: the duty cycle's heat"
+        logger.warning("followed run: %s", note)
+        return None, note
+    return FollowedHeat.on(model.controller, robot), ""
 
 
 async def _measurement(

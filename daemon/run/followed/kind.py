@@ -5,9 +5,11 @@ writes a 6-DOF correction every step.
 Nothing is taught and nothing moves at the start: the program owns the motion; the run takes
 the program as it is (``follow_program``: a later restart of the program is a fault). Each
 step reads the robot's latest state (joints, joint temperatures, the "at measured pose"
-register), advances the arm's model to the step's time (the program's duty cycle gives the
-motor heat), fuses the joint temperatures as the model's thermal input (daemon/arm/
-joint_temperatures.py: no IR camera), predicts the tool error at the robot's *current*
+register), advances the arm's model to the step's time with the motor heat of the motion the
+robot made since the last step (every RTDE package's joints: daemon/run/followed/heat.py,
+recorded as ``heat_json``; arm.heat_from duty-cycle: the taught cycle's), fuses the joint
+temperatures as the model's thermal input (daemon/arm/joint_temperatures.py: no IR camera),
+predicts the tool error at the robot's *current*
 joints, checks the correction against the arm's limits (daemon/arm/correction.py) before
 anything is written, writes it (refused by the driver after a hold: drivers/permit.py) and
 records it with the joint temperatures and where the program was (compensation off, the
@@ -53,6 +55,7 @@ from daemon.model.compensation import UnsafeTargetError
 from daemon.run.arm.record import camera_views
 from daemon.run.arm.step import ROOM_ERROR, correction_limits
 from daemon.run.events import ErrorLog
+from daemon.run.followed.heat import DUTY_CYCLE, FollowedHeat
 from daemon.run.followed.measure import DwellMeasurement, MeasuredTally
 from daemon.run.followed.program_pause import ProgramPause
 from daemon.run.followed.summary import followed_summary_rows
@@ -77,10 +80,14 @@ from drivers.base import OffsetRobot, OffsetRobotState
 from drivers.clock import Clock
 from drivers.errors import DeviceError
 from drivers.permit import Ticket
+from drivers.ur.motion import MotionSamples
 
 
 class FollowedModel(Protocol):
     """The arm's model as a followed run uses it (daemon/arm/joint_temperatures.py)."""
+
+    @property
+    def time_s(self) -> float: ...
 
     def advance_to(self, t_s: float) -> None: ...
 
@@ -210,6 +217,10 @@ class FollowedKind(KindBase):
     #: the daemon's sensors, for the room thermometer (None, or none open: the model holds
     #: model.ambient_c)
     sensors: Sensors | None = None
+    #: the motor heat of the motion the robot makes (arm.heat_from measured:
+    #: daemon/run/followed/heat.py); None: the duty cycle's, for ``heat_note``'s reason
+    heat: FollowedHeat | None = None
+    heat_note: str = ""
     last_correction: Pose6 = field(default_factory=Pose6.zero)
     corrections_written: int = 0
     tally: TruthTally = field(default_factory=TruthTally)
@@ -220,6 +231,8 @@ class FollowedKind(KindBase):
         (moves nothing; its restart from now on is a fault)."""
         if not moving:
             await self.robot.follow_program()
+        if self.heat is not None:
+            self.heat.take()  # the motion before the run is not the run's heat
 
     async def start_bench(self) -> None:
         """The UR bench plays from the daemon's start: nothing to start."""
@@ -232,16 +245,24 @@ class FollowedKind(KindBase):
         return self.sensors is not None and self.sensors.has_room
 
     def _predict(
-        self, model_time_s: float, state: OffsetRobotState, room_c: float | None = None
-    ) -> Pose6:
+        self,
+        model_time_s: float,
+        state: OffsetRobotState,
+        room_c: float | None = None,
+        motion: MotionSamples | None = None,
+    ) -> tuple[Pose6, str | None]:
         """On a worker: the room's reading to the model (its ambient until the next one), the
-        model to ``model_time_s``, the joint temperatures fused, the tool error at the robot's
-        current joints."""
+        heat of the robot's ``motion`` since the last step held over the advance (measured
+        heat: its ``heat_json``), the model to ``model_time_s``, the joint temperatures fused,
+        the tool error at the robot's current joints."""
         if room_c is not None:
             self.model.follow_room(room_c)
+        heat = None
+        if self.heat is not None and motion is not None:
+            heat = self.heat.hold(motion, self.model.time_s, model_time_s)
         self.model.advance_to(model_time_s)
         self.model.observe(state.joint_temperatures_c)
-        return self.model.tool_error(np.asarray(state.joints_rad, np.float64))
+        return self.model.tool_error(np.asarray(state.joints_rad, np.float64)), heat
 
     async def step(self, tick: Tick) -> StepOutcome:
         record, flags = begin_record(self.run_id, self.parameters, self.start_s, tick)
@@ -263,7 +284,10 @@ class FollowedKind(KindBase):
             return StepOutcome(record, None, Verdict("fault", str(err)), (), stages, stages.ends_s)
         self._state_into(record, state)
         room_c = await self._read_room(record, flags, errors)
-        error = await self.workers.step(self._predict, model_time_s, state, room_c)
+        motion = self.heat.take() if self.heat is not None else None
+        error, record.heat_json = await self.workers.step(
+            self._predict, model_time_s, state, room_c, motion
+        )
         record.model_time_s = model_time_s
         self._prediction_into(record, error)
         stages.end("model", started)
@@ -419,6 +443,11 @@ class FollowedKind(KindBase):
             else MeasuredTally().summary(0)
         )
         after["room"] = self.room.summary(self.has_room)
+        after["heat"] = (
+            self.heat.summary()
+            if self.heat is not None
+            else {"from": DUTY_CYCLE, "note": self.heat_note}
+        )
         if self.truth is not None:
             after["bench_truth"] = self.tally.summary()
             if measurement is not None:

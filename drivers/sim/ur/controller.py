@@ -11,6 +11,18 @@ JACOBIAN_REUSE_RAD since the last one
 exact at the poses where the program dwells and the tool is measured). ``actual_TCP_pose`` is
 the forward kinematics of those joints (the nominal arm: what the controller believes).
 
+``actual_current`` is each joint motor's current for the motion the emulated arm makes, on the
+bench truth's arm (its motors, friction and payload: drivers/sim/arm_physics.py
+motor_current): the current whose copper loss heats the truth's joints, as a real UR's
+"Actual joint currents" are its motors' (ASSUMED: the RTDE guide says no more). Computed at
+the program's nominal joints (the offset's joint delta, microradians, changes no torque), and
+only for a recipe that asks for it: ~0.4 ms per package while the arm moves (the torque of
+one sample through daemon/arm/motors.py), reused while it rests.
+
+The speed slider (RTDE inputs ``speed_slider_mask`` = 1 and ``speed_slider_fraction``, as
+ur-rtde's ``setSpeedSlider`` writes them) slows the played program (drivers/sim/ur/player.py);
+``speed_scaling`` and ``target_speed_fraction`` report it.
+
 Joint temperatures come from the arm bench's thermal truth (drivers/sim/arm_bench.py) heated
 by the motion the emulated arm really made, read like a sensor: Gaussian noise of
 TEMPERATURE_NOISE_C and a resolution of TEMPERATURE_RESOLUTION_C (both ESTIMATES: UR publishes
@@ -33,6 +45,8 @@ from daemon.arm.loading import load_arm
 from daemon.arm.types import FloatArray
 from drivers.sim.arm_bench import DEFAULT_MARKERS_MM, ArmBench, ArmBenchConfig
 from drivers.sim.arm_markers import CameraRig
+from drivers.sim.arm_motion import PowerFunction
+from drivers.sim.arm_physics import motor_current
 from drivers.sim.joint_arm import JointArm, JointArmConfig
 from drivers.sim.ur.player import PlayerState, ProgramPlayer
 from drivers.sim.ur.program import OffsetProgram, ProgramInputs, ProgramLimits, holds_dwell
@@ -49,6 +63,8 @@ from drivers.ur.registers import RegisterMap
 from drivers.ur.rtde_protocol import CONTROLLER_CYCLE_S, DataType, Value
 
 JACOBIAN_REUSE_RAD = 5e-3
+#: The slowest the speed slider plays the program (a fraction of 0 would never end a move).
+MIN_SPEED_FRACTION = 0.01
 #: Every this many controller cycles (0.1 s) the thermal truth follows the arm's motion
 #: (ArmBench.follow_motion: ~0.7 ms for 10 motion samples), so that its 2-s step never
 #: samples a whole step of motion inside one 2-ms cycle (~6 ms: three cycles late, and every
@@ -121,6 +137,8 @@ class URController:
         self.inputs: dict[str, Value] = {
             name: _zero(t) for name, t in names.INPUTS.items() if "register" in name
         }
+        # the speed slider (module docstring): at full speed until a client sets it
+        self.inputs.update(speed_slider_mask=0, speed_slider_fraction=1.0)
         self.outputs: dict[str, Value] = {
             name: _zero(names.OUTPUTS[name]) for name in self.registers.outputs
         }
@@ -137,6 +155,8 @@ class URController:
         self._jacobian: FloatArray = np.eye(6)
         self._state_t: float | None = None
         self._state: tuple[FloatArray, FloatArray, FloatArray] = (np.zeros(6),) * 3
+        self._current: tuple[tuple[float, ...] | None, tuple[float, ...]] = (None, ())
+        self._current_of: tuple[ArmBench | None, PowerFunction | None] = (None, None)
         self._temperatures_t = -math.inf
         self._temperatures: tuple[float, ...] = (self.bench.config.ambient_c,) * 6
         #: config.waits_for_frames, switchable while it runs (a test's program taught without)
@@ -208,6 +228,10 @@ class URController:
         self.time_s = t_s
         self.cycles += 1
         regs = self.registers
+        fraction = self.inputs.get("speed_slider_fraction")
+        if self.inputs.get("speed_slider_mask") == 1 and isinstance(fraction, float):
+            # the guide: with its mask set, the fraction is the speed slider's
+            self.player.speed_fraction = min(1.0, max(MIN_SPEED_FRACTION, fraction))
         if self.player.state is PlayerState.PLAYING:
             self.player.advance(t_s)
         if self.cycles % TRUTH_FOLLOW_CYCLES == 0:
@@ -269,6 +293,23 @@ class URController:
         twist = self._jacobian_at(q) @ qd
         return (*(float(v) / 1000.0 for v in twist[:3]), *(float(v) for v in twist[3:]))
 
+    def joint_currents(self, t_s: float) -> tuple[float, ...]:
+        """actual_current: each joint motor's current (A) now (module docstring), on the
+        truth's arm (a bench replaced after the start, benchmarks/ur_recorded.py: its own);
+        the last value again while the arm's motion sample is the same (at rest)."""
+        sample = self.player.sample(t_s)
+        key = (*sample.q_rad, *sample.qd_rad_s, *sample.qdd_rad_s2)
+        bench, current = self._current_of
+        if bench is not self.bench or current is None:
+            current = motor_current(self.bench.true_arm, self.bench.config.payload_kg)
+            self._current_of = (self.bench, current)
+            self._current = (None, ())
+        if self._current[0] == key:
+            return self._current[1]
+        values = tuple(float(v) for v in current(sample))
+        self._current = (key, values)
+        return values
+
     def joint_temperatures(self, t_s: float) -> tuple[float, ...]:
         """The joints' temperatures as the controller's sensors read them (degC)."""
         step = self.bench.config.truth_step_s
@@ -329,7 +370,9 @@ _GETTERS: dict[str, Getter] = {
     "actual_q": lambda c, t: _vector(c.joint_state(t)[0]),
     "target_q": lambda c, t: _vector(c.joint_state(t)[0]),
     "actual_qd": lambda c, t: _vector(c.joint_state(t)[1]),
+    "actual_current": lambda c, t: c.joint_currents(t),
     "target_qd": lambda c, t: _vector(c.joint_state(t)[1]),
+    "target_qdd": lambda c, t: _vector(c.player.sample(t).qdd_rad_s2),
     "actual_TCP_pose": lambda c, t: c.tcp_pose(t),
     "target_TCP_pose": lambda c, t: c.tcp_pose(t),
     "actual_TCP_speed": lambda c, t: c.tcp_speed(t),
@@ -341,8 +384,8 @@ _GETTERS: dict[str, Getter] = {
     "runtime_state": lambda c, t: int(c.runtime_state),
     "robot_status_bits": lambda c, t: _robot_bits(c),
     "safety_status_bits": lambda c, t: _safety_bits(c),
-    "speed_scaling": lambda c, t: 1.0,
-    "target_speed_fraction": lambda c, t: 1.0,
+    "speed_scaling": lambda c, t: c.player.speed_fraction,
+    "target_speed_fraction": lambda c, t: c.player.speed_fraction,
     "actual_execution_time": lambda c, t: 0.1,
     "joint_mode": lambda c, t: (253,) * 6,  # JOINT_RUNNING_MODE
     "actual_main_voltage": lambda c, t: 48.0,

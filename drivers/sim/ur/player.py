@@ -9,6 +9,12 @@ decelerates along the path within a few hundred ms; the emulator's arm stops ins
 the console emulator's halt does) and PLAY resumes the interrupted move or dwell. STOP halts
 the arm and resets the program to its start.
 
+The speed slider (``speed_fraction``, RTDE ``speed_slider_fraction`` under its mask) slows
+the program's moves as a UR's slider slows the trajectory's time: joint speeds times the
+fraction, accelerations times its square; dwells (a taught Wait) keep their length. ASSUMED: a
+real controller rescales the move in progress at once; the emulator applies a new fraction
+from the next move on (moves last 0.5-2 s).
+
 ``at_pose(now)`` is the program's "at measured pose" output: k (1-based) while the robot
 dwells at pose k of the cycle and that pose is measured, else 0.
 
@@ -61,6 +67,8 @@ class ProgramPlayer:
         self.holds: Callable[[int, float], bool] = lambda pose, held_s: False
         #: when the dwell being held for the frames had its taught end (None: not held)
         self._held_from_s: float | None = None
+        #: the speed slider (module docstring), in (0, 1]
+        self.speed_fraction = 1.0
 
     # -- controls ----------------------------------------------------------------------------
 
@@ -132,8 +140,12 @@ class ProgramPlayer:
 
     def _move(self, index: int, start_s: float) -> float:
         pose = self.duty.poses[index]
+        f = self.speed_fraction
         return self.arm.move_joints(
-            self._poses[index], start_s, self._speed * pose.speed, self._accel * pose.accel
+            self._poses[index],
+            start_s,
+            self._speed * pose.speed * f,
+            self._accel * pose.accel * f * f,
         )
 
     def _here(self, index: int, now_s: float) -> bool:
