@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
+from daemon.arm.identify_groups import entangled_reasons, groups
 from daemon.arm.identify_parameters import (
     ArmParameter,
     ArmScales,
@@ -111,6 +112,10 @@ class ArmIdentification:
     message: str
     warnings: tuple[str, ...] = ()
     evaluations: int = 0  # network passes (new responses) the fit took
+    #: parameters told only in combination with others (identify_groups; no other reason)
+    entangled: tuple[str, ...] = ()
+    #: the direction the data see least, one component per parameter (identify_groups)
+    weakest: tuple[float, ...] = ()
 
     def parameter(self, name: str) -> FittedParameter:
         return find_parameter(self.parameters, name)
@@ -377,6 +382,7 @@ def _identify_arm(
     jacobian_at = problem.jacobian(values)
     variance = residual_variance(problem.weighted(values), len(specs))
     fitted, correlation, warnings = uncertainty(specs, values, jacobian_at, variance)
+    fitted, warnings, entangled = _with_groups(fitted, warnings, jacobian_at, correlation)
     return ArmIdentification(
         parameters=tuple(fitted),
         correlation=correlation,
@@ -389,7 +395,38 @@ def _identify_arm(
         message=str(result.message),
         warnings=tuple(warnings),
         evaluations=problem.passes,
+        entangled=entangled,
+        weakest=tuple(float(v) for v in groups(jacobian_at).weakest),
     )
+
+
+def _with_groups(
+    fitted: list[FittedParameter],
+    warnings: list[str],
+    jacobian: FloatArray,
+    correlation: FloatArray,
+) -> tuple[list[FittedParameter], list[str], tuple[str, ...]]:
+    """The fit's report with the group check (identify_groups) added: a parameter told only
+    in combination with the others is not identified; the names of those flagged by a
+    correlation alone (pairwise or with the group: no bound, no large error), which pooling
+    or a prior can untangle (identify_final)."""
+    names = [p.name for p in fitted]
+    reasons = entangled_reasons(names, jacobian, correlation)
+    out, entangled = [], []
+    for parameter in fitted:
+        reason = reasons.get(parameter.name)
+        if reason is not None and "|correlation|" not in parameter.reason:
+            joined = "; ".join(r for r in (parameter.reason, reason) if r)
+            warnings.append(f"{parameter.name} is not identifiable from these data: {reason}")
+            parameter = dataclasses.replace(parameter, identifiable=False, reason=joined)
+        only_correlated = all(
+            part.startswith(("|correlation|", "multiple correlation"))
+            for part in parameter.reason.split("; ")
+        )
+        if not parameter.identifiable and only_correlated:
+            entangled.append(parameter.name)
+        out.append(parameter)
+    return out, warnings, tuple(entangled)
 
 
 def evaluate_arm(

@@ -22,12 +22,15 @@ from daemon.arm.identify import (
     _checked_specs,
     identify_arm,
 )
+from daemon.arm.identify_groups import LOADING
 from daemon.arm.identify_parameters import heat_joints, pooled_heat_name
 from daemon.arm.ir_regions import identification_regions
 from daemon.model.identify import FittedParameter
 
 #: At most this many refits before the final one (each drops what the last did not identify).
 MAX_REFITS = 4
+#: At most this many refits untangling trade-offs (each pools or drops one: identify_groups).
+MAX_UNTANGLE = 4
 #: Heat factors the cycle could not identify that carry at least this share of its motor heat
 #: are pooled with every other heated joint's when their own pool is not identified either.
 POOL_ALL_SHARE = 0.1
@@ -51,7 +54,25 @@ class ArmCalibration:
 
     @property
     def identified(self) -> tuple[str, ...]:
-        return () if self.final is None else tuple(p.name for p in self.final.parameters)
+        """The parameters the final fit identifies (alone or as a pool)."""
+        if self.final is None:
+            return ()
+        return tuple(p.name for p in self.final.parameters if p.identifiable)
+
+    @property
+    def combined(self) -> tuple[str, ...]:
+        """The final fit's parameters told only in combination with others (identify_groups,
+        none of them a split of joint heats: those are pooled): their values are the cycle's
+        fit, used by the model and flagged not identified; on another cycle they may not
+        hold (issue 29)."""
+        if self.final is None:
+            return ()
+        return tuple(p.name for p in self.final.parameters if not p.identifiable)
+
+    @property
+    def pools(self) -> tuple[str, ...]:
+        """The pooled heat factors the final fit identifies (``heat:1+2``)."""
+        return tuple(n for n in self.identified if len(heat_joints(n)) > 1)
 
     @property
     def not_identified(self) -> tuple[str, ...]:
@@ -159,9 +180,15 @@ def _identify_final(
     if not asked:
         return ArmCalibration(names, None, None, dropped)
     full = identify_arm(run, model, asked, progress=progress)
-    dropped.update({p.name: p.reason for p in full.parameters if not p.identifiable})
-    identified = [p.name for p in full.parameters if p.identifiable]
-    for pool, members in heat_pools(run, full):
+    base, asked, pools = untangle(run, model, full, asked, dropped, progress)
+    names = (*names, *(pool for pool in pools if pool not in names))
+    dropped.update(  # those told in combination are kept, flagged (_combined)
+        {p.name: p.reason for p in base.parameters if not p.identifiable}
+    )
+    for name in base.entangled:
+        dropped.pop(name)
+    identified = [p.name for p in base.parameters if p.identifiable or p.name in base.entangled]
+    for pool, members in heat_pools(run, base):
         kept = [name for name in identified if name not in members] + [pool]
         trial = dict(dropped)
         final = _refit(run, model, kept, trial, progress)
@@ -169,13 +196,75 @@ def _identify_final(
             for name in members:  # identified together, not alone
                 reason = trial.get(name, "identified alone")
                 trial[name] = f"{reason}; its heat is fitted with the pool {pool}"
-            return ArmCalibration((*names, pool), full, final, trial)
-    final = full if not dropped.keys() & set(asked) else _refit(
+            return ArmCalibration((*names, pool), full, _combined(final), trial)
+    final = base if not dropped.keys() & set(asked) else _refit(
         run, model, identified, dropped, progress
     )  # fmt: skip
     if final is None:
         dropped.update({name: dropped.get(name, "no refit identified it") for name in asked})
-    return ArmCalibration(names, full, final, dropped)
+    return ArmCalibration(names, full, None if final is None else _combined(final), dropped)
+
+
+#: How the report of a parameter fitted in combination begins (identify_groups; the model
+#: uses its value, flagged; daemon/commands/arm_identify.py checks its physical range).
+IN_COMBINATION = "fitted in combination, not identified alone"
+
+
+def _combined(fit: ArmIdentification) -> ArmIdentification:
+    """``fit`` with each parameter told only in combination (``fit.entangled``) reported as
+    fitted in combination: its value is kept (keeping its prior instead made the others
+    absorb the difference: UR5e default truth task A, convection at the preset's 1 on a
+    truth of 0.8 put the capacity at 2.5), its flag says not identified."""
+    parameters = tuple(
+        dataclasses.replace(p, identifiable=False, reason=f"{IN_COMBINATION}: {p.reason}")
+        if p.name in fit.entangled and not p.reason.startswith(IN_COMBINATION)
+        else p
+        for p in fit.parameters
+    )
+    return dataclasses.replace(fit, parameters=parameters)
+
+
+def untangle(
+    run: ArmRunData,
+    model: ArmModelSpec,
+    fit: ArmIdentification,
+    asked: list[str],
+    dropped: dict[str, str],
+    progress: Progress | None,
+) -> tuple[ArmIdentification, list[str], list[str]]:
+    """``fit`` refitted while a parameter is flagged for a correlation alone (pairwise or
+    with the others together: identify_groups), one trade-off at a time, the one the data
+    see least: the joint heats taking part in it (two or more) become one pooled factor (the
+    cycle fixes their sum, not their split); a trade-off that is not a split of heats (the
+    heats against the convection: the steady state fixes heat over convection) ends the
+    untangling, its parameters kept and reported fitted in combination (:func:`_combined`;
+    keeping their prior instead made the others absorb it). At most MAX_UNTANGLE refits. Returns the last fit, its parameter
+    names and the pools made; ``dropped`` gets why each parameter left (issue 29: on a UR5e
+    task the base's and the shoulder's heats traded off with the capacity, and the biased
+    values were flagged identified)."""
+    names = list(asked)
+    pools: list[str] = []
+    for _ in range(MAX_UNTANGLE):
+        if not fit.entangled or len(names) < 2:
+            break
+        loading = dict(zip((p.name for p in fit.parameters), fit.weakest, strict=True))
+        reasons = {p.name: p.reason for p in fit.parameters}
+        heats = [n for n in names if heat_joints(n) and abs(loading[n]) >= LOADING]
+        if len(heats) < 2:  # not a split of heats: reported in combination (_combined)
+            break
+        pool = pooled_heat_name(sorted(j for n in heats for j in heat_joints(n)))
+        for name in heats:
+            others = ", ".join(h for h in heats if h != name)
+            dropped[name] = (
+                f"{reasons[name] or 'identified'}; it trades off with {others} on this "
+                f"cycle: its heat is fitted with the pool {pool}"
+            )
+        names = [n for n in names if n not in heats] + [pool]
+        pools.append(pool)
+        if progress is not None:
+            progress(f"refit with the heats that trade off pooled: {', '.join(pools)}")
+        fit = identify_arm(run, model, names, progress=progress)
+    return fit, names, pools
 
 
 def _refit(
@@ -194,7 +283,11 @@ def _refit(
         if progress is not None:
             progress(f"refit of the {len(kept)} identifiable parameters")
         final = identify_arm(run, model, kept, progress=progress)
-        missed = {p.name: f"refit: {p.reason}" for p in final.parameters if not p.identifiable}
+        missed = {
+            p.name: f"refit: {p.reason}"
+            for p in final.parameters
+            if not p.identifiable and p.name not in final.entangled
+        }
         if not missed:
             return final
         dropped.update(missed)
@@ -214,7 +307,9 @@ def heat_pools(run: ArmRunData, full: ArmIdentification) -> list[tuple[str, tupl
     removed; with one pooled heat 0.51, 0.71 and 0.90, 94.4 %). The wrists' heats, never
     identifiable and a few percent of the heat, pool with nothing else."""
     heats = {p.name: p for p in full.parameters if len(heat_joints(p.name)) == 1}
-    missed = [name for name, p in heats.items() if not p.identifiable]
+    missed = [  # one told in combination is kept (untangle), not pooled again
+        name for name, p in heats.items() if not p.identifiable and name not in full.entangled
+    ]
     if not missed:
         return []
     energy = np.abs(run.joint_heat_w).sum(axis=0)
@@ -229,6 +324,7 @@ def heat_pools(run: ArmRunData, full: ArmIdentification) -> list[tuple[str, tupl
 
 __all__ = [
     "MAX_REFITS",
+    "MAX_UNTANGLE",
     "POOL_ALL_SHARE",
     "SILENT_SHARE",
     "ArmCalibration",
@@ -236,4 +332,5 @@ __all__ = [
     "heat_pools",
     "identify_arm_final",
     "silent_parameters",
+    "untangle",
 ]
