@@ -12,7 +12,9 @@ several links.
 temperatures by their own residual RMS); standard errors, correlations and what is not
 identifiable from ``J`` at the solution exactly as daemon.model.identify reports them (its
 :func:`~daemon.model.identify.uncertainty`: normalised J^T J, near-singular directions,
-|correlation| > 0.995, relative SE > 0.5, parameters at a bound).
+|correlation| > 0.995, relative SE > 0.5, parameters at a bound), and beyond them a multiple
+correlation with the other parameters together > 0.995 (daemon/arm/identify_groups.py: a
+trade-off among three or more, which no pair shows).
 
 Speed (issue 29: an 8-hour cycle took 2-13 minutes by finite differences of whole simulations):
 the model is linear between changes of the network's factors, so the fit's Jacobian is
@@ -413,7 +415,8 @@ def _with_groups(
     names = [p.name for p in fitted]
     reasons = entangled_reasons(names, jacobian, correlation)
     out, entangled = [], []
-    for parameter in fitted:
+    for reported in fitted:
+        parameter = reported
         reason = reasons.get(parameter.name)
         if reason is not None and "|correlation|" not in parameter.reason:
             joined = "; ".join(r for r in (parameter.reason, reason) if r)

@@ -45,7 +45,8 @@ class ArmCalibration:
     on), ``final`` (the identified ones, refitted until each is identified in its own report)
     and why each parameter left out of ``final`` was (its name -> the reason, from the fit or
     the check that dropped it). Flags and values come from ``final``; the others keep their
-    prior."""
+    prior. A parameter of ``final`` flagged not identified is one the cycle told only in
+    combination (:attr:`combined`): its value is used, its report says so."""
 
     names: tuple[str, ...]
     full: ArmIdentification | None
@@ -180,7 +181,7 @@ def _identify_final(
     if not asked:
         return ArmCalibration(names, None, None, dropped)
     full = identify_arm(run, model, asked, progress=progress)
-    base, asked, pools = untangle(run, model, full, asked, dropped, progress)
+    base, asked, pools = untangle(run, model, full, asked, dropped, progress=progress)
     names = (*names, *(pool for pool in pools if pool not in names))
     dropped.update(  # those told in combination are kept, flagged (_combined)
         {p.name: p.reason for p in base.parameters if not p.identifiable}
@@ -230,6 +231,7 @@ def untangle(
     fit: ArmIdentification,
     asked: list[str],
     dropped: dict[str, str],
+    *,
     progress: Progress | None,
 ) -> tuple[ArmIdentification, list[str], list[str]]:
     """``fit`` refitted while a parameter is flagged for a correlation alone (pairwise or
@@ -238,10 +240,10 @@ def untangle(
     cycle fixes their sum, not their split); a trade-off that is not a split of heats (the
     heats against the convection: the steady state fixes heat over convection) ends the
     untangling, its parameters kept and reported fitted in combination (:func:`_combined`;
-    keeping their prior instead made the others absorb it). At most MAX_UNTANGLE refits. Returns the last fit, its parameter
-    names and the pools made; ``dropped`` gets why each parameter left (issue 29: on a UR5e
-    task the base's and the shoulder's heats traded off with the capacity, and the biased
-    values were flagged identified)."""
+    keeping their prior instead made the others absorb it). At most MAX_UNTANGLE refits.
+    Returns the last fit, its parameter names and the pools made; ``dropped`` gets why each
+    parameter left (issue 29: on a UR5e task the base's and the shoulder's heats traded off
+    with the capacity, and the biased values were flagged identified)."""
     names = list(asked)
     pools: list[str] = []
     for _ in range(MAX_UNTANGLE):

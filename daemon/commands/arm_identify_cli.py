@@ -31,6 +31,7 @@ from daemon.commands.arm_identify import (
     identify_arm_run,
     implausible_values,
     load_arm_run,
+    not_identified_warning,
     validate_arm_run,
     validated_model,
 )
@@ -99,10 +100,7 @@ def format_arm_result(calibration: ArmCalibration) -> str:
     if not final.success:
         lines.append(f"WARNING: the final fit did not converge: {final.message}")
     if calibration.not_identified:
-        lines.append(
-            f"WARNING: NOT FULLY CALIBRATED: {', '.join(calibration.not_identified)} not "
-            "identified; they keep the preset's values (the saved model says so)"
-        )
+        lines.append(f"WARNING: {not_identified_warning(calibration)} (the saved model says so)")
     return "\n".join(lines)
 
 
