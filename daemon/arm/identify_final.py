@@ -22,7 +22,7 @@ from daemon.arm.identify import (
     _checked_specs,
     identify_arm,
 )
-from daemon.arm.identify_groups import LOADING
+from daemon.arm.identify_groups import GROUP_REASON, LOADING
 from daemon.arm.identify_parameters import heat_joints, pooled_heat_name
 from daemon.arm.ir_regions import identification_regions
 from daemon.model.identify import FittedParameter
@@ -153,10 +153,12 @@ def faces_needed(run: ArmRunData, calibration: ArmCalibration) -> bool:
     full = calibration.full
     if full is None:
         return False
-    missed = [
+    missed = [  # a multiple correlation alone is pooled on the means, not a reason for faces
         heat_joints(p.name)[0]
         for p in full.parameters
-        if not p.identifiable and len(heat_joints(p.name)) == 1
+        if not p.identifiable
+        and len(heat_joints(p.name)) == 1
+        and not all(part.startswith(GROUP_REASON) for part in p.reason.split("; "))
     ]
     energy = np.abs(run.joint_heat_w).sum(axis=0)
     total = float(energy.sum())
