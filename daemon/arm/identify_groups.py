@@ -13,17 +13,17 @@ task removed 82-92 % of the other's drift where the calibration program's model 
 The measure: each parameter's multiple correlation with all the others together, ``R_k``,
 from the normalised information ``N`` = J^T J scaled to a unit diagonal: the variance
 inflation ``[N^-1]_kk = 1 / (1 - R_k^2)`` (e.g. Seber & Wild, Nonlinear Regression, 1989,
-sec. 3.4 on ill-conditioning). Its limit is the pairwise one (0.995, a variance inflation of
-100): a parameter whose information is 99 % shared with the others has its error from the
-model's own errors amplified tenfold beyond what the data's noise explains. Measured on the
-UR5e default truth: task A's heat 1, 2, 3 and convection at R 0.9970-0.9992 (inflation
-170-634); the calibration program's largest 0.988 (43).
+sec. 3.4 on ill-conditioning). Past MULTIPLE_CORRELATION_LIMIT (0.9966, an inflation of 150)
+a parameter's information is over 99.3 % shared with the others: an error of the model's own
+along the trade-off moves it twelve times further than the data's noise says. Measured on the
+UR5e default truth (section means): task A's heats 1 and 2 at R 0.9985 and 0.9992 (inflation
+336 and 634), heat 3 and the convection 0.9970-0.9976; the calibration program's largest 0.986.
 
-Which parameters to pool or keep at their prior: the direction the data see least (the
+What the fit then does (identify_final.untangle): the direction the data see least (the
 eigenvector of ``N``'s smallest eigenvalue) names the trade-off; the joint heats loading it
-(|component| >= LOADING) are pooled into one factor (the cycle fixes their sum, not their
-split), otherwise the entangled parameter loading it most keeps its prior
-(identify_final.untangle).
+(|component| >= LOADING, two or more) are pooled into one factor (the cycle fixes their sum,
+not their split) and refitted; what is still flagged after that is kept and reported fitted
+in combination (identify_final._combined).
 """
 
 from __future__ import annotations
