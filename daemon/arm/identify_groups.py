@@ -17,7 +17,7 @@ sec. 3.4 on ill-conditioning). Past MULTIPLE_CORRELATION_LIMIT (0.9966, an infla
 a parameter's information is over 99.3 % shared with the others: an error of the model's own
 along the trade-off moves it twelve times further than the data's noise says. Measured on the
 UR5e default truth (section means): task A's heats 1 and 2 at R 0.9985 and 0.9992 (inflation
-336 and 634), heat 3 and the convection 0.9970-0.9976; the calibration program's largest 0.986.
+336 and 634), heat 3 and the convection 0.9970-0.9976; the calibration program's largest 0.988.
 
 What the fit then does (identify_final.untangle): the direction the data see least (the
 eigenvector of ``N``'s smallest eigenvalue) names the trade-off; the joint heats loading it
