@@ -22,8 +22,9 @@ UR5e default truth (section means): task A's heats 1 and 2 at R 0.9985 and 0.999
 What the fit then does (identify_final.untangle): the direction the data see least (the
 eigenvector of ``N``'s smallest eigenvalue) names the trade-off; the joint heats loading it
 (|component| >= LOADING, two or more) are pooled into one factor (the cycle fixes their sum,
-not their split) and refitted; what is still flagged after that is kept and reported fitted
-in combination (identify_final._combined).
+not their split) and refitted unless the data reject the pool (identify_final.POOL_COST_RISE);
+what is still flagged after that is kept and reported fitted in combination
+(identify_final._combined).
 """
 
 from __future__ import annotations
