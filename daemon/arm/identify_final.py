@@ -247,10 +247,12 @@ def untangle(
     """``fit`` refitted while a parameter is flagged for a correlation alone (pairwise or
     with the others together: identify_groups), one trade-off at a time, the one the data
     see least: the joint heats taking part in it (two or more) become one pooled factor (the
-    cycle fixes their sum, not their split); a trade-off that is not a split of heats (the
-    heats against the convection: the steady state fixes heat over convection) ends the
-    untangling, its parameters kept and reported fitted in combination (:func:`_combined`;
-    keeping their prior instead made the others absorb it). At most MAX_UNTANGLE refits.
+    cycle fixes their sum, not their split) unless the data reject one factor for them
+    (:func:`cost_rise` > POOL_COST_RISE: the split is told); a trade-off that is not a split
+    of heats (the heats against the convection: the steady state fixes heat over
+    convection), or whose pool is rejected, ends the untangling, its parameters kept and
+    reported fitted in combination (:func:`_combined`; keeping their prior instead made the
+    others absorb it). At most MAX_UNTANGLE refits.
     Returns the last fit, its parameter names and the pools made; ``dropped`` gets why each
     parameter left (issue 29: on a UR5e task the base's and the shoulder's heats traded off
     with the capacity, and the biased values were flagged identified)."""
