@@ -33,12 +33,13 @@ MAX_REFITS = 4
 #: At most this many refits untangling trade-offs (each pools one: identify_groups).
 MAX_UNTANGLE = 4
 #: Heats that trade off are pooled only when the pool raises the weighted cost by less than
-#: this: the 95 % quantile of chi-square with one degree of freedom (the data do not reject
-#: one factor for them). Measured on the UR5e (section means): task A's heats 1 and 2 pooled
-#: for a rise of 0.8 (default truth) and 0.2 (corner-low); the calibration program on the
-#: corner-low truth rejects pooling the shoulder's and the elbow's heats (6.0: their factors,
-#: 0.59 and 0.50 on 0.6 and 0.5, are told apart), and pooling them there cost 5 points of
-#: removal on both tasks.
+#: this (:func:`cost_rise`): the 95 % quantile of chi-square with one degree of freedom (the
+#: data do not reject one factor for them). Measured on the UR5e: task A's and task B's pools
+#: -10.8 and -21.8 (default truth; below zero: the pooled fit predicts the tool and the
+#: section means better than the split one), 1.6, -3.3 and -0.3, 1.0 (corner-low, two pools
+#: each); the calibration program on the corner-low truth rejects pooling the shoulder's and
+#: the elbow's heats (18.0: their factors 0.59 and 0.50 on 0.6 and 0.5 are told apart),
+#: where the pool had cost 5 points of removal on both tasks.
 POOL_COST_RISE = 3.84
 #: Heat factors the cycle could not identify that carry at least this share of its motor heat
 #: are pooled with every other heated joint's when their own pool is not identified either.
