@@ -173,7 +173,9 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
             "duty_cycle": run.duty_cycle,
             "all": None if calibration.full is None else calibration.full.to_dict(),
             "refit": calibration.final.to_dict(),
-            "not_identified": {n: calibration.dropped.get(n, "") for n in model.not_identified},
+            "not_identified": {  # the reason of one fitted in combination is the final fit's
+                p.name: p.reason for p in calibration.parameters() if p.name in model.not_identified
+            },
             "arm_model": model.provenance(),
             "validation": None if validation is None else validation.to_dict(),
             "saved_arm_model": args.save,
