@@ -12,7 +12,9 @@ several links.
 temperatures by their own residual RMS); standard errors, correlations and what is not
 identifiable from ``J`` at the solution exactly as daemon.model.identify reports them (its
 :func:`~daemon.model.identify.uncertainty`: normalised J^T J, near-singular directions,
-|correlation| > 0.995, relative SE > 0.5, parameters at a bound).
+|correlation| > 0.995, relative SE > 0.5, parameters at a bound), and beyond them a multiple
+correlation with the other parameters together > 0.995 (daemon/arm/identify_groups.py: a
+trade-off among three or more, which no pair shows).
 
 Speed (issue 29: an 8-hour cycle took 2-13 minutes by finite differences of whole simulations):
 the model is linear between changes of the network's factors, so the fit's Jacobian is
@@ -40,6 +42,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
+from daemon.arm.identify_groups import entangled_reasons, groups
 from daemon.arm.identify_parameters import (
     ArmParameter,
     ArmScales,
@@ -111,6 +114,10 @@ class ArmIdentification:
     message: str
     warnings: tuple[str, ...] = ()
     evaluations: int = 0  # network passes (new responses) the fit took
+    #: parameters told only in combination with others (identify_groups; no other reason)
+    entangled: tuple[str, ...] = ()
+    #: the direction the data see least, one component per parameter (identify_groups)
+    weakest: tuple[float, ...] = ()
 
     def parameter(self, name: str) -> FittedParameter:
         return find_parameter(self.parameters, name)
@@ -377,6 +384,7 @@ def _identify_arm(
     jacobian_at = problem.jacobian(values)
     variance = residual_variance(problem.weighted(values), len(specs))
     fitted, correlation, warnings = uncertainty(specs, values, jacobian_at, variance)
+    fitted, warnings, entangled = _with_groups(fitted, warnings, jacobian_at, correlation)
     return ArmIdentification(
         parameters=tuple(fitted),
         correlation=correlation,
@@ -389,7 +397,39 @@ def _identify_arm(
         message=str(result.message),
         warnings=tuple(warnings),
         evaluations=problem.passes,
+        entangled=entangled,
+        weakest=tuple(float(v) for v in groups(jacobian_at).weakest),
     )
+
+
+def _with_groups(
+    fitted: list[FittedParameter],
+    warnings: list[str],
+    jacobian: FloatArray,
+    correlation: FloatArray,
+) -> tuple[list[FittedParameter], list[str], tuple[str, ...]]:
+    """The fit's report with the group check (identify_groups) added: a parameter told only
+    in combination with the others is not identified; the names of those flagged by a
+    correlation alone (pairwise or with the group: no bound, no large error), which pooling
+    or a prior can untangle (identify_final)."""
+    names = [p.name for p in fitted]
+    reasons = entangled_reasons(names, jacobian, correlation)
+    out, entangled = [], []
+    for reported in fitted:
+        parameter = reported
+        reason = reasons.get(parameter.name)
+        if reason is not None and "|correlation|" not in parameter.reason:
+            joined = "; ".join(r for r in (parameter.reason, reason) if r)
+            warnings.append(f"{parameter.name} is not identifiable from these data: {reason}")
+            parameter = dataclasses.replace(parameter, identifiable=False, reason=joined)
+        only_correlated = all(
+            part.startswith(("|correlation|", "multiple correlation"))
+            for part in parameter.reason.split("; ")
+        )
+        if not parameter.identifiable and only_correlated:
+            entangled.append(parameter.name)
+        out.append(parameter)
+    return out, warnings, tuple(entangled)
 
 
 def evaluate_arm(

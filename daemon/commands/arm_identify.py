@@ -60,8 +60,12 @@ from daemon.arm.identify import (
     Progress,
     evaluate_arm,
 )
-from daemon.arm.identify_final import ArmCalibration, identify_arm_final
-from daemon.arm.identify_parameters import default_parameters, outside_physical_range
+from daemon.arm.identify_final import IN_COMBINATION, ArmCalibration, identify_arm_final
+from daemon.arm.identify_parameters import (
+    default_parameters,
+    heat_joints,
+    outside_physical_range,
+)
 from daemon.arm.ir_regions import region_nodes
 from daemon.calibration.identify_run import (
     recorded_parameters,
@@ -178,26 +182,53 @@ def identify_arm_run(
 
 
 def not_identified_warning(calibration: ArmCalibration) -> str:
-    """The file's loud warning for a model not fully identified (empty when it is)."""
+    """The file's loud warning for a model not fully identified (empty when it is): what
+    keeps the preset's value, what the cycle told only in combination (pooled heats, values
+    fitted along a trade-off: right for this cycle's mix, not for another's), and what a lab
+    must do (issue 29: a UR5e model identified from a task removed 82-92 % of another task's
+    drift, the calibration program's 97 %)."""
     missing = calibration.not_identified
     if not missing:
         return ""
-    return (
-        f"NOT FULLY CALIBRATED: {', '.join(missing)} could not be identified from the "
-        "calibration run and keep the preset's values; the compensation relies on them "
-        "unchecked. A calibration cycle that works these joints longer or harder "
-        "(thermocomp calibrate model --calibration-cycle) can identify them."
+    combined = set(calibration.combined) | set(calibration.pools)
+    preset = [n for n in missing if n not in combined and not _pooled_member(calibration, n)]
+    parts = ["NOT FULLY CALIBRATED:"]
+    if preset:
+        parts.append(
+            f"{', '.join(preset)} could not be identified from the calibration run and keep "
+            "the preset's values; the compensation relies on them unchecked."
+        )
+    if combined:
+        parts.append(
+            f"{', '.join(sorted(combined))} {'was' if len(combined) == 1 else 'were'} told "
+            "only in combination by this cycle (heats pooled, values fitted along a "
+            "trade-off): they hold for this cycle's mix of joints, not for another task's."
+        )
+    parts.append(
+        "A calibration cycle that works each joint in turn identifies them: thermocomp "
+        "calibrate model (its default calibration program) before using this model on "
+        "another task; --calibration-cycle names another cycle."
+    )
+    return " ".join(parts)
+
+
+def _pooled_member(calibration: ArmCalibration, name: str) -> bool:
+    """Whether joint heat ``name`` is fitted as part of a pool of the final fit."""
+    joints = set(heat_joints(name))
+    return bool(joints) and any(
+        joints <= set(heat_joints(pool)) for pool in (*calibration.pools, *calibration.combined)
     )
 
 
 def implausible_values(model: ArmModel) -> list[str]:
     """The identified values outside their physical range (identify_parameters), each with
-    its range; only parameters the final fit identified are checked (the others keep their
-    prior)."""
+    its range; only parameters the final fit identified or fitted in combination are checked
+    (the others keep their prior)."""
     return [
         reason
         for p in model.parameters
-        if p.identifiable and (reason := outside_physical_range(p.name, p.value)) is not None
+        if (p.identifiable or p.reason.startswith(IN_COMBINATION))
+        and (reason := outside_physical_range(p.name, p.value)) is not None
     ]
 
 

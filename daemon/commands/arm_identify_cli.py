@@ -31,6 +31,7 @@ from daemon.commands.arm_identify import (
     identify_arm_run,
     implausible_values,
     load_arm_run,
+    not_identified_warning,
     validate_arm_run,
     validated_model,
 )
@@ -99,10 +100,7 @@ def format_arm_result(calibration: ArmCalibration) -> str:
     if not final.success:
         lines.append(f"WARNING: the final fit did not converge: {final.message}")
     if calibration.not_identified:
-        lines.append(
-            f"WARNING: NOT FULLY CALIBRATED: {', '.join(calibration.not_identified)} not "
-            "identified; they keep the preset's values (the saved model says so)"
-        )
+        lines.append(f"WARNING: {not_identified_warning(calibration)} (the saved model says so)")
     return "\n".join(lines)
 
 
@@ -175,7 +173,9 @@ def run_arm_identify(args: argparse.Namespace, settings: Settings) -> int:
             "duty_cycle": run.duty_cycle,
             "all": None if calibration.full is None else calibration.full.to_dict(),
             "refit": calibration.final.to_dict(),
-            "not_identified": {n: calibration.dropped.get(n, "") for n in model.not_identified},
+            "not_identified": {  # the reason of one fitted in combination is the final fit's
+                p.name: p.reason for p in calibration.parameters() if p.name in model.not_identified
+            },
             "arm_model": model.provenance(),
             "validation": None if validation is None else validation.to_dict(),
             "saved_arm_model": args.save,
