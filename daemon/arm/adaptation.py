@@ -40,9 +40,10 @@ from daemon.arm.identify_parameters import (
     initial_values,
     parse_parameters,
 )
-from daemon.arm.identify_response import NetworkFactors, one_blas_thread, output_responses
+from daemon.arm.identify_response import NetworkFactors, output_responses
 from daemon.arm.response import ArmModelSpec, ArmRunData
 from daemon.arm.types import FloatArray, LinkThermalState
+from daemon.model.blas import one_blas_thread
 
 #: Prior 1-sigma of a log factor with no identified value (a factor 1.65 either way: the
 #: two-link adaptation's PRIOR_LOG_SIGMA) and of a bending share (absolute).

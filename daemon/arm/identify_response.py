@@ -19,24 +19,14 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from scipy.signal import lfilter
-from threadpoolctl import threadpool_limits
 
 from daemon.arm.arm_network import ArmThermalDescription, IntArray, build_arm_network
 from daemon.arm.response import ArmRunData
 from daemon.arm.types import FloatArray
 from daemon.model.model import NetworkModes
-
-
-def one_blas_thread() -> Any:
-    """A context with one BLAS thread: the arm's networks are ~100 nodes, and a threaded
-    eigendecomposition of that size on a loaded 2-core machine took 0.7 s instead of 2 ms
-    (issue 29's 6-13 minutes of identification; benchmarks/bench_arm.py sets the same by its
-    environment)."""
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 @dataclass(frozen=True)
@@ -195,7 +185,6 @@ __all__ = [
     "NetworkFactors",
     "OutputResponses",
     "factored_description",
-    "one_blas_thread",
     "output_responses",
     "output_rows",
 ]
