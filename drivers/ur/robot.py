@@ -7,8 +7,8 @@ and program modes, and the program's registers: at which measured pose it is, wh
 it accepted, its status, the offset it applies) at robot.rtde_frequency_hz, and writes the
 correction, a sequence number and a hold flag into the input registers
 (drivers/ur/registers.py) on every correction and at least every robot.ur_heartbeat_s.
-Every state package's joints, speeds and target accelerations also go into a bounded log
-(drivers/ur/motion.py, :meth:`URRobot.take_motion`): a followed run's motor heat.
+Each package's joints, speeds and target accelerations go into a bounded log for a followed
+run's motor heat (drivers/ur/motion.py, :meth:`URRobot.take_motion`).
 
 **The hold** (drivers.base.Robot's contract, drivers/permit.py). :meth:`URRobot.stop` holds
 from the moment it is called: the permit is held and the hold flag written to the controller
@@ -41,11 +41,9 @@ fault: the correction is held, the link reconnects in the background (drivers/re
 and stays held until an explicit resume. Nothing here moves the robot: the robot moves by its
 own program; this driver only shifts that program's path within the program's limits.
 
-**Holding a dwell for the cameras** (:meth:`URRobot.hold_dwell`, :meth:`URRobot.release_dwell`):
-the frames register (drivers/ur/registers.py) asks the program's ``tc_wait_for_frames`` to
-keep the arm at rest on a measured pose while the PC takes its frames (a loaded PC is slower
-than a taught dwell: daemon/run/followed/measure.py). :meth:`hold_dwell` waits for the
-controller's read-back, so its state says whether the program was still at that dwell. It
+**Holding a dwell for the cameras** (:meth:`URRobot.hold_dwell`): the frames register
+(drivers/ur/registers.py) asks the program's ``tc_wait_for_frames`` to keep the arm at rest
+on a measured pose while a loaded PC takes its frames (daemon/run/followed/measure.py). It
 moves nothing, so it is written held or not; each connection starts with it at 0.
 """
 
@@ -90,6 +88,7 @@ from drivers.ur.state import (
     at_or_past,
     decode_state,
     next_sequence,
+    state_modes,
 )
 
 logger = logging.getLogger(__name__)
@@ -116,8 +115,7 @@ class URRobot:
         self._outputs: Recipe | None = None
         self._inputs: Recipe | None = None
         self._link = LinkState.DISCONNECTED
-        #: the one owner of "may the correction change" (drivers/permit.py)
-        self.permit = MotionPermit(DEVICE)
+        self.permit = MotionPermit(DEVICE)  # the owner of "may the correction change"
         self._hold_inputs: Recipe | None = None
         self._corrections = asyncio.Lock()  # one correction at a time (module docstring)
         self._stalled = False  # the program stopped accepting corrections: until a resume
@@ -130,8 +128,7 @@ class URRobot:
         self._sequence = 0  # the last one written
         self._target: tuple[float, ...] = (0.0,) * 6  # the correction on the wire (m, rad)
         self._state: OffsetRobotState | None = None
-        #: every state package's joints, speeds and currents, for a followed run's motor heat
-        self.motion = MotionLog(settings.rtde_frequency_hz)
+        self.motion = MotionLog(settings.rtde_frequency_hz)  # for a followed run's motor heat
         self._lock = asyncio.Lock()  # resume and the reconnection, one at a time
         self._reader: asyncio.Task[None] | None = None
         self._heartbeat: asyncio.Task[None] | None = None
@@ -409,8 +406,7 @@ class URRobot:
             self._write_frames(0)
 
     def take_motion(self) -> MotionSamples:
-        """The motion the robot made since the last take: every state package's controller
-        time, joints, speeds and motor currents (drivers/ur/motion.py)."""
+        """The motion since the last take (drivers/ur/motion.py)."""
         return self.motion.take()
 
     def robot_state(self) -> OffsetRobotState:
@@ -460,7 +456,6 @@ class URRobot:
 
     def status(self) -> RobotStatus:
         client = self._client
-        state = self._state
         extra = {
             "host": self.settings.host,
             "register_base": str(self.registers.base),
@@ -471,11 +466,7 @@ class URRobot:
             extra["controller_version"] = ".".join(map(str, client.controller_version))
             extra["bytes_sent"] = str(client.bytes_sent)
             extra["bytes_received"] = str(client.bytes_received)
-        if state is not None:
-            extra["robot_mode"] = str(state.robot_mode)
-            extra["safety_mode"] = str(state.safety_mode)
-            extra["runtime_state"] = str(state.runtime_state)
-            extra["program_status"] = str(state.program_status)
+        extra.update(state_modes(self._state))
         link = self._link
         if self._stalled and link is LinkState.CONNECTED:
             link = LinkState.STALLED

@@ -120,3 +120,16 @@ class ProgramWatch:
             return None
         self.lost = lost
         return lost
+
+
+def state_modes(state: OffsetRobotState | None) -> dict[str, str]:
+    """The robot's, safety, runtime and program modes of ``state`` for its status' extras
+    (none before the first package)."""
+    if state is None:
+        return {}
+    return {
+        "robot_mode": str(state.robot_mode),
+        "safety_mode": str(state.safety_mode),
+        "runtime_state": str(state.runtime_state),
+        "program_status": str(state.program_status),
+    }
