@@ -38,31 +38,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import daemon.model.observer as observer_module
 from benchmarks.common import print_table, write_results
 from config.settings import load_settings
-from daemon.model.network import FloatArray
 from daemon.run.followed.setup import JOINT_SENSOR_NOISE_C, followed_model
 from daemon.run.states import RunParameters
+from tests.test_arm_bending_fast import dense_joseph, dense_propagate  # the oracles
 
 CONFIG = Path(__file__).resolve().parent.parent / "config" / "ur5e-sim.toml"
 WARM_UP_STEPS = 20
 Q = np.radians([20.0, -80.0, 90.0, -100.0, -90.0, 10.0])
-
-
-def dense_propagate(
-    p: FloatArray, nodes: int, a: FloatArray, b: FloatArray, noise: FloatArray
-) -> FloatArray:
-    jacobian = np.eye(p.shape[0])
-    jacobian[:nodes, :nodes] = a
-    jacobian[:nodes, nodes:] = b
-    result: FloatArray = jacobian @ p @ jacobian.T + np.diag(noise)
-    return result
-
-
-def dense_joseph(
-    p: FloatArray, gain: FloatArray, h: FloatArray, hp: FloatArray, noise: FloatArray
-) -> FloatArray:
-    identity_minus = np.eye(p.shape[0]) - gain @ h
-    result: FloatArray = identity_minus @ p @ identity_minus.T + gain @ np.diag(noise) @ gain.T
-    return result
 
 
 def variant(dense: bool, threaded: bool) -> contextlib.AbstractContextManager[Any]:

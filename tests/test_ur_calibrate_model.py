@@ -56,6 +56,30 @@ def recorded_run(data_dir: Path, hours: float, **truth: Any) -> int:
     return run_id
 
 
+def calibrated(data: Path, run_id: int, save: str) -> dict[str, Any]:
+    """``calibrate model`` on the recorded followed run ``run_id`` of ``data`` through the real
+    CLI (saved as ``save``, no validation, ``--force``): its JSON outcome."""
+    result = run_main(
+        [
+            "calibrate",
+            "model",
+            "--config",
+            UR5E,
+            "--save",
+            save,
+            "--calibration-run",
+            str(run_id),
+            "--no-validate",
+            "--force",
+            "--json",
+        ],
+        env={"THERMOCOMP_STORAGE__DATA_DIR": str(data)},
+    )
+    assert result.returncode == 0, result.stderr
+    outcome: dict[str, Any] = json.loads(result.stdout)
+    return outcome
+
+
 @pytest.mark.slow
 def test_calibrate_model_identifies_the_motor_heat_the_preset_gets_wrong(tmp_path: Path) -> None:
     """Two hours of the program on a truth whose shoulder heats x1.5: the identified factor
@@ -66,24 +90,7 @@ def test_calibrate_model_identifies_the_motor_heat_the_preset_gets_wrong(tmp_pat
     data = tmp_path / "data"
     heat = (1.0, TRUE_SHOULDER_HEAT, 1.0, 1.0, 1.0, 1.0)
     run_id = recorded_run(data, 2.0, heat_scales=heat)
-    result = run_main(
-        [
-            "calibrate",
-            "model",
-            "--config",
-            UR5E,
-            "--save",
-            "shoulder",
-            "--calibration-run",
-            str(run_id),
-            "--no-validate",
-            "--force",
-            "--json",
-        ],
-        env={"THERMOCOMP_STORAGE__DATA_DIR": str(data)},
-    )
-    assert result.returncode == 0, result.stderr
-    outcome = json.loads(result.stdout)
+    outcome = calibrated(data, run_id, "shoulder")
     refit = outcome["identified"]["refit"]
     shoulder = next(p for p in refit["parameters"] if p["name"] == "heat:2")
     assert shoulder["identifiable"]

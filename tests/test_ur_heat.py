@@ -41,9 +41,8 @@ from drivers.ur.dashboard_client import DashboardClient
 from drivers.ur.modes import RuntimeState
 from drivers.ur.motion import MotionSamples
 from tests.fakes import params
-from tests.helpers import run_main
 from tests.loopback import loopback_host
-from tests.test_ur_calibrate_model import FAST_MOTION_STEP_S, UR5E
+from tests.test_ur_calibrate_model import FAST_MOTION_STEP_S, calibrated
 from tests.test_ur_calibrate_model import ur_settings as ur_calibration_settings
 from tests.test_ur_program_pause import emulator_of, until, ur_settings
 
@@ -201,24 +200,7 @@ def test_the_recorded_heat_survives_a_restart_and_feeds_identification(tmp_path:
 
 
 def _identified_heat(data: Path, run_id: int) -> dict[str, float]:
-    result = run_main(
-        [
-            "calibrate",
-            "model",
-            "--config",
-            UR5E,
-            "--save",
-            "paused",
-            "--calibration-run",
-            str(run_id),
-            "--no-validate",
-            "--force",
-            "--json",
-        ],
-        env={"THERMOCOMP_STORAGE__DATA_DIR": str(data)},
-    )
-    assert result.returncode == 0, result.stderr
-    refit = json.loads(result.stdout)["identified"]["refit"]
+    refit = calibrated(data, run_id, "paused")["identified"]["refit"]
     return {p["name"]: p["value"] for p in refit["parameters"] if p["name"].startswith("heat:")}
 
 

@@ -9,7 +9,6 @@ ambient (daemon/commands/followed_identify.py). Recorded on an accelerated clock
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,8 @@ from config.settings import Settings, load_settings
 from daemon.arm.arm_network import describe_arm
 from daemon.arm.loading import load_arm
 from drivers.sim.arm_physics import true_arm
-from tests.helpers import REPO_ROOT, run_main
+from tests.helpers import REPO_ROOT
+from tests.test_ur_calibrate_model import calibrated
 
 UR5E = str(REPO_ROOT / "config" / "ur5e-sim.toml")
 FAST_MOTION_STEP_S = 0.05  # as tests/test_ur_calibrate_model.py: the model's motion_dt_s
@@ -60,24 +60,7 @@ def identified(data_dir: Path, room: str, hours: float, **truth: Any) -> dict[st
     run_id, _ = record_calibration_run(
         ur_settings(data_dir, room), controller, data_dir, hours=hours, measure_every_s=300.0
     )
-    result = run_main(
-        [
-            "calibrate",
-            "model",
-            "--config",
-            UR5E,
-            "--save",
-            f"model-{room}",
-            "--calibration-run",
-            str(run_id),
-            "--no-validate",
-            "--force",
-            "--json",
-        ],
-        env={"THERMOCOMP_STORAGE__DATA_DIR": str(data_dir)},
-    )
-    assert result.returncode == 0, result.stderr
-    refit = json.loads(result.stdout)["identified"]["refit"]
+    refit = calibrated(data_dir, run_id, f"model-{room}")["identified"]["refit"]
     return {p["name"]: p for p in refit["parameters"]}
 
 
