@@ -37,25 +37,29 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.bench_ur_identify import CONFIG, calibrate, write_truth_factors
+from benchmarks.bench_ur_identify import (
+    CONFIG,
+    HOURS,
+    MEASURE_EVERY_S,
+    NOMINAL,
+    SAMPLE_S,
+    UM_PER_MM,
+    calibrate,
+    write_truth_factors,
+)
 from benchmarks.common import print_table, write_results
 from benchmarks.ur_recorded import compensated_removal, emulated, record_calibration_run
 from config.settings import Settings, load_settings
 from daemon.arm.arm_model import saved_arm_models_dir
 from daemon.storage.recorder import DATABASE_NAME
 
-HOURS = 8.0
 PAUSE_H = (3.0, 4.0)
-MEASURE_EVERY_S = 120.0
-SAMPLE_S = 60.0
-UM_PER_MM = 1000.0
 
 
 def scenarios(quick: bool) -> list[tuple[str, int, dict[str, Any]]]:
-    nominal: list[tuple[str, int, dict[str, Any]]] = [("nominal seed 1", 1, {})]
     if quick:
-        return nominal
-    return [*nominal, ("shoulder+elbow x1.4", 1, {"heat_scales": (1.0, 1.4, 1.4, 1.0, 1.0, 1.0)})]
+        return NOMINAL
+    return [*NOMINAL, ("shoulder+elbow x1.4", 1, {"heat_scales": (1.0, 1.4, 1.4, 1.0, 1.0, 1.0)})]
 
 
 BENDING = [False]  # --bending: arm.bending on (as bench_ur_identify.py's table)

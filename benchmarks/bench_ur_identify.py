@@ -60,12 +60,15 @@ SAMPLE_S = 60.0
 UM_PER_MM = 1000.0
 
 
+#: The bench's own truth (seed 1), every UR benchmark's first scenario.
+NOMINAL: list[tuple[str, int, dict[str, Any]]] = [("nominal seed 1", 1, {})]
+
+
 def scenarios(quick: bool) -> list[tuple[str, int, dict[str, Any]]]:
-    nominal: list[tuple[str, int, dict[str, Any]]] = [("nominal seed 1", 1, {})]
     if quick:
-        return nominal
+        return NOMINAL
     return [
-        *nominal,
+        *NOMINAL,
         ("motors x1.6", 1, {"heat_scales": (1.6,) * 6}),
         ("convection halved", 1, {"convection_scale": 0.4}),
         ("room +1 degC/h", 1, {"ambient_drift_c_per_h": 1.0}),
