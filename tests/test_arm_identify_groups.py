@@ -99,6 +99,7 @@ def test_the_saved_models_warning_says_what_holds_only_for_this_cycle() -> None:
     assert "heat:1, " not in warning.split("could not")[0]
     assert "convection, heat:1+2 were told only in combination" in warning
     assert "calibrate model" in warning and "another task" in warning
+    assert "a robot that plays its own program (a UR)" in warning  # which a PC cannot switch
 
 
 def test_a_value_fitted_in_combination_is_checked_for_its_physical_range() -> None:

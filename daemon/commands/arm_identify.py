@@ -205,9 +205,11 @@ def not_identified_warning(calibration: ArmCalibration) -> str:
             "trade-off): they hold for this cycle's mix of joints, not for another task's."
         )
     parts.append(
-        "A calibration cycle that works each joint in turn identifies them: thermocomp "
-        "calibrate model (its default calibration program) before using this model on "
-        "another task; --calibration-cycle names another cycle."
+        "A calibration cycle that works each joint in turn identifies them; calibrate on one "
+        "before using this model on another task: on the A465 thermocomp calibrate model "
+        "(its default calibration program; --calibration-cycle names another), on a robot "
+        "that plays its own program (a UR) a run of a taught program that does so "
+        "(docs/how-to/universal-robots.md)."
     )
     return " ".join(parts)
 
