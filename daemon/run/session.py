@@ -81,6 +81,8 @@ class RunSession:
         self._prepared = False  # the start's teaching and references are done
         self._publisher = RunPublisher(self.id, services)
         self._measuring = StepsMeasuring(self._collect)  # overlapping later steps' moves
+        #: the grant (start or resume request) each step still to be collected moved under
+        self._step_grants: dict[int, Ticket] = {}
         self.task: asyncio.Task[None] | None = None
 
     @property
@@ -335,6 +337,7 @@ class RunSession:
             # under way (it completes): skipping it would leave a gap in the step numbers
             tick = await timer.wait()
             collector.step(running=True)
+            self._step_grants[tick.step] = self._grant.ticket
             try:
                 outcome = await self.kind.step(tick)
             finally:
@@ -352,7 +355,7 @@ class RunSession:
     async def _collect(self, step: int, outcome: StepOutcome) -> None:
         """A committed step, in step order: published, then its verdict acted on."""
         self._recorded(outcome)
-        await self._judge(step, outcome.verdict)
+        await self._judge(step, outcome.verdict, self._step_grants.pop(step, self._grant.ticket))
 
     def _recorded(self, outcome: StepOutcome) -> None:
         """A committed step: the session's last step, then its publication (the budget in wall
@@ -364,35 +367,30 @@ class RunSession:
             outcome, self.last_record, self.view(), self.kind.parameters.step_s, factor
         )
 
-    async def _judge(self, step: int, verdict: Verdict) -> None:
-        """A step's verdict meets the operator's requests here."""
+    async def _judge(self, step: int, verdict: Verdict, grant: Ticket) -> None:
+        """A step's verdict meets the operator's requests here. ``grant``: the request (start
+        or resume) the step moved for."""
         if verdict.kind == "ok":
             return
-        if self._services.hold_pending():
-            # a hold request from the API's thread held the permit and its pause or stop is
-            # on its way here: that request came first; the verdict stays on the step's record
+        stale = self.state is not RunState.RUNNING or grant != self._grant.ticket
+        if stale or self._services.hold_pending():
+            # a hold request from the API's thread held the permit and its pause or stop is on
+            # its way here (that request came first); or the run was paused, faulted or stopped
+            # after this step moved, by a request or a verdict that held the robot then, and
+            # may have been resumed since by a later request: this verdict (often the hold's
+            # own refusal of the step's move) stays on its record; holding again now would
+            # refuse or undo that resume
+            since = f"the run was {self.state.value} since it moved" if stale else "a hold came"
             logger.info(
-                "run %d step %d: %s is on its record; a hold request came first",
-                self.id,
-                step,
-                verdict.reason,
+                "run %d step %d: %s is on its record; %s", self.id, step, verdict.reason, since
             )
             return
         if verdict.kind == "fault":
             await self._fault(verdict.reason or "device fault")
             return
         logger.warning("run %d step %d: %s", self.id, step, verdict.reason)
-        if self.state is RunState.RUNNING:
-            await self._grant.hold(f"run {self.id} paused: {verdict.reason}")  # paused: held
-            self._go(RunState.PAUSED, verdict.reason)
-        else:
-            logger.info(
-                "run %d step %d: its pause (%s) is on its record; the run is already %s",
-                self.id,
-                step,
-                verdict.reason,
-                self.state.value,
-            )
+        await self._grant.hold(f"run {self.id} paused: {verdict.reason}")  # paused: held
+        self._go(RunState.PAUSED, verdict.reason)
 
     async def _fault(self, reason: str) -> None:
         """A device fault: hold motion first, then park the run in ``fault`` until an explicit
