@@ -59,7 +59,7 @@ async def build_followed(
     truth: BenchTruth | None = getattr(devices, "ur_truth", None)
     measurement = await _measurement(builder, devices, robot, truth)
     identified = model.controller.identified  # the arm model (calibrate model), or None
-    snapshot = {
+    snapshot: dict[str, Any] = {
         "kind": FollowedKind.name,
         "arm_model": None if identified is None else identified.provenance(),
     }
