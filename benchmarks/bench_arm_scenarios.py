@@ -21,14 +21,19 @@ measured drift less its prediction:
   ambient), following the room;
 - identified+room+ir: the same with the IR observer;
 - other-cycle+room: identified on the OTHER task's run (B for A, A for B), following the room;
-- adapt: the preset with online adaptation (arm.adapt, room and IR), no calibration; judged
-  over the last third of the run.
+- other-cycle+room+adapt: the same model as the online adaptation's prior (arm.adapt, room and
+  IR): the run learns what the other task could not teach (a parameter the model did not
+  identify, pooled or fitted in combination, starts from the wide prior); its last third is
+  printed beside it;
+- adapt: the preset with online adaptation (arm.adapt, room and IR), no calibration.
 
-Targets (issue 29, on plausible truths, 8-hour runs; config/arm_truth.py ``implausible``):
-identified+room >= 95 % removed and <= 2x the meter's 1-sigma; other-cycle+room >= 93 %;
-adapt >= 90 % over the last third; preset+room+ir >= 80 %. The meter's 1-sigma is the 3-D
-scatter of the tool measured on the still, cold arm (30 measurements), per truth (a truth's
-cameras may jitter more). Each identification's wall time is reported, and the load.
+Targets (issue 29, on plausible truths, 8-hour runs; config/arm_truth.py ``implausible``),
+each over the rows benchmarks/arm_scenarios_report.py ``JUDGED_OVER`` names (the whole run
+unless said): identified+room >= 95 % removed and <= 2x the meter's 1-sigma; other-cycle+room
+and other-cycle+room+adapt >= 93 %; adapt >= 90 % over the last third; preset+room+ir >= 80 %.
+The meter's 1-sigma is the 3-D scatter of the tool measured on the still, cold arm (30
+measurements), per truth (a truth's cameras may jitter more). Each identification's wall time
+is reported, and the load.
 
     .venv/bin/python benchmarks/bench_arm_scenarios.py [--scenarios a,b] [--random N]
         [--random-seed S] [--hours 8] [--every 240] [--controllers ...] [--tasks A,B]
@@ -62,8 +67,17 @@ from benchmarks.arm_replay import (
     residual_figures,
     simulate,
 )
+from benchmarks.arm_scenarios_report import (
+    LAST_THIRD,
+    TARGETS,
+    judged_over,
+    print_scenario,
+    print_worst,
+    window_rows,
+    worst_cases,
+)
 from benchmarks.arm_truths import random_truth_toml
-from benchmarks.common import print_table, write_results
+from benchmarks.common import write_results
 from config.arm_truth import TRUTHS_DIR, implausible, load_arm_truth
 
 #: Per arm (--arm): its arm file and its two tasks.
@@ -81,15 +95,9 @@ CONTROLLERS = (
     "identified+room",
     "identified+room+ir",
     "other-cycle+room",
+    "other-cycle+room+adapt",
     "adapt",
 )
-#: controller -> (least share removed, largest RMS over the meter's 1-sigma or None).
-TARGETS: dict[str, tuple[float, float | None]] = {
-    "identified+room": (0.95, 2.0),
-    "other-cycle+room": (0.93, None),
-    "adapt": (0.90, None),
-    "preset+room+ir": (0.80, None),
-}
 #: Noise seeds of the runs (offsets from the truth's seed): one arm measured three times.
 NOISE = {"program": 1001, "A": 1003, "B": 1004}
 
@@ -103,8 +111,14 @@ PLANS: dict[str, tuple[str | None, bool, bool, bool]] = {
     "identified+room": ("program", False, False, True),
     "identified+room+ir": ("program", True, False, True),
     "other-cycle+room": ("other", False, False, True),
+    "other-cycle+room+adapt": ("other", False, True, True),
     "adapt": (None, False, True, True),
 }
+
+
+def from_other_task(controllers: Sequence[str]) -> bool:
+    """Whether a controller starts from the model identified on the other task's run."""
+    return any(PLANS.get(c, (None,))[0] == "other" for c in controllers)
 
 
 def evaluate(
@@ -132,8 +146,14 @@ def evaluate(
         plan = plan_for(settings, cycles[task], arm_model=model, ir=ir, adapt=adapt)
         started = time.perf_counter()
         played = replay(plan, run, room=room)
-        rows = slice(2 * run.time_s.size // 3, None) if adapt else slice(None)
-        figures = residual_figures(run, played["predicted_mm"], rows)
+        count = run.time_s.size
+        figures: dict[str, Any] = residual_figures(
+            run, played["predicted_mm"], window_rows(judged_over(name), count)
+        )
+        figures["judged_over"] = judged_over(name)
+        figures[LAST_THIRD] = residual_figures(
+            run, played["predicted_mm"], window_rows(LAST_THIRD, count)
+        )
         figures["replay_wall_s"] = time.perf_counter() - started
         if played["estimates"]:
             figures["estimates"] = played["estimates"][-1]
@@ -164,13 +184,13 @@ def scenario(
         cycles = {"program": calibration_program(settings, task_cycles["A"], data_dir)}
         cycles.update({task: task_cycles[task] for task in ("A", "B")})
         for label, cycle in cycles.items():
-            if label != "program" and label not in tasks and "other-cycle+room" not in controllers:
+            if label != "program" and label not in tasks and not from_other_task(controllers):
                 continue
             started = time.perf_counter()
             runs[label] = simulate(settings, cycle, seed + NOISE[label], duration_s, every_s)
             found.setdefault("simulation_wall_s", {})[label] = time.perf_counter() - started
         wanted = {"program"} if any(c.startswith("identified") for c in controllers) else set()
-        if "other-cycle+room" in controllers:
+        if from_other_task(controllers):
             wanted |= {label for label in ("A", "B") if label in runs}
         for label in sorted(wanted):
             name = "program" if label == "program" else f"task-{label}"
@@ -221,82 +241,6 @@ def largest_correlations(calibration: Any, count: int = 3) -> list[tuple[str, st
         if math.isfinite(float(full.correlation[i, j]))
     ]
     return sorted(pairs, key=lambda p: -abs(p[2]))[:count]
-
-
-def target_met(controller: str, figures: dict[str, Any]) -> bool | None:
-    if controller not in TARGETS:
-        return None
-    removed, ratio = TARGETS[controller]
-    return figures["removed"] >= removed and (ratio is None or figures["rms_over_sigma"] <= ratio)
-
-
-def cell(figures: dict[str, Any] | None, controller: str) -> str:
-    if figures is None:
-        return "-"
-    if controller == "none":
-        return f"{figures['rms_3d_um']:.1f} um"
-    met = target_met(controller, figures)
-    mark = "" if met is None else (" ok" if met else " MISS")
-    return (
-        f"{figures['rms_3d_um']:.1f} um {100 * figures['removed']:.1f} % "
-        f"{figures['rms_over_sigma']:.1f}s{mark} (truth {100 * figures['true_removed']:.1f} %)"
-    )
-
-
-def print_scenario(name: str, found: dict[str, Any], controllers: Sequence[str]) -> None:
-    load = found["load_average"]
-    print(
-        f"\n{name} ({'plausible' if found['plausible'] else 'BEYOND plausible'}; meter sigma "
-        f"{found['meter_sigma_um']:.2f} um; {found['wall_s']:.0f} s wall, load "
-        f"{load[0]:.1f} {load[1]:.1f} {load[2]:.1f})"
-    )
-    tasks = list(found["tasks"])
-    print_table(
-        ["controller", *(f"task {t}: RMS, removed, RMS/sigma (on the truth)" for t in tasks)],
-        [[c, *(cell(found["tasks"][t].get(c), c) for t in tasks)] for c in controllers],
-    )
-    for label, calibration in found["calibrations"].items():
-        print(
-            f"  calibration on {label}: {calibration['identification_wall_s']:.1f} s wall, "
-            f"{calibration['identification_cpu_s']:.1f} s CPU (load "
-            f"{calibration['load_average'][0]:.1f}); not identified: "
-            f"{', '.join(calibration['not_identified']) or 'none'}"
-        )
-
-
-def worst_cases(results: dict[str, Any]) -> list[dict[str, Any]]:
-    """Per target: the worst plausible scenario x task, and how many met it."""
-    out = []
-    for controller in TARGETS:
-        cases = [
-            (name, task, figures[controller])
-            for name, found in results.items()
-            if found["plausible"]
-            for task, figures in found["tasks"].items()
-            if controller in figures
-        ]
-        if not cases:
-            continue
-        name, task, figures = min(cases, key=lambda c: (c[2]["removed"], -c[2]["rms_over_sigma"]))
-        highest = max(cases, key=lambda c: c[2]["rms_over_sigma"])
-        worst_true = min(cases, key=lambda c: c[2]["true_removed"])
-        met = sum(bool(target_met(controller, c[2])) for c in cases)
-        out.append(
-            {
-                "controller": controller,
-                "scenario": name,
-                "task": task,
-                "removed": figures["removed"],
-                "rms_3d_um": figures["rms_3d_um"],
-                "rms_over_sigma": figures["rms_over_sigma"],
-                "true_removed": figures["true_removed"],
-                "worst_true_removed": [worst_true[0], worst_true[1], worst_true[2]["true_removed"]],
-                "highest_rms_over_sigma": [highest[0], highest[1], highest[2]["rms_over_sigma"]],
-                "met": met,
-                "cases": len(cases),
-            }
-        )
-    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -365,25 +309,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             results[name] = found
             print_scenario(name, found, controllers)
     worst = worst_cases(results)
-    print("\nworst plausible case per target:")
-    print_table(
-        [
-            "target", "scenario", "task", "RMS um", "removed", "RMS/sigma", "met",
-            "worst RMS/sigma", "its truth removed", "worst truth removed",
-        ],
-        [
-            [
-                w["controller"], w["scenario"], w["task"], w["rms_3d_um"],
-                f"{100 * w['removed']:.1f} %", w["rms_over_sigma"], f"{w['met']}/{w['cases']}",
-                f"{w['highest_rms_over_sigma'][2]:.2f} ({w['highest_rms_over_sigma'][0]} "
-                f"{w['highest_rms_over_sigma'][1]})",
-                f"{100 * w['true_removed']:.1f} %",
-                f"{100 * w['worst_true_removed'][2]:.1f} % ({w['worst_true_removed'][0]} "
-                f"{w['worst_true_removed'][1]})",
-            ]
-            for w in worst
-        ],
-    )  # fmt: skip
+    print_worst(worst)
     walls = [
         c["identification_wall_s"] for f in results.values() for c in f["calibrations"].values()
     ]
@@ -407,7 +333,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             "every_s": args.every,
             "seed": args.seed,
             "random_seed": args.random_seed,
-            "targets": {k: {"removed": v[0], "rms_over_sigma": v[1]} for k, v in TARGETS.items()},
+            "targets": {
+                k: {"removed": v[0], "rms_over_sigma": v[1], "judged_over": judged_over(k)}
+                for k, v in TARGETS.items()
+            },
             "scenarios": results,
             "worst": worst,
             "identification_wall_s": walls,

@@ -100,6 +100,10 @@ def test_the_saved_models_warning_says_what_holds_only_for_this_cycle() -> None:
     assert "convection, heat:1+2 were told only in combination" in warning
     assert "calibrate model" in warning and "another task" in warning
     assert "a robot that plays its own program (a UR)" in warning  # which a PC cannot switch
+    # run on another task anyway: the adaptation learns what this cycle could not teach, and
+    # only an arm run adapts (issue 29, docs/explanation/bench-truth.md)
+    assert "set arm.adapt = true" in warning and "what this cycle could not teach" in warning
+    assert "a followed run, a UR's, does not adapt" in warning
 
 
 def test_a_value_fitted_in_combination_is_checked_for_its_physical_range() -> None:

@@ -73,3 +73,30 @@ async def test_a_followed_run_writes_corrections_and_none_after_a_hold(tmp_path:
     assert final["state"] == "stopped" and final["id"] == info["id"]
     assert final["summary"]["kind"] == "followed"
     assert final["summary"]["corrections_written"] == len(robot.written)
+
+
+async def test_a_followed_run_says_it_does_not_adapt(tmp_path: Path) -> None:
+    """arm.adapt on a followed run (issue 29): the followed run has no online adaptation; the
+    run's record says so (snapshot ``adapt`` false and why) instead of ignoring it silently."""
+    from daemon.run.followed.build import NOT_ADAPTING
+
+    settings = make_settings(
+        tmp_path,
+        scheduler={"step_s": 0.2, "duration_s": 600.0},
+        arm={
+            "enabled": True,
+            "arm_file": "ur5e",
+            "duty_cycle": "ur5e-pick-and-place",
+            "adapt": True,
+        },
+    )
+    clock = make_clock(settings.bench.clock, settings.bench.time_factor)
+    devices = FollowedDevices(clock)
+    async with Daemon(settings, clock=clock, open_devices=lambda _s, _c: devices) as daemon:
+        info = await daemon.start_run(params(settings))
+        await daemon.wait_state(RunState.RUNNING)
+        await daemon.stop()
+        assert daemon.recorder is not None
+        row = daemon.recorder.run(info["id"])
+    assert row is not None and row.network is not None
+    assert row.network["adapt"] is False and row.network["adapt_note"] == NOT_ADAPTING

@@ -181,6 +181,24 @@ def identify_arm_run(
     return calibration
 
 
+#: The saved model's advice to a lab that runs it on another task anyway (issue 29): the
+#: online adaptation starts from this model, each factor it did not identify (kept at the
+#: preset, pooled or fitted in combination) with the wide prior, each identified one with its
+#: own standard error (daemon/arm/controller_priors.py), so the run learns from its tool
+#: measurements what this cycle could not teach. Measured on the UR5e's two tasks over 8
+#: plausible truths (docs/explanation/bench-truth.md, "Transfer with the run learning"): the
+#: other task's model alone removed 87.3-96.7 % of the drift (10 of 16 cases >= 93 %),
+#: adapting from it 91.0-98.5 % (15 of 16; the miss at the meter's cap). An arm run adapts
+#: (the A465's); a followed run (a UR playing its own program) does not yet
+#: (daemon/run/followed/build.py NOT_ADAPTING).
+ADAPT_ADVICE = (
+    "To run this model on another task anyway, set arm.adapt = true (an arm run, the A465's; "
+    "a followed run, a UR's, does not adapt yet): the run then learns from its tool "
+    "measurements what this cycle could not teach (each of these from a wide prior, each "
+    "identified factor from its own standard error)."
+)
+
+
 def not_identified_warning(calibration: ArmCalibration) -> str:
     """The file's loud warning for a model not fully identified (empty when it is): what
     keeps the preset's value, what the cycle told only in combination (pooled heats, values
@@ -211,6 +229,7 @@ def not_identified_warning(calibration: ArmCalibration) -> str:
         "that plays its own program (a UR) a run of a taught program that does so "
         "(docs/how-to/universal-robots.md)."
     )
+    parts.append(ADAPT_ADVICE)
     return " ".join(parts)
 
 

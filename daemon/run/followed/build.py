@@ -41,6 +41,15 @@ from drivers.base import OffsetRobot, ProgramControl
 
 logger = logging.getLogger(__name__)
 
+#: Why a followed run does not adapt (arm.adapt, issue 29): its model follows the joint
+#: temperatures through a Kalman filter on the nodes (daemon/arm/joint_temperatures.py) and
+#: feeds no tool measurement to the online estimate of the factors (daemon/arm/adaptation.py),
+#: which only an A465 arm run's step does (daemon/run/arm/step.py).
+NOT_ADAPTING = (
+    "arm.adapt is not honoured by a followed run (a robot that plays its own program): the "
+    "factors stay the arm model's (or the preset's); only an arm run adapts them"
+)
+
 
 async def build_followed(
     builder: RunBuilder, parameters: RunParameters, robot: OffsetRobot
@@ -50,12 +59,16 @@ async def build_followed(
     truth: BenchTruth | None = getattr(devices, "ur_truth", None)
     measurement = await _measurement(builder, devices, robot, truth)
     identified = model.controller.identified  # the arm model (calibrate model), or None
-    snapshot = {
+    snapshot: dict[str, Any] = {
         "kind": FollowedKind.name,
         "arm_model": None if identified is None else identified.provenance(),
     }
     heat, heat_note = _heat(builder.settings, model, robot)
     snapshot["heat_from"] = MEASURED if heat is not None else DUTY_CYCLE
+    if builder.settings.arm.adapt:  # said, not silently ignored (NOT_ADAPTING)
+        snapshot["adapt"] = False
+        snapshot["adapt_note"] = NOT_ADAPTING
+        logger.warning("followed run: %s", NOT_ADAPTING)
     run_id = await builder.create_run(parameters, snapshot, kind=FollowedKind.name)
     return FollowedKind(
         FollowedWork(run_id, parameters),
