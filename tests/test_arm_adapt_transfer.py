@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pytest
 
 from daemon.arm.arm_model import ArmModel
 from daemon.arm.controller import ArmController, ArmModelOptions
@@ -94,6 +95,7 @@ def _prior_sigma(controller: ArmController, name: str) -> float:
     return float(controller.adaptation.prior_sigma[controller.adaptation.names.index(name)])
 
 
+@pytest.mark.slow  # two 4-hour replays: ~3 s alone, ~7 s on a busy machine
 def test_the_run_learns_the_heat_the_calibration_task_could_not_teach() -> None:
     estimates, plain_um, adapted_um = run_on_the_task(calibrated_on_another_task(False))
     heat, sigma = estimates["heat:3"]
@@ -104,6 +106,7 @@ def test_the_run_learns_the_heat_the_calibration_task_could_not_teach() -> None:
     assert adapted_um < 0.3 * plain_um, (adapted_um, plain_um)
 
 
+@pytest.mark.slow  # two 4-hour replays: ~3 s alone, ~7 s on a busy machine
 def test_a_factor_the_model_identified_keeps_its_narrow_prior() -> None:
     """The same run from a model that identified the elbow's heat at 1.0 (2 %): the run does
     not overturn it -- the prior is the identification's, not the preset's wide one."""
