@@ -93,19 +93,25 @@ class Structure:
         return f"bending {'on' if self.bending else 'off'}, room {'sim' if self.room else 'none'}"
 
 
-def settings_in(data_dir: Path, structure: Structure, prediction: str = "model+ir") -> Settings:
-    """The UR bench's settings (config/ur5e-sim.toml) with the model's ``structure``."""
+def settings_in(
+    data_dir: Path, structure: Structure, prediction: str = "model+ir", duty: str | None = None
+) -> Settings:
+    """The UR bench's settings (config/ur5e-sim.toml) with the model's ``structure``; with
+    ``duty`` the program the robot plays (arm.duty_cycle: the followed run's model plays it,
+    its payload heats the motors), else the config's (the UR5e pick-and-place)."""
     data = load_settings(CONFIG).model_dump()
     data["storage"]["data_dir"] = str(data_dir)
     data["model"]["prediction"] = prediction
+    if duty is not None:
+        data["arm"]["duty_cycle"] = duty
     data["arm"]["bending"] = structure.bending
     data["room"]["driver"] = "sim" if structure.room else "none"
     return Settings.model_validate(data)
 
 
-def calibrate(data_dir: Path, run_id: int) -> tuple[dict[str, Any], float]:
-    """The command on the recorded run (its settings are the run's own, recorded with it):
-    its JSON outcome and its wall time (s)."""
+def calibrate(data_dir: Path, run_id: int, save: str = "bench") -> tuple[dict[str, Any], float]:
+    """The command on the recorded run (its settings are the run's own, recorded with it),
+    saved as arm model ``save``: its JSON outcome and its wall time (s)."""
     from api.cli import main
 
     out, err = io.StringIO(), io.StringIO()
@@ -118,7 +124,7 @@ def calibrate(data_dir: Path, run_id: int) -> tuple[dict[str, Any], float]:
                 "--config",
                 str(CONFIG),
                 "--save",
-                "bench",
+                save,
                 "--force",
                 "--data-dir",
                 str(data_dir),
@@ -134,7 +140,9 @@ def calibrate(data_dir: Path, run_id: int) -> tuple[dict[str, Any], float]:
     return json.loads(out.getvalue()), wall
 
 
-def write_truth_factors(data_dir: Path, controller: URController, bending: bool) -> None:
+def write_truth_factors(
+    data_dir: Path, controller: URController, bending: bool, name: str = "truth"
+) -> None:
     """The reference row's arm model: the truth's own factors (each joint's heat, convection,
     alpha, capacity, with ``bending`` its bending share) given to the model, as
     benchmarks/bench_arm_factors.py does; what it leaves is the model's structure (the
@@ -142,7 +150,7 @@ def write_truth_factors(data_dir: Path, controller: URController, bending: bool)
     bench = controller.bench
     config = bench.config
     model = ArmModel(
-        name="truth",
+        name=name,
         arm=controller.arm.name,
         heat_scales=tuple(float(v) for v in bench.heat_scales),
         convection_scale=config.convection_scale,
@@ -151,7 +159,7 @@ def write_truth_factors(data_dir: Path, controller: URController, bending: bool)
         capacity_scale=config.capacity_scale,
         bending_shares=(config.plus_share,) * len(bench.heat_scales) if bending else (),
     )
-    path = new_arm_model_path("truth", data_dir)
+    path = new_arm_model_path(name, data_dir)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(arm_model_toml(model, header="the bench truth's factors"), "utf-8")
 

@@ -105,11 +105,16 @@ def follow_pauses(controller: URController, t_s: float, pauses: Pauses) -> None:
     player.advance(t_s)
 
 
-def emulated(seed: int, truth: dict[str, Any]) -> URController:
+def emulated(seed: int, truth: dict[str, Any], duty: str | None = None) -> URController:
     """The UR bench's controller (seeded truth, the bench's cameras at the program's measured
     poses), its truth replaced by one made to break the model when ``truth`` gives
-    ArmBenchConfig values (heat_scales, convection_scale, ambient_drift_c_per_h...)."""
-    controller = URController(URControllerConfig(seed=seed))
+    ArmBenchConfig values (heat_scales, convection_scale, ambient_drift_c_per_h...); ``duty``
+    the program it plays (a config/duty name), else the controller's default (the UR5e
+    pick-and-place)."""
+    config = URControllerConfig(seed=seed)
+    if duty is not None:
+        config = dataclasses.replace(config, duty=duty)
+    controller = URController(config)
     if truth:
         base = controller.bench.config
         config = dataclasses.replace(base, **truth)
