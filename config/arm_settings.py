@@ -121,11 +121,14 @@ class ArmSettings(Section):
         description="With arm.bending: share of each joint's flange conductance on the link's "
         "motor-housing side (the arm's design; 0.5: symmetric, no gradient across a link).",
     )
-    adapt: StrictBool = Field(
-        False,
+    adapt: StrictBool | None = Field(
+        None,
         description="Estimate each joint's heat, alpha, convection and (arm.bending) the bending "
         "share online from the measured tool and the IR regions, from the preset's or the arm "
-        "model's values (daemon/arm/adaptation.py); the compensation uses the adapted links.",
+        "model's values (daemon/arm/adaptation.py); the compensation uses the adapted links. "
+        "none (the default): on when the run's arm model was calibrated on another duty cycle "
+        "and is not fully calibrated (it says what holds only for its cycle), else off. A "
+        "followed run does not adapt.",
     )
     play_duty_cycle: StrictBool | None = Field(
         None,

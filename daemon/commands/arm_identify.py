@@ -188,14 +188,16 @@ def identify_arm_run(
 #: measurements what this cycle could not teach. Measured on the UR5e's two tasks over 8
 #: plausible truths (docs/explanation/bench-truth.md, "Transfer with the run learning"): the
 #: other task's model alone removed 87.3-96.7 % of the drift (10 of 16 cases >= 93 %),
-#: adapting from it 91.0-98.5 % (15 of 16; the miss at the meter's cap). An arm run adapts
-#: (the A465's); a followed run (a UR playing its own program) does not yet
-#: (daemon/run/followed/build.py NOT_ADAPTING).
+#: adapting from it 91.0-98.5 % (15 of 16; the miss at the meter's cap). An arm run of
+#: another duty cycle adapts from such a model by itself (arm.adapt unset, the default:
+#: daemon/run/arm/setup.py adapts); a followed run (a UR playing its own program) does not
+#: adapt (daemon/run/followed/build.py NOT_ADAPTING): its joint temperatures correct it.
 ADAPT_ADVICE = (
-    "To run this model on another task anyway, set arm.adapt = true (an arm run, the A465's; "
-    "a followed run, a UR's, does not adapt yet): the run then learns from its tool "
-    "measurements what this cycle could not teach (each of these from a wide prior, each "
-    "identified factor from its own standard error)."
+    "An arm run (the A465's) of another task adapts from this model by itself (arm.adapt "
+    "unset, the default; set arm.adapt = true or false to decide): the run then learns from "
+    "its tool measurements what this cycle could not teach (each of these from a wide prior, "
+    "each identified factor from its own standard error); a followed run, a UR's, does not "
+    "adapt (its joint temperatures correct the model)."
 )
 
 

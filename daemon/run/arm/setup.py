@@ -15,7 +15,7 @@ from typing import Any, cast
 
 from config import CONFIG_DIR, Settings
 from config.inputs import InputError
-from daemon.arm.arm_model import load_arm_model, named_arm_model_path
+from daemon.arm.arm_model import ArmModel, load_arm_model, named_arm_model_path
 from daemon.arm.controller import ArmModelOptions
 from daemon.arm.controller_loading import load_controller
 from daemon.arm.run import ArmPredictor, CyclePose, MeasuredPose
@@ -90,6 +90,26 @@ def check_arm_run(settings: Settings, duty_cycle: str | None) -> None:
 ADAPT_MARKER_SIGMA_MM = 0.003
 
 
+def adapts(setting: bool | None, model: ArmModel | None, duty_cycle: str) -> tuple[bool, str]:
+    """Whether an arm run adapts its factors online, and why (arm.adapt; issue 29): as set,
+    else on when its arm model was calibrated on another duty cycle and is not fully
+    calibrated. Such a model holds what its cycle could teach, the rest at the preset or
+    only in combination; the adaptation starts from it, each of those from the wide prior,
+    and learns them on this task (docs/explanation/bench-truth.md, "Transfer with the run
+    learning": UR5e 16 of 16 transfers >= 93 % with 4 frames, 11 of 16 without)."""
+    if setting is not None:
+        return setting, f"arm.adapt = {str(setting).lower()}"
+    # a model saved from a run records the run's duty cycle as given: a name or a file
+    same_cycle = model is not None and Path(model.duty_cycle).stem == Path(duty_cycle).stem
+    if model is None or model.calibrated or not model.duty_cycle or same_cycle:
+        return False, "arm.adapt unset: the preset, or a model calibrated for this run"
+    return True, (
+        f"arm.adapt unset: arm model {model.name!r} was calibrated on {model.duty_cycle!r}, "
+        f"this run plays {duty_cycle!r}, and it holds only for its cycle what it could not "
+        "identify"
+    )
+
+
 def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
     """The controller's model of the arm from the arm file and the run's duty cycle
     (daemon/arm/controller.py), stepped at the run's step in model time."""
@@ -115,7 +135,8 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
     if parameters.prediction == "model+ir":
         controller.enable_observer(settings.ir.noise_c)
     poses = controller.measured_poses(arm_settings.measured_poses)
-    if arm_settings.adapt:  # issue 29: the factors estimated online (daemon/arm/adaptation.py)
+    adapt, adapt_reason = adapts(arm_settings.adapt, identified, controller.duty.name)
+    if adapt:  # issue 29: the factors estimated online (daemon/arm/adaptation.py)
         controller.enable_adaptation(poses, ADAPT_MARKER_SIGMA_MM, settings.ir.noise_c)
     snapshot = {
         "arm": controller.arm.name,
@@ -132,7 +153,8 @@ def default_arm_setup(settings: Settings, parameters: RunParameters) -> ArmPlan:
         "bending": arm_settings.bending,
         "arm_model": None if identified is None else identified.provenance(),
         "prediction": parameters.prediction,
-        "adapt": arm_settings.adapt,
+        "adapt": adapt,
+        "adapt_reason": adapt_reason,
     }
     cycle = controller.cycle_poses(poses)
     if plays_duty_cycle(settings):
