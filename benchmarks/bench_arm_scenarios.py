@@ -20,6 +20,8 @@ measured drift less its prediction:
 - identified+room: the model identified on the calibration program (room readings as its
   ambient), following the room;
 - identified+room+ir: the same with the IR observer;
+- identified+room+adapt: the same model as the adaptation's prior (what an arm run of a task
+  does by itself with arm.adapt unset when the program's model is not fully calibrated);
 - other-cycle+room: identified on the OTHER task's run (B for A, A for B), following the room;
 - other-cycle+room+adapt: the same model as the online adaptation's prior (arm.adapt, room and
   IR): the run learns what the other task could not teach (a parameter the model did not
@@ -29,7 +31,7 @@ measured drift less its prediction:
 
 Targets (issue 29, on plausible truths, 8-hour runs; config/arm_truth.py ``implausible``),
 each over the rows benchmarks/arm_scenarios_report.py ``JUDGED_OVER`` names (the whole run
-unless said): identified+room >= 95 % removed and <= 2x the meter's 1-sigma; other-cycle+room
+unless said): identified+room (and +adapt) >= 95 % removed and <= 2x the meter's 1-sigma; other-cycle+room
 and other-cycle+room+adapt >= 93 %; adapt >= 90 % over the last third; preset+room+ir >= 80 %.
 The meter's 1-sigma is the 3-D scatter of the tool measured on the still, cold arm (30
 measurements), per truth (a truth's cameras may jitter more). Each identification's wall time
@@ -94,6 +96,7 @@ CONTROLLERS = (
     "preset+room+ir",
     "identified+room",
     "identified+room+ir",
+    "identified+room+adapt",
     "other-cycle+room",
     "other-cycle+room+adapt",
     "adapt",
@@ -110,6 +113,7 @@ PLANS: dict[str, tuple[str | None, bool, bool, bool]] = {
     "preset+room+ir": (None, True, False, True),
     "identified+room": ("program", False, False, True),
     "identified+room+ir": ("program", True, False, True),
+    "identified+room+adapt": ("program", False, True, True),
     "other-cycle+room": ("other", False, False, True),
     "other-cycle+room+adapt": ("other", False, True, True),
     "adapt": (None, False, True, True),
