@@ -31,8 +31,9 @@ measured drift less its prediction:
 
 Targets (issue 29, on plausible truths, 8-hour runs; config/arm_truth.py ``implausible``),
 each over the rows benchmarks/arm_scenarios_report.py ``JUDGED_OVER`` names (the whole run
-unless said): identified+room (and +adapt) >= 95 % removed and <= 2x the meter's 1-sigma; other-cycle+room
-and other-cycle+room+adapt >= 93 %; adapt >= 90 % over the last third; preset+room+ir >= 80 %.
+unless said): identified+room (and +adapt) >= 95 % removed and <= 2x the meter's 1-sigma;
+other-cycle+room and other-cycle+room+adapt >= 93 %; adapt >= 90 % over the last third;
+preset+room+ir >= 80 %.
 The meter's 1-sigma is the 3-D scatter of the tool measured on the still, cold arm (30
 measurements), per truth (a truth's cameras may jitter more). Each identification's wall time
 is reported, and the load.
