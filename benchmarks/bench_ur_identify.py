@@ -164,6 +164,20 @@ def write_truth_factors(
     path.write_text(arm_model_toml(model, header="the bench truth's factors"), "utf-8")
 
 
+def identified_factors(outcome: dict[str, Any]) -> dict[str, Any]:
+    """The identified model's factors ([value, standard error, identifiable], the calibrate
+    outcome's refit) and what it flags (not identified, implausible)."""
+    model = outcome["identified"]["arm_model"]
+    return {
+        "parameters": {
+            p["name"]: [p["value"], p["standard_error"], p["identifiable"]]
+            for p in outcome["identified"]["refit"]["parameters"]
+        },
+        "not_identified": model.get("not_identified"),
+        "implausible": model.get("implausible"),
+    }
+
+
 def one(
     name: str, seed: int, truth: dict[str, Any], hours: float, structure: Structure
 ) -> dict[str, Any]:
@@ -176,7 +190,6 @@ def one(
         )
         record_cpu = time.process_time() - began
         outcome, identify_wall = calibrate(data_dir, run_id)
-        model = outcome["identified"]["arm_model"]
         controller = emulated(seed, truth)
         write_truth_factors(data_dir, controller, structure.bending)
         rows = compensated_removal(
@@ -191,18 +204,12 @@ def one(
             sample_s=SAMPLE_S,
         )
     sigma_um = UM_PER_MM * sum(sigmas_mm) / len(sigmas_mm)
-    refit = outcome["identified"]["refit"]
     return {
         "scenario": name,
         "measurements": len(sigmas_mm),
         "sigma_um": sigma_um,
         "rows": rows,
-        "parameters": {
-            p["name"]: [p["value"], p["standard_error"], p["identifiable"]]
-            for p in refit["parameters"]
-        },
-        "not_identified": model.get("not_identified"),
-        "implausible": model.get("implausible"),
+        **identified_factors(outcome),
         "record_cpu_s": record_cpu,
         "identify_wall_s": identify_wall,
     }

@@ -40,11 +40,12 @@ from benchmarks.bench_ur_identify import (
     CONFIG,
     HOURS,
     MEASURE_EVERY_S,
-    NOMINAL,
     SAMPLE_S,
     UM_PER_MM,
     Structure,
     calibrate,
+    identified_factors,
+    scenarios,
     settings_in,
     write_truth_factors,
 )
@@ -58,25 +59,8 @@ TARGET = 0.93
 
 #: bench_ur_identify.py's scenarios this task measures: the nominal bench and the two that
 #: move the motors' heat (the factor a program's motion identifies).
-SCENARIOS: list[tuple[str, int, dict[str, Any]]] = [
-    *NOMINAL,
-    ("wrist motors x0.6", 1, {"heat_scales": (1.0, 1.0, 1.0, 0.6, 0.6, 0.6)}),
-    ("motors x1.6", 1, {"heat_scales": (1.6,) * 6}),
-]
-
-
-def _factors(outcome: dict[str, Any]) -> dict[str, Any]:
-    """The identified model's factors and flags (the calibrate outcome's refit)."""
-    model = outcome["identified"]["arm_model"]
-    refit = outcome["identified"]["refit"]
-    return {
-        "parameters": {
-            p["name"]: [p["value"], p["standard_error"], p["identifiable"]]
-            for p in refit["parameters"]
-        },
-        "not_identified": model.get("not_identified"),
-        "implausible": model.get("implausible"),
-    }
+MEASURED = ("nominal seed 1", "wrist motors x0.6", "motors x1.6")
+SCENARIOS = [{s[0]: s for s in scenarios(quick=False)}[name] for name in MEASURED]
 
 
 def one(
@@ -103,7 +87,7 @@ def one(
             if recorded != duty:  # the check the transfer rests on
                 raise SystemExit(f"model on-{key} identified on {recorded!r}, not {duty!r}")
             out["identified"][key] = {
-                **_factors(outcome),
+                **identified_factors(outcome),
                 "duty_cycle": recorded,
                 "record_cpu_s": record_cpu,
                 "identify_wall_s": wall,
