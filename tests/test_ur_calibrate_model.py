@@ -29,7 +29,7 @@ from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.storage.recorder import DATABASE_NAME
 from drivers.clock import make_clock
-from tests.fakes import make_settings, params
+from tests.fakes import Gate, make_settings, params
 from tests.helpers import REPO_ROOT, run_main
 from tests.loopback import loopback_host
 from tests.test_followed_kind import WAIT_S, FollowedDevices
@@ -187,17 +187,29 @@ async def test_an_uncompensated_followed_run_writes_zero_corrections(tmp_path: P
         async with asyncio.timeout(WAIT_S):
             while len(robot.commands) < 5:  # noqa: ASYNC110 -- the fake has no event
                 await asyncio.sleep(0.01)
-        await daemon.stop()
+            # the stop comes while a step's correction is on its way to the robot (as it did
+            # once under load): the stop's hold is first, so that correction is refused
+            in_flight = robot.move_gate = Gate()
+            await in_flight.reached.wait()
+            stopping = asyncio.create_task(daemon.stop())
+            while not robot.status().motion_held:  # noqa: ASYNC110 -- the fake has no event
+                await asyncio.sleep(0.001)
+            in_flight.open()
+            await stopping
     assert not np.any(robot.correction.translation_mm)
     assert not np.any(robot.correction.rotation_rad)
     with sqlite3.connect(tmp_path / DATABASE_NAME) as db:
         rows = db.execute(
             "SELECT correction_tx_mm, correction_ty_mm, correction_tz_mm, predicted_tx_um, "
-            "predicted_ty_um, predicted_tz_um FROM steps WHERE run_id = ?",
+            "predicted_ty_um, predicted_tz_um, flags FROM steps WHERE run_id = ? ORDER BY step",
             (info["id"],),
         ).fetchall()
-    assert len(rows) >= 5 and all(row[:3] == (0.0, 0.0, 0.0) for row in rows)
-    assert max(abs(v) for row in rows for v in row[3:]) > 0.1  # um: the model did predict
+    # every step sent a zero correction but the one in flight at the stop: refused by the
+    # stop's hold, it is recorded without a correction, flagged robot-error
+    *commanded, refused = rows
+    assert len(commanded) >= 5 and all(row[:3] == (0.0, 0.0, 0.0) for row in commanded)
+    assert refused[:3] == (None, None, None) and "robot-error" in refused[6].split(","), refused
+    assert max(abs(v) for row in rows for v in row[3:6]) > 0.1  # um: the model did predict
 
 
 @pytest.mark.slow
