@@ -346,7 +346,12 @@ async def test_an_error_while_ending_still_ends_the_run(
 async def test_blocked_api_reads_do_not_stall_the_control_loop(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    settings = api_settings(make_settings(tmp_path, bench={"clock": "accelerated"}))
+    # a run long enough to outlast the reads' setup on a loaded machine: the suite's default
+    # minute ends in ~0.6 s of wall time at the accelerated clock, and beside two busy loops it
+    # once ended before ten more steps could be counted
+    settings = api_settings(
+        make_settings(tmp_path, bench={"clock": "accelerated"}, scheduler={"duration_s": 86400.0})
+    )
     harness = Harness(settings)
     app = create_app(settings, service_factory=lambda _settings: harness.daemon)
     reading, release = threading.Semaphore(0), threading.Event()
