@@ -95,7 +95,7 @@ class PoseReferences:
 
     def __init__(self, run: ArmRunData, mask: NDArray[np.bool_]) -> None:
         self.mask = mask
-        poses = np.unique(run.pose_index) if run.reference_fitted else []
+        poses = np.unique(run.pose_index) if run.reference_fitted else np.zeros(0, np.intp)
         self.rows = [rows for p in poses if (rows := run.pose_index == p).any()]
 
     @property
