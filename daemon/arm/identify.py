@@ -25,6 +25,9 @@ factor set, forward differences of those while the fit iterates and central ones
 solution (its covariance). The markers' displacement is linear in each link's
 strain and bend (daemon/arm/response.py marker_sensitivity).
 
+A run whose displacements are relative to one camera measurement of each pose
+(``ArmRunData.reference_fitted``) has that reference's error fitted (response.PoseReferences).
+
 :func:`daemon.arm.identify_final.identify_arm_final` is the calibration's whole fit: every
 parameter, then the identifiable ones refitted until the refit's own report says each is
 identified; the flags come from that FINAL fit, and a parameter dropped on the way keeps its
@@ -60,6 +63,7 @@ from daemon.arm.response import (
     SENSITIVITY_STRAIN,
     ArmModelSpec,
     ArmRunData,
+    PoseReferences,
     Responses,
     marker_sensitivity,
     responses,
@@ -153,6 +157,7 @@ class _ArmProblem:
         displacement = run.marker_displacement_mm.reshape(run.time_s.size, -1)
         self.measured_markers = displacement
         self.marker_mask = np.isfinite(displacement)
+        self.references = PoseReferences(run, self.marker_mask)
         self.measured_regions = (
             np.column_stack([run.region_c[r] for r in self.region_names])
             if self.region_names
@@ -228,7 +233,7 @@ class _ArmProblem:
     def _weigh(self, markers: FloatArray, regions: FloatArray) -> FloatArray:
         return np.concatenate(
             [
-                markers[self.marker_mask] / self.marker_sigma_mm,
+                self.references.centred(markers)[self.marker_mask] / self.marker_sigma_mm,
                 regions[self.region_mask] / self.temperature_sigma_c,
             ]
         )
@@ -236,7 +241,7 @@ class _ArmProblem:
     def raw(self, values: FloatArray) -> tuple[FloatArray, FloatArray]:
         markers, regions = self.predictions(values)
         return (
-            (markers - self.measured_markers)[self.marker_mask],
+            self.references.centred(markers - self.measured_markers)[self.marker_mask],
             (regions - self.measured_regions)[self.region_mask],
         )
 
@@ -341,8 +346,9 @@ def _identify_arm(
     specs = _checked_specs(run, model, parameters)
     problem = _ArmProblem(run, model, specs)
     count = int(problem.marker_mask.sum() + problem.region_mask.sum())
-    if count <= len(specs):
-        raise IdentificationError(f"{count} measurements cannot fit {len(specs)} parameters")
+    unknowns = len(specs) + problem.references.count
+    if count <= unknowns:
+        raise IdentificationError(f"{count} measurements cannot fit {unknowns} unknowns")
     lower = np.array([s.bounds[0] for s in specs])
     upper = np.array([s.bounds[1] for s in specs])
     values = np.clip(initial_values(specs, problem.prior_shares), lower, upper)
@@ -383,7 +389,7 @@ def _identify_arm(
             max(quality.temperature_rms_c or temperature_sigma_c, 1e-4),
         )
     jacobian_at = problem.jacobian(values)
-    variance = residual_variance(problem.weighted(values), len(specs))
+    variance = residual_variance(problem.weighted(values), unknowns)
     fitted, correlation, warnings = uncertainty(specs, values, jacobian_at, variance)
     fitted, warnings, entangled = _with_groups(fitted, warnings, jacobian_at, correlation)
     return ArmIdentification(
@@ -455,7 +461,9 @@ def evaluate_arm(
         values = np.array([value for _, value in pairs], dtype=np.float64)
     if len(model.sensitivities) <= int(run.pose_index.max()):
         raise IdentificationError(f"{run.name}: a measurement names a pose with no sensitivity")
-    return _ArmProblem(run, model, specs).quality(values)
+    # as measured: a validation refits nothing, not even its references' errors
+    exact = dataclasses.replace(run, reference_fitted=False)
+    return _ArmProblem(exact, model, specs).quality(values)
 
 
 __all__ = [

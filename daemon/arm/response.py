@@ -45,7 +45,15 @@ class ArmRunData:
     on the heat grid, from a cold start at ambient): ``pose_index`` (K,) says which measured
     pose, ``marker_displacement_mm`` (K x M x 3) the markers' measured positions minus their
     cold positions at that pose (NaN where missing), ``region_c`` each IR region's mean
-    (K,), NaN where missing."""
+    (K,), NaN where missing.
+
+    ``reference_fitted``: the displacements are relative to a pose's reference MEASUREMENT
+    (one camera measurement, noisy like any other), not to its true cold pose: the fit then
+    takes each pose's reference error as unknown (a constant per pose and axis, projected out
+    of the tool's residuals, daemon/arm/identify.py). Taken as exact, that one error is in
+    every later sample of its pose, and the fit reads its part along the drift as a scale:
+    on the UR5e's followed runs it put alpha 1.3-2.5 % high (1.002-1.082 on five noise seeds of
+    one 2-h run, 2-9 of its own standard errors either way; 1.050-1.054 with it fitted)."""
 
     heat_step_s: float
     joint_heat_w: FloatArray
@@ -55,6 +63,7 @@ class ArmRunData:
     marker_displacement_mm: FloatArray
     region_c: Mapping[str, FloatArray]
     name: str = "calibration cycle"
+    reference_fitted: bool = False
 
     def __post_init__(self) -> None:
         steps, _ = self.joint_heat_w.shape
@@ -75,6 +84,36 @@ class ArmRunData:
     def grid_index(self) -> IntArray:
         """Each measurement's index on the heat grid (0 = the start)."""
         return np.asarray(np.rint(self.time_s / self.heat_step_s), dtype=np.intp)
+
+
+class PoseReferences:
+    """Each measured pose's reference error as an unknown of the fit, when ``run`` says its
+    displacements are relative to a reference measurement (ArmRunData.reference_fitted): one
+    constant per pose and axis, eliminated by taking the tool's residuals (and so their
+    derivatives: variable projection) relative to their mean over that pose's samples.
+    ``mask`` (K x 3M): the samples measured."""
+
+    def __init__(self, run: ArmRunData, mask: NDArray[np.bool_]) -> None:
+        self.mask = mask
+        poses = np.unique(run.pose_index) if run.reference_fitted else np.zeros(0, np.intp)
+        self.rows = [rows for p in poses if (rows := run.pose_index == p).any()]
+
+    @property
+    def count(self) -> int:
+        """The constants eliminated (a pose and axis with a sample): degrees of freedom lost."""
+        return sum(int(self.mask[rows].any(axis=0).sum()) for rows in self.rows)
+
+    def centred(self, values: FloatArray) -> FloatArray:
+        """``values`` (K x 3M) less their mean over the measured samples of each pose and
+        axis; unchanged when the references are exact."""
+        if not self.rows:
+            return values
+        out = values.copy()
+        for rows in self.rows:
+            mask, block = self.mask[rows], out[rows]
+            mean = np.where(mask, block, 0.0).sum(axis=0) / np.maximum(mask.sum(axis=0), 1)
+            out[rows] = block - mean
+        return out
 
 
 @dataclass(frozen=True)
@@ -214,6 +253,7 @@ __all__ = [
     "ArmModelSpec",
     "ArmRunData",
     "IntArray",
+    "PoseReferences",
     "Responses",
     "marker_sensitivity",
     "responses",

@@ -72,12 +72,15 @@ def assemble_arm_run(
     regions: Mapping[str, Sequence[int]],
     pose_q_rad: Sequence[FloatArray],
     duty_cycle: str,
+    reference_fitted: bool = False,
 ) -> ArmRun:
     """The run as identification sees it, from what a reader walked out of its steps: the
     motor heat of the run's duty cycle on identification's step up to the last kept step, the
     room's readings as the ambient (none: ``model.ambient_c``), and the sensitivities of the
     tool point at the measured poses' joints. One assembly for both readers (the A465's arm
-    run and a UR's followed run: daemon/commands/arm_identify.py, followed_identify.py)."""
+    run and a UR's followed run: daemon/commands/arm_identify.py, followed_identify.py).
+    ``reference_fitted``: each pose's displacements are relative to one camera measurement
+    there, whose error the fit takes as unknown (ArmRunData.reference_fitted)."""
     steps = math.ceil(max(rows.times_s) / IDENTIFY_STEP_S) + 1
     heat = np.array(
         [
@@ -98,6 +101,7 @@ def assemble_arm_run(
             r: np.array([reading.get(r, math.nan) for reading in rows.readings]) for r in regions
         },
         name=name,
+        reference_fitted=reference_fitted,
     )
     spec = ArmModelSpec(
         description=controller.thermal.description,
