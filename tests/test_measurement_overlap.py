@@ -71,9 +71,14 @@ async def test_the_next_step_moves_while_a_step_still_measures(tmp_path: Path) -
         steps = daemon.recorder.steps(final["id"])
     assert final["state"] == "stopped"
     assert [s.step for s in steps] == list(range(len(steps)))  # all of them, in order
-    assert all(s.flags == "" for s in steps)
-    drift = np.array([s.drift_x_um for s in steps])
-    predicted = np.array([s.predicted_x_um for s in steps])
+    # flag-free, but for a move the stop's hold may have refused in flight (its last step; the
+    # race two other tests of the suite met by chance)
+    flagged = [(s.step, s.flags) for s in steps if s.flags]
+    assert flagged in ([], [(steps[-1].step, "robot-error")]), flagged
+    moved = steps[: len(steps) - len(flagged)]
+    assert len(moved) >= 7  # steps 0 to 6 were recorded before the stop
+    drift = np.array([s.drift_x_um for s in moved])
+    predicted = np.array([s.predicted_x_um for s in moved])
     # each record's centroid is its own step's frame: the drift follows the prediction to
     # within the noise-free centroid's error, where one step's growth is ten times that
     np.testing.assert_allclose(drift, predicted - predicted[0], atol=0.05)
