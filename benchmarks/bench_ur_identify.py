@@ -215,6 +215,14 @@ def one(
     }
 
 
+def fit_summary(fit: dict[str, Any]) -> str:
+    """One calibration's flags and costs, as both UR benchmarks print them."""
+    return (
+        f"not identified {fit['not_identified']}, implausible {fit['implausible']}, record "
+        f"CPU {fit['record_cpu_s']:.0f} s, identification {fit['identify_wall_s']:.1f} s"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="2 h, nominal only")
@@ -284,8 +292,7 @@ def main() -> None:
     for r in results["runs"]:
         print(
             f"{r['scenario']}: {r['measurements']} measurements, sigma {r['sigma_um']:.2f} um, "
-            f"not identified {r['not_identified']}, implausible {r['implausible']}, record CPU "
-            f"{r['record_cpu_s']:.0f} s, identification {r['identify_wall_s']:.1f} s"
+            + fit_summary(r)
         )
     print(f"load (1 min) before/after: {results['load_1min']}")
     write_results(args.name, results)

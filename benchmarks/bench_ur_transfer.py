@@ -44,6 +44,7 @@ from benchmarks.bench_ur_identify import (
     UM_PER_MM,
     Structure,
     calibrate,
+    fit_summary,
     identified_factors,
     scenarios,
     settings_in,
@@ -175,11 +176,7 @@ def main() -> None:
     )  # fmt: skip
     for r in results["scenarios"]:
         for key, f in r["identified"].items():
-            print(
-                f"{r['scenario']}: on-{key}: not identified {f['not_identified']}, implausible "
-                f"{f['implausible']}, record CPU {f['record_cpu_s']:.0f} s, identification "
-                f"{f['identify_wall_s']:.1f} s, sigma {r['sigma_um'][key]:.2f} um"
-            )
+            print(f"{r['scenario']}: on-{key}: {fit_summary(f)}, sigma {r['sigma_um'][key]:.2f} um")
     print(f"load (1 min) before/after: {results['load_1min']}")
     write_results(args.name, results)
 

@@ -450,6 +450,23 @@ class FakeDevices(OpenedDevices):
         self.ir = FakeIr(clock)
 
 
+async def stop_with_a_move_in_flight(
+    daemon: Daemon, robot: FakeRobot, timeout_s: float = 60.0
+) -> dict[str, Any]:
+    """Stop the run while its next move waits on its way to the robot (a gate), the race a
+    loaded machine makes by chance: the stop's hold comes first, then the move goes on and is
+    refused. Returns the stop's answer."""
+    gate = Gate()
+    robot.move_gate = gate
+    async with asyncio.timeout(timeout_s):
+        await gate.reached.wait()
+        stopping = asyncio.create_task(daemon.stop())
+        while not robot.held:  # noqa: ASYNC110 -- the fake's permit has no event
+            await asyncio.sleep(0.001)
+        gate.open()
+        return await stopping
+
+
 def make_settings(tmp_path: Path, **sections: dict[str, Any]) -> Settings:
     data: dict[str, Any] = {
         "storage": {"data_dir": str(tmp_path), "report_at_end": False},

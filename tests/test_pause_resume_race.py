@@ -22,7 +22,7 @@ import pytest
 from daemon.run.states import RunState
 from daemon.service import Daemon
 from daemon.storage.recorder import StepRecord
-from tests.fakes import Gate, Harness, make_settings, params
+from tests.fakes import Gate, Harness, make_settings, params, stop_with_a_move_in_flight
 
 WAIT_S = 60.0  # bound of every wait: a hang fails, never blocks the suite
 
@@ -107,14 +107,7 @@ async def test_a_stale_verdict_does_not_fault_the_run_resumed_before_it_was_judg
         assert daemon.run.state is RunState.RUNNING and not harness.robot.held
         # the stop comes while a move is in flight (as it once did by chance in a quiet
         # suite): the stop holds first, so that move is refused too, on the run's last step
-        gate = Gate()
-        harness.robot.move_gate = gate
-        async with asyncio.timeout(WAIT_S):
-            await gate.reached.wait()
-        stopping = asyncio.create_task(daemon.stop())
-        await until(lambda: harness.robot.held)
-        gate.open()
-        final = await stopping
+        final = await stop_with_a_move_in_flight(daemon, harness.robot, WAIT_S)
         steps = recorder.steps(final["id"])
     assert final["state"] == "stopped"
     assert [s.step for s in steps] == list(range(len(steps)))

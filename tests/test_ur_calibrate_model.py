@@ -29,7 +29,7 @@ from daemon.run.states import RunParameters
 from daemon.service import Daemon
 from daemon.storage.recorder import DATABASE_NAME
 from drivers.clock import make_clock
-from tests.fakes import Gate, make_settings, params
+from tests.fakes import make_settings, params, stop_with_a_move_in_flight
 from tests.helpers import REPO_ROOT, run_main
 from tests.loopback import loopback_host
 from tests.test_followed_kind import WAIT_S, FollowedDevices
@@ -187,15 +187,9 @@ async def test_an_uncompensated_followed_run_writes_zero_corrections(tmp_path: P
         async with asyncio.timeout(WAIT_S):
             while len(robot.commands) < 5:  # noqa: ASYNC110 -- the fake has no event
                 await asyncio.sleep(0.01)
-            # the stop comes while a step's correction is on its way to the robot (as it did
-            # once under load): the stop's hold is first, so that correction is refused
-            in_flight = robot.move_gate = Gate()
-            await in_flight.reached.wait()
-            stopping = asyncio.create_task(daemon.stop())
-            while not robot.status().motion_held:  # noqa: ASYNC110 -- the fake has no event
-                await asyncio.sleep(0.001)
-            in_flight.open()
-            await stopping
+        # the stop comes while a step's correction is on its way to the robot (as it did
+        # once under load): the stop's hold is first, so that correction is refused
+        await stop_with_a_move_in_flight(daemon, robot, WAIT_S)
     assert not np.any(robot.correction.translation_mm)
     assert not np.any(robot.correction.rotation_rad)
     with sqlite3.connect(tmp_path / DATABASE_NAME) as db:
